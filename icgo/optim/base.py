@@ -1,0 +1,471 @@
+"""Shared interface of the population optimizers and the lax.scan runner.
+
+Every optimizer in :mod:`icgo.optim` is an :class:`Algorithm` registered in
+:data:`OPTIMIZERS` under a short name (``cgo``, ``pso``, ``ga``, ``sma``, ...).
+An algorithm is a pair of pure functions over a :class:`State` NamedTuple::
+
+    state = alg.init(key, fitness, bounds, pop_size, config, aux=None)
+    state = alg.step(state, key, t, T, fitness)
+
+or, with the fitness closed over (the form the issue asks for)::
+
+    opt = bind("cgo", fitness, bounds, pop_size, config)
+    state = opt.init(key, aux)            # aux: per-repeat data or None
+    state = opt.step(state, key, t, T)    # t = 0 .. T-1 (int), T static int
+
+Design choices (read before building on this):
+
+* **Fitness** is a batched, jax-traceable function ``fitness(pop) -> (P,)`` or,
+  when the run is given ``aux`` (any pytree, e.g. a per-repeat data split),
+  ``fitness(pop, aux) -> (P,)``. The rule is simple: ``aux is None`` ->
+  ``fitness(pop)``, otherwise ``fitness(pop, aux)``. Minimisation. A fitness may
+  return ``+inf`` for bad candidates; NaN is mapped to ``+inf`` by
+  :func:`evaluate`, so selection drops such candidates and nothing NaN escapes.
+  The fitness is a *static* argument of the jitted runner: pass the same
+  function object to reuse the compiled program (a fresh lambda recompiles).
+* **Config** (hyperparameters) is one frozen dataclass per algorithm,
+  registered as a JAX pytree: numeric fields are *data* (traced, vmappable),
+  fields listed as ``meta`` (e.g. CGO ``variant``) are static and select code.
+  ``alg.config_cls()`` gives the defaults.
+* **Context**: bounds, config and aux travel inside the state
+  (``state.ctx``), so ``step`` needs no other data and a whole repeat is
+  described by ``(key, aux, config)``: exactly what ``run_batch`` vmaps.
+* **Strategies** (CGO 4th-seed mutation, see :mod:`icgo.optim.mutation`) are
+  the integer data field ``config.strategy``; ``run_batch(strategies=...)``
+  vmaps over it, so 5 strategies x R repeats is one jitted call.
+* **Evaluation counting**: ``state.n_evals`` counts fitness evaluations
+  (initial population included). CGO spends 4 per seed per iteration, PSO/SMA
+  1 per member, GA 1 per offspring. ``alg.evals(pop_size, config)`` returns
+  ``(initial, per_iteration)``; a budget ``max_evals`` is converted to the
+  static iteration count ``(max_evals - initial) // per_iteration``.
+* **Keys**: the runner splits its key into an init key and one key per
+  iteration; algorithms split the step key further and never reuse one.
+
+Adding an optimizer: write ``init_fn(key, fitness, lb, ub, pop_size, config,
+aux) -> State`` and ``step_fn(state, key, t, T, fitness) -> State`` using the
+helpers here (:func:`evaluate`, :func:`uniform_population`,
+:func:`update_best`), then ``register(Algorithm(...))`` at import time and
+import the module in ``icgo/optim/__init__.py``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from functools import partial
+from typing import Any, Callable, NamedTuple, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import lax
+
+Array = jax.Array
+Fitness = Callable[..., Array]
+
+
+class Context(NamedTuple):
+    """Constant per-run data carried in the state.
+
+    Attributes:
+        lb: lower bounds, shape (D,).
+        ub: upper bounds, shape (D,).
+        config: the algorithm's config pytree (hyperparameters).
+        aux: per-run data handed to the fitness (any pytree) or None.
+    """
+
+    lb: Array
+    ub: Array
+    config: Any
+    aux: Any
+
+
+class State(NamedTuple):
+    """Optimizer state shared by every algorithm.
+
+    Attributes:
+        pop: population, shape (P, D).
+        fit: fitness of ``pop``, shape (P,); +inf marks invalid candidates.
+        best_x: best point found so far, shape (D,).
+        best_f: its fitness, shape ().
+        n_evals: fitness evaluations spent so far (int32, shape ()).
+        extra: algorithm-specific pytree (PSO velocities, CGO chaos state, ...).
+        ctx: :class:`Context` (bounds, config, aux).
+    """
+
+    pop: Array
+    fit: Array
+    best_x: Array
+    best_f: Array
+    n_evals: Array
+    extra: Any
+    ctx: Context
+
+
+class RunResult(NamedTuple):
+    """Result of :func:`run` (leading batch axes added by :func:`run_batch`).
+
+    Attributes:
+        best_x: best point, shape (..., D).
+        best_f: best fitness, shape (...).
+        curve: best-so-far fitness after each iteration, shape (..., n_iter).
+        evals_curve: cumulative evaluations after each iteration, (..., n_iter).
+        n_evals: total evaluations, shape (...).
+    """
+
+    best_x: Array
+    best_f: Array
+    curve: Array
+    evals_curve: Array
+    n_evals: Array
+
+
+class Algorithm(NamedTuple):
+    """A registered optimizer.
+
+    Attributes:
+        name: registry name.
+        config_cls: config dataclass (pytree); ``config_cls()`` = defaults.
+        init_fn: ``(key, fitness, lb, ub, pop_size, config, aux) -> State``.
+        step_fn: ``(state, key, t, T, fitness) -> State``.
+        evals: ``(pop_size, config) -> (initial, per_iteration)`` evaluations.
+    """
+
+    name: str
+    config_cls: type
+    init_fn: Callable
+    step_fn: Callable
+    evals: Callable[[int, Any], tuple[int, int]]
+
+    def init(self, key, fitness, bounds, pop_size, config=None, aux=None) -> State:
+        """Initial state (eq. 11: uniform population), validated inputs.
+
+        Args:
+            key: PRNG key.
+            fitness: batched fitness, see module docstring.
+            bounds: ``(lb, ub)`` pair of (D,) arrays, or a (D, 2) array.
+            pop_size: population size P (>= 4).
+            config: config pytree or None for the defaults.
+            aux: per-run data for the fitness, or None.
+
+        Returns:
+            State with the evaluated initial population.
+        """
+        lb, ub = check_bounds(bounds)
+        check_pop_size(pop_size)
+        config = self.config_cls() if config is None else config
+        return self.init_fn(key, fitness, lb, ub, int(pop_size), config, aux)
+
+    def step(self, state: State, key, t, T, fitness) -> State:
+        """One iteration ``t`` (0-based) of ``T``; pure, jit/vmap friendly."""
+        return self.step_fn(state, key, t, T, fitness)
+
+
+class Bound(NamedTuple):
+    """An algorithm with fitness, bounds, population size and config closed over.
+
+    Attributes:
+        init: ``(key, aux=None) -> State``.
+        step: ``(state, key, t, T) -> State``.
+        algorithm: the underlying :class:`Algorithm`.
+    """
+
+    init: Callable
+    step: Callable
+    algorithm: Algorithm
+
+
+OPTIMIZERS: dict[str, Algorithm] = {}
+
+
+def register(alg: Algorithm) -> Algorithm:
+    """Add ``alg`` to :data:`OPTIMIZERS` (called by each module at import)."""
+    OPTIMIZERS[alg.name] = alg
+    return alg
+
+
+def get(name: str) -> Algorithm:
+    """Look up an optimizer by name; ValueError naming the choices if unknown."""
+    import icgo.optim  # noqa: F401  (populates the registry)
+
+    if not isinstance(name, str) or name not in OPTIMIZERS:
+        raise ValueError(f"unknown optimizer {name!r}; choose one of {sorted(OPTIMIZERS)}")
+    return OPTIMIZERS[name]
+
+
+def bind(name: str, fitness: Fitness, bounds, pop_size: int, config=None) -> Bound:
+    """Close an optimizer over its fitness, bounds, population size and config.
+
+    Returns:
+        :class:`Bound` with ``init(key, aux=None)`` and ``step(state, key, t, T)``.
+    """
+    alg = get(name)
+    lb, ub = check_bounds(bounds)
+    check_pop_size(pop_size)
+    config = alg.config_cls() if config is None else config
+
+    def init(key, aux=None):
+        return alg.init_fn(key, fitness, lb, ub, int(pop_size), config, aux)
+
+    def step(state, key, t, T):
+        return alg.step_fn(state, key, t, T, fitness)
+
+    return Bound(init, step, alg)
+
+
+# ----------------------------------------------------------------------------
+# helpers for algorithm implementations
+# ----------------------------------------------------------------------------
+
+
+def evaluate(fitness: Fitness, pop: Array, aux: Any) -> Array:
+    """Evaluate a population; NaN -> +inf; shape checked at trace time.
+
+    Args:
+        fitness: ``fitness(pop)`` (aux None) or ``fitness(pop, aux)``.
+        pop: candidates, shape (P, D).
+        aux: per-run data or None.
+
+    Returns:
+        Fitness values, shape (P,), same float dtype as ``pop``.
+    """
+    f = fitness(pop) if aux is None else fitness(pop, aux)
+    f = jnp.asarray(f)
+    if f.shape != (pop.shape[0],):
+        raise ValueError(
+            f"fitness must return shape ({pop.shape[0]},) for a population of shape "
+            f"{tuple(pop.shape)}, got {tuple(f.shape)}"
+        )
+    f = f.astype(pop.dtype)
+    return jnp.where(jnp.isnan(f), jnp.inf, f)
+
+
+def uniform_population(key, lb: Array, ub: Array, pop_size: int) -> Array:
+    """Uniform random population in the box (ICGO paper eq. 11), shape (P, D)."""
+    u = jax.random.uniform(key, (pop_size, lb.shape[0]), dtype=lb.dtype)
+    return lb + u * (ub - lb)
+
+
+def update_best(best_x: Array, best_f: Array, pop: Array, fit: Array):
+    """Return the better of the incumbent and the best member of ``pop``."""
+    i = jnp.argmin(fit)
+    better = fit[i] < best_f
+    return jnp.where(better, pop[i], best_x), jnp.where(better, fit[i], best_f)
+
+
+def finite_fitness(fit: Array) -> Array:
+    """Replace +inf by (largest finite value + 1) for rank/weight formulas."""
+    finite = jnp.isfinite(fit)
+    worst = jnp.max(jnp.where(finite, fit, -jnp.inf))
+    worst = jnp.where(jnp.isfinite(worst), worst, 0.0)
+    return jnp.where(finite, fit, worst + 1.0 + jnp.abs(worst))
+
+
+def first_state(fitness, lb, ub, pop, config, aux, extra, n_evals=None) -> State:
+    """Evaluate ``pop`` and build a :class:`State` (helper for ``init_fn``)."""
+    fit = evaluate(fitness, pop, aux)
+    i = jnp.argmin(fit)
+    n = pop.shape[0] if n_evals is None else n_evals
+    return State(pop, fit, pop[i], fit[i], jnp.asarray(n, jnp.int32), extra,
+                 Context(lb, ub, config, aux))
+
+
+# ----------------------------------------------------------------------------
+# validation
+# ----------------------------------------------------------------------------
+
+
+def check_bounds(bounds) -> tuple[Array, Array]:
+    """Validate bounds; return float ``(lb, ub)`` arrays of shape (D,).
+
+    Args:
+        bounds: ``(lb, ub)`` with 1-D array-likes of equal length, or a (D, 2)
+            array of ``[lower, upper]`` rows.
+
+    Raises:
+        ValueError: wrong shape, non-finite values or lb >= ub anywhere.
+    """
+    try:
+        if isinstance(bounds, (tuple, list)) and len(bounds) == 2:
+            lb, ub = np.asarray(bounds[0], float), np.asarray(bounds[1], float)
+        else:
+            b = np.asarray(bounds, float)
+            if b.ndim != 2 or b.shape[1] != 2:
+                raise ValueError
+            lb, ub = b[:, 0], b[:, 1]
+    except (TypeError, ValueError):
+        raise ValueError("bounds must be (lb, ub) with 1-D arrays of length D, or a (D, 2) array") from None
+    if lb.ndim != 1 or lb.shape != ub.shape or lb.shape[0] < 1:
+        raise ValueError(f"bounds: lb and ub must be 1-D of equal length >= 1, got shapes {lb.shape} and {ub.shape}")
+    if not (np.all(np.isfinite(lb)) and np.all(np.isfinite(ub))):
+        raise ValueError("bounds must be finite")
+    bad = np.flatnonzero(lb >= ub)
+    if bad.size:
+        j = int(bad[0])
+        raise ValueError(f"bounds: lower bound >= upper bound in dimension {j} ({lb[j]} >= {ub[j]})")
+    return jnp.asarray(lb), jnp.asarray(ub)
+
+
+def check_pop_size(pop_size) -> None:
+    """Raise ValueError unless ``pop_size`` is an int >= 4."""
+    if isinstance(pop_size, bool) or not isinstance(pop_size, (int, np.integer)) or pop_size < 4:
+        raise ValueError(f"pop_size must be an integer >= 4, got {pop_size!r}")
+
+
+def iterations_for_budget(name: str, pop_size: int, max_evals: int, config=None) -> int:
+    """Static iteration count that spends at most ``max_evals`` evaluations.
+
+    Raises:
+        ValueError: if the budget does not cover the initial population plus
+            one iteration.
+    """
+    alg = get(name)
+    config = alg.config_cls() if config is None else config
+    first, per = alg.evals(int(pop_size), config)
+    n = (int(max_evals) - first) // per
+    if n < 1:
+        raise ValueError(
+            f"evaluation budget {max_evals} is smaller than one iteration of {name} "
+            f"with pop_size {pop_size} (needs {first} + {per})"
+        )
+    return n
+
+
+def _resolve_iters(name, pop_size, n_iter, max_evals, config) -> int:
+    if (n_iter is None) == (max_evals is None):
+        raise ValueError("give exactly one stop criterion: n_iter or max_evals")
+    if max_evals is not None:
+        return iterations_for_budget(name, pop_size, max_evals, config)
+    if isinstance(n_iter, bool) or not isinstance(n_iter, (int, np.integer)) or n_iter < 1:
+        raise ValueError(f"n_iter must be an integer >= 1, got {n_iter!r}")
+    return int(n_iter)
+
+
+def _with_strategy(alg: Algorithm, config, strategy):
+    """Set ``config.strategy`` (name or index); error if the algorithm has none."""
+    if strategy is None:
+        return config
+    if not any(f.name == "strategy" for f in dataclasses.fields(config)):
+        raise ValueError(f"optimizer {alg.name!r} has no 'strategy' option")
+    from icgo.optim.mutation import strategy_index
+
+    if isinstance(strategy, (str, int, np.integer)):
+        s = strategy_index(strategy)
+    else:
+        s = jnp.asarray([strategy_index(x) for x in strategy], jnp.int32)
+    return dataclasses.replace(config, strategy=s)
+
+
+# ----------------------------------------------------------------------------
+# runner
+# ----------------------------------------------------------------------------
+
+
+def _run_one(alg: Algorithm, fitness, pop_size: int, n_iter: int, key, lb, ub, config, aux) -> RunResult:
+    k_init, k_run = jax.random.split(key)
+    state = alg.init_fn(k_init, fitness, lb, ub, pop_size, config, aux)
+    keys = jax.random.split(k_run, n_iter)
+
+    def body(s, xs):
+        t, k = xs
+        s = alg.step_fn(s, k, t, n_iter, fitness)
+        return s, (s.best_f, s.n_evals)
+
+    state, (curve, evals) = lax.scan(body, state, (jnp.arange(n_iter), keys))
+    return RunResult(state.best_x, state.best_f, curve, evals, state.n_evals)
+
+
+@partial(jax.jit, static_argnums=(0, 1, 2, 3))
+def _run_jit(alg, fitness, pop_size, n_iter, key, lb, ub, config, aux):
+    return _run_one(alg, fitness, pop_size, n_iter, key, lb, ub, config, aux)
+
+
+@partial(jax.jit, static_argnums=(0, 1, 2, 3, 4))
+def _batch_jit(alg, fitness, pop_size, n_iter, by_config, keys, lb, ub, config, aux):
+    one = partial(_run_one, alg, fitness, pop_size, n_iter)
+    over_repeats = jax.vmap(one, in_axes=(0, None, None, None, 0))
+    if not by_config:
+        return over_repeats(keys, lb, ub, config, aux)
+    return jax.vmap(over_repeats, in_axes=(None, None, None, 0, None))(keys, lb, ub, config, aux)
+
+
+def run(name: str, fitness: Fitness, bounds, key, pop_size: int, n_iter: int | None = None, *,
+        max_evals: int | None = None, config=None, strategy=None, aux=None) -> RunResult:
+    """Run one optimizer for ``n_iter`` iterations (or an evaluation budget).
+
+    Args:
+        name: registry name (``cgo``, ``pso``, ``ga``, ``sma``, ...).
+        fitness: batched fitness (see module docstring); static for jit.
+        bounds: ``(lb, ub)`` or (D, 2) array.
+        key: PRNG key.
+        pop_size: population size P (>= 4).
+        n_iter: iterations; exactly one of ``n_iter`` / ``max_evals``.
+        max_evals: evaluation budget, converted to a static iteration count.
+        config: config pytree (defaults if None).
+        strategy: CGO 4th-seed strategy name or index (overrides config).
+        aux: data passed to ``fitness(pop, aux)``, or None.
+
+    Returns:
+        :class:`RunResult` (curves of length n_iter).
+    """
+    alg = get(name)
+    lb, ub = check_bounds(bounds)
+    check_pop_size(pop_size)
+    config = _with_strategy(alg, alg.config_cls() if config is None else config, strategy)
+    n_iter = _resolve_iters(name, pop_size, n_iter, max_evals, config)
+    return _run_jit(alg, fitness, int(pop_size), n_iter, key, lb, ub, config, aux)
+
+
+def run_batch(name: str, fitness: Fitness, bounds, keys, pop_size: int, n_iter: int | None = None, *,
+              max_evals: int | None = None, config=None, strategies: Sequence | None = None,
+              aux=None) -> RunResult:
+    """Run R repeats (and S strategies) in one jitted, vmapped call.
+
+    Repeat r uses ``keys[r]`` and ``aux`` sliced at index r on every leaf, and
+    equals ``run(..., key=keys[r], aux=aux_r)`` exactly.
+
+    Args:
+        keys: PRNG keys, shape (R, 2) (or (R,) typed keys).
+        aux: pytree whose leaves have leading axis R, or None.
+        strategies: sequence of S CGO strategy names/indices, or None.
+        (other arguments as in :func:`run`)
+
+    Returns:
+        :class:`RunResult` with leading axes (R,) or (S, R).
+    """
+    alg = get(name)
+    lb, ub = check_bounds(bounds)
+    check_pop_size(pop_size)
+    config = alg.config_cls() if config is None else config
+    n_iter = _resolve_iters(name, pop_size, n_iter, max_evals, config)
+    if strategies is not None:
+        if isinstance(strategies, (str, int, np.integer)) or len(strategies) < 1:
+            raise ValueError("strategies must be a non-empty sequence of names or indices")
+        strat = _with_strategy(alg, config, list(strategies)).strategy
+        base = dataclasses.replace(config, strategy=0)
+        config = jax.tree_util.tree_map(
+            lambda x: jnp.broadcast_to(jnp.asarray(x), (len(strategies),) + jnp.shape(x)), base)
+        config = dataclasses.replace(config, strategy=strat)
+    keys = jnp.asarray(keys) if not isinstance(keys, jax.Array) else keys
+    n_rep = keys.shape[0]
+    if aux is not None:
+        for leaf in jax.tree_util.tree_leaves(aux):
+            if jnp.ndim(leaf) < 1 or jnp.shape(leaf)[0] != n_rep:
+                raise ValueError(f"aux leaves need leading axis {n_rep} (one slice per key), got shape {jnp.shape(leaf)}")
+    return _batch_jit(alg, fitness, int(pop_size), n_iter, strategies is not None, keys, lb, ub, config, aux)
+
+
+def best_at_evals(result: RunResult, budgets) -> Array:
+    """Best-so-far fitness at given evaluation counts (equal-budget comparison).
+
+    Args:
+        result: a :class:`RunResult` (any leading batch axes).
+        budgets: evaluation counts, shape (K,).
+
+    Returns:
+        Shape (..., K): best fitness after the last iteration whose cumulative
+        evaluation count is <= budget (+inf if even the first exceeds it).
+    """
+    budgets = jnp.asarray(budgets)
+    ok = result.evals_curve[..., None, :] <= budgets[:, None]
+    vals = jnp.where(ok, result.curve[..., None, :], jnp.inf)
+    return jnp.min(vals, axis=-1)
