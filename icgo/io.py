@@ -165,26 +165,26 @@ def _parse_columns(header: list[str], rows: list[list[str]], source: str, line_o
             data[name] = _to_float(cells, name, source, line_of)
         else:  # unknown column: numeric if it parses, else kept as text
             try:
-                data[name] = np.asarray(cells, dtype=str).astype(np.float64)
+                data[name] = np.fromiter((float(c) for c in cells), np.float64, len(cells))
             except ValueError:
                 data[name] = cells
     return pd.DataFrame(data)
 
 
 def _to_float(cells, name, source, line_of) -> np.ndarray:
+    # Python's float() rounds correctly, so repr-written floats read back bit for bit.
     try:
-        return np.asarray(cells, dtype=str).astype(np.float64)
+        return np.fromiter((float(c) for c in cells), np.float64, len(cells))
     except ValueError:
         pass
     for i, c in enumerate(cells):
         try:
             float(c)
         except ValueError:
-            text = c.strip()
-            if text == "":
+            if c.strip() == "":
                 _fail(source, "missing value (empty cell)", i + 1, name, line_of(i))
             _fail(source, f"non-numeric value {c!r}", i + 1, name, line_of(i))
-    raise AssertionError("unreachable")  # pragma: no cover
+    raise AssertionError("unreachable: float() failed on the whole column but on no cell")
 
 
 def _coerce_frame(frame: pd.DataFrame, source: str, line_of) -> pd.DataFrame:
@@ -207,11 +207,8 @@ def _coerce_frame(frame: pd.DataFrame, source: str, line_of) -> pd.DataFrame:
 
 
 # --------------------------------------------------------------- validation
-def _check_frame(frame: pd.DataFrame, source: str, line_of, notices: list) -> pd.DataFrame:
-    """Contract checks on a frame whose contract columns are float64; returns the typed frame."""
-    cols = list(frame.columns)
-    if len(frame) == 0:
-        _fail(source, "no data rows (header only)")
+def _check_columns(cols: list, source: str) -> None:
+    """Header-level checks: required, paired and grouped columns."""
     missing = [c for c in REQUIRED_COLUMNS if c not in cols]
     if missing:
         _fail(source, f"missing required column(s) {', '.join(missing)} (have: {', '.join(map(str, cols))})")
@@ -225,6 +222,14 @@ def _check_frame(frame: pd.DataFrame, source: str, line_of, notices: list) -> pd
     gyro = [c for c in GYRO_COLUMNS if c in cols]
     if gyro and len(gyro) != 3:
         _fail(source, f"gyro columns must come as wx, wy, wz together (have only {', '.join(gyro)})")
+
+
+def _check_frame(frame: pd.DataFrame, source: str, line_of, notices: list) -> pd.DataFrame:
+    """Contract checks on a frame whose contract columns are float64; returns the typed frame."""
+    cols = list(frame.columns)
+    if len(frame) == 0:
+        _fail(source, "no data rows (header only)")
+    _check_columns(cols, source)
 
     for name in [c for c in KNOWN_COLUMNS if c in cols]:
         v = frame[name].to_numpy(np.float64)
@@ -472,9 +477,14 @@ def read_recording(csv_path, meta_path=None, *, require_meta: bool = True) -> Re
         _fail(src, f"cannot read ({e.strerror})")
     if text.strip() == "":
         _fail(src, "empty file (no header, no rows)")
-    lines = list(csv.reader(_io.StringIO(text)))
-    # keep original line numbers; skip blank lines
-    numbered = [(n + 1, r) for n, r in enumerate(lines) if any(c.strip() for c in r)]
+    reader = csv.reader(_io.StringIO(text))
+    numbered = []  # (line number, fields), blank lines skipped
+    try:
+        for r in reader:
+            if r and not (len(r) == 1 and r[0].strip() == ""):
+                numbered.append((reader.line_num, r))
+    except csv.Error as e:
+        _fail(src, f"CSV syntax error at line {reader.line_num}: {e}")
     (hline, header), body = numbered[0], numbered[1:]
     header = [h.strip() for h in header]
     for j, h in enumerate(header):
@@ -486,6 +496,8 @@ def read_recording(csv_path, meta_path=None, *, require_meta: bool = True) -> Re
     for k, (ln, r) in enumerate(body):
         if len(r) != len(header):
             _fail(src, f"{len(r)} fields, the header has {len(header)}", k + 1, None, ln)
+    if body:
+        _check_columns(header, src)
     notices: list[str] = []
     rows = [r for _, r in body]
     line_of = lambda i: body[i][0]  # noqa: E731
