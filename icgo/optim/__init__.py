@@ -8,7 +8,7 @@ strategies) with :func:`run_batch`.
 from icgo.optim.base import (OPTIMIZERS, Algorithm, Bound, Context, RunResult, State, best_at_evals, bind, evaluate,
                              get, iterations_for_budget, register, run, run_batch)
 from icgo.optim.mutation import STRATEGIES, strategy_index
-from icgo.optim import cgo  # noqa: F401  (registers)
+from icgo.optim import cgo, ga, pso, sma  # noqa: F401  (register themselves)
 
 __all__ = ["OPTIMIZERS", "Algorithm", "Bound", "Context", "RunResult", "State", "STRATEGIES", "best_at_evals", "bind",
            "evaluate", "get", "iterations_for_budget", "register", "run", "run_batch", "strategy_index"]
