@@ -1,0 +1,268 @@
+"""Regularized extreme learning machine (ICGO paper section 2.1, eqs. 8-9).
+
+Inputs are the six raw sensor values (Gx, Gy, Gz in g; Bx, By, Bz in nT),
+standardised with statistics of the training rows only. A hidden layer of L
+sigmoid units (eq. 8) with input weights ``W`` (6, L) and biases ``b`` (L,)
+maps them to ``H`` (N, L); the output weights solve the ridge problem of eq. (9),
+read as the usual RELM ``min ||H beta - T||^2 + lambda ||beta||^2``:
+
+    (H^T H + lambda I) beta = H^T T          (Cholesky, float64 by default)
+
+``theta = concat(W.ravel(), b)`` of length ``7 L`` is what optimizers search;
+plain RELM draws it once from U(low, high), default U(-1, 1) as in common ELM
+codes. Row weights (0/1 masks) select the rows a fit uses, so every repeat and
+fold keeps the same shapes and the fitness vmaps over repeats.
+
+Fitness (:func:`fitness`): the RMSE of the ridge fit, as a mean over "folds",
+each fold a pair of row-weight vectors (fit rows, score rows):
+
+* ``train`` (paper): one fold, fit and score on all training rows;
+* ``validation``: fit on part of the training rows, score on the rest;
+* ``kfold``: K folds of the training rows.
+
+Test rows have zero weight in every fold: they never steer a search.
+Non-finite fitness values are returned as +inf.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+N_INPUTS = 6
+FITNESS_MODES = ("train", "validation", "kfold")
+_STD_FLOOR = 1e-12
+
+
+def n_params(hidden: int, n_inputs: int = N_INPUTS) -> int:
+    """Length of theta = (W (n_inputs, L), b (L,)) flattened: ``(n_inputs + 1) * L``."""
+    return (n_inputs + 1) * hidden
+
+
+def unpack(theta, hidden: int, n_inputs: int = N_INPUTS):
+    """Split theta (..., (n_inputs+1) L) into W (..., n_inputs, L) and b (..., L)."""
+    theta = jnp.asarray(theta)
+    nw = n_inputs * hidden
+    W = theta[..., :nw].reshape(theta.shape[:-1] + (n_inputs, hidden))
+    return W, theta[..., nw:]
+
+
+def random_theta(key, hidden: int, shape=(), low: float = -1.0, high: float = 1.0,
+                 n_inputs: int = N_INPUTS, dtype=jnp.float64):
+    """Plain-RELM hidden parameters: theta ~ U(low, high), shape ``shape + (7 L,)``."""
+    return jax.random.uniform(key, tuple(shape) + (n_params(hidden, n_inputs),), dtype, low, high)
+
+
+def standardize_stats(X, weights=None):
+    """Weighted column mean and std (population) over the rows with weight > 0.
+
+    Args:
+        X: (N, d) features. weights: (N,) row weights or None.
+    Returns:
+        (mean (d,), std (d,)); std floored at 1e-12 to keep constant columns finite.
+    """
+    X = jnp.asarray(X)
+    w = jnp.ones(X.shape[0], X.dtype) if weights is None else jnp.asarray(weights, X.dtype)
+    sw = jnp.sum(w)
+    mean = jnp.sum(w[:, None] * X, 0) / sw
+    var = jnp.sum(w[:, None] * (X - mean) ** 2, 0) / sw
+    return mean, jnp.sqrt(jnp.maximum(var, _STD_FLOOR**2))
+
+
+def standardize(X, mean, std):
+    """``(X - mean) / std``."""
+    return (jnp.asarray(X) - mean) / std
+
+
+def hidden_layer(theta, Xs, hidden: int):
+    """Eq. (8): ``H = sigmoid(Xs W + b)``.
+
+    Args:
+        theta: (7 L,) hidden parameters. Xs: (N, 6) standardised inputs.
+        hidden: L.
+    Returns:
+        H, (N, L).
+    """
+    W, b = unpack(theta, hidden, Xs.shape[-1])
+    return jax.nn.sigmoid(Xs @ W + b)
+
+
+def ridge_solve(H, T, lam, weights=None):
+    """Eq. (9): ``(H^T diag(w) H + lam I) beta = H^T diag(w) T`` by Cholesky.
+
+    Args:
+        H: (N, L) hidden outputs. T: (N,) targets.
+        lam: ridge parameter lambda > 0 (absolute, applied to the unnormalised Gram).
+        weights: (N,) row weights or None.
+    Returns:
+        beta (L,).
+    """
+    H = jnp.asarray(H)
+    T = jnp.asarray(T, H.dtype)
+    Hw = H if weights is None else H * jnp.asarray(weights, H.dtype)[:, None]
+    A = Hw.T @ H + jnp.asarray(lam, H.dtype) * jnp.eye(H.shape[1], dtype=H.dtype)
+    c = jax.scipy.linalg.cho_factor(A, lower=True)
+    return jax.scipy.linalg.cho_solve(c, Hw.T @ T)
+
+
+class FitData(NamedTuple):
+    """Per-repeat data for the fitness (the optimizer's ``aux``).
+
+    Attributes:
+        X: (N, 6) standardised inputs (all rows; test rows carry zero weight).
+        T: (N,) targets (deg).
+        fit_w: (K, N) row weights of the rows each fold fits beta on.
+        score_w: (K, N) row weights of the rows each fold is scored on.
+    """
+
+    X: jnp.ndarray
+    T: jnp.ndarray
+    fit_w: jnp.ndarray
+    score_w: jnp.ndarray
+
+
+def _rmse_one(theta, data: FitData, lam, hidden: int):
+    H = hidden_layer(theta, data.X, hidden)
+
+    def fold(fw, sw):
+        beta = ridge_solve(H, data.T, lam, fw)
+        r = H @ beta - data.T
+        return jnp.sqrt(jnp.sum(sw * r * r) / jnp.sum(sw))
+
+    f = jnp.mean(jax.vmap(fold)(data.fit_w, data.score_w))
+    return jnp.where(jnp.isfinite(f), f, jnp.inf)
+
+
+@partial(jax.jit, static_argnames=("hidden", "dtype"))
+def fitness(pop, data: FitData, lam, hidden: int, dtype=None):
+    """Batched RELM fitness: mean over folds of the scored RMSE (deg) of each theta.
+
+    Args:
+        pop: (P, 7 L) population of hidden parameters.
+        data: FitData of one repeat.
+        lam: ridge lambda.
+        hidden: L.
+        dtype: None to keep the input dtype, or ``"float32"`` / ``"float64"``.
+    Returns:
+        (P,) fitness; +inf where the solve is not finite.
+    """
+    if dtype is not None:
+        dt = jnp.dtype(dtype)
+        pop = pop.astype(dt)
+        data = FitData(*(jnp.asarray(a).astype(dt) for a in data))
+        lam = jnp.asarray(lam, dt)
+    return jax.vmap(_rmse_one, in_axes=(0, None, None, None))(pop, data, lam, hidden)
+
+
+def make_fitness(lam: float, hidden: int, dtype=None):
+    """``fitness(pop (P, D), aux: FitData) -> (P,)`` closure for optimizers."""
+    def f(pop, aux):
+        return fitness(pop, aux, lam, hidden, dtype)
+    return f
+
+
+def fold_weights(key, train_mask, mode: str = "train", val_fraction: float = 0.3, k_folds: int = 5):
+    """Row weights (fit_w, score_w), each (K, N), for a fitness mode; jittable.
+
+    Only rows with ``train_mask > 0`` ever get weight. ``validation`` holds out
+    ``round(val_fraction * n_train)`` random training rows; ``kfold`` deals the
+    training rows at random into ``k_folds`` folds.
+
+    Args:
+        key: PRNG key (unused for ``train``).
+        train_mask: (N,) 0/1 training mask.
+        mode: ``"train"``, ``"validation"`` or ``"kfold"``.
+        val_fraction: validation share of the training rows.
+        k_folds: number of folds.
+    Returns:
+        (fit_w, score_w), each (K, N) with K = 1, 1 or k_folds.
+    """
+    m = jnp.asarray(train_mask)
+    if mode == "train":
+        return m[None], m[None]
+    # Random rank of each training row among the training rows (test rows last).
+    u = jnp.where(m > 0, jax.random.uniform(key, m.shape), 2.0)
+    rank = jnp.argsort(jnp.argsort(u))
+    n_train = jnp.sum(m > 0)
+    if mode == "validation":
+        n_val = jnp.round(val_fraction * n_train)
+        val = (rank < n_val) & (m > 0)
+        return (m * ~val)[None], (m * val)[None]
+    if mode == "kfold":
+        fold_id = jnp.where(m > 0, rank % k_folds, -1)
+        score = (fold_id[None, :] == jnp.arange(k_folds)[:, None]).astype(m.dtype)
+        return m[None] * (1 - score), score
+    raise ValueError(f"fitness mode {mode!r}: expected one of {FITNESS_MODES}")
+
+
+class RELM(NamedTuple):
+    """A fitted RELM: hidden parameters, output weights and input statistics."""
+
+    theta: jnp.ndarray  # (7 L,)
+    beta: jnp.ndarray   # (L,)
+    mean: jnp.ndarray   # (6,)
+    std: jnp.ndarray    # (6,)
+
+
+def _validate(X, T, lam, hidden, weights):
+    X = np.asarray(X, dtype=float)
+    T = np.asarray(T, dtype=float)
+    if X.ndim != 2 or X.shape[1] != N_INPUTS:
+        raise ValueError(f"relm: features must be (N, {N_INPUTS}); got {X.shape}")
+    if T.shape != (X.shape[0],):
+        raise ValueError(f"relm: targets must be ({X.shape[0]},) to match the features; got {T.shape}")
+    if not (np.isfinite(X).all() and np.isfinite(T).all()):
+        bad = np.argwhere(~np.isfinite(np.column_stack([X, T])))[0]
+        raise ValueError(f"relm: non-finite value in the inputs at row {bad[0]}, column {bad[1]}")
+    if not (np.isfinite(lam) and lam > 0):
+        raise ValueError(f"relm: lambda must be > 0; got {lam}")
+    if int(hidden) < 1:
+        raise ValueError(f"relm: hidden size must be >= 1; got {hidden}")
+    w = np.ones(X.shape[0]) if weights is None else np.asarray(weights, dtype=float)
+    if w.shape != (X.shape[0],) or np.any(w < 0) or not np.isfinite(w).all():
+        raise ValueError(f"relm: weights must be ({X.shape[0]},), finite, non-negative")
+    n = int(np.count_nonzero(w))
+    if n < hidden:
+        raise ValueError(f"relm: {n} training rows for {hidden} hidden units; need at least as many rows as units")
+    return w
+
+
+def fit(theta, X, T, lam: float, hidden: int, weights=None) -> RELM:
+    """Fit the output weights for given hidden parameters (checked, float64).
+
+    Args:
+        theta: (7 L,) hidden parameters.
+        X: (N, 6) raw inputs (Gx, Gy, Gz g; Bx, By, Bz nT). T: (N,) targets.
+        lam: ridge lambda > 0. hidden: L.
+        weights: (N,) row weights (training mask) or None.
+    Returns:
+        RELM.
+    """
+    w = _validate(X, T, lam, hidden, weights)
+    theta = jnp.asarray(theta, jnp.float64)
+    if theta.shape != (n_params(hidden),):
+        raise ValueError(f"relm: theta must be ({n_params(hidden)},) for L = {hidden}; got {theta.shape}")
+    return _fit(theta, jnp.asarray(X, jnp.float64), jnp.asarray(T, jnp.float64), lam, jnp.asarray(w), hidden)
+
+
+@partial(jax.jit, static_argnames=("hidden",))
+def _fit(theta, X, T, lam, w, hidden):
+    mean, std = standardize_stats(X, w)
+    H = hidden_layer(theta, standardize(X, mean, std), hidden)
+    return RELM(theta, ridge_solve(H, T, lam, w), mean, std)
+
+
+def fit_unchecked(theta, X, T, lam, weights, hidden: int) -> RELM:
+    """Jittable, vmappable :func:`fit` without input checks."""
+    return _fit(theta, X, T, lam, weights, hidden)
+
+
+def predict(model: RELM, X):
+    """RELM output for raw inputs X (N, 6) -> (N,)."""
+    hidden = model.beta.shape[-1]
+    H = hidden_layer(model.theta, standardize(X, model.mean, model.std), hidden)
+    return H @ model.beta

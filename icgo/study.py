@@ -1,0 +1,446 @@
+"""The ICGO-RELM study core (ICGO paper sections 3.1-3.4), plain Python, no Hydra.
+
+Pipeline, per repeat (one PRNG key each, ``fold_in(PRNGKey(seed), repeat_id)``):
+
+1. 3-sigma filter (host-side, once for the data set; :func:`sigma_filter`);
+2. random 7:3 split: a permutation of the rows, the first ``round(0.7 N)`` are
+   training rows (a 0/1 mask, so shapes stay fixed across repeats);
+3. multi-station analysis on the training rows only (:mod:`icgo.msa`);
+4. target = azimuth error left after MSA, ``wrap(A_msa - A_true)`` (deg);
+5. model: RELM on the six raw sensor values standardised with training
+   statistics; hidden parameters drawn at random (plain RELM) or searched by an
+   optimizer of :mod:`icgo.optim` on a training-only fitness (:mod:`icgo.relm`);
+6. output weights refit on all training rows; compensated azimuth
+   ``A_msa - predicted error`` scored on the test rows (:mod:`icgo.metrics`).
+
+Test rows never steer anything: MSA, standardisation, fitness and output
+weights see them only with zero weight. Stages 2-6 run as two jitted calls:
+``_prepare`` (vmapped over repeats: split, MSA, features), a host-side MSA
+observability check, then ``_fit_and_score`` (the optimizer's runner vmapped
+over repeats and CGO strategies, then the refit and metrics vmapped over both).
+Repeat k of a batched run equals the same repeat run alone (``repeat_ids``).
+
+Entry point: :func:`run_study` ``(frame, StudyConfig) -> StudyResult``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import time
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+
+from icgo import msa as _msa
+from icgo import relm as _relm
+from icgo.frames import angle_diff, azimuth_from_gv, wrap360
+from icgo.metrics import azimuth_metrics
+from icgo.stats import mean_std_table
+
+REQUIRED_COLUMNS = ("gx", "gy", "gz", "bx", "by", "bz", "azimuth_deg")
+
+
+@dataclasses.dataclass(frozen=True)
+class StudyConfig:
+    """Settings of an ICGO-RELM study (defaults: the paper's protocol where it gives one).
+
+    Attributes:
+        n_repeats: repeats (random splits); the paper's Table 3 uses 10.
+        seed: base seed; repeat k uses key ``fold_in(PRNGKey(seed), k)``.
+        repeat_ids: run only these repeat ids (e.g. ``(3,)`` to rerun repeat 3
+            alone); None = ``range(n_repeats)``.
+        train_fraction: training share of each split (paper 7:3 -> 0.7).
+        sigma_filter: n-sigma outlier rule applied once before splitting
+            (paper: 3); None disables.
+        msa_model: ``"biases"`` (paper), ``"axial"`` or ``"biases_scales"``.
+        msa_reference: ``"station_mean"`` (paper eqs. 3-4) or ``"known"``
+            (reference field from the metadata's total_field_nT and dip_deg).
+        msa_iterations: Levenberg-Marquardt iterations.
+        features: ``"raw"`` (paper: the six raw sensor values) or ``"msa"``
+            (G and the MSA-corrected B).
+        hidden: RELM hidden units L (paper: not stated; 30 as in the reference
+            scale runs, see docs/relm_study.md).
+        lam: ridge lambda (paper: not stated; see docs/relm_study.md).
+        fitness: ``"train"`` (paper: training RMSE), ``"validation"`` or ``"kfold"``.
+        val_fraction: validation share of the training rows (fitness="validation").
+        k_folds: folds (fitness="kfold").
+        theta_bounds: (low, high) of every hidden weight and bias: the
+            optimizer's search box and plain RELM's uniform draw.
+        optimizer: registry name in :mod:`icgo.optim` (``cgo``, ``pso``, ``ga``,
+            ``sma``) or None for plain RELM (one random theta per repeat).
+        strategies: CGO 4th-seed strategies run side by side (vmapped); ignored
+            for other optimizers.
+        pop_size: population size (paper: 30).
+        iterations: optimizer iterations (paper: 100); exclusive with max_evals.
+        max_evals: fitness-evaluation budget instead of iterations.
+        optimizer_config: the optimizer's config object (None = its defaults).
+        dtype: ``"float64"`` (default) or ``"float32"`` for the fitness solve.
+    """
+
+    n_repeats: int = 10
+    seed: int = 0
+    repeat_ids: tuple | None = None
+    train_fraction: float = 0.7
+    sigma_filter: float | None = 3.0
+    msa_model: str = "biases"
+    msa_reference: str = "station_mean"
+    msa_iterations: int = 30
+    features: str = "raw"
+    hidden: int = 30
+    lam: float = 1e-3
+    fitness: str = "train"
+    val_fraction: float = 0.3
+    k_folds: int = 5
+    theta_bounds: tuple = (-1.0, 1.0)
+    optimizer: str | None = "cgo"
+    strategies: tuple = ("original",)
+    pop_size: int = 30
+    iterations: int | None = 100
+    max_evals: int | None = None
+    optimizer_config: Any = None
+    dtype: str = "float64"
+
+    def ids(self) -> tuple:
+        """The repeat ids this config runs."""
+        return tuple(range(self.n_repeats)) if self.repeat_ids is None else tuple(int(i) for i in self.repeat_ids)
+
+    def method_names(self) -> list[str]:
+        """One label per model the study fits, e.g. ``["cgo-original"]`` or ``["relm"]``."""
+        if self.optimizer is None:
+            return ["relm"]
+        if self.optimizer == "cgo":
+            return [f"cgo-{s}" for s in self.strategies]
+        return [self.optimizer]
+
+
+class StudyResult(NamedTuple):
+    """Everything a study produces (numpy / pandas, host-side).
+
+    Attributes:
+        metrics: one row per (method, repeat, split): mae, rmse, r2 (eq. 21),
+            r2_error; methods include ``raw`` (eq. 1 on raw data) and ``msa``
+            (after MSA only) as baselines.
+        summary: mean +/- std over repeats per (method, split).
+        histories: long table (method, repeat, iteration, evals, best_fitness).
+        predictions: per (method, repeat, row) azimuths and errors, with split.
+        msa: per repeat: biases (nT), standard errors, condition number, V.
+        curves: dict of arrays: ``best_fitness`` and ``evals`` (S, R, T).
+        kept: (N_in,) bool, rows surviving the sigma filter.
+        config: the StudyConfig.
+        wall_time_s: wall time of the jitted stages (incl. compile), s.
+        n_evals: fitness evaluations per method and repeat (S, R).
+    """
+
+    metrics: pd.DataFrame
+    summary: pd.DataFrame
+    histories: pd.DataFrame
+    predictions: pd.DataFrame
+    msa: pd.DataFrame
+    curves: dict
+    kept: np.ndarray
+    config: StudyConfig
+    wall_time_s: float
+    n_evals: np.ndarray
+
+
+# --------------------------------------------------------------------- filter
+def sigma_filter(G, B, azimuth_true, n_sigma: float = 3.0):
+    """The 3-sigma rule (paper section 3.1), one pass, host-side.
+
+    A row is dropped when any of these lies more than ``n_sigma`` standard
+    deviations from its mean: |G|, |B| and the magnetic dip over the whole
+    data set (sensor faults), and the raw azimuth error within its group of
+    equal reference azimuth (the error varies by several degrees between
+    azimuths, so a global rule on it would test the interference, not outliers).
+
+    Args:
+        G: (N, 3) g. B: (N, 3) nT. azimuth_true: (N,) deg.
+        n_sigma: the rule's threshold.
+    Returns:
+        (N,) bool mask of kept rows.
+    """
+    G = np.asarray(G, float)
+    B = np.asarray(B, float)
+    a = np.asarray(azimuth_true, float)
+    gn = np.linalg.norm(G, axis=1)
+    bn = np.linalg.norm(B, axis=1)
+    dip = np.degrees(np.arcsin(np.clip(np.sum(G * B, 1) / (gn * bn), -1, 1)))
+    keep = np.ones(len(a), bool)
+    for q in (gn, bn, dip):
+        s = q.std()
+        if s > 0:
+            keep &= np.abs(q - q.mean()) <= n_sigma * s
+    err = np.asarray(angle_diff(np.asarray(azimuth_from_gv(G, B)), a))
+    for az in np.unique(np.round(a, 6)):
+        g = np.round(a, 6) == az
+        s = err[g].std()
+        if g.sum() > 2 and s > 0:
+            keep[g] &= np.abs(err[g] - err[g].mean()) <= n_sigma * s
+    return keep
+
+
+# ------------------------------------------------------------------ stages
+class Prepared(NamedTuple):
+    """Per-repeat arrays (leading axis R when batched)."""
+
+    train: jnp.ndarray      # (N,) 0/1
+    msa: _msa.MSAResult
+    a_msa: jnp.ndarray      # (N,) deg
+    target: jnp.ndarray     # (N,) deg
+    data: _relm.FitData     # standardised features, target, fold weights
+    key: jnp.ndarray        # model key
+
+
+@functools.partial(jax.jit, static_argnames=("n_train", "msa_model", "msa_iter", "features", "mode",
+                                             "val_fraction", "k_folds"))
+def _prepare(keys, G, B, a_true, reference, *, n_train, msa_model, msa_iter, features, mode,
+             val_fraction, k_folds) -> Prepared:
+    def one(key):
+        k_split, k_fold, k_model = jax.random.split(key, 3)
+        perm = jax.random.permutation(k_split, G.shape[0])
+        train = jnp.zeros(G.shape[0], G.dtype).at[perm[:n_train]].set(1.0)
+        m = _msa.msa_solve(G, B, train, reference, model=msa_model, n_iter=msa_iter)
+        b_corr = _msa.correct_field(B, m.bias, m.scale)
+        a_msa = azimuth_from_gv(G, b_corr)
+        target = angle_diff(a_msa, a_true)
+        X = jnp.concatenate([G, B if features == "raw" else b_corr], axis=1)
+        mean, std = _relm.standardize_stats(X, train)
+        Xs = _relm.standardize(X, mean, std)
+        fit_w, score_w = _relm.fold_weights(k_fold, train, mode, val_fraction, k_folds)
+        return Prepared(train, m, a_msa, target, _relm.FitData(Xs, target, fit_w, score_w), k_model)
+
+    return jax.vmap(one)(keys)
+
+
+@functools.lru_cache(maxsize=None)
+def _fitness_fn(lam: float, hidden: int, dtype: str | None):
+    # Cached so that the optimizer runner (fitness is a static argument) compiles once per setting.
+    return _relm.make_fitness(lam, hidden, None if dtype == "float64" else dtype)
+
+
+class _Scored(NamedTuple):
+    pred: jnp.ndarray       # (S, R, N)
+    a_comp: jnp.ndarray     # (S, R, N)
+    test: Any               # Metrics (S, R)
+    train: Any              # Metrics (S, R)
+
+
+def _score(theta, prep: Prepared, a_true, lam, hidden):
+    """Refit beta on all training rows for one (strategy, repeat); predict; score."""
+    H = _relm.hidden_layer(theta, prep.data.X, hidden)
+    beta = _relm.ridge_solve(H, prep.target, lam, prep.train)
+    pred = H @ beta
+    a_comp = wrap360(prep.a_msa - pred)
+    test = azimuth_metrics(a_true, a_comp, prep.target, 1.0 - prep.train)
+    train = azimuth_metrics(a_true, a_comp, prep.target, prep.train)
+    return pred, a_comp, test, train
+
+
+@functools.partial(jax.jit, static_argnames=("hidden",))
+def _score_all(thetas, prep: Prepared, a_true, lam, hidden):
+    over_r = jax.vmap(_score, in_axes=(0, 0, None, None, None))
+    return _Scored(*jax.vmap(over_r, in_axes=(0, None, None, None, None))(thetas, prep, a_true, lam, hidden))
+
+
+def _search(cfg: StudyConfig, prep: Prepared):
+    """Hidden parameters per (method, repeat): (S, R, D), curves (S, R, T), evals (S, R, T)."""
+    D = _relm.n_params(cfg.hidden)
+    R = prep.key.shape[0]
+    low, high = cfg.theta_bounds
+    if cfg.optimizer is None:
+        theta = jax.vmap(lambda k: _relm.random_theta(k, cfg.hidden, (), low, high))(prep.key)
+        f = jax.vmap(lambda t, d: _relm.fitness(t[None], d, cfg.lam, cfg.hidden,
+                                                None if cfg.dtype == "float64" else cfg.dtype)[0])(theta, prep.data)
+        return theta[None], f[None, :, None], jnp.ones((1, R, 1), jnp.int32)
+    from icgo.optim import run_batch
+
+    bounds = (np.full(D, low), np.full(D, high))
+    strategies = list(cfg.strategies) if cfg.optimizer == "cgo" else None
+    res = run_batch(cfg.optimizer, _fitness_fn(float(cfg.lam), int(cfg.hidden), cfg.dtype), bounds, prep.key,
+                    cfg.pop_size, cfg.iterations, max_evals=cfg.max_evals, config=cfg.optimizer_config,
+                    strategies=strategies, aux=prep.data)
+    if strategies is None:
+        res = jax.tree_util.tree_map(lambda x: x[None], res)
+    return res.best_x, res.curve, res.evals_curve
+
+
+# ----------------------------------------------------------------- checking
+def _check_config(cfg: StudyConfig, n_rows: int) -> int:
+    if not isinstance(cfg, StudyConfig):
+        raise ValueError(f"config must be a StudyConfig, got {type(cfg).__name__}")
+    if not cfg.ids():
+        raise ValueError("study: no repeats to run (n_repeats must be >= 1)")
+    if cfg.repeat_ids is None and (not isinstance(cfg.n_repeats, int) or cfg.n_repeats < 1):
+        raise ValueError(f"study: n_repeats must be an integer >= 1, got {cfg.n_repeats!r}")
+    if any(i < 0 for i in cfg.ids()):
+        raise ValueError(f"study: repeat ids must be >= 0, got {cfg.ids()}")
+    if not 0.0 < cfg.train_fraction < 1.0:
+        raise ValueError(f"study: train_fraction must be in (0, 1), got {cfg.train_fraction}")
+    if not (np.isfinite(cfg.lam) and cfg.lam > 0):
+        raise ValueError(f"study: lambda (lam) must be > 0, got {cfg.lam}")
+    if not isinstance(cfg.hidden, int) or cfg.hidden < 1:
+        raise ValueError(f"study: hidden must be an integer >= 1, got {cfg.hidden!r}")
+    if cfg.fitness not in _relm.FITNESS_MODES:
+        raise ValueError(f"study: fitness {cfg.fitness!r}: expected one of {_relm.FITNESS_MODES}")
+    if cfg.msa_reference not in ("station_mean", "known"):
+        raise ValueError(f"study: msa_reference {cfg.msa_reference!r}: expected 'station_mean' or 'known'")
+    if cfg.msa_model not in _msa.MODELS:
+        raise ValueError(f"study: msa_model {cfg.msa_model!r}: expected one of {list(_msa.MODELS)}")
+    if cfg.features not in ("raw", "msa"):
+        raise ValueError(f"study: features {cfg.features!r}: expected 'raw' or 'msa'")
+    if cfg.dtype not in ("float64", "float32"):
+        raise ValueError(f"study: dtype {cfg.dtype!r}: expected 'float64' or 'float32'")
+    low, high = cfg.theta_bounds
+    if not low < high:
+        raise ValueError(f"study: theta_bounds must have low < high, got {cfg.theta_bounds}")
+    if cfg.sigma_filter is not None and not cfg.sigma_filter > 0:
+        raise ValueError(f"study: sigma_filter must be > 0 or None, got {cfg.sigma_filter}")
+    if cfg.fitness == "kfold" and (not isinstance(cfg.k_folds, int) or cfg.k_folds < 2):
+        raise ValueError(f"study: k_folds must be an integer >= 2, got {cfg.k_folds!r}")
+    if cfg.fitness == "validation" and not 0.0 < cfg.val_fraction < 1.0:
+        raise ValueError(f"study: val_fraction must be in (0, 1), got {cfg.val_fraction}")
+    if cfg.optimizer is not None:
+        from icgo.optim import get
+
+        get(cfg.optimizer)
+        if cfg.optimizer == "cgo" and (isinstance(cfg.strategies, str) or len(cfg.strategies) < 1):
+            raise ValueError("study: strategies must be a non-empty tuple of names")
+    n_train = int(round(cfg.train_fraction * n_rows))
+    n_fit = n_train
+    if cfg.fitness == "validation":
+        n_fit = n_train - int(round(cfg.val_fraction * n_train))
+    elif cfg.fitness == "kfold":
+        n_fit = n_train - int(np.ceil(n_train / cfg.k_folds))
+    if n_fit < cfg.hidden or n_rows - n_train < 1:
+        raise ValueError(f"study: a split of {n_rows} rows gives {n_train} training rows ({n_fit} per fit) "
+                         f"and {n_rows - n_train} test rows; need at least hidden = {cfg.hidden} rows per fit "
+                         f"and one test row")
+    return n_train
+
+
+def frame_arrays(frame: pd.DataFrame):
+    """(G (N, 3) g, B (N, 3) nT, azimuth (N,) deg) from a data-contract frame, checked."""
+    if not isinstance(frame, pd.DataFrame):
+        raise ValueError(f"study: expected a pandas DataFrame, got {type(frame).__name__}")
+    missing = [c for c in REQUIRED_COLUMNS if c not in frame.columns]
+    if missing:
+        raise ValueError(f"study: data frame lacks required column(s) {missing}")
+    if len(frame) == 0:
+        raise ValueError("study: data frame is empty")
+    vals = frame[list(REQUIRED_COLUMNS)]
+    try:
+        arr = vals.to_numpy(dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError("study: non-numeric value in the sensor/azimuth columns") from None
+    bad = np.argwhere(~np.isfinite(arr))
+    if bad.size:
+        r, c = bad[0]
+        raise ValueError(f"study: NaN/inf in row {r}, column {REQUIRED_COLUMNS[c]!r}")
+    return arr[:, :3], arr[:, 3:6], arr[:, 6]
+
+
+def _reference(cfg: StudyConfig, metadata):
+    if cfg.msa_reference == "station_mean":
+        return None
+    md = metadata or {}
+    if "total_field_nT" not in md or "dip_deg" not in md:
+        raise ValueError("study: msa_reference='known' needs metadata with total_field_nT and dip_deg")
+    return jnp.asarray(_msa.reference_from_field(float(md["total_field_nT"]), float(md["dip_deg"])))
+
+
+# --------------------------------------------------------------------- run
+def run_study(frame: pd.DataFrame, config: StudyConfig | None = None, metadata: dict | None = None) -> StudyResult:
+    """Run an ICGO-RELM study on a data-contract frame.
+
+    Args:
+        frame: DataFrame with gx, gy, gz (g), bx, by, bz (nT), azimuth_deg (the
+            reference azimuth); optional station, toolface_deg.
+        config: StudyConfig (defaults if None).
+        metadata: the data set's metadata (needed for msa_reference="known").
+    Returns:
+        StudyResult.
+    Raises:
+        ValueError: bad data (missing columns, NaN), bad config (lambda <= 0,
+            fewer training rows than hidden units, unknown names), or stations
+            that cannot determine the MSA parameters.
+    """
+    cfg = StudyConfig() if config is None else config
+    G_all, B_all, a_all = frame_arrays(frame)
+    kept = sigma_filter(G_all, B_all, a_all, cfg.sigma_filter) if cfg.sigma_filter else np.ones(len(a_all), bool)
+    G, B, a_true = G_all[kept], B_all[kept], a_all[kept]
+    n_train = _check_config(cfg, len(a_true))
+    reference = _reference(cfg, metadata)
+    if cfg.msa_model == "biases_scales" and reference is None:
+        raise ValueError("study: msa_model='biases_scales' needs msa_reference='known'")
+    ids = cfg.ids()
+    base = jax.random.PRNGKey(cfg.seed)
+    keys = jnp.stack([jax.random.fold_in(base, i) for i in ids])
+
+    t0 = time.perf_counter()
+    prep = _prepare(keys, jnp.asarray(G), jnp.asarray(B), jnp.asarray(a_true), reference, n_train=n_train,
+                    msa_model=cfg.msa_model, msa_iter=cfg.msa_iterations, features=cfg.features,
+                    mode=cfg.fitness, val_fraction=float(cfg.val_fraction), k_folds=int(cfg.k_folds))
+    _msa.check_observability(prep.msa, cfg.msa_model, reference)
+    thetas, curve, evals = _search(cfg, prep)
+    scored = _score_all(thetas, prep, jnp.asarray(a_true), cfg.lam, cfg.hidden)
+    jax.block_until_ready(scored)
+    wall = time.perf_counter() - t0
+    return _collect(cfg, frame, kept, a_true, G, B, prep, scored, curve, evals, ids, wall)
+
+
+def _collect(cfg, frame, kept, a_true, G, B, prep, scored, curve, evals, ids, wall) -> StudyResult:
+    methods = cfg.method_names()
+    curve, evals = np.asarray(curve), np.asarray(evals)
+    train = np.asarray(prep.train) > 0
+    target = np.asarray(prep.target)
+    a_msa = np.asarray(prep.a_msa)
+    a_raw = np.asarray(azimuth_from_gv(G, B))
+    err_raw = np.asarray(angle_diff(a_raw, a_true))
+    rows = []
+    for r, rid in enumerate(ids):
+        for split, mask in (("test", ~train[r]), ("train", train[r])):
+            w = mask.astype(float)
+            for name, a_est in (("raw", a_raw), ("msa", a_msa[r])):
+                m = azimuth_metrics(a_true, a_est, err_raw, w)
+                rows.append({"method": name, "repeat": rid, "split": split,
+                             **{k: float(v) for k, v in m._asdict().items()}})
+            for s, name in enumerate(methods):
+                m = scored.test if split == "test" else scored.train
+                rows.append({"method": name, "repeat": rid, "split": split,
+                             **{k: float(np.asarray(v)[s, r]) for k, v in m._asdict().items()}})
+    metrics = pd.DataFrame(rows)
+    summary = mean_std_table(metrics, ["method", "split"], ["mae", "rmse", "r2", "r2_error"])
+
+    S, R, T = curve.shape
+    histories = pd.DataFrame({
+        "method": np.repeat(methods, R * T), "repeat": np.tile(np.repeat(ids, T), S),
+        "iteration": np.tile(np.arange(1, T + 1), S * R), "evals": evals.ravel(), "best_fitness": curve.ravel()})
+
+    N = len(a_true)
+    rows_idx = np.asarray(frame.index[kept])
+    station = frame["station"].to_numpy()[kept] if "station" in frame.columns else np.arange(N)
+    pred = np.asarray(scored.pred)
+    a_comp = np.asarray(scored.a_comp)
+    predictions = pd.DataFrame({
+        "method": np.repeat(methods, R * N), "repeat": np.tile(np.repeat(ids, N), S),
+        "row": np.tile(rows_idx, S * R), "station": np.tile(station, S * R),
+        "split": np.where(np.tile(train.ravel(), S), "train", "test"),
+        "azimuth_true": np.tile(a_true, S * R), "azimuth_raw": np.tile(a_raw, S * R),
+        "azimuth_msa": np.tile(a_msa.ravel(), S), "error_msa": np.tile(target.ravel(), S),
+        "predicted_error": pred.ravel(), "azimuth_compensated": a_comp.ravel(),
+        "error_compensated": np.asarray(angle_diff(a_comp, a_true[None, None])).ravel()})
+    if "toolface_deg" in frame.columns:
+        predictions.insert(5, "toolface_deg", np.tile(frame["toolface_deg"].to_numpy()[kept], S * R))
+
+    names = _msa.MODELS[cfg.msa_model]
+    m = prep.msa
+    msa_df = pd.DataFrame({"repeat": ids, "cost_V": np.asarray(m.cost), "condition": np.asarray(m.condition),
+                           **{f"bias_{ax}": np.asarray(m.bias)[:, i] for i, ax in enumerate("xyz")},
+                           **{f"scale_{ax}": np.asarray(m.scale)[:, i] for i, ax in enumerate("xyz")},
+                           **{f"std_{n}": np.asarray(m.std_error)[:, i] for i, n in enumerate(names)}})
+    return StudyResult(metrics, summary, histories, predictions, msa_df,
+                       {"best_fitness": curve, "evals": evals}, kept, cfg, wall, evals[..., -1])
