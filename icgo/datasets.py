@@ -30,6 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pandas as pd
+from scipy.signal import lfilter
 
 from icgo import frames as F
 from icgo import instruments as ins
@@ -269,5 +270,369 @@ def _station_survey(name, seed, A, I, T, total_field_nT, dip_deg, gravity_g, cas
         "spiked_stations": station[spiked].tolist(), "dropped_stations": station[~keep].tolist(),
         "casing_field_ned_nT": _np(b_cas)[keep],
         **(extra_truth or {}),
+    }
+    return Dataset(frame, meta, truth)
+
+
+# ===================================================== well_conditions (ICGO 4)
+#: The six (inclination, azimuth) pairs of the ICGO paper's Table 4 (deg).
+TABLE4_CONDITIONS = ((0.594, 30.0), (1.8, 60.0), (60.0, 135.0), (90.0, 150.0), (135.0, 210.0), (150.0, 270.0))
+
+#: The paper's Table 4 "original" (raw) azimuth error mean and std per condition (deg).
+TABLE4_ORIGINAL = ((31.2905, 0.8895), (29.6639, 0.9838), (6.2256, 0.1378), (5.7334, 0.6672),
+                   (9.2645, 0.4551), (7.1916, 0.3263))
+
+#: Tool-fixed errors of the instrument in the section-4 runs: smaller than
+#: LAB_EFFECTS so that the toolface spread is of the order of Table 4's std
+#: column; a uniform lab field (steel in the building) shifts every azimuth by
+#: a few degrees, as Table 4's same-signed 6-9 deg at high inclination suggests.
+WELL_EFFECTS = {
+    "external_field": (0.0, -2500.0, 0.0),         # nT NED, uniform lab field
+    "hard_iron": (300.0, -250.0, 500.0),
+    "mag_cross_coupling": (0.004, -0.003, 0.002),
+    "mag_scale": (0.003, -0.002, 0.002),
+    "mag_misalignment": (0.20, -0.15, 0.20),
+    "accel_bias": (6e-5, -5e-5, 5e-5),
+    "accel_scale": (1.0e-3, -8e-4, 5e-4),
+}
+
+#: Casing buried upright below the tilt fixture: top end 1 m below the pivot and
+#: 0.3 m to the west, 3 m x 150 mm, magnetized along its axis.
+WELL_CASING = ins.Casing(end_ned=(0.0, -0.3, 1.0), axis_ned=(0.0, 0.0, 1.0), magnetization_A_m=15000.0)
+
+
+def well_conditions(
+    seed: int = 0,
+    *,
+    conditions=TABLE4_CONDITIONS,
+    toolface_step_deg: float = 5.0,
+    toolface_end_inclusive: bool = False,
+    n_samples: int = 8,
+    total_field_nT: float = 54_940.0,
+    dip_deg: float = 59.40,
+    gravity_g: float = 1.0,
+    casing: ins.Casing | None = WELL_CASING,
+    sensor_lever_m: float = 0.6,
+    sensor_offset_m: float = 0.015,
+    effects: Mapping[str, Any] | None = WELL_EFFECTS,
+    accel_noise_g: float = 5e-4,
+    mag_noise_nT: float = 30.0,
+    spike_prob: float = 0.0,
+    spike_nT: float = 100_000.0,
+    outlier_sigma: float | None = None,
+) -> Dataset:
+    """ICGO paper section 4 / Table 4: six attitudes, toolface swept, casing buried below the sensor.
+
+    The tool sits on a tilt fixture that turns about a pivot; the magnetometer
+    is ``sensor_lever_m`` down the tool axis from the pivot. Near vertical it
+    hangs closest to the casing's top pole, which is offset horizontally, so a
+    strong horizontal casing field rotates the apparent magnetic north there:
+    the raw error is largest at the two near-vertical conditions (as in Table
+    4). At high inclinations the sensor swings away from the casing and the
+    error falls to the uniform lab field's shift plus the tool's own errors.
+    Near vertical, tool-fixed cross-axial errors also weigh more (accelerometer
+    bias over ``sin I``), which widens the toolface spread there.
+
+    Args:
+        seed: PRNG seed (noise only).
+        conditions: (inclination, azimuth) pairs (deg).
+        toolface_step_deg, toolface_end_inclusive: toolface sweep (default 0..355 by 5).
+        n_samples: raw samples averaged per row.
+        total_field_nT, dip_deg, gravity_g: site (default as :func:`lab_casing`).
+        casing: buried casing (``None`` removes it).
+        sensor_lever_m, sensor_offset_m: sensor position in the tool relative to the pivot.
+        effects: instrument effects; see :data:`WELL_EFFECTS`.
+        accel_noise_g, mag_noise_nT, spike_prob, spike_nT, outlier_sigma: as :func:`lab_casing`
+            (no spikes and no filter by default: the paper does not mention one here).
+    Returns:
+        Dataset with an extra ``condition`` column (index into ``conditions``).
+    """
+    cond = _np(conditions).reshape(-1, 2)
+    if cond.size == 0:
+        raise ValueError("well_conditions: conditions is empty")
+    if np.any((cond[:, 0] < 0) | (cond[:, 0] > 180)):
+        raise ValueError(f"well_conditions: inclinations {cond[:, 0].tolist()} must be in [0, 180]")
+    tf = _toolfaces(toolface_step_deg, toolface_end_inclusive)
+    I = np.repeat(cond[:, 0], tf.size)
+    A = np.repeat(cond[:, 1], tf.size)
+    T = np.tile(tf, len(cond))
+    k = np.repeat(np.arange(len(cond)), tf.size)
+    return _station_survey(
+        "well_conditions", seed, A, I, T, total_field_nT, dip_deg, gravity_g, casing,
+        pivot_ned=(0.0, 0.0, 0.0), lever_tool=(sensor_offset_m, 0.0, sensor_lever_m),
+        effects=_effects_dict(effects), n_samples=n_samples, accel_noise_g=accel_noise_g,
+        mag_noise_nT=mag_noise_nT, spike_prob=spike_prob, spike_nT=spike_nT, outlier_sigma=outlier_sigma,
+        extra_truth={"conditions": cond.tolist(), "paper_table4_original": [list(r) for r in TABLE4_ORIGINAL]},
+        extra_cols={"condition": k},
+    )
+
+
+# ================================================== turntable (patent CN1888384)
+#: The patent's inclination test points (deg), "dense near zero, 10 deg apart above 10".
+PATENT_INCLINATIONS = (3.0, 5.0, 10.0, 15.0, 25.0, 35.0, 45.0, 55.0, 65.0, 75.0)
+
+#: Repeatable errors of a dynamically tuned 2-axis gyro (deg/h scale, typical of
+#: gyro-compass inclinometers); the z row is unused (no z gyro).
+PATENT_GYRO = ins.GyroErrors(
+    bias_deg_h=(0.25, -0.18, 0.0),
+    g_sensitivity_deg_h_g=((0.12, 0.05, 0.20), (-0.04, 0.10, -0.15), (0.0, 0.0, 0.0)),
+    scale=(8e-4, -5e-4, 0.0),
+    misalignment_deg=(0.10, -0.08, 0.15),
+)
+
+
+class AccelErrors(NamedTuple):
+    """Accelerometer bias (g) and scale-factor error (1), per tool axis (z unused by a 2-accelerometer tool)."""
+
+    bias_g: tuple = (5e-5, -4e-5, 0.0)
+    scale: tuple = (3e-4, -2e-4, 0.0)
+
+
+def _turntable_survey(name, seed, A, I, T, *, latitude_deg, gravity_g, gyro, accel, mount_misalignment_deg,
+                      gyro_noise_deg_h, accel_noise_g, total_field_nT, dip_deg, declination_deg, extra_truth=None):
+    A, I, T = jnp.asarray(A, jnp.float64), jnp.asarray(I, jnp.float64), jnp.asarray(T, jnp.float64)
+    s = F.sensors_from_attitude(A, I, T, total_field_nT, dip_deg, declination_deg, latitude_deg, gravity_g)
+    # Installation misalignment of the sensor block relative to the turntable's tool frame.
+    from icgo.effects import rotation_from_vector
+
+    rm = rotation_from_vector(jnp.asarray(mount_misalignment_deg, jnp.float64))
+    G_s = s.G @ rm.T
+    W_s = s.W @ rm.T
+    W_m = ins.gyro_measure(W_s, G_s, gyro)
+    G_m = G_s * (1.0 + jnp.asarray(accel.scale)) + jnp.asarray(accel.bias_g)
+    k_w, k_g = jax.random.split(jax.random.PRNGKey(int(seed)))
+    W_m = W_m + gyro_noise_deg_h * jax.random.normal(k_w, W_m.shape)
+    G_m = G_m + accel_noise_g * jax.random.normal(k_g, G_m.shape)
+    wx, wy, gx, gy = W_m[:, 0], W_m[:, 1], G_m[:, 0], G_m[:, 1]
+    a_raw, i_raw, t_raw = ins.patent_attitude_in_our_frame(wx, wy, gx, gy, latitude_deg, gravity_g)
+    # Two accelerometers: gz is what eq. (6)'s |g| assumption implies; no z gyro: wz is the ideal earth rate.
+    gz = jnp.sqrt(jnp.clip(gravity_g**2 - gx**2 - gy**2, 0.0, None))
+    G_out = jnp.stack([gx, gy, gz], -1)
+    n = A.shape[0]
+    frame = _contract_frame(
+        np.arange(n), G_out, s.B, A, I, F.wrap360(T),
+        {"wx": _np(wx), "wy": _np(wy), "wz": _np(s.W[:, 2]),
+         "azimuth_raw_deg": _np(a_raw), "inclination_raw_deg": _np(i_raw), "toolface_raw_deg": _np(t_raw)},
+    )
+    meta = {
+        "name": name, "seed": int(seed), "total_field_nT": float(total_field_nT), "dip_deg": float(dip_deg),
+        "declination_deg": float(declination_deg), "gravity_g": float(gravity_g), "latitude": float(latitude_deg),
+        "azimuth_reference": "true (gyro compass)",
+        "description": "2-axis gyro + 2 accelerometers (patent CN1888384); bx..bz are the ideal field "
+                       "(no magnetometer), wz is the ideal earth rate (no z gyro), gz is implied by |g|",
+    }
+    truth = {
+        "gyro": _jsonable(gyro), "accel": _jsonable(accel), "mount_misalignment_deg": list(mount_misalignment_deg),
+        "gyro_noise_deg_h": gyro_noise_deg_h, "accel_noise_g": accel_noise_g, **(extra_truth or {}),
+    }
+    return Dataset(frame, meta, truth)
+
+
+_TT_DEFAULTS = dict(
+    latitude_deg=39.98, gravity_g=1.0, gyro=PATENT_GYRO, accel=AccelErrors(), mount_misalignment_deg=(0.05, -0.04, 0.0),
+    gyro_noise_deg_h=0.02, accel_noise_g=1e-5, total_field_nT=54_940.0, dip_deg=59.40, declination_deg=-7.49,
+)
+
+
+def turntable(seed: int = 0, *, inclinations_deg=PATENT_INCLINATIONS, azimuth_step_deg: float = 30.0,
+              toolface_step_deg: float = 30.0, azimuth_offset_deg: float = 0.0, toolface_offset_deg: float = 0.0,
+              **instrument) -> Dataset:
+    """Patent CN1888384's 3-axis turntable plan for a 2-axis gyro + 2-accelerometer inclinometer.
+
+    Inclination x azimuth x toolface grid (patent: I in :data:`PATENT_INCLINATIONS`,
+    A and T every 30 deg: 10 x 12 x 12 = 1440 points). The instrument solves
+    A, I, T with the patent's eqs. (5)-(7) from gyro and accelerometer readings
+    carrying repeatable errors (:data:`PATENT_GYRO`, :class:`AccelErrors`, an
+    installation misalignment of the sensor block), so the raw azimuth error
+    depends on I, A and T and repeats between runs (the seed only draws the
+    small noise).
+
+    Args:
+        seed: PRNG seed (noise only).
+        inclinations_deg: inclination test points (deg), each in (0, 90).
+        azimuth_step_deg, toolface_step_deg: grid steps (deg) over [0, 360).
+        azimuth_offset_deg, toolface_offset_deg: shift of the grid (deg).
+        **instrument: overrides of latitude_deg (39.98, Beijing), gravity_g,
+            gyro (GyroErrors), accel (AccelErrors), mount_misalignment_deg,
+            gyro_noise_deg_h, accel_noise_g, total_field_nT, dip_deg, declination_deg.
+    Returns:
+        Dataset; extra columns wx, wy, wz (deg/h), azimuth_raw_deg,
+        inclination_raw_deg, toolface_raw_deg (the instrument's own solution).
+    """
+    inc = _np(inclinations_deg).ravel()
+    if inc.size == 0 or np.any((inc <= 0) | (inc >= 90)):
+        raise ValueError(f"turntable: inclinations {inc.tolist()} must be non-empty and in (0, 90) deg (patent eqs. 5-7)")
+    for nm, st in (("azimuth_step_deg", azimuth_step_deg), ("toolface_step_deg", toolface_step_deg)):
+        if not 0.0 < st <= 360.0:
+            raise ValueError(f"turntable: {nm} {st} must be in (0, 360]")
+    az = np.arange(0.0, 360.0 - 1e-9, azimuth_step_deg) + azimuth_offset_deg
+    tf = np.arange(0.0, 360.0 - 1e-9, toolface_step_deg) + toolface_offset_deg
+    I, A, T = (x.ravel() for x in np.meshgrid(inc, az, tf, indexing="ij"))
+    kw = _turntable_kwargs(instrument)
+    return _turntable_survey("turntable", seed, A, I, T, **kw, extra_truth={
+        "inclinations_deg": inc.tolist(), "azimuth_step_deg": azimuth_step_deg, "toolface_step_deg": toolface_step_deg})
+
+
+def _turntable_kwargs(instrument):
+    unknown = set(instrument) - set(_TT_DEFAULTS)
+    if unknown:
+        raise ValueError(f"turntable: unknown argument(s) {sorted(unknown)}; known: {sorted(_TT_DEFAULTS)}")
+    return {**_TT_DEFAULTS, **instrument}
+
+
+def turntable_random(seed: int = 0, *, n: int = 2000, inclination_range_deg=(3.0, 75.0), **instrument) -> Dataset:
+    """Dense random test set: ``n`` attitudes uniform in I over the range and in A, T over [0, 360).
+
+    The attitudes and the noise both come from ``seed``; the instrument's
+    systematic errors are the same as :func:`turntable`'s (same overrides).
+    """
+    lo, hi = (float(v) for v in inclination_range_deg)
+    if not 0.0 < lo < hi < 90.0:
+        raise ValueError(f"turntable_random: inclination_range_deg {inclination_range_deg} must satisfy 0 < lo < hi < 90")
+    if n < 1:
+        raise ValueError(f"turntable_random: n {n} must be >= 1")
+    k_att, k_noise = jax.random.split(jax.random.PRNGKey(int(seed)))
+    u = _np(jax.random.uniform(k_att, (n, 3)))
+    I, A, T = lo + (hi - lo) * u[:, 0], 360.0 * u[:, 1], 360.0 * u[:, 2]
+    noise_seed = int(jax.random.randint(k_noise, (), 0, 2**31 - 1))
+    return _turntable_survey("turntable_random", noise_seed, A, I, T, **_turntable_kwargs(instrument),
+                             extra_truth={"inclination_range_deg": [lo, hi], "seed": int(seed)})
+
+
+def turntable_between(seed: int = 0, *, inclinations_deg=PATENT_INCLINATIONS, azimuth_step_deg: float = 30.0,
+                      toolface_step_deg: float = 30.0, **instrument) -> Dataset:
+    """Test points half-way between the grid points of :func:`turntable` in I, A and T.
+
+    Inclinations are the midpoints of consecutive test points (4, 7.5, 12.5,
+    20, ..., 70 deg); azimuth and toolface are shifted by half a step.
+    """
+    inc = np.sort(_np(inclinations_deg).ravel())
+    if inc.size < 2:
+        raise ValueError("turntable_between: need at least 2 inclinations")
+    mid = 0.5 * (inc[1:] + inc[:-1])
+    ds = turntable(seed, inclinations_deg=mid, azimuth_step_deg=azimuth_step_deg, toolface_step_deg=toolface_step_deg,
+                   azimuth_offset_deg=azimuth_step_deg / 2, toolface_offset_deg=toolface_step_deg / 2, **instrument)
+    ds.meta["name"] = "turntable_between"
+    return ds
+
+
+# ====================================================== rotating_drill (MISMA)
+#: 12-parameter magnetometer error of a MEMS (AMR) magnetometer strapped to a
+#: steel drill rod: B_meas = R B_true + b. Sensitivity errors dominate the
+#: off-diagonal ones (MISMA's Tables 2 and 4); b is large in the field.
+MISMA_R = ((1.045, 0.018, -0.012), (-0.010, 0.965, 0.022), (0.015, -0.020, 1.030))
+MISMA_B_NT = (3500.0, -2200.0, 4800.0)
+
+#: MEMS gyro (CRG20-02 class): bias ~0.05 deg/s, scale 0.5 %, g-sensitivity ~0.01 deg/s/g.
+MISMA_GYRO = ins.GyroErrors(
+    bias_deg_h=(180.0, -144.0, 216.0),
+    g_sensitivity_deg_h_g=((36.0, 0.0, 0.0), (0.0, -30.0, 0.0), (0.0, 0.0, 20.0)),
+    scale=(5e-3, -4e-3, 3e-3),
+    misalignment_deg=(0.2, -0.3, 0.1),
+)
+
+
+def rotating_drill(
+    seed: int = 0,
+    *,
+    duration_s: float = 4200.0,
+    sample_rate_hz: float = 1.0,
+    stop_every_s: float = 300.0,
+    stop_duration_s: float = 30.0,
+    rotation_rpm: float = 30.0,
+    rpm_variation: float = 0.15,
+    inclination_start_deg: float = 88.0,
+    inclination_end_deg: float = 86.5,
+    azimuth_start_deg: float = 120.0,
+    azimuth_end_deg: float = 124.0,
+    total_field_nT: float = 52_650.0,
+    dip_deg: float = 53.8,
+    latitude_deg: float = 35.2,
+    gravity_g: float = 9.7966 / 9.80665,
+    R=MISMA_R,
+    b_nT=MISMA_B_NT,
+    mag_noise_nT: float = 50.0,
+    accel_noise_g: float = 2e-3,
+    vibration_g: float = 0.05,
+    axial_vibration_g: float = 0.02,
+    accel_radius_m: float = 0.02,
+    gyro: ins.GyroErrors = MISMA_GYRO,
+    gyro_noise_deg_h: float = 72.0,
+) -> Dataset:
+    """MISMA paper's field run: 1 Hz for 4200 s while drilling, the string stopped every 300 s.
+
+    Each 300 s segment rotates for ``stop_every_s - stop_duration_s`` s and
+    ends with a ``stop_duration_s`` static survey (``static == 1``, ``survey``
+    its index; the reference azimuth at a stop is the true azimuth). The rate
+    is ``rotation_rpm`` with a slow random stick-slip variation (relative
+    ``rpm_variation``, an Ornstein-Uhlenbeck process with a 20 s time
+    constant), so the 1 Hz samples land at scattered toolfaces. The borehole
+    direction drifts linearly from start to end values while drilling.
+
+    Sensors: magnetometer ``B_meas = R B_true + b`` + white noise; accelerometer
+    gravity + white noise + lateral/axial vibration while rotating + the
+    centripetal term ``omega^2 r`` on x for an accelerometer ``r`` off axis
+    (G is gravity minus the tool's acceleration in our sign convention, so the
+    centripetal acceleration toward the axis reads as ``+omega^2 r`` on x);
+    gyro ``W`` = earth rate + string rotation about z, with :class:`GyroErrors`
+    and white noise, in deg/h. Site: MISMA's (dip 53.8 deg, 52.65 uT,
+    g = 9.7966 m/s^2, Jiaozuo ~35.2 N).
+
+    Returns:
+        Dataset with ``time_s``, ``wx, wy, wz``, ``static``, ``survey``
+        columns; ``truth['R']``, ``truth['b_nT']`` the 12 parameters.
+    """
+    n = int(round(duration_s * sample_rate_hz))
+    if n < 2:
+        raise ValueError(f"rotating_drill: duration_s * sample_rate_hz = {n} samples; need >= 2")
+    if not 0.0 <= stop_duration_s < stop_every_s:
+        raise ValueError(f"rotating_drill: stop_duration_s {stop_duration_s} must be in [0, stop_every_s)")
+    Rm = _np(R)
+    bv = _np(b_nT)
+    if Rm.shape != (3, 3) or bv.shape != (3,):
+        raise ValueError(f"rotating_drill: R must be 3x3 and b_nT length 3, got {Rm.shape} and {bv.shape}")
+    dt = 1.0 / sample_rate_hz
+    t = np.arange(n) * dt
+    phase = np.mod(t, stop_every_s)
+    static = phase >= stop_every_s - stop_duration_s
+    survey = np.where(static, (t // stop_every_s).astype(np.int64), -1)
+    key = jax.random.PRNGKey(int(seed))
+    k_ou, k_t0, k_b, k_g, k_vib, k_w = jax.random.split(key, 6)
+    # Stick-slip: OU process on the relative rate, 20 s time constant, unit variance.
+    a = np.exp(-dt / 20.0)
+    eps = _np(jax.random.normal(k_ou, (n,)))
+    ou = lfilter([np.sqrt(1.0 - a * a)], [1.0, -a], eps)  # x_k = a x_{k-1} + sqrt(1-a^2) e_k
+    rate_deg_s = np.where(static, 0.0, rotation_rpm * 6.0 * (1.0 + rpm_variation * ou))
+    T = np.mod(float(jax.random.uniform(k_t0, (), maxval=360.0)) + np.cumsum(rate_deg_s) * dt, 360.0)
+    drilled = np.cumsum(~static) * dt / max(np.sum(~static) * dt, 1e-12)
+    I = inclination_start_deg + (inclination_end_deg - inclination_start_deg) * drilled
+    A = azimuth_start_deg + (azimuth_end_deg - azimuth_start_deg) * drilled
+    s = F.sensors_from_attitude(jnp.asarray(A), jnp.asarray(I), jnp.asarray(T), total_field_nT, dip_deg, 0.0,
+                                latitude_deg, gravity_g)
+    B = _np(s.B) @ Rm.T + bv + mag_noise_nT * _np(jax.random.normal(k_b, (n, 3)))
+    omega = np.deg2rad(rate_deg_s)
+    rot = (~static)[:, None]
+    vib = _np(jax.random.normal(k_vib, (n, 3))) * np.array([vibration_g, vibration_g, axial_vibration_g])
+    centripetal = np.stack([omega**2 * accel_radius_m / 9.80665, 0 * omega, 0 * omega], -1)
+    G = _np(s.G) + rot * (vib + centripetal) + accel_noise_g * _np(jax.random.normal(k_g, (n, 3)))
+    W_true = _np(s.W) + np.stack([0 * t, 0 * t, rate_deg_s * 3600.0], -1)
+    W = _np(ins.gyro_measure(W_true, _np(s.G), gyro)) + gyro_noise_deg_h * _np(jax.random.normal(k_w, (n, 3)))
+    frame = _contract_frame(
+        np.arange(n), G, B, A, I, T,
+        {"time_s": t, "wx": W[:, 0], "wy": W[:, 1], "wz": W[:, 2], "static": static.astype(np.int64), "survey": survey},
+    )
+    meta = {
+        "name": "rotating_drill", "seed": int(seed), "total_field_nT": float(total_field_nT), "dip_deg": float(dip_deg),
+        "declination_deg": 0.0, "gravity_g": float(gravity_g), "latitude": float(latitude_deg),
+        "azimuth_reference": "magnetic", "sample_rate_hz": float(sample_rate_hz),
+        "description": "MISMA field run: rotating string, static survey every 300 s (static=1, survey id); "
+                       "reference attitude known at every sample (simulation), used at the stops",
+    }
+    truth = {
+        "R": Rm.tolist(), "b_nT": bv.tolist(), "gyro": _jsonable(gyro), "rotation_rpm": rotation_rpm,
+        "rpm_variation": rpm_variation, "mag_noise_nT": mag_noise_nT, "accel_noise_g": accel_noise_g,
+        "vibration_g": vibration_g, "axial_vibration_g": axial_vibration_g, "accel_radius_m": accel_radius_m,
+        "gyro_noise_deg_h": gyro_noise_deg_h, "stop_every_s": stop_every_s, "stop_duration_s": stop_duration_s,
+        "rate_deg_s": rate_deg_s,
     }
     return Dataset(frame, meta, truth)
