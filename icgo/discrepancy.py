@@ -306,6 +306,24 @@ def _circmean_deg(a):
     return float(np.rad2deg(np.arctan2(np.mean(np.sin(r)), np.mean(np.cos(r)))))
 
 
+def pad_stations(st: Stations, bucket: int):
+    """Pad to a multiple of ``bucket`` stations by repeating the last one.
+
+    Returns (padded Stations, real mask (n_pad,)). The padded stations are marked
+    invalid (weight 0) so they change nothing, but every data set of up to
+    ``bucket`` stations reuses one compiled fit (no recompilation per size).
+    """
+    n = st.n
+    n_pad = max(bucket, int(math.ceil(n / bucket)) * bucket) if bucket else n
+    real = np.arange(n_pad) < n
+    if n_pad == n:
+        return st, real
+    rep = lambda a: None if a is None else np.concatenate([np.asarray(a), np.repeat(np.asarray(a)[-1:], n_pad - n, 0)])
+    extras = None if st.extras is None else {k: rep(v) for k, v in st.extras.items()}
+    return st._replace(G=rep(st.G), B=rep(st.B), azimuth=rep(st.azimuth), inclination=rep(st.inclination),
+                       group=rep(st.group), extras=extras), real
+
+
 def prepare(st: Stations, sigma_b_nT=SIGMA_B_NT, sigma_g=SIGMA_G):
     """Build (Layout, Data, valid mask, free-nuisance mask) from Stations.
 
@@ -771,17 +789,18 @@ class Result(NamedTuple):
 def _folds(st: Stations, valid, k, key):
     """(K, n) train and test weights: a random permutation, round-robin per group."""
     n = st.n
-    perm = np.asarray(jax.random.permutation(key, n))
-    fold = np.empty(n, int)
+    idx = np.flatnonzero(valid)
+    perm = idx[np.asarray(jax.random.permutation(key, idx.size))]
+    fold = np.full(n, -1)
     if st.group is not None and not st.has_reference:
         g = np.asarray(st.group)[perm]
         for gid in np.unique(g):
-            idx = perm[g == gid]
-            fold[idx] = (np.arange(len(idx)) + int(gid)) % k
+            sel = perm[g == gid]
+            fold[sel] = (np.arange(len(sel)) + int(gid)) % k
     else:
-        fold[perm] = np.arange(n) % k
+        fold[perm] = np.arange(perm.size) % k
     test = np.stack([(fold == i) & valid for i in range(k)]).astype(float)
-    train = np.stack([(fold != i) & valid for i in range(k)]).astype(float)
+    train = np.stack([(fold != i) & (fold >= 0) & valid for i in range(k)]).astype(float)
     return train, test
 
 
@@ -811,7 +830,8 @@ def noise_floor(st: Stations, n_valid: int) -> float:
 
 def run_workflow(st: Stations, *, k_folds=5, max_effects=4, min_rel_improvement=0.10, min_z=3.0,
                  ambiguity_z=2.0, noise_tolerance=1.5, separability_threshold=0.02, n_iter=12,
-                 sigma_b_nT=SIGMA_B_NT, sigma_g=SIGMA_G, key=None, candidates=None, verbose=False) -> Result:
+                 sigma_b_nT=SIGMA_B_NT, sigma_g=SIGMA_G, key=None, candidates=None, bucket=120,
+                 verbose=False) -> Result:
     """name + add + show: greedy forward search over the effect vocabulary.
 
     At each step every effect not yet in the model is fitted together with the
@@ -832,6 +852,9 @@ def run_workflow(st: Stations, *, k_folds=5, max_effects=4, min_rel_improvement=
         st: stations. k_folds: folds of the held-out score. max_effects: cap.
         candidates: effect names to consider (default: the whole vocabulary).
         key: PRNG key for the fold permutation (default PRNGKey(0)).
+        bucket: pad the stations to a multiple of this (see :func:`pad_stations`);
+            the Result's per-station arrays have the padded length, with
+            ``compare_*["valid"]`` False on the pads.
     Returns:
         Result.
     """
@@ -839,7 +862,10 @@ def run_workflow(st: Stations, *, k_folds=5, max_effects=4, min_rel_improvement=
 
     t0 = time.perf_counter()
     key = jax.random.PRNGKey(0) if key is None else key
+    check_stations(st)
+    st, real = pad_stations(st, bucket)
     layout, data, valid, free_nuis = prepare(st, sigma_b_nT, sigma_g)
+    valid = valid & real
     names = list(layout.names)
     cand_names = list(candidates or names)
     _fx.check_names(cand_names)
