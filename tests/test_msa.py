@@ -1,0 +1,111 @@
+"""Multi-station analysis: recovery of injected biases, eq. (7) by hand, observability errors."""
+
+import numpy as np
+import jax
+import jax.numpy as jnp
+import pytest
+
+import icgo  # noqa: F401  (float64)
+from icgo import effects, frames, msa
+
+F, DIP, NOISE = 50_000.0, 60.0, 15.0
+BIAS = np.array([300.0, -200.0, 500.0])
+
+
+def stations(azimuths=(30, 60, 120, 150, 210, 240, 300, 330), tf_step=15, inc=90.0, fx=None, seed=0, noise=NOISE):
+    A, T = np.meshgrid(np.asarray(azimuths, float), np.arange(0, 360, tf_step, dtype=float), indexing="ij")
+    A, T = A.ravel(), T.ravel()
+    I = np.full_like(A, inc)
+    s = frames.sensors_from_attitude(A, I, T, F, DIP)
+    G, B = effects.apply_effects(fx or {"hard_iron": BIAS}, s.G, s.B, frames.tool_to_earth(A, I, T))
+    rng = np.random.default_rng(seed)
+    return np.asarray(G), np.asarray(B) + rng.normal(0, noise, (A.size, 3)), A, T
+
+
+def test_recovers_hard_iron_within_noise_floor_and_reduces_azimuth_error():
+    G, B, A, _ = stations()
+    r = msa.multi_station_analysis(G, B)
+    # Noise floor: the linearised standard error, itself ~ noise / sqrt(N).
+    assert np.all(np.asarray(r.std_error) < 2 * NOISE / np.sqrt(len(A)))
+    assert np.all(np.abs(np.asarray(r.bias) - BIAS) < 3 * np.asarray(r.std_error))
+    raw = np.abs(np.asarray(frames.angle_diff(frames.azimuth_from_gv(G, B), A)))
+    cor = np.abs(np.asarray(frames.angle_diff(msa.corrected_azimuth(G, B, r), A)))
+    assert cor.max() < 0.15 * raw.max() and cor.mean() < 0.1 * raw.mean()
+    assert 1.0 <= float(r.condition) < 10.0
+
+
+def test_cost_matches_eq7_by_hand():
+    G, B, _, _ = stations()
+    r = msa.multi_station_analysis(G, B)
+    Bc = B - np.asarray(r.bias)
+    g = G / np.linalg.norm(G, axis=1, keepdims=True)
+    bv = np.sum(Bc * g, 1)                                   # eq. (5)
+    bh = np.sqrt(np.sum(Bc * Bc, 1) - bv**2)                 # eq. (6)
+    V = (np.sum((bh - bh.mean()) ** 2) + np.sum((bv - bv.mean()) ** 2)) / (len(bv) - 1)  # eqs. (3), (4), (7)
+    assert float(r.cost) == pytest.approx(V, rel=1e-10)
+    assert np.allclose(r.reference, [bh.mean(), bv.mean()], rtol=1e-12)
+    # A nearby point has a larger V (it is a minimum).
+    Bc2 = B - (np.asarray(r.bias) + [5.0, 0.0, 0.0])
+    bv2 = np.sum(Bc2 * g, 1)
+    bh2 = np.sqrt(np.sum(Bc2 * Bc2, 1) - bv2**2)
+    assert (np.sum((bh2 - bh2.mean()) ** 2) + np.sum((bv2 - bv2.mean()) ** 2)) / (len(bv) - 1) > V
+
+
+def test_weights_mask_equals_row_subset_and_vmaps():
+    G, B, _, _ = stations()
+    rng = np.random.default_rng(1)
+    masks = (rng.random((3, len(G))) < 0.7).astype(float)
+    batched = jax.vmap(lambda w: msa.msa_solve(G, B, w))(jnp.asarray(masks))
+    for k in range(3):
+        sub = msa.multi_station_analysis(G[masks[k] > 0], B[masks[k] > 0])
+        np.testing.assert_allclose(batched.bias[k], sub.bias, atol=1e-6)
+        np.testing.assert_allclose(batched.cost[k], sub.cost, rtol=1e-8)
+
+
+def test_single_direction_axial_bias_unobservable_without_reference():
+    G, B, _, _ = stations(azimuths=(60,), tf_step=5)
+    with pytest.raises(ValueError, match="eps_z"):
+        msa.multi_station_analysis(G, B)
+    # Noise-free data: exactly dependent column, also caught.
+    G0, B0, _, _ = stations(azimuths=(60,), tf_step=5, noise=0.0)
+    with pytest.raises(ValueError, match="cannot determine"):
+        msa.multi_station_analysis(G0, B0)
+    # A known reference field makes it observable.
+    r = msa.multi_station_analysis(G, B, reference=msa.reference_from_field(F, DIP))
+    assert np.all(np.abs(np.asarray(r.bias) - BIAS) < 3 * np.asarray(r.std_error) + 1e-9)
+
+
+def test_biases_and_scale_factors_with_reference():
+    s = np.array([0.01, -0.008, 0.005])
+    G, B, _, _ = stations(fx={"hard_iron": BIAS, "mag_scale": s}, inc=60.0)
+    G2, B2, _, _ = stations(fx={"hard_iron": BIAS, "mag_scale": s}, inc=120.0, seed=3)
+    G, B = np.vstack([G, G2]), np.vstack([B, B2])
+    r = msa.multi_station_analysis(G, B, reference=msa.reference_from_field(F, DIP), model="biases_scales")
+    est = np.asarray(r.params)
+    assert np.all(np.abs(est - np.concatenate([BIAS, s])) < 3 * np.asarray(r.std_error))
+    with pytest.raises(ValueError, match="reference"):
+        msa.multi_station_analysis(G, B, model="biases_scales")
+
+
+def test_soft_iron_is_not_a_bias_and_leaves_a_residual():
+    # The bias model removes the bias only; a soft-iron matrix leaves a residual.
+    G, B, A, T = stations(fx={"hard_iron": BIAS, "mag_cross_coupling": np.array([0.01, -0.006, 0.004])}, noise=0.0)
+    r = msa.multi_station_analysis(G, B)
+    res = np.asarray(frames.angle_diff(msa.corrected_azimuth(G, B, r), A))
+    assert np.sqrt(np.mean(res**2)) > 0.05  # soft iron is not a bias: a residual survives
+
+
+def test_bad_inputs():
+    G, B, _, _ = stations()
+    with pytest.raises(ValueError, match=r"\(N, 3\)"):
+        msa.multi_station_analysis(G[:, :2], B)
+    Bn = B.copy()
+    Bn[3, 1] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        msa.multi_station_analysis(G, Bn)
+    with pytest.raises(ValueError, match="msa model"):
+        msa.multi_station_analysis(G, B, model="full")
+    with pytest.raises(ValueError, match="weights"):
+        msa.multi_station_analysis(G, B, weights=np.ones(5))
+    with pytest.raises(ValueError, match="stations cannot determine|weighted stations"):
+        msa.multi_station_analysis(G[:3], B[:3])
