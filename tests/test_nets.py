@@ -105,23 +105,21 @@ def test_fit_vmapped_equals_single_and_reduces_error():
 
 def test_compiles_once_per_config():
     inc, tf, a_raw, a_true, _ = _synthetic(400)
-    cfg = CFG._replace(epochs=20)
     keys = jax.random.split(jax.random.PRNGKey(1), 3)
-    nets.fit(keys, inc, tf, a_raw, a_true, cfg)
+    nets.fit(keys, inc, tf, a_raw, a_true, CFG)
     n0 = nets._train_batch._cache_size()
-    nets.fit(jax.random.split(jax.random.PRNGKey(2), 3), inc + 1.0, tf, a_raw, a_true, cfg)
+    nets.fit(jax.random.split(jax.random.PRNGKey(2), 3), inc + 1.0, tf, a_raw, a_true, CFG)
     assert nets._train_batch._cache_size() == n0
 
 
 def test_early_stopping_freezes_after_patience():
-    inc, tf, a_raw, _, _ = _synthetic(600)
+    inc, tf, a_raw, _, _ = _synthetic(400)
     # pure-noise targets: nothing to learn, the validation loss stops improving early
-    a_true = a_raw + np.random.default_rng(7).normal(0.0, 1.0, 600)
-    cfg = nets.NetConfig(epochs=60, batch_size=8, patience=5, learning_rate=0.05)
-    res = nets.fit(jax.random.PRNGKey(0), inc, tf, a_raw, a_true, cfg)
+    a_true = a_raw + np.random.default_rng(7).normal(0.0, 1.0, 400)
+    res = nets.fit(jax.random.PRNGKey(0), inc, tf, a_raw, a_true, CFG)
     se = int(res.stopped_epoch)
-    assert se < 60
-    assert se - int(res.best_epoch) == 5
+    assert se < CFG.epochs
+    assert se - int(res.best_epoch) == CFG.patience
     vl = np.asarray(res.val_loss)
     assert np.all(vl[se:] == vl[se])
 
@@ -129,20 +127,19 @@ def test_early_stopping_freezes_after_patience():
 def test_target_azimuth_fails_at_north_and_error_target_does_not():
     # constant +2 deg error: trivial for target=error, a seam for target=azimuth
     rng = np.random.default_rng(4)
-    n = 600
+    n = 400
     inc, tf, a_true = rng.uniform(3, 75, n), rng.uniform(0, 360, n), rng.uniform(0, 360, n)
     a_raw = np.mod(a_true - 2.0, 360.0)
-    cfg = nets.NetConfig(epochs=300, batch_size=32, patience=100, learning_rate=0.05)
     out = {}
     for target in ("azimuth", "error"):
-        c = cfg._replace(target=target)
+        c = CFG._replace(target=target)
         res = nets.fit(jax.random.PRNGKey(5), inc, tf, a_raw, a_true, c)
         e = np.asarray(angle_diff(a_true, nets.predict(res, inc, tf, a_raw, c)))
         north = np.abs(angle_diff(a_true, 0.0)) < 10.0
         out[target] = (np.sqrt(np.mean(e[north] ** 2)), np.sqrt(np.mean(e[~north] ** 2)))
     n_az, far_az = out["azimuth"]
     n_er, far_er = out["error"]
-    assert n_az > 10.0 and n_az > 2.5 * far_az, out  # error concentrated near north
+    assert n_az > 20.0 and n_az > 2.5 * far_az, out  # error concentrated near north
     assert n_er < 0.2 and far_er < 0.2, out  # gone with the error target
 
 
