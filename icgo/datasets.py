@@ -140,10 +140,17 @@ def _toolfaces(step_deg, end_inclusive):
     return tf if end_inclusive else tf[tf < 360.0 - 1e-9]
 
 
-def _sample_sensors(key, G, B, n_samples, accel_noise_g, mag_noise_nT, spike_prob, spike_nT):
-    k_g, k_b = jax.random.split(key)
-    g_mean, _ = ins.averaged_samples(k_g, G, accel_noise_g, n_samples)
-    b_mean, spiked = ins.averaged_samples(k_b, B, mag_noise_nT, n_samples, spike_prob, spike_nT)
+def _rngs(seed, n):
+    """``n`` independent numpy generators from one seed (SeedSequence.spawn: streams never overlap)."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed {seed!r}: must be a non-negative integer")
+    return [np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(n)]
+
+
+def _sample_sensors(seed, G, B, n_samples, accel_noise_g, mag_noise_nT, spike_prob, spike_nT):
+    r_g, r_b = _rngs(seed, 2)
+    g_mean, _ = ins.averaged_samples(r_g, G, accel_noise_g, n_samples)
+    b_mean, spiked = ins.averaged_samples(r_b, B, mag_noise_nT, n_samples, spike_prob, spike_nT)
     return g_mean, b_mean, spiked
 
 
@@ -241,8 +248,7 @@ def _station_survey(name, seed, A, I, T, total_field_nT, dip_deg, gravity_g, cas
     B = jnp.einsum("nji,nj->ni", C, B_ned)
     G = jnp.einsum("nji,j->ni", C, F.gravity_vector_ned(float(gravity_g)))
     Gm, Bm = ins.measure_g_b(G, B, C, effects)
-    key = jax.random.PRNGKey(int(seed))
-    g_mean, b_mean, spiked = _sample_sensors(key, Gm, Bm, n_samples, accel_noise_g, mag_noise_nT, spike_prob, spike_nT)
+    g_mean, b_mean, spiked = _sample_sensors(seed, Gm, Bm, n_samples, accel_noise_g, mag_noise_nT, spike_prob, spike_nT)
     g_mean, b_mean, spiked = _np(g_mean), _np(b_mean), np.asarray(spiked)
     n = g_mean.shape[0]
     if outlier_sigma is None:
@@ -400,9 +406,9 @@ def _turntable_survey(name, seed, A, I, T, *, latitude_deg, gravity_g, gyro, acc
     W_s = s.W @ rm.T
     W_m = ins.gyro_measure(W_s, G_s, gyro)
     G_m = G_s * (1.0 + jnp.asarray(accel.scale)) + jnp.asarray(accel.bias_g)
-    k_w, k_g = jax.random.split(jax.random.PRNGKey(int(seed)))
-    W_m = W_m + gyro_noise_deg_h * jax.random.normal(k_w, W_m.shape)
-    G_m = G_m + accel_noise_g * jax.random.normal(k_g, G_m.shape)
+    r_w, r_g = _rngs(seed, 2)
+    W_m = _np(W_m) + gyro_noise_deg_h * r_w.standard_normal(W_m.shape)
+    G_m = _np(G_m) + accel_noise_g * r_g.standard_normal(G_m.shape)
     wx, wy, gx, gy = W_m[:, 0], W_m[:, 1], G_m[:, 0], G_m[:, 1]
     a_raw, i_raw, t_raw = ins.patent_attitude_in_our_frame(wx, wy, gx, gy, latitude_deg, gravity_g)
     # Two accelerometers: gz is what eq. (6)'s |g| assumption implies; no z gyro: wz is the ideal earth rate.
@@ -491,10 +497,10 @@ def turntable_random(seed: int = 0, *, n: int = 2000, inclination_range_deg=(3.0
         raise ValueError(f"turntable_random: inclination_range_deg {inclination_range_deg} must satisfy 0 < lo < hi < 90")
     if n < 1:
         raise ValueError(f"turntable_random: n {n} must be >= 1")
-    k_att, k_noise = jax.random.split(jax.random.PRNGKey(int(seed)))
-    u = _np(jax.random.uniform(k_att, (n, 3)))
+    r_att, r_noise = _rngs(seed, 2)
+    u = r_att.random((n, 3))
     I, A, T = lo + (hi - lo) * u[:, 0], 360.0 * u[:, 1], 360.0 * u[:, 2]
-    noise_seed = int(jax.random.randint(k_noise, (), 0, 2**31 - 1))
+    noise_seed = int(r_noise.integers(0, 2**31 - 1))
     return _turntable_survey("turntable_random", noise_seed, A, I, T, **_turntable_kwargs(instrument),
                              extra_truth={"inclination_range_deg": [lo, hi], "seed": int(seed)})
 
@@ -596,27 +602,26 @@ def rotating_drill(
     phase = np.mod(t, stop_every_s)
     static = phase >= stop_every_s - stop_duration_s
     survey = np.where(static, (t // stop_every_s).astype(np.int64), -1)
-    key = jax.random.PRNGKey(int(seed))
-    k_ou, k_t0, k_b, k_g, k_vib, k_w = jax.random.split(key, 6)
+    r_ou, r_t0, r_b, r_g, r_vib, r_w = _rngs(seed, 6)
     # Stick-slip: OU process on the relative rate, 20 s time constant, unit variance.
     a = np.exp(-dt / 20.0)
-    eps = _np(jax.random.normal(k_ou, (n,)))
+    eps = r_ou.standard_normal(n)
     ou = lfilter([np.sqrt(1.0 - a * a)], [1.0, -a], eps)  # x_k = a x_{k-1} + sqrt(1-a^2) e_k
     rate_deg_s = np.where(static, 0.0, rotation_rpm * 6.0 * (1.0 + rpm_variation * ou))
-    T = np.mod(float(jax.random.uniform(k_t0, (), maxval=360.0)) + np.cumsum(rate_deg_s) * dt, 360.0)
+    T = np.mod(r_t0.uniform(0.0, 360.0) + np.cumsum(rate_deg_s) * dt, 360.0)
     drilled = np.cumsum(~static) * dt / max(np.sum(~static) * dt, 1e-12)
     I = inclination_start_deg + (inclination_end_deg - inclination_start_deg) * drilled
     A = azimuth_start_deg + (azimuth_end_deg - azimuth_start_deg) * drilled
     s = F.sensors_from_attitude(jnp.asarray(A), jnp.asarray(I), jnp.asarray(T), total_field_nT, dip_deg, 0.0,
                                 latitude_deg, gravity_g)
-    B = _np(s.B) @ Rm.T + bv + mag_noise_nT * _np(jax.random.normal(k_b, (n, 3)))
+    B = _np(s.B) @ Rm.T + bv + mag_noise_nT * r_b.standard_normal((n, 3))
     omega = np.deg2rad(rate_deg_s)
     rot = (~static)[:, None]
-    vib = _np(jax.random.normal(k_vib, (n, 3))) * np.array([vibration_g, vibration_g, axial_vibration_g])
+    vib = r_vib.standard_normal((n, 3)) * np.array([vibration_g, vibration_g, axial_vibration_g])
     centripetal = np.stack([omega**2 * accel_radius_m / 9.80665, 0 * omega, 0 * omega], -1)
-    G = _np(s.G) + rot * (vib + centripetal) + accel_noise_g * _np(jax.random.normal(k_g, (n, 3)))
+    G = _np(s.G) + rot * (vib + centripetal) + accel_noise_g * r_g.standard_normal((n, 3))
     W_true = _np(s.W) + np.stack([0 * t, 0 * t, rate_deg_s * 3600.0], -1)
-    W = _np(ins.gyro_measure(W_true, _np(s.G), gyro)) + gyro_noise_deg_h * _np(jax.random.normal(k_w, (n, 3)))
+    W = _np(ins.gyro_measure(W_true, _np(s.G), gyro)) + gyro_noise_deg_h * r_w.standard_normal((n, 3))
     frame = _contract_frame(
         np.arange(n), G, B, A, I, T,
         {"time_s": t, "wx": W[:, 0], "wy": W[:, 1], "wz": W[:, 2], "static": static.astype(np.int64), "survey": survey},
@@ -636,3 +641,57 @@ def rotating_drill(
         "rate_deg_s": rate_deg_s,
     }
     return Dataset(frame, meta, truth)
+
+
+# ====================================================================== CLI
+#: Data sets the command line can write.
+DATASETS = {
+    "lab_casing": lab_casing,
+    "well_conditions": well_conditions,
+    "turntable": turntable,
+    "turntable_random": turntable_random,
+    "turntable_between": turntable_between,
+    "rotating_drill": rotating_drill,
+}
+
+
+def write_dataset(ds: Dataset, out_dir, name: str | None = None):
+    """Write ``DIR/NAME.csv`` + ``DIR/NAME.meta.json`` (via :func:`icgo.io.write_recording`) and ``DIR/NAME.truth.json``.
+
+    Returns the path of the CSV.
+    """
+    import json
+    from pathlib import Path
+
+    from icgo import io
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    name = name or ds.meta["name"]
+    path = out / f"{name}.csv"
+    io.write_recording(path, ds.frame, ds.meta)
+    (out / f"{name}.truth.json").write_text(json.dumps(_jsonable(ds.truth), indent=1) + "\n")
+    return path
+
+
+def main(argv=None) -> int:
+    """``python -m icgo.datasets NAME --out DIR [--seed S]``."""
+    import argparse
+    import sys
+
+    p = argparse.ArgumentParser(prog="python -m icgo.datasets", description="Write a simulated data set (CSV + meta + truth).")
+    p.add_argument("name", choices=sorted(DATASETS))
+    p.add_argument("--out", required=True, help="output directory (created if missing)")
+    p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    a = p.parse_args(argv)
+    try:
+        path = write_dataset(DATASETS[a.name](a.seed), a.out, a.name)
+    except ValueError as e:  # includes icgo.io.DataError: one line, no traceback
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    print(f"wrote {path} ({path.with_name(a.name + '.meta.json').name}, {a.name}.truth.json)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
