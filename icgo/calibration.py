@@ -478,6 +478,41 @@ def fit_twelve(G, B, ref_nT, x0=None, mu_magnitude=1.0, weights=None, check=True
     return sol.x * scale
 
 
+def modulus_fit(B, ref_nT, x0=None, ridge=1e-4):
+    """U of MISMA (eqs. 9-10): parameters whose corrected modulus matches ``|M_omega|``.
+
+    Least squares on ``|R^-1 (B_k - b)| / |M_omega| - 1`` with a weak ridge
+    ``ridge * (x - x0)`` (scaled) towards ``x0`` (default: identity matrix,
+    bias = mean of B), so the fit stays defined where the geometry cannot
+    separate all 12 parameters (e.g. rotation about one axis only, where the
+    ellipsoid fit is rank deficient). On well-spread data it agrees with
+    :func:`ellipsoid_fit` up to a rotation, which moduli cannot see.
+
+    Returns:
+        (12,) numpy parameters.
+    """
+    from scipy.optimize import least_squares
+
+    B = np.asarray(B, np.float64)
+    if x0 is None:
+        s = np.median(np.linalg.norm(B - B.mean(0), axis=1))
+        x0 = np.concatenate([(np.eye(3) * ref_nT / s).ravel(), B.mean(0)])
+    x0 = np.asarray(x0, np.float64)
+    scale = np.concatenate([np.full(9, np.abs(x0[:9]).max()), np.full(3, ref_nT)])
+    Bj = jnp.asarray(B)
+    u0 = jnp.asarray(x0 / scale)
+
+    def res(u):
+        m = jnp.linalg.norm(correct(u * scale, Bj), axis=1) / ref_nT - 1.0
+        return jnp.concatenate([m, ridge * (u - u0)])
+
+    f = jax.jit(res)
+    jac = jax.jit(jax.jacfwd(res))
+    sol = least_squares(lambda u: np.asarray(f(u)), x0 / scale, jac=lambda u: np.asarray(jac(u)),
+                        method="trf", xtol=1e-12, ftol=1e-14, gtol=1e-12, max_nfev=500)
+    return sol.x * scale
+
+
 # -------------------------------------------------- accelerometer and groups
 def ellipsoid_fit_accel(G, check=True) -> np.ndarray:
     """Ellipsoid fit of the accelerometer: ``G_true = S (G_meas - c)`` on the unit sphere.
@@ -576,6 +611,65 @@ def align_to_axis(G_cal, B_cal, groups, min_size=4):
     if not vecs:
         raise ValueError(f"axis alignment: no group with {min_size} or more rolled shots")
     return _rotation_to_z(roll_axis(vecs))
+
+
+def _pointing_jnp(G, B):
+    down = G / jnp.linalg.norm(G, axis=-1, keepdims=True)
+    east = jnp.cross(down, B)
+    east = east / jnp.linalg.norm(east, axis=-1, keepdims=True)
+    north = jnp.cross(east, down)
+    return jnp.stack([north[..., 2], east[..., 2], down[..., 2]], -1)
+
+
+def fit_joint(G, B, groups, xg0, xm0, min_size=4, ridge=1e-5, group_weight=100.0):
+    """Accelerometer (12) and magnetometer (12) parameters fitted together on rolled groups.
+
+    The group-aware pipeline (like mag_cal's fit_to_axis, but one least-squares
+    problem): residuals are the deviations of each rolled shot's pointing
+    direction from its group mean (rad), the dot-invariance residuals (eq. 5),
+    ``|G| - 1`` and ``|B| - 1`` (unit spheres), and a weak ridge towards the
+    start (the roll about the pointing axis is otherwise free).
+
+    Args:
+        G, B: (N, 3) raw readings. groups: (N,) ids (groups with >= min_size
+            shots are rolled groups). xg0, xm0: (12,) starts (ellipsoid fits to
+            radius 1).
+        min_size: smallest group treated as a rolled group.
+        ridge: weight of the pull towards the start (scaled variables).
+    Returns:
+        (xg, xm) numpy (12,) each.
+    """
+    from scipy.optimize import least_squares
+
+    groups = np.asarray(groups)
+    ids = [g for g in np.unique(groups) if (groups == g).sum() >= min_size]
+    if not ids:
+        raise ValueError(f"fit_joint: no group with {min_size} or more rolled shots")
+    onehot = np.stack([(groups == g).astype(float) for g in ids])  # (K, N)
+    member = jnp.asarray(onehot.sum(0) > 0)
+    avg = jnp.asarray(onehot / onehot.sum(1, keepdims=True))
+    back = jnp.asarray(onehot.T)
+    x0 = np.concatenate([np.asarray(xg0), np.asarray(xm0)])
+    scale = np.concatenate([np.full(9, np.abs(x0[:9]).max()), np.ones(3) * np.abs(x0[:9]).max() ** -1,
+                            np.full(9, np.abs(x0[12:21]).max()), np.ones(3) * np.abs(x0[12:21]).max() ** -1])
+    Gj, Bj = jnp.asarray(G, jnp.float64), jnp.asarray(B, jnp.float64)
+    u0 = jnp.asarray(x0 / scale)
+
+    def res(u):
+        x = u * scale
+        Gc, Bc = correct(x[:12], Gj), correct(x[12:], Bj)
+        d = _pointing_jnp(Gc, Bc)
+        dev = (d - back @ (avg @ d)) * member[:, None]
+        c = normalized_dot(Gc, Bc)
+        return jnp.concatenate([group_weight * dev.ravel(), c - jnp.mean(c), jnp.linalg.norm(Gc, axis=1) - 1.0,
+                                jnp.linalg.norm(Bc, axis=1) - 1.0, ridge * (u - u0)])
+
+    f = jax.jit(res)
+    jac = jax.jit(jax.jacfwd(res))
+    sol = least_squares(lambda u: np.asarray(f(u)), x0 / scale, jac=lambda u: np.asarray(jac(u)),
+                        method="trf", xtol=1e-12, ftol=1e-14, gtol=1e-12, max_nfev=300)
+    x = sol.x * scale
+    return x[:12], x[12:]
 
 
 # ------------------------------------------------------------------- azimuth

@@ -99,13 +99,18 @@ def _gmr(fitness, x, aux, t, T):
 def _step(state: State, key, t, T, fitness) -> State:
     cfg = state.ctx.config
     lb, ub, aux = state.ctx.lb, state.ctx.ub, state.ctx.aux
-    pop, fit = state.pop, finite_fitness(state.fit)
+    fit = finite_fitness(state.fit)
+    # Work in box-normalised coordinates u = (x - VLB) / (VUB - VLB): SMA's
+    # W X_A - X_B term depends on where the origin is; here the origin is VLB.
+    span_x = ub - lb
+    pop = (state.pop - lb) / span_x
     P, D = pop.shape
     dt = pop.dtype
     k = jax.random.split(key, 9)
     tt = jnp.asarray(t, dt)
     frac = (tt + 1.0) / T
-    best_x, best_f = state.best_x, jnp.where(jnp.isfinite(state.best_f), state.best_f, jnp.min(fit))
+    best_f = jnp.where(jnp.isfinite(state.best_f), state.best_f, jnp.min(fit))
+    best_u = (state.best_x - lb) / span_x
 
     # SMA weights W (Li et al. 2020, eq. 2.5): rank-based, better half > 1.
     order = jnp.argsort(fit)
@@ -130,23 +135,23 @@ def _step(state: State, key, t, T, fitness) -> State:
     p = jnp.tanh(delta) if cfg.p_mode == "normalized" else jnp.tanh(jnp.abs(fit - best_f))
 
     # eqs. 14-16: random step chosen by the GMR of the best-so-far solution.
-    gmr = _gmr(fitness, best_x, aux, tt, T)
+    gmr = _gmr(fitness, state.best_x, aux, tt, T)
     rs2 = jax.random.uniform(k[1], (P, D), dt, -1.0, 1.0) * a
     rs1 = jax.random.uniform(k[2], (P, D), dt, -1.0, 1.0) * b
     rs = jnp.where(gmr < cfg.gmr_threshold, rs2, rs1)
     ia = jax.random.randint(k[3], (P,), 0, P)
     ib = jax.random.randint(k[4], (P,), 0, P)
-    x_approach = best_x + rs * (W * pop[ia] - pop[ib])  # eq. 14
+    x_approach = best_u + rs * (W * pop[ia] - pop[ib])  # eq. 14
     # eq. 19: deep exploitation instead of SMA's vc * X.
-    around = best_x + jax.random.uniform(k[5], (P, D), dt, -1.0, 1.0) * b * (pop - best_x)
-    toward = pop + jax.random.uniform(k[6], (P, D), dt) * (best_x - pop)
+    around = best_u + jax.random.uniform(k[5], (P, D), dt, -1.0, 1.0) * (pop - best_u)
+    toward = pop + jax.random.uniform(k[6], (P, D), dt) * (best_u - pop)
     x_exploit = jnp.where((delta <= cfg.d)[:, None], around, toward)
     new = jnp.where(jax.random.uniform(k[7], (P, D), dt) < p[:, None], x_approach, x_exploit)
     # eq. 12: restart inside [VLB, VUB].
     k_r1, k_r2 = jax.random.split(k[8])
     restart = jax.random.uniform(k_r1, (P,), dt) < z
-    new = jnp.where(restart[:, None], uniform_population(k_r2, lb, ub, P), new)
-    new = jnp.clip(new, lb, ub)
+    new = jnp.where(restart[:, None], jax.random.uniform(k_r2, (P, D), dt), new)
+    new = lb + jnp.clip(new, 0.0, 1.0) * span_x
 
     f_new = evaluate(fitness, new, aux)
     bx, bf = update_best(state.best_x, state.best_f, new, f_new)
@@ -161,7 +166,7 @@ MISMA = register(Algorithm("misma", MISMAConfig, _init, _step, _evals))
 
 
 # ------------------------------------------------------------------ bounds
-def misma_bounds(u, ref_nT, matrix_halfwidth=0.3, bias_halfwidth=0.3):
+def misma_bounds(u, ref_nT, matrix_halfwidth=0.05, bias_halfwidth=0.02):
     """VUB / VLB (eqs. 9-11): a box around ``U``, the modulus-matching solution.
 
     ``U`` is the 12-vector that makes the corrected modulus equal the
