@@ -1,0 +1,113 @@
+"""ICGO-RELM study, the Hydra front door: ``python -m experiments.run strategy=three_stage``.
+
+Composes ``conf/config.yaml`` (groups: dataset, model, optimizer, strategy,
+schedule, budget, split, fitness, experiment), runs :func:`icgo.study.run_study`
+and writes into the run directory (``HydraConfig.get().runtime.output_dir``):
+``config.yaml`` (resolved), ``metrics.csv`` (per method, repeat, split),
+``convergence.csv``, ``predictions.csv``, ``msa.csv``, ``summary.csv``,
+``summary.md``, ``run.json`` and ``study.png``; prints the summary table and a
+final line with the wall time.
+
+Examples::
+
+    python -m experiments.run strategy=three_stage            # make run
+    python -m experiments.run strategy=all                    # five strategies, one vmapped call
+    python -m experiments.run -m strategy=chaos,gaussian,wavelet,three_stage hydra/launcher=joblib
+    python -m experiments.run experiment=table3               # a paper preset (see conf/experiment)
+
+JAX is imported inside the job (never at module import), so launchers that
+start worker processes never fork an initialised XLA runtime. See
+docs/experiments.md.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import time
+from pathlib import Path
+
+import hydra
+from omegaconf import DictConfig
+
+from experiments._common import CONF_DIR, EXIT_CONFIG, check_overrides
+
+log = logging.getLogger(__name__)
+
+
+def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | None:
+    """Run one configured study and write its run directory.
+
+    Args:
+        cfg: composed config (without the ``hydra`` node).
+        outdir: the run directory.
+        multirun: True inside a sweep: a failure is recorded in ``outdir/FAILED``
+            and the job returns None, so the other jobs go on.
+    Returns:
+        The run.json dictionary, or None for a failed multirun job.
+    Raises:
+        SystemExit(2): a bad setting or data file outside a sweep (one line on stderr).
+    """
+    from experiments import _common as C
+
+    t0 = time.perf_counter()
+    try:
+        scfg = C.study_config(cfg)  # every check before any computation
+        bar = C.progress_enabled(cfg.progress)
+        C.enable_jax_cache(cfg.jax_cache_dir)
+        frame, meta, desc = C.load_data(cfg)
+        result = C.run_with_progress(frame, scfg, meta, bar, desc=f"{desc} {'/'.join(scfg.method_names())}")
+    except ValueError as e:  # ConfigError, icgo.io.DataError, study/optimizer checks: one line each
+        if multirun:
+            C.write_failure(outdir, C.one_line(e), C.format_traceback(e))
+            log.error("job failed: %s", C.one_line(e))
+            return None
+        outdir.mkdir(parents=True, exist_ok=True)
+        (outdir / "error.txt").write_text(C.format_traceback(e))
+        print(f"error: {C.one_line(e)}", file=sys.stderr)
+        raise SystemExit(EXIT_CONFIG) from None
+    except Exception as e:
+        if not multirun:
+            raise
+        C.write_failure(outdir, f"{type(e).__name__}: {C.one_line(e)}", C.format_traceback(e))
+        log.error("job failed: %s: %s", type(e).__name__, C.one_line(e))
+        return None
+
+    info = {"label": cfg.label, "dataset": cfg.dataset.name,
+            "condition": cfg.dataset.get("condition", None), "description": desc,
+            "optimizer": cfg.optimizer.name, "strategies": list(cfg.strategy.names),
+            "total_time_s": time.perf_counter() - t0, **C.env_info()}
+    run = C.write_outputs(outdir, cfg, result, info)
+    if cfg.figures:
+        from experiments.figures import plot_study
+
+        plot_study(result, outdir / "study.png", title=desc)
+    table = C.summary_table(result).drop(columns=["method"])
+    print(f"\nICGO-RELM study on {desc}: test split, {scfg.n_repeats} repeats (mean +/- std)")
+    print(table.to_markdown(index=False))
+    print(f"outputs: {outdir}")
+    print(f"wall time: {time.perf_counter() - t0:.1f} s (study {result.wall_time_s:.1f} s incl. compile)")
+    return run
+
+
+@hydra.main(version_base="1.3", config_path=str(CONF_DIR), config_name="config")
+def app(cfg: DictConfig) -> None:
+    """Hydra task function: one job of a run or a sweep."""
+    from hydra.core.hydra_config import HydraConfig
+    from hydra.types import RunMode
+
+    hc = HydraConfig.get()
+    run_job(cfg, Path(hc.runtime.output_dir), multirun=hc.mode == RunMode.MULTIRUN)
+
+
+def main() -> None:
+    """Entry point: reject unknown group options in one line, then hand over to Hydra."""
+    err = check_overrides(sys.argv[1:])
+    if err:
+        print(f"error: {err}", file=sys.stderr)
+        raise SystemExit(EXIT_CONFIG)
+    app()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,243 @@
+"""experiments.run: Hydra composition, outputs, presets, one-line errors, progress, multirun failures.
+
+Studies here use Hydra's compose API with tiny budgets (population 8, 3
+iterations) on a small lab_casing recording written once to a CSV; nothing
+depends on the working directory.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from hydra import compose, initialize_config_dir
+from hydra.core.global_hydra import GlobalHydra
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import open_dict
+
+from experiments import _common as C
+from experiments.run import run_job
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _compose(overrides, hydra=False):
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(config_dir=str(C.CONF_DIR), version_base="1.3"):
+        cfg = compose(config_name="config", overrides=list(overrides), return_hydra_config=hydra)
+    return cfg
+
+
+def _job_cfg(overrides):
+    """Config as the task function sees it (HydraConfig set, hydra node removed)."""
+    cfg = _compose(overrides, hydra=True)
+    HydraConfig.instance().set_config(cfg)
+    with open_dict(cfg):
+        del cfg["hydra"]
+    return cfg
+
+
+@pytest.fixture(scope="module")
+def small_csv(tmp_path_factory):
+    """lab_casing with a 30 deg toolface step (8 x 13 rows) as a contract CSV + meta."""
+    from icgo import datasets
+    from icgo.io import write_recording
+
+    ds = datasets.lab_casing(0, toolface_step_deg=30.0)
+    path = tmp_path_factory.mktemp("data") / "lab_small.csv"
+    write_recording(path, ds.frame, {k: v for k, v in ds.meta.items() if k in
+                                     ("total_field_nT", "dip_deg", "declination_deg", "gravity_g", "name")})
+    return path
+
+
+TINY = ["budget=smoke", "progress=false", "figures=false", "jax_cache_dir=null"]
+
+
+def test_default_config_is_the_paper_protocol():
+    cfg = _compose([])
+    assert cfg.dataset.name == "lab_casing"
+    assert list(cfg.strategy.names) == ["three_stage"]
+    assert cfg.optimizer.name == "cgo"
+    assert (cfg.split.train_fraction, cfg.split.n_repeats, cfg.split.sigma_filter) == (0.7, 10, 3.0)
+    assert (cfg.budget.pop_size, cfg.budget.iterations) == (30, 100)
+    assert cfg.fitness.mode == "train"
+    s = C.study_config(cfg)
+    assert s.strategies == ("three_stage",) and s.n_repeats == 10 and s.iterations == 100
+    assert s.optimizer_config.stage_bounds == pytest.approx((1 / 3, 2 / 3))
+
+
+@pytest.mark.parametrize("schedule,bounds,order", [("thirds", (1 / 3, 2 / 3), (1, 2, 3)),
+                                                   ("20_50_30", (0.2, 0.7), (1, 2, 3)),
+                                                   ("reversed", (1 / 3, 2 / 3), (3, 2, 1))])
+def test_schedule_reaches_the_cgo_config(schedule, bounds, order):
+    s = C.study_config(_compose([f"schedule={schedule}"]))
+    assert s.optimizer_config.stage_bounds == pytest.approx(bounds)
+    assert tuple(s.optimizer_config.stage_order) == order  # chaos=1, gaussian=2, wavelet=3
+
+
+def test_budget_and_optimizer_groups():
+    s = C.study_config(_compose(["budget=evaluations", "optimizer=pso"]))
+    assert (s.iterations, s.max_evals, s.optimizer) == (None, 12030, "pso")
+    assert C.study_config(_compose(["optimizer=none"])).optimizer is None
+    assert C.study_config(_compose(["strategy=all"])).strategies == (
+        "original", "chaos", "gaussian", "wavelet", "three_stage")
+    assert C.study_config(_compose(["fitness=kfold"])).fitness == "kfold"
+
+
+@pytest.mark.parametrize("preset,check", [
+    ("table1", lambda c: c.hydra.sweeper.params.optimizer == "none,cgo" and list(c.strategy.names) == ["original"]),
+    ("fig9", lambda c: c.hydra.sweeper.params.optimizer == "pso,ga,cgo"),
+    ("table2", lambda c: len(c.strategy.names) == 5 and c.split.n_repeats == 1),
+    ("fig11", lambda c: len(c.strategy.names) == 5 and c.split.n_repeats == 1),
+    ("table3", lambda c: len(c.strategy.names) == 5 and c.split.n_repeats == 10),
+    ("fig12_13", lambda c: len(c.strategy.names) == 5 and c.split.n_repeats == 10),
+    ("table4", lambda c: c.dataset.name == "well_conditions" and len(c.strategy.names) == 5),
+])
+def test_presets_compose(preset, check):
+    cfg = _compose([f"experiment={preset}"], hydra=True)
+    assert cfg.label == preset
+    assert check(cfg)
+
+
+def test_every_preset_file_composes():
+    for name in C.group_options("experiment"):
+        assert _compose([f"experiment={name}"]).label == name
+
+
+def test_run_writes_outputs_and_prints_table(small_csv, tmp_path, capsys):
+    cfg = _job_cfg(TINY + ["dataset=csv", f"dataset.path={small_csv}", "strategy=all", "split.n_repeats=2",
+                           "figures=true"])
+    run = run_job(cfg, tmp_path)
+    for f in ("config.yaml", "metrics.csv", "convergence.csv", "predictions.csv", "msa.csv", "summary.csv",
+              "summary.md", "run.json", "study.png"):
+        assert (tmp_path / f).is_file(), f
+    m = pd.read_csv(tmp_path / "metrics.csv")
+    methods = {"raw", "msa"} | {f"cgo-{s}" for s in ("original", "chaos", "gaussian", "wavelet", "three_stage")}
+    assert set(m.method) == methods
+    assert set(m.repeat) == {0, 1} and set(m.split) == {"train", "test"}
+    conv = pd.read_csv(tmp_path / "convergence.csv")
+    assert conv.iteration.max() == 3
+    # CGO: 8 initial + 4 x 8 per iteration
+    assert set(conv[conv.iteration == 3].evals) == {8 + 3 * 32}
+    assert run["n_evals"]["cgo-three_stage"] == 8 + 3 * 32
+    assert json.loads((tmp_path / "run.json").read_text())["status"] == "ok"
+    out = capsys.readouterr().out
+    assert "MAE (deg)" in out and "+/-" in out and "wall time:" in out
+    # the summary equals a recomputation from the per-repeat CSV
+    s = pd.read_csv(tmp_path / "summary.csv").set_index("method")
+    t = m[(m.method == "cgo-chaos") & (m.split == "test")]
+    assert s.loc["cgo-chaos", "MAE (deg)"] == f"{t.mae.mean():.4f} +/- {t.mae.std(ddof=1):.4f}"
+    # compensation improves on MSA alone on the training rows even with a tiny budget
+    tr = m[m.split == "train"].groupby("method").mae.mean()
+    assert tr["cgo-three_stage"] < tr["msa"]
+
+
+def test_repeat_zero_of_a_batch_equals_the_single_split(small_csv, tmp_path):
+    """experiments.figures takes Table 2 (one split) from repeat 0 of the Table 3 run."""
+    base = TINY + ["dataset=csv", f"dataset.path={small_csv}", "strategy=chaos"]
+    run_job(_job_cfg(base + ["split.n_repeats=1"]), tmp_path / "one")
+    run_job(_job_cfg(base + ["split.n_repeats=3"]), tmp_path / "three")
+    a = pd.read_csv(tmp_path / "one" / "metrics.csv")
+    b = pd.read_csv(tmp_path / "three" / "metrics.csv")
+    b0 = b[b.repeat == 0].reset_index(drop=True)
+    np.testing.assert_allclose(a[["mae", "rmse", "r2"]].to_numpy(), b0[["mae", "rmse", "r2"]].to_numpy(),
+                               rtol=1e-9, atol=1e-12)
+
+
+# ---------------------------------------------------------------- bad input
+def test_unknown_strategy_is_one_line():
+    err = C.check_overrides(["strategy=bogus"])
+    assert "unknown strategy 'bogus'" in err and "three_stage" in err and "\n" not in err
+    assert "unknown strategy 'nope'" in C.check_overrides(["-m", "strategy=chaos,nope"])
+    assert C.check_overrides(["strategy=chaos", "split.n_repeats=3", "+experiment=table3"]) is None
+
+
+def test_cli_unknown_strategy_fails_in_one_line_from_any_directory(tmp_path):
+    p = subprocess.run([sys.executable, "-m", "experiments.run", "strategy=bogus"], cwd=tmp_path,
+                       capture_output=True, text=True, env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"},
+                       timeout=120)
+    assert p.returncode == 2
+    lines = p.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: unknown strategy 'bogus'")
+    assert not (tmp_path / "outputs").exists()
+
+
+def _fail_if_called(*a, **k):
+    raise AssertionError("computation started before the config was checked")
+
+
+@pytest.mark.parametrize("override,expect", [
+    ("split.n_repeats=-1", "split.n_repeats must be an integer >= 1, got -1"),
+    ("split.n_repeats=0", "split.n_repeats must be an integer >= 1"),
+    ("model.lam=-1", "model.lam must be a number > 0"),
+    ("budget.pop_size=2", "budget.pop_size must be an integer >= 4"),
+    ("split.train_fraction=1.5", "split.train_fraction must be in (0, 1)"),
+    ("schedule.bounds=[0.7,0.2]", "schedule.bounds must be two fractions"),
+    ("dataset=csv", "dataset.path is required"),
+    ("+dataset.path=/no/such/file.csv", None),
+])
+def test_bad_settings_fail_in_one_line_before_computation(override, expect, monkeypatch, capsys, tmp_path):
+    import icgo.datasets
+    import icgo.study
+
+    monkeypatch.setattr(icgo.datasets, "lab_casing", _fail_if_called)
+    monkeypatch.setattr(icgo.study, "run_study", _fail_if_called)
+    overrides = TINY + [override]
+    if override.startswith("+dataset.path"):
+        overrides = TINY + ["dataset=csv", "dataset.path=/no/such/file.csv"]
+        expect = "dataset.path '/no/such/file.csv': file not found"
+    with pytest.raises(SystemExit) as e:
+        run_job(_job_cfg(overrides), tmp_path)
+    assert e.value.code == C.EXIT_CONFIG
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and expect in err[0]
+
+
+def test_bad_csv_content_is_one_line(tmp_path, capsys):
+    bad = ROOT / "tests" / "data" / "bad_nan.csv"
+    with pytest.raises(SystemExit):
+        run_job(_job_cfg(TINY + ["dataset=csv", f"dataset.path={bad}", "dataset.require_meta=false"]), tmp_path)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "bad_nan.csv" in err[0]
+
+
+def test_failed_multirun_job_leaves_marker_and_others_intact(tmp_path, capsys):
+    ok = tmp_path / "0"
+    ok.mkdir()
+    (ok / "run.json").write_text("{}")
+    assert run_job(_job_cfg(TINY + ["split.n_repeats=-3"]), tmp_path / "1", multirun=True) is None
+    assert (tmp_path / "1" / C.FAILED).read_text().startswith("split.n_repeats must be")
+    assert (ok / "run.json").read_text() == "{}"
+    cfg = _compose([f"hydra.sweep.dir={tmp_path}"], hydra=True)
+    with pytest.raises(SystemExit) as e:
+        C.FailureReport().on_multirun_end(cfg)
+    assert e.value.code == 1
+    assert "job 1 failed: split.n_repeats must be" in capsys.readouterr().err
+
+
+# ----------------------------------------------------------------- progress
+def test_progress_ticks_once_per_iteration_inside_the_scan():
+    """The callback fires once per iteration for the whole vmapped batch (not once per repeat/strategy)."""
+    import jax
+    import jax.numpy as jnp
+
+    from icgo.optim import run_batch
+
+    bar = C.Progress(total=100, desc="t", enable=False)
+
+    def sphere(pop, aux):
+        return jnp.sum((pop - aux[None]) ** 2, axis=1)
+
+    keys = jax.random.split(jax.random.PRNGKey(0), 3)
+    aux = jnp.zeros((3, 4))
+    res = run_batch("cgo", bar.wrap(sphere), (-np.ones(4), np.ones(4)), keys, 6, 7,
+                    strategies=["chaos", "three_stage"], aux=aux)
+    jax.block_until_ready(res)
+    jax.effects_barrier()
+    assert bar.count == 7 + 1  # initial population + 7 iterations
+    assert res.curve.shape == (2, 3, 7)
