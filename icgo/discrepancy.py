@@ -591,8 +591,15 @@ def identifiability(J, layout: Layout, effect: str, context_free, threshold=0.02
     le = labels[sl]
     lc = [labels[i] for i in idx_ctx]
     cn = np.linalg.norm(J[:, idx_ctx], axis=0) if len(idx_ctx) else np.zeros(0)
-    return [(float(s[i]), _describe_direction(V[:, i], le, coef[:, i] if coef.size else coef, lc, cn))
-            for i in range(len(s)) if s[i] < threshold]
+    out = [(float(s[i]), _describe_direction(V[:, i], le, coef[:, i] if coef.size else coef, lc, cn))
+           for i in range(len(s)) if s[i] < threshold]
+    # absolute observability: theta = 1 is the effect's typical magnitude, so a column
+    # norm below 1 means that magnitude moves the chi2 by less than 1 (below the noise)
+    norms = np.linalg.norm(J[:, sl], axis=0)
+    for j in np.flatnonzero(norms < 1.0):
+        out.append((0.0, f"{le[j]} leaves no trace above the noise (a typical {le[j]} changes chi2 by "
+                         f"{norms[j] ** 2:.2g}): unobservable with these attitudes"))
+    return out
 
 
 def separability(st: Stations, effects=None, threshold=0.02, sigma_b_nT=SIGMA_B_NT, sigma_g=SIGMA_G):
@@ -614,7 +621,7 @@ def separability(st: Stations, effects=None, threshold=0.02, sigma_b_nT=SIGMA_B_
     out = {"pairs": [], "unobservable": []}
     for a in names:
         for d in identifiability(J, layout, a, free_nuis, threshold):
-            if "unobservable" in d[1] or "leaves no trace" in d[1]:
+            if "leaves no trace" in d[1]:
                 out["unobservable"].append({"effect": a, "s": d[0], "what": d[1]})
     for i, a in enumerate(names):
         for b in names[i + 1:]:
