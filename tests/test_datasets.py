@@ -124,15 +124,20 @@ def test_turntable_plan_repeatable_and_attitude_dependent():
     for col in ("inclination_deg", "azimuth_deg", "toolface_deg"):  # depends on each of I, A, T
         spread = f0.assign(e=e0).groupby(col).e.mean()
         assert spread.max() - spread.min() > 0.1, col
-    assert len(D.turntable(0, toolface_step_deg=90.0).frame) == 10 * 12 * 4
-    tb = D.turntable_between(0).frame
-    assert len(tb) == 9 * 12 * 12 and set(tb.azimuth_deg % 30) == {15.0}
-    tr = D.turntable_random(0, n=500).frame
-    assert tr.inclination_deg.between(3, 75).all() and len(tr) == 500
+    tr = D.turntable_random(0, n=1440).frame  # same shape as the grid: no new compilation
+    assert tr.inclination_deg.between(3, 75).all() and len(tr) == 1440
     with pytest.raises(ValueError, match="inclinations"):
         D.turntable(0, inclinations_deg=(3.0, 95.0))
     with pytest.raises(ValueError, match="unknown"):
         D.turntable(0, latitude=40.0)
+
+
+@pytest.mark.slow
+def test_turntable_steps_and_between_grid():
+    assert len(D.turntable(0, toolface_step_deg=90.0).frame) == 10 * 12 * 4
+    tb = D.turntable_between(0).frame
+    assert len(tb) == 9 * 12 * 12 and set(tb.azimuth_deg % 30) == {15.0} and set(tb.toolface_deg % 30) == {15.0}
+    assert set(tb.inclination_deg) == {4.0, 7.5, 12.5, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0}
 
 
 def test_turntable_ideal_instrument_is_exact():
