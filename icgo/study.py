@@ -14,10 +14,11 @@ Pipeline, per repeat (one PRNG key each, ``fold_in(PRNGKey(seed), repeat_id)``):
    ``A_msa - predicted error`` scored on the test rows (:mod:`icgo.metrics`).
 
 Test rows never steer anything: MSA, standardisation, fitness and output
-weights see them only with zero weight. Stages 2-6 run as two jitted calls:
-``_prepare`` (vmapped over repeats: split, MSA, features), a host-side MSA
-observability check, then ``_fit_and_score`` (the optimizer's runner vmapped
-over repeats and CGO strategies, then the refit and metrics vmapped over both).
+weights see them only with zero weight. Stages 2-6 run as three jitted calls:
+``_prepare`` (mapped over repeats: split, MSA, features), a host-side MSA
+observability check, the optimizer's runner (:func:`icgo.optim.run_batch`,
+one call vmapped over repeats and CGO strategies), then ``_score_all`` (refit
+and metrics, vmapped over strategies, mapped over repeats).
 Repeat k of a batched run equals the same repeat run alone (``repeat_ids``).
 
 Entry point: :func:`run_study` ``(frame, StudyConfig) -> StudyResult``.
@@ -213,7 +214,11 @@ def _prepare(keys, G, B, a_true, reference, *, n_train, msa_model, msa_iter, fea
         fit_w, score_w = _relm.fold_weights(k_fold, train, mode, val_fraction, k_folds)
         return Prepared(train, m, a_msa, target, _relm.FitData(Xs, target, fit_w, score_w), k_model)
 
-    return jax.vmap(one)(keys)
+    # lax.map, not vmap: the per-repeat program is then the same whatever the
+    # number of repeats, so repeat k of a batch equals repeat k alone bitwise
+    # (a vmapped reduction may be reordered by XLA for another batch size).
+    # These stages are cheap; the search (the cost) is vmapped by the runner.
+    return jax.lax.map(one, keys)
 
 
 @functools.lru_cache(maxsize=None)
@@ -242,8 +247,20 @@ def _score(theta, prep: Prepared, a_true, lam, hidden):
 
 @functools.partial(jax.jit, static_argnames=("hidden",))
 def _score_all(thetas, prep: Prepared, a_true, lam, hidden):
-    over_r = jax.vmap(_score, in_axes=(0, 0, None, None, None))
-    return _Scored(*jax.vmap(over_r, in_axes=(0, None, None, None, None))(thetas, prep, a_true, lam, hidden))
+    over_s = jax.vmap(_score, in_axes=(0, None, None, None, None))
+    # lax.map over repeats for bitwise batch-size independence (see _prepare).
+    out = jax.lax.map(lambda tp: over_s(tp[0], tp[1], a_true, lam, hidden), (jnp.swapaxes(thetas, 0, 1), prep))
+    return _Scored(*jax.tree_util.tree_map(lambda x: jnp.swapaxes(x, 0, 1), tuple(out)))
+
+
+@functools.partial(jax.jit, static_argnames=("hidden", "low", "high", "dtype"))
+def _plain(keys, data, lam, hidden, low, high, dtype):
+    """Plain RELM: theta ~ U(low, high) per repeat and its fitness (mapped over repeats)."""
+    def one(kd):
+        theta = _relm.random_theta(kd[0], hidden, (), low, high)
+        return theta, _relm.fitness(theta[None], kd[1], lam, hidden, dtype)[0]
+
+    return jax.lax.map(one, (keys, data))
 
 
 def _search(cfg: StudyConfig, prep: Prepared):
@@ -252,9 +269,8 @@ def _search(cfg: StudyConfig, prep: Prepared):
     R = prep.key.shape[0]
     low, high = cfg.theta_bounds
     if cfg.optimizer is None:
-        theta = jax.vmap(lambda k: _relm.random_theta(k, cfg.hidden, (), low, high))(prep.key)
-        f = jax.vmap(lambda t, d: _relm.fitness(t[None], d, cfg.lam, cfg.hidden,
-                                                None if cfg.dtype == "float64" else cfg.dtype)[0])(theta, prep.data)
+        theta, f = _plain(prep.key, prep.data, cfg.lam, cfg.hidden, float(low), float(high),
+                          None if cfg.dtype == "float64" else cfg.dtype)
         return theta[None], f[None, :, None], jnp.ones((1, R, 1), jnp.int32)
     from icgo.optim import run_batch
 

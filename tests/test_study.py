@@ -1,0 +1,160 @@
+"""ICGO-RELM study core: bookkeeping, batched == alone (bitwise), honesty, bad inputs, lab_casing numbers."""
+
+import dataclasses
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import icgo  # noqa: F401
+from icgo import effects, frames, metrics, study
+
+
+def sim_frame(seed=0, tf_step=10.0):
+    A, T = np.meshgrid([30.0, 120.0, 210.0, 300.0], np.arange(0, 360, tf_step), indexing="ij")
+    A, T = A.ravel(), T.ravel()
+    I = np.full_like(A, 90.0)
+    s = frames.sensors_from_attitude(A, I, T, 50_000.0, 60.0)
+    G, B = effects.apply_effects({"hard_iron": np.array([300.0, -200.0, 500.0]),
+                                  "mag_cross_coupling": np.array([0.01, -0.006, 0.004]),
+                                  "mag_misalignment": np.array([0.3, -0.2, 0.4])},
+                                 s.G, s.B, frames.tool_to_earth(A, I, T))
+    rng = np.random.default_rng(seed)
+    G = np.asarray(G) + rng.normal(0, 3e-4, (A.size, 3))
+    B = np.asarray(B) + rng.normal(0, 15.0, (A.size, 3))
+    return pd.DataFrame({"station": np.arange(A.size), "gx": G[:, 0], "gy": G[:, 1], "gz": G[:, 2],
+                         "bx": B[:, 0], "by": B[:, 1], "bz": B[:, 2], "azimuth_deg": A,
+                         "inclination_deg": I, "toolface_deg": T})
+
+
+PLAIN = study.StudyConfig(optimizer=None, n_repeats=3, hidden=10, seed=7)
+
+
+@pytest.fixture(scope="module")
+def frame():
+    return sim_frame()
+
+
+@pytest.fixture(scope="module")
+def plain(frame):
+    return study.run_study(frame, PLAIN)
+
+
+def test_bookkeeping_and_metrics_recomputed_from_predictions(plain, frame):
+    n = int(plain.kept.sum())
+    assert len(frame) - 3 <= n <= len(frame)
+    p = plain.predictions
+    assert len(p) == 3 * n and set(p.method) == {"relm"}
+    n_train = round(0.7 * n)
+    assert (p[p.repeat == 0].split == "train").sum() == n_train
+    # Different repeats have different splits.
+    assert not np.array_equal(p[p.repeat == 0].split.to_numpy(), p[p.repeat == 1].split.to_numpy())
+    for r in range(3):
+        t = p[(p.repeat == r) & (p.split == "test")]
+        m = plain.metrics.query("method == 'relm' and split == 'test' and repeat == @r").iloc[0]
+        e = np.asarray(frames.angle_diff(t.azimuth_compensated, t.azimuth_true))
+        assert m.mae == pytest.approx(np.mean(np.abs(e)), rel=1e-10)
+        assert m.rmse == pytest.approx(np.sqrt(np.mean(e**2)), rel=1e-10)
+        assert m.r2_error == pytest.approx(float(metrics.r2_error(t.error_msa, e)), rel=1e-10)
+        np.testing.assert_allclose(e, np.asarray(frames.angle_diff(t.error_msa - t.predicted_error, 0.0)),
+                                   atol=1e-9)
+    # MSA removes most of the raw error, the model most of what is left.
+    s = plain.summary
+    assert s.loc[("msa", "test"), "mae_mean"] < 0.8 * s.loc[("raw", "test"), "mae_mean"]
+    assert s.loc[("relm", "test"), "mae_mean"] < 0.8 * s.loc[("msa", "test"), "mae_mean"]
+    assert plain.curves["best_fitness"].shape == (1, 3, 1)
+    assert list(plain.msa.repeat) == [0, 1, 2] and np.all(plain.msa.condition < 10)
+
+
+def test_repeat_alone_equals_batched_bitwise(plain, frame):
+    alone = study.run_study(frame, dataclasses.replace(PLAIN, repeat_ids=(2,)))
+    a = alone.predictions.drop(columns="repeat").reset_index(drop=True)
+    b = plain.predictions[plain.predictions.repeat == 2].drop(columns="repeat").reset_index(drop=True)
+    pd.testing.assert_frame_equal(a, b, check_exact=True)
+    np.testing.assert_array_equal(alone.curves["best_fitness"][0, 0], plain.curves["best_fitness"][0, 2])
+
+
+def test_test_rows_never_steer_the_fit(plain, frame):
+    # Corrupt the reference azimuth of repeat 0's test rows: training side unchanged.
+    # (The sigma filter runs once before splitting, as in the paper, so it is off here.)
+    cfg = dataclasses.replace(PLAIN, repeat_ids=(0,), sigma_filter=None)
+    base = study.run_study(frame, cfg)
+    test_rows = base.predictions.row[base.predictions.split == "test"].to_numpy()
+    bad = frame.copy()
+    bad.loc[test_rows, "azimuth_deg"] = np.mod(bad.loc[test_rows, "azimuth_deg"] + 7.0, 360.0)
+    other = study.run_study(bad, cfg)
+    np.testing.assert_array_equal(other.curves["best_fitness"], base.curves["best_fitness"])
+    tr = lambda r: r.predictions[r.predictions.split == "train"].predicted_error.to_numpy()  # noqa: E731
+    np.testing.assert_array_equal(tr(other), tr(base))
+
+
+def test_sigma_filter_drops_a_spike(frame):
+    bad = frame.copy()
+    bad.loc[5, "bx"] += 3000.0
+    keep = study.sigma_filter(*study.frame_arrays(bad))
+    assert not keep[5] and keep.sum() >= len(bad) - 3
+
+
+@pytest.mark.parametrize("change, match", [
+    ({"lam": 0.0}, "lambda"),
+    ({"hidden": 200}, "hidden"),
+    ({"fitness": "loo"}, "fitness"),
+    ({"train_fraction": 1.0}, "train_fraction"),
+    ({"optimizer": "nope"}, "unknown optimizer"),
+    ({"msa_reference": "known"}, "metadata"),
+    ({"n_repeats": 0}, "repeats"),
+])
+def test_bad_config(frame, change, match):
+    with pytest.raises(ValueError, match=match):
+        study.run_study(frame, dataclasses.replace(PLAIN, **change))
+
+
+def test_bad_frames(frame):
+    with pytest.raises(ValueError, match="column"):
+        study.run_study(frame.drop(columns="bz"), PLAIN)
+    nan = frame.copy()
+    nan.loc[3, "gy"] = np.nan
+    with pytest.raises(ValueError, match="row 3, column 'gy'"):
+        study.run_study(nan, PLAIN)
+    one = frame[frame.azimuth_deg == 30.0]
+    with pytest.raises(ValueError, match="eps_z"):
+        study.run_study(one, dataclasses.replace(PLAIN, hidden=5))
+
+
+@pytest.mark.slow
+def test_cgo_strategies_batched_equals_alone_and_beats_plain(frame):
+    cfg = study.StudyConfig(optimizer="cgo", strategies=("original", "three_stage"), n_repeats=2,
+                            hidden=10, pop_size=8, iterations=6, seed=3)
+    res = study.run_study(frame, cfg)
+    assert res.curves["best_fitness"].shape == (2, 2, 6)
+    assert np.all(np.diff(res.curves["best_fitness"], axis=-1) <= 0)  # best-so-far
+    alone = study.run_study(frame, dataclasses.replace(cfg, repeat_ids=(1,)))
+    np.testing.assert_array_equal(alone.curves["best_fitness"][:, 0], res.curves["best_fitness"][:, 1])
+    a = alone.predictions.drop(columns="repeat").reset_index(drop=True)
+    b = res.predictions[res.predictions.repeat == 1].drop(columns="repeat").reset_index(drop=True)
+    pd.testing.assert_frame_equal(a, b, check_exact=True)
+
+
+@pytest.mark.slow
+def test_lab_casing_msa_and_plain_relm():
+    from icgo import datasets, msa
+
+    clean = datasets.lab_casing(0, casing=None, effects={"hard_iron": [900.0, -700.0, 1500.0]})
+    G, B, A = study.frame_arrays(clean.frame)
+    r = msa.multi_station_analysis(G, B)
+    assert np.all(np.abs(np.asarray(r.bias) - [900.0, -700.0, 1500.0]) < 3 * np.asarray(r.std_error))
+    ds = datasets.lab_casing(0)
+    res = study.run_study(ds.frame, study.StudyConfig(optimizer=None, n_repeats=3))
+    p = res.predictions[res.predictions.repeat == 0]
+    # With the casing, MSA leaves a residual structured in toolface: per azimuth, two
+    # toolface harmonics explain most of it.
+    explained = []
+    for az, g in p.groupby("azimuth_true"):
+        t = np.radians(g.toolface_deg.to_numpy())
+        X = np.column_stack([np.ones_like(t), np.cos(t), np.sin(t), np.cos(2 * t), np.sin(2 * t)])
+        y = g.error_msa.to_numpy()
+        fit = X @ np.linalg.lstsq(X, y, rcond=None)[0]
+        explained.append(1 - np.sum((y - fit) ** 2) / np.sum((y - y.mean()) ** 2))
+    assert np.median(explained) > 0.8 and np.sqrt(np.mean(p.error_msa**2)) > 0.3
+    s = res.summary
+    assert s.loc[("relm", "test"), "mae_mean"] < s.loc[("msa", "test"), "mae_mean"]
