@@ -200,3 +200,38 @@ def make(name: str, dim: int, data: str = "cec2017", seed: int = 0) -> Benchmark
 
     lb, ub = -BOX * np.ones(dim), BOX * np.ones(dim)
     return Benchmark(name, jax.jit(fn), (lb, ub), shift, shift, rot, scale)
+
+
+class Suite(NamedTuple):
+    """Several benchmarks of one dimension as data, for one compiled fitness.
+
+    Attributes:
+        shift: (F, D); rot_t: (F, D, D) transposed rotations; scale: (F,);
+        index: (F,) int position in :data:`SPECS` order of each function.
+    """
+
+    shift: jax.Array
+    rot_t: jax.Array
+    scale: jax.Array
+    index: jax.Array
+
+
+_BASES = tuple(spec[0] for spec in SPECS.values())
+_NAMES = tuple(SPECS)
+
+
+def suite(names, dim: int, data: str = "cec2017", seed: int = 0) -> Suite:
+    """Stack benchmarks into a :class:`Suite` (leading axis F = len(names))."""
+    bs = [make(n, dim, data, seed) for n in names]
+    return Suite(jnp.asarray(np.stack([b.shift for b in bs])), jnp.asarray(np.stack([b.rotation.T for b in bs])),
+                 jnp.asarray([b.scale for b in bs]), jnp.asarray([_NAMES.index(n) for n in names], jnp.int32))
+
+
+def suite_fitness(x, aux: Suite):
+    """Error of the suite member ``aux`` (one slice of a :class:`Suite`) at x (P, D).
+
+    The function is chosen by ``lax.switch`` on ``aux.index``, so all functions
+    share one compiled program and can be vmapped as per-repeat ``aux`` data.
+    """
+    z = (aux.scale * (x - aux.shift)) @ aux.rot_t
+    return jax.lax.switch(aux.index, _BASES, z)

@@ -69,3 +69,13 @@ def test_bad_inputs():
         bm.make("sphere", 7)
     with pytest.raises(ValueError, match="dimension"):
         bm.make("sphere", 1)
+
+
+def test_suite_fitness_matches_make():
+    import jax
+
+    s = bm.suite(bm.STUDY, 10)
+    x = np.random.default_rng(5).uniform(-100, 100, (4, 10))
+    for i, name in enumerate(bm.STUDY):
+        aux = jax.tree_util.tree_map(lambda a: a[i], s)
+        np.testing.assert_allclose(np.asarray(bm.suite_fitness(x, aux)), np.asarray(bm.make(name, 10).fn(x)), rtol=1e-12)
