@@ -96,12 +96,12 @@ def azimuth_metrics(a_true_deg, a_comp_deg, err_before_deg, weights=None) -> Met
                    r2(a_true_deg, a_comp_deg, weights), r2_error(err_before_deg, after, weights))
 
 
-def summarize(df, by=("strategy", "split"), columns=("mae", "rmse", "r2", "r2_error")):
+def summarize(df, by=("method", "strategy", "split"), columns=("mae", "rmse", "r2", "r2_error")):
     """Mean +/- std over repeats of per-repeat metrics (pandas).
 
     Args:
         df: DataFrame with one row per repeat (and the ``by`` columns).
-        by: grouping columns present in ``df``.
+        by: grouping columns (those absent from ``df`` are ignored).
         columns: metric columns.
     Returns:
         DataFrame indexed by ``by`` with ``<col>_mean``, ``<col>_std`` (sample
