@@ -1,0 +1,127 @@
+"""4th-seed mutation operators (ICGO eqs. 15-18) against closed forms."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import icgo  # noqa: F401
+from icgo.optim import mutation as mut
+from icgo.optim.cgo import CGOConfig, mean_groups
+
+
+def _period(seq):
+    """Distance back to the last earlier occurrence of the final value (exact), or 0."""
+    idx = np.flatnonzero(seq[:-1] == seq[-1])
+    if not len(idx):
+        return 0
+    p = len(seq) - 1 - idx[-1]
+    return p if np.array_equal(seq[-1 - p - 50:-1 - p], seq[-51:-1]) else 0
+
+
+def _iterate(r0, n, guard, dtype):
+    step = jax.jit(lambda k, r: mut.logistic_step(k, r, jnp.asarray(4.0, dtype), guard))
+    keys = jax.random.split(jax.random.key(0), n)
+
+    def body(r, k):
+        r = step(k, r)
+        return r, r
+
+    _, seq = jax.lax.scan(body, jnp.asarray(r0, dtype), keys)
+    return np.asarray(seq)
+
+
+def test_logistic_float32_cycles_without_guard_not_with_it():
+    starts = [0.1234, 0.31, 0.77]
+    bare = [_period(_iterate(r0, 12000, False, jnp.float32)) for r0 in starts]
+    guarded = [_period(_iterate(r0, 12000, True, jnp.float32)) for r0 in starts]
+    assert all(0 < p <= 4344 for p in bare), bare  # the bare float32 map falls into a short cycle (ENGINEERING-NOTES)
+    assert all(p == 0 for p in guarded), guarded
+    seq = _iterate(0.1234, 6000, True, jnp.float32)
+    assert np.all((seq > 0) & (seq < 1))
+    assert len(np.unique(seq[-2000:])) > 1900
+
+
+def test_logistic_step_closed_form_in_float64():
+    r = jnp.array([0.2, 0.6])
+    np.testing.assert_allclose(np.asarray(mut.logistic_step(jax.random.key(0), r, 3.8, False)), 3.8 * r * (1 - r))
+    g = np.asarray(mut.logistic_step(jax.random.key(0), r, 3.8, True))
+    np.testing.assert_allclose(g, 3.8 * np.asarray(r) * (1 - np.asarray(r)), atol=1e-13)
+
+
+def test_wavelet_dilation_and_amplitude():
+    g, zeta, T = 10000.0, 5.0, 100
+    assert float(mut.wavelet_dilation(0, T, g, zeta)) == pytest.approx(1.0)
+    assert float(mut.wavelet_dilation(T, T, g, zeta)) == pytest.approx(g)
+    a = np.asarray(mut.wavelet_dilation(jnp.arange(T + 1), T, g, zeta))
+    assert np.all(np.diff(a) >= 0)
+    assert float(mut.wavelet_dilation(50, T, g, zeta)) == pytest.approx(np.exp(-np.log(g) * 0.5**zeta + np.log(g)))
+    for a_ in (1.0, 100.0):
+        s = np.asarray(mut.wavelet_sigma(jax.random.key(1), (4000,), a_, jnp.float64))
+        assert np.abs(s).max() <= a_**-0.5 + 1e-15
+        assert np.abs(s).max() > 0.9 * a_**-0.5  # psi(0) = 1 is reached
+    np.testing.assert_allclose(float(mut.morlet(0.3)), np.exp(-0.045) * np.cos(1.5))
+
+
+def test_three_stage_schedule_thirds_and_custom():
+    T = 30
+    eff = [int(mut.effective_strategy(4, t, T, (1 / 3, 2 / 3), (1, 2, 3))) for t in range(T)]
+    assert eff[:10] == [1] * 10 and eff[10:20] == [2] * 10 and eff[20:] == [3] * 10
+    eff = [int(mut.effective_strategy(4, t, T, (0.5, 0.9), (3, 0, 1))) for t in range(T)]
+    assert eff[:15] == [3] * 15 and eff[15:27] == [0] * 12 and eff[27:] == [1] * 3
+    assert int(mut.effective_strategy(2, 29, T, (1 / 3, 2 / 3), (1, 2, 3))) == 2
+
+
+def test_dims_mask_modes():
+    k = jax.random.key(3)
+    m = np.asarray(mut.dims_mask(k, (500, 6), 0))
+    assert m.sum(1).min() >= 1 and m.sum(1).max() == 6
+    assert set(np.unique(m.sum(1))) == set(range(1, 7))  # sizes U{1..D}
+    assert np.asarray(mut.dims_mask(k, (5, 6), 1)).all()
+    np.testing.assert_array_equal(np.asarray(mut.dims_mask(k, (5, 6), 2)).sum(1), 1)
+
+
+@pytest.mark.parametrize("strategy", [0, 1, 2, 3])
+def test_mutate_operators(strategy):
+    cfg = CGOConfig()
+    P, D = 4000, 3
+    x = jnp.zeros((P, D)) + 5.0
+    mask = jnp.zeros((P, D), bool).at[:, 0].set(True)
+    r = jnp.full((P, D), 0.25)
+    lb, ub = -100.0 * jnp.ones(D), 100.0 * jnp.ones(D)
+    s = np.asarray(mut.mutate(jax.random.key(9), x, mask, r, strategy, 10, 100, lb, ub, cfg))
+    np.testing.assert_array_equal(s[:, 1:], 5.0)  # unmasked coordinates untouched
+    d = s[:, 0] - 5.0
+    if strategy == 0:  # eq. 15: + U(0, 1)
+        assert d.min() >= 0 and d.max() <= 1 and abs(d.mean() - 0.5) < 0.03
+    elif strategy == 1:  # eq. 17: + r_t
+        np.testing.assert_allclose(d, 0.25)
+    elif strategy == 2:  # eq. 16: + N(0, sigma^2)
+        assert abs(d.mean()) < 0.06 and abs(d.std() - cfg.sigma) < 0.05
+    else:  # eq. 18 with a(10/100)
+        a = float(mut.wavelet_dilation(10, 100, cfg.wavelet_g, cfg.wavelet_zeta))
+        assert np.abs(d).max() <= a**-0.5 + 1e-12
+
+
+def test_matlab_original_seed_is_uniform_point():
+    cfg = CGOConfig.matlab()
+    x = jnp.zeros((2000, 2))
+    s = np.asarray(mut.mutate(jax.random.key(2), x, jnp.zeros((2000, 2), bool), x, 0, 0, 10,
+                              jnp.array([-1.0, 10.0]), jnp.array([1.0, 20.0]), cfg))
+    assert s[:, 0].min() >= -1 and s[:, 0].max() <= 1 and s[:, 1].min() >= 10 and s[:, 1].max() <= 20
+    assert abs(s[:, 1].mean() - 15) < 0.3
+
+
+def test_mean_groups_are_means_of_random_subsets():
+    P = 9
+    w = np.asarray(mean_groups(jax.random.key(0), jnp.eye(P)))  # MG_i = weights of row i
+    np.testing.assert_allclose(w.sum(1), 1.0)
+    for row in w:
+        nz = row[row > 0]
+        np.testing.assert_allclose(nz, 1.0 / len(nz))
+
+
+def test_strategy_index_names():
+    assert [mut.strategy_index(s) for s in mut.STRATEGIES] == [0, 1, 2, 3, 4]
+    with pytest.raises(ValueError, match="unknown strategy"):
+        mut.strategy_index(7)
