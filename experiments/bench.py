@@ -1,0 +1,462 @@
+"""Benchmark of the ICGO-RELM study against the machine's limit and against mealpy (issue #10).
+
+``python -m experiments.bench`` (``make bench``) measures, in one run on the
+machine it runs on (CPU here; unchanged with ``JAX_PLATFORMS=cuda``):
+
+* ``fitness_evals_per_s``: batched RELM fitness throughput at the paper's
+  scale (the study's own data, repeat 0: 407 training rows, 6 inputs,
+  L = 30) for a batch of 120 (population 30 x 4 seeds) and 1200 (x 10
+  repeats), after compilation, for the fast kernel of this file
+  (:func:`fast_fitness`); ``library_evals_per_s`` for ``icgo.relm.fitness``;
+* ``flop_fraction``: fast throughput x :func:`flops_per_eval` / the rate of a
+  large dense float32 matrix product (the precision of the fast kernel's Gram
+  product), measured in the same run;
+* ``table3_s``: the full Table 3 study (5 strategies x 10 repeats, population
+  30, 100 iterations, 12,030 evaluations per run) with the fast kernel,
+  compile included, and ``compile_s``;
+* ``mealpy_table3_s`` and ``speedup_vs_mealpy``: the same study with mealpy 3.x
+  ``OriginalCGO`` on the same data and the same RELM fitness in numpy
+  (:func:`numpy_fitness`), same population, iterations and runs;
+* ``numpy_evals_per_s``: :func:`numpy_fitness` in a plain loop;
+* scaling rows: study wall time for 1, 10, 100 repeats (one strategy), and
+  fitness time per batch of 120 for 582, 5,820 and 58,200 data rows.
+
+It prints a Markdown table and, as its last line, one JSON object.
+``--quick`` runs a small version of everything (smoke use, minutes).
+
+The fast kernel (see ``results/performance.md`` for the measurements behind
+each step): only the training rows (gathered once per repeat, so shapes stay
+fixed), the population processed in chunks that fit the cache (``lax.map``),
+the Gram product of the *column-centred* hidden outputs in float32 with the
+rank-one mean term added back in float64, a float64 Cholesky factor of that
+matrix, and ``refine`` steps of iterative refinement with float64 residuals,
+so the result is the float64 ridge solution (checked against
+``icgo.relm.fitness`` on the study's own data at every run: ``max_rel_diff``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import icgo  # noqa: F401  (enables float64)
+from icgo import datasets, relm, study
+from icgo.optim import run_batch
+
+HIDDEN = 30
+LAM = 1e-3
+N_INPUTS = relm.N_INPUTS
+STRATEGIES = ("original", "chaos", "gaussian", "wavelet", "three_stage")
+
+
+# --------------------------------------------------------------------------- flops
+def flops_per_eval(n: int, hidden: int = HIDDEN, d: int = N_INPUTS) -> int:
+    """Floating-point operations of one float64 RELM fitness evaluation (train mode).
+
+    Counted as a dense-algebra textbook does (one exp = 1 flop, fused
+    multiply-add = 2): pre-activation ``X W + b`` 2ndL + nL, sigmoid 3nL
+    (negate, exp, add, divide counted as 3), Gram ``H^T H`` 2nL^2 (as a
+    general product computes it), ``H^T T`` 2nL, Cholesky L^3/3, two triangular
+    solves 2L^2, prediction ``H beta`` 2nL, residual, square and sum 3n, plus
+    ``L`` for the ridge term. Iterative-refinement work of the fast kernel is
+    *not* counted: it is overhead, not work the fitness needs.
+
+    Args:
+        n: training rows. hidden: L. d: inputs.
+    Returns:
+        flops per evaluation (int).
+    """
+    L = hidden
+    return int(2 * n * d * L + n * L + 3 * n * L + 2 * n * L * L + 2 * n * L + L**3 // 3 + 2 * L * L
+               + 2 * n * L + 3 * n + L)
+
+
+# ------------------------------------------------------------------ numpy reference
+def numpy_fitness(theta: np.ndarray, X: np.ndarray, T: np.ndarray, lam: float = LAM, hidden: int = HIDDEN) -> float:
+    """RELM training RMSE of one theta in plain numpy float64 (the mealpy objective).
+
+    Args:
+        theta: (7 L,) hidden weights then biases. X: (n, 6) standardised training
+            inputs. T: (n,) targets (deg). lam: ridge lambda. hidden: L.
+    Returns:
+        RMSE (deg); +inf if not finite.
+    """
+    W = theta[: N_INPUTS * hidden].reshape(N_INPUTS, hidden)
+    H = 1.0 / (1.0 + np.exp(-(X @ W + theta[N_INPUTS * hidden:])))
+    A = H.T @ H + lam * np.eye(hidden)
+    c = np.linalg.cholesky(A)
+    y = np.linalg.solve(c, H.T @ T)  # forward solve (general solve on a triangular matrix)
+    beta = np.linalg.solve(c.T, y)
+    r = H @ beta - T
+    f = float(np.sqrt(np.mean(r * r)))
+    return f if np.isfinite(f) else float("inf")
+
+
+# ---------------------------------------------------------------------- fast kernel
+class CompactData(NamedTuple):
+    """Training rows of one repeat (the fast kernel's ``aux``).
+
+    Attributes:
+        Xa: (n, 7) standardised inputs with a column of ones (bias).
+        T: (n,) targets (deg).
+    """
+
+    Xa: jnp.ndarray
+    T: jnp.ndarray
+
+
+def compact(data: relm.FitData, n_train: int) -> CompactData:
+    """Gather the training rows of a train-mode ``FitData`` (leading repeat axis allowed).
+
+    Args:
+        data: FitData whose ``fit_w`` (K=1) marks the training rows.
+        n_train: number of training rows (static; every repeat has this many).
+    Returns:
+        CompactData with shapes (..., n, 7) and (..., n).
+    """
+    def one(X, T, w):
+        idx = jnp.nonzero(w[0] > 0, size=n_train)[0]
+        return CompactData(jnp.concatenate([X[idx], jnp.ones((n_train, 1), X.dtype)], axis=1), T[idx])
+
+    if data.X.ndim == 3:
+        return jax.vmap(one)(data.X, data.T, data.fit_w)
+    return one(data.X, data.T, data.fit_w)
+
+
+def _fitness_chunk(pop, d: CompactData, lam, hidden: int, refine: int, gram_dtype):
+    P = pop.shape[0]
+    n = d.Xa.shape[0]
+    W = jnp.concatenate([pop[:, : N_INPUTS * hidden].reshape(P, N_INPUTS, hidden),
+                         pop[:, None, N_INPUTS * hidden:]], axis=1)                    # (P, 7, L)
+    H = jax.nn.sigmoid(jnp.einsum("nd,pdl->pnl", d.Xa, W))                            # eq. (8), (P, n, L)
+    # Centred columns keep the low-precision Gram accurate: sigmoid columns share a
+    # large mean, and H^T H = Hc^T Hc + n m m^T exactly.
+    m = jnp.mean(H, axis=1)
+    Hc = (H - m[:, None, :]).astype(gram_dtype)
+    G = jnp.einsum("pni,pnj->pij", Hc, Hc).astype(H.dtype) + n * m[:, :, None] * m[:, None, :]
+    C = jnp.linalg.cholesky(G + lam * jnp.eye(hidden, dtype=H.dtype))
+    solve = lambda b: jax.scipy.linalg.cho_solve((C, True), b[..., None])[..., 0]  # noqa: E731
+    beta = solve(jnp.sum(H * d.T[:, None], axis=1))                                   # eq. (9)
+    for _ in range(refine):  # iterative refinement with float64 residuals of the exact system
+        r = d.T - jnp.einsum("pni,pi->pn", H, beta)
+        beta = beta + solve(jnp.sum(H * r[:, :, None], axis=1) - lam * beta)
+    r = jnp.einsum("pni,pi->pn", H, beta) - d.T
+    f = jnp.sqrt(jnp.mean(r * r, axis=1))
+    return jnp.where(jnp.isfinite(f), f, jnp.inf)
+
+
+@partial(jax.jit, static_argnames=("hidden", "chunk", "refine", "gram_dtype"))
+def fast_fitness(pop, data: CompactData, lam=LAM, hidden: int = HIDDEN, chunk: int = 10, refine: int = 2,
+                 gram_dtype: str = "float32"):
+    """Batched RELM training RMSE (deg), float64 result from a float32 Gram product.
+
+    Args:
+        pop: (P, 7 L) hidden parameters. data: CompactData of one repeat.
+        lam: ridge lambda. hidden: L. chunk: thetas per ``lax.map`` step (cache
+            blocking; >= P: no chunking). refine: iterative-refinement steps.
+        gram_dtype: ``"float32"`` (mixed precision) or ``"float64"``.
+    Returns:
+        (P,) fitness; +inf where not finite.
+    """
+    gdt = jnp.dtype(gram_dtype)
+    P, D = pop.shape
+    if chunk >= P:
+        return _fitness_chunk(pop, data, lam, hidden, refine, gdt)
+    k = -(-P // chunk)
+    padded = jnp.concatenate([pop, jnp.zeros((k * chunk - P, D), pop.dtype)]).reshape(k, chunk, D)
+    out = jax.lax.map(lambda p: _fitness_chunk(p, data, lam, hidden, refine, gdt), padded)
+    return out.reshape(-1)[:P]
+
+
+def make_fast_fitness(lam=LAM, hidden=HIDDEN, chunk=10, refine=2, gram_dtype="float32"):
+    """``f(pop, aux: CompactData) -> (P,)`` for :func:`icgo.optim.run_batch` (one object: one compile)."""
+    def f(pop, aux):
+        return fast_fitness(pop, aux, lam, hidden, chunk, refine, gram_dtype)
+    return f
+
+
+# ---------------------------------------------------------------------------- data
+class StudyData(NamedTuple):
+    """The study's data for R repeats (leading axis R)."""
+
+    fit: relm.FitData       # all rows, masks (library fitness)
+    compact: CompactData    # training rows only (fast kernel)
+    n_train: int
+    n_rows: int
+    prep: object            # study.Prepared, for scoring
+    a_true: np.ndarray
+
+
+def study_data(n_repeats: int, seed: int = 0, dataset_seed: int = 0, tile: int = 1) -> StudyData:
+    """Simulated lab-casing data (ICGO 3.1) prepared exactly as ``run_study`` does.
+
+    Args:
+        n_repeats: repeats (splits). seed: study seed. dataset_seed: simulator seed.
+        tile: repeat the data set ``tile`` times (data-size scaling rows).
+    """
+    cfg = study.StudyConfig(n_repeats=n_repeats, seed=seed)
+    G, B, a = study.frame_arrays(datasets.lab_casing(dataset_seed).frame)
+    kept = study.sigma_filter(G, B, a, cfg.sigma_filter)
+    G, B, a = (np.tile(x[kept], (tile, 1)) if x.ndim == 2 else np.tile(x[kept], tile) for x in (G, B, a))
+    n_train = study._check_config(cfg, len(a))
+    base = jax.random.PRNGKey(seed)
+    keys = jnp.stack([jax.random.fold_in(base, i) for i in range(n_repeats)])
+    prep = study._prepare(keys, jnp.asarray(G), jnp.asarray(B), jnp.asarray(a), None, n_train=n_train,
+                          msa_model=cfg.msa_model, msa_iter=cfg.msa_iterations, features=cfg.features,
+                          mode=cfg.fitness, val_fraction=float(cfg.val_fraction), k_folds=int(cfg.k_folds))
+    return StudyData(prep.data, compact(prep.data, n_train), n_train, len(a), prep, a)
+
+
+def _slice(tree, i):
+    return jax.tree_util.tree_map(lambda x: x[i], tree)
+
+
+# ------------------------------------------------------------------------- timing
+def _best_time(f, *args, reps: int = 5) -> float:
+    jax.block_until_ready(f(*args))
+    best = float("inf")
+    for _ in range(reps):
+        t = time.perf_counter()
+        jax.block_until_ready(f(*args))
+        best = min(best, time.perf_counter() - t)
+    return best
+
+
+def matmul_gflops(dtype, n: int = 2048, reps: int = 5) -> float:
+    """Rate of a large dense n x n matrix product in ``dtype`` (GFLOP/s, best of reps)."""
+    a = jax.random.uniform(jax.random.PRNGKey(0), (n, n), jnp.dtype(dtype))
+    f = jax.jit(lambda x: x @ x)
+    return 2 * n**3 / _best_time(f, a, reps=reps) / 1e9
+
+
+def population(key, P: int, hidden: int = HIDDEN):
+    return jax.random.uniform(key, (P, relm.n_params(hidden)), jnp.float64, -1.0, 1.0)
+
+
+# -------------------------------------------------------------------------- study
+@partial(jax.jit, static_argnames=("strategies", "pop_size", "iterations", "chunk", "refine"))
+def _study_core(keys, aux: CompactData, strategies, pop_size, iterations, chunk, refine):
+    D = relm.n_params(HIDDEN)
+    res = run_batch("cgo", _FAST[(chunk, refine)], (np.full(D, -1.0), np.full(D, 1.0)), keys, pop_size, iterations,
+                    strategies=list(strategies), aux=aux)
+    return res.best_x, res.best_f, res.n_evals
+
+
+_FAST: dict = {}
+
+
+def run_fast_study(sd: StudyData, strategies=STRATEGIES, pop_size=30, iterations=100, chunk=10, refine=2):
+    """Table-3 study with the fast fitness: search, then refit and score as ``run_study`` does.
+
+    Returns:
+        dict: compile_s, run_s, total_s, evals per run, mean test RMSE per strategy.
+    """
+    _FAST.setdefault((chunk, refine), make_fast_fitness(chunk=chunk, refine=refine))
+    R = sd.compact.T.shape[0]
+    keys = jnp.stack([jax.random.fold_in(jax.random.PRNGKey(0), i) for i in range(R)])
+    t0 = time.perf_counter()
+    args = (keys, sd.compact, tuple(strategies), pop_size, iterations, chunk, refine)
+    compiled = _study_core.lower(*args).compile()
+    t1 = time.perf_counter()
+    best_x, best_f, n_evals = compiled(keys, sd.compact)
+    scored = study._score_all(best_x, sd.prep, jnp.asarray(sd.a_true), LAM, HIDDEN)
+    jax.block_until_ready(scored)
+    t2 = time.perf_counter()
+    return {"compile_s": t1 - t0, "run_s": t2 - t1, "total_s": t2 - t0, "evals_per_run": int(np.asarray(n_evals).max()),
+            "best_f": np.asarray(best_f), "test_rmse": np.asarray(scored.test.rmse).mean(axis=1)}
+
+
+def run_mealpy(sd: StudyData, n_runs: int, pop_size=30, iterations=100):
+    """mealpy 3.x OriginalCGO on :func:`numpy_fitness`, one run per (strategy, repeat) slot.
+
+    Run j uses repeat ``j % R`` of the study's data and seed j.
+
+    Returns:
+        dict: total_s, per_run_s, evals_per_run, best_f (n_runs,).
+    """
+    from mealpy import CGO, FloatVar
+
+    R = sd.compact.T.shape[0]
+    D = relm.n_params(HIDDEN)
+    best, evals = [], []
+    t0 = time.perf_counter()
+    for j in range(n_runs):
+        Xa = np.asarray(sd.compact.Xa[j % R])[:, :N_INPUTS]
+        T = np.asarray(sd.compact.T[j % R])
+        count = [0]
+
+        def obj(theta, X=Xa, T=T, count=count):
+            count[0] += 1
+            return numpy_fitness(np.asarray(theta), X, T)
+
+        problem = {"obj_func": obj, "bounds": FloatVar(lb=[-1.0] * D, ub=[1.0] * D), "minmax": "min",
+                   "log_to": None}
+        model = CGO.OriginalCGO(epoch=iterations, pop_size=pop_size)
+        g = model.solve(problem, seed=j)
+        best.append(float(g.target.fitness))
+        evals.append(count[0])
+    total = time.perf_counter() - t0
+    return {"total_s": total, "per_run_s": total / n_runs, "evals_per_run": int(np.median(evals)),
+            "best_f": np.asarray(best)}
+
+
+# --------------------------------------------------------------------------- main
+def main(argv=None) -> dict:
+    p = argparse.ArgumentParser(prog="python -m experiments.bench", description=__doc__.split("\n\n")[0])
+    p.add_argument("--quick", action="store_true", help="small sizes everywhere (smoke use)")
+    p.add_argument("--mealpy-runs", type=int, default=None,
+                   help="mealpy runs to time (default: all 50, quick: 2); fewer are extrapolated and marked")
+    p.add_argument("--chunk", type=int, default=10, help="fast kernel: thetas per lax.map step")
+    p.add_argument("--refine", type=int, default=2, help="fast kernel: iterative-refinement steps")
+    p.add_argument("--repeats", type=int, default=None, help="repeats of the Table 3 study (default 10, quick 2)")
+    p.add_argument("--iterations", type=int, default=None, help="optimizer iterations (default 100, quick 10)")
+    p.add_argument("--scaling-repeats", default=None, help="comma list of repeat counts (default 1,10,100)")
+    p.add_argument("--scaling-iterations", type=int, default=None, help="iterations of the scaling rows (default --iterations)")
+    p.add_argument("--skip-scaling", action="store_true", help="skip the scaling rows")
+    p.add_argument("--out", default=None, help="also write the JSON and the table to results/bench_<out>.{json,md}")
+    a = p.parse_args(argv)
+    if a.chunk < 1 or a.refine < 0:
+        p.error("--chunk must be >= 1 and --refine >= 0")
+    quick = a.quick
+    iters = a.iterations or (10 if quick else 100)
+    n_rep = a.repeats or (2 if quick else 10)
+    s_iters = a.scaling_iterations or iters
+    s_reps = tuple(int(x) for x in a.scaling_repeats.split(",")) if a.scaling_repeats else ((1, 2, 4) if quick else (1, 10, 100))
+    if min(iters, n_rep, s_iters, *s_reps) < 1:
+        p.error("--repeats, --iterations and the scaling sizes must be >= 1")
+    mealpy_runs = a.mealpy_runs if a.mealpy_runs is not None else (2 if quick else len(STRATEGIES) * n_rep)
+    if mealpy_runs < 0:
+        p.error("--mealpy-runs must be >= 0")
+    rows = []
+    out = {"device": f"{jax.devices()[0].platform}:{jax.devices()[0].device_kind}", "cpu_count": os.cpu_count(),
+           "repeats": n_rep, "iterations": iters, "scaling_iterations": s_iters,
+           "loadavg_start": list(os.getloadavg()), "quick": quick, "chunk": a.chunk, "refine": a.refine}
+
+    def row(what, value, unit, note=""):
+        rows.append((what, value, unit, note))
+        print(f"  {what}: {value:.4g} {unit} {note}", file=sys.stderr, flush=True)
+
+    sd = study_data(n_rep)
+    d0, c0 = _slice(sd.fit, 0), _slice(sd.compact, 0)
+    n = sd.n_train
+    fl = flops_per_eval(n)
+    out.update(n_rows=sd.n_rows, n_train=n, flops_per_eval=fl)
+
+    # accuracy of the fast kernel against the float64 library fitness, study data, every repeat
+    diffs = []
+    for r in range(n_rep):
+        pop = population(jax.random.PRNGKey(100 + r), 120)
+        ref = relm.fitness(pop, _slice(sd.fit, r), LAM, HIDDEN)
+        got = fast_fitness(pop, _slice(sd.compact, r), LAM, HIDDEN, a.chunk, a.refine)
+        diffs.append(float(jnp.max(jnp.abs(got / ref - 1))))
+    out["max_rel_diff_vs_float64"] = max(diffs)
+    row("fast fitness vs float64 library, max relative difference", max(diffs), "", f"{n_rep} repeats x 120 thetas")
+
+    # machine limit
+    reps = 3 if quick else 5
+    g32, g64 = matmul_gflops("float32", reps=reps), matmul_gflops("float64", reps=reps)
+    out.update(matmul_gflops_f32=g32, matmul_gflops_f64=g64)
+    row("dense 2048^2 matmul float32", g32, "GFLOP/s")
+    row("dense 2048^2 matmul float64", g64, "GFLOP/s")
+
+    # fitness throughput
+    fast = make_fast_fitness(chunk=a.chunk, refine=a.refine)
+    lib = relm.make_fitness(LAM, HIDDEN)
+    out["fitness_evals_per_s"], out["library_evals_per_s"], out["flop_fraction_by_batch"] = {}, {}, {}
+    for P in (120, 1200):
+        pop = population(jax.random.PRNGKey(P), P)
+        t_fast = _best_time(fast, pop, c0, reps=reps)
+        t_lib = _best_time(lib, pop, d0, reps=1 if (quick or P > 120) else 3)
+        out["fitness_evals_per_s"][str(P)] = P / t_fast
+        out["library_evals_per_s"][str(P)] = P / t_lib
+        out["flop_fraction_by_batch"][str(P)] = P / t_fast * fl / (g32 * 1e9)
+        row(f"fast fitness, batch {P}", P / t_fast, "evals/s", f"{P / t_fast * fl / 1e9:.2f} GFLOP/s")
+        row(f"library relm.fitness (float64), batch {P}", P / t_lib, "evals/s")
+    out["flop_fraction"] = out["flop_fraction_by_batch"]["1200"]
+    row("flop_fraction (batch 1200, vs float32 matmul)", out["flop_fraction"], "")
+
+    # numpy reference
+    X0, T0 = np.asarray(c0.Xa)[:, :N_INPUTS], np.asarray(c0.T)
+    pop = np.asarray(population(jax.random.PRNGKey(7), 120))
+    t = time.perf_counter()
+    for th in pop:
+        numpy_fitness(th, X0, T0)
+    out["numpy_evals_per_s"] = 120 / (time.perf_counter() - t)
+    row("numpy loop fitness", out["numpy_evals_per_s"], "evals/s")
+
+    # Table 3 study
+    res = run_fast_study(sd, STRATEGIES, 30, iters, a.chunk, a.refine)
+    out.update(table3_s=res["total_s"], compile_s=res["compile_s"], table3_run_s=res["run_s"],
+               evals_per_run=res["evals_per_run"],
+               table3_test_rmse={s: float(v) for s, v in zip(STRATEGIES, res["test_rmse"])},
+               table3_best_fitness_mean=float(res["best_f"].mean()))
+    row(f"Table 3 study ({len(STRATEGIES)} x {n_rep} runs, pop 30, {iters} it), compile included", res["total_s"], "s",
+        f"compile {res['compile_s']:.1f} s, {res['evals_per_run']} evals/run")
+
+    # mealpy
+    if mealpy_runs:
+        m = run_mealpy(sd, mealpy_runs, 30, iters)
+        n_all = len(STRATEGIES) * n_rep
+        out["mealpy_table3_s"] = m["per_run_s"] * n_all
+        out["mealpy_runs_timed"] = mealpy_runs
+        out["mealpy_extrapolated"] = mealpy_runs != n_all
+        out["mealpy_evals_per_run"] = m["evals_per_run"]
+        out["mealpy_best_fitness_mean"] = float(m["best_f"].mean())
+        out["speedup_vs_mealpy"] = out["mealpy_table3_s"] / out["table3_s"]
+        note = f"{mealpy_runs} of {n_all} runs timed, extrapolated" if out["mealpy_extrapolated"] else "all runs timed"
+        row("mealpy OriginalCGO + numpy fitness, same study", out["mealpy_table3_s"], "s",
+            f"{note}; {m['evals_per_run']} evals/run")
+        row("speedup vs mealpy", out["speedup_vs_mealpy"], "x")
+
+    # scaling
+    if not a.skip_scaling:
+        out["scaling_repeats_s"] = {}
+        for R in s_reps:
+            sdr = study_data(R)
+            res = run_fast_study(sdr, ("original",), 30, s_iters, a.chunk, a.refine)
+            out["scaling_repeats_s"][str(R)] = res["run_s"]
+            row(f"study, 1 strategy, {R} repeats, {s_iters} it (after compile)", res["run_s"], "s",
+                f"compile {res['compile_s']:.1f} s")
+        rs = out["scaling_repeats_s"]
+        keys = list(rs)
+        out["repeats_cost_ratio"] = rs[keys[-1]] / rs[keys[0]]
+        row(f"{keys[-1]} repeats / 1 repeat", out["repeats_cost_ratio"], "x")
+        out["scaling_rows_batch120_s"] = {}
+        for tile in ((1, 2) if quick else (1, 10, 100)):
+            sdt = study_data(1, tile=tile)
+            P = 120
+            pop = population(jax.random.PRNGKey(3), P)
+            tt = _best_time(fast, pop, _slice(sdt.compact, 0), reps=2 if tile > 1 else reps)
+            out["scaling_rows_batch120_s"][str(sdt.n_rows)] = tt
+            row(f"fast fitness batch 120, {sdt.n_rows} data rows ({sdt.n_train} training)", tt, "s")
+
+    out["loadavg_end"] = list(os.getloadavg())
+    out["python"] = platform.python_version()
+    out["jax"] = jax.__version__
+    table = ["| measurement | value | unit | note |", "| --- | ---: | --- | --- |"]
+    table += [f"| {w} | {v:.4g} | {u} | {nt} |" for w, v, u, nt in rows]
+    md = "\n".join(table)
+    line = json.dumps(out, default=float)
+    if a.out:
+        os.makedirs("results", exist_ok=True)
+        with open(f"results/bench_{a.out}.md", "w") as fh:
+            fh.write(md + "\n")
+        with open(f"results/bench_{a.out}.json", "w") as fh:
+            fh.write(line + "\n")
+    print(md)
+    print(line)
+    return out
+
+
+if __name__ == "__main__":
+    main()
