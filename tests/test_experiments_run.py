@@ -72,7 +72,7 @@ def test_default_config_is_the_paper_protocol():
 
 
 @pytest.mark.parametrize("schedule,bounds,order", [("thirds", (1 / 3, 2 / 3), (1, 2, 3)),
-                                                   ("20_50_30", (0.2, 0.7), (1, 2, 3)),
+                                                   ("pct_20_50_30", (0.2, 0.7), (1, 2, 3)),
                                                    ("reversed", (1 / 3, 2 / 3), (3, 2, 1))])
 def test_schedule_reaches_the_cgo_config(schedule, bounds, order):
     s = C.study_config(_compose([f"schedule={schedule}"]))
@@ -137,6 +137,7 @@ def test_run_writes_outputs_and_prints_table(small_csv, tmp_path, capsys):
     assert tr["cgo-three_stage"] < tr["msa"]
 
 
+@pytest.mark.slow
 def test_repeat_zero_of_a_batch_equals_the_single_split(small_csv, tmp_path):
     """experiments.figures takes Table 2 (one split) from repeat 0 of the Table 3 run."""
     base = TINY + ["dataset=csv", f"dataset.path={small_csv}", "strategy=chaos"]
