@@ -267,9 +267,12 @@ def run_fast_study(sd: StudyData, strategies=STRATEGIES, pop_size=30, iterations
     t0 = time.perf_counter()
     args = (keys, sd.compact, tuple(strategies), pop_size, iterations, chunk, refine)
     compiled = _study_core.lower(*args).compile()
+    thetas = jax.ShapeDtypeStruct((len(strategies), R, relm.n_params(HIDDEN)), jnp.float64)
+    a_true = jnp.asarray(sd.a_true)
+    score = study._score_all.lower(thetas, sd.prep, a_true, LAM, HIDDEN).compile()
     t1 = time.perf_counter()
     best_x, best_f, n_evals = compiled(keys, sd.compact)
-    scored = study._score_all(best_x, sd.prep, jnp.asarray(sd.a_true), LAM, HIDDEN)
+    scored = score(best_x, sd.prep, a_true, LAM)
     jax.block_until_ready(scored)
     t2 = time.perf_counter()
     return {"compile_s": t1 - t0, "run_s": t2 - t1, "total_s": t2 - t0, "evals_per_run": int(np.asarray(n_evals).max()),
