@@ -50,6 +50,7 @@ def test_deterministic_and_batch_equals_single():
     assert np.all(np.diff(np.asarray(rb.curve), axis=1) <= 0)  # best-so-far never rises
 
 
+@pytest.mark.slow
 def test_plain_fitness_fallback_runs_and_improves():
     shift = jnp.linspace(-1.0, 1.0, 5)
     sphere = lambda p: jnp.sum((p - shift) ** 2, axis=1)  # noqa: E731
@@ -57,6 +58,7 @@ def test_plain_fitness_fallback_runs_and_improves():
     assert float(r.best_f) < 1e-3 < float(r.curve[0])
 
 
+@pytest.mark.slow
 def test_misma_calibrates_better_than_its_starting_box():
     keys = jax.random.split(jax.random.PRNGKey(0), 2)
     r = base.run_batch("misma", OBJ, BOUNDS, keys, 30, 200)
