@@ -1,0 +1,170 @@
+"""experiments.figures: collection of run directories and the paper tables, on synthetic run outputs.
+
+The runs are written by hand with known numbers, so each table is checked
+against a direct computation (numpy mean/std, scipy's Wilcoxon and Friedman).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy import stats as st
+
+from experiments import figures as F
+
+S5 = F.STRATEGIES5
+R = 10
+
+
+def _run_dir(path: Path, metrics: pd.DataFrame, *, dataset="lab_casing", seed=0, conv=None, pred=None,
+             failed=False):
+    path.mkdir(parents=True)
+    tag = {"label": "t", "dataset": dataset, "condition": None}
+    for name, df in (("metrics", metrics), ("convergence", conv), ("predictions", pred)):
+        df = pd.DataFrame(columns=["method", "repeat"]) if df is None else df.copy()
+        for k, v in reversed(list(tag.items())):
+            df.insert(0, k, v)
+        df.to_csv(path / f"{name}.csv", index=False)
+    (path / "config.yaml").write_text(f"split:\n  seed: {seed}\n")
+    (path / "run.json").write_text(json.dumps({"status": "ok"}))
+    if failed:
+        (path / "FAILED").write_text("boom\n")
+
+
+def _metrics(methods, rng, scale=None, split="test"):
+    rows = []
+    for i, m in enumerate(methods):
+        for r in range(R):
+            base = (scale or {}).get(m, 0.05 + 0.01 * i)
+            mae = base * (1 + 0.2 * rng.standard_normal())
+            rows.append({"method": m, "repeat": r, "split": split, "mae": mae, "rmse": 1.3 * mae,
+                         "r2": 1 - mae / 50, "r2_error": 1 - mae})
+    return pd.DataFrame(rows)
+
+
+def _conv(methods, T=5):
+    rows = [{"method": m, "repeat": r, "iteration": t, "evals": 8 + 32 * t, "best_fitness": 1.0 / (t + i + r + 1)}
+            for i, m in enumerate(methods) for r in range(R) for t in range(1, T + 1)]
+    return pd.DataFrame(rows)
+
+
+def _pred(methods, rng, azimuths=(30.0, 60.0), n=6):
+    rows = []
+    for m in methods:
+        for r in (0, 1):
+            for j in range(n * len(azimuths)):
+                a = azimuths[j % len(azimuths)]
+                e = 1 + 0.1 * rng.standard_normal()
+                p = e + 0.05 * rng.standard_normal()
+                rows.append({"method": m, "repeat": r, "row": j, "station": j, "split": "test" if (j // len(azimuths)) % 2 == 0 else "train",
+                             "azimuth_true": a, "azimuth_raw": a + 5 + rng.standard_normal(),
+                             "azimuth_msa": a + e, "error_msa": e, "predicted_error": p,
+                             "azimuth_compensated": a + e - p, "error_compensated": e - p})
+    return pd.DataFrame(rows)
+
+
+@pytest.fixture()
+def runs_dir(tmp_path):
+    rng = np.random.default_rng(1)
+    cgo = [f"cgo-{s}" for s in S5]
+    _run_dir(tmp_path / "m" / "table3", _metrics(cgo, rng), conv=_conv(cgo), pred=_pred(cgo, rng))
+    _run_dir(tmp_path / "m" / "relm", _metrics(["relm"], rng, {"relm": 0.5}))
+    _run_dir(tmp_path / "m" / "fig9", _metrics(["pso", "ga"], rng, {"pso": 0.08, "ga": 0.09}))
+    return tmp_path
+
+
+def test_tables_match_direct_computation(runs_dir, tmp_path):
+    out = tmp_path / "results"
+    done = F.build([runs_dir / "m"], out)
+    assert done == {**{k: True for k in F.BUILDERS}, "table4": False}
+    assert (out / "tables_missing.txt").read_text().strip() == "no runs found for: table4"
+    m = pd.concat([pd.read_csv(p) for p in sorted((runs_dir / "m").rglob("metrics.csv"))])
+    m = m[m.split == "test"]
+
+    t1 = pd.read_csv(out / "table1.csv").set_index("metric")
+    relm = m[m.method == "relm"].mae
+    assert t1.loc["MAE (deg)", "RELM (ours)"] == f"{relm.mean():.4f} +/- {relm.std(ddof=1):.4f}"
+    assert t1.loc["MAE (deg)", "RELM (paper)"] == 0.5111 and t1.loc["R^2", "CGO-RELM (paper)"] == 0.998
+
+    t2 = pd.read_csv(out / "table2.csv").set_index("strategy")
+    r0 = m[(m.method == "cgo-wavelet") & (m.repeat == 0)].mae.iloc[0]
+    assert t2.loc["wavelet", "MAE (deg) ours"] == pytest.approx(round(r0, 4))
+    assert t2.loc["three-stage", "MAE (deg) paper"] == 0.0300
+
+    t3 = pd.read_csv(out / "table3.csv").set_index("strategy")
+    g = m[m.method == "cgo-gaussian"].rmse
+    assert t3.loc["Gaussian", "RMSE (deg) ours"] == f"{g.mean():.4f} +/- {g.std(ddof=1):.4f}"
+    assert t3.loc["three-stage", "MAE (deg) paper"] == "0.0391 +/- 0.0100"
+    assert t3.loc["original", "MAE (deg) paper"] == "(not in Table 3)"
+
+    s = pd.read_csv(out / "table3_stats.csv")
+    wide = m.pivot_table(index="repeat", columns="method", values="mae")
+    fr = st.friedmanchisquare(*[wide[f"cgo-{x}"] for x in F.STRATEGIES4])
+    row = s[(s.metric == "MAE (deg)") & s.test.str.startswith("Friedman")].iloc[0]
+    assert row.statistic == pytest.approx(round(fr.statistic, 4)) and row.p_value == pytest.approx(round(fr.pvalue, 4))
+    ranks = np.apply_along_axis(st.rankdata, 1, wide[[f"cgo-{x}" for x in F.STRATEGIES4]].to_numpy()).mean(0)
+    assert f"three-stage {ranks[3]:.2f}" in row["mean ranks"]
+    w = st.wilcoxon(wide["cgo-three_stage"], wide["cgo-chaos"])
+    row = s[(s.metric == "MAE (deg)") & (s.comparison == "three-stage vs chaotic")].iloc[0]
+    assert row.p_value == pytest.approx(round(w.pvalue, 4))
+    md = (out / "table3.md").read_text()
+    assert "Order by mean MAE, ours:" in md and "Friedman test on MAE" in md and "paper:" in md
+
+    f10 = pd.read_csv(out / "fig10.csv").set_index("strategy")
+    assert f10.loc["chaos", "mae_mean"] == pytest.approx(m[m.method == "cgo-chaos"].mae.mean())
+    for f in ("fig9", "fig10", "fig11", "fig12", "fig13"):
+        assert (out / f"{f}.png").stat().st_size > 10_000
+
+
+def test_failed_runs_are_skipped_and_newest_duplicate_wins(runs_dir, tmp_path):
+    rng = np.random.default_rng(2)
+    bad = _metrics(["relm"], rng, {"relm": 99.0})
+    _run_dir(tmp_path / "m" / "failed", bad, failed=True)
+    newer = _metrics(["relm"], rng, {"relm": 0.25})
+    _run_dir(tmp_path / "m" / "zz_newer", newer)
+    future = time.time() + 100
+    os.utime(tmp_path / "m" / "zz_newer" / "run.json", (future, future))
+    out = tmp_path / "res"
+    F.build([tmp_path / "m"], out)
+    t1 = pd.read_csv(out / "table1.csv").set_index("metric")
+    mae = newer.mae
+    assert t1.loc["MAE (deg)", "RELM (ours)"] == f"{mae.mean():.4f} +/- {mae.std(ddof=1):.4f}"
+
+
+def test_other_split_seeds_are_kept_apart(tmp_path):
+    rng = np.random.default_rng(3)
+    _run_dir(tmp_path / "a", _metrics(["relm", "cgo-original"], rng), seed=0)
+    _run_dir(tmp_path / "b", _metrics(["relm", "cgo-original"], rng, {"relm": 7.0}), seed=1)
+    runs = F.Runs([tmp_path])
+    a, b = runs.metrics(seed=0), runs.metrics(seed=1)
+    assert a[a.method == "relm"].mae.max() < 1 and b[b.method == "relm"].mae.min() > 1
+
+
+def test_table4_per_condition_from_azimuth(tmp_path):
+    rng = np.random.default_rng(4)
+    cgo = [f"cgo-{s}" for s in S5]
+    az = tuple(r[1] for r in F.PAPER["table4"])
+    pred = _pred(cgo, rng, azimuths=az, n=4)
+    _run_dir(tmp_path / "w", _metrics(cgo, rng), dataset="well_conditions", pred=pred)
+    out = tmp_path / "res"
+    assert F.build([tmp_path / "w"], out)["table4"]
+    t4 = pd.read_csv(out / "table4.csv")
+    assert list(t4["azimuth (deg)"]) == list(az)
+    d = pred[(pred.method == "cgo-three_stage") & (pred.repeat == 0) & (pred.split == "test")
+             & (pred.azimuth_true == 60.0)]
+    row = t4[t4["azimuth (deg)"] == 60.0].iloc[0]
+    assert row["compensated mean ours"] == pytest.approx(round(np.abs(d.error_compensated).mean(), 4))
+    assert row["raw mean paper"] == 29.6639
+    assert (out / "fig15.png").exists()
+
+
+def test_missing_directory_is_one_line(tmp_path):
+    with pytest.raises(SystemExit) as e:
+        F.Runs([tmp_path / "nope"])
+    assert "no such directory" in str(e.value)
