@@ -68,7 +68,8 @@ def simulated_variant(name, overrides, scfg, seed, out: Path) -> dict:
     ref = float(meta["total_field_nT"])  # |M_omega|: the modulus of the gyro-rotated reference field (docs/misma.md)
     k = int(scfg.subsample)
     sel = static | (np.arange(len(t)) % k == 0)
-    data = cal.make_caldata(G[sel], B[sel], ref, seg[sel], ~static[sel])
+    dotw = static[sel].astype(float) if scfg.dot_samples == "static" else None
+    data = cal.make_caldata(G[sel], B[sel], ref, seg[sel], ~static[sel], dot_weights=dotw)
     ob = scfg.objective
     obj = cal.MismaObjective(data, ob.pearson_threshold, ob.pearson_mode, ob.mu_magnitude, ob.mu_pearson)
     x_true = np.asarray(cal.params_from_error_model(np.asarray(truth["R"]), np.asarray(truth["b_nT"])))
@@ -225,26 +226,40 @@ def _peer(G, B, train, rolled_train, score_groups):
     return out
 
 
+_OBJ = {}
+
+
+def _objective(n):
+    """One MismaObjective per recording size (data passed as aux, so it compiles once per size)."""
+    if n not in _OBJ:
+        _OBJ[n] = cal.MismaObjective(cal.make_caldata(np.ones((n, 3)), np.ones((n, 3)), 1.0))
+    return _OBJ[n]
+
+
 def _ours(G, B, groups, train, score_mask, rcfg, key):
     """Our four pipelines fitted on ``train`` rows, scored (peer metric) on ``score_mask`` rows."""
     Gt, Bt, gt = G[train], B[train], groups[train]
     xg = cal.ellipsoid_fit_accel(Gt)
     xm = cal.ellipsoid_fit(Bt, 1.0, Gt)
     Gc = lambda x: np.asarray(cal.correct(jnp.asarray(x), G))  # noqa: E731
+    Bc = lambda x: np.asarray(cal.correct(jnp.asarray(x), B))  # noqa: E731
     score = lambda g_, b_: cal.group_spread_deg(g_[score_mask], b_[score_mask], groups[score_mask])[0]  # noqa: E731
-    out = {"ellipsoid": score(Gc(xg), Gc(xm))}
+    out = {"ellipsoid": score(Gc(xg), Bc(xm))}
     Gt_c = np.asarray(cal.correct(jnp.asarray(xg), Gt))
     x12 = cal.fit_twelve(Gt_c, Bt, 1.0, x0=xm)
     Q = cal.align_to_axis(Gt_c, np.asarray(cal.correct(jnp.asarray(x12), Bt)), gt)
-    out["twelve+axis"] = score(Gc(xg) @ Q.T, Gc(x12) @ Q.T)
-    obj = cal.MismaObjective(cal.make_caldata(Gt_c, Bt, 1.0))
+    out["twelve+axis"] = score(Gc(xg) @ Q.T, Bc(x12) @ Q.T)
+    R = int(rcfg.misma_repeats)
+    data = cal.make_caldata(Gt_c, Bt, 1.0)
+    aux = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (R,) + jnp.shape(a)), data)
     lb, ub = misma_mod.misma_bounds(xm, 1.0)
-    r = base.run_batch("misma", obj, (lb, ub), jax.random.split(key, int(rcfg.misma_repeats)), 30, int(rcfg.misma_iter))
+    r = base.run_batch("misma", _objective(len(Bt)), (lb, ub), jax.random.split(key, R), 30, int(rcfg.misma_iter),
+                       aux=aux)
     xmi = np.asarray(r.best_x[int(np.argmin(np.asarray(r.best_f)))])
     Q = cal.align_to_axis(Gt_c, np.asarray(cal.correct(jnp.asarray(xmi), Bt)), gt)
-    out["misma+axis"] = score(Gc(xg) @ Q.T, Gc(xmi) @ Q.T)
+    out["misma+axis"] = score(Gc(xg) @ Q.T, Bc(xmi) @ Q.T)
     jg, jm = cal.fit_joint(Gt, Bt, gt, xg, xm)
-    out["joint"] = score(Gc(jg), Gc(jm))
+    out["joint"] = score(Gc(jg), Bc(jm))
     return out
 
 

@@ -224,7 +224,9 @@ class CalData(NamedTuple):
         segment: (N,) int32 rotating-stretch id (0 .. n_segments-1).
         rotating: (N,) float 1/0, samples taken while the string rotates.
         ref_nT: reference modulus |M_omega| (nT), scalar.
-        weights: (N,) sample weights of the dot and magnitude terms.
+        weights: (N,) sample weights of the magnitude term.
+        dot_weights: (N,) sample weights of the dot-invariance term (the
+            paper takes gravity at zero-velocity stops: see :func:`make_caldata`).
     """
 
     G: jnp.ndarray
@@ -233,9 +235,10 @@ class CalData(NamedTuple):
     rotating: jnp.ndarray
     ref_nT: jnp.ndarray
     weights: jnp.ndarray
+    dot_weights: jnp.ndarray
 
 
-def make_caldata(G, B, ref_nT, segment=None, rotating=None, weights=None) -> CalData:
+def make_caldata(G, B, ref_nT, segment=None, rotating=None, weights=None, dot_weights=None) -> CalData:
     """Validate and pack calibration samples.
 
     Args:
@@ -243,7 +246,10 @@ def make_caldata(G, B, ref_nT, segment=None, rotating=None, weights=None) -> Cal
         ref_nT: reference field modulus |M_omega|, nT (> 0).
         segment: (N,) ints >= 0 or None (one segment).
         rotating: (N,) bools or None (no sample rotating: no Pearson term).
-        weights: (N,) non-negative or None (all 1).
+        weights: (N,) non-negative or None (all 1), for the magnitude term.
+        dot_weights: (N,) non-negative or None (= weights), for the dot term;
+            e.g. 1 at static samples only, where the accelerometer reads
+            gravity without vibration and centripetal acceleration.
     Raises:
         ValueError: one line naming the bad argument.
     """
@@ -271,8 +277,11 @@ def make_caldata(G, B, ref_nT, segment=None, rotating=None, weights=None) -> Cal
     w = np.ones(n) if weights is None else np.asarray(weights, np.float64)
     if w.shape != (n,) or np.any(w < 0) or w.sum() <= 0:
         raise ValueError("calibration data: weights must be (N,), non-negative, not all zero")
+    dw = w if dot_weights is None else np.asarray(dot_weights, np.float64)
+    if dw.shape != (n,) or np.any(dw < 0) or dw.sum() <= 0:
+        raise ValueError("calibration data: dot_weights must be (N,), non-negative, not all zero")
     return CalData(jnp.asarray(G), jnp.asarray(B), jnp.asarray(seg.astype(np.int32)),
-                   jnp.asarray(rot), jnp.asarray(float(ref_nT)), jnp.asarray(w))
+                   jnp.asarray(rot), jnp.asarray(float(ref_nT)), jnp.asarray(w), jnp.asarray(dw))
 
 
 class MismaObjective:
@@ -315,10 +324,10 @@ class MismaObjective:
         self.n_segments = int(np.max(np.asarray(data.segment))) + 1 if n_segments is None else int(n_segments)
 
     # single candidate -------------------------------------------------------
-    def terms(self, x):
-        """The three terms ``(J_dot, J_mag, P_pearson)`` for one (12,) candidate."""
-        d = self.data
-        j_dot = dot_invariance(x, d.G, d.B, d.weights)
+    def terms(self, x, data=None):
+        """The three terms ``(J_dot, J_mag, P_pearson)`` for one (12,) candidate (data: CalData or None = own)."""
+        d = self.data if data is None else data
+        j_dot = dot_invariance(x, d.G, d.B, d.dot_weights)
         j_mag = magnitude_consistency(x, d.B, d.ref_nT, d.weights)
         rho, n = pearson_xy(x, d.G, d.B, d.segment, d.rotating, self.n_segments, self.pearson_mode)
         valid = (n >= 3.0)[:, None] * jnp.ones_like(rho)
@@ -326,19 +335,24 @@ class MismaObjective:
         p = jnp.sum(viol * valid) / jnp.maximum(jnp.sum(valid), 1.0)
         return j_dot, j_mag, p
 
-    def single(self, x):
+    def single(self, x, data=None):
         """Penalised fitness of one (12,) candidate; +inf when not finite."""
-        j_dot, j_mag, p = self.terms(x)
+        j_dot, j_mag, p = self.terms(x, data)
         f = j_dot + self.mu_magnitude * j_mag + self.mu_pearson * p
         return jnp.where(jnp.isfinite(f), f, jnp.inf)
 
     def __call__(self, pop, aux=None):
-        """Batched fitness ``(P, 12) -> (P,)`` (``aux`` unused, accepted for the runner)."""
-        return jax.vmap(self.single)(jnp.asarray(pop))
+        """Batched fitness ``(P, 12) -> (P,)``; ``aux`` (a CalData of the same shapes) replaces the data.
+
+        Passing the data as ``aux`` lets one instance (one compiled program)
+        serve many recordings of equal size.
+        """
+        return jax.vmap(lambda x: self.single(x, aux))(jnp.asarray(pop))
 
     def gmr(self, x, aux=None):
         """GMR (eq. 15) of one (12,) candidate."""
-        return magnitude_ratio(x, self.data.B, self.data.ref_nT, self.data.weights)
+        d = self.data if aux is None else aux
+        return magnitude_ratio(x, d.B, d.ref_nT, d.weights)
 
 
 # ------------------------------------------------ orientation count (bad input)
@@ -478,7 +492,7 @@ def fit_twelve(G, B, ref_nT, x0=None, mu_magnitude=1.0, weights=None, check=True
     return sol.x * scale
 
 
-def modulus_fit(B, ref_nT, x0=None, ridge=1e-4):
+def modulus_fit(B, ref_nT, x0=None, ridge=0.03):
     """U of MISMA (eqs. 9-10): parameters whose corrected modulus matches ``|M_omega|``.
 
     Least squares on ``|R^-1 (B_k - b)| / |M_omega| - 1`` with a weak ridge
@@ -494,9 +508,9 @@ def modulus_fit(B, ref_nT, x0=None, ridge=1e-4):
     from scipy.optimize import least_squares
 
     B = np.asarray(B, np.float64)
-    if x0 is None:
-        s = np.median(np.linalg.norm(B - B.mean(0), axis=1))
-        x0 = np.concatenate([(np.eye(3) * ref_nT / s).ravel(), B.mean(0)])
+    if x0 is None:  # a roughly calibrated sensor: identity (scaled to the reference), no bias
+        s = np.median(np.linalg.norm(B, axis=1))
+        x0 = np.concatenate([(np.eye(3) * ref_nT / s).ravel(), np.zeros(3)])
     x0 = np.asarray(x0, np.float64)
     scale = np.concatenate([np.full(9, np.abs(x0[:9]).max()), np.full(3, ref_nT)])
     Bj = jnp.asarray(B)
