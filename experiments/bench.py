@@ -7,7 +7,8 @@ machine it runs on (CPU here; unchanged with ``JAX_PLATFORMS=cuda``):
   scale (the study's own data, repeat 0: 407 training rows, 6 inputs,
   L = 30) for a batch of 120 (population 30 x 4 seeds) and 1200 (x 10
   repeats), after compilation, for the fast kernel of this file
-  (:func:`fast_fitness`); ``library_evals_per_s`` for ``icgo.relm.fitness``;
+  (:func:`icgo.relm.train_fitness`, the study's default); ``library_evals_per_s``
+  for the row-weighted float64 path ``icgo.relm.fitness``;
 * ``flop_fraction``: fast throughput x :func:`flops_per_eval` / the rate of a
   large dense float32 matrix product (the precision of the fast kernel's Gram
   product), measured in the same run;
@@ -103,86 +104,27 @@ def numpy_fitness(theta: np.ndarray, X: np.ndarray, T: np.ndarray, lam: float = 
 
 
 # ---------------------------------------------------------------------- fast kernel
-class CompactData(NamedTuple):
-    """Training rows of one repeat (the fast kernel's ``aux``).
-
-    Attributes:
-        Xa: (n, 7) standardised inputs with a column of ones (bias).
-        T: (n,) targets (deg).
-    """
-
-    Xa: jnp.ndarray
-    T: jnp.ndarray
+# The fast kernel lives in icgo.relm (train_rows / train_fitness); these names
+# keep the benchmark's vocabulary.
+CompactData = relm.TrainRows
 
 
-def compact(data: relm.FitData, n_train: int) -> CompactData:
-    """Gather the training rows of a train-mode ``FitData`` (leading repeat axis allowed).
-
-    Args:
-        data: FitData whose ``fit_w`` (K=1) marks the training rows.
-        n_train: number of training rows (static; every repeat has this many).
-    Returns:
-        CompactData with shapes (..., n, 7) and (..., n).
-    """
-    def one(X, T, w):
-        idx = jnp.nonzero(w[0] > 0, size=n_train)[0]
-        return CompactData(jnp.concatenate([X[idx], jnp.ones((n_train, 1), X.dtype)], axis=1), T[idx])
-
+def compact(data: relm.FitData, n_train: int) -> relm.TrainRows:
+    """:func:`icgo.relm.train_rows`, with an optional leading repeat axis."""
     if data.X.ndim == 3:
-        return jax.vmap(one)(data.X, data.T, data.fit_w)
-    return one(data.X, data.T, data.fit_w)
+        return jax.vmap(lambda d: relm.train_rows(d, n_train))(data)
+    return relm.train_rows(data, n_train)
 
 
-def _fitness_chunk(pop, d: CompactData, lam, hidden: int, refine: int, gram_dtype):
-    P = pop.shape[0]
-    n = d.Xa.shape[0]
-    W = jnp.concatenate([pop[:, : N_INPUTS * hidden].reshape(P, N_INPUTS, hidden),
-                         pop[:, None, N_INPUTS * hidden:]], axis=1)                    # (P, 7, L)
-    H = jax.nn.sigmoid(jnp.einsum("nd,pdl->pnl", d.Xa, W))                            # eq. (8), (P, n, L)
-    # Centred columns keep the low-precision Gram accurate: sigmoid columns share a
-    # large mean, and H^T H = Hc^T Hc + n m m^T exactly.
-    m = jnp.mean(H, axis=1)
-    Hc = (H - m[:, None, :]).astype(gram_dtype)
-    G = jnp.einsum("pni,pnj->pij", Hc, Hc).astype(H.dtype) + n * m[:, :, None] * m[:, None, :]
-    C = jnp.linalg.cholesky(G + lam * jnp.eye(hidden, dtype=H.dtype))
-    solve = lambda b: jax.scipy.linalg.cho_solve((C, True), b[..., None])[..., 0]  # noqa: E731
-    beta = solve(jnp.sum(H * d.T[:, None], axis=1))                                   # eq. (9)
-    for _ in range(refine):  # iterative refinement with float64 residuals of the exact system
-        r = d.T - jnp.einsum("pni,pi->pn", H, beta)
-        beta = beta + solve(jnp.sum(H * r[:, :, None], axis=1) - lam * beta)
-    r = jnp.einsum("pni,pi->pn", H, beta) - d.T
-    f = jnp.sqrt(jnp.mean(r * r, axis=1))
-    return jnp.where(jnp.isfinite(f), f, jnp.inf)
-
-
-@partial(jax.jit, static_argnames=("hidden", "chunk", "refine", "gram_dtype"))
-def fast_fitness(pop, data: CompactData, lam=LAM, hidden: int = HIDDEN, chunk: int = 10, refine: int = 2,
+def fast_fitness(pop, data: relm.TrainRows, lam=LAM, hidden: int = HIDDEN, chunk: int = 10, refine: int = 2,
                  gram_dtype: str = "float32"):
-    """Batched RELM training RMSE (deg), float64 result from a float32 Gram product.
-
-    Args:
-        pop: (P, 7 L) hidden parameters. data: CompactData of one repeat.
-        lam: ridge lambda. hidden: L. chunk: thetas per ``lax.map`` step (cache
-            blocking; >= P: no chunking). refine: iterative-refinement steps.
-        gram_dtype: ``"float32"`` (mixed precision) or ``"float64"``.
-    Returns:
-        (P,) fitness; +inf where not finite.
-    """
-    gdt = jnp.dtype(gram_dtype)
-    P, D = pop.shape
-    if chunk >= P:
-        return _fitness_chunk(pop, data, lam, hidden, refine, gdt)
-    k = -(-P // chunk)
-    padded = jnp.concatenate([pop, jnp.zeros((k * chunk - P, D), pop.dtype)]).reshape(k, chunk, D)
-    out = jax.lax.map(lambda p: _fitness_chunk(p, data, lam, hidden, refine, gdt), padded)
-    return out.reshape(-1)[:P]
+    """:func:`icgo.relm.train_fitness` with the benchmark's defaults."""
+    return relm.train_fitness(pop, data, lam, hidden, chunk, refine, gram_dtype)
 
 
 def make_fast_fitness(lam=LAM, hidden=HIDDEN, chunk=10, refine=2, gram_dtype="float32"):
-    """``f(pop, aux: CompactData) -> (P,)`` for :func:`icgo.optim.run_batch` (one object: one compile)."""
-    def f(pop, aux):
-        return fast_fitness(pop, aux, lam, hidden, chunk, refine, gram_dtype)
-    return f
+    """:func:`icgo.relm.make_train_fitness` (one object: one compile)."""
+    return relm.make_train_fitness(lam, hidden, chunk, refine, gram_dtype)
 
 
 # ---------------------------------------------------------------------------- data

@@ -165,6 +165,96 @@ def make_fitness(lam: float, hidden: int, dtype=None):
     return f
 
 
+# ------------------------------------------------------------ fast train-mode path
+class TrainRows(NamedTuple):
+    """The training rows of one repeat, gathered (the fast fitness's ``aux``).
+
+    Attributes:
+        Xa: (n, 7) standardised inputs with a trailing column of ones (the bias).
+        T: (n,) targets (deg).
+    """
+
+    Xa: jnp.ndarray
+    T: jnp.ndarray
+
+
+def train_rows(data: FitData, n_train: int) -> TrainRows:
+    """Gather the rows of a train-mode FitData (``fit_w`` of one fold) into TrainRows.
+
+    Args:
+        data: FitData with K = 1 whose ``fit_w[0]`` marks the training rows.
+        n_train: number of training rows (static; every repeat has as many).
+    Returns:
+        TrainRows, (n_train, 7) and (n_train,).
+    """
+    idx = jnp.nonzero(data.fit_w[0] > 0, size=n_train)[0]
+    X = data.X[idx]
+    return TrainRows(jnp.concatenate([X, jnp.ones((n_train, 1), X.dtype)], axis=1), data.T[idx])
+
+
+def _train_rmse_chunk(pop, rows: TrainRows, lam, hidden: int, refine: int, gram_dtype):
+    P = pop.shape[0]
+    n, d1 = rows.Xa.shape
+    W = jnp.concatenate([pop[:, : (d1 - 1) * hidden].reshape(P, d1 - 1, hidden),
+                         pop[:, None, (d1 - 1) * hidden:]], axis=1)                 # (P, 7, L): W and b
+    H = jax.nn.sigmoid(jnp.einsum("nd,pdl->pnl", rows.Xa, W))                       # eq. (8), (P, n, L)
+    # Sigmoid columns share a large mean, which ruins a float32 Gram; centred
+    # columns do not, and H^T H = Hc^T Hc + n m m^T exactly (mean term in float64).
+    m = jnp.mean(H, axis=1)
+    Hc = (H - m[:, None, :]).astype(gram_dtype)
+    A = jnp.einsum("pni,pnj->pij", Hc, Hc).astype(H.dtype) + n * m[:, :, None] * m[:, None, :]
+    C = jnp.linalg.cholesky(A + lam * jnp.eye(hidden, dtype=H.dtype))
+
+    def solve(b):
+        return jax.scipy.linalg.cho_solve((C, True), b[..., None])[..., 0]
+
+    beta = solve(jnp.einsum("pni,n->pi", H, rows.T))                                # eq. (9)
+    for _ in range(refine):  # iterative refinement: float64 residual of the exact normal equations
+        r = rows.T - jnp.einsum("pni,pi->pn", H, beta)
+        beta = beta + solve(jnp.einsum("pni,pn->pi", H, r) - lam * beta)
+    r = jnp.einsum("pni,pi->pn", H, beta) - rows.T
+    f = jnp.sqrt(jnp.mean(r * r, axis=1))
+    return jnp.where(jnp.isfinite(f), f, jnp.inf)
+
+
+@partial(jax.jit, static_argnames=("hidden", "chunk", "refine", "gram_dtype"))
+def train_fitness(pop, rows: TrainRows, lam, hidden: int, chunk: int = 10, refine: int = 2,
+                  gram_dtype: str = "float32"):
+    """Fast batched training RMSE (deg): the paper's fitness on gathered training rows.
+
+    Mixed precision (``gram_dtype="float32"``): the Gram product of the centred
+    hidden outputs in float32, the Cholesky factor and ``refine`` steps of
+    iterative refinement with float64 residuals, so the result is the float64
+    ridge solution (tested against :func:`fitness` on the study's own data).
+    The population is processed in chunks of ``chunk`` thetas (``lax.map``) so a
+    chunk's hidden outputs stay in cache. Measurements: ``results/performance.md``.
+
+    Args:
+        pop: (P, 7 L) hidden parameters. rows: TrainRows of one repeat.
+        lam: ridge lambda. hidden: L.
+        chunk: thetas per ``lax.map`` step (>= P: no chunking).
+        refine: iterative-refinement steps (2 reach float64 accuracy here).
+        gram_dtype: ``"float32"`` (mixed precision) or ``"float64"``.
+    Returns:
+        (P,) fitness; +inf where not finite.
+    """
+    gdt = jnp.dtype(gram_dtype)
+    P, D = pop.shape
+    if chunk >= P:
+        return _train_rmse_chunk(pop, rows, lam, hidden, refine, gdt)
+    k = -(-P // chunk)
+    padded = jnp.concatenate([pop, jnp.zeros((k * chunk - P, D), pop.dtype)]).reshape(k, chunk, D)
+    out = jax.lax.map(lambda p: _train_rmse_chunk(p, rows, lam, hidden, refine, gdt), padded)
+    return out.reshape(-1)[:P]
+
+
+def make_train_fitness(lam: float, hidden: int, chunk: int = 10, refine: int = 2, gram_dtype: str = "float32"):
+    """``fitness(pop (P, D), aux: TrainRows) -> (P,)`` closure for optimizers."""
+    def f(pop, aux):
+        return train_fitness(pop, aux, lam, hidden, chunk, refine, gram_dtype)
+    return f
+
+
 def fold_weights(key, train_mask, mode: str = "train", val_fraction: float = 0.3, k_folds: int = 5):
     """Row weights (fit_w, score_w), each (K, N), for a fitness mode; jittable.
 

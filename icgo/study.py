@@ -79,7 +79,13 @@ class StudyConfig:
         iterations: optimizer iterations (paper: 100); exclusive with max_evals.
         max_evals: fitness-evaluation budget instead of iterations.
         optimizer_config: the optimizer's config object (None = its defaults).
-        dtype: ``"float64"`` (default) or ``"float32"`` for the fitness solve.
+        dtype: precision of the search's fitness. ``"mixed"`` (default): the
+            fast train-mode kernel :func:`icgo.relm.train_fitness` (float32 Gram
+            of centred features, float64 Cholesky and iterative refinement: the
+            float64 solution, tested), used when ``fitness="train"``; other
+            fitness modes then use the float64 path. ``"float64"``: the
+            row-weighted float64 path of :func:`icgo.relm.fitness`; ``"float32"``
+            that path in float32. The final refit and scoring are float64 always.
     """
 
     n_repeats: int = 10
@@ -103,7 +109,7 @@ class StudyConfig:
     iterations: int | None = 100
     max_evals: int | None = None
     optimizer_config: Any = None
-    dtype: str = "float64"
+    dtype: str = "mixed"
 
     def ids(self) -> tuple:
         """The repeat ids this config runs."""
@@ -224,7 +230,14 @@ def _prepare(keys, G, B, a_true, reference, *, n_train, msa_model, msa_iter, fea
 @functools.lru_cache(maxsize=None)
 def _fitness_fn(lam: float, hidden: int, dtype: str | None):
     # Cached so that the optimizer runner (fitness is a static argument) compiles once per setting.
+    if dtype == "mixed":
+        return _relm.make_train_fitness(lam, hidden)
     return _relm.make_fitness(lam, hidden, None if dtype == "float64" else dtype)
+
+
+def _search_dtype(cfg: StudyConfig) -> str:
+    """The fitness precision actually used: ``mixed`` only exists for fitness="train"."""
+    return "float64" if cfg.dtype == "mixed" and cfg.fitness != "train" else cfg.dtype
 
 
 class _Scored(NamedTuple):
@@ -263,6 +276,11 @@ def _plain(keys, data, lam, hidden, low, high, dtype):
     return jax.lax.map(one, (keys, data))
 
 
+@functools.partial(jax.jit, static_argnames=("n_train",))
+def _train_rows(data, n_train):
+    return jax.vmap(lambda d: _relm.train_rows(d, n_train))(data)
+
+
 def _search(cfg: StudyConfig, prep: Prepared):
     """Hidden parameters per (method, repeat): (S, R, D), curves (S, R, T), evals (S, R, T)."""
     D = _relm.n_params(cfg.hidden)
@@ -270,15 +288,20 @@ def _search(cfg: StudyConfig, prep: Prepared):
     low, high = cfg.theta_bounds
     if cfg.optimizer is None:
         theta, f = _plain(prep.key, prep.data, cfg.lam, cfg.hidden, float(low), float(high),
-                          None if cfg.dtype == "float64" else cfg.dtype)
+                          "float32" if cfg.dtype == "float32" else None)
         return theta[None], f[None, :, None], jnp.ones((1, R, 1), jnp.int32)
     from icgo.optim import run_batch
 
     bounds = (np.full(D, low), np.full(D, high))
     strategies = list(cfg.strategies) if cfg.optimizer == "cgo" else None
-    res = run_batch(cfg.optimizer, _fitness_fn(float(cfg.lam), int(cfg.hidden), cfg.dtype), bounds, prep.key,
+    dtype = _search_dtype(cfg)
+    aux = prep.data
+    if dtype == "mixed":
+        n_train = int(np.asarray(prep.train[0]).sum())
+        aux = _train_rows(prep.data, n_train)
+    res = run_batch(cfg.optimizer, _fitness_fn(float(cfg.lam), int(cfg.hidden), dtype), bounds, prep.key,
                     cfg.pop_size, cfg.iterations, max_evals=cfg.max_evals, config=cfg.optimizer_config,
-                    strategies=strategies, aux=prep.data)
+                    strategies=strategies, aux=aux)
     if strategies is None:
         res = jax.tree_util.tree_map(lambda x: x[None], res)
     return res.best_x, res.curve, res.evals_curve
@@ -308,8 +331,8 @@ def _check_config(cfg: StudyConfig, n_rows: int) -> int:
         raise ValueError(f"study: msa_model {cfg.msa_model!r}: expected one of {list(_msa.MODELS)}")
     if cfg.features not in ("raw", "msa"):
         raise ValueError(f"study: features {cfg.features!r}: expected 'raw' or 'msa'")
-    if cfg.dtype not in ("float64", "float32"):
-        raise ValueError(f"study: dtype {cfg.dtype!r}: expected 'float64' or 'float32'")
+    if cfg.dtype not in ("mixed", "float64", "float32"):
+        raise ValueError(f"study: dtype {cfg.dtype!r}: expected 'mixed', 'float64' or 'float32'")
     low, high = cfg.theta_bounds
     if not low < high:
         raise ValueError(f"study: theta_bounds must have low < high, got {cfg.theta_bounds}")

@@ -158,3 +158,27 @@ def test_lab_casing_msa_and_plain_relm():
     assert np.median(explained) > 0.8 and np.sqrt(np.mean(p.error_msa**2)) > 0.3
     s = res.summary
     assert s.loc[("relm", "test"), "mae_mean"] < s.loc[("msa", "test"), "mae_mean"]
+
+
+def test_tiny_cgo_study_mixed_precision_batched_equals_alone(frame):
+    """The default (mixed-precision) search: repeat k batched == alone, and its fitness is the float64 one."""
+    import jax
+
+    from icgo import relm
+
+    cfg = study.StudyConfig(optimizer="cgo", strategies=("original", "three_stage"), n_repeats=2,
+                            hidden=10, pop_size=6, iterations=3, seed=5)
+    assert cfg.dtype == "mixed"
+    res = study.run_study(frame, cfg)
+    alone = study.run_study(frame, dataclasses.replace(cfg, repeat_ids=(1,)))
+    np.testing.assert_array_equal(alone.curves["best_fitness"][:, 0], res.curves["best_fitness"][:, 1])
+    # the fast fitness on this study's own prepared data equals the row-weighted float64 fitness
+    G, B, a = study.frame_arrays(frame)
+    n_train = study._check_config(cfg, len(a))
+    keys = jax.random.PRNGKey(0)[None]
+    prep = study._prepare(keys, G, B, a, None, n_train=n_train, msa_model="biases", msa_iter=30,
+                          features="raw", mode="train", val_fraction=0.3, k_folds=5)
+    data = jax.tree_util.tree_map(lambda x: x[0], prep.data)
+    pop = relm.random_theta(jax.random.PRNGKey(1), 10, (12,))
+    np.testing.assert_allclose(np.asarray(relm.train_fitness(pop, relm.train_rows(data, n_train), 1e-3, 10)),
+                               np.asarray(relm.fitness(pop, data, 1e-3, 10)), rtol=1e-9)
