@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test test-all figures bench venv clean
+.PHONY: run test test-all figures bench optimizers misma gyro discrepancy dataset-figures venv clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -28,6 +28,23 @@ figures: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python -m experiments.bench
+
+optimizers: $(STAMP)
+	$(BIN)/python -m experiments.optimizers --jobs 2
+
+misma: $(STAMP)
+	$(BIN)/python -m experiments.misma
+
+gyro: $(STAMP)
+	$(BIN)/python -m experiments.gyro
+
+discrepancy: $(STAMP)
+	$(BIN)/python -m experiments.discrepancy study=hidden
+	$(BIN)/python -m experiments.discrepancy study=devices max_effects=4
+	$(BIN)/python -m experiments.discrepancy study=lab_casing
+
+dataset-figures: $(STAMP)
+	$(BIN)/python -m experiments.dataset_figures
 
 clean:
 	rm -rf $(VENV) outputs multirun
