@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import sys
-import time
 from pathlib import Path
 
 import hydra
@@ -166,8 +165,6 @@ def study_devices(cfg, kw) -> str:
 
 def study_lab_casing(cfg, kw) -> str:
     """lab_casing: name effects on the training split, compare with ICGO-RELM on the same test split."""
-    import pandas as pd
-
     from icgo.datasets import lab_casing
     from icgo.frames import angle_diff
     from icgo.study import StudyConfig, run_study

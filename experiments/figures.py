@@ -236,7 +236,7 @@ def table2(runs: Runs, out: Path) -> bool:
     df = pd.DataFrame(rows)
     ours = [s for s in sorted(STRATEGIES5, key=lambda s: float(m0[m0.method == f"cgo-{s}"]["mae"].iloc[0]))]
     paper = sorted(STRATEGIES5, key=lambda s: PAPER["table2"][s][0])
-    notes = [f"One random 7:3 split (repeat 0, split seed 0) of the simulated `lab_casing`.",
+    notes = ["One random 7:3 split (repeat 0, split seed 0) of the simulated `lab_casing`.",
              f"Order by MAE, ours: {' < '.join(LABEL[s] for s in ours)}; "
              f"paper: {' < '.join(LABEL[s] for s in paper)}. "
              "A single split cannot tell these strategies apart; Table 3 tests the differences over 10 repeats."]

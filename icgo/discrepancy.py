@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import math
 from functools import partial
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -881,7 +881,6 @@ def run_workflow(st: Stations, *, k_folds=5, max_effects=4, min_rel_improvement=
     group_free = np.zeros(layout.n_params)
     group_free[layout.n_effect + 3:] = 1.0
     sig = np.asarray(data.sig)
-    labels = layout.labels()
     scales = layout.scales()
 
     model: list[str] = []

@@ -16,3 +16,19 @@ import icgo  # noqa: F401  (enables float64 before any test builds arrays)
 _CACHE = Path(__file__).resolve().parents[1] / ".jax_cache"
 jax.config.update("jax_compilation_cache_dir", str(_CACHE))
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+
+
+def relm_train_data(n=60, hidden=5, seed=0, scale=1.0):
+    """Small random RELM problem: (X (n, 6), T (n,), 0/1 mask, population (8, 7 hidden), train-mode FitData)."""
+    import jax.numpy as jnp
+    import numpy as np
+
+    from icgo import relm
+
+    rng = np.random.default_rng(seed)
+    X = rng.standard_normal((n, 6))
+    T = np.sin(X[:, 0]) + 0.3 * X[:, 1] * X[:, 2] + 0.01 * rng.standard_normal(n)
+    mask = (rng.random(n) < 0.7).astype(float)
+    pop = scale * rng.uniform(-1, 1, (8, relm.n_params(hidden)))
+    fit = relm.FitData(jnp.asarray(X), jnp.asarray(T), jnp.asarray(mask)[None], jnp.asarray(mask)[None])
+    return X, T, mask, jnp.asarray(pop), fit

@@ -1,22 +1,10 @@
 """Building blocks of experiments/bench.py at tiny sizes (no timing is tested)."""
 
-import jax
-import jax.numpy as jnp
 import numpy as np
-import pytest
 
+from conftest import relm_train_data as _data
 from experiments import bench
 from icgo import relm
-
-
-def _data(n=60, hidden=5, seed=0, scale=1.0):
-    rng = np.random.default_rng(seed)
-    X = rng.standard_normal((n, 6))
-    T = np.sin(X[:, 0]) + 0.3 * X[:, 1] * X[:, 2] + 0.01 * rng.standard_normal(n)
-    mask = (rng.random(n) < 0.7).astype(float)
-    pop = scale * rng.uniform(-1, 1, (8, relm.n_params(hidden)))
-    fit = relm.FitData(jnp.asarray(X), jnp.asarray(T), jnp.asarray(mask)[None], jnp.asarray(mask)[None])
-    return X, T, mask, jnp.asarray(pop), fit
 
 
 def test_flop_count_matches_hand_count():

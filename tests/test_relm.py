@@ -133,18 +133,11 @@ def test_fit_predict_and_bad_inputs():
 
 
 # ------------------------------------------------------- fast train-mode fitness
-def _train_data(n=60, hidden=5, seed=0, scale=1.0):
-    rng = np.random.default_rng(seed)
-    X = rng.standard_normal((n, 6))
-    T = np.sin(X[:, 0]) + 0.3 * X[:, 1] * X[:, 2] + 0.01 * rng.standard_normal(n)
-    mask = (rng.random(n) < 0.7).astype(float)
-    pop = scale * rng.uniform(-1, 1, (8, relm.n_params(hidden)))
-    fit = relm.FitData(jnp.asarray(X), jnp.asarray(T), jnp.asarray(mask)[None], jnp.asarray(mask)[None])
-    return X, T, mask, jnp.asarray(pop), fit
+from conftest import relm_train_data  # noqa: E402
 
 
 def test_train_rows_keeps_exactly_the_training_rows():
-    X, T, mask, _, fit = _train_data()
+    X, T, mask, _, fit = relm_train_data()
     rows = relm.train_rows(fit, int(mask.sum()))
     np.testing.assert_array_equal(np.asarray(rows.Xa[:, :6]), X[mask > 0])
     np.testing.assert_array_equal(np.asarray(rows.Xa[:, 6]), 1.0)
@@ -153,7 +146,7 @@ def test_train_rows_keeps_exactly_the_training_rows():
 
 @pytest.mark.parametrize("scale", [1.0, 0.05])  # 0.05: near-linear sigmoids, ill-conditioned Gram
 def test_mixed_precision_train_fitness_matches_float64(scale):
-    _, _, mask, pop, fit = _train_data(scale=scale)
+    _, _, mask, pop, fit = relm_train_data(scale=scale)
     ref = np.asarray(relm.fitness(pop, fit, 1e-3, 5))
     rows = relm.train_rows(fit, int(mask.sum()))
     got = np.asarray(relm.train_fitness(pop, rows, 1e-3, 5, chunk=3, refine=2))
@@ -165,7 +158,7 @@ def test_mixed_precision_train_fitness_matches_float64(scale):
 def test_refinement_is_what_recovers_float64():
     # Without refinement the float32 Gram is visibly off on ill-conditioned
     # features; two refinement steps bring it back (so the check above can fail).
-    _, _, mask, pop, fit = _train_data(scale=0.05, seed=1)
+    _, _, mask, pop, fit = relm_train_data(scale=0.05, seed=1)
     ref = np.asarray(relm.fitness(pop, fit, 1e-3, 5))
     rows = relm.train_rows(fit, int(mask.sum()))
     err = [np.max(np.abs(np.asarray(relm.train_fitness(pop, rows, 1e-3, 5, 3, k)) / ref - 1)) for k in (0, 2)]
@@ -173,7 +166,7 @@ def test_refinement_is_what_recovers_float64():
 
 
 def test_train_fitness_nonfinite_is_inf():
-    _, _, mask, pop, fit = _train_data()
+    _, _, mask, pop, fit = relm_train_data()
     rows = relm.train_rows(fit, int(mask.sum()))
     f = np.asarray(relm.train_fitness(pop.at[0, 0].set(jnp.nan), rows, 1e-3, 5, chunk=3))
     assert f[0] == np.inf and np.isfinite(f[1:]).all()
