@@ -546,10 +546,10 @@ def rotating_drill(
     stop_duration_s: float = 30.0,
     rotation_rpm: float = 30.0,
     rpm_variation: float = 0.15,
-    inclination_start_deg: float = 88.0,
-    inclination_end_deg: float = 86.5,
-    azimuth_start_deg: float = 120.0,
-    azimuth_end_deg: float = 124.0,
+    inclination_start_deg: float = 10.0,
+    inclination_end_deg: float = 85.0,
+    azimuth_start_deg: float = 60.0,
+    azimuth_end_deg: float = 135.0,
     total_field_nT: float = 52_650.0,
     dip_deg: float = 53.8,
     latitude_deg: float = 35.2,
@@ -572,7 +572,13 @@ def rotating_drill(
     is ``rotation_rpm`` with a slow random stick-slip variation (relative
     ``rpm_variation``, an Ornstein-Uhlenbeck process with a 20 s time
     constant), so the 1 Hz samples land at scattered toolfaces. The borehole
-    direction drifts linearly from start to end values while drilling.
+    direction changes linearly with drilled time from the start to the end
+    values. Default: a build-and-turn section (inclination 10 -> 85 deg,
+    magnetic azimuth 60 -> 135 deg, landing near horizontal), along which the
+    tool-axis field component changes sign and the tool axis' east component
+    varies, so all 12 magnetometer parameters are identifiable from the run
+    (docs/datasets.md). The near-straight hole (88 -> 86.5, 120 -> 124) is the
+    non-identifiable contrast: pass those four angles.
 
     Sensors: magnetometer ``B_meas = R B_true + b`` + white noise; accelerometer
     gravity + white noise + lateral/axial vibration while rotating + the

@@ -165,6 +165,30 @@ def test_rotating_drill_protocol_and_truth():
     assert raw > 2.0 and fixed < 0.3
 
 
+def test_rotating_drill_default_is_a_build_and_turn_section():
+    # Identifiability (docs/datasets.md): along the default trajectory the tool-axis field
+    # component changes sign (separates r33 from b_z) and the tool axis' east component varies
+    # (the dot invariant then sees a rotation about the tool axis); the near-straight hole has neither.
+    def stops(ds):
+        st = ds.frame[ds.frame.static == 1]
+        I, A = np.deg2rad(st.inclination_deg.to_numpy()), np.deg2rad(st.azimuth_deg.to_numpy())
+        dip = np.deg2rad(ds.meta["dip_deg"])
+        bz = np.cos(dip) * np.sin(I) * np.cos(A) + np.sin(dip) * np.cos(I)  # unit field on the tool axis
+        return st, bz, np.sin(I) * np.sin(A)
+
+    st, bz, east = stops(D.rotating_drill(0))
+    assert st.inclination_deg.iloc[0] < 20 and st.inclination_deg.iloc[-1] == 85.0
+    assert st.azimuth_deg.iloc[0] < 70 and st.azimuth_deg.iloc[-1] == 135.0
+    # closed form vs the simulated (noise-free part of the) magnetometer: R^-1 (B - b) . z / |B_true|
+    R, b = np.array(D.MISMA_R), np.array(D.MISMA_B_NT)
+    _, B = _gb(st)
+    np.testing.assert_allclose(((B - b) @ np.linalg.inv(R).T)[:, 2] / 52_650.0, bz, atol=5e-3)
+    assert bz.max() > 0.7 and bz.min() < -0.3 and np.ptp(east) > 0.5
+    _, bz_s, east_s = stops(D.rotating_drill(0, inclination_start_deg=88.0, inclination_end_deg=86.5,
+                                             azimuth_start_deg=120.0, azimuth_end_deg=124.0))
+    assert np.ptp(bz_s) < 0.05 and np.ptp(east_s) < 0.05
+
+
 @pytest.mark.parametrize("name", ["lab_casing", "well_conditions", "turntable", "rotating_drill"])
 def test_round_trip_through_io(tmp_path, name):
     ds = D.DATASETS[name](2)
