@@ -304,29 +304,22 @@ def progress_enabled(setting) -> bool:
 def run_with_progress(frame, scfg, meta, enable: bool, desc: str):
     """``icgo.study.run_study`` with a progress bar over the optimizer's iterations.
 
-    The bar hooks the study's fitness factory (``icgo.study._fitness_fn``) for
-    the duration of the call; without an optimizer (plain RELM) there is no scan
-    and no bar.
+    The bar wraps the search's fitness (``run_study(wrap_fitness=...)``), so it
+    advances from inside the scan; without an optimizer (plain RELM) there is no
+    scan and no bar.
     """
     from icgo import study
 
-    if not enable or scfg.optimizer is None or not hasattr(study, "_fitness_fn"):
+    if not enable or scfg.optimizer is None:
         return study.run_study(frame, scfg, meta)
     from icgo.optim import iterations_for_budget
 
     n_iter = scfg.iterations if scfg.max_evals is None else iterations_for_budget(
         scfg.optimizer, scfg.pop_size, scfg.max_evals, scfg.optimizer_config)
     bar = Progress(int(n_iter) + 1, desc, True)
-    original = study._fitness_fn
-
-    def hooked(lam, hidden, dtype):
-        return bar.wrap(original(lam, hidden, dtype))
-
-    study._fitness_fn = hooked
     try:
-        return study.run_study(frame, scfg, meta)
+        return study.run_study(frame, scfg, meta, wrap_fitness=bar.wrap)
     finally:
-        study._fitness_fn = original
         bar.close()
 
 

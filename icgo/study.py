@@ -281,7 +281,7 @@ def _train_rows(data, n_train):
     return jax.vmap(lambda d: _relm.train_rows(d, n_train))(data)
 
 
-def _search(cfg: StudyConfig, prep: Prepared):
+def _search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None):
     """Hidden parameters per (method, repeat): (S, R, D), curves (S, R, T), evals (S, R, T)."""
     D = _relm.n_params(cfg.hidden)
     R = prep.key.shape[0]
@@ -299,7 +299,10 @@ def _search(cfg: StudyConfig, prep: Prepared):
     if dtype == "mixed":
         n_train = int(np.asarray(prep.train[0]).sum())
         aux = _train_rows(prep.data, n_train)
-    res = run_batch(cfg.optimizer, _fitness_fn(float(cfg.lam), int(cfg.hidden), dtype), bounds, prep.key,
+    fitness = _fitness_fn(float(cfg.lam), int(cfg.hidden), dtype)
+    if wrap_fitness is not None:
+        fitness = wrap_fitness(fitness)
+    res = run_batch(cfg.optimizer, fitness, bounds, prep.key,
                     cfg.pop_size, cfg.iterations, max_evals=cfg.max_evals, config=cfg.optimizer_config,
                     strategies=strategies, aux=aux)
     if strategies is None:
@@ -392,7 +395,8 @@ def _reference(cfg: StudyConfig, metadata):
 
 
 # --------------------------------------------------------------------- run
-def run_study(frame: pd.DataFrame, config: StudyConfig | None = None, metadata: dict | None = None) -> StudyResult:
+def run_study(frame: pd.DataFrame, config: StudyConfig | None = None, metadata: dict | None = None, *,
+              wrap_fitness=None) -> StudyResult:
     """Run an ICGO-RELM study on a data-contract frame.
 
     Args:
@@ -400,6 +404,10 @@ def run_study(frame: pd.DataFrame, config: StudyConfig | None = None, metadata: 
             reference azimuth); optional station, toolface_deg.
         config: StudyConfig (defaults if None).
         metadata: the data set's metadata (needed for msa_reference="known").
+        wrap_fitness: optional ``f -> f'`` applied to the search's fitness
+            ``f(pop, aux)``, e.g. to report progress from inside the scan
+            (``experiments._common.Progress.wrap``). A wrapped fitness is a new
+            static argument of the runner, so that run compiles afresh.
     Returns:
         StudyResult.
     Raises:
@@ -424,7 +432,7 @@ def run_study(frame: pd.DataFrame, config: StudyConfig | None = None, metadata: 
                     msa_model=cfg.msa_model, msa_iter=cfg.msa_iterations, features=cfg.features,
                     mode=cfg.fitness, val_fraction=float(cfg.val_fraction), k_folds=int(cfg.k_folds))
     _msa.check_observability(prep.msa, cfg.msa_model, reference)
-    thetas, curve, evals = _search(cfg, prep)
+    thetas, curve, evals = _search(cfg, prep, wrap_fitness)
     scored = _score_all(thetas, prep, jnp.asarray(a_true), cfg.lam, cfg.hidden)
     jax.block_until_ready(scored)
     wall = time.perf_counter() - t0

@@ -182,3 +182,21 @@ def test_tiny_cgo_study_mixed_precision_batched_equals_alone(frame):
     pop = relm.random_theta(jax.random.PRNGKey(1), 10, (12,))
     np.testing.assert_allclose(np.asarray(relm.train_fitness(pop, relm.train_rows(data, n_train), 1e-3, 10)),
                                np.asarray(relm.fitness(pop, data, 1e-3, 10)), rtol=1e-9)
+
+
+def test_wrap_fitness_sees_every_search_call(frame):
+    """run_study(wrap_fitness=...) wraps the search's fitness (the progress bar's hook)."""
+    import jax
+
+    calls = []
+
+    def wrap(f):
+        def g(pop, aux):
+            jax.debug.callback(lambda: calls.append(1))
+            return f(pop, aux)
+        return g
+
+    cfg = study.StudyConfig(optimizer="pso", n_repeats=2, hidden=10, pop_size=6, iterations=4, seed=2)
+    study.run_study(frame, cfg, wrap_fitness=wrap)
+    jax.effects_barrier()
+    assert len(calls) == 4 + 1  # initial population + one call per iteration, for the whole batch
