@@ -50,6 +50,8 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
     """
     from experiments import _common as C
 
+    # JAX's backend probe ("Unable to initialize backend 'tpu'") is noise in Hydra's INFO log.
+    logging.getLogger("jax._src.xla_bridge").setLevel(logging.WARNING)
     t0 = time.perf_counter()
     try:
         scfg = C.study_config(cfg)  # every check before any computation
