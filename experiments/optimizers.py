@@ -27,6 +27,7 @@ import pandas as pd
 PAIRS = (  # (our label, our algorithm, our config kwargs / strategy, mealpy label)
     ("cgo (paper, original)", "cgo", "original", "mealpy OriginalCGO"),
     ("icgo (paper, three_stage)", "cgo", "three_stage", "mealpy OriginalCGO"),
+    ("cgo (paper, original, beta/gamma {0,1})", "cgo_bg01", "original", "mealpy OriginalCGO"),
     ("cgo (matlab)", "cgo_matlab", "original", "mealpy OriginalCGO"),
     ("pso", "pso", None, "mealpy OriginalPSO"),
     ("ga", "ga", None, "mealpy BaseGA"),
@@ -91,7 +92,7 @@ def ours(dim, runs, pop_size, budget, seed):
     bounds = (-100.0 * np.ones(dim), 100.0 * np.ones(dim))
     res, info = {}, {}
     root = jax.random.key(seed)
-    for j, alg in enumerate(["cgo", "cgo_matlab", "pso", "ga", "sma"]):
+    for j, alg in enumerate(["cgo", "cgo_bg01", "cgo_matlab", "pso", "ga", "sma"]):
         keys = jax.random.split(jax.random.fold_in(root, 1000 * dim + j), F * runs)
         before = base._batch_jit._cache_size()
         t0 = time.time()
@@ -101,6 +102,10 @@ def ours(dim, runs, pop_size, budget, seed):
             jax.block_until_ready(r.best_f)
             res["cgo (paper, original)"] = (r.best_f[0], r.n_evals[0])
             res["icgo (paper, three_stage)"] = (r.best_f[1], r.n_evals[1])
+        elif alg == "cgo_bg01":
+            r = run_batch("cgo", bm.suite_fitness, bounds, keys, pop_size, max_evals=budget,
+                          config=CGOConfig(bg_low=0), aux=aux)
+            res["cgo (paper, original, beta/gamma {0,1})"] = (r.best_f, r.n_evals)
         elif alg == "cgo_matlab":
             r = run_batch("cgo", bm.suite_fitness, bounds, keys, pop_size, max_evals=budget,
                           config=CGOConfig.matlab(), aux=aux)
@@ -129,7 +134,8 @@ def main(argv=None):
     ap.add_argument("--dims", type=int, nargs="+", default=[10, 30])
     ap.add_argument("--runs", type=int, default=30)
     ap.add_argument("--pop-size", type=int, default=20)
-    ap.add_argument("--budget", type=int, default=1220, help="fitness evaluations per run (default 1220)")
+    ap.add_argument("--budget", type=int, default=3220,
+                    help="fitness evaluations per run (default 3220 = 20 + 40 x 80: 40 CGO / 160 PSO-GA-SMA iterations)")
     ap.add_argument("--jobs", type=int, default=1, help="processes for the mealpy runs (joblib)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default="results")

@@ -166,6 +166,27 @@ def test_cgo_matlab_truncation_and_paper_greedy():
             assert np.all(f1 <= f0)
 
 
+def test_cgo_bound_repair_modes():
+    """clip = np.clip; midpoint = (parent + violated bound) / 2; random: violated coords redrawn in the box."""
+    from icgo.optim.cgo import repair
+
+    lb, ub = jnp.array([-1.0, -1.0, 0.0]), jnp.array([1.0, 2.0, 5.0])
+    parent = jnp.array([[0.5, 1.0, 4.0]])
+    S = jnp.array([[3.0, -4.0, 2.5], [-0.2, 2.5, -1.0]])
+    np.testing.assert_array_equal(np.asarray(repair(jax.random.key(0), S, parent, lb, ub, 0)),
+                                  np.clip(np.asarray(S), np.asarray(lb), np.asarray(ub)))
+    mid = np.asarray(repair(jax.random.key(0), S, parent, lb, ub, 1))
+    np.testing.assert_allclose(mid, [[0.75, 0.0, 2.5], [-0.2, 1.5, 2.0]], rtol=1e-15)
+    rnd = np.asarray(repair(jax.random.key(0), jnp.tile(S, (500, 1)), parent, lb, ub, 2)).reshape(500, 2, 3)
+    bad = (np.asarray(S) < np.asarray(lb)) | (np.asarray(S) > np.asarray(ub))
+    np.testing.assert_array_equal(rnd[:, ~bad], np.broadcast_to(np.asarray(S)[~bad], (500, int((~bad).sum()))))
+    assert np.all(rnd >= np.asarray(lb)) and np.all(rnd <= np.asarray(ub))
+    # redrawn coordinate of dimension 1 (bounds -1..2) is uniform: mean 0.5, spans the box
+    assert abs(rnd[:, 0, 1].mean() - 0.5) < 0.15 and rnd[:, 0, 1].min() < -0.8 and rnd[:, 0, 1].max() > 1.8
+    r = run("cgo", sphere, BOUNDS, jax.random.key(3), P, T, config=CGOConfig(bound_mode="random"))
+    assert np.all(np.abs(np.asarray(r.best_x)) <= 100.0) and np.isfinite(float(r.best_f))
+
+
 def test_config_is_vmappable_data():
     """A hyperparameter (CGO sigma) vmapped as data: one traced program for several values."""
     cfg = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(jnp.asarray(x), (2,) + jnp.shape(x)), CGOConfig(strategy=2))
@@ -190,6 +211,7 @@ def test_config_is_vmappable_data():
     (lambda: run("pso", lambda p: jnp.sum(p), BOUNDS, jax.random.key(0), 8, 2), r"fitness must return shape \(8,\)"),
     (lambda: CGOConfig(variant="python"), "unknown CGO variant"),
     (lambda: CGOConfig(mu=2.0), r"mu must be in \[3.57, 4\]"),
+    (lambda: CGOConfig(bound_mode="reflect"), "unknown CGO bound_mode"),
 ])
 def test_bad_configs_one_line(call, msg):
     with pytest.raises(ValueError, match=msg) as e:

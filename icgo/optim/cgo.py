@@ -40,11 +40,12 @@ from icgo.optim.base import Algorithm, State, evaluate, first_state, register, u
 
 VARIANTS = ("paper", "matlab")
 SELECTIONS = ("greedy", "truncation")
+BOUND_MODES = ("clip", "midpoint", "random")
 
 
 @partial(jax.tree_util.register_dataclass,
          data_fields=["strategy", "selection", "bg_low", "dims", "original_uniform", "step_scale", "sigma",
-                      "mu", "wavelet_g", "wavelet_zeta", "wavelet_bounded", "stage_bounds", "stage_order"],
+                      "mu", "wavelet_g", "wavelet_zeta", "wavelet_bounded", "stage_bounds", "stage_order", "bound_mode"],
          meta_fields=["variant", "chaos_guard"])
 @dataclasses.dataclass(frozen=True)
 class CGOConfig:
@@ -74,6 +75,10 @@ class CGOConfig:
             ``three_stage`` start (default thirds).
         stage_order: strategy indices of stages 1-3 (default chaos, gaussian,
             wavelet).
+        bound_mode: out-of-box coordinates of a new seed are ``clip``-ped (0,
+            both reference codes), set to the ``midpoint`` of the parent and
+            the violated bound (1), or redrawn uniformly in the box (2,
+            ``random``).
     """
 
     strategy: Any = 0
@@ -91,6 +96,7 @@ class CGOConfig:
     wavelet_bounded: Any = False
     stage_bounds: Any = (1.0 / 3.0, 2.0 / 3.0)
     stage_order: Any = (mut.CHAOS, mut.GAUSSIAN, mut.WAVELET)
+    bound_mode: Any = 0
 
     def __post_init__(self):
         if self.variant not in VARIANTS:
@@ -110,6 +116,10 @@ class CGOConfig:
             if self.dims not in mut.DIM_MODES:
                 raise ValueError(f"unknown CGO dims mode {self.dims!r}; choose one of {mut.DIM_MODES}")
             set_("dims", mut.DIM_MODES.index(self.dims))
+        if isinstance(self.bound_mode, str):
+            if self.bound_mode not in BOUND_MODES:
+                raise ValueError(f"unknown CGO bound_mode {self.bound_mode!r}; choose one of {BOUND_MODES}")
+            set_("bound_mode", BOUND_MODES.index(self.bound_mode))
         if isinstance(self.stage_order, (tuple, list)):
             order = tuple(mut.strategy_index(x) if isinstance(x, str) else x for x in self.stage_order)
             if len(order) != 3 or any(isinstance(x, int) and not 0 <= x <= 3 for x in order):
@@ -149,6 +159,27 @@ def mean_groups(key, X: jax.Array) -> jax.Array:
     return w @ X
 
 
+def repair(key, S, parent, lb, ub, mode) -> jax.Array:
+    """Bring new seeds back into the box [lb, ub].
+
+    Args:
+        key: PRNG key (``random`` mode).
+        S: new seeds, shape (..., D).
+        parent: the seeds' parent X_i, broadcastable to ``S``.
+        lb, ub: bounds, (D,).
+        mode: int data: 0 clip, 1 midpoint of parent and violated bound,
+            2 uniform redraw of the violated coordinates.
+
+    Returns:
+        Seeds inside the box, same shape as ``S``.
+    """
+    low, high = S < lb, S > ub
+    mid = jnp.where(low, 0.5 * (parent + lb), jnp.where(high, 0.5 * (parent + ub), S))
+    rnd = jnp.where(low | high, lb + jax.random.uniform(key, S.shape, S.dtype) * (ub - lb), S)
+    out = jnp.where(mode == 1, mid, jnp.where(mode == 2, rnd, S))
+    return jnp.clip(out, lb, ub)
+
+
 def _init(key, fitness, lb, ub, pop_size, config, aux) -> State:
     k_pop, k_chaos = jax.random.split(key)
     pop = uniform_population(k_pop, lb, ub, pop_size)  # eq. 11
@@ -181,7 +212,7 @@ def _step(state: State, key, t, T, fitness) -> State:
     mask = mut.dims_mask(ks[3], (P, D), cfg.dims)
     S4 = mut.mutate(ks[4], X, mask, state.extra, eff, t, T, lb, ub, cfg)  # eqs. 15-18
 
-    seeds = jnp.clip(jnp.stack([S1, S2, S3, S4], axis=1), lb, ub)  # (P, 4, D)
+    seeds = repair(ks[6], jnp.stack([S1, S2, S3, S4], axis=1), X[:, None], lb, ub, cfg.bound_mode)  # (P, 4, D)
     fs = evaluate(fitness, seeds.reshape(4 * P, D), aux).reshape(P, 4)
 
     cand = jnp.concatenate([X[:, None], seeds], axis=1)  # (P, 5, D)

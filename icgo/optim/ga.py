@@ -1,9 +1,12 @@
 """Real-coded genetic algorithm.
 
 Tournament selection, SBX (Deb & Agrawal 1995) or BLX-alpha blend crossover,
-per-gene Gaussian mutation with a step that shrinks over the run, and elitism
-(the ``n_elite`` best parents replace the worst offspring). One fitness
-evaluation per offspring, P per iteration.
+per-gene Gaussian mutation with a step that shrinks over the run, and elitism.
+Two survivor rules (``survivors`` option): ``plus`` (default, (mu + lambda):
+the best P of parents and offspring survive, so no good point is ever lost)
+and ``generational`` (offspring replace the parents; the ``n_elite`` best
+parents replace the worst offspring). One fitness evaluation per offspring, P
+per iteration.
 """
 
 from __future__ import annotations
@@ -18,10 +21,11 @@ import jax.numpy as jnp
 from icgo.optim.base import Algorithm, State, evaluate, first_state, register, uniform_population, update_best
 
 CROSSOVERS = ("sbx", "blend")
+SURVIVORS = ("plus", "generational")
 
 
 @partial(jax.tree_util.register_dataclass,
-         data_fields=["crossover", "pc", "eta_c", "blend_alpha", "pm", "mut_sigma", "mut_decay"],
+         data_fields=["crossover", "survivors", "pc", "eta_c", "sbx_swap", "blend_alpha", "pm", "mut_sigma", "mut_decay"],
          meta_fields=["tournament", "n_elite"])
 @dataclasses.dataclass(frozen=True)
 class GAConfig:
@@ -31,8 +35,12 @@ class GAConfig:
         tournament: tournament size (static).
         n_elite: parents kept unchanged each generation (static).
         crossover: ``sbx`` (0) or ``blend`` (1).
+        survivors: ``plus`` (0, best P of parents + offspring) or
+            ``generational`` (1, offspring + ``n_elite`` elite parents).
         pc: crossover probability per pair.
         eta_c: SBX distribution index.
+        sbx_swap: per-variable probability of exchanging the two SBX
+            children's values (0.5 as in Deb's reference code; 0 = no exchange).
         blend_alpha: BLX-alpha extension.
         pm: per-gene mutation probability; None -> 1/D.
         mut_sigma: Gaussian mutation std as a fraction of (ub - lb).
@@ -42,8 +50,10 @@ class GAConfig:
     tournament: int = 3
     n_elite: int = 2
     crossover: Any = 0
+    survivors: Any = 0
     pc: Any = 0.9
     eta_c: Any = 15.0
+    sbx_swap: Any = 0.5
     blend_alpha: Any = 0.5
     pm: Any = None
     mut_sigma: Any = 0.1
@@ -54,6 +64,10 @@ class GAConfig:
             if self.crossover not in CROSSOVERS:
                 raise ValueError(f"unknown GA crossover {self.crossover!r}; choose one of {CROSSOVERS}")
             object.__setattr__(self, "crossover", CROSSOVERS.index(self.crossover))
+        if isinstance(self.survivors, str):
+            if self.survivors not in SURVIVORS:
+                raise ValueError(f"unknown GA survivors {self.survivors!r}; choose one of {SURVIVORS}")
+            object.__setattr__(self, "survivors", SURVIVORS.index(self.survivors))
         if self.pm is None:
             object.__setattr__(self, "pm", -1.0)
         if not isinstance(self.tournament, int) or self.tournament < 1:
@@ -74,6 +88,35 @@ def _tournament(key, fit, n, k):
     return jnp.take_along_axis(idx, jnp.argmin(fit[idx], axis=1)[:, None], axis=1)[:, 0]
 
 
+def sbx(k_beta, k_swap, p1, p2, eta, swap_prob):
+    """Simulated binary crossover (Deb & Agrawal 1995), as in Deb's reference code.
+
+    Per variable: u ~ U(0,1), beta = (2u)^(1/(eta+1)) if u <= 1/2 else
+    (1/(2(1-u)))^(1/(eta+1)); c1,2 = ((1 +- beta) p1 + (1 -+ beta) p2) / 2
+    (so c1 + c2 = p1 + p2), then the two children's values are exchanged with
+    probability ``swap_prob``. Deb's code exchanges with probability 1/2:
+    without the exchange (eta 15 gives beta ~ 1) child k is a near-copy of
+    parent k in every variable and nothing is recombined.
+
+    Args:
+        k_beta: PRNG key of the spread factors u.
+        k_swap: PRNG key of the exchanges.
+        p1, p2: parents, shape (n, D).
+        eta: distribution index (larger: children closer to the parents).
+        swap_prob: per-variable exchange probability.
+
+    Returns:
+        Children ``(c1, c2)``, each (n, D), unclipped.
+    """
+    u = jax.random.uniform(k_beta, p1.shape, p1.dtype)
+    e = 1.0 / (eta + 1.0)
+    beta = jnp.where(u <= 0.5, (2 * u) ** e, (1.0 / (2 * (1 - u) + 1e-300)) ** e)
+    c1 = 0.5 * ((1 + beta) * p1 + (1 - beta) * p2)
+    c2 = 0.5 * ((1 - beta) * p1 + (1 + beta) * p2)
+    swap = jax.random.uniform(k_swap, p1.shape, p1.dtype) < swap_prob
+    return jnp.where(swap, c2, c1), jnp.where(swap, c1, c2)
+
+
 def _step(state: State, key, t, T, fitness) -> State:
     cfg: GAConfig = state.ctx.config
     lb, ub = state.ctx.lb, state.ctx.ub
@@ -84,11 +127,7 @@ def _step(state: State, key, t, T, fitness) -> State:
     p1 = X[_tournament(ks[0], f, n_pairs, cfg.tournament)]
     p2 = X[_tournament(ks[1], f, n_pairs, cfg.tournament)]
 
-    u = jax.random.uniform(ks[2], p1.shape, X.dtype)
-    e = 1.0 / (cfg.eta_c + 1.0)
-    beta = jnp.where(u <= 0.5, (2 * u) ** e, (1.0 / (2 * (1 - u) + 1e-300)) ** e)
-    sbx1 = 0.5 * ((1 + beta) * p1 + (1 - beta) * p2)
-    sbx2 = 0.5 * ((1 - beta) * p1 + (1 + beta) * p2)
+    sbx1, sbx2 = sbx(ks[2], ks[7], p1, p2, cfg.eta_c, cfg.sbx_swap)
     g = jax.random.uniform(ks[3], (2,) + p1.shape, X.dtype, -cfg.blend_alpha, 1 + cfg.blend_alpha)
     blx1, blx2 = p1 + g[0] * (p2 - p1), p1 + g[1] * (p2 - p1)
     blend = cfg.crossover == 1
@@ -107,10 +146,16 @@ def _step(state: State, key, t, T, fitness) -> State:
     if E:
         elite = jnp.argsort(f)[:E]
         keep = jnp.argsort(kf)[:P - E]
-        new_X = jnp.concatenate([X[elite], kids[keep]])
-        new_f = jnp.concatenate([f[elite], kf[keep]])
+        gen_X = jnp.concatenate([X[elite], kids[keep]])
+        gen_f = jnp.concatenate([f[elite], kf[keep]])
     else:
-        new_X, new_f = kids, kf
+        gen_X, gen_f = kids, kf
+    # (mu + lambda): best P of the 2P pool (stable sort keeps parents first on ties)
+    pool_X, pool_f = jnp.concatenate([X, kids]), jnp.concatenate([f, kf])
+    best = jnp.argsort(pool_f, stable=True)[:P]
+    plus = cfg.survivors == 0
+    new_X = jnp.where(plus, pool_X[best], gen_X)
+    new_f = jnp.where(plus, pool_f[best], gen_f)
     best_x, best_f = update_best(state.best_x, state.best_f, kids, kf)
     return State(new_X, new_f, best_x, best_f, state.n_evals + P, (), state.ctx)
 
