@@ -144,6 +144,8 @@ def simulated_variant(name, overrides, scfg, seed, out: Path) -> dict:
         "az_err_MISMA_deg_max": float(az_m.max()), "az_reduction_MISMA_pct": 100 * (1 - az_m.mean() / raw),
         "az_reduction_SMA_pct": 100 * (1 - az_s.mean() / raw), "baselines_az_err_deg": baselines,
         "params_within_tolerance_MISMA": int(params["MISMA_within"].sum()),
+        "repeats_all_params_within_tolerance_MISMA": int(np.all(np.abs(np.asarray(res_m.best_x) - x_true) <= tol, 1).sum()),
+        "repeats_all_params_within_tolerance_SMA": int(np.all(np.abs(np.asarray(res_s.best_x) - x_true) <= tol, 1).sum()),
         "jacobian_singular_values": sv.tolist(), "runtime_s": {"MISMA": t_m, "SMA": t_s},
     }
     params.to_csv(out / f"misma_params_{name}.csv", index=False)
