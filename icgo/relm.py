@@ -26,7 +26,7 @@ Non-finite fitness values are returned as +inf.
 
 from __future__ import annotations
 
-from functools import partial
+from functools import lru_cache, partial
 from typing import NamedTuple
 
 import jax
@@ -217,6 +217,40 @@ def _train_rmse_chunk(pop, rows: TrainRows, lam, hidden: int, refine: int, gram_
     return jnp.where(jnp.isfinite(f), f, jnp.inf)
 
 
+def _train_fitness_impl(pop, Xa, T, lam, hidden: int, chunk: int, refine: int, gram_dtype):
+    rows = TrainRows(Xa, T)
+    P, D = pop.shape
+    if chunk >= P:
+        return _train_rmse_chunk(pop, rows, lam, hidden, refine, gram_dtype)
+    k = -(-P // chunk)
+    padded = jnp.concatenate([pop, jnp.zeros((k * chunk - P, D), pop.dtype)]).reshape(k, chunk, D)
+    out = jax.lax.map(lambda p: _train_rmse_chunk(p, rows, lam, hidden, refine, gram_dtype), padded)
+    return out.reshape(-1)[:P]
+
+
+@lru_cache(maxsize=None)
+def _sequential_over_batches(hidden: int, chunk: int, refine: int, gram_dtype: str):
+    """The kernel with a batching rule that runs batch members one after another.
+
+    Under the runner's vmap over repeats and strategies a plainly batched kernel
+    would process every repeat's chunk at once, and the chunk no longer fits the
+    cache (measured: 100 repeats cost 182x one repeat). ``lax.map`` over the
+    batch keeps each chunk cache-sized, makes the cost linear in the batch, and
+    makes a batch member's result bitwise that of the same call alone.
+    """
+    def one(pop, Xa, T, lam):
+        return _train_fitness_impl(pop, Xa, T, lam, hidden, chunk, refine, jnp.dtype(gram_dtype))
+
+    f = jax.custom_batching.custom_vmap(one)
+
+    @f.def_vmap
+    def _rule(axis_size, in_batched, *args):
+        args = tuple(a if b else jnp.broadcast_to(a, (axis_size,) + jnp.shape(a)) for a, b in zip(args, in_batched))
+        return jax.lax.map(lambda a: f(*a), args), True
+
+    return f
+
+
 @partial(jax.jit, static_argnames=("hidden", "chunk", "refine", "gram_dtype"))
 def train_fitness(pop, rows: TrainRows, lam, hidden: int, chunk: int = 10, refine: int = 2,
                   gram_dtype: str = "float32"):
@@ -227,7 +261,9 @@ def train_fitness(pop, rows: TrainRows, lam, hidden: int, chunk: int = 10, refin
     iterative refinement with float64 residuals, so the result is the float64
     ridge solution (tested against :func:`fitness` on the study's own data).
     The population is processed in chunks of ``chunk`` thetas (``lax.map``) so a
-    chunk's hidden outputs stay in cache. Measurements: ``results/performance.md``.
+    chunk's hidden outputs stay in cache; under ``vmap`` (repeats, strategies)
+    batch members run one after another for the same reason. Measurements:
+    ``results/performance.md``.
 
     Args:
         pop: (P, 7 L) hidden parameters. rows: TrainRows of one repeat.
@@ -238,14 +274,8 @@ def train_fitness(pop, rows: TrainRows, lam, hidden: int, chunk: int = 10, refin
     Returns:
         (P,) fitness; +inf where not finite.
     """
-    gdt = jnp.dtype(gram_dtype)
-    P, D = pop.shape
-    if chunk >= P:
-        return _train_rmse_chunk(pop, rows, lam, hidden, refine, gdt)
-    k = -(-P // chunk)
-    padded = jnp.concatenate([pop, jnp.zeros((k * chunk - P, D), pop.dtype)]).reshape(k, chunk, D)
-    out = jax.lax.map(lambda p: _train_rmse_chunk(p, rows, lam, hidden, refine, gdt), padded)
-    return out.reshape(-1)[:P]
+    f = _sequential_over_batches(hidden, chunk, refine, str(jnp.dtype(gram_dtype)))
+    return f(pop, rows.Xa, rows.T, jnp.asarray(lam, pop.dtype))
 
 
 def make_train_fitness(lam: float, hidden: int, chunk: int = 10, refine: int = 2, gram_dtype: str = "float32"):
