@@ -200,7 +200,8 @@ def fig9(runs: Runs, out: Path) -> bool:
             row[f"{k}_paper"] = p[METRICS.index(k)] if p else np.nan
         rows.append(row)
     df = pd.DataFrame(rows)
-    df.to_csv(out / "fig9.csv", index=False)
+    _write(df, out, "fig9", "Fig. 9: RELM tuned by PSO, GA and CGO (test split, mean +/- std over repeats)",
+           _fig9_notes(m, runs.convergence(), methods, df))
     plt = _plt()
     fig, axes = plt.subplots(1, 3, figsize=(11, 3.4))
     for ax, k in zip(axes, METRICS):
@@ -216,6 +217,28 @@ def fig9(runs: Runs, out: Path) -> bool:
     fig.savefig(out / "fig9.png", dpi=120)
     plt.close(fig)
     return True
+
+
+def _fig9_notes(m, conv, methods, df) -> list[str]:
+    """Order of the three optimizers by MAE, paired Wilcoxon tests of CGO against each, evaluation counts."""
+    from icgo.stats import wilcoxon_paired
+
+    order = df.sort_values("mae_mean")["method"].tolist()
+    w = m.pivot_table(index="repeat", columns="method", values="mae")
+    notes = [f"Order by mean MAE, ours: {' < '.join(order)}; the paper reports CGO-RELM best (MAE 0.052)."]
+    for x, label in (("pso", "PSO-RELM"), ("ga", "GA-RELM")):
+        t = wilcoxon_paired(w["cgo-original"], w[x])
+        verdict = "no significant difference" if t.p_value >= 0.05 else (
+            "CGO-RELM significantly better" if (w["cgo-original"] - w[x]).median() < 0 else
+            f"{label} significantly better")
+        notes.append(f"Wilcoxon signed-rank, CGO-RELM vs {label} (MAE, paired repeats): p = {t.p_value:.4f}, {verdict}.")
+    if not conv.empty:
+        ev = {label: int(conv[conv.method == x]["evals"].max()) for x, label in
+              zip(methods, ("PSO-RELM", "GA-RELM", "CGO-RELM"))}
+        notes.append("Equal iterations (the paper's 30 x 100), so unequal fitness evaluations per run: "
+                     + ", ".join(f"{k} {v}" for k, v in ev.items())
+                     + "; `budget=evaluations` compares at equal evaluations.")
+    return notes
 
 
 def table2(runs: Runs, out: Path) -> bool:
