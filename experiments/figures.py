@@ -232,9 +232,10 @@ def _fig9_notes(m, conv, methods, df) -> list[str]:
             "CGO-RELM significantly better" if (w["cgo-original"] - w[x]).median() < 0 else
             f"{label} significantly better")
         notes.append(f"Wilcoxon signed-rank, CGO-RELM vs {label} (MAE, paired repeats): p = {t.p_value:.4f}, {verdict}.")
-    if not conv.empty:
-        ev = {label: int(conv[conv.method == x]["evals"].max()) for x, label in
-              zip(methods, ("PSO-RELM", "GA-RELM", "CGO-RELM"))}
+    ev = {label: conv[conv.method == x]["evals"].max() for x, label in zip(methods, ("PSO-RELM", "GA-RELM", "CGO-RELM"))
+          if not conv.empty}
+    if ev and all(np.isfinite(v) for v in ev.values()):
+        ev = {k: int(v) for k, v in ev.items()}
         notes.append("Equal iterations (the paper's 30 x 100), so unequal fitness evaluations per run: "
                      + ", ".join(f"{k} {v}" for k, v in ev.items())
                      + "; `budget=evaluations` compares at equal evaluations.")
