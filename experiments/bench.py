@@ -103,36 +103,12 @@ def numpy_fitness(theta: np.ndarray, X: np.ndarray, T: np.ndarray, lam: float = 
     return f if np.isfinite(f) else float("inf")
 
 
-# ---------------------------------------------------------------------- fast kernel
-# The fast kernel lives in icgo.relm (train_rows / train_fitness); these names
-# keep the benchmark's vocabulary.
-CompactData = relm.TrainRows
-
-
-def compact(data: relm.FitData, n_train: int) -> relm.TrainRows:
-    """:func:`icgo.relm.train_rows`, with an optional leading repeat axis."""
-    if data.X.ndim == 3:
-        return jax.vmap(lambda d: relm.train_rows(d, n_train))(data)
-    return relm.train_rows(data, n_train)
-
-
-def fast_fitness(pop, data: relm.TrainRows, lam=LAM, hidden: int = HIDDEN, chunk: int = 10, refine: int = 2,
-                 gram_dtype: str = "float32"):
-    """:func:`icgo.relm.train_fitness` with the benchmark's defaults."""
-    return relm.train_fitness(pop, data, lam, hidden, chunk, refine, gram_dtype)
-
-
-def make_fast_fitness(lam=LAM, hidden=HIDDEN, chunk=10, refine=2, gram_dtype="float32"):
-    """:func:`icgo.relm.make_train_fitness` (one object: one compile)."""
-    return relm.make_train_fitness(lam, hidden, chunk, refine, gram_dtype)
-
-
 # ---------------------------------------------------------------------------- data
 class StudyData(NamedTuple):
     """The study's data for R repeats (leading axis R)."""
 
     fit: relm.FitData       # all rows, masks (library fitness)
-    compact: CompactData    # training rows only (fast kernel)
+    compact: relm.TrainRows  # training rows only (fast kernel)
     n_train: int
     n_rows: int
     prep: object            # study.Prepared, for scoring
@@ -156,7 +132,7 @@ def study_data(n_repeats: int, seed: int = 0, dataset_seed: int = 0, tile: int =
     prep = study._prepare(keys, jnp.asarray(G), jnp.asarray(B), jnp.asarray(a), None, n_train=n_train,
                           msa_model=cfg.msa_model, msa_iter=cfg.msa_iterations, features=cfg.features,
                           mode=cfg.fitness, val_fraction=float(cfg.val_fraction), k_folds=int(cfg.k_folds))
-    return StudyData(prep.data, compact(prep.data, n_train), n_train, len(a), prep, a)
+    return StudyData(prep.data, study._train_rows(prep.data, n_train), n_train, len(a), prep, a)
 
 
 def _slice(tree, i):
@@ -187,7 +163,7 @@ def population(key, P: int, hidden: int = HIDDEN):
 
 # -------------------------------------------------------------------------- study
 @partial(jax.jit, static_argnames=("strategies", "pop_size", "iterations", "chunk", "refine"))
-def _study_core(keys, aux: CompactData, strategies, pop_size, iterations, chunk, refine):
+def _study_core(keys, aux: relm.TrainRows, strategies, pop_size, iterations, chunk, refine):
     D = relm.n_params(HIDDEN)
     res = run_batch("cgo", _FAST[(chunk, refine)], (np.full(D, -1.0), np.full(D, 1.0)), keys, pop_size, iterations,
                     strategies=list(strategies), aux=aux)
@@ -203,7 +179,7 @@ def run_fast_study(sd: StudyData, strategies=STRATEGIES, pop_size=30, iterations
     Returns:
         dict: compile_s, run_s, total_s, evals per run, mean test RMSE per strategy.
     """
-    _FAST.setdefault((chunk, refine), make_fast_fitness(chunk=chunk, refine=refine))
+    _FAST.setdefault((chunk, refine), relm.make_train_fitness(LAM, HIDDEN, chunk, refine))
     R = sd.compact.T.shape[0]
     keys = jnp.stack([jax.random.fold_in(jax.random.PRNGKey(0), i) for i in range(R)])
     t0 = time.perf_counter()
@@ -302,7 +278,7 @@ def main(argv=None) -> dict:
     for r in range(n_rep):
         pop = population(jax.random.PRNGKey(100 + r), 120)
         ref = relm.fitness(pop, _slice(sd.fit, r), LAM, HIDDEN)
-        got = fast_fitness(pop, _slice(sd.compact, r), LAM, HIDDEN, a.chunk, a.refine)
+        got = relm.train_fitness(pop, _slice(sd.compact, r), LAM, HIDDEN, a.chunk, a.refine)
         diffs.append(float(jnp.max(jnp.abs(got / ref - 1))))
     out["max_rel_diff_vs_float64"] = max(diffs)
     row("fast fitness vs float64 library, max relative difference", max(diffs), "", f"{n_rep} repeats x 120 thetas")
@@ -315,7 +291,7 @@ def main(argv=None) -> dict:
     row("dense 2048^2 matmul float64", g64, "GFLOP/s")
 
     # fitness throughput
-    fast = make_fast_fitness(chunk=a.chunk, refine=a.refine)
+    fast = relm.make_train_fitness(LAM, HIDDEN, a.chunk, a.refine)
     lib = relm.make_fitness(LAM, HIDDEN)
     out["fitness_evals_per_s"], out["library_evals_per_s"], out["flop_fraction_by_batch"] = {}, {}, {}
     for P in (120, 1200):

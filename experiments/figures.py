@@ -143,6 +143,16 @@ def _write(df: pd.DataFrame, out: Path, name: str, title: str, notes=()) -> None
     (out / f"{name}.md").write_text("\n".join(text).rstrip() + "\n")
 
 
+def _save(fig, path: Path, title: str, dpi: int = 120) -> None:
+    """Title, lay out, write and close a figure."""
+    import matplotlib.pyplot as plt
+
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+
+
 def _plt():
     import matplotlib
 
@@ -212,10 +222,7 @@ def fig9(runs: Runs, out: Path) -> bool:
         if k == "r2":
             ax.set_ylim(max(0.0, float(np.nanmin(df[f"{k}_mean"] - df[f"{k}_std"])) - 0.01), 1.0005)
     axes[0].legend(fontsize=8)
-    fig.suptitle("Fig. 9: RELM tuned by three optimizers (test split, lab_casing)")
-    fig.tight_layout()
-    fig.savefig(out / "fig9.png", dpi=120)
-    plt.close(fig)
+    _save(fig, out / "fig9.png", "Fig. 9: RELM tuned by three optimizers (test split, lab_casing)")
     return True
 
 
@@ -297,10 +304,7 @@ def fig10(runs: Runs, out: Path) -> bool:
         ax.set_xticks(x, [LABEL[s] for s in STRATEGIES5], rotation=15)
         ax.set_title(MNAME[k])
     axes[0].legend(fontsize=8)
-    fig.suptitle("Fig. 10: error of the five 4th-seed strategies (test split, lab_casing)")
-    fig.tight_layout()
-    fig.savefig(out / "fig10.png", dpi=120)
-    plt.close(fig)
+    _save(fig, out / "fig10.png", "Fig. 10: error of the five 4th-seed strategies (test split, lab_casing)")
     return True
 
 
@@ -329,10 +333,7 @@ def fig11(runs: Runs, out: Path) -> bool:
         ax.set_ylabel("best training RMSE (deg)")
         ax.set_yscale("log")
     axes[1].legend(fontsize=8)
-    fig.suptitle("Fig. 11: convergence of the five 4th-seed strategies (lab_casing)")
-    fig.tight_layout()
-    fig.savefig(out / "fig11.png", dpi=120)
-    plt.close(fig)
+    _save(fig, out / "fig11.png", "Fig. 11: convergence of the five 4th-seed strategies (lab_casing)")
     return True
 
 
@@ -423,10 +424,7 @@ def fig12(runs: Runs, out: Path) -> bool:
     axes[1].set_ylabel("model residual (deg)")
     axes[1].set_xlabel("test sample (sorted by station: azimuth, then toolface)")
     axes[0].legend(fontsize=8, ncol=5)
-    fig.suptitle("Fig. 12: error modelling of the MSA residual (repeat 0, test rows, lab_casing)")
-    fig.tight_layout()
-    fig.savefig(out / "fig12.png", dpi=120)
-    plt.close(fig)
+    _save(fig, out / "fig12.png", "Fig. 12: error modelling of the MSA residual (repeat 0, test rows, lab_casing)")
     return True
 
 
@@ -456,10 +454,7 @@ def fig13(runs: Runs, out: Path) -> bool:
     axes[1].set_ylabel("test MAE (deg)")
     axes[1].set_title("(b) MAE per repeat")
     axes[1].legend(fontsize=8)
-    fig.suptitle("Fig. 13: azimuth error compensation (lab_casing)")
-    fig.tight_layout()
-    fig.savefig(out / "fig13.png", dpi=120)
-    plt.close(fig)
+    _save(fig, out / "fig13.png", "Fig. 13: azimuth error compensation (lab_casing)")
     return True
 
 
@@ -534,10 +529,7 @@ def table4(runs: Runs, out: Path) -> bool:
         ax.legend(fontsize=6)
     fig.supxlabel("test sample (sorted by station)")
     fig.supylabel("compensated azimuth error (deg)")
-    fig.suptitle("Fig. 15: five 4th-seed strategies under six well conditions")
-    fig.tight_layout()
-    fig.savefig(out / "fig15.png", dpi=120)
-    plt.close(fig)
+    _save(fig, out / "fig15.png", "Fig. 15: five 4th-seed strategies under six well conditions")
     return True
 
 
@@ -572,6 +564,8 @@ def plot_study(result, path: Path, title: str = "") -> None:
         path: PNG path.
         title: figure title.
     """
+    from icgo.frames import angle_diff
+
     plt = _plt()
     methods = result.config.method_names()
     fig, axes = plt.subplots(1, 3, figsize=(15, 3.8))
@@ -587,7 +581,7 @@ def plot_study(result, path: Path, title: str = "") -> None:
     r0 = p["repeat"].min()
     d = p[(p.repeat == r0) & (p.split == "test") & (p.method == methods[-1])].sort_values("station")
     x = np.arange(len(d))
-    raw = ((d["azimuth_raw"] - d["azimuth_true"] + 180) % 360) - 180
+    raw = np.asarray(angle_diff(d["azimuth_raw"].to_numpy(), d["azimuth_true"].to_numpy()))
     axes[1].plot(x, raw, lw=0.8, label="raw")
     axes[1].plot(x, d["error_msa"], lw=0.8, label="after MSA")
     axes[1].plot(x, d["error_compensated"], lw=1.0, label=f"after {methods[-1]}")
@@ -603,10 +597,7 @@ def plot_study(result, path: Path, title: str = "") -> None:
     axes[2].set_xlabel("repeat")
     axes[2].set_ylabel("test MAE (deg)")
     axes[2].legend(fontsize=7)
-    fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path, title, dpi=110)
 
 
 # --------------------------------------------------------------------- main

@@ -20,7 +20,6 @@ held out (fit without one rolled group, score on it), with the peer's
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import time
 from pathlib import Path
@@ -305,7 +304,7 @@ def run(cfg: DictConfig) -> dict:
         out = ROOT / out
     out.mkdir(parents=True, exist_ok=True)
     summary = {"config": OmegaConf.to_container(cfg, resolve=True)}
-    lines = ["# MISMA study (issue #8)", "", f"Command: `python -m experiments.misma` (config `conf/misma.yaml`).", ""]
+    lines = ["# MISMA study (issue #8)", "", "Command: `python -m experiments.misma` (config `conf/misma.yaml`).", ""]
     if cfg.simulated.enabled:
         sims = []
         for name, ov in cfg.simulated.variants.items():
