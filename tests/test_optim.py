@@ -154,7 +154,7 @@ def test_nan_fitness_is_dropped():
 
 
 def test_cgo_matlab_truncation_and_paper_greedy():
-    for cfg, check in [(CGOConfig.matlab(), "sorted"), (CGOConfig(), "greedy")]:
+    for cfg, check in [(CGOConfig.matlab(), "sorted"), (CGOConfig(), "greedy"), (CGOConfig(variant="mealpy"), "greedy")]:
         opt = bind("cgo", sphere, BOUNDS, P, cfg)
         s0 = jax.jit(opt.init)(jax.random.key(2))
         s1 = jax.jit(opt.step, static_argnums=3)(s0, jax.random.key(4), 0, T)
@@ -212,6 +212,7 @@ def test_config_is_vmappable_data():
     (lambda: CGOConfig(variant="python"), "unknown CGO variant"),
     (lambda: CGOConfig(mu=2.0), r"mu must be in \[3.57, 4\]"),
     (lambda: CGOConfig(bound_mode="reflect"), "unknown CGO bound_mode"),
+    (lambda: CGOConfig(mg_size=-1), "mg_size must be an integer >= 0"),
 ])
 def test_bad_configs_one_line(call, msg):
     with pytest.raises(ValueError, match=msg) as e:
@@ -233,6 +234,14 @@ def test_no_python_loop_over_population_in_optim():
     allowed = {"base.py": {"check_bounds", "_with_strategy", "run_batch"}}
     bad = [o for o in offenders if o.split(" in ")[1] not in allowed.get(o.split(":")[0], set())]
     assert not bad, bad
+
+
+def test_cgo_variant_defaults():
+    paper, matlab, mp = CGOConfig(), CGOConfig.matlab(), CGOConfig(variant="mealpy")
+    assert (paper.bg_low, paper.mg_size, paper.selection) == (1, 0, 0)
+    assert (matlab.bg_low, matlab.mg_size, matlab.selection) == (1, 0, 1)
+    assert (mp.bg_low, mp.mg_size, mp.selection, mp.original_uniform) == (0, 3, 0, False)
+    assert CGOConfig(variant="mealpy", bg_low=1, mg_size=0).bg_low == 1  # explicit values win
 
 
 def test_dataclass_configs_replace():

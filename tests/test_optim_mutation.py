@@ -121,6 +121,24 @@ def test_mean_groups_are_means_of_random_subsets():
         np.testing.assert_allclose(nz, 1.0 / len(nz))
 
 
+def test_mean_groups_of_fixed_size():
+    """mealpy's MG: the mean of exactly 3 distinct seeds; a size above N is capped at N."""
+    P = 9
+    w = np.asarray(mean_groups(jax.random.key(1), jnp.eye(P), 3))
+    np.testing.assert_allclose(np.sort(w, axis=1)[:, -3:], 1.0 / 3)
+    np.testing.assert_array_equal((w > 0).sum(1), 3)
+    np.testing.assert_allclose(np.asarray(mean_groups(jax.random.key(1), jnp.eye(P), 50)), 1.0 / P)
+
+
+def test_mealpy_alphas_ranges():
+    from icgo.optim.cgo import _alphas_mealpy
+
+    a = np.asarray(_alphas_mealpy(jax.random.key(3), 20000, jnp.float64))[..., 0]
+    assert a.shape == (20000, 3)
+    assert a[:, 0].min() >= 0 and a[:, 0].max() < 1 and a[:, 1].max() < 2 and a[:, 2].min() >= 1
+    np.testing.assert_allclose(a.mean(0), [0.5, 1.0, 1.25], atol=0.01)  # E[1 + U U] = 1.25
+
+
 def test_strategy_index_names():
     assert [mut.strategy_index(s) for s in mut.STRATEGIES] == [0, 1, 2, 3, 4]
     with pytest.raises(ValueError, match="unknown strategy"):

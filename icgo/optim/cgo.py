@@ -7,23 +7,32 @@ Gaussian or wavelet mutation (eqs. 16-18) or by all three in a three-stage
 schedule (see :mod:`icgo.optim.mutation`). Four fitness evaluations per seed
 per iteration.
 
-Two variants (static ``variant`` option):
+Three variants (static ``variant`` option):
 
 * ``paper`` (default): the ICGO paper's text. Seeds 2 and 3 as in eqs. 13-14
   (``GB + a(b X - g MG)``, ``MG + a(b X - g GB)``); one scalar alpha per seed
   drawn from the four forms of the original CGO; beta, gamma in {1, 2} (the
   paper's definition of gamma, applied to beta); 4th seed per eq. 15 (x_k + R
   on a random subset of dimensions); per-seed greedy selection (best of X_i
-  and its four seeds replaces X_i).
+  and its four seeds replaces X_i); MG_i the mean of k_i distinct random
+  seeds, k_i ~ U{1..N}.
 * ``matlab``: the original MATLAB code: per-dimension alpha, seeds 2 and 3 as
   ``GB + a(b MG - g X)`` and ``MG + a(b GB - g X)``, seed 4 a uniform random
-  point, and the (N + 4N) pool sorted with the best N kept. One deviation: the
-  MATLAB code re-reads GB after every seed (a sequential loop over seeds); here
-  GB is the best at the start of the iteration, so the whole population is
-  evaluated in one batched call.
+  point, and the (N + 4N) pool sorted with the best N kept; MG_i as ``paper``.
+  One deviation: the MATLAB code re-reads GB after every seed (a sequential
+  loop over seeds); here GB is the best at the start of the iteration, so the
+  whole population is evaluated in one batched call.
+* ``mealpy``: mealpy 3.x ``OriginalCGO``, the port of the original CGO paper's
+  text (Talatahari & Azizi 2021) the optimizer study compares against: seeds
+  as ``paper``; beta, gamma in {0, 1} (the die of the paper's Fig. 4, so a
+  seed can be a plain copy of X_i, GB or MG_i); alpha1 = rand, alpha2 =
+  2 rand, alpha3 = 1 + rand rand; MG_i the mean of exactly 3 distinct random
+  seeds; 4th seed per eq. 15; greedy selection. Deviations: GB and MG_i come
+  from the population at the start of the iteration (mealpy updates seeds in
+  place, one after another), and the 4th seed mutates at least one dimension
+  (mealpy draws k in {0..D-1}, so k = 0 spends an evaluation on X_i itself).
 
-Both: MG_i is the mean of k_i distinct random seeds, k_i ~ U{1..N}; all new
-seeds are clipped to the bounds.
+All new seeds are clipped to the bounds (``bound_mode`` offers two other repairs).
 """
 
 from __future__ import annotations
@@ -38,13 +47,13 @@ import jax.numpy as jnp
 from icgo.optim import mutation as mut
 from icgo.optim.base import Algorithm, State, evaluate, first_state, register, uniform_population, update_best
 
-VARIANTS = ("paper", "matlab")
+VARIANTS = ("paper", "matlab", "mealpy")
 SELECTIONS = ("greedy", "truncation")
 BOUND_MODES = ("clip", "midpoint", "random")
 
 
 @partial(jax.tree_util.register_dataclass,
-         data_fields=["strategy", "selection", "bg_low", "dims", "original_uniform", "step_scale", "sigma",
+         data_fields=["strategy", "selection", "bg_low", "mg_size", "dims", "original_uniform", "step_scale", "sigma",
                       "mu", "wavelet_g", "wavelet_zeta", "wavelet_bounded", "stage_bounds", "stage_order", "bound_mode"],
          meta_fields=["variant", "chaos_guard"])
 @dataclasses.dataclass(frozen=True)
@@ -56,8 +65,12 @@ class CGOConfig:
             (0 original, 1 chaos, 2 gaussian, 3 wavelet, 4 three_stage).
         variant: ``paper`` or ``matlab`` (static; see module docstring).
         selection: ``greedy`` (0) or ``truncation`` (1); None -> by variant.
-        bg_low: beta, gamma drawn from {bg_low, bg_low + 1}; 1 per the paper's
-            "random integer 1 or 2" (0 gives the {0, 1} dice of its Fig. 4).
+        bg_low: beta, gamma drawn from {bg_low, bg_low + 1}; None -> by
+            variant: 1 for ``paper`` (its "random integer 1 or 2") and
+            ``matlab``, 0 for ``mealpy`` (the {0, 1} die of Fig. 4).
+        mg_size: MG_i is the mean of this many distinct random seeds (capped
+            at the population size); 0 draws the count k_i ~ U{1..N} per seed.
+            None -> by variant: 0 for ``paper`` and ``matlab``, 3 for ``mealpy``.
         dims: mutated coordinates of the 4th seed: ``subset`` (0, random
             subset of random size >= 1), ``all`` (1), ``one`` (2).
         original_uniform: 4th seed ``original`` is a uniform random point (the
@@ -84,7 +97,8 @@ class CGOConfig:
     strategy: Any = 0
     variant: str = "paper"
     selection: Any = None
-    bg_low: Any = 1
+    bg_low: Any = None
+    mg_size: Any = None
     dims: Any = 0
     original_uniform: Any = None
     step_scale: Any = 1.0
@@ -110,6 +124,12 @@ class CGOConfig:
             if self.selection not in SELECTIONS:
                 raise ValueError(f"unknown CGO selection {self.selection!r}; choose one of {SELECTIONS}")
             set_("selection", SELECTIONS.index(self.selection))
+        if self.bg_low is None:
+            set_("bg_low", 0 if self.variant == "mealpy" else 1)
+        if self.mg_size is None:
+            set_("mg_size", 3 if self.variant == "mealpy" else 0)
+        elif isinstance(self.mg_size, (int, float)) and (self.mg_size < 0 or self.mg_size != int(self.mg_size)):
+            raise ValueError(f"CGO mg_size must be an integer >= 0 (0 = random group size), got {self.mg_size}")
         if self.original_uniform is None:
             set_("original_uniform", self.variant == "matlab")
         if isinstance(self.dims, str):
@@ -149,11 +169,25 @@ def _alphas(key, P: int, D_alpha: int, dtype) -> jax.Array:
     return jnp.take_along_axis(forms, ii[:, :, None], axis=1)
 
 
-def mean_groups(key, X: jax.Array) -> jax.Array:
-    """MG_i: mean of k_i distinct random seeds, k_i ~ U{1..N}; shape (P, D)."""
+def _alphas_mealpy(key, P: int, dtype) -> jax.Array:
+    """mealpy's step sizes (P, 3, 1): alpha1 = rand, alpha2 = 2 rand, alpha3 = 1 + rand rand."""
+    r = jax.random.uniform(key, (P, 4, 1), dtype)
+    return jnp.stack([r[:, 0], 2 * r[:, 1], 1 + r[:, 2] * r[:, 3]], axis=1)
+
+
+def mean_groups(key, X: jax.Array, size=0) -> jax.Array:
+    """MG_i: mean of k_i distinct random seeds, shape (P, D).
+
+    Args:
+        key: PRNG key.
+        X: population, (P, D).
+        size: group size (int data); 0 draws k_i ~ U{1..N} per seed, a value
+            above N is capped at N.
+    """
     P = X.shape[0]
     k_k, k_perm = jax.random.split(key)
     k = jax.random.randint(k_k, (P, 1), 1, P + 1)
+    k = jnp.where(size > 0, jnp.minimum(size, P), k)
     rank = jnp.argsort(jnp.argsort(jax.random.uniform(k_perm, (P, P)), axis=1), axis=1)
     w = (rank < k).astype(X.dtype) / k.astype(X.dtype)
     return w @ X
@@ -195,8 +229,11 @@ def _step(state: State, key, t, T, fitness) -> State:
     ks = jax.random.split(key, 7)
 
     GB = state.best_x[None, :]
-    MG = mean_groups(ks[0], X)
-    alpha = _alphas(ks[1], P, D if cfg.variant == "matlab" else 1, X.dtype)
+    MG = mean_groups(ks[0], X, cfg.mg_size)
+    if cfg.variant == "mealpy":
+        alpha = _alphas_mealpy(ks[1], P, X.dtype)
+    else:
+        alpha = _alphas(ks[1], P, D if cfg.variant == "matlab" else 1, X.dtype)
     bg = jax.random.randint(ks[2], (P, 6, 1), cfg.bg_low, cfg.bg_low + 2).astype(X.dtype)
     a1, a2, a3 = alpha[:, 0], alpha[:, 1], alpha[:, 2]
     b1, g1, b2, g2, b3, g3 = (bg[:, j] for j in range(6))
