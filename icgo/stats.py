@@ -5,7 +5,8 @@
 * :func:`wilcoxon_paired`: Wilcoxon signed-rank test between two methods on
   paired repeats (same split, same key), two-sided;
 * :func:`friedman`: Friedman test over k >= 3 methods on the same repeats, with
-  the mean rank of each method (rank 1 = smallest value = best for errors).
+  the mean rank of each method (rank 1 = smallest value = best for errors);
+* :func:`holm`: Holm's step-down adjustment of a family of p-values.
 """
 
 from __future__ import annotations
@@ -81,6 +82,27 @@ def wilcoxon_paired(x, y, alternative: str = "two-sided") -> TestResult:
         return TestResult(0.0, 1.0)
     r = _st.wilcoxon(x, y, alternative=alternative)
     return TestResult(float(r.statistic), float(r.pvalue))
+
+
+def holm(p_values) -> np.ndarray:
+    """Holm-adjusted p-values (family-wise error control over the whole family).
+
+    The i-th smallest of m p-values is multiplied by (m - i + 1); the running
+    maximum keeps the order; values are capped at 1. Reject at level alpha
+    where the adjusted value is < alpha.
+
+    Args:
+        p_values: (m,) raw p-values.
+    Returns:
+        (m,) adjusted p-values, in the input order.
+    """
+    p = np.asarray(p_values, dtype=float).ravel()
+    m = p.size
+    order = np.argsort(p, kind="stable")
+    adj = np.minimum(np.maximum.accumulate((m - np.arange(m)) * p[order]), 1.0)
+    out = np.empty(m)
+    out[order] = adj
+    return out
 
 
 def friedman(table, names: Sequence[str] | None = None) -> TestResult:

@@ -45,3 +45,10 @@ def test_mean_std_table_and_compare():
     assert t.loc["b", "mae_mean"] == 3.5 and t.loc["a", "n"] == 6
     c = stats.compare_table(df, "method", "mae", reference="a")
     assert c.loc[0, "median_diff"] == 1.0 and c.loc[0, "p_value"] == pytest.approx(2 / 64)
+
+
+def test_holm_hand_computed():
+    """m = 4: sorted 0.005 x 4 = 0.02, 0.01 x 3 = 0.03, 0.03 x 2 = 0.06, 0.04 x 1 -> max(0.06, 0.04) = 0.06."""
+    np.testing.assert_allclose(stats.holm([0.01, 0.04, 0.03, 0.005]), [0.03, 0.06, 0.06, 0.02])
+    np.testing.assert_allclose(stats.holm([0.5, 0.9]), [1.0, 1.0])
+    np.testing.assert_allclose(stats.holm([0.2]), [0.2])

@@ -63,7 +63,7 @@ class CGOConfig:
     Attributes:
         strategy: 4th-seed strategy, name or index into ``mutation.STRATEGIES``
             (0 original, 1 chaos, 2 gaussian, 3 wavelet, 4 three_stage).
-        variant: ``paper`` or ``matlab`` (static; see module docstring).
+        variant: ``paper``, ``matlab`` or ``mealpy`` (static; see module docstring).
         selection: ``greedy`` (0) or ``truncation`` (1); None -> by variant.
         bg_low: beta, gamma drawn from {bg_low, bg_low + 1}; None -> by
             variant: 1 for ``paper`` (its "random integer 1 or 2") and
