@@ -154,7 +154,8 @@ def test_nan_fitness_is_dropped():
 
 
 def test_cgo_matlab_truncation_and_paper_greedy():
-    for cfg, check in [(CGOConfig.matlab(), "sorted"), (CGOConfig(), "greedy"), (CGOConfig(variant="mealpy"), "greedy")]:
+    configs = [(CGOConfig.matlab(), "sorted"), (CGOConfig(), "greedy"), (CGOConfig(variant="mealpy"), "greedy")]
+    for cfg, check in configs:
         opt = bind("cgo", sphere, BOUNDS, P, cfg)
         s0 = jax.jit(opt.init)(jax.random.key(2))
         s1 = jax.jit(opt.step, static_argnums=3)(s0, jax.random.key(4), 0, T)

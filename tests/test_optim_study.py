@@ -53,3 +53,14 @@ def test_mealpy_variant_matches_mealpy_original_cgo(name):
     ours = np.asarray(r.best_f)
     assert int(np.max(r.n_evals)) == 3220
     assert ranksums(ours, mp).pvalue > 0.01, (np.median(ours), np.median(mp))
+
+
+def test_unknown_function_is_a_one_line_cli_error(capsys, tmp_path):
+    from experiments.optimizers import main
+
+    with pytest.raises(SystemExit) as e:
+        main(["--functions", "sphere", "nope", "--out", str(tmp_path / "x")])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "--functions: unknown ['nope']" in err
+    assert not (tmp_path / "x").exists()

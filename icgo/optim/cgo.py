@@ -53,8 +53,9 @@ BOUND_MODES = ("clip", "midpoint", "random")
 
 
 @partial(jax.tree_util.register_dataclass,
-         data_fields=["strategy", "selection", "bg_low", "mg_size", "dims", "original_uniform", "step_scale", "sigma",
-                      "mu", "wavelet_g", "wavelet_zeta", "wavelet_bounded", "stage_bounds", "stage_order", "bound_mode"],
+         data_fields=["strategy", "selection", "bg_low", "mg_size", "dims", "original_uniform", "step_scale",
+                      "sigma", "mu", "wavelet_g", "wavelet_zeta", "wavelet_bounded", "stage_bounds", "stage_order",
+                      "bound_mode"],
          meta_fields=["variant", "chaos_guard"])
 @dataclasses.dataclass(frozen=True)
 class CGOConfig:
