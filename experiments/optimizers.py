@@ -2,6 +2,7 @@
 
     .venv/bin/python -m experiments.optimizers            # writes results/optimizers.md + CSV
     .venv/bin/python -m experiments.optimizers --runs 5 --dims 10 --out /tmp/x   # quick look
+    .venv/bin/python -m experiments.optimizers --functions sphere --dims 10 --runs 120 --out DIR  # one cell, more runs
 
 8 shifted/rotated CEC 2017 functions (icgo.benchmarks.STUDY) x dims x runs. Every
 run of every algorithm gets the same number of fitness evaluations (measured with
