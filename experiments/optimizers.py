@@ -182,32 +182,32 @@ def main(argv=None):
     mres = {(n, d, a): (v, e) for n, d, a, v, e in mp}
 
     F = {n: i for i, n in enumerate(study)}
-    summary = []
     for dim in args.dims:
         for label, _, _, mlabel in PAIRS:
             key = label if label in ours_res[dim] else label.split()[0]
             algo = mlabel.split()[-1].replace("Original", "").replace("Base", "").lower()
-            counts = {"+": 0, "=": 0, "-": 0}
             for name in study:
                 a, ea = ours_res[dim][key][0][F[name]], ours_res[dim][key][1][F[name]]
                 b, eb = mres[(name, dim, algo)]
                 sign, p = _sign(a, b)
-                counts[sign] += 1
                 q = lambda v: np.percentile(v, [25, 50, 75])  # noqa: E731
                 qa, qb = q(a), q(b)
                 rows.append(dict(dim=dim, function=name, ours=label, ours_median=qa[1], ours_iqr=qa[2] - qa[0],
                                  ours_evals=int(ea.max()), mealpy=mlabel, mealpy_median=qb[1],
                                  mealpy_iqr=qb[2] - qb[0], mealpy_evals=int(eb.max()), p_value=p, result=sign))
-            summary.append(dict(dim=dim, ours=label, vs=mlabel, **{"+ (ours better)": counts["+"],
-                                                                  "=": counts["="], "- (ours worse)": counts["-"]}))
     df = pd.DataFrame(rows)
     # Holm over each row's family (8 functions x dims): an identical algorithm gets a raw `-` in one of 16
     # cells by chance about 1 time in 3 (1 - 0.975^16 = 0.33); the adjusted decision bounds that at alpha.
     df["p_holm"] = df.groupby("ours").p_value.transform(holm)
     df["result_holm"] = np.where(df.p_holm < 0.05, df.result, "=")
-    for srow in summary:
-        d = df[(df.ours == srow["ours"]) & (df.dim == srow["dim"])]
-        srow["+ / = / - (Holm)"] = "/".join(str(int((d.result_holm == c).sum())) for c in "+=-")
+    summary = []
+    for dim in args.dims:
+        for label, _, _, mlabel in PAIRS:
+            d = df[(df.ours == label) & (df.dim == dim)]
+            n = {c: int((d.result == c).sum()) for c in "+=-"}
+            summary.append({"dim": dim, "ours": label, "vs": mlabel, "+ (ours better)": n["+"], "=": n["="],
+                            "- (ours worse)": n["-"],
+                            "+ / = / - (Holm)": "/".join(str(int((d.result_holm == c).sum())) for c in "+=-")})
     df.to_csv(os.path.join(args.out, "optimizers_table.csv"), index=False)
     raw = []
     for dim in args.dims:
