@@ -32,7 +32,7 @@ STUDY_GROUPS = ("dataset", "model", "optimizer", "strategy", "schedule", "budget
                 "experiment")
 
 #: Marker a failed multirun job leaves in its directory (one line: the error).
-FAILED = "FAILED"
+FAILED = "FAILED"  # == icgo.records.FAILED_FILE (checked by tests; this module must not import icgo at import)
 
 EXIT_CONFIG = 2
 
@@ -353,20 +353,29 @@ def summary_table(result, split: str = "test"):
 
 
 def write_outputs(outdir: Path, cfg: DictConfig, result, info: dict) -> dict:
-    """Write the run directory: config, metrics, convergence, predictions, summary, run.json.
+    """Write the run directory: config, tables, summary, fitted models, then run.json.
+
+    File and column names come from :mod:`icgo.records`; the fitted models
+    (:class:`icgo.compensation.RELMCompensation` and the MSA-only model) are
+    saved with :meth:`icgo.models.FittedModel.save`. ``run.json`` is written
+    last, so a run record always describes complete files.
 
     Returns:
         The run.json dictionary.
     """
+    import numpy as np
+
+    from icgo import records as R
+
     outdir.mkdir(parents=True, exist_ok=True)
-    (outdir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
-    tag = {"label": info["label"], "dataset": info["dataset"], "condition": info["condition"]}
+    (outdir / R.CONFIG_FILE).write_text(OmegaConf.to_yaml(cfg, resolve=True))
+    tags = {"label": info["label"], "dataset": info["dataset"], "condition": info["condition"],
+            "seed": result.config.seed}
     for name, df in (("metrics", result.metrics), ("convergence", result.histories),
                      ("predictions", result.predictions), ("msa", result.msa)):
-        df = df.rename(columns={"condition": "condition_number"}) if name == "msa" else df.copy()
-        for k, v in reversed(list(tag.items())):
-            df.insert(0, k, v)
-        df.to_csv(outdir / f"{name}.csv", index=False, float_format="%.10g")
+        df = df.rename(columns={"condition": "condition_number"}) if name == "msa" else df
+        R.check_table(name, R.tag_table(df, tags), name).to_csv(outdir / f"{name}.csv", index=False,
+                                                                 float_format="%.10g")
     table = summary_table(result)
     table.to_csv(outdir / "summary.csv", index=False)
     md = [f"# ICGO-RELM study: {info['dataset']}", "",
@@ -376,13 +385,19 @@ def write_outputs(outdir: Path, cfg: DictConfig, result, info: dict) -> dict:
           f"max_evals {cfg.budget.max_evals}.", "",
           table.drop(columns=["method"]).to_markdown(index=False), "",
           f"Wall time of the study: {result.wall_time_s:.1f} s (compile included); "
-          f"whole job {info['total_time_s']:.1f} s."]
+          f"whole job {info['total_time_s']:.1f} s.", "",
+          f"Fitted models: `{result.model.KIND}` (method used by default: {result.model.selected}) and "
+          f"`{result.msa_model.KIND}`; apply them to a new survey with `icgo.models.load_model`."]
     (outdir / "summary.md").write_text("\n".join(md) + "\n")
-    run = {**info, "status": "ok", "wall_time_s": result.wall_time_s, "methods": result.config.method_names(),
-           "n_evals": {m: int(v) for m, v in zip(result.config.method_names(),
-                                                  __import__("numpy").asarray(result.n_evals)[:, 0])},
-           "n_rows": int(result.kept.sum()), "n_repeats": result.config.n_repeats}
-    (outdir / "run.json").write_text(json.dumps(run, indent=2, default=str) + "\n")
+    models = [result.model.save(outdir / result.model.KIND).name, result.msa_model.save(outdir / result.msa_model.KIND).name]
+    methods = result.config.method_names()
+    run = {**info, "records_version": R.RECORDS_VERSION, "status": "ok", "seed": result.config.seed,
+           "wall_time_s": result.wall_time_s, "methods": methods,
+           "n_evals": {m: int(v) for m, v in zip(methods, np.asarray(result.n_evals)[:, 0])},
+           "n_rows": int(result.kept.sum()), "n_repeats": result.config.n_repeats, "models": models}
+    missing = [k for k in R.RUN_KEYS if k not in run]
+    assert not missing, f"run record lacks {missing}"  # a writer bug, not a user error
+    (outdir / R.RUN_FILE).write_text(json.dumps(run, indent=2, default=str) + "\n")
     return run
 
 

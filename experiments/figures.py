@@ -62,21 +62,34 @@ PLAN = (("table3", []), ("table1", ["optimizer=none"]), ("fig9", ["optimizer=pso
 
 # ------------------------------------------------------------------ collect
 class Runs:
-    """Pooled outputs of many run directories (newest wins on duplicates)."""
+    """Pooled outputs of many run directories (newest wins on duplicates).
+
+    Every run record and table is read through :mod:`icgo.records` (schema
+    checked); a directory that fails the check is skipped with one line on
+    stderr naming it and why.
+    """
 
     KEY = ["dataset", "condition", "seed", "method", "repeat"]
 
     def __init__(self, dirs):
+        from icgo import records as R
+
         self.runs = []
         for d in dirs:
             d = Path(d)
             if not d.exists():
                 raise SystemExit(f"error: {d}: no such directory")
-            for rj in sorted(d.rglob("run.json")):
-                if (rj.parent / "FAILED").exists():
+            for rj in sorted(d.rglob(R.RUN_FILE)):
+                if (rj.parent / R.FAILED_FILE).exists():
+                    print(f"skipped {rj.parent}: the job failed ({R.FAILED_FILE} marker)", file=sys.stderr)
                     continue
-                info = json.loads(rj.read_text())
+                try:
+                    info = R.read_run(rj.parent)
+                except R.RecordError as e:
+                    print(f"skipped {rj.parent}: {e}", file=sys.stderr)
+                    continue
                 if info.get("status") != "ok":
+                    print(f"skipped {rj.parent}: status {info.get('status')!r}", file=sys.stderr)
                     continue
                 info["dir"] = rj.parent
                 info["mtime"] = rj.stat().st_mtime
@@ -85,11 +98,12 @@ class Runs:
         self._cache: dict = {}
 
     def _table(self, name: str) -> pd.DataFrame:
+        from icgo import records as R
+
         if name not in self._cache:
             frames = []
             for order, r in enumerate(self.runs):
-                df = pd.read_csv(r["dir"] / f"{name}.csv")
-                df["seed"] = _split_seed(r["dir"])
+                df = R.read_table(r["dir"], name)
                 df["run_order"] = order
                 df["condition"] = df["condition"].astype("float").fillna(-1).astype(int)
                 frames.append(df)
@@ -114,13 +128,6 @@ class Runs:
     def predictions(self, dataset="lab_casing", seed=0) -> pd.DataFrame:
         df = self._table("predictions")
         return df if df.empty else df[(df.dataset == dataset) & (df.seed == seed)]
-
-
-def _split_seed(run_dir: Path) -> int:
-    import yaml
-
-    cfg = yaml.safe_load((run_dir / "config.yaml").read_text())
-    return int(cfg["split"]["seed"])
 
 
 def _have(df: pd.DataFrame, methods) -> bool:

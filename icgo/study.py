@@ -140,6 +140,10 @@ class StudyResult(NamedTuple):
         config: the StudyConfig.
         wall_time_s: wall time of the jitted stages (incl. compile), s.
         n_evals: fitness evaluations per method and repeat (S, R).
+        model: the fitted compensation (:class:`icgo.compensation.RELMCompensation`):
+            MSA biases, input statistics, hidden and output weights per method
+            and repeat; ``model.apply(frame)`` corrects a new survey.
+        msa_model: the MSA-only fit (:class:`icgo.compensation.MSAModel`).
     """
 
     metrics: pd.DataFrame
@@ -152,6 +156,8 @@ class StudyResult(NamedTuple):
     config: StudyConfig
     wall_time_s: float
     n_evals: np.ndarray
+    model: Any
+    msa_model: Any
 
 
 # --------------------------------------------------------------------- filter
@@ -200,6 +206,8 @@ class Prepared(NamedTuple):
     target: jnp.ndarray     # (N,) deg
     data: _relm.FitData     # standardised features, target, fold weights
     key: jnp.ndarray        # model key
+    x_mean: jnp.ndarray     # (6,) feature mean over the training rows (g, nT)
+    x_std: jnp.ndarray      # (6,) feature std over the training rows (g, nT)
 
 
 @functools.partial(jax.jit, static_argnames=("n_train", "msa_model", "msa_iter", "features", "mode",
@@ -218,7 +226,7 @@ def _prepare(keys, G, B, a_true, reference, *, n_train, msa_model, msa_iter, fea
         mean, std = _relm.standardize_stats(X, train)
         Xs = _relm.standardize(X, mean, std)
         fit_w, score_w = _relm.fold_weights(k_fold, train, mode, val_fraction, k_folds)
-        return Prepared(train, m, a_msa, target, _relm.FitData(Xs, target, fit_w, score_w), k_model)
+        return Prepared(train, m, a_msa, target, _relm.FitData(Xs, target, fit_w, score_w), k_model, mean, std)
 
     # lax.map, not vmap: the per-repeat program is then the same whatever the
     # number of repeats, so repeat k of a batch equals repeat k alone bitwise
@@ -245,6 +253,7 @@ class _Scored(NamedTuple):
     a_comp: jnp.ndarray     # (S, R, N)
     test: Any               # Metrics (S, R)
     train: Any              # Metrics (S, R)
+    beta: jnp.ndarray       # (S, R, L) output weights of the refit
 
 
 def _score(theta, prep: Prepared, a_true, lam, hidden):
@@ -255,7 +264,7 @@ def _score(theta, prep: Prepared, a_true, lam, hidden):
     a_comp = wrap360(prep.a_msa - pred)
     test = azimuth_metrics(a_true, a_comp, prep.target, 1.0 - prep.train)
     train = azimuth_metrics(a_true, a_comp, prep.target, prep.train)
-    return pred, a_comp, test, train
+    return pred, a_comp, test, train, beta
 
 
 @functools.partial(jax.jit, static_argnames=("hidden",))
@@ -490,4 +499,29 @@ def _collect(cfg, frame, kept, a_true, G, B, prep, scored, curve, evals, ids, wa
                            **{f"scale_{ax}": np.asarray(m.scale)[:, i] for i, ax in enumerate("xyz")},
                            **{f"std_{n}": np.asarray(m.std_error)[:, i] for i, n in enumerate(names)}})
     return StudyResult(metrics, summary, histories, predictions, msa_df,
-                       {"best_fitness": curve, "evals": evals}, kept, cfg, wall, evals[..., -1])
+                       {"best_fitness": curve, "evals": evals}, kept, cfg, wall, evals[..., -1],
+                       *_fitted_models(cfg, G, B, a_true, prep, thetas, scored, ids))
+
+
+def _fitted_models(cfg: StudyConfig, G, B, a_true, prep: Prepared, thetas, scored: _Scored, ids):
+    """The study's fitted artifacts: (RELMCompensation, MSAModel), host-side numpy."""
+    from icgo.compensation import MSAModel, RELMCompensation
+    from icgo.models import data_hash, sensor_domain
+
+    methods = cfg.method_names()
+    train_rmse = np.asarray(scored.train.rmse)
+    selected = methods[int(np.argmin(train_rmse.mean(axis=1)))]
+    common = dict(data_hash=data_hash(G, B, a_true),
+                  domain={**sensor_domain(G, B), "azimuth_deg": [float(np.min(a_true)), float(np.max(a_true))]})
+    bias, scale = np.asarray(prep.msa.bias), np.asarray(prep.msa.scale)
+    settings = {f.name: getattr(cfg, f.name) for f in dataclasses.fields(cfg) if f.name != "optimizer_config"}
+    settings["optimizer_config"] = None if cfg.optimizer_config is None else repr(cfg.optimizer_config)
+    relm = RELMCompensation(config=settings, methods=list(methods), selected=selected, repeat_ids=list(ids),
+                            hidden=int(cfg.hidden), lam=float(cfg.lam), features=cfg.features,
+                            msa_bias=bias, msa_scale=scale, x_mean=np.asarray(prep.x_mean),
+                            x_std=np.asarray(prep.x_std), theta=np.asarray(thetas), beta=np.asarray(scored.beta),
+                            train_rmse=train_rmse, **common)
+    msa = MSAModel(config={"msa_model": cfg.msa_model, "msa_reference": cfg.msa_reference,
+                           "train_fraction": cfg.train_fraction, "seed": cfg.seed},
+                   bias=bias, scale=scale, repeat_ids=list(ids), **common)
+    return relm, msa

@@ -17,6 +17,7 @@ import pytest
 from scipy import stats as st
 
 from experiments import figures as F
+from icgo import records as REC
 
 S5 = F.STRATEGIES5
 R = 10
@@ -24,15 +25,17 @@ R = 10
 
 def _run_dir(path: Path, metrics: pd.DataFrame, *, dataset="lab_casing", seed=0, conv=None, pred=None,
              failed=False):
+    """A run directory in the icgo.records schema, written by hand with known numbers."""
     path.mkdir(parents=True)
-    tag = {"label": "t", "dataset": dataset, "condition": None}
+    tag = {"label": "t", "dataset": dataset, "condition": None, "seed": seed}
     for name, df in (("metrics", metrics), ("convergence", conv), ("predictions", pred)):
-        df = pd.DataFrame(columns=["method", "repeat"]) if df is None else df.copy()
-        for k, v in reversed(list(tag.items())):
-            df.insert(0, k, v)
-        df.to_csv(path / f"{name}.csv", index=False)
-    (path / "config.yaml").write_text(f"split:\n  seed: {seed}\n")
-    (path / "run.json").write_text(json.dumps({"status": "ok"}))
+        df = pd.DataFrame(columns=list(REC.TABLES[name])) if df is None else df.copy()
+        for c in REC.TABLES[name]:
+            if c not in df.columns:
+                df[c] = np.nan
+        REC.tag_table(df, tag).to_csv(path / f"{name}.csv", index=False)
+    run = {k: None for k in REC.RUN_KEYS} | {"status": "ok", "dataset": dataset, "seed": seed}
+    (path / "run.json").write_text(json.dumps(run))
     if failed:
         (path / "FAILED").write_text("boom\n")
 
