@@ -87,64 +87,43 @@ def _is_int(x) -> bool:
     return isinstance(x, int) and not isinstance(x, bool)
 
 
+#: Config nodes whose keys are :class:`icgo.study.StudyConfig` fields: key ``k`` of node ``g`` is the
+#: field ``g_k`` if there is one (``msa.iterations`` -> ``msa_iterations``), else ``k``; except the aliases below.
+STUDY_NODES = ("split", "msa", "model", "fitness", "budget")
+#: The keys whose field name follows neither rule.
+STUDY_ALIASES = {"fitness.mode": "fitness", "optimizer.name": "optimizer", "strategy.names": "strategies",
+                 "dtype": "dtype"}
+#: Keys read by the entry point itself (not StudyConfig fields), per node; "" = top level.
+ENTRY_KEYS = {"": ("dataset", "optimizer", "strategy", "schedule", "progress", "figures", "label", "jax_cache_dir",
+                   *STUDY_NODES, "dtype"),
+              "optimizer": ("name", "label", "params"), "strategy": ("names",), "schedule": ("bounds", "order")}
+#: Keys of each data set option (``dataset.name``).
+DATASET_KEYS = {"lab_casing": ("name", "seed", "kwargs"), "well_conditions": ("name", "seed", "condition", "kwargs"),
+                "csv": ("name", "path", "require_meta")}
+
+
+def _unknown(keys, allowed, where: str) -> None:
+    bad = sorted(set(keys) - set(allowed))
+    _need(not bad, f"unknown setting(s) {[f'{where}{k}' for k in bad]}; {where or 'the config'} "
+                   f"takes {sorted(allowed)}")
+
+
 def check_config(cfg: DictConfig) -> None:
-    """Validate the settings a study needs, cheaply and before any computation.
+    """Entry-point checks: no unknown key anywhere, and the data set settings.
+
+    The study's own settings are validated by :class:`icgo.study.StudyConfig`
+    (one place); this checks what only the entry point reads.
 
     Raises:
         ConfigError: one line naming the setting, its value and what is allowed.
     """
-    from icgo.optim import OPTIMIZERS, STRATEGIES
-
-    sp, bd, md, ft = cfg.split, cfg.budget, cfg.model, cfg.fitness
-    _need(_is_int(sp.n_repeats) and sp.n_repeats >= 1,
-          f"split.n_repeats must be an integer >= 1, got {sp.n_repeats!r}")
-    _need(_is_int(sp.seed) and sp.seed >= 0, f"split.seed must be an integer >= 0, got {sp.seed!r}")
-    _need(isinstance(sp.train_fraction, (int, float)) and 0.0 < sp.train_fraction < 1.0,
-          f"split.train_fraction must be in (0, 1), got {sp.train_fraction!r}")
-    _need(sp.sigma_filter is None or (isinstance(sp.sigma_filter, (int, float)) and sp.sigma_filter > 0),
-          f"split.sigma_filter must be > 0 or null, got {sp.sigma_filter!r}")
-    _need(_is_int(md.hidden) and md.hidden >= 1, f"model.hidden must be an integer >= 1, got {md.hidden!r}")
-    _need(isinstance(md.lam, (int, float)) and math.isfinite(md.lam) and md.lam > 0,
-          f"model.lam must be a number > 0, got {md.lam!r}")
-    lo_hi = list(md.theta_bounds)
-    _need(len(lo_hi) == 2 and lo_hi[0] < lo_hi[1], f"model.theta_bounds must be [low, high] with low < high, "
-                                                   f"got {lo_hi}")
-    _need(md.features in ("raw", "msa"), f"model.features must be 'raw' or 'msa', got {md.features!r}")
-    _need(ft.mode in ("train", "validation", "kfold"),
-          f"fitness.mode must be train, validation or kfold, got {ft.mode!r}")
-    _need(0.0 < ft.val_fraction < 1.0, f"fitness.val_fraction must be in (0, 1), got {ft.val_fraction!r}")
-    _need(_is_int(ft.k_folds) and ft.k_folds >= 2, f"fitness.k_folds must be an integer >= 2, got {ft.k_folds!r}")
-    _need(cfg.msa.model in ("biases", "axial", "biases_scales"),
-          f"msa.model must be biases, axial or biases_scales, got {cfg.msa.model!r}")
-    _need(cfg.msa.reference in ("station_mean", "known"),
-          f"msa.reference must be station_mean or known, got {cfg.msa.reference!r}")
-    _need(cfg.dtype in ("float64", "float32"), f"dtype must be float64 or float32, got {cfg.dtype!r}")
-    name = cfg.optimizer.name
-    _need(name is None or name in OPTIMIZERS,
-          f"optimizer.name {name!r} is not a registered optimizer; choose one of {sorted(OPTIMIZERS)} or none")
-    strategies = list(cfg.strategy.names)
-    bad = [s for s in strategies if s not in STRATEGIES]
-    _need(len(strategies) >= 1 and not bad,
-          f"strategy.names has unknown strategies {bad}; choose from {list(STRATEGIES)}")
-    _need(len(set(strategies)) == len(strategies), f"strategy.names repeats a strategy: {strategies}")
-    b = list(cfg.schedule.bounds)
-    _need(len(b) == 2 and 0.0 < b[0] < b[1] < 1.0,
-          f"schedule.bounds must be two fractions 0 < b1 < b2 < 1, got {b}")
-    order = list(cfg.schedule.order)
-    _need(len(order) == 3 and all(o in STRATEGIES[:4] for o in order),
-          f"schedule.order must name 3 of {list(STRATEGIES[:4])}, got {order}")
-    if name is not None:
-        _need(_is_int(bd.pop_size) and bd.pop_size >= 4,
-              f"budget.pop_size must be an integer >= 4, got {bd.pop_size!r}")
-        _need((bd.iterations is None) != (bd.max_evals is None),
-              "budget: give exactly one of budget.iterations and budget.max_evals (the other null)")
-        if bd.iterations is not None:
-            _need(_is_int(bd.iterations) and bd.iterations >= 1,
-                  f"budget.iterations must be an integer >= 1, got {bd.iterations!r}")
-        else:
-            _need(_is_int(bd.max_evals) and bd.max_evals >= 1,
-                  f"budget.max_evals must be an integer >= 1, got {bd.max_evals!r}")
+    _unknown(cfg.keys(), ENTRY_KEYS[""], "")
+    for node in ("optimizer", "strategy", "schedule"):
+        _unknown(cfg[node].keys(), ENTRY_KEYS[node], f"{node}.")
     ds = cfg.dataset
+    _need(ds.get("name") in DATASET_KEYS,
+          f"dataset.name must be one of {sorted(DATASET_KEYS)}, got {ds.get('name')!r}")
+    _unknown(ds.keys(), DATASET_KEYS[ds.name], "dataset.")
     if ds.name == "csv":
         _need(OmegaConf.select(ds, "path", throw_on_missing=False) not in (None, "???"),
               "dataset.path is required with dataset=csv (dataset.path=/path/to/file.csv)")
@@ -154,8 +133,56 @@ def check_config(cfg: DictConfig) -> None:
         c = ds.condition
         _need(c is None or (_is_int(c) and 0 <= c <= 5),
               f"dataset.condition must be null or an integer 0-5 (Table 4 row), got {c!r}")
-    else:
-        _need(ds.name == "lab_casing", f"dataset.name must be lab_casing, well_conditions or csv, got {ds.name!r}")
+    b = list(cfg.schedule.bounds)
+    _need(len(b) == 2 and all(isinstance(x, (int, float)) for x in b) and 0.0 < b[0] < b[1] < 1.0,
+          f"schedule.bounds must be two fractions 0 < b1 < b2 < 1, got {b}")
+
+
+def study_settings(cfg: DictConfig) -> tuple[dict, dict]:
+    """(StudyConfig field -> value, field -> config key) from a composed config; unknown keys refused.
+
+    Every key of the study nodes maps to a field by the rule of :data:`STUDY_NODES`
+    (no hand-written field list): a new StudyConfig field is a new key in its
+    node's yaml, nothing else.
+    """
+    import dataclasses
+
+    from icgo.study import StudyConfig
+
+    fields = {f.name for f in dataclasses.fields(StudyConfig)}
+    values, where = {}, {}
+    for node in STUDY_NODES:
+        for k, v in OmegaConf.to_container(cfg[node], resolve=True).items():
+            key = f"{node}.{k}"
+            field = STUDY_ALIASES.get(key) or (f"{node}_{k}" if f"{node}_{k}" in fields else k)
+            _need(field not in where, f"settings {where.get(field)!r} and {key!r} both map to the study field "
+                                      f"{field!r}")
+            _need(field in fields, f"unknown setting {key!r}: not a setting of the study "
+                                   f"(icgo.study.StudyConfig has {sorted(fields)})")
+            values[field], where[field] = v, key
+    for key, field in STUDY_ALIASES.items():
+        if key not in where.values():
+            v = OmegaConf.select(cfg, key)
+            values[field] = OmegaConf.to_container(v, resolve=True) if OmegaConf.is_config(v) else v
+            where[field] = key
+    return values, where
+
+
+def study_config(cfg: DictConfig):
+    """:class:`icgo.study.StudyConfig` from a composed config (entry-point checks first).
+
+    Raises:
+        ConfigError: one line naming the config key (``split.n_repeats``), not the field.
+    """
+    from icgo.study import StudyConfig
+    from icgo.studies import SettingError
+
+    check_config(cfg)
+    values, where = study_settings(cfg)
+    try:
+        return StudyConfig(**values, optimizer_config=optimizer_config(cfg))
+    except SettingError as e:
+        raise ConfigError(f"{where.get(e.field, e.field)} {e.problem}") from None
 
 
 def optimizer_config(cfg: DictConfig):
@@ -173,25 +200,6 @@ def optimizer_config(cfg: DictConfig):
         return get(name).config_cls(**params)
     except (TypeError, ValueError) as e:
         raise ConfigError(f"optimizer.params for {name}: {str(e).splitlines()[0]}") from None
-
-
-def study_config(cfg: DictConfig):
-    """:class:`icgo.study.StudyConfig` from a composed config (checked first)."""
-    from icgo.study import StudyConfig
-
-    check_config(cfg)
-    opt = cfg.optimizer.name
-    return StudyConfig(
-        n_repeats=int(cfg.split.n_repeats), seed=int(cfg.split.seed), train_fraction=float(cfg.split.train_fraction),
-        sigma_filter=None if cfg.split.sigma_filter is None else float(cfg.split.sigma_filter),
-        msa_model=cfg.msa.model, msa_reference=cfg.msa.reference, msa_iterations=int(cfg.msa.iterations),
-        features=cfg.model.features, hidden=int(cfg.model.hidden), lam=float(cfg.model.lam),
-        fitness=cfg.fitness.mode, val_fraction=float(cfg.fitness.val_fraction), k_folds=int(cfg.fitness.k_folds),
-        theta_bounds=tuple(float(x) for x in cfg.model.theta_bounds), optimizer=opt,
-        strategies=tuple(cfg.strategy.names), pop_size=int(cfg.budget.pop_size),
-        iterations=None if cfg.budget.iterations is None else int(cfg.budget.iterations),
-        max_evals=None if cfg.budget.max_evals is None else int(cfg.budget.max_evals),
-        optimizer_config=optimizer_config(cfg), dtype=cfg.dtype)
 
 
 # -------------------------------------------------------------------- data

@@ -104,12 +104,69 @@ class StudyConfig:
     k_folds: int = 5
     theta_bounds: tuple = (-1.0, 1.0)
     optimizer: str | None = "cgo"
-    strategies: tuple = ("original",)
+    strategies: tuple = ("three_stage",)
     pop_size: int = 30
     iterations: int | None = 100
     max_evals: int | None = None
     optimizer_config: Any = None
     dtype: str = "mixed"
+
+    def __post_init__(self):
+        """Validate every setting that does not depend on the data (one-line SettingError naming the field)."""
+        from icgo.optim import OPTIMIZERS, get
+        from icgo.studies import is_int, is_real, need
+
+        for name in ("strategies", "theta_bounds", "repeat_ids"):  # Hydra/JSON give lists
+            v = getattr(self, name)
+            if isinstance(v, list):
+                object.__setattr__(self, name, tuple(v))
+        need(is_int(self.n_repeats) and self.n_repeats >= 1, "n_repeats",
+             f"must be an integer >= 1, got {self.n_repeats!r} (repeats)")
+        need(is_int(self.seed) and self.seed >= 0, "seed", f"must be an integer >= 0, got {self.seed!r}")
+        need(self.repeat_ids is None or (len(self.repeat_ids) >= 1 and all(is_int(i) and i >= 0 for i in self.repeat_ids)),
+             "repeat_ids", f"must be None or a non-empty tuple of integers >= 0, got {self.repeat_ids!r}")
+        need(is_real(self.train_fraction) and 0.0 < self.train_fraction < 1.0, "train_fraction",
+             f"must be in (0, 1), got {self.train_fraction!r}")
+        need(self.sigma_filter is None or (is_real(self.sigma_filter) and self.sigma_filter > 0), "sigma_filter",
+             f"must be > 0 or null, got {self.sigma_filter!r}")
+        need(self.msa_model in _msa.MODELS, "msa_model",
+             f"must be one of {list(_msa.MODELS)}, got {self.msa_model!r}")
+        need(self.msa_reference in ("station_mean", "known"), "msa_reference",
+             f"must be station_mean or known, got {self.msa_reference!r}")
+        need(is_int(self.msa_iterations) and self.msa_iterations >= 1, "msa_iterations",
+             f"must be an integer >= 1, got {self.msa_iterations!r}")
+        need(self.features in ("raw", "msa"), "features", f"must be 'raw' or 'msa', got {self.features!r}")
+        need(is_int(self.hidden) and self.hidden >= 1, "hidden", f"must be an integer >= 1, got {self.hidden!r}")
+        need(is_real(self.lam) and self.lam > 0, "lam", f"must be a number > 0, got {self.lam!r} (ridge lambda)")
+        need(self.fitness in _relm.FITNESS_MODES, "fitness",
+             f"must be one of {list(_relm.FITNESS_MODES)}, got {self.fitness!r}")
+        need(is_real(self.val_fraction) and 0.0 < self.val_fraction < 1.0, "val_fraction",
+             f"must be in (0, 1), got {self.val_fraction!r}")
+        need(is_int(self.k_folds) and self.k_folds >= 2, "k_folds", f"must be an integer >= 2, got {self.k_folds!r}")
+        tb = self.theta_bounds
+        need(isinstance(tb, tuple) and len(tb) == 2 and all(is_real(x) for x in tb) and tb[0] < tb[1],
+             "theta_bounds", f"must be [low, high] with low < high, got {tb!r}")
+        need(self.dtype in ("mixed", "float64", "float32"), "dtype",
+             f"must be mixed, float64 or float32, got {self.dtype!r}")
+        if self.optimizer is None:
+            return
+        get("cgo")  # populates the registry
+        need(isinstance(self.optimizer, str) and self.optimizer in OPTIMIZERS, "optimizer",
+             f"must name a registered optimizer (unknown optimizer {self.optimizer!r}); "
+             f"choose one of {sorted(OPTIMIZERS)} or None")
+        need(isinstance(self.strategies, tuple) and len(self.strategies) >= 1
+             and len(set(self.strategies)) == len(self.strategies), "strategies",
+             f"must be a non-empty tuple of distinct names, got {self.strategies!r}")
+        need(is_int(self.pop_size) and self.pop_size >= 4, "pop_size",
+             f"must be an integer >= 4, got {self.pop_size!r}")
+        need((self.iterations is None) != (self.max_evals is None), "iterations",
+             "and max_evals: give exactly one (the other null)")
+        if self.iterations is not None:
+            need(is_int(self.iterations) and self.iterations >= 1, "iterations",
+                 f"must be an integer >= 1, got {self.iterations!r}")
+        else:
+            need(is_int(self.max_evals) and self.max_evals >= 1, "max_evals",
+                 f"must be an integer >= 1, got {self.max_evals!r}")
 
     def ids(self) -> tuple:
         """The repeat ids this config runs."""
@@ -321,45 +378,9 @@ def _search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None):
 
 # ----------------------------------------------------------------- checking
 def _check_config(cfg: StudyConfig, n_rows: int) -> int:
+    """The data-dependent checks (the settings validated themselves in ``StudyConfig.__post_init__``)."""
     if not isinstance(cfg, StudyConfig):
         raise ValueError(f"config must be a StudyConfig, got {type(cfg).__name__}")
-    if not cfg.ids():
-        raise ValueError("study: no repeats to run (n_repeats must be >= 1)")
-    if cfg.repeat_ids is None and (not isinstance(cfg.n_repeats, int) or cfg.n_repeats < 1):
-        raise ValueError(f"study: n_repeats must be an integer >= 1, got {cfg.n_repeats!r}")
-    if any(i < 0 for i in cfg.ids()):
-        raise ValueError(f"study: repeat ids must be >= 0, got {cfg.ids()}")
-    if not 0.0 < cfg.train_fraction < 1.0:
-        raise ValueError(f"study: train_fraction must be in (0, 1), got {cfg.train_fraction}")
-    if not (np.isfinite(cfg.lam) and cfg.lam > 0):
-        raise ValueError(f"study: lambda (lam) must be > 0, got {cfg.lam}")
-    if not isinstance(cfg.hidden, int) or cfg.hidden < 1:
-        raise ValueError(f"study: hidden must be an integer >= 1, got {cfg.hidden!r}")
-    if cfg.fitness not in _relm.FITNESS_MODES:
-        raise ValueError(f"study: fitness {cfg.fitness!r}: expected one of {_relm.FITNESS_MODES}")
-    if cfg.msa_reference not in ("station_mean", "known"):
-        raise ValueError(f"study: msa_reference {cfg.msa_reference!r}: expected 'station_mean' or 'known'")
-    if cfg.msa_model not in _msa.MODELS:
-        raise ValueError(f"study: msa_model {cfg.msa_model!r}: expected one of {list(_msa.MODELS)}")
-    if cfg.features not in ("raw", "msa"):
-        raise ValueError(f"study: features {cfg.features!r}: expected 'raw' or 'msa'")
-    if cfg.dtype not in ("mixed", "float64", "float32"):
-        raise ValueError(f"study: dtype {cfg.dtype!r}: expected 'mixed', 'float64' or 'float32'")
-    low, high = cfg.theta_bounds
-    if not low < high:
-        raise ValueError(f"study: theta_bounds must have low < high, got {cfg.theta_bounds}")
-    if cfg.sigma_filter is not None and not cfg.sigma_filter > 0:
-        raise ValueError(f"study: sigma_filter must be > 0 or None, got {cfg.sigma_filter}")
-    if cfg.fitness == "kfold" and (not isinstance(cfg.k_folds, int) or cfg.k_folds < 2):
-        raise ValueError(f"study: k_folds must be an integer >= 2, got {cfg.k_folds!r}")
-    if cfg.fitness == "validation" and not 0.0 < cfg.val_fraction < 1.0:
-        raise ValueError(f"study: val_fraction must be in (0, 1), got {cfg.val_fraction}")
-    if cfg.optimizer is not None:
-        from icgo.optim import get
-
-        get(cfg.optimizer)
-        if cfg.optimizer == "cgo" and (isinstance(cfg.strategies, str) or len(cfg.strategies) < 1):
-            raise ValueError("study: strategies must be a non-empty tuple of names")
     n_train = int(round(cfg.train_fraction * n_rows))
     n_fit = n_train
     if cfg.fitness == "validation":

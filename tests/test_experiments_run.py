@@ -242,3 +242,43 @@ def test_progress_ticks_once_per_iteration_inside_the_scan():
     jax.effects_barrier()
     assert bar.count == 7 + 1  # initial population + 7 iterations
     assert res.curve.shape == (2, 3, 7)
+
+
+# ------------------------------------------------------------ one source of defaults
+def test_composed_default_equals_the_study_dataclass_defaults():
+    """`python -m experiments.run` with no override is icgo.study.StudyConfig() field by field (dtype=mixed)."""
+    import dataclasses
+
+    from icgo.study import StudyConfig
+
+    cfg = C.study_config(_job_cfg([]))
+    default = StudyConfig()
+    for f in dataclasses.fields(StudyConfig):
+        if f.name == "optimizer_config":
+            continue
+        assert getattr(cfg, f.name) == getattr(default, f.name), f.name
+    assert cfg.dtype == "mixed"
+    opt = cfg.optimizer_config
+    assert opt == type(opt)(), "the composed optimizer config must equal its dataclass defaults"
+
+
+def test_every_study_field_has_a_config_key():
+    """No StudyConfig field is unreachable from the command line (except those an entry point sets)."""
+    import dataclasses
+
+    from icgo.study import StudyConfig
+
+    _, where = C.study_settings(_job_cfg([]))
+    missing = {f.name for f in dataclasses.fields(StudyConfig)} - set(where) - {"repeat_ids", "optimizer_config"}
+    assert not missing
+
+
+@pytest.mark.parametrize("override", ["+split.bogus=1", "+model.hiden=20", "+dataset.pth=x", "+bogus=1",
+                                      "+optimizer.lable=x"])
+def test_unknown_settings_are_errors(override, capsys, tmp_path):
+    with pytest.raises(SystemExit) as e:
+        run_job(_job_cfg(TINY + [override]), tmp_path)
+    assert e.value.code == C.EXIT_CONFIG
+    err = capsys.readouterr().err.strip().splitlines()
+    key = override.lstrip("+").split("=")[0]
+    assert len(err) == 1 and "unknown setting" in err[0] and key in err[0], err

@@ -28,6 +28,40 @@ import importlib
 from typing import Any, Callable, NamedTuple
 
 
+class SettingError(ValueError):
+    """A bad value of one config field: ``str(err)`` is ``"<field> <problem>"``, one line.
+
+    Attributes:
+        field: the dataclass field name (entry points rename it to their own key,
+            e.g. ``n_repeats`` -> ``split.n_repeats``).
+        problem: the rest of the message (``"must be an integer >= 1, got 0"``).
+    """
+
+    def __init__(self, field: str, problem: str):
+        super().__init__(f"{field} {problem}")
+        self.field, self.problem = field, problem
+
+
+def need(cond: bool, field: str, problem: str) -> None:
+    """Raise :class:`SettingError` ``(field, problem)`` unless ``cond``."""
+    if not cond:
+        raise SettingError(field, problem)
+
+
+def is_int(x) -> bool:
+    """True for a Python/numpy integer that is not a bool."""
+    import numpy as np
+
+    return isinstance(x, (int, np.integer)) and not isinstance(x, bool)
+
+
+def is_real(x) -> bool:
+    """True for a finite real number that is not a bool."""
+    import math
+
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+
 class Study(NamedTuple):
     """A registered study.
 
