@@ -113,7 +113,7 @@ class StudyConfig:
 
     def __post_init__(self):
         """Validate every setting that does not depend on the data (one-line SettingError naming the field)."""
-        from icgo.optim import OPTIMIZERS, get
+        from icgo.optim import OPTIMIZERS  # importing the package registers every optimizer
         from icgo.studies import is_int, is_real, need
 
         for name in ("strategies", "theta_bounds", "repeat_ids"):  # Hydra/JSON give lists
@@ -150,7 +150,6 @@ class StudyConfig:
              f"must be mixed, float64 or float32, got {self.dtype!r}")
         if self.optimizer is None:
             return
-        get("cgo")  # populates the registry
         need(isinstance(self.optimizer, str) and self.optimizer in OPTIMIZERS, "optimizer",
              f"must name a registered optimizer (unknown optimizer {self.optimizer!r}); "
              f"choose one of {sorted(OPTIMIZERS)} or None")
