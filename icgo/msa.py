@@ -15,10 +15,12 @@ factors) is only solved by the ``biases_scales`` model; the paper solves the
 three biases. Row weights ``w`` (0/1 masks) select the training stations of a
 repeat, so shapes stay fixed and :func:`msa_solve` vmaps over repeats.
 
-The minimisation is Levenberg-Marquardt with the exact Jacobian of the
-residual vector (``jax.jacfwd``), run for a fixed number of iterations in
-``lax.scan``. Biases are solved in units of the mean measured field magnitude
-so that the normal matrix is well scaled.
+The minimisation is the library's one nonlinear least-squares solver,
+:func:`icgo.lsq.least_squares` (optimistix Levenberg-Marquardt, exact
+forward-mode Jacobian of the residual vector, trust-region damping, stops on
+convergence or after ``max_steps`` steps). Biases are solved in units of the
+mean measured field magnitude so that the variables are of order one (the
+solver's damping is the identity).
 
 Observability is checked on the host (:func:`check_observability`): a
 parameter the stations cannot determine (e.g. the axial bias when every station
@@ -44,6 +46,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from icgo.frames import azimuth_from_gv
+from icgo.lsq import least_squares
 
 #: Parameter names of each model, in the order of the flat parameter vector.
 MODELS: dict[str, tuple[str, ...]] = {
@@ -68,7 +71,9 @@ class MSAResult(NamedTuple):
         params: (P,) the solved parameters in the order of ``MODELS[model]``
             (biases in nT).
         cost: () V of eq. (7) at the solution (nT^2).
-        cost_history: (n_iter,) V after each LM iteration (nT^2).
+        n_steps: () int, Levenberg-Marquardt steps taken (accepted and rejected).
+        converged: () bool, the solver met its tolerance within ``max_steps``
+            (:class:`icgo.lsq.LSQResult` ``ok``).
         condition: () condition number of the residual Jacobian at the
             solution in solver units (biases divided by the mean |B|); small is
             well determined, ~1e8 or more means a dependent parameter.
@@ -82,7 +87,8 @@ class MSAResult(NamedTuple):
     scale: jnp.ndarray
     params: jnp.ndarray
     cost: jnp.ndarray
-    cost_history: jnp.ndarray
+    n_steps: jnp.ndarray
+    converged: jnp.ndarray
     condition: jnp.ndarray
     singular_values: jnp.ndarray
     std_error: jnp.ndarray
@@ -180,9 +186,18 @@ def _unit_svd(J):
     return sv, cond, inv_diag
 
 
-@partial(jax.jit, static_argnames=("model", "n_iter"))
-def msa_solve(G, B, weights, reference=None, model: str = "biases", n_iter: int = 30) -> MSAResult:
-    """Levenberg-Marquardt solution of eq. (7); pure, jittable, vmappable.
+def _solver_residuals(x, data, model):
+    """:func:`_residuals` in the ``(x, args)`` form of :func:`icgo.lsq.least_squares`.
+
+    ``data = (G, B, w, reference, unit)``; returns (2N,) nT.
+    """
+    G, B, w, reference, unit = data
+    return _residuals(x, G, B, w, reference, model, unit)
+
+
+@partial(jax.jit, static_argnames=("model", "max_steps"))
+def msa_solve(G, B, weights, reference=None, model: str = "biases", max_steps: int = 100) -> MSAResult:
+    """Levenberg-Marquardt solution of eq. (7) by :func:`icgo.lsq.least_squares`; pure, jittable, vmappable.
 
     No input checks here (use :func:`multi_station_analysis` for a checked call).
 
@@ -192,8 +207,8 @@ def msa_solve(G, B, weights, reference=None, model: str = "biases", n_iter: int 
         reference: None for the station means of eqs. (3)-(4), or (2,) known
             (Bh_ref, Bv_ref) in nT.
         model: ``"biases"`` (paper), ``"axial"`` or ``"biases_scales"``.
-        n_iter: LM iterations (fixed; the problem is nearly linear and
-            converges in a handful).
+        max_steps: largest number of solver steps; the problem is nearly
+            linear and converges (to 1e-10 relative) in a handful.
     Returns:
         MSAResult.
     """
@@ -202,29 +217,11 @@ def msa_solve(G, B, weights, reference=None, model: str = "biases", n_iter: int 
     w = jnp.asarray(weights, B.dtype)
     unit = _field_unit(B, w)
     args = (G, B, w, reference, model, unit)
-    res = lambda x: _residuals(x, *args)  # noqa: E731
-    jac = jax.jacfwd(res)
     x0 = jnp.zeros(len(MODELS[model]), B.dtype)
-    cost0 = jnp.sum(res(x0) ** 2)
-
-    def step(carry, _):
-        x, mu, cost = carry
-        J = jac(x)
-        r = res(x)
-        A = J.T @ J
-        g = J.T @ r
-        d = jnp.diag(A)
-        damped = A + mu * jnp.diag(jnp.maximum(d, 1e-12 * jnp.max(d)))  # Marquardt scaling
-        delta = jnp.linalg.solve(damped, -g)
-        x_new = x + delta
-        cost_new = jnp.sum(res(x_new) ** 2)
-        ok = jnp.isfinite(cost_new) & (cost_new <= cost)
-        x = jnp.where(ok, x_new, x)
-        cost = jnp.where(ok, cost_new, cost)
-        mu = jnp.where(ok, mu / 3.0, mu * 4.0)
-        return (x, mu, cost), cost
-
-    (x, _, cost), hist = jax.lax.scan(step, (x0, jnp.asarray(1e-3, B.dtype), cost0), None, length=n_iter)
+    fit = least_squares(partial(_solver_residuals, model=model), x0, (G, B, w, reference, unit),
+                        max_steps=max_steps)
+    x, cost = fit.x, fit.cost
+    jac = jax.jacfwd(lambda x: _residuals(x, *args))
     J = jac(x)
     sv, cond, inv_diag = _unit_svd(J)
     n_bias = 1 if model == "axial" else 3
@@ -236,7 +233,7 @@ def msa_solve(G, B, weights, reference=None, model: str = "biases", n_iter: int 
     std = jnp.sqrt(jnp.maximum(cov_diag, 0.0)).at[:n_bias].multiply(unit)
     bias, scale = bias_scale(p, model)
     ref = _reference(x, *args)
-    return MSAResult(bias, scale, p, cost, hist, cond, sv, std, ref)
+    return MSAResult(bias, scale, p, cost, fit.n_steps, fit.ok, cond, sv, std, ref)
 
 
 def check_observability(result: MSAResult, model: str = "biases", reference=None,
@@ -247,7 +244,8 @@ def check_observability(result: MSAResult, model: str = "biases", reference=None
     Raises ValueError naming the undetermined parameters (and the repeat, for a
     batched result) when the condition number exceeds ``max_condition`` or a
     parameter's standard error exceeds ``max_rel_std`` (times the field
-    magnitude for biases).
+    magnitude for biases), and (after that check) when the solver did not
+    converge within its step budget.
 
     Args:
         result: an MSAResult, unbatched or with one leading repeat axis.
@@ -278,6 +276,13 @@ def check_observability(result: MSAResult, model: str = "biases", reference=None
                 f"multi-station analysis{where}: the stations cannot determine {weak} "
                 f"(condition number {cond[k]:.3g}; standard errors {detail}); add stations with "
                 f"other tool-axis directions{hint}")
+    converged = np.atleast_1d(np.asarray(result.converged, dtype=bool)).reshape(cond.shape[0])
+    if not converged.all():
+        k = int(np.argmin(converged))
+        where = "" if single else f" (repeat {k})"
+        raise ValueError(f"multi-station analysis{where}: Levenberg-Marquardt did not converge in "
+                         f"{int(np.atleast_1d(np.asarray(result.n_steps))[k])} steps; raise max_steps "
+                         "(msa.iterations)")
     return cond[0] if single else cond
 
 
@@ -316,7 +321,7 @@ def reference_from_field(total_field_nT: float, dip_deg: float) -> np.ndarray:
 
 
 def multi_station_analysis(G, B, weights=None, reference=None, model: str = "biases",
-                           n_iter: int = 30, max_condition: float = MAX_CONDITION,
+                           max_steps: int = 100, max_condition: float = MAX_CONDITION,
                            max_rel_std: float = MAX_REL_STD) -> MSAResult:
     """Checked multi-station analysis: validate, check observability, then :func:`msa_solve`.
 
@@ -326,7 +331,7 @@ def multi_station_analysis(G, B, weights=None, reference=None, model: str = "bia
         reference: None (station means, paper eqs. 3-4) or (Bh_ref, Bv_ref) nT
             (see :func:`reference_from_field`).
         model: ``"biases"`` (paper), ``"axial"``, ``"biases_scales"``.
-        n_iter: LM iterations.
+        max_steps: largest number of Levenberg-Marquardt steps.
         max_condition, max_rel_std: observability thresholds
             (:func:`check_observability`).
     Returns:
@@ -337,7 +342,7 @@ def multi_station_analysis(G, B, weights=None, reference=None, model: str = "bia
     """
     G, B, w, reference = _validate(G, B, weights, reference, model)
     ref = None if reference is None else jnp.asarray(reference)
-    result = msa_solve(jnp.asarray(G), jnp.asarray(B), jnp.asarray(w), ref, model=model, n_iter=n_iter)
+    result = msa_solve(jnp.asarray(G), jnp.asarray(B), jnp.asarray(w), ref, model=model, max_steps=max_steps)
     check_observability(result, model, reference, max_condition, max_rel_std)
     return result
 

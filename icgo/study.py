@@ -60,7 +60,9 @@ class StudyConfig:
         msa_model: ``"biases"`` (paper), ``"axial"`` or ``"biases_scales"``.
         msa_reference: ``"station_mean"`` (paper eqs. 3-4) or ``"known"``
             (reference field from the metadata's total_field_nT and dip_deg).
-        msa_iterations: Levenberg-Marquardt iterations.
+        msa_iterations: largest number of Levenberg-Marquardt steps of the MSA
+            solve (:func:`icgo.lsq.least_squares` ``max_steps``; it stops earlier
+            once converged, typically after 10-45 steps on lab_casing).
         features: ``"raw"`` (paper: the six raw sensor values) or ``"msa"``
             (G and the MSA-corrected B).
         hidden: RELM hidden units L (paper: not stated; 30 as in the reference
@@ -95,7 +97,7 @@ class StudyConfig:
     sigma_filter: float | None = 3.0
     msa_model: str = "biases"
     msa_reference: str = "station_mean"
-    msa_iterations: int = 30
+    msa_iterations: int = 100
     features: str = "raw"
     hidden: int = 30
     lam: float = 1e-3
@@ -274,7 +276,7 @@ def _prepare(keys, G, B, a_true, reference, *, n_train, msa_model, msa_iter, fea
         k_split, k_fold, k_model = jax.random.split(key, 3)
         perm = jax.random.permutation(k_split, G.shape[0])
         train = jnp.zeros(G.shape[0], G.dtype).at[perm[:n_train]].set(1.0)
-        m = _msa.msa_solve(G, B, train, reference, model=msa_model, n_iter=msa_iter)
+        m = _msa.msa_solve(G, B, train, reference, model=msa_model, max_steps=msa_iter)
         b_corr = _msa.correct_field(B, m.bias, m.scale)
         a_msa = azimuth_from_gv(G, b_corr)
         target = angle_diff(a_msa, a_true)

@@ -109,3 +109,42 @@ def test_bad_inputs():
         msa.multi_station_analysis(G, B, weights=np.ones(5))
     with pytest.raises(ValueError, match="stations cannot determine|weighted stations"):
         msa.multi_station_analysis(G[:3], B[:3])
+
+
+def _eq7_residuals_numpy(bias, G, B):
+    """Independent numpy form of eqs. (2)-(7) with station means: r (2N,), sum r^2 = V (nT^2)."""
+    Bc = B - bias
+    g = G / np.linalg.norm(G, axis=1, keepdims=True)
+    bv = np.sum(Bc * g, 1)
+    bh = np.sqrt(np.sum(Bc * Bc, 1) - bv**2)
+    return np.concatenate([bh - bh.mean(), bv - bv.mean()]) / np.sqrt(len(bv) - 1)
+
+
+def test_noise_free_bias_recovered_exactly_and_converged():
+    # closed form: with hard iron only and no noise, the minimum of eq. (7) is the injected bias with V = 0
+    G, B, _, _ = stations(noise=0.0)
+    r = msa.multi_station_analysis(G, B)
+    np.testing.assert_allclose(np.asarray(r.bias), BIAS, rtol=0, atol=1e-6)
+    assert float(r.cost) < 1e-12 and bool(r.converged) and 1 <= int(r.n_steps) <= 100
+    rk = msa.multi_station_analysis(G, B, reference=msa.reference_from_field(F, DIP))
+    np.testing.assert_allclose(np.asarray(rk.bias), BIAS, rtol=0, atol=1e-6)
+
+
+def test_noisy_fit_matches_scipy_least_squares_peer():
+    from scipy.optimize import least_squares as scipy_lsq
+
+    G, B, _, _ = stations(seed=4)
+    r = msa.multi_station_analysis(G, B)
+    peer = scipy_lsq(_eq7_residuals_numpy, np.zeros(3), args=(G, B), method="lm", xtol=1e-15, ftol=1e-15,
+                     gtol=1e-15, x_scale=np.full(3, F))
+    # both at the float64 floor of eq. (7) (~1e-5 nT here); V agrees to rounding
+    np.testing.assert_allclose(np.asarray(r.bias), peer.x, rtol=0, atol=1e-4)
+    assert float(r.cost) == pytest.approx(float(np.sum(peer.fun**2)), rel=1e-12)
+
+
+def test_step_budget_too_small_is_reported():
+    G, B, _, _ = stations()
+    r = msa.msa_solve(G, B, np.ones(len(G)), max_steps=2)
+    assert not bool(r.converged) and int(r.n_steps) == 2
+    with pytest.raises(ValueError, match="did not converge"):
+        msa.check_observability(r)
