@@ -1,11 +1,13 @@
 """Discrepancy workflow (issue #7): hidden effects are named, the gap shrinks,
 noise names nothing, out-of-vocabulary structure is reported as such, and
-non-separable designs are flagged.
+non-separable designs are flagged; the config agrees with conf/discrepancy.yaml.
 
 Every fast test uses <= 120 stations, which the workflow pads to one bucket
 (120), so the whole file compiles the batched fit once.
 """
 
+import dataclasses
+import json
 from pathlib import Path
 
 import jax
@@ -20,6 +22,7 @@ from icgo import io as icgo_io
 from icgo.frames import angle_diff, azimuth_from_gv
 
 DATA = Path(__file__).parent / "data"
+CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
 MAG_EFFECTS = {"hard_iron", "external_field", "mag_scale", "mag_cross_coupling", "mag_misalignment"}
 
 
@@ -33,17 +36,17 @@ def _check_named_first(effect, seed, n):
     st, truth = _hidden([effect], seed, n)
     res = D.run_workflow(st)
     g0, g1 = res.gaps[0], res.gaps[1] if len(res.gaps) > 1 else res.gaps[0]
-    print(f"\n{effect}: named {res.model}; mag gap {g0['mag_rms_nT']:.1f} -> {g1['mag_rms_nT']:.1f} nT, "
-          f"azimuth gap {g0['azimuth_rms_deg']:.3f} -> {g1['azimuth_rms_deg']:.3f} deg, accel gap "
-          f"{g0['accel_rms_g']:.2e} -> {g1['accel_rms_g']:.2e} g, excess over noise "
-          f"{g0['excess_over_noise']:.2f} -> {g1['excess_over_noise']:.2f}; {res.seconds:.1f} s")
-    assert res.steps and res.steps[0].name == effect, res.verdict
+    print(f"\n{effect}: named {res.model}; mag gap {g0.mag_rms_nT:.1f} -> {g1.mag_rms_nT:.1f} nT, "
+          f"azimuth gap {g0.azimuth_rms_deg:.3f} -> {g1.azimuth_rms_deg:.3f} deg, accel gap "
+          f"{g0.accel_rms_g:.2e} -> {g1.accel_rms_g:.2e} g, excess over noise "
+          f"{g0.excess_over_noise:.2f} -> {g1.excess_over_noise:.2f}; {res.seconds:.1f} s")
+    assert res.steps and res.steps[0].name == effect, D.verdict(res)
     assert res.steps[0].separable
-    assert res.kind == "explained", res.verdict
+    assert res.kind == "explained", D.verdict(res)
     # the held-out gap (in noise units, noise floor removed) falls by >= 80 %
-    assert g1["excess_over_noise"] <= 0.2 * g0["excess_over_noise"]
+    assert g1.excess_over_noise <= 0.2 * g0.excess_over_noise
     if effect in MAG_EFFECTS:  # the raw magnetometer gap too, noise included
-        assert g1["mag_rms_nT"] <= 0.2 * g0["mag_rms_nT"]
+        assert g1.mag_rms_nT <= 0.2 * g0.mag_rms_nT
     # fitted parameters agree with the truth within their standard errors
     s = res.steps[0]
     z = (np.asarray(s.params) - truth[effect]) / np.asarray(s.stderr)
@@ -67,10 +70,10 @@ def test_hidden_effect_named_first_all(effect, seed):
 def _check_pair(pair, seed, n):
     st, _ = _hidden(pair, seed, n)
     res = D.run_workflow(st)
-    print(f"\n{pair}: named {res.model}; gaps {[round(g['mag_rms_nT'], 1) for g in res.gaps]} nT; {res.verdict}")
-    assert set(res.model) == set(pair), res.verdict
+    print(f"\n{pair}: named {res.model}; gaps {[round(g.mag_rms_nT, 1) for g in res.gaps]} nT; {D.verdict(res)}")
+    assert set(res.model) == set(pair), D.verdict(res)
     assert res.kind == "explained"
-    assert res.gaps[-1]["excess_over_noise"] <= 0.2 * res.gaps[0]["excess_over_noise"]
+    assert res.gaps[-1].excess_over_noise <= 0.2 * res.gaps[0].excess_over_noise
 
 
 def test_two_effects_both_named_accel_bias_trap():
@@ -89,14 +92,14 @@ def test_two_effects_all_pairs(pair):
 def test_accel_bias_alone_names_no_spurious_hard_iron():
     st, _ = _hidden(["accel_bias"], seed=8, n=120)
     res = D.run_workflow(st)
-    assert res.model == ["accel_bias"], res.verdict
+    assert res.model == ("accel_bias",), D.verdict(res)
 
 
 def test_noise_only_names_nothing():
     st, _ = _hidden([], seed=4, n=120)
     res = D.run_workflow(st)
-    print("\nnoise only:", res.verdict)
-    assert res.model == [] and res.kind == "no_missing_effect"
+    print("\nnoise only:", D.verdict(res))
+    assert res.model == () and res.kind == "no_missing_effect"
 
 
 def test_out_of_vocabulary_temperature_bias_is_unexplained():
@@ -107,10 +110,13 @@ def test_out_of_vocabulary_temperature_bias_is_unexplained():
     B = st.B + (temp - temp.mean())[:, None] * coef
     st = st._replace(B=B, extras={"temperature_c": temp})
     res = D.run_workflow(st)
-    print("\ntemperature bias:", res.verdict)
-    assert res.kind == "unexplained", res.verdict
-    assert any("temperature_c" in s for s in res.pattern)
-    assert not any(s.separable for s in res.steps) or res.kind == "unexplained"
+    print("\ntemperature bias:", D.verdict(res))
+    assert res.kind == "unexplained", D.verdict(res)
+    # no vocabulary effect is named for it (none can absorb a temperature dependence) ...
+    assert res.model == (), D.verdict(res)
+    # ... and the remaining pattern points at the temperature column, on the largest coefficient's axis
+    assert [(c.column, c.component) for c in res.pattern.correlated] == [("temperature_c", "bz")]
+    assert res.pattern.correlated[0].abs_r > 0.9
 
 
 def test_not_separable_at_single_inclination():
@@ -119,35 +125,40 @@ def test_not_separable_at_single_inclination():
     st = D.simulate(jax.random.PRNGKey(9), 120, {"accel_bias": np.array([0.0, 0.0, 4e-3])},
                     design="single_inclination", inclination_deg=40.0)
     res = D.run_workflow(st)
-    print("\nsingle inclination:", res.verdict, [n for s in res.steps for n in s.notes])
-    assert res.kind == "not_separable", res.verdict
+    print("\nsingle inclination:", D.verdict(res), [n for s in res.steps for n in D.step_notes(s)])
+    assert res.kind == "not_separable", D.verdict(res)
     s = res.steps[0]
     assert {s.name, *s.equivalent} >= {"accel_bias", "accel_scale"}
-    assert any("accel_scale[z]" in n and "accel_bias[z]" in n for n in s.notes)
+    # the direction that makes them equivalent: the axial bias and the axial scale factor
+    assert any({*d.direction, *d.mimics} >= {"accel_scale[z]", "accel_bias[z]"} and d.canonical_correlation > 0.999
+               for d in s.equivalences)
 
 
 def test_separability_of_designs():
     key = jax.random.PRNGKey(0)
+    labels = lambda d: {*d.direction, *d.mimics}
     rnd = D.separability(D.simulate(key, 120, {}, design="random"))
-    pairs = {(p["a"], p["b"]) for p in rnd["pairs"]}
+    pairs = {(p.a, p.b) for p in rnd.pairs}
     # the only degeneracy of random attitudes: an isotropic scale factor is a field
     # parallel to the earth's field (a wrong reference total field)
     assert pairs <= {("external_field", "mag_scale")}
-    assert not rnd["unobservable"]
+    assert not rnd.unobservable
     one = D.separability(D.simulate(key, 120, {}, design="single_inclination"))
-    assert any(p["a"] == "accel_scale" and p["b"] == "accel_bias" and "accel_scale[z]" in p["what"] for p in one["pairs"])
+    assert any(p.a == "accel_scale" and p.b == "accel_bias" and "accel_scale[z]" in labels(p.degeneracy)
+               and p.degeneracy.canonical_correlation > 0.999 for p in one.pairs)
     rot = D.separability(D.simulate(key, 120, {}, design="rotation"))
-    assert any({p["a"], p["b"]} == {"mag_scale", "hard_iron"} and "hard_iron[z]" in p["what"] for p in rot["pairs"])
+    assert any({p.a, p.b} == {"mag_scale", "hard_iron"} and "hard_iron[z]" in labels(p.degeneracy) for p in rot.pairs)
     fixed = D.separability(D.simulate(key, 120, {}, design="turntable_fixed_toolface"))
-    assert any(u["effect"] == "accel_scale" and "accel_scale[y]" in u["what"] for u in fixed["unobservable"])
+    assert any(u.effect == "accel_scale" and u.direction == ("accel_scale[y]",) and u.unobservable
+               for u in fixed.unobservable)
 
 
 def test_handwritten_csv():
     rec = icgo_io.read_recording(DATA / "handwritten_axial.csv")
     st = D.stations_from_recording(rec)
     res = D.run_workflow(st)
-    print("\nhandwritten:", res.verdict, res.steps[0].params if res.steps else None)
-    assert res.model == ["hard_iron"], res.verdict
+    print("\nhandwritten:", D.verdict(res), res.steps[0].params if res.steps else None)
+    assert res.model == ("hard_iron",), D.verdict(res)
     p, se = np.asarray(res.steps[0].params), np.asarray(res.steps[0].stderr)
     assert np.allclose(p, [0.0, 0.0, 400.0], atol=5.0), p
     assert np.all(se < 5.0)
@@ -180,12 +191,12 @@ def test_lm_jacobian_is_exact():
 
 @pytest.mark.slow
 def test_compiles_once_across_steps_and_sizes():
-    before = D._evaluate._cache_size()
+    before = D.evaluate_models._cache_size()
     st1, _ = _hidden(["hard_iron"], seed=1, n=100)
     st2, _ = _hidden([], seed=2, n=60)
     D.run_workflow(st1)
     D.run_workflow(st2)
-    assert D._evaluate._cache_size() - before <= 1
+    assert D.evaluate_models._cache_size() - before <= 1
 
 
 def test_bad_input_one_line(capsys, tmp_path):
@@ -210,11 +221,68 @@ def test_entry_point_writes_report_and_json(tmp_path):
     cfg.pop("hydra")
     cfg.data = str(DATA / "handwritten_axial.csv")
     assert main_body(cfg, tmp_path) == 0
-    import json
-
     js = json.loads((tmp_path / "discrepancy.json").read_text())
     assert [e["name"] for e in js["effects"]] == ["hard_iron"]
     e = js["effects"][0]
     assert e["gap_after"]["mag_rms_nT"] < 0.2 * e["gap_before"]["mag_rms_nT"]
     assert js["verdict"].startswith("explained")
     assert (tmp_path / "report.md").exists() and (tmp_path / "gap_per_step.png").exists()
+
+
+def test_residual_sign_is_measured_minus_predicted():
+    # a hidden hard iron b: measured B = ideal + b, so the reference model's residual is +b
+    b = np.array([300.0, -200.0, 500.0])
+    st = D.simulate(jax.random.PRNGKey(7), 60, {"hard_iron": b})
+    prep = D.prepare(st)
+    theta = jax.numpy.zeros(prep.layout.n_params)
+    r = np.asarray(D.residuals(theta, prep.data, prep.layout)) * np.asarray(prep.data.sig)
+    assert np.allclose(r[prep.valid, 3:].mean(0), b, atol=10.0), r[prep.valid, 3:].mean(0)
+    cmp = D.compare(st, D.predict(theta, prep.data, prep.layout), prep.valid)
+    assert np.allclose(cmp.resid, r)
+    assert cmp.mean_total_field_nT * np.sign(np.mean(np.sum(st.B * b, 1))) > 0
+
+
+def test_paired_z():
+    before = np.array([3.0, 4.0, 5.0, 6.0])
+    after = before - np.array([1.0, 2.0, 1.0, 2.0])  # improvement 1.5 +- 0.577 / 2
+    assert D.paired_z(before, after) == pytest.approx(1.5 / (np.std([1, 2, 1, 2], ddof=1) / 2))
+    assert D.paired_z(after, before) == pytest.approx(-D.paired_z(before, after))
+
+
+def test_search_init_step_finish_is_run_workflow():
+    st = D.stations_from_recording(icgo_io.read_recording(DATA / "handwritten_axial.csv"))
+    cfg = D.WorkflowConfig()
+    state = D.init(st, cfg)
+    assert state.model == () and not state.done and state.candidates[0].name == "hard_iron"
+    state = D.step(state)
+    assert state.model == ("hard_iron",) and state.done  # nothing else qualifies
+    assert D.step(state) is state
+    res, ref = D.finish(state), D.run_workflow(st, cfg)
+    assert res.model == ref.model and res.kind == ref.kind == "explained"
+    assert np.array_equal(res.theta, ref.theta) and res.steps[0].params == ref.steps[0].params
+    # max_effects caps the search before it adds anything
+    capped = D.run_workflow(st, dataclasses.replace(cfg, max_effects=0))
+    assert capped.model == () and capped.kind == "unexplained"
+
+
+def test_hydra_config_equals_workflow_config_defaults():
+    from hydra import compose, initialize_config_dir
+
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        cfg = compose(config_name="discrepancy")
+    defaults = D.WorkflowConfig()
+    for f in dataclasses.fields(D.WorkflowConfig):
+        assert f.name in cfg, f"conf/discrepancy.yaml lacks {f.name}"
+        assert cfg[f.name] == getattr(defaults, f.name), (f.name, cfg[f.name], getattr(defaults, f.name))
+        assert type(cfg[f.name]) is type(getattr(defaults, f.name)), f.name
+    assert D.WorkflowConfig.from_mapping(OmegaConf.to_container(cfg)) == defaults
+
+
+def test_workflow_config_validates_every_field():
+    with pytest.raises(D.ConfigError) as err:
+        D.WorkflowConfig(k_folds=1, max_effects=-1, min_z=float("nan"), sigma_g=0.0, candidates=["hard_iron", "nope"])
+    lines = err.value.problems
+    assert [ln.split("=")[0].split(": ")[1] for ln in lines] == ["k_folds", "max_effects", "min_z", "sigma_g", "candidates"]
+    assert all("\n" not in ln for ln in lines)
+    assert D.WorkflowConfig(candidates=["hard_iron"]).candidates == ("hard_iron",)
+    assert D.WorkflowConfig(min_z=3).min_z == 3.0 and isinstance(D.WorkflowConfig(min_z=3).min_z, float)

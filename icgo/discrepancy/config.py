@@ -1,0 +1,132 @@
+"""Every option of the discrepancy workflow, with its one default.
+
+``conf/discrepancy.yaml`` repeats these defaults for the command line;
+``tests/test_discrepancy.py`` checks that the composed Hydra config equals
+``WorkflowConfig()`` field by field, so the two cannot drift apart.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping, Sequence
+
+from icgo import effects as _fx
+from icgo.discrepancy.noise import NOISE, Noise
+
+
+class ConfigError(ValueError):
+    """Bad workflow options; ``problems`` holds one line per bad value, each naming its field."""
+
+    def __init__(self, problems):
+        self.problems = tuple(problems)
+        super().__init__("\n".join(self.problems))
+
+
+@dataclasses.dataclass(frozen=True)
+class WorkflowConfig:
+    """Options of :func:`~icgo.discrepancy.search.run_workflow` (validated on construction:
+    :class:`ConfigError`, one line per bad value).
+
+    Attributes:
+        k_folds: folds of the held-out score (each station held out once).
+        max_effects: most effects the greedy search adds. 6 is what the
+            results use (``lab_casing`` names 5); ``make discrepancy`` passes 4
+            for the 24-shot devices.
+        min_rel_improvement: the best candidate must lower the held-out chi2 by
+            at least this fraction (ENGINEERING-NOTES: 10 %) ...
+        min_z: ... and its paired per-station improvement must have z >= this.
+        ambiguity_z: another qualifying candidate within this paired z of the
+            best makes the step "not separable".
+        noise_tolerance: the final held-out chi2 per residual within this
+            multiple of the noise floor counts as "the rest is noise".
+        separability_threshold: s = sqrt(1 - rho^2) below this is a
+            non-separable direction given the model (rho: canonical correlation).
+        equivalence_threshold: s below this is reported as the direction that
+            makes two equivalent candidates equivalent.
+        n_iter: Levenberg-Marquardt iterations per fit.
+        sigma_b_nT: magnetometer noise, nT (1 sigma per axis).
+        sigma_g: accelerometer noise, g (1 sigma per axis).
+        candidates: effect names the search considers; None = the whole vocabulary.
+        bucket: stations are padded to a multiple of this so data sets of up to
+            ``bucket`` stations share one compiled fit (0 = no padding).
+    """
+
+    k_folds: int = 5
+    max_effects: int = 6
+    min_rel_improvement: float = 0.10
+    min_z: float = 3.0
+    ambiguity_z: float = 2.0
+    noise_tolerance: float = 1.5
+    separability_threshold: float = 0.02
+    equivalence_threshold: float = 0.2
+    n_iter: int = 12
+    sigma_b_nT: float = NOISE.sigma_b_nT
+    sigma_g: float = NOISE.sigma_g
+    candidates: tuple | None = None
+    bucket: int = 120
+
+    def __post_init__(self):
+        bad = []
+
+        def integer(name, lo):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+                bad.append(f"{name}={v!r}: must be an integer >= {lo}")
+
+        def real(name, lo, hi, lo_open=False, hi_open=False):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                bad.append(f"{name}={v!r}: must be a finite number")
+                return
+            if (v <= lo if lo_open else v < lo) or (v >= hi if hi_open else v > hi):
+                rng = f"{'(' if lo_open else '['}{lo}, {hi}{')' if hi_open else ']'}"
+                bad.append(f"{name}={v!r}: must lie in {rng}")
+                return
+            object.__setattr__(self, name, float(v))
+
+        integer("k_folds", 2)
+        integer("max_effects", 0)
+        real("min_rel_improvement", 0.0, 1.0, hi_open=True)
+        real("min_z", 0.0, math.inf, hi_open=True)
+        real("ambiguity_z", 0.0, math.inf, hi_open=True)
+        real("noise_tolerance", 0.0, math.inf, lo_open=True, hi_open=True)
+        real("separability_threshold", 0.0, 1.0, lo_open=True)
+        real("equivalence_threshold", 0.0, 1.0, lo_open=True)
+        integer("n_iter", 1)
+        real("sigma_b_nT", 0.0, math.inf, lo_open=True, hi_open=True)
+        real("sigma_g", 0.0, math.inf, lo_open=True, hi_open=True)
+        integer("bucket", 0)
+        c = self.candidates
+        if c is not None:
+            if isinstance(c, str) or not isinstance(c, Sequence) or not all(isinstance(x, str) for x in c):
+                bad.append(f"candidates={c!r}: must be None or a list of effect names")
+            else:
+                unknown = [x for x in c if x not in _fx.EFFECTS]
+                if unknown or not c:
+                    bad.append(f"candidates={list(c)!r}: unknown effect(s) {unknown}; choose from {list(_fx.ORDER)}"
+                               if unknown else "candidates=[]: give at least one effect name, or None for all")
+                else:
+                    object.__setattr__(self, "candidates", tuple(c))
+        if bad:
+            raise ConfigError(f"WorkflowConfig: {b}" for b in bad)
+
+    @property
+    def noise(self) -> Noise:
+        """The sensor noise (``sigma_b_nT``, ``sigma_g``)."""
+        return Noise(self.sigma_b_nT, self.sigma_g)
+
+    @classmethod
+    def from_mapping(cls, values: Mapping) -> "WorkflowConfig":
+        """The config from the fields present in ``values`` (other keys, e.g. a
+        Hydra config's ``data`` or ``seed``, are ignored); lists become tuples."""
+        kw = {}
+        for f in dataclasses.fields(cls):
+            if f.name in values:
+                v = values[f.name]
+                kw[f.name] = tuple(v) if isinstance(v, Sequence) and not isinstance(v, str) else v
+        return cls(**kw)
+
+    def to_dict(self) -> dict:
+        """Plain dict of the fields (tuples as lists), e.g. for a JSON record."""
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self).items()}

@@ -1,0 +1,366 @@
+"""name + add: the greedy forward search over the effect vocabulary.
+
+Shaped like the optimizers of :mod:`icgo.optim` (a pair of pure functions over
+a NamedTuple state that carries its own context)::
+
+    state = init(stations, config, key)   # evaluates the reference model + every candidate
+    while not state.done:
+        state = step(state)               # adds the best candidate, evaluates again
+    result = finish(state, seconds)
+
+or simply ``run_workflow(stations, config)``. The loop is host-side Python: the
+evaluation is one jitted call per step (:func:`~icgo.discrepancy.fit.evaluate_models`)
+and the step's decisions are made on its numbers. Nothing here reads or writes
+English text; :mod:`icgo.discrepancy.report` renders the result.
+
+Decision rules (``WorkflowConfig``): the best candidate (lowest held-out chi2)
+is added when it lowers the held-out chi2 by at least ``min_rel_improvement``
+AND its paired per-station improvement has z >= ``min_z``; another qualifying
+candidate within paired z < ``ambiguity_z`` of it makes the step not separable
+(both are reported; the best is kept so that the search can go on). The search
+stops when the best does not qualify or ``max_effects`` are in the model.
+Result kinds (:data:`KINDS`): ``not_separable`` when a step was ambiguous,
+else ``unexplained`` when the final held-out chi2 per residual exceeds
+``noise_tolerance`` x the noise floor, else ``no_missing_effect`` (nothing
+added) or ``explained``.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from icgo import effects as _fx
+from icgo.discrepancy.compare import Comparison, Gap, Pattern, azimuth_scored, compare, find_pattern, gap
+from icgo.discrepancy.config import WorkflowConfig
+from icgo.discrepancy.fit import Evaluation, evaluate_models, folds, standard_errors
+from icgo.discrepancy.identifiability import identifiability
+from icgo.discrepancy.model import Data, Layout, fitted_field, predict, prepare
+from icgo.discrepancy.noise import noise_floor
+from icgo.discrepancy.stations import Stations, check_stations, pad_stations
+from icgo.discrepancy.stats import paired_z
+from icgo.frames import angle_diff, azimuth_from_gv
+
+#: The result kinds, in the order they are decided.
+KINDS = ("not_separable", "unexplained", "no_missing_effect", "explained")
+
+
+class Candidate(NamedTuple):
+    """One model evaluated at a step: the current model + one effect.
+
+    Attributes:
+        index: its row in the step's :class:`~icgo.discrepancy.fit.Evaluation`.
+        name: the added effect.
+        heldout: held-out chi2 per residual component.
+        bic: chi2 + (free parameters) ln(residual components), on all stations.
+        z: paired z of its per-station held-out improvement over the current model.
+        qualifies: passes ``min_rel_improvement`` and ``min_z``.
+        params: (n_params,) the effect's fitted physical parameters (all stations).
+    """
+
+    index: int
+    name: str
+    heldout: float
+    bic: float
+    z: float
+    qualifies: bool
+    params: np.ndarray
+
+
+class Step(NamedTuple):
+    """One add step.
+
+    Attributes:
+        name: the effect added. params, stderr: its physical parameters and their
+            standard errors (Gauss-Newton covariance). units: their unit.
+        gap_before, gap_after: held-out :class:`~icgo.discrepancy.compare.Gap` without / with it.
+        heldout_before, heldout_after: held-out chi2 per residual without / with it.
+        z_improvement: paired z of the improvement.
+        runner_up: the second-best candidate (None if there was none).
+        margin_z, delta_bic: evidence margin over the runner-up (paired z of the
+            runner-up's held-out chi2 minus the best's; BIC difference).
+        equivalent: other qualifying candidates within ``ambiguity_z`` (not separable).
+        degeneracies: directions of the effect the model + nuisances can mimic
+            (s < ``separability_threshold``), or that leave no trace.
+        equivalences: for each equivalent candidate, the directions it mimics
+            (s < ``equivalence_threshold``).
+        candidates: every candidate of the step, best first.
+    """
+
+    name: str
+    params: tuple
+    stderr: tuple
+    units: str
+    gap_before: Gap
+    gap_after: Gap
+    heldout_before: float
+    heldout_after: float
+    z_improvement: float
+    runner_up: str | None
+    margin_z: float
+    delta_bic: float
+    equivalent: tuple
+    degeneracies: tuple
+    equivalences: tuple
+    candidates: tuple
+
+    @property
+    def separable(self) -> bool:
+        return not self.equivalent
+
+
+class SearchContext(NamedTuple):
+    """Constant data of one search (carried in the state, like ``icgo.optim``'s Context).
+
+    Attributes:
+        stations: the (padded) stations. layout, data: see :func:`~icgo.discrepancy.model.prepare`.
+        valid: (n,) stations used (real, not near vertical). az_ok: (n,) azimuth scored.
+        free_nuisance: (P,) bool. group_free: (P,) 0/1 group-direction nuisances.
+        train, test: (K, n) fold weights. valid_w: (n,) 0/1.
+        az_meas: (n,) measured azimuth, deg. floor: noise-only chi2 per residual.
+        n_res: residual components used. names: candidate effect names. config: the options.
+    """
+
+    stations: Stations
+    layout: Layout
+    data: Data
+    valid: np.ndarray
+    az_ok: np.ndarray
+    free_nuisance: np.ndarray
+    group_free: np.ndarray
+    train: np.ndarray
+    test: np.ndarray
+    valid_w: np.ndarray
+    az_meas: np.ndarray
+    floor: float
+    n_res: int
+    names: tuple
+    config: WorkflowConfig
+
+
+class SearchState(NamedTuple):
+    """State of the greedy search after an evaluation.
+
+    Attributes:
+        model: effect names added so far.
+        theta: (P,) the start of ``evaluation`` (the last added model's full fit).
+        evaluation: the current model (row 0) and every candidate, fitted (numpy arrays).
+        masks: (M, P) free parameters of each evaluated model.
+        heldout: (M,) held-out chi2 per residual of each evaluated model.
+        candidates: the candidates (excluding effects already in the model), best first.
+        steps: the add steps so far. gaps: held-out gap per model (0 = reference).
+        before: comparison of the reference model's full fit with the measurements.
+        done: True when the search stops here (best does not qualify, or ``max_effects``).
+        ctx: :class:`SearchContext`.
+    """
+
+    model: tuple
+    theta: np.ndarray
+    evaluation: Evaluation
+    masks: np.ndarray
+    heldout: np.ndarray
+    candidates: tuple
+    steps: tuple
+    gaps: tuple
+    before: Comparison
+    done: bool
+    ctx: SearchContext
+
+
+class Result(NamedTuple):
+    """Outcome of :func:`run_workflow`.
+
+    Attributes:
+        steps: the add steps. kind: one of :data:`KINDS`. model: effect names of the final model.
+        theta: (P,) final model's full fit (scaled). layout: the parameter layout.
+        gaps: held-out gap per model (step 0 = reference model).
+        compare_before, compare_after: reference / final model vs measurements
+            (per-station arrays have the padded length; ``valid`` False on pads).
+        pattern_before, pattern: their findings.
+        field: fitted (total nT, dip deg, declination deg).
+        heldout: final held-out chi2 per residual. noise_floor: its noise-only value.
+        structure_remains: ``heldout > noise_tolerance * noise_floor``.
+        final_candidates: the candidates of the last evaluation (where the search stopped).
+        config: the options used. seconds: wall time, s (including compilation).
+    """
+
+    steps: tuple
+    kind: str
+    model: tuple
+    theta: np.ndarray
+    layout: Layout
+    gaps: tuple
+    compare_before: Comparison
+    compare_after: Comparison
+    pattern_before: Pattern
+    pattern: Pattern
+    field: tuple
+    heldout: float
+    noise_floor: float
+    structure_remains: bool
+    final_candidates: tuple
+    config: WorkflowConfig
+    seconds: float
+
+    @property
+    def named(self) -> list:
+        """Effects named unambiguously (separable steps)."""
+        return [s.name for s in self.steps if s.separable]
+
+
+def _mask(ctx: SearchContext, effects) -> np.ndarray:
+    """(P,) 0/1 free parameters of the model ``effects`` (+ the free nuisances)."""
+    m = ctx.free_nuisance.astype(float).copy()
+    for e in effects:
+        m[ctx.layout.slice(e)] = 1.0
+    return m
+
+
+def _gap_of(ctx: SearchContext, ev: Evaluation, m: int) -> Gap:
+    az_err = np.asarray(angle_diff(ctx.az_meas, ev.az_held[m]))
+    return gap(ev.r_held[m], az_err, ctx.valid, ctx.az_ok, np.asarray(ctx.data.sig), ctx.floor)
+
+
+def _evaluated(ctx: SearchContext, model: tuple, theta, steps: tuple, gaps: tuple, before) -> SearchState:
+    """Evaluate the current model and every candidate from ``theta``; score and rank the candidates."""
+    cfg, layout, valid = ctx.config, ctx.layout, ctx.valid
+    # a fixed number of models (current + every candidate) so that shapes, hence the
+    # compiled function, stay the same across steps; effects already in the model are
+    # evaluated as duplicates of the current model and ignored.
+    trial = [None] + [c if c not in model else "" for c in ctx.names]
+    masks = np.stack([_mask(ctx, model + ((c,) if c else ())) for c in trial])
+    ev = evaluate_models(jnp.asarray(theta), jnp.asarray(masks), jnp.asarray(ctx.train), jnp.asarray(ctx.test),
+                         jnp.asarray(ctx.valid_w), jnp.asarray(ctx.group_free), ctx.data, layout, cfg.n_iter)
+    ev = Evaluation(*(np.asarray(x) for x in ev))
+    if before is None:
+        before = compare(ctx.stations, predict(jnp.asarray(ev.theta_full[0]), ctx.data, layout), valid)
+        gaps = (_gap_of(ctx, ev, 0),)
+    chi2 = ev.chi2_held
+    S = chi2[:, valid].mean(1) / 6.0
+    bic = ev.cost_full + masks.sum(1) * np.log(max(ctx.n_res, 2))
+    scales = layout.scales()
+    cands = []
+    for m, c in enumerate(trial):
+        if not c:
+            continue
+        z = paired_z(chi2[0, valid], chi2[m, valid])
+        ok = S[m] < (1.0 - cfg.min_rel_improvement) * S[0] and z >= cfg.min_z
+        sl = layout.slice(c)
+        cands.append(Candidate(m, c, float(S[m]), float(bic[m]), z, bool(ok), ev.theta_full[m][sl] * scales[sl]))
+    cands.sort(key=lambda t: t.heldout)
+    done = not cands or not cands[0].qualifies or len(model) >= cfg.max_effects
+    return SearchState(model, np.asarray(theta), ev, masks, S, tuple(cands), steps, gaps, before, bool(done), ctx)
+
+
+def init(st: Stations, config: WorkflowConfig = WorkflowConfig(), key=None) -> SearchState:
+    """Prepare the stations and evaluate the reference model and every candidate.
+
+    Args:
+        st: the measured stations. config: the options.
+        key: PRNG key of the fold permutation (default ``PRNGKey(0)``).
+    Returns:
+        The first :class:`SearchState` (no effect added yet).
+    """
+    key = jax.random.PRNGKey(0) if key is None else key
+    check_stations(st)
+    names = tuple(config.candidates or _fx.ORDER)
+    st, real = pad_stations(st, config.bucket)
+    prep = prepare(st, config.noise)
+    layout = prep.layout
+    valid = prep.valid & real
+    train, test = folds(valid, config.k_folds, key, group=None if st.has_reference else st.group)
+    group_free = np.zeros(layout.n_params)
+    group_free[layout.n_effect + 3:] = 1.0
+    ctx = SearchContext(
+        stations=st, layout=layout, data=prep.data, valid=valid, az_ok=azimuth_scored(st.G, valid),
+        free_nuisance=prep.free_nuisance, group_free=group_free, train=train, test=test,
+        valid_w=valid.astype(float), az_meas=np.asarray(azimuth_from_gv(st.G, st.B)),
+        floor=noise_floor(int(valid.sum()), layout.n_groups), n_res=6 * int(valid.sum()), names=names,
+        config=config)
+    return _evaluated(ctx, (), np.zeros(layout.n_params), (), (), None)
+
+
+def step(state: SearchState) -> SearchState:
+    """Add the best candidate (with its evidence) and evaluate the next candidates.
+
+    Returns ``state`` unchanged when ``state.done``.
+    """
+    if state.done:
+        return state
+    ctx, ev = state.ctx, state.evaluation
+    cfg, layout, valid = ctx.config, ctx.layout, ctx.valid
+    chi2 = ev.chi2_held
+    best = state.candidates[0]
+    runner = state.candidates[1] if len(state.candidates) > 1 else None
+    if runner is not None:
+        margin_z = paired_z(chi2[runner.index, valid], chi2[best.index, valid])
+        dbic = float(runner.bic - best.bic)
+    else:
+        margin_z, dbic = float("inf"), float("inf")
+    equivalent = tuple(r.name for r in state.candidates[1:]
+                       if r.qualifies and paired_z(chi2[r.index, valid], chi2[best.index, valid]) < cfg.ambiguity_z)
+    J = ev.J_full[best.index]  # all P columns (the Jacobian ignores the mask)
+    context = _mask(ctx, state.model).astype(bool)
+    degeneracies = identifiability(J, layout, best.name, context, cfg.separability_threshold)
+    equivalences = []
+    for e in equivalent:
+        ctx2 = context.copy()
+        ctx2[layout.slice(e)] = True
+        equivalences += [d for d in identifiability(J, layout, best.name, ctx2, cfg.equivalence_threshold)
+                         if e in d.sources]
+    sl = layout.slice(best.name)
+    se = standard_errors(J, state.masks[best.index], ev.cost_full[best.index], ctx.n_res)[sl] * layout.scales()[sl]
+    gap_after = _gap_of(ctx, ev, best.index)
+    new = Step(
+        name=best.name, params=tuple(float(x) for x in best.params), stderr=tuple(float(x) for x in se),
+        units=_fx.EFFECTS[best.name].units, gap_before=state.gaps[-1], gap_after=gap_after,
+        heldout_before=float(state.heldout[0]), heldout_after=best.heldout, z_improvement=best.z,
+        runner_up=runner.name if runner else None, margin_z=margin_z, delta_bic=dbic,
+        equivalent=equivalent, degeneracies=degeneracies, equivalences=tuple(equivalences),
+        candidates=state.candidates)
+    return _evaluated(ctx, state.model + (best.name,), ev.theta_full[best.index], state.steps + (new,),
+                      state.gaps + (gap_after,), state.before)
+
+
+def finish(state: SearchState, seconds: float = float("nan")) -> Result:
+    """The :class:`Result` of a finished search: the final model's own fit, comparison and kind."""
+    ctx = state.ctx
+    cfg, layout, valid = ctx.config, ctx.layout, ctx.valid
+    theta = state.evaluation.theta_full[0]
+    heldout = float(state.evaluation.chi2_held[0, valid].mean() / 6.0)
+    after = compare(ctx.stations, predict(jnp.asarray(theta), ctx.data, layout), valid)
+    structure_remains = bool(heldout > cfg.noise_tolerance * ctx.floor)
+    if any(not s.separable for s in state.steps):
+        kind = "not_separable"
+    elif structure_remains:
+        kind = "unexplained"
+    elif not state.model:
+        kind = "no_missing_effect"
+    else:
+        kind = "explained"
+    return Result(steps=state.steps, kind=kind, model=state.model, theta=theta, layout=layout, gaps=state.gaps,
+                  compare_before=state.before, compare_after=after,
+                  pattern_before=find_pattern(state.before, cfg.noise), pattern=find_pattern(after, cfg.noise),
+                  field=fitted_field(theta, layout, ctx.data), heldout=heldout, noise_floor=ctx.floor,
+                  structure_remains=structure_remains,
+                  final_candidates=state.candidates, config=cfg, seconds=seconds)
+
+
+def run_workflow(st: Stations, config: WorkflowConfig = WorkflowConfig(), key=None) -> Result:
+    """name + add + show: the greedy forward search, from the reference model to the result.
+
+    Args:
+        st: the measured stations. config: the options (:class:`WorkflowConfig`).
+        key: PRNG key of the fold permutation (default ``PRNGKey(0)``).
+    Returns:
+        :class:`Result`; :func:`icgo.discrepancy.report.verdict` words it.
+    """
+    t0 = time.perf_counter()
+    state = init(st, config, key)
+    while not state.done:
+        state = step(state)
+    return finish(state, time.perf_counter() - t0)
