@@ -86,7 +86,7 @@ class Study(NamedTuple):
 STUDIES: dict[str, Study] = {}
 
 #: Modules that register a study at import.
-_STUDY_MODULES = ("icgo.studies.icgo_relm",)
+_STUDY_MODULES = ("icgo.studies.icgo_relm", "icgo.studies.misma")
 
 
 def register_study(study: Study) -> Study:

@@ -1,0 +1,692 @@
+"""The MISMA study (issue #8): MISMA vs SMA on ``rotating_drill`` and the 9 real devices.
+
+Simulated part (per ``rotating_drill`` variant, :func:`simulated_variant`):
+MISMA and the standard SMA minimise the penalised MISMA fitness
+(:class:`icgo.calibration.MismaObjective`: dot invariance eq. 5, Pearson
+constraint eqs. 6-7, field modulus eq. 8) over the 12 parameters
+``[R^-1, b]`` (eqs. 2-4), ``repeats`` vmapped repeats each, population
+``pop_size``. MISMA searches the box around the modulus fit U (eqs. 9-10),
+SMA a prior box around ``R^-1 = I, b = 0``. Scored by: iterations to reach
+``threshold_factor * F(true)``, recovered vs true parameters, |B| before and
+after, and the absolute azimuth error at the static survey points (raw, SMA,
+MISMA and the deterministic baselines).
+
+Real part (:func:`real_study`): each circuitpython-mag-cal device calibrated
+by the ellipsoid fit, the 12-parameter least squares (+ axis alignment),
+MISMA (+ axis alignment) and the group-aware joint fit; scored by the peer
+package's metric (:func:`icgo.calibration.group_spread_deg`, deg) in-sample
+and held out (fit without one rolled group, score on it), with the peer's own
+``fit_ellipsoid`` / ``fit_to_axis`` / ``fit_non_linear`` side by side.
+
+Randomness: ``run(data, config, key)`` draws the simulated searches from
+``offset_key(key, 1)`` and the real-device MISMA runs from ``offset_key(key,
+7)``; with ``key = PRNGKey(seed)`` these are ``PRNGKey(seed + 1)`` and
+``PRNGKey(seed + 7)``, the streams the study has always used. The data sets'
+noise comes from ``config.seed`` (:func:`load_data`).
+
+Equation numbers are the MISMA paper's (Yang & Cai); the reconstructions are
+listed in ``docs/misma.md``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+import logging
+import time
+from functools import lru_cache
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+
+from icgo import calibration as cal
+from icgo import datasets
+from icgo.calibration_models import MagCalibration, mag_calibration
+from icgo.io import MAG_CAL_DEVICE_TO_TOOL, load_mag_cal_device, mag_cal_devices
+from icgo.optim import base
+from icgo.optim import misma as misma_opt
+from icgo.optim.sma import SMAConfig
+from icgo.studies import Study, register_study
+
+log = logging.getLogger(__name__)
+
+#: Names of the 12 parameters ``[R^-1 row-major, b]`` in the tables.
+PARAM_NAMES = tuple(f"Rinv_{i}{j}" for i in range(1, 4) for j in range(1, 4)) + ("b_x_nT", "b_y_nT", "b_z_nT")
+
+#: The two rolled groups of a mag_cal device (shots 8-15 and 16-23).
+ROLLED_GROUPS = (8, 9)
+
+
+# ===================================================================== config
+def _fail(where: str, msg: str):
+    raise ValueError(f"{where}: {msg}")
+
+
+def _unit(where, v, lo=0.0, hi=1.0):
+    """ValueError unless ``v`` is a number in [lo, hi]."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
+        _fail(where, f"must be a number in [{lo}, {hi}], got {v!r}")
+
+
+def _integer(where, v, minimum=1):
+    """ValueError unless ``v`` is an integer >= minimum."""
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < minimum:
+        _fail(where, f"must be an integer >= {minimum}, got {v!r}")
+
+
+def _number(where, v, allow_zero=False):
+    """ValueError unless ``v`` is a number > 0 (>= 0 with ``allow_zero``)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not (v >= 0 if allow_zero else v > 0):
+        _fail(where, f"must be a number {'>= 0' if allow_zero else '> 0'}, got {v!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class ObjectiveConfig:
+    """Penalised MISMA fitness (eqs. 5-8): Pearson threshold/mode and penalty weights (dimensionless)."""
+
+    pearson_threshold: float = 0.8
+    pearson_mode: str = "complex"
+    mu_magnitude: float = 1.0
+    mu_pearson: float = 1.0
+
+    def __post_init__(self):
+        _unit("simulated.objective.pearson_threshold", self.pearson_threshold)
+        if self.pearson_mode not in ("axis", "complex"):
+            _fail("simulated.objective.pearson_mode", f"must be axis or complex, got {self.pearson_mode!r}")
+        for f in ("mu_magnitude", "mu_pearson"):
+            _number(f"simulated.objective.{f}", getattr(self, f), allow_zero=True)
+
+
+@dataclasses.dataclass(frozen=True)
+class MismaSearchConfig:
+    """MISMA (eqs. 11-19): its hyperparameters and the half-widths of its box around U."""
+
+    z_max: float = 0.1
+    d: float = 0.1
+    gmr_threshold: float = 0.99
+    p_mode: str = "normalized"
+    matrix_halfwidth: float = 0.05
+    bias_halfwidth: float = 0.02
+
+    def __post_init__(self):
+        for f in ("z_max", "d", "gmr_threshold"):
+            _unit(f"simulated.misma.{f}", getattr(self, f))
+        if self.p_mode not in ("normalized", "sma"):
+            _fail("simulated.misma.p_mode", f"must be normalized or sma, got {self.p_mode!r}")
+        for f in ("matrix_halfwidth", "bias_halfwidth"):
+            _number(f"simulated.misma.{f}", getattr(self, f))
+
+    def optimizer_config(self) -> misma_opt.MISMAConfig:
+        """The :class:`icgo.optim.misma.MISMAConfig`."""
+        return misma_opt.MISMAConfig(self.z_max, self.d, self.gmr_threshold, self.p_mode)
+
+
+@dataclasses.dataclass(frozen=True)
+class SMASearchConfig:
+    """Standard SMA: restart probability z and its prior box ``R^-1 = I +/- m``, ``b = 0 +/- h |M_omega|``."""
+
+    z: float = 0.03
+    matrix_halfwidth: float = 0.5
+    bias_halfwidth: float = 0.2
+
+    def __post_init__(self):
+        _unit("simulated.sma.z", self.z)
+        for f in ("matrix_halfwidth", "bias_halfwidth"):
+            _number(f"simulated.sma.{f}", getattr(self, f))
+
+
+@dataclasses.dataclass(frozen=True)
+class ToleranceConfig:
+    """|recovered - true| counted as recovered: ``matrix`` for R^-1 entries (1), ``bias_nT`` for b (nT)."""
+
+    matrix: float = 0.01
+    bias_nT: float = 200.0
+
+    def __post_init__(self):
+        _number("simulated.tolerance.matrix", self.matrix)
+        _number("simulated.tolerance.bias_nT", self.bias_nT)
+
+    def vector(self) -> np.ndarray:
+        """(12,) tolerances in parameter order."""
+        return np.r_[np.full(9, self.matrix), np.full(3, self.bias_nT)]
+
+
+def _default_variants():
+    return {"curving": {},
+            "straight": {"inclination_start_deg": 88.0, "inclination_end_deg": 86.5,
+                         "azimuth_start_deg": 120.0, "azimuth_end_deg": 124.0}}
+
+
+@dataclasses.dataclass(frozen=True)
+class SimulatedConfig:
+    """The rotating_drill part.
+
+    Attributes:
+        enabled: run it.
+        variants: name -> keyword overrides of :func:`icgo.datasets.rotating_drill`
+            (``curving`` = its defaults, identifiable; ``straight`` = a near-straight hole).
+        subsample: keep every k-th rotating sample (all static samples kept).
+        dot_samples: ``static`` (dot invariance on zero-velocity samples) or ``all``.
+        pop_size: population (paper 30). n_iter: iterations (paper 2051). repeats: vmapped repeats.
+        threshold_factor: "reached" = best fitness <= factor * F(true parameters).
+    """
+
+    enabled: bool = True
+    variants: dict = dataclasses.field(default_factory=_default_variants)
+    subsample: int = 5
+    dot_samples: str = "static"
+    pop_size: int = 30
+    n_iter: int = 2051
+    repeats: int = 10
+    threshold_factor: float = 2.0
+    objective: ObjectiveConfig = ObjectiveConfig()
+    misma: MismaSearchConfig = MismaSearchConfig()
+    sma: SMASearchConfig = SMASearchConfig()
+    tolerance: ToleranceConfig = ToleranceConfig()
+
+    def __post_init__(self):
+        if not isinstance(self.variants, dict) or not self.variants:
+            _fail("simulated.variants", f"must name at least one rotating_drill variant, got {self.variants!r}")
+        known = set(inspect.signature(datasets.rotating_drill).parameters) - {"seed"}
+        for name, ov in self.variants.items():
+            ov = {} if ov is None else ov
+            if not isinstance(ov, dict):
+                _fail(f"simulated.variants.{name}", f"must be a mapping of rotating_drill arguments, got {ov!r}")
+            bad = sorted(set(ov) - known)
+            if bad:
+                _fail(f"simulated.variants.{name}", f"unknown rotating_drill argument(s) {bad}")
+        object.__setattr__(self, "variants", {str(k): dict(v or {}) for k, v in self.variants.items()})
+        _integer("simulated.subsample", self.subsample)
+        if self.dot_samples not in ("static", "all"):
+            _fail("simulated.dot_samples", f"must be static or all, got {self.dot_samples!r}")
+        _integer("simulated.pop_size", self.pop_size, minimum=4)
+        _integer("simulated.n_iter", self.n_iter)
+        _integer("simulated.repeats", self.repeats)
+        _number("simulated.threshold_factor", self.threshold_factor)
+
+
+@dataclasses.dataclass(frozen=True)
+class RealConfig:
+    """The 9 real devices: ``peer`` runs circuitpython-mag-cal side by side; MISMA's iterations/repeats."""
+
+    enabled: bool = True
+    peer: bool = True
+    misma_iter: int = 300
+    misma_repeats: int = 4
+
+    def __post_init__(self):
+        _integer("real.misma_iter", self.misma_iter)
+        _integer("real.misma_repeats", self.misma_repeats)
+
+
+@dataclasses.dataclass(frozen=True)
+class MismaConfig:
+    """The whole study (defaults = ``conf/misma.yaml``; tested field by field).
+
+    Attributes:
+        seed: noise seed of the simulated data sets (int >= 0).
+        simulated: :class:`SimulatedConfig`. real: :class:`RealConfig`.
+    """
+
+    seed: int = 0
+    simulated: SimulatedConfig = SimulatedConfig()
+    real: RealConfig = RealConfig()
+
+    def __post_init__(self):
+        _integer("seed", self.seed, minimum=0)
+        if not (self.simulated.enabled or self.real.enabled):
+            _fail("simulated.enabled/real.enabled", "both parts are disabled; nothing to run")
+
+
+# ======================================================================= data
+class MismaData(NamedTuple):
+    """What the study runs on.
+
+    Attributes:
+        simulated: variant name -> :class:`icgo.datasets.Dataset` (rotating_drill).
+        devices: device name -> :class:`icgo.io.Recording` (24 shots, ``group`` column).
+    """
+
+    simulated: dict
+    devices: dict
+
+
+def load_data(config: MismaConfig) -> MismaData:
+    """The rotating_drill variants (seed ``config.seed``) and the 9 vendored devices, as configured."""
+    sims = {}
+    if config.simulated.enabled:
+        sims = {name: datasets.rotating_drill(config.seed, **ov) for name, ov in config.simulated.variants.items()}
+    devices = {name: load_mag_cal_device(name) for name in mag_cal_devices()} if config.real.enabled else {}
+    return MismaData(sims, devices)
+
+
+def offset_key(key, k: int):
+    """``key`` with ``k`` added to its last word: ``PRNGKey(s + k)`` when ``key = PRNGKey(s)`` (a named stream)."""
+    key = jnp.asarray(key) if not isinstance(key, jax.Array) else key
+    typed = jnp.issubdtype(key.dtype, jax.dtypes.prng_key)
+    raw = jax.random.key_data(key) if typed else key.astype(jnp.uint32)
+    raw = raw.at[..., -1].add(jnp.uint32(k))
+    return jax.random.wrap_key_data(raw) if typed else raw
+
+
+# ================================================================= simulated
+class Problem(NamedTuple):
+    """One rotating_drill variant prepared for the search.
+
+    Attributes:
+        G, B: (N, 3) all samples, g and nT. static: (N,) bool zero-velocity samples.
+        t: (N,) time, s. sel: (N,) bool samples the fitness uses.
+        ref_nT: |M_omega|, the modulus of the gyro-rotated reference field (nT).
+        objective: the penalised fitness (:class:`icgo.calibration.MismaObjective`).
+        x_true: (12,) true parameters. f_true: their fitness.
+        az_ref: (n_static,) true magnetic azimuth at the static samples, deg.
+    """
+
+    G: np.ndarray
+    B: np.ndarray
+    static: np.ndarray
+    t: np.ndarray
+    sel: np.ndarray
+    ref_nT: float
+    objective: Any
+    x_true: np.ndarray
+    f_true: float
+    az_ref: np.ndarray
+
+
+def prepare_problem(ds: datasets.Dataset, scfg: SimulatedConfig) -> Problem:
+    """Fitness data of one variant: every ``subsample``-th rotating sample plus all static ones.
+
+    Segments (for the Pearson constraint, eqs. 6-7) are the intervals between
+    stops; the dot-invariance term (eq. 5) sees the static samples (or all).
+    """
+    fr, meta, truth = ds.frame, ds.meta, ds.truth
+    G, B = fr[["gx", "gy", "gz"]].to_numpy(float), fr[["bx", "by", "bz"]].to_numpy(float)
+    static = fr["static"].to_numpy().astype(bool)
+    t = fr["time_s"].to_numpy(float)
+    seg = (t // float(truth["stop_every_s"])).astype(np.int32)
+    ref = float(meta["total_field_nT"])  # |M_omega| (docs/misma.md)
+    sel = static | (np.arange(len(t)) % int(scfg.subsample) == 0)
+    dotw = static[sel].astype(float) if scfg.dot_samples == "static" else None
+    data = cal.make_caldata(G[sel], B[sel], ref, seg[sel], ~static[sel], dot_weights=dotw)
+    ob = scfg.objective
+    obj = cal.MismaObjective(data, ob.pearson_threshold, ob.pearson_mode, ob.mu_magnitude, ob.mu_pearson)
+    x_true = np.asarray(cal.params_from_error_model(np.asarray(truth["R"]), np.asarray(truth["b_nT"])))
+    f_true = float(obj(x_true[None])[0])
+    return Problem(G, B, static, t, sel, ref, obj, x_true, f_true, fr["azimuth_deg"].to_numpy(float)[static])
+
+
+def prior_box(ref_nT, matrix_halfwidth, bias_halfwidth):
+    """SMA's prior-knowledge bounds: ``R^-1 = I +/- m``, ``b = 0 +/- h |M_omega|``; two (12,) arrays."""
+    c = np.concatenate([np.eye(3).ravel(), np.zeros(3)])
+    h = np.concatenate([np.full(9, matrix_halfwidth), np.full(3, bias_halfwidth * ref_nT)])
+    return c - h, c + h
+
+
+def iters_to(curve, threshold):
+    """First iteration (1-based) with best fitness <= threshold, NaN if never; curve (R, T) -> (R,)."""
+    hit = np.asarray(curve) <= threshold
+    return np.where(hit.any(1), hit.argmax(1) + 1.0, np.nan)
+
+
+def search(p: Problem, U, scfg: SimulatedConfig, key):
+    """MISMA (box around U) and SMA (prior box), ``repeats`` repeats each in one vmapped call.
+
+    Returns:
+        ({"MISMA": RunResult, "SMA": RunResult}, {"MISMA": seconds, "SMA": seconds}).
+    """
+    mc = scfg.misma
+    boxes = {"MISMA": misma_opt.misma_bounds(U, p.ref_nT, mc.matrix_halfwidth, mc.bias_halfwidth),
+             "SMA": prior_box(p.ref_nT, scfg.sma.matrix_halfwidth, scfg.sma.bias_halfwidth)}
+    algs = {"MISMA": ("misma", mc.optimizer_config()), "SMA": ("sma", SMAConfig(z=scfg.sma.z))}
+    keys = dict(zip(("MISMA", "SMA"), jax.random.split(key)))
+    R, T, P = int(scfg.repeats), int(scfg.n_iter), int(scfg.pop_size)
+    res, secs = {}, {}
+    for lab, (name, cfg) in algs.items():
+        t0 = time.time()
+        res[lab] = base.run_batch(name, p.objective, boxes[lab], jax.random.split(keys[lab], R), P, T, config=cfg)
+        jax.block_until_ready(res[lab].best_f)
+        secs[lab] = time.time() - t0
+    return res, secs
+
+
+def static_azimuth_error(p: Problem, x) -> np.ndarray:
+    """|azimuth error| (deg) at the static samples after correcting with ``x`` (None: raw), (n_static,)."""
+    Gs, Bs = p.G[p.static], p.B[p.static]
+    if x is not None:
+        Bs = np.asarray(cal.correct(jnp.asarray(x), Bs))
+    return np.abs(cal.azimuth_error_deg(Gs, Bs, p.az_ref))
+
+
+def baselines(p: Problem, U, name: str) -> tuple[dict, Any]:
+    """Mean static |azimuth error| (deg) of the true parameters, U and the 12-parameter least squares.
+
+    Returns:
+        ({label: deg}, x_twelve or None when the least squares refuses the geometry).
+    """
+    out = {"true parameters": float(np.mean(static_azimuth_error(p, p.x_true))),
+           "U (modulus fit, MISMA's centre)": float(np.mean(static_azimuth_error(p, U)))}
+    try:
+        x12 = cal.fit_twelve(p.G[p.sel], p.B[p.sel], p.ref_nT, x0=U)
+        out["12-parameter least squares"] = float(np.mean(static_azimuth_error(p, x12)))
+    except ValueError as e:
+        x12 = None
+        out["12-parameter least squares"] = float("nan")
+        log.warning("[%s] 12-parameter least squares: %s", name, e)
+    return out, x12
+
+
+def identifiability(G, B, ref, x):
+    """Singular values (descending, relative to the largest) of d(residuals)/d(scaled params) at x.
+
+    Residuals: the dot-invariance deviations (eq. 5) and the relative modulus
+    deviations (eq. 8); parameters scaled so R^-1 (1) and b (units of ``ref``) compare.
+    """
+    scale = np.r_[np.full(9, 1.0), np.full(3, ref)]
+    Gj, Bj = jnp.asarray(G), jnp.asarray(B)
+
+    def res(u):
+        Bc = cal.correct(u * scale, Bj)
+        d = cal.normalized_dot(Gj, Bc)
+        return jnp.concatenate([d - jnp.mean(d), jnp.linalg.norm(Bc, axis=1) / ref - 1.0])
+
+    s = np.linalg.svd(np.asarray(jax.jacfwd(res)(jnp.asarray(x / scale))), compute_uv=False)
+    return s / s[0]
+
+
+def params_table(x_true, x_misma, x_sma, tol) -> pd.DataFrame:
+    """Recovered vs true parameters (one row per parameter) with |error| and the tolerance."""
+    return pd.DataFrame({"parameter": list(PARAM_NAMES), "true": x_true, "MISMA": x_misma, "SMA": x_sma,
+                         "MISMA_abs_err": np.abs(x_misma - x_true), "SMA_abs_err": np.abs(x_sma - x_true),
+                         "tolerance": tol, "MISMA_within": np.abs(x_misma - x_true) <= tol})
+
+
+def modulus_table(moduli: dict, ref) -> pd.DataFrame:
+    """|B| statistics (nT) per method: mean, std, mean |deviation| from |M_omega|; index = method."""
+    return pd.DataFrame({k: {"mean_nT": v.mean(), "std_nT": v.std(), "mean_abs_dev_from_ref_nT": np.abs(v - ref).mean()}
+                         for k, v in moduli.items()}).T
+
+
+class VariantPlot(NamedTuple):
+    """What the variant's figure shows.
+
+    Attributes:
+        curves: {"MISMA": (R, T), "SMA": (R, T)} best-so-far fitness. threshold: reached level.
+        moduli: {"raw", "SMA", "MISMA"} -> (N,) |B| per sample, nT. ref_nT: |M_omega|. t: (N,) s.
+        az_errors: {"before", "SMA", "MISMA"} -> (n_static,) |azimuth error|, deg.
+    """
+
+    curves: dict
+    threshold: float
+    moduli: dict
+    ref_nT: float
+    t: np.ndarray
+    az_errors: dict
+
+
+class VariantResult(NamedTuple):
+    """One variant: its summary (JSON-able), tables, figure data and fitted calibrations."""
+
+    summary: dict
+    params: pd.DataFrame
+    modulus: pd.DataFrame
+    plot: VariantPlot
+    models: dict
+
+
+def _variant_models(name, p: Problem, res, U, x12, scfg) -> dict:
+    """The calibrations the variant fitted: MISMA and SMA (lowest-fitness repeat each), U and least squares."""
+    G, B = p.G[p.sel], p.B[p.sel]
+    base_cfg = {"study": "misma", "variant": name, "ref_nT": p.ref_nT, "subsample": int(scfg.subsample)}
+    out = {}
+    for lab, r in res.items():
+        i = int(np.argmin(np.asarray(r.best_f)))
+        cfg = {**base_cfg, "selected_repeat": i, "selection": "lowest fitness over repeats",
+               "fitness": float(np.asarray(r.best_f)[i]), "pop_size": int(scfg.pop_size), "n_iter": int(scfg.n_iter)}
+        out[f"{name}_{lab.lower()}"] = mag_calibration(lab.lower(), np.asarray(r.best_x[i]), G, B, cfg)
+    out[f"{name}_modulus"] = mag_calibration("modulus", U, G, B, base_cfg)
+    if x12 is not None:
+        out[f"{name}_twelve"] = mag_calibration("twelve", x12, G, B, base_cfg)
+    return out
+
+
+def simulated_variant(name: str, ds: datasets.Dataset, scfg: SimulatedConfig, key) -> VariantResult:
+    """Run MISMA and SMA on one rotating_drill variant and score them (see the module doc)."""
+    p = prepare_problem(ds, scfg)
+    U = cal.modulus_fit(p.B[p.sel], p.ref_nT)
+    res, secs = search(p, U, scfg, key)
+    R = int(scfg.repeats)
+    az = {lab: np.array([np.mean(static_azimuth_error(p, x)) for x in np.asarray(r.best_x)])
+          for lab, r in res.items()}
+    raw = float(np.mean(static_azimuth_error(p, None)))
+    base_err, x12 = baselines(p, U, name)
+
+    thr = scfg.threshold_factor * p.f_true
+    it = {lab: iters_to(r.curve, thr) for lab, r in res.items()}
+    med = {lab: float(np.nanmedian(v)) if np.isfinite(v).any() else float("nan") for lab, v in it.items()}
+    speedup = (100.0 * (1.0 - med["MISMA"] / med["SMA"]) if np.isfinite(med["MISMA"]) and np.isfinite(med["SMA"])
+               else float("nan"))
+
+    # recovered parameters: the median-fitness repeat of each algorithm
+    x_med = {lab: np.asarray(r.best_x[int(np.argsort(np.asarray(r.best_f))[R // 2])]) for lab, r in res.items()}
+    tol = scfg.tolerance.vector()
+    params = params_table(p.x_true, x_med["MISMA"], x_med["SMA"], tol)
+    sv = identifiability(p.G[p.sel], p.B[p.sel], p.ref_nT, p.x_true)
+
+    def modulus(x):
+        return np.linalg.norm(np.asarray(cal.correct(jnp.asarray(x), p.B)), axis=1)
+
+    moduli = {"raw": np.linalg.norm(p.B, axis=1), "SMA": modulus(x_med["SMA"]), "MISMA": modulus(x_med["MISMA"])}
+    within = {lab: int(np.all(np.abs(np.asarray(r.best_x) - p.x_true) <= tol, 1).sum()) for lab, r in res.items()}
+    summary = {
+        "variant": name, "overrides": dict(scfg.variants[name]), "n_samples_fitness": int(p.sel.sum()),
+        "F_true": p.f_true, "threshold": thr,
+        "MISMA_best_f_median": float(np.median(res["MISMA"].best_f)),
+        "SMA_best_f_median": float(np.median(res["SMA"].best_f)),
+        "MISMA_iters_to_threshold_median": med["MISMA"], "SMA_iters_to_threshold_median": med["SMA"],
+        "MISMA_reached": int(np.isfinite(it["MISMA"]).sum()), "SMA_reached": int(np.isfinite(it["SMA"]).sum()),
+        "speedup_pct": speedup,
+        "az_err_raw_deg": raw, "az_err_SMA_deg_mean": float(az["SMA"].mean()),
+        "az_err_MISMA_deg_mean": float(az["MISMA"].mean()), "az_err_MISMA_deg_max": float(az["MISMA"].max()),
+        "az_reduction_MISMA_pct": 100 * (1 - az["MISMA"].mean() / raw),
+        "az_reduction_SMA_pct": 100 * (1 - az["SMA"].mean() / raw), "baselines_az_err_deg": base_err,
+        "params_within_tolerance_MISMA": int(params["MISMA_within"].sum()),
+        "repeats_all_params_within_tolerance_MISMA": within["MISMA"],
+        "repeats_all_params_within_tolerance_SMA": within["SMA"],
+        "jacobian_singular_values": sv.tolist(), "runtime_s": secs,
+    }
+    plot = VariantPlot({lab: np.asarray(r.curve) for lab, r in res.items()}, thr, moduli, p.ref_nT, p.t,
+                       {"before": static_azimuth_error(p, None), "SMA": static_azimuth_error(p, x_med["SMA"]),
+                        "MISMA": static_azimuth_error(p, x_med["MISMA"])})
+    return VariantResult(summary, params, modulus_table(moduli, p.ref_nT), plot,
+                         _variant_models(name, p, res, U, x12, scfg))
+
+
+def simulated_table(summaries: list) -> pd.DataFrame:
+    """The scalar entries of the variants' summaries, one column per variant."""
+    rows = [{k: v for k, v in s.items() if not isinstance(v, (dict, list))} for s in summaries]
+    return pd.DataFrame(rows).set_index("variant").T
+
+
+# ===================================================================== real
+def _device_frame(G, B):
+    """Tool frame -> mag_cal device frame (inverse of icgo.io's permutation); mag in uT."""
+    perm = list(MAG_CAL_DEVICE_TO_TOOL)
+    gd, md = np.empty_like(G), np.empty_like(B)
+    gd[:, perm], md[:, perm] = G, B / 1000.0
+    return gd, md
+
+
+def peer_scores(G, B, train, rolled_train, score_groups) -> dict:
+    """circuitpython-mag-cal's pipeline fitted on ``train`` rows; its metric (deg) on the score groups per stage."""
+    from mag_cal import Calibration
+
+    gd, md = _device_frame(G, B)
+    fit_pairs = [(md[m], gd[m]) for m in rolled_train]
+    score_pairs = [(md[m], gd[m]) for m in score_groups]
+    c = Calibration()
+    c.fit_ellipsoid(md[train], gd[train])
+    out = {"peer_ellipsoid": c.accuracy(score_pairs)}
+    c.fit_to_axis(fit_pairs)
+    out["peer_fit_to_axis"] = c.accuracy(score_pairs)
+    c.fit_non_linear(fit_pairs)
+    out["peer_fit_non_linear"] = c.accuracy(score_pairs)
+    return out
+
+
+@lru_cache(maxsize=None)
+def _device_objective(n: int):
+    """One MismaObjective per recording size (the data travel as aux, so it compiles once per size)."""
+    return cal.MismaObjective(cal.make_caldata(np.ones((n, 3)), np.ones((n, 3)), 1.0))
+
+
+def misma_on_shots(G_cal, B, rcfg: RealConfig, x_centre, key) -> np.ndarray:
+    """MISMA on static shots (unit-sphere field), ``misma_repeats`` repeats; the lowest-fitness (12,)."""
+    R = int(rcfg.misma_repeats)
+    data = cal.make_caldata(G_cal, B, 1.0)
+    aux = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (R,) + jnp.shape(a)), data)
+    lb, ub = misma_opt.misma_bounds(x_centre, 1.0)
+    r = base.run_batch("misma", _device_objective(len(B)), (lb, ub), jax.random.split(key, R), 30,
+                       int(rcfg.misma_iter), aux=aux)
+    return np.asarray(r.best_x[int(np.argmin(np.asarray(r.best_f)))])
+
+
+def fit_device(G, B, groups, rcfg: RealConfig, key, config: dict) -> dict:
+    """Our four pipelines fitted on the given shots (unit-sphere fits), as calibrations.
+
+    ``ellipsoid`` (accelerometer and magnetometer), ``twelve+axis`` (12-parameter
+    least squares, then one rotation putting the rolled groups' axis on tool z),
+    ``misma+axis`` and ``joint`` (24 parameters on the group directions).
+    """
+    xg = cal.ellipsoid_fit_accel(G)
+    xm = cal.ellipsoid_fit(B, 1.0, G)
+    G_c = np.asarray(cal.correct(jnp.asarray(xg), G))
+    scale = float(np.median(np.linalg.norm(B, axis=1)))
+
+    def model(method, x, alignment=None, x_accel=xg):
+        return mag_calibration(method, x, G, B, config, x_accel=x_accel, alignment=alignment, field_scale_nT=scale)
+
+    def aligned(method, x):
+        return model(method, x, cal.align_to_axis(G_c, np.asarray(cal.correct(jnp.asarray(x), B)), groups))
+
+    out = {"ellipsoid": model("ellipsoid", xm)}
+    out["twelve+axis"] = aligned("twelve", cal.fit_twelve(G_c, B, 1.0, x0=xm))
+    out["misma+axis"] = aligned("misma", misma_on_shots(G_c, B, rcfg, xm, key))
+    jg, jm = cal.fit_joint(G, B, groups, xg, xm)
+    out["joint"] = model("joint", jm, x_accel=jg)
+    return out
+
+
+def group_score(model: MagCalibration, G, B, groups, score_mask) -> float:
+    """The peer metric (deg) of a calibration on the rows of ``score_mask``."""
+    Gc, Bc = model.corrected(G, B)
+    return cal.group_spread_deg(Gc[score_mask], Bc[score_mask], groups[score_mask])[0]
+
+
+def device_splits(groups):
+    """(label, train mask, rolled-group masks for the peer's fit, score mask): in-sample and one per held-out group."""
+    rolled = [groups == g for g in ROLLED_GROUPS]
+    allrows = np.ones(len(groups), bool)
+    splits = [("in-sample", allrows, rolled, allrows)]
+    for h, g in enumerate(ROLLED_GROUPS):
+        splits.append((f"held-out group {g}", groups != g, [rolled[1 - h]], groups == g))
+    return splits
+
+
+def real_study(devices: dict, rcfg: RealConfig, key) -> tuple[pd.DataFrame, dict]:
+    """All devices: in-sample and held-out spread, ours and the peer's, one row per device and split.
+
+    Returns:
+        (table, {"<device>_<method>": in-sample calibration}).
+    """
+    rows, models = [], {}
+    for name, rec in devices.items():
+        G, B, groups = rec.G, rec.B, rec.frame["group"].to_numpy()
+        rolled = [groups == g for g in ROLLED_GROUPS]
+        for split, train, rolled_train, score_mask in device_splits(groups):
+            key, sub = jax.random.split(key)
+            cfg = {"study": "misma", "device": name, "split": split, "misma_iter": int(rcfg.misma_iter),
+                   "misma_repeats": int(rcfg.misma_repeats)}
+            fitted = fit_device(G[train], B[train], groups[train], rcfg, sub, cfg)
+            row = {"device": name, "split": split,
+                   **{m: group_score(c, G, B, groups, score_mask) for m, c in fitted.items()}}
+            if rcfg.peer:
+                row.update(peer_scores(G, B, train, rolled_train, [m for m in rolled if (m & score_mask).any()]))
+            if split == "in-sample":
+                models.update({f"{name}_{m.replace('+axis', '_axis')}": c for m, c in fitted.items()})
+            rows.append(row)
+            log.info("  %-4s %-18s %s", name, split,
+                     " ".join(f"{k}={v:.3f}" for k, v in row.items() if isinstance(v, float)))
+    return pd.DataFrame(rows), models
+
+
+def real_summary(df: pd.DataFrame) -> pd.DataFrame:
+    """Mean over devices of each score column, in-sample and held out (deg); index = method."""
+    cols = [c for c in df.columns if c not in ("device", "split")]
+    ins = df[df.split == "in-sample"][cols].mean()
+    held = df[df.split != "in-sample"][cols].mean()
+    return pd.DataFrame({"in-sample mean (deg)": ins, "held-out mean (deg)": held})
+
+
+# ====================================================================== run
+class MismaResult(NamedTuple):
+    """Result of :func:`run`.
+
+    Attributes:
+        records: ``params_<variant>`` and ``modulus_<variant>`` (index = method), ``simulated``
+            (scalar summary, one column per variant), ``real_devices``, ``real_summary`` (index = method).
+        models: fitted :class:`MagCalibration` s: ``<variant>_{misma,sma,modulus,twelve}``,
+            ``<device>_{ellipsoid,twelve_axis,misma_axis,joint}`` (in-sample fits).
+        summary: ``{"simulated": [variant summary, ...], "real": {column: {method: deg}}}`` (JSON-able).
+        plots: variant -> :class:`VariantPlot`.
+    """
+
+    records: dict
+    models: dict
+    summary: dict
+    plots: dict
+
+
+def run(data: MismaData | None, config: MismaConfig, key) -> MismaResult:
+    """Run the study: the simulated variants, then the real devices (see the module doc).
+
+    Args:
+        data: :class:`MismaData`, or None for :func:`load_data` ``(config)``.
+        config: :class:`MismaConfig`.
+        key: JAX PRNG key (the entry point passes ``PRNGKey(config.seed)``).
+    """
+    data = load_data(config) if data is None else data
+    records, models, summary, plots = {}, {}, {}, {}
+    if config.simulated.enabled:
+        sims = []
+        for name in config.simulated.variants:
+            log.info("[simulated] rotating_drill variant %r ...", name)
+            v = simulated_variant(name, data.simulated[name], config.simulated, offset_key(key, 1))
+            sims.append(v.summary)
+            records[f"params_{name}"], records[f"modulus_{name}"] = v.params, v.modulus
+            plots[name] = v.plot
+            models.update(v.models)
+        summary["simulated"] = sims
+        records["simulated"] = simulated_table(sims)
+    if config.real.enabled:
+        log.info("[real] circuitpython-mag-cal devices ...")
+        df, real_models = real_study(data.devices, config.real, offset_key(key, 7))
+        records["real_devices"], records["real_summary"] = df, real_summary(df)
+        summary["real"] = records["real_summary"].to_dict()
+        models.update(real_models)
+    return MismaResult(records, models, summary, plots)
+
+
+def example() -> tuple[MismaData, MismaConfig]:
+    """A tiny real instance (seconds): a 600 s rotating_drill run, 2 repeats of 5 iterations, no real devices."""
+    cfg = MismaConfig(simulated=SimulatedConfig(variants={"short": {"duration_s": 600.0}}, repeats=2, n_iter=5,
+                                                pop_size=6),
+                      real=RealConfig(enabled=False))
+    return load_data(cfg), cfg
+
+
+STUDY = register_study(Study("misma", MismaConfig, run,
+                             "MISMA vs SMA 12-parameter magnetometer calibration: rotating_drill and 9 real devices"))

@@ -1,0 +1,158 @@
+"""icgo.studies.misma (MISMA vs SMA on rotating_drill and the real devices) and its entry point experiments.misma."""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pandas as pd
+import pytest
+from hydra import compose, initialize_config_dir
+from hydra.errors import ConfigCompositionException
+from omegaconf import OmegaConf
+
+import icgo  # noqa: F401
+from experiments import misma as entry
+from experiments._common import CONF_DIR
+from icgo import calibration as cal
+from icgo import datasets
+from icgo.calibration_models import MagCalibration
+from icgo.io import load_mag_cal_device
+from icgo.models import load_model
+from icgo.studies import STUDIES, _STUDY_MODULES, config_from_mapping, config_to_mapping
+from icgo.studies import misma
+
+#: A short drilling run (600 s: two stops), 2 repeats of 5 iterations, one real device, no peer package.
+TINY = {"simulated": {"variants": {"short": {"duration_s": 600.0}}, "repeats": 2, "n_iter": 5, "pop_size": 6},
+        "real": {"peer": False, "misma_iter": 3, "misma_repeats": 2}}
+
+
+def _compose(*overrides):
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        return compose("misma", list(overrides))
+
+
+def test_registered():
+    s = STUDIES["misma"]
+    assert s is misma.STUDY and s.config_cls is misma.MismaConfig and s.run is misma.run
+    assert "icgo.studies.misma" in _STUDY_MODULES
+
+
+def test_conf_yaml_equals_the_dataclass_defaults():
+    composed = {k: v for k, v in OmegaConf.to_container(_compose(), resolve=True).items() if k not in entry.ENTRY_KEYS}
+    defaults = config_to_mapping(misma.MismaConfig())
+
+    def check(a, b, where):
+        assert isinstance(a, dict) == isinstance(b, dict), where
+        if isinstance(b, dict) and where != "simulated.variants":
+            assert set(a) == set(b), f"{where}: yaml keys {sorted(a)} != {sorted(b)}"
+            for k in b:
+                check(a[k], b[k], f"{where}.{k}" if where else k)
+        else:
+            assert a == b, f"{where}: yaml {a!r} != dataclass {b!r}"
+
+    check(composed, defaults, "")
+    assert entry.study_config(_compose()) == misma.MismaConfig()
+
+
+def test_unknown_settings_are_refused():
+    with pytest.raises(ConfigCompositionException):
+        _compose("simulated.repeat=3")  # struct mode: no such key
+    for ov, msg in [("+repeats=3", "unknown setting"),
+                    ("+simulated.misma.zmax=1", r"simulated.misma: unknown setting")]:
+        with pytest.raises(ValueError, match=msg):
+            entry.study_config(_compose(ov))
+
+
+def test_config_errors_are_one_line_and_name_the_field():
+    for ov, msg in [(["simulated.pop_size=2"], "simulated.pop_size"), (["simulated.repeats=0"], "simulated.repeats"),
+                    (["simulated.n_iter=0"], "simulated.n_iter"),
+                    (["simulated.dot_samples=some"], "simulated.dot_samples"),
+                    (["simulated.subsample=0"], "simulated.subsample"),
+                    (["simulated.objective.pearson_mode=x"], "simulated.objective.pearson_mode"),
+                    (["simulated.misma.d=1.5"], "simulated.misma.d"), (["simulated.sma.z=-1"], "simulated.sma.z"),
+                    (["+simulated.variants.bad={depth: 1}"], "simulated.variants.bad: unknown rotating_drill"),
+                    (["real.misma_iter=0"], "real.misma_iter"), (["seed=-1"], "seed"),
+                    (["simulated.enabled=false", "real.enabled=false"], "nothing to run")]:
+        with pytest.raises(ValueError, match=msg) as e:
+            entry.study_config(_compose(*ov))
+        assert "\n" not in str(e.value), ov
+
+
+def test_offset_key_is_the_seed_stream():
+    np.testing.assert_array_equal(misma.offset_key(jax.random.PRNGKey(5), 7), jax.random.PRNGKey(12))
+    typed = misma.offset_key(jax.random.key(5), 1)
+    np.testing.assert_array_equal(jax.random.key_data(typed), jax.random.key_data(jax.random.key(6)))
+
+
+def test_prior_box_and_iters_to():
+    lb, ub = misma.prior_box(50_000.0, 0.5, 0.2)
+    np.testing.assert_allclose(0.5 * (lb + ub), np.r_[np.eye(3).ravel(), np.zeros(3)])
+    np.testing.assert_allclose((ub - lb)[9:], 2 * 0.2 * 50_000.0)
+    curve = np.array([[5.0, 3.0, 1.0, 1.0], [5.0, 4.0, 4.0, 4.0]])
+    np.testing.assert_array_equal(misma.iters_to(curve, 2.0), [3.0, np.nan])
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    cfg = config_from_mapping(misma.MismaConfig, TINY)
+    data = misma.MismaData({"short": datasets.rotating_drill(0, duration_s=600.0)}, {"ab": load_mag_cal_device("ab")})
+    return cfg, data, misma.run(data, cfg, jax.random.PRNGKey(0))
+
+
+@pytest.mark.slow
+def test_tiny_run_records_and_models(tiny):
+    cfg, data, res = tiny
+    assert set(res.records) == {"params_short", "modulus_short", "simulated", "real_devices", "real_summary"}
+    p = res.records["params_short"]
+    truth = data.simulated["short"].truth
+    np.testing.assert_allclose(p["true"], np.asarray(cal.params_from_error_model(np.asarray(truth["R"]),
+                                                                                  np.asarray(truth["b_nT"]))))
+    s = res.summary["simulated"][0]
+    assert s["variant"] == "short" and s["overrides"] == {"duration_s": 600.0}
+    # the true parameters cut the raw static-point azimuth error (noise floor below the raw error)
+    assert s["baselines_az_err_deg"]["true parameters"] < s["az_err_raw_deg"]
+    real = res.records["real_devices"]
+    assert list(real.split) == ["in-sample", "held-out group 8", "held-out group 9"]
+    assert {"ab_ellipsoid", "ab_twelve_axis", "ab_misma_axis", "ab_joint", "short_misma", "short_sma",
+            "short_modulus"} <= set(res.models)
+    assert all(isinstance(m, MagCalibration) for m in res.models.values())
+    # the in-sample score is what the returned model gives
+    rec = data.devices["ab"]
+    groups = rec.frame["group"].to_numpy()
+    for col, name in (("ellipsoid", "ab_ellipsoid"), ("twelve+axis", "ab_twelve_axis"), ("joint", "ab_joint")):
+        got = misma.group_score(res.models[name], rec.G, rec.B, groups, np.ones(len(groups), bool))
+        assert got == real.loc[real.split == "in-sample", col].item()
+    assert real.loc[real.split == "in-sample", "joint"].item() < real.loc[real.split == "in-sample", "ellipsoid"].item()
+
+
+@pytest.mark.slow
+def test_same_key_same_records(tiny):
+    cfg, data, res = tiny
+    again = misma.run(data, cfg, jax.random.PRNGKey(0))
+    for k in res.records:
+        pd.testing.assert_frame_equal(again.records[k], res.records[k], check_exact=True)
+    for k in res.models:
+        np.testing.assert_array_equal(again.models[k].x_mag, res.models[k].x_mag)
+
+
+def test_smoke_simulated_only_is_deterministic_by_key():
+    cfg = config_from_mapping(misma.MismaConfig, {**TINY, "real": {"enabled": False}})
+    data = misma.MismaData({"short": datasets.rotating_drill(0, duration_s=600.0)}, {})
+    a, b = (misma.run(data, cfg, jax.random.PRNGKey(2)) for _ in range(2))
+    for k in a.records:
+        pd.testing.assert_frame_equal(a.records[k], b.records[k], check_exact=True)
+    c = misma.run(data, cfg, jax.random.PRNGKey(3))
+    assert not a.records["params_short"]["MISMA"].equals(c.records["params_short"]["MISMA"])
+
+
+@pytest.mark.slow
+def test_entry_point_writes_tables_figures_and_models(tmp_path):
+    cfg = _compose(f"out_dir={tmp_path}", "simulated.repeats=2", "simulated.n_iter=5", "simulated.pop_size=6",
+                   "~simulated.variants", "+simulated.variants={short: {duration_s: 600.0}}", "real.enabled=false")
+    res = entry.run(cfg, tmp_path / "models")
+    for name in ("misma_params_short.csv", "misma_params_short.md", "misma_modulus_short.csv", "misma_short.png",
+                 "misma_summary.md", "misma_summary.json"):
+        assert (tmp_path / name).is_file(), name
+    back = load_model(tmp_path / "models" / "short_misma.json")
+    frame = datasets.rotating_drill(0, duration_s=600.0).frame
+    pd.testing.assert_frame_equal(back.apply(frame), res.models["short_misma"].apply(frame), check_exact=True)
