@@ -31,7 +31,8 @@ Objectives (JAX, jittable, vmappable over candidate parameter vectors):
 SMA minimise (``(P, 12) -> (P,)``, +inf for non-finite values) and exposes the
 GMR for :mod:`icgo.optim.misma`.
 
-Closed-form / deterministic baselines (host side, numpy/scipy):
+Closed-form / deterministic baselines (host side, numpy; the nonlinear least
+squares by :func:`icgo.lsq.least_squares`, the library's one solver):
 :func:`ellipsoid_fit` (the classical quadric fit, symmetric ``R^-1``),
 :func:`fit_twelve` (all 12 parameters by least squares on the dot-invariance
 and magnitude residuals), :func:`align_to_axis` (a common rotation that puts
@@ -41,6 +42,7 @@ score :func:`group_spread_deg`.
 
 from __future__ import annotations
 
+import warnings
 from typing import NamedTuple
 
 import jax
@@ -48,6 +50,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from icgo.frames import angle_diff, azimuth_from_gv
+from icgo.lsq import LSQResult, least_squares
 
 N_PARAMS = 12
 #: Tool-frame directions closer than this (deg, in G and in B) count as one orientation.
@@ -446,13 +449,96 @@ def ellipsoid_fit(B, ref_nT, G=None, check=True) -> np.ndarray:
     return np.concatenate([(ref_nT / s * root).ravel(), centre * s])
 
 
+#: Step budget of the calibration least squares (Levenberg-Marquardt steps).
+LSQ_MAX_STEPS = 500
+
+
+def _twelve_residuals(u, args):
+    """Residuals of :func:`fit_twelve`: eq. (5) ``d_k - d_bar`` and ``sqrt(mu) (|B_k| / |M| - 1)``, (2N,)."""
+    scale, G, B, sw, ref_nT, mu = args
+    Bc = correct(u * scale, B)
+    d = normalized_dot(G, Bc)
+    r1 = (d - jnp.mean(d)) * sw
+    r2 = jnp.sqrt(mu) * (jnp.linalg.norm(Bc, axis=1) / ref_nT - 1.0) * sw
+    return jnp.concatenate([r1, r2])
+
+
+def _modulus_residuals(u, args):
+    """Residuals of :func:`modulus_fit`: ``|R^-1 (B_k - b)| / |M| - 1`` (N,) and ``ridge (u - u0)`` (12,)."""
+    scale, B, ref_nT, u0, ridge = args
+    m = jnp.linalg.norm(correct(u * scale, B), axis=1) / ref_nT - 1.0
+    return jnp.concatenate([m, ridge * (u - u0)])
+
+
+def _joint_residuals(u, args):
+    """Residuals of :func:`fit_joint` (rolled-group directions, eq. 5, unit spheres, ridge)."""
+    scale, G, B, member, avg, back, u0, ridge, group_weight = args
+    x = u * scale
+    Gc, Bc = correct(x[:12], G), correct(x[12:], B)
+    d = _pointing_jnp(Gc, Bc)
+    dev = (d - back @ (avg @ d)) * member[:, None]
+    c = normalized_dot(Gc, Bc)
+    return jnp.concatenate([group_weight * dev.ravel(), c - jnp.mean(c), jnp.linalg.norm(Gc, axis=1) - 1.0,
+                            jnp.linalg.norm(Bc, axis=1) - 1.0, ridge * (u - u0)])
+
+
+def _column_scaled(fn):
+    """``fn`` in variables ``v = c * u`` (``args = (c, fn_args)``), c: (P,) column scales."""
+    return lambda v, args: fn(v / args[0], args[1])
+
+
+_twelve_scaled_residuals = _column_scaled(_twelve_residuals)
+
+
+@jax.jit
+def _solve_twelve(u0, args) -> LSQResult:
+    """:func:`fit_twelve`'s solve, each variable also in units of its Jacobian column norm at the start.
+
+    That is the fixed form of the ``x_scale="jac"`` the scipy version used;
+    without it the near-straight ``rotating_drill`` variant (condition ~4e3)
+    does not converge in 500 steps. Returns x in the ``u`` variables.
+    """
+    c = jnp.linalg.norm(jax.jacfwd(_twelve_residuals)(u0, args), axis=0)
+    c = jnp.where(c > 0, c, 1.0)
+    fit = least_squares(_twelve_scaled_residuals, u0 * c, (c, args), max_steps=LSQ_MAX_STEPS)
+    return fit._replace(x=fit.x / c)
+
+
+@jax.jit
+def _solve_modulus(u0, args) -> LSQResult:
+    return least_squares(_modulus_residuals, u0, args, max_steps=LSQ_MAX_STEPS)
+
+
+@jax.jit
+def _solve_joint(u0, args) -> LSQResult:
+    return least_squares(_joint_residuals, u0, args, max_steps=LSQ_MAX_STEPS)
+
+
+def _checked(fit: LSQResult, what: str) -> np.ndarray:
+    """The solution (numpy) of a calibration least squares.
+
+    Raises ValueError if it is not finite; warns (RuntimeWarning) and returns
+    the last iterate when the step budget ran out before convergence.
+    """
+    x = np.asarray(fit.x)
+    if not np.all(np.isfinite(x)) or not np.isfinite(float(fit.cost)):
+        raise ValueError(f"{what}: the least squares diverged to a non-finite solution (bad start or data)")
+    if not bool(fit.ok):
+        warnings.warn(f"{what}: Levenberg-Marquardt did not converge in {int(fit.n_steps)} steps; "
+                      "returning the last iterate", RuntimeWarning, stacklevel=3)
+    return x
+
+
 def fit_twelve(G, B, ref_nT, x0=None, mu_magnitude=1.0, weights=None, check=True):
     """All 12 parameters by least squares (the deterministic 12-parameter baseline).
 
     Residuals: ``d_k - d_bar`` (eq. 5) and ``sqrt(mu_m) (|B_k| / |M_omega| - 1)``,
-    solved by ``scipy.optimize.least_squares`` (trust region, analytic Jacobian
-    from JAX) from the ellipsoid fit. Unlike the ellipsoid fit it also finds the
-    rotation of the magnetometer relative to the accelerometers.
+    solved by :func:`icgo.lsq.least_squares` (Levenberg-Marquardt, exact JAX
+    Jacobian) from the ellipsoid fit, in variables scaled so that the matrix
+    (by its largest start entry) and the bias (by ``ref_nT``) are of order one
+    and then by the Jacobian's column norms at the start.
+    Unlike the ellipsoid fit it also finds the rotation of the magnetometer
+    relative to the accelerometers.
 
     Args:
         G: (N, 3) g. B: (N, 3) raw nT. ref_nT: |M_omega|, nT.
@@ -462,8 +548,6 @@ def fit_twelve(G, B, ref_nT, x0=None, mu_magnitude=1.0, weights=None, check=True
     Returns:
         (12,) numpy parameters.
     """
-    from scipy.optimize import least_squares
-
     G = np.asarray(G, np.float64)
     B = np.asarray(B, np.float64)
     if check:
@@ -472,59 +556,37 @@ def fit_twelve(G, B, ref_nT, x0=None, mu_magnitude=1.0, weights=None, check=True
         x0 = ellipsoid_fit(B, ref_nT, G, check=check)
     w = np.ones(len(B)) if weights is None else np.asarray(weights, np.float64)
     sw = jnp.asarray(np.sqrt(w / w.mean()))
-    Gj, Bj = jnp.asarray(G), jnp.asarray(B)
     # scale the variables so the bias (nT) and the matrix (1) are comparable
     scale = np.concatenate([np.full(9, np.abs(np.asarray(x0[:9])).max()), np.full(3, ref_nT)])
-
-    def res(u):
-        x = u * scale
-        Bc = correct(x, Bj)
-        d = normalized_dot(Gj, Bc)
-        r1 = (d - jnp.mean(d)) * sw
-        r2 = jnp.sqrt(mu_magnitude) * (jnp.linalg.norm(Bc, axis=1) / ref_nT - 1.0) * sw
-        return jnp.concatenate([r1, r2])
-
-    f = jax.jit(res)
-    jac = jax.jit(jax.jacfwd(res))
-    sol = least_squares(lambda u: np.asarray(f(u)), np.asarray(x0) / scale,
-                        jac=lambda u: np.asarray(jac(u)), method="trf", x_scale="jac",
-                        xtol=1e-12, ftol=1e-14, gtol=1e-12, max_nfev=500)
-    return sol.x * scale
+    args = (jnp.asarray(scale), jnp.asarray(G), jnp.asarray(B), sw, jnp.asarray(float(ref_nT)),
+            jnp.asarray(float(mu_magnitude)))
+    fit = _solve_twelve(jnp.asarray(np.asarray(x0, np.float64) / scale), args)
+    return _checked(fit, "fit_twelve") * scale
 
 
 def modulus_fit(B, ref_nT, x0=None, ridge=0.03):
     """U of MISMA (eqs. 9-10): parameters whose corrected modulus matches ``|M_omega|``.
 
-    Least squares on ``|R^-1 (B_k - b)| / |M_omega| - 1`` with a weak ridge
-    ``ridge * (x - x0)`` (scaled) towards ``x0`` (default: identity matrix,
-    bias = mean of B), so the fit stays defined where the geometry cannot
-    separate all 12 parameters (e.g. rotation about one axis only, where the
-    ellipsoid fit is rank deficient). On well-spread data it agrees with
-    :func:`ellipsoid_fit` up to a rotation, which moduli cannot see.
+    Least squares (:func:`icgo.lsq.least_squares`) on
+    ``|R^-1 (B_k - b)| / |M_omega| - 1`` with a weak ridge ``ridge * (x - x0)``
+    (scaled) towards ``x0`` (default: identity matrix, bias = mean of B), so
+    the fit stays defined where the geometry cannot separate all 12
+    parameters (e.g. rotation about one axis only, where the ellipsoid fit is
+    rank deficient). On well-spread data it agrees with :func:`ellipsoid_fit`
+    up to a rotation, which moduli cannot see.
 
     Returns:
         (12,) numpy parameters.
     """
-    from scipy.optimize import least_squares
-
     B = np.asarray(B, np.float64)
     if x0 is None:  # a roughly calibrated sensor: identity (scaled to the reference), no bias
         s = np.median(np.linalg.norm(B, axis=1))
         x0 = np.concatenate([(np.eye(3) * ref_nT / s).ravel(), np.zeros(3)])
     x0 = np.asarray(x0, np.float64)
     scale = np.concatenate([np.full(9, np.abs(x0[:9]).max()), np.full(3, ref_nT)])
-    Bj = jnp.asarray(B)
     u0 = jnp.asarray(x0 / scale)
-
-    def res(u):
-        m = jnp.linalg.norm(correct(u * scale, Bj), axis=1) / ref_nT - 1.0
-        return jnp.concatenate([m, ridge * (u - u0)])
-
-    f = jax.jit(res)
-    jac = jax.jit(jax.jacfwd(res))
-    sol = least_squares(lambda u: np.asarray(f(u)), x0 / scale, jac=lambda u: np.asarray(jac(u)),
-                        method="trf", xtol=1e-12, ftol=1e-14, gtol=1e-12, max_nfev=500)
-    return sol.x * scale
+    args = (jnp.asarray(scale), jnp.asarray(B), jnp.asarray(float(ref_nT)), u0, jnp.asarray(float(ridge)))
+    return _checked(_solve_modulus(u0, args), "modulus_fit") * scale
 
 
 # -------------------------------------------------- accelerometer and groups
@@ -642,7 +704,8 @@ def fit_joint(G, B, groups, xg0, xm0, min_size=4, ridge=1e-5, group_weight=100.0
     problem): residuals are the deviations of each rolled shot's pointing
     direction from its group mean (rad), the dot-invariance residuals (eq. 5),
     ``|G| - 1`` and ``|B| - 1`` (unit spheres), and a weak ridge towards the
-    start (the roll about the pointing axis is otherwise free).
+    start (the roll about the pointing axis is otherwise free); solved by
+    :func:`icgo.lsq.least_squares` in variables scaled to order one.
 
     Args:
         G, B: (N, 3) raw readings. groups: (N,) ids (groups with >= min_size
@@ -653,8 +716,6 @@ def fit_joint(G, B, groups, xg0, xm0, min_size=4, ridge=1e-5, group_weight=100.0
     Returns:
         (xg, xm) numpy (12,) each.
     """
-    from scipy.optimize import least_squares
-
     groups = np.asarray(groups)
     ids = [g for g in np.unique(groups) if (groups == g).sum() >= min_size]
     if not ids:
@@ -666,23 +727,10 @@ def fit_joint(G, B, groups, xg0, xm0, min_size=4, ridge=1e-5, group_weight=100.0
     x0 = np.concatenate([np.asarray(xg0), np.asarray(xm0)])
     scale = np.concatenate([np.full(9, np.abs(x0[:9]).max()), np.ones(3) * np.abs(x0[:9]).max() ** -1,
                             np.full(9, np.abs(x0[12:21]).max()), np.ones(3) * np.abs(x0[12:21]).max() ** -1])
-    Gj, Bj = jnp.asarray(G, jnp.float64), jnp.asarray(B, jnp.float64)
     u0 = jnp.asarray(x0 / scale)
-
-    def res(u):
-        x = u * scale
-        Gc, Bc = correct(x[:12], Gj), correct(x[12:], Bj)
-        d = _pointing_jnp(Gc, Bc)
-        dev = (d - back @ (avg @ d)) * member[:, None]
-        c = normalized_dot(Gc, Bc)
-        return jnp.concatenate([group_weight * dev.ravel(), c - jnp.mean(c), jnp.linalg.norm(Gc, axis=1) - 1.0,
-                                jnp.linalg.norm(Bc, axis=1) - 1.0, ridge * (u - u0)])
-
-    f = jax.jit(res)
-    jac = jax.jit(jax.jacfwd(res))
-    sol = least_squares(lambda u: np.asarray(f(u)), x0 / scale, jac=lambda u: np.asarray(jac(u)),
-                        method="trf", xtol=1e-12, ftol=1e-14, gtol=1e-12, max_nfev=300)
-    x = sol.x * scale
+    args = (jnp.asarray(scale), jnp.asarray(G, jnp.float64), jnp.asarray(B, jnp.float64), member, avg, back, u0,
+            jnp.asarray(float(ridge)), jnp.asarray(float(group_weight)))
+    x = _checked(_solve_joint(u0, args), "fit_joint") * scale
     return x[:12], x[12:]
 
 

@@ -158,3 +158,73 @@ def test_align_to_axis_removes_a_known_mounting_rotation():
     assert cal.group_spread_deg(Gm, Bm, groups)[0] > 1.0
     Q = cal.align_to_axis(Gm, Bm, groups)
     assert cal.group_spread_deg(Gm @ Q.T, Bm @ Q.T, groups)[0] < 1e-6
+
+
+# ------------------------------------------- the least-squares fits (icgo.lsq)
+def _scipy_peer(fn, u0, args, x_scale):
+    """The same residuals solved by scipy's trust-region reflective least squares (independent solver)."""
+    import jax
+    from scipy.optimize import least_squares
+
+    f, j = jax.jit(fn), jax.jit(jax.jacfwd(fn))
+    return least_squares(lambda u: np.asarray(f(u, args)), u0, jac=lambda u: np.asarray(j(u, args)), method="trf",
+                         x_scale=x_scale, xtol=1e-14, ftol=1e-15, gtol=1e-15, max_nfev=2000)
+
+
+def test_modulus_fit_closed_form_without_ridge():
+    # noise-free, symmetric R: every corrected modulus equals |M|, the bias is exact, and R^-T R^-1 is the truth's
+    G, Bt, _ = _stations(80)
+    Rs = 0.5 * (R_GEN + R_GEN.T)
+    Bm = np.asarray(cal.distort(Rs, B_BIAS, Bt))
+    x = cal.modulus_fit(Bm, 50_000.0, ridge=0.0)
+    np.testing.assert_allclose(np.linalg.norm(np.asarray(cal.correct(x, Bm)), axis=1), 50_000.0, rtol=1e-10)
+    np.testing.assert_allclose(x[9:], B_BIAS, rtol=0, atol=1e-5)
+    r_inv = x[:9].reshape(3, 3)
+    t_inv = np.linalg.inv(Rs)
+    np.testing.assert_allclose(r_inv.T @ r_inv, t_inv.T @ t_inv, rtol=0, atol=1e-10)
+
+
+def test_fit_twelve_matches_scipy_peer_on_noisy_data():
+    G, Bt, _ = _stations(80, seed=3)
+    rng = np.random.default_rng(3)
+    Bm = np.asarray(cal.distort(R_GEN, B_BIAS, Bt)) + rng.normal(0, 50.0, Bt.shape)
+    Gn = G + rng.normal(0, 2e-3, G.shape)
+    x0 = cal.ellipsoid_fit(Bm, 50_000.0, Gn)
+    x = cal.fit_twelve(Gn, Bm, 50_000.0, x0=x0)
+    scale = np.concatenate([np.full(9, np.abs(x0[:9]).max()), np.full(3, 50_000.0)])
+    args = (jnp.asarray(scale), jnp.asarray(Gn), jnp.asarray(Bm), jnp.ones(len(Bm)), jnp.asarray(50_000.0),
+            jnp.asarray(1.0))
+    peer = _scipy_peer(cal._twelve_residuals, x0 / scale, args, "jac")
+    np.testing.assert_allclose(x / scale, peer.x, rtol=0, atol=1e-7)
+    cost = float(np.sum(np.asarray(cal._twelve_residuals(jnp.asarray(x / scale), args)) ** 2))
+    assert cost == pytest.approx(float(np.sum(peer.fun**2)), rel=1e-10)
+
+
+def _rolled_recording():
+    """Noise-free distorted accelerometer + magnetometer: 24 spread shots and two groups of 8 rolled shots (unit fields)."""
+    rng = np.random.default_rng(7)
+    A, I, T = rng.uniform(0, 360, 24), rng.uniform(10, 170, 24), rng.uniform(0, 360, 24)
+    roll = np.linspace(0, 315, 8)
+    A = np.concatenate([A, np.full(8, 40.0), np.full(8, 200.0)])
+    I = np.concatenate([I, np.full(8, 30.0), np.full(8, 110.0)])
+    T = np.concatenate([T, roll, roll])
+    s = sensors_from_attitude(A, I, T, 1.0, 60.0)
+    groups = np.concatenate([np.arange(24), np.full(8, 100), np.full(8, 101)])
+    Ra = np.array([[1.02, 0.01, 0.0], [-0.015, 0.99, 0.02], [0.01, 0.0, 1.01]])
+    G = np.asarray(cal.distort(Ra, np.array([0.02, -0.01, 0.03]), s.G))
+    B = np.asarray(cal.distort(R_GEN, np.array([0.3, -0.2, 0.1]), s.B))
+    return G, B, groups
+
+
+def test_fit_joint_reaches_the_exact_zero_spread():
+    G, B, groups = _rolled_recording()
+    xg0, xm0 = cal.ellipsoid_fit_accel(G), cal.ellipsoid_fit(B, 1.0, G)
+    xg, xm = cal.fit_joint(G, B, groups, xg0, xm0)
+    Gc, Bc = np.asarray(cal.correct(xg, G)), np.asarray(cal.correct(xm, B))
+    # closed form: the true calibration has zero spread, a constant dot product and unit moduli (the
+    # parameters themselves are not unique: a roll about the pointing axis is held only by the 1e-5 ridge)
+    assert cal.group_spread_deg(Gc, Bc, groups, min_size=4)[0] < 1e-5
+    np.testing.assert_allclose(np.linalg.norm(Gc, axis=1), 1.0, atol=1e-8)
+    np.testing.assert_allclose(np.linalg.norm(Bc, axis=1), 1.0, atol=1e-8)
+    d = np.asarray(cal.normalized_dot(Gc, Bc))
+    assert np.ptp(d) < 1e-8
