@@ -212,6 +212,11 @@ def test_bad_input_one_line(capsys, tmp_path):
     assert main_body(cfg, tmp_path) == 1
     err = capsys.readouterr().err.strip()
     assert err.startswith("error:") and "\n" not in err and "bad_nan.csv" in err
+    # bad options: one line per bad value, each naming its field
+    cfg.k_folds, cfg.max_effects = 1, -1
+    assert main_body(cfg, tmp_path) == 1
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert [ln.split("=")[0] for ln in lines] == ["error: WorkflowConfig: k_folds", "error: WorkflowConfig: max_effects"]
 
 
 def test_entry_point_writes_report_and_json(tmp_path):
