@@ -186,18 +186,22 @@ def study_config(cfg: DictConfig):
 
 
 def optimizer_config(cfg: DictConfig):
-    """The optimizer's config object from ``optimizer.params`` (+ the schedule for CGO), or None."""
+    """The optimizer's config object from ``optimizer.params`` (+ the schedule where the config has one), or None."""
     name = cfg.optimizer.name
     if name is None:
         return None
+    import dataclasses
+
     from icgo.optim import get
 
+    alg = get(name)
     params = dict(OmegaConf.to_container(cfg.optimizer.params, resolve=True) or {})
-    if name == "cgo":
+    fields = {f.name for f in dataclasses.fields(alg.config_cls)}
+    if {"stage_bounds", "stage_order"} <= fields:
         params.setdefault("stage_bounds", tuple(float(x) for x in cfg.schedule.bounds))
         params.setdefault("stage_order", tuple(cfg.schedule.order))
     try:
-        return get(name).config_cls(**params)
+        return alg.make_config(**params)
     except (TypeError, ValueError) as e:
         raise ConfigError(f"optimizer.params for {name}: {str(e).splitlines()[0]}") from None
 

@@ -53,6 +53,7 @@ import numpy as np
 import icgo  # noqa: F401  (enables float64)
 from icgo import datasets, relm, study
 from icgo.optim import run_batch
+from icgo.optim.cgo import CGO
 
 HIDDEN = 30
 LAM = 1e-3
@@ -165,8 +166,8 @@ def population(key, P: int, hidden: int = HIDDEN):
 @partial(jax.jit, static_argnames=("strategies", "pop_size", "iterations", "chunk", "refine"))
 def _study_core(keys, aux: relm.TrainRows, strategies, pop_size, iterations, chunk, refine):
     D = relm.n_params(HIDDEN)
-    res = run_batch("cgo", _FAST[(chunk, refine)], (np.full(D, -1.0), np.full(D, 1.0)), keys, pop_size, iterations,
-                    strategies=list(strategies), aux=aux)
+    res = run_batch(CGO.name, _FAST[(chunk, refine)], (np.full(D, -1.0), np.full(D, 1.0)), keys, pop_size, iterations,
+                    configs=CGO.axis_configs(None, strategies), aux=aux)
     return res.best_x, res.best_f, res.n_evals
 
 

@@ -63,7 +63,9 @@ def mealpy_runs(name, dim, algo, runs, pop_size, budget):
         count[0] += 1
         return f(x)
 
-    per = 4 * pop_size if algo == "cgo" else pop_size
+    from icgo.optim import get
+
+    per = get(algo).evals(pop_size, get(algo).config_cls())[1]  # same name in both registries
     epochs = (budget - pop_size) // per
     make = {"cgo": lambda: CGO.OriginalCGO(epoch=epochs, pop_size=pop_size),
             "pso": lambda: PSO.OriginalPSO(epoch=epochs, pop_size=pop_size),
@@ -89,39 +91,35 @@ def ours(dim, runs, pop_size, budget, seed, functions=None):
 
     from icgo import benchmarks as bm
     from icgo.optim import base, run_batch
-    from icgo.optim.cgo import CGOConfig
+    from icgo.optim.cgo import CGO, CGOConfig
 
     functions = tuple(functions or bm.STUDY)
     F = len(functions)
     s = bm.suite(functions, dim)
     aux = jax.tree_util.tree_map(lambda a: np.repeat(np.asarray(a), runs, axis=0), s)  # (F*runs, ...)
     bounds = (-100.0 * np.ones(dim), 100.0 * np.ones(dim))
+    both = ("original", "three_stage")
+    jobs = [  # (job, algorithm, config, configs side by side, one result label per config)
+        ("cgo", CGO.name, None, CGO.axis_configs(CGOConfig.paper(), both),
+         ["cgo (paper, original)", "icgo (paper, three_stage)"]),
+        ("cgo_mealpy", CGO.name, None, CGO.axis_configs(CGOConfig.mealpy(), both),
+         ["cgo (mealpy, original)", "icgo (mealpy, three_stage)"]),
+        ("cgo_matlab", CGO.name, CGOConfig.matlab(), None, ["cgo (matlab)"]),
+    ] + [(n, n, None, None, [n]) for n in ("pso", "ga", "sma")]
     res, info = {}, {}
     root = jax.random.key(seed)
-    for j, alg in enumerate(["cgo", "cgo_mealpy", "cgo_matlab", "pso", "ga", "sma"]):
+    for j, (job, alg, config, configs, labels) in enumerate(jobs):
         keys = jax.random.split(jax.random.fold_in(root, 1000 * dim + j), F * runs)
         before = base._batch_jit._cache_size()
         t0 = time.time()
-        if alg == "cgo":
-            r = run_batch("cgo", bm.suite_fitness, bounds, keys, pop_size, max_evals=budget,
-                          strategies=["original", "three_stage"], aux=aux)
-            jax.block_until_ready(r.best_f)
-            res["cgo (paper, original)"] = (r.best_f[0], r.n_evals[0])
-            res["icgo (paper, three_stage)"] = (r.best_f[1], r.n_evals[1])
-        elif alg == "cgo_mealpy":
-            r = run_batch("cgo", bm.suite_fitness, bounds, keys, pop_size, max_evals=budget,
-                          config=CGOConfig(variant="mealpy"), strategies=["original", "three_stage"], aux=aux)
-            res["cgo (mealpy, original)"] = (r.best_f[0], r.n_evals[0])
-            res["icgo (mealpy, three_stage)"] = (r.best_f[1], r.n_evals[1])
-        elif alg == "cgo_matlab":
-            r = run_batch("cgo", bm.suite_fitness, bounds, keys, pop_size, max_evals=budget,
-                          config=CGOConfig.matlab(), aux=aux)
-            res["cgo (matlab)"] = (r.best_f, r.n_evals)
-        else:
-            r = run_batch(alg, bm.suite_fitness, bounds, keys, pop_size, max_evals=budget, aux=aux)
-            res[alg] = (r.best_f, r.n_evals)
+        r = run_batch(alg, bm.suite_fitness, bounds, keys, pop_size, max_evals=budget, config=config,
+                      configs=configs, aux=aux)
         jax.block_until_ready(r.best_f)
-        info[alg] = (base._batch_jit._cache_size() - before, time.time() - t0)
+        if configs is None:
+            r = jax.tree_util.tree_map(lambda x: x[None], r)
+        for i, label in enumerate(labels):
+            res[label] = (r.best_f[i], r.n_evals[i])
+        info[job] = (base._batch_jit._cache_size() - before, time.time() - t0)
     return {k: (np.asarray(v[0]).reshape(F, runs), np.asarray(v[1]).reshape(F, runs)) for k, v in res.items()}, info
 
 

@@ -177,9 +177,9 @@ class StudyConfig:
         """One label per model the study fits, e.g. ``["cgo-original"]`` or ``["relm"]``."""
         if self.optimizer is None:
             return ["relm"]
-        if self.optimizer == "cgo":
-            return [f"cgo-{s}" for s in self.strategies]
-        return [self.optimizer]
+        from icgo.optim import get
+
+        return get(self.optimizer).labels(self.strategies)
 
 
 class StudyResult(NamedTuple):
@@ -357,10 +357,11 @@ def _search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None):
         theta, f = _plain(prep.key, prep.data, cfg.lam, cfg.hidden, float(low), float(high),
                           "float32" if cfg.dtype == "float32" else None)
         return theta[None], f[None, :, None], jnp.ones((1, R, 1), jnp.int32)
-    from icgo.optim import run_batch
+    from icgo.optim import get, run_batch
 
     bounds = (np.full(D, low), np.full(D, high))
-    strategies = list(cfg.strategies) if cfg.optimizer == "cgo" else None
+    alg = get(cfg.optimizer)
+    configs = alg.axis_configs(cfg.optimizer_config, cfg.strategies) if alg.axis else None
     dtype = _search_dtype(cfg)
     aux = prep.data
     if dtype == "mixed":
@@ -370,9 +371,9 @@ def _search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None):
     if wrap_fitness is not None:
         fitness = wrap_fitness(fitness)
     res = run_batch(cfg.optimizer, fitness, bounds, prep.key,
-                    cfg.pop_size, cfg.iterations, max_evals=cfg.max_evals, config=cfg.optimizer_config,
-                    strategies=strategies, aux=aux)
-    if strategies is None:
+                    cfg.pop_size, cfg.iterations, max_evals=cfg.max_evals,
+                    config=None if configs else cfg.optimizer_config, configs=configs, aux=aux)
+    if configs is None:
         res = jax.tree_util.tree_map(lambda x: x[None], res)
     return res.best_x, res.curve, res.evals_curve
 

@@ -228,6 +228,7 @@ def test_progress_ticks_once_per_iteration_inside_the_scan():
     import jax.numpy as jnp
 
     from icgo.optim import run_batch
+    from icgo.optim.cgo import CGO
 
     bar = C.Progress(total=100, desc="t", enable=False)
 
@@ -237,7 +238,7 @@ def test_progress_ticks_once_per_iteration_inside_the_scan():
     keys = jax.random.split(jax.random.PRNGKey(0), 3)
     aux = jnp.zeros((3, 4))
     res = run_batch("cgo", bar.wrap(sphere), (-np.ones(4), np.ones(4)), keys, 6, 7,
-                    strategies=["chaos", "three_stage"], aux=aux)
+                    configs=CGO.axis_configs(None, ["chaos", "three_stage"]), aux=aux)
     jax.block_until_ready(res)
     jax.effects_barrier()
     assert bar.count == 7 + 1  # initial population + 7 iterations

@@ -74,11 +74,13 @@ def test_three_stage_schedule_thirds_and_custom():
 
 def test_dims_mask_modes():
     k = jax.random.key(3)
-    m = np.asarray(mut.dims_mask(k, (500, 6), 0))
+    m = np.asarray(mut.dims_mask(k, (500, 6), "subset"))
     assert m.sum(1).min() >= 1 and m.sum(1).max() == 6
     assert set(np.unique(m.sum(1))) == set(range(1, 7))  # sizes U{1..D}
-    assert np.asarray(mut.dims_mask(k, (5, 6), 1)).all()
-    np.testing.assert_array_equal(np.asarray(mut.dims_mask(k, (5, 6), 2)).sum(1), 1)
+    assert np.asarray(mut.dims_mask(k, (5, 6), "all")).all()
+    np.testing.assert_array_equal(np.asarray(mut.dims_mask(k, (5, 6), "one")).sum(1), 1)
+    with pytest.raises(ValueError, match="unknown dims mode"):
+        mut.dims_mask(k, (5, 6), 1)  # a static name, not an index
 
 
 @pytest.mark.parametrize("strategy", [0, 1, 2, 3])
@@ -105,6 +107,7 @@ def test_mutate_operators(strategy):
 
 def test_matlab_original_seed_is_uniform_point():
     cfg = CGOConfig.matlab()
+    assert cfg.original_uniform is True
     x = jnp.zeros((2000, 2))
     s = np.asarray(mut.mutate(jax.random.key(2), x, jnp.zeros((2000, 2), bool), x, 0, 0, 10,
                               jnp.array([-1.0, 10.0]), jnp.array([1.0, 20.0]), cfg))

@@ -49,7 +49,7 @@ def test_mealpy_variant_matches_mealpy_original_cgo(name):
     aux = jax.tree_util.tree_map(lambda a: np.repeat(np.asarray(a), runs, axis=0), s)
     r = run_batch("cgo", bm.suite_fitness, (-100 * np.ones(dim), 100 * np.ones(dim)),
                   jax.random.split(jax.random.key(0), runs), 20, max_evals=3220,
-                  config=CGOConfig(variant="mealpy"), aux=aux)
+                  config=CGOConfig.mealpy(), aux=aux)
     ours = np.asarray(r.best_f)
     assert int(np.max(r.n_evals)) == 3220
     assert ranksums(ours, mp).pvalue > 0.01, (np.median(ours), np.median(mp))

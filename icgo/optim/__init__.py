@@ -1,8 +1,8 @@
 """Population optimizers in JAX behind one interface (see :mod:`icgo.optim.base`).
 
 Registry :data:`OPTIMIZERS`: ``cgo`` (with the ICGO 4th-seed mutations),
-``pso``, ``ga``, ``sma``, ``misma`` (magnetometer calibration). Run one with :func:`run`, a batch of repeats (and CGO
-strategies) with :func:`run_batch`.
+``pso``, ``ga``, ``sma``, ``misma`` (magnetometer calibration). Run one with :func:`run`, a batch of repeats (and
+of S configs side by side, e.g. ``alg.axis_configs(config, strategies)``) with :func:`run_batch`.
 """
 
 from icgo.optim.base import (OPTIMIZERS, Algorithm, Bound, Context, RunResult, State, best_at_evals, bind, evaluate,

@@ -1,17 +1,24 @@
 """Shared interface of the population optimizers and the lax.scan runner.
 
 Every optimizer in :mod:`icgo.optim` is an :class:`Algorithm` registered in
-:data:`OPTIMIZERS` under a short name (``cgo``, ``pso``, ``ga``, ``sma``, ...).
-An algorithm is a pair of pure functions over a :class:`State` NamedTuple::
+:data:`OPTIMIZERS` under a short name (``cgo``, ``pso``, ``ga``, ``sma``,
+``misma``). An algorithm is a pair of pure functions over a :class:`State`
+NamedTuple::
 
     state = alg.init(key, fitness, bounds, pop_size, config, aux=None)
     state = alg.step(state, key, t, T, fitness)
 
-or, with the fitness closed over (the form the issue asks for)::
+or, with the fitness closed over::
 
-    opt = bind("cgo", fitness, bounds, pop_size, config)
+    opt = bind("pso", fitness, bounds, pop_size, config)
     state = opt.init(key, aux)            # aux: per-repeat data or None
     state = opt.step(state, key, t, T)    # t = 0 .. T-1 (int), T static int
+
+and the runners::
+
+    run(name, fitness, bounds, key, pop_size, n_iter=None, *, max_evals=None, config=None, aux=None)
+    run_batch(name, fitness, bounds, keys, pop_size, n_iter=None, *, max_evals=None,
+              config=None, configs=None, aux=None)       # axes (R,) or, with configs, (S, R)
 
 Design choices (read before building on this):
 
@@ -25,19 +32,31 @@ Design choices (read before building on this):
   function object to reuse the compiled program (a fresh lambda recompiles).
 * **Config** (hyperparameters) is one frozen dataclass per algorithm,
   registered as a JAX pytree: numeric fields are *data* (traced, vmappable),
-  fields listed as ``meta`` (e.g. CGO ``variant``) are static and select code.
-  ``alg.config_cls()`` gives the defaults.
+  fields listed as ``meta`` are static and select code with a Python ``if``
+  (e.g. CGO ``variant``, ``selection``, ``bound_mode``; GA ``crossover``), so
+  one compiled program serves every value of the data fields and a change of a
+  static field compiles another. ``alg.config_cls()`` gives the defaults,
+  ``alg.make_config(**params)`` builds one from a config file's parameters.
+* **Side-by-side axis**: ``run_batch(configs=[c_1, ..., c_S])`` stacks S
+  configs with equal static fields along a leading axis and vmaps over them,
+  so S settings x R repeats is one jitted call. ``alg.axis`` names the data
+  field a study runs side by side (CGO: ``"strategy"``, the 4th-seed mutation;
+  others None); ``alg.axis_configs(config, values)`` gives the S configs and
+  ``alg.labels(values)`` their method names, so a study needs no
+  algorithm-specific code::
+
+      configs = alg.axis_configs(config, values) if alg.axis else None
+      labels = alg.labels(values)        # ["cgo-original", ...] or ["pso"]
+
 * **Context**: bounds, config and aux travel inside the state
   (``state.ctx``), so ``step`` needs no other data and a whole repeat is
   described by ``(key, aux, config)``: exactly what ``run_batch`` vmaps.
-* **Strategies** (CGO 4th-seed mutation, see :mod:`icgo.optim.mutation`) are
-  the integer data field ``config.strategy``; ``run_batch(strategies=...)``
-  vmaps over it, so 5 strategies x R repeats is one jitted call.
 * **Evaluation counting**: ``state.n_evals`` counts fitness evaluations
-  (initial population included). CGO spends 4 per seed per iteration, PSO/SMA
-  1 per member, GA 1 per offspring. ``alg.evals(pop_size, config)`` returns
-  ``(initial, per_iteration)``; a budget ``max_evals`` is converted to the
-  static iteration count ``(max_evals - initial) // per_iteration``.
+  (initial population included). CGO spends 4 per seed per iteration, PSO,
+  SMA and MISMA 1 per member, GA 1 per offspring. ``alg.evals(pop_size,
+  config)`` returns ``(initial, per_iteration)``; a budget ``max_evals`` is
+  converted to the static iteration count ``(max_evals - initial) //
+  per_iteration``.
 * **Keys**: the runner splits its key into an init key and one key per
   iteration; algorithms split the step key further and never reuse one.
 
@@ -45,7 +64,8 @@ Adding an optimizer: write ``init_fn(key, fitness, lb, ub, pop_size, config,
 aux) -> State`` and ``step_fn(state, key, t, T, fitness) -> State`` using the
 helpers here (:func:`evaluate`, :func:`uniform_population`,
 :func:`update_best`), then ``register(Algorithm(...))`` at import time and
-import the module in ``icgo/optim/__init__.py``.
+import the module in ``icgo/optim/__init__.py``. The registry-wide tests in
+``tests/test_optim.py`` then run on it.
 """
 
 from __future__ import annotations
@@ -128,6 +148,10 @@ class Algorithm(NamedTuple):
         init_fn: ``(key, fitness, lb, ub, pop_size, config, aux) -> State``.
         step_fn: ``(state, key, t, T, fitness) -> State``.
         evals: ``(pop_size, config) -> (initial, per_iteration)`` evaluations.
+        axis: the config data field a study runs side by side (one method per
+            value), or None.
+        config_factory: ``(**params) -> config`` for config files, or None for
+            ``config_cls``.
     """
 
     name: str
@@ -135,6 +159,8 @@ class Algorithm(NamedTuple):
     init_fn: Callable
     step_fn: Callable
     evals: Callable[[int, Any], tuple[int, int]]
+    axis: str | None = None
+    config_factory: Callable | None = None
 
     def init(self, key, fitness, bounds, pop_size, config=None, aux=None) -> State:
         """Initial state (eq. 11: uniform population), validated inputs.
@@ -158,6 +184,34 @@ class Algorithm(NamedTuple):
     def step(self, state: State, key, t, T, fitness) -> State:
         """One iteration ``t`` (0-based) of ``T``; pure, jit/vmap friendly."""
         return self.step_fn(state, key, t, T, fitness)
+
+    def make_config(self, **params):
+        """Config from keyword parameters (e.g. a config file's ``optimizer.params``)."""
+        return (self.config_factory or self.config_cls)(**params)
+
+    def axis_configs(self, config, values: Sequence) -> list:
+        """One config per value of :attr:`axis`: ``dataclasses.replace(config, **{axis: v})``.
+
+        Args:
+            config: base config, or None for the defaults.
+            values: non-empty sequence of axis values (e.g. CGO strategy names).
+
+        Returns:
+            List of S configs with equal static fields, for ``run_batch(configs=...)``.
+
+        Raises:
+            ValueError: the algorithm has no axis, or ``values`` is empty or a string.
+        """
+        if self.axis is None:
+            raise ValueError(f"optimizer {self.name!r} has no side-by-side axis (no 'strategy' or similar option)")
+        if isinstance(values, (str, bytes)) or len(values) < 1:
+            raise ValueError(f"{self.name} {self.axis} values must be a non-empty sequence, got {values!r}")
+        config = self.config_cls() if config is None else config
+        return [dataclasses.replace(config, **{self.axis: v}) for v in values]
+
+    def labels(self, values: Sequence = ()) -> list[str]:
+        """Method names: ``[f"{name}-{v}" for v in values]`` with an axis, else ``[name]``."""
+        return [f"{self.name}-{v}" for v in values] if self.axis else [self.name]
 
 
 class Bound(NamedTuple):
@@ -340,19 +394,50 @@ def _resolve_iters(name, pop_size, n_iter, max_evals, config) -> int:
     return int(n_iter)
 
 
-def _with_strategy(alg: Algorithm, config, strategy):
-    """Set ``config.strategy`` (name or index); error if the algorithm has none."""
-    if strategy is None:
-        return config
-    if not any(f.name == "strategy" for f in dataclasses.fields(config)):
-        raise ValueError(f"optimizer {alg.name!r} has no 'strategy' option")
-    from icgo.optim.mutation import strategy_index
+def stack_configs(alg: Algorithm, configs: Sequence):
+    """Stack S configs of ``alg`` along a new leading axis (for vmap).
 
-    if isinstance(strategy, (str, int, np.integer)):
-        s = strategy_index(strategy)
-    else:
-        s = jnp.asarray([strategy_index(x) for x in strategy], jnp.int32)
-    return dataclasses.replace(config, strategy=s)
+    Args:
+        alg: the algorithm.
+        configs: non-empty sequence of ``alg.config_cls`` instances whose static
+            fields (and leaf shapes) agree.
+
+    Returns:
+        One config pytree whose data leaves have shape (S, ...).
+
+    Raises:
+        ValueError: empty, wrong class, or static fields that differ.
+    """
+    if isinstance(configs, (str, bytes)) or not isinstance(configs, Sequence) or len(configs) < 1:
+        raise ValueError("configs must be a non-empty sequence of configs")
+    bad = [type(c).__name__ for c in configs if not isinstance(c, alg.config_cls)]
+    if bad:
+        raise ValueError(f"configs for {alg.name} must be {alg.config_cls.__name__} instances, got {bad}")
+    trees = [jax.tree_util.tree_structure(c) for c in configs]
+    odd = [i for i, t in enumerate(trees) if t != trees[0]]
+    if odd:
+        i = odd[0]
+        raise ValueError(f"configs[{i}] differs from configs[0] in {_tree_differences(configs[0], configs[i])}; "
+                         "one batched call needs equal static fields and leaf shapes")
+    return jax.tree_util.tree_map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *configs)
+
+
+def _tree_differences(a, b) -> list[str]:
+    """Names of the dataclass fields of ``a`` and ``b`` whose static value or pytree structure differ."""
+    data = {str(getattr(path[0], "name", path[0])) for path, _ in jax.tree_util.tree_flatten_with_path(a)[0]}
+    out = []
+    for f in dataclasses.fields(a):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if f.name in data:
+            differs = jax.tree_util.tree_structure(x) != jax.tree_util.tree_structure(y)
+        else:
+            try:
+                differs = bool(x != y)
+            except Exception:  # noqa: BLE001  (values without a truth value)
+                differs = True
+        if differs:
+            out.append(f.name)
+    return out
 
 
 # ----------------------------------------------------------------------------
@@ -389,11 +474,11 @@ def _batch_jit(alg, fitness, pop_size, n_iter, by_config, keys, lb, ub, config, 
 
 
 def run(name: str, fitness: Fitness, bounds, key, pop_size: int, n_iter: int | None = None, *,
-        max_evals: int | None = None, config=None, strategy=None, aux=None) -> RunResult:
+        max_evals: int | None = None, config=None, aux=None) -> RunResult:
     """Run one optimizer for ``n_iter`` iterations (or an evaluation budget).
 
     Args:
-        name: registry name (``cgo``, ``pso``, ``ga``, ``sma``, ...).
+        name: registry name (``cgo``, ``pso``, ``ga``, ``sma``, ``misma``).
         fitness: batched fitness (see module docstring); static for jit.
         bounds: ``(lb, ub)`` or (D, 2) array.
         key: PRNG key.
@@ -401,7 +486,6 @@ def run(name: str, fitness: Fitness, bounds, key, pop_size: int, n_iter: int | N
         n_iter: iterations; exactly one of ``n_iter`` / ``max_evals``.
         max_evals: evaluation budget, converted to a static iteration count.
         config: config pytree (defaults if None).
-        strategy: CGO 4th-seed strategy name or index (overrides config).
         aux: data passed to ``fitness(pop, aux)``, or None.
 
     Returns:
@@ -410,23 +494,27 @@ def run(name: str, fitness: Fitness, bounds, key, pop_size: int, n_iter: int | N
     alg = get(name)
     lb, ub = check_bounds(bounds)
     check_pop_size(pop_size)
-    config = _with_strategy(alg, alg.config_cls() if config is None else config, strategy)
+    config = alg.config_cls() if config is None else config
     n_iter = _resolve_iters(name, pop_size, n_iter, max_evals, config)
     return _run_jit(alg, fitness, int(pop_size), n_iter, key, lb, ub, config, aux)
 
 
 def run_batch(name: str, fitness: Fitness, bounds, keys, pop_size: int, n_iter: int | None = None, *,
-              max_evals: int | None = None, config=None, strategies: Sequence | None = None,
+              max_evals: int | None = None, config=None, configs: Sequence | None = None,
               aux=None) -> RunResult:
-    """Run R repeats (and S strategies) in one jitted, vmapped call.
+    """Run R repeats (of S configs) in one jitted, vmapped call.
 
-    Repeat r uses ``keys[r]`` and ``aux`` sliced at index r on every leaf, and
-    equals ``run(..., key=keys[r], aux=aux_r)`` exactly.
+    Repeat r of config s uses ``keys[r]``, ``aux`` sliced at index r on every
+    leaf and ``configs[s]``, and equals ``run(..., key=keys[r],
+    config=configs[s], aux=aux_r)`` exactly.
 
     Args:
         keys: PRNG keys, shape (R, 2) (or (R,) typed keys).
+        config: one config (defaults if None); result axes (R,).
+        configs: sequence of S configs with equal static fields, stacked and
+            vmapped (e.g. ``alg.axis_configs(config, strategies)``); result
+            axes (S, R). Give ``config`` or ``configs``, not both.
         aux: pytree whose leaves have leading axis R, or None.
-        strategies: sequence of S CGO strategy names/indices, or None.
         (other arguments as in :func:`run`)
 
     Returns:
@@ -435,23 +523,24 @@ def run_batch(name: str, fitness: Fitness, bounds, keys, pop_size: int, n_iter: 
     alg = get(name)
     lb, ub = check_bounds(bounds)
     check_pop_size(pop_size)
-    config = alg.config_cls() if config is None else config
-    n_iter = _resolve_iters(name, pop_size, n_iter, max_evals, config)
-    if strategies is not None:
-        if isinstance(strategies, (str, int, np.integer)) or len(strategies) < 1:
-            raise ValueError("strategies must be a non-empty sequence of names or indices")
-        strat = _with_strategy(alg, config, list(strategies)).strategy
-        base = dataclasses.replace(config, strategy=0)
-        config = jax.tree_util.tree_map(
-            lambda x: jnp.broadcast_to(jnp.asarray(x), (len(strategies),) + jnp.shape(x)), base)
-        config = dataclasses.replace(config, strategy=strat)
+    if configs is not None:
+        if config is not None:
+            raise ValueError("give config (one setting) or configs (S settings side by side), not both")
+        stacked = stack_configs(alg, configs)
+        n_iters = {_resolve_iters(name, pop_size, n_iter, max_evals, c) for c in configs}
+        if len(n_iters) != 1:
+            raise ValueError(f"configs spend different evaluations per iteration ({sorted(n_iters)} iterations)")
+        n_iter, config = n_iters.pop(), stacked
+    else:
+        config = alg.config_cls() if config is None else config
+        n_iter = _resolve_iters(name, pop_size, n_iter, max_evals, config)
     keys = jnp.asarray(keys) if not isinstance(keys, jax.Array) else keys
     n_rep = keys.shape[0]
     if aux is not None:
         for leaf in jax.tree_util.tree_leaves(aux):
             if jnp.ndim(leaf) < 1 or jnp.shape(leaf)[0] != n_rep:
                 raise ValueError(f"aux leaves need leading axis {n_rep} (one slice per key), got shape {jnp.shape(leaf)}")
-    return _batch_jit(alg, fitness, int(pop_size), n_iter, strategies is not None, keys, lb, ub, config, aux)
+    return _batch_jit(alg, fitness, int(pop_size), n_iter, configs is not None, keys, lb, ub, config, aux)
 
 
 def best_at_evals(result: RunResult, budgets) -> Array:

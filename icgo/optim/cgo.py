@@ -7,7 +7,12 @@ Gaussian or wavelet mutation (eqs. 16-18) or by all three in a three-stage
 schedule (see :mod:`icgo.optim.mutation`). Four fitness evaluations per seed
 per iteration.
 
-Three variants (static ``variant`` option):
+Three variants, each built by its factory ``CGOConfig.paper()`` (the
+defaults), ``CGOConfig.matlab()``, ``CGOConfig.mealpy()``; the static
+``variant`` field picks the code path and the factory sets the variant's
+other fields (:data:`VARIANT_SETTINGS`). ``CGO.axis`` is ``"strategy"``: a
+study runs 4th-seed strategies side by side with
+``run_batch(configs=CGO.axis_configs(config, strategies))``.
 
 * ``paper`` (default): the ICGO paper's text. Seeds 2 and 3 as in eqs. 13-14
   (``GB + a(b X - g MG)``, ``MG + a(b X - g GB)``); one scalar alpha per seed
@@ -43,6 +48,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from icgo.optim import mutation as mut
 from icgo.optim.base import Algorithm, State, evaluate, first_state, register, uniform_population, update_best
@@ -51,31 +57,80 @@ VARIANTS = ("paper", "matlab", "mealpy")
 SELECTIONS = ("greedy", "truncation")
 BOUND_MODES = ("clip", "midpoint", "random")
 
+#: What each variant sets besides its code path: the published setting that
+#: ``CGOConfig.paper() / .matlab() / .mealpy()`` fill in.
+VARIANT_SETTINGS = {
+    "paper": {"selection": "greedy", "bg_low": 1, "mg_size": 0, "original_uniform": False},
+    "matlab": {"selection": "truncation", "bg_low": 1, "mg_size": 0, "original_uniform": True},
+    "mealpy": {"selection": "greedy", "bg_low": 0, "mg_size": 3, "original_uniform": False},
+}
+VARIANT_FIELDS = ("selection", "bg_low", "mg_size", "original_uniform")
+
+
+def _scalar(v) -> bool:
+    """True for a concrete Python/numpy number (not a bool, array or tracer)."""
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+
+
+def _differs(a, b) -> bool:
+    """``a != b`` for concrete values; anything that cannot be compared (arrays, tracers) counts as different."""
+    try:
+        return bool(a != b)
+    except Exception:  # noqa: BLE001  (array truth value, tracer conversion)
+        return True
+
+
+def _choice(name, value, choices):
+    if not isinstance(value, str) or value not in choices:
+        raise ValueError(f"unknown CGO {name} {value!r}; choose one of {choices} (static option)")
+    return value
+
+
+def _flag(name, value):
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"CGO {name} must be True or False (static option), got {value!r}")
+    return bool(value)
+
 
 @partial(jax.tree_util.register_dataclass,
-         data_fields=["strategy", "selection", "bg_low", "mg_size", "dims", "original_uniform", "step_scale",
-                      "sigma", "mu", "wavelet_g", "wavelet_zeta", "wavelet_bounded", "stage_bounds", "stage_order",
-                      "bound_mode"],
-         meta_fields=["variant", "chaos_guard"])
+         data_fields=["strategy", "bg_low", "mg_size", "step_scale", "sigma", "mu", "wavelet_g", "wavelet_zeta",
+                      "stage_bounds", "stage_order"],
+         meta_fields=["variant", "selection", "dims", "original_uniform", "wavelet_bounded", "bound_mode",
+                      "chaos_guard", "overrides"])
 @dataclasses.dataclass(frozen=True)
 class CGOConfig:
-    """CGO hyperparameters (numeric fields are data and may be vmapped).
+    """CGO hyperparameters: data fields are traced (and may be vmapped), static fields select code.
+
+    The defaults are the ``paper`` variant. Build a variant with its factory,
+    :meth:`paper`, :meth:`matlab` or :meth:`mealpy` (or :meth:`build` with the
+    variant as a keyword, for config files); each sets every field in
+    :data:`VARIANT_FIELDS` to the variant's published setting
+    (:data:`VARIANT_SETTINGS`), and the keywords given to it win. A config whose
+    variant fields differ from its variant's setting must name them in
+    ``overrides`` (the factories do this for the keywords they are given);
+    otherwise ``__post_init__`` raises. So ``dataclasses.replace(CGOConfig.paper(),
+    variant="matlab")`` and ``CGOConfig(variant="mealpy")`` raise instead of
+    silently mixing one variant's code with another's settings.
 
     Attributes:
-        strategy: 4th-seed strategy, name or index into ``mutation.STRATEGIES``
-            (0 original, 1 chaos, 2 gaussian, 3 wavelet, 4 three_stage).
-        variant: ``paper``, ``matlab`` or ``mealpy`` (static; see module docstring).
-        selection: ``greedy`` (0) or ``truncation`` (1); None -> by variant.
-        bg_low: beta, gamma drawn from {bg_low, bg_low + 1}; None -> by
-            variant: 1 for ``paper`` (its "random integer 1 or 2") and
-            ``matlab``, 0 for ``mealpy`` (the {0, 1} die of Fig. 4).
-        mg_size: MG_i is the mean of this many distinct random seeds (capped
-            at the population size); 0 draws the count k_i ~ U{1..N} per seed.
-            None -> by variant: 0 for ``paper`` and ``matlab``, 3 for ``mealpy``.
-        dims: mutated coordinates of the 4th seed: ``subset`` (0, random
-            subset of random size >= 1), ``all`` (1), ``one`` (2).
+        strategy: 4th-seed strategy (data), name or index into ``mutation.STRATEGIES``
+            (0 original, 1 chaos, 2 gaussian, 3 wavelet, 4 three_stage); the
+            axis a study runs side by side (``CGO.axis``).
+        variant: ``paper``, ``matlab`` or ``mealpy`` (static; picks the alpha
+            forms and the seed 2/3 formulas, see the module docstring).
+        selection: ``greedy`` (best of X_i and its 4 seeds) or ``truncation``
+            (best N of the N + 4N pool) (static). By variant: truncation for
+            ``matlab``, greedy otherwise.
+        bg_low: beta, gamma drawn from {bg_low, bg_low + 1} (data). By variant:
+            1 for ``paper`` (its "random integer 1 or 2") and ``matlab``, 0 for
+            ``mealpy`` (the {0, 1} die of Fig. 4).
+        mg_size: MG_i is the mean of this many distinct random seeds (data,
+            capped at the population size); 0 draws the count k_i ~ U{1..N}
+            per seed. By variant: 0 for ``paper`` and ``matlab``, 3 for ``mealpy``.
+        dims: mutated coordinates of the 4th seed (static): ``subset`` (random
+            subset of random size >= 1), ``all``, ``one``.
         original_uniform: 4th seed ``original`` is a uniform random point (the
-            MATLAB code) instead of eq. 15; None -> by variant.
+            MATLAB code) instead of eq. 15 (static). By variant: True for ``matlab``.
         step_scale: multiplier of the 4th-seed perturbation (scalar or (D,)),
             in units of the variables; 1 = the paper's literal amplitudes.
         sigma: Gaussian mutation standard deviation (eq. 16), before scaling.
@@ -84,75 +139,105 @@ class CGOConfig:
         wavelet_g: upper limit g of the wavelet dilation (Ling et al.: 10000).
         wavelet_zeta: shape zeta of the dilation schedule.
         wavelet_bounded: Ling's bound-relative step x + s (ub - x) / x + s (x - lb)
-            instead of the paper's additive x + psi.
+            instead of the paper's additive x + psi (static).
         stage_bounds: fractions of the run where stages 2 and 3 of
-            ``three_stage`` start (default thirds).
+            ``three_stage`` start (default thirds; data).
         stage_order: strategy indices of stages 1-3 (default chaos, gaussian,
-            wavelet).
-        bound_mode: out-of-box coordinates of a new seed are ``clip``-ped (0,
-            both reference codes), set to the ``midpoint`` of the parent and
-            the violated bound (1), or redrawn uniformly in the box (2,
-            ``random``).
+            wavelet; data).
+        bound_mode: out-of-box coordinates of a new seed are ``clip``-ped (both
+            reference codes), set to the ``midpoint`` of the parent and the
+            violated bound, or redrawn uniformly in the box (``random``) (static).
+        overrides: the variant fields deliberately set away from the variant's
+            setting (static, sorted names; filled in by the factories).
     """
 
     strategy: Any = 0
     variant: str = "paper"
-    selection: Any = None
-    bg_low: Any = None
-    mg_size: Any = None
-    dims: Any = 0
-    original_uniform: Any = None
+    selection: str = "greedy"
+    bg_low: Any = 1
+    mg_size: Any = 0
+    dims: str = "subset"
+    original_uniform: bool = False
     step_scale: Any = 1.0
     sigma: Any = 1.0
     mu: Any = 4.0
     chaos_guard: bool = True
     wavelet_g: Any = 10000.0
     wavelet_zeta: Any = 5.0
-    wavelet_bounded: Any = False
+    wavelet_bounded: bool = False
     stage_bounds: Any = (1.0 / 3.0, 2.0 / 3.0)
     stage_order: Any = (mut.CHAOS, mut.GAUSSIAN, mut.WAVELET)
-    bound_mode: Any = 0
+    bound_mode: str = "clip"
+    overrides: tuple = ()
 
     def __post_init__(self):
-        if self.variant not in VARIANTS:
-            raise ValueError(f"unknown CGO variant {self.variant!r}; choose one of {VARIANTS}")
         set_ = partial(object.__setattr__, self)
-        if isinstance(self.strategy, str):
+        _choice("variant", self.variant, VARIANTS)
+        _choice("selection", self.selection, SELECTIONS)
+        _choice("dims mode", self.dims, mut.DIM_MODES)
+        _choice("bound_mode", self.bound_mode, BOUND_MODES)
+        set_("original_uniform", _flag("original_uniform", self.original_uniform))
+        set_("wavelet_bounded", _flag("wavelet_bounded", self.wavelet_bounded))
+        set_("chaos_guard", _flag("chaos_guard", self.chaos_guard))
+        if isinstance(self.strategy, str) or _scalar(self.strategy):
             set_("strategy", mut.strategy_index(self.strategy))
-        if self.selection is None:
-            set_("selection", 1 if self.variant == "matlab" else 0)
-        elif isinstance(self.selection, str):
-            if self.selection not in SELECTIONS:
-                raise ValueError(f"unknown CGO selection {self.selection!r}; choose one of {SELECTIONS}")
-            set_("selection", SELECTIONS.index(self.selection))
-        if self.bg_low is None:
-            set_("bg_low", 0 if self.variant == "mealpy" else 1)
-        if self.mg_size is None:
-            set_("mg_size", 3 if self.variant == "mealpy" else 0)
-        elif isinstance(self.mg_size, (int, float)) and (self.mg_size < 0 or self.mg_size != int(self.mg_size)):
+        if _scalar(self.mg_size) and (self.mg_size < 0 or self.mg_size != int(self.mg_size)):
             raise ValueError(f"CGO mg_size must be an integer >= 0 (0 = random group size), got {self.mg_size}")
-        if self.original_uniform is None:
-            set_("original_uniform", self.variant == "matlab")
-        if isinstance(self.dims, str):
-            if self.dims not in mut.DIM_MODES:
-                raise ValueError(f"unknown CGO dims mode {self.dims!r}; choose one of {mut.DIM_MODES}")
-            set_("dims", mut.DIM_MODES.index(self.dims))
-        if isinstance(self.bound_mode, str):
-            if self.bound_mode not in BOUND_MODES:
-                raise ValueError(f"unknown CGO bound_mode {self.bound_mode!r}; choose one of {BOUND_MODES}")
-            set_("bound_mode", BOUND_MODES.index(self.bound_mode))
         if isinstance(self.stage_order, (tuple, list)):
             order = tuple(mut.strategy_index(x) if isinstance(x, str) else x for x in self.stage_order)
-            if len(order) != 3 or any(isinstance(x, int) and not 0 <= x <= 3 for x in order):
+            if len(order) != 3 or any(_scalar(x) and not 0 <= x <= 3 for x in order):
                 raise ValueError("CGO stage_order must name 3 single strategies (original/chaos/gaussian/wavelet)")
             set_("stage_order", order)
-        if isinstance(self.mu, (int, float)) and not 3.57 <= self.mu <= 4.0:
+        if _scalar(self.mu) and not 3.57 <= self.mu <= 4.0:
             raise ValueError(f"CGO mu must be in [3.57, 4], got {self.mu}")
+        over = self.overrides
+        if isinstance(over, str) or not isinstance(over, (tuple, list)) or any(f not in VARIANT_FIELDS for f in over):
+            raise ValueError(f"CGO overrides must be a tuple of names from {VARIANT_FIELDS}, got {over!r}")
+        set_("overrides", tuple(sorted(set(over))))
+        want = VARIANT_SETTINGS[self.variant]
+        bad = [f for f in VARIANT_FIELDS if f not in self.overrides and _concrete_differs(getattr(self, f), want[f])]
+        if bad:
+            got = ", ".join(f"{f}={getattr(self, f)!r}" for f in bad)
+            need = ", ".join(f"{f}={want[f]!r}" for f in bad)
+            raise ValueError(f"CGO variant {self.variant!r} sets {need}, this config has {got}: build it with "
+                             f"CGOConfig.{self.variant}(...), which records deliberate changes in overrides")
+
+    @classmethod
+    def paper(cls, **kw) -> "CGOConfig":
+        """The ICGO paper's text (the default); keywords override any field."""
+        return cls._variant("paper", kw)
 
     @classmethod
     def matlab(cls, **kw) -> "CGOConfig":
-        """Config of the original MATLAB code."""
-        return cls(variant="matlab", **kw)
+        """The original MATLAB code; keywords override any field."""
+        return cls._variant("matlab", kw)
+
+    @classmethod
+    def mealpy(cls, **kw) -> "CGOConfig":
+        """mealpy 3.x ``OriginalCGO``; keywords override any field."""
+        return cls._variant("mealpy", kw)
+
+    @classmethod
+    def build(cls, variant: str = "paper", **kw) -> "CGOConfig":
+        """The factory of ``variant`` called with ``kw`` (for config files: ``optimizer.params``)."""
+        _choice("variant", variant, VARIANTS)
+        return cls._variant(variant, kw)
+
+    @classmethod
+    def _variant(cls, variant: str, kw: dict) -> "CGOConfig":
+        if "variant" in kw:
+            raise ValueError("CGOConfig factories take the variant from their name; do not pass variant=")
+        want = VARIANT_SETTINGS[variant]
+        changed = {f for f in VARIANT_FIELDS if f in kw and _differs(kw[f], want[f])}
+        overrides = tuple(sorted(changed | set(kw.pop("overrides", ()))))
+        return cls(**{**want, **kw, "variant": variant, "overrides": overrides})
+
+
+def _concrete_differs(value, want) -> bool:
+    """A concrete value that differs from ``want``; traced or stacked values are not checked."""
+    if isinstance(value, (str, bool, np.bool_)) or _scalar(value):
+        return _differs(value, want)
+    return False
 
 
 def _alphas(key, P: int, D_alpha: int, dtype) -> jax.Array:
@@ -194,7 +279,7 @@ def mean_groups(key, X: jax.Array, size=0) -> jax.Array:
     return w @ X
 
 
-def repair(key, S, parent, lb, ub, mode) -> jax.Array:
+def repair(key, S, parent, lb, ub, mode: str = "clip") -> jax.Array:
     """Bring new seeds back into the box [lb, ub].
 
     Args:
@@ -202,17 +287,46 @@ def repair(key, S, parent, lb, ub, mode) -> jax.Array:
         S: new seeds, shape (..., D).
         parent: the seeds' parent X_i, broadcastable to ``S``.
         lb, ub: bounds, (D,).
-        mode: int data: 0 clip, 1 midpoint of parent and violated bound,
-            2 uniform redraw of the violated coordinates.
+        mode: static, one of :data:`BOUND_MODES`: ``clip``, ``midpoint`` (of
+            the parent and the violated bound) or ``random`` (uniform redraw of
+            the violated coordinates).
 
     Returns:
         Seeds inside the box, same shape as ``S``.
     """
-    low, high = S < lb, S > ub
-    mid = jnp.where(low, 0.5 * (parent + lb), jnp.where(high, 0.5 * (parent + ub), S))
-    rnd = jnp.where(low | high, lb + jax.random.uniform(key, S.shape, S.dtype) * (ub - lb), S)
-    out = jnp.where(mode == 1, mid, jnp.where(mode == 2, rnd, S))
-    return jnp.clip(out, lb, ub)
+    _choice("bound_mode", mode, BOUND_MODES)
+    if mode == "midpoint":
+        S = jnp.where(S < lb, 0.5 * (parent + lb), jnp.where(S > ub, 0.5 * (parent + ub), S))
+    elif mode == "random":
+        S = jnp.where((S < lb) | (S > ub), lb + jax.random.uniform(key, S.shape, S.dtype) * (ub - lb), S)
+    return jnp.clip(S, lb, ub)
+
+
+def select(X, f, seeds, fs, selection: str = "greedy"):
+    """The next population from the parents and their seeds.
+
+    Args:
+        X: parents, shape (P, D); f: their fitness, (P,).
+        seeds: the 4 new seeds of each parent, (P, 4, D); fs: their fitness, (P, 4).
+        selection: static, ``greedy`` (each X_i is replaced by the best of
+            itself and its 4 seeds) or ``truncation`` (the best P of the
+            P + 4P pool, ascending; a stable sort keeps parents first on ties).
+
+    Returns:
+        ``(new_X (P, D), new_f (P,))``.
+    """
+    _choice("selection", selection, SELECTIONS)
+    P, D = X.shape
+    if selection == "greedy":
+        cand = jnp.concatenate([X[:, None], seeds], axis=1)  # (P, 5, D)
+        cand_f = jnp.concatenate([f[:, None], fs], axis=1)
+        j = jnp.argmin(cand_f, axis=1)
+        return (jnp.take_along_axis(cand, j[:, None, None], axis=1)[:, 0],
+                jnp.take_along_axis(cand_f, j[:, None], axis=1)[:, 0])
+    pool_f = jnp.concatenate([f, fs.T.reshape(-1)])
+    order = jnp.argsort(pool_f, stable=True)[:P]
+    pool = jnp.concatenate([X, jnp.transpose(seeds, (1, 0, 2)).reshape(4 * P, D)])
+    return pool[order], pool_f[order]
 
 
 def _init(key, fitness, lb, ub, pop_size, config, aux) -> State:
@@ -253,20 +367,7 @@ def _step(state: State, key, t, T, fitness) -> State:
     seeds = repair(ks[6], jnp.stack([S1, S2, S3, S4], axis=1), X[:, None], lb, ub, cfg.bound_mode)  # (P, 4, D)
     fs = evaluate(fitness, seeds.reshape(4 * P, D), aux).reshape(P, 4)
 
-    cand = jnp.concatenate([X[:, None], seeds], axis=1)  # (P, 5, D)
-    cand_f = jnp.concatenate([f[:, None], fs], axis=1)
-    # greedy: best of parent and its 4 seeds
-    j = jnp.argmin(cand_f, axis=1)
-    g_x = jnp.take_along_axis(cand, j[:, None, None], axis=1)[:, 0]
-    g_f = jnp.take_along_axis(cand_f, j[:, None], axis=1)[:, 0]
-    # truncation: best N of the (N + 4N) pool (stable sort keeps parents first on ties)
-    order = jnp.argsort(jnp.concatenate([f, fs.T.reshape(-1)]), stable=True)[:P]
-    pool = jnp.concatenate([X, jnp.transpose(seeds, (1, 0, 2)).reshape(4 * P, D)])
-    pool_f = jnp.concatenate([f, fs.T.reshape(-1)])
-    trunc = cfg.selection == 1
-    new_X = jnp.where(trunc, pool[order], g_x)
-    new_f = jnp.where(trunc, pool_f[order], g_f)
-
+    new_X, new_f = select(X, f, seeds, fs, cfg.selection)
     chaos = mut.logistic_step(ks[5], state.extra, cfg.mu, cfg.chaos_guard)
     best_x, best_f = update_best(state.best_x, state.best_f, new_X, new_f)
     return State(new_X, new_f, best_x, best_f, state.n_evals + 4 * P, chaos, state.ctx)
@@ -276,4 +377,4 @@ def _evals(pop_size: int, config) -> tuple[int, int]:
     return pop_size, 4 * pop_size
 
 
-CGO = register(Algorithm("cgo", CGOConfig, _init, _step, _evals))
+CGO = register(Algorithm("cgo", CGOConfig, _init, _step, _evals, axis="strategy", config_factory=CGOConfig.build))

@@ -25,18 +25,18 @@ SURVIVORS = ("plus", "generational")
 
 
 @partial(jax.tree_util.register_dataclass,
-         data_fields=["crossover", "survivors", "pc", "eta_c", "sbx_swap", "blend_alpha", "pm", "mut_sigma", "mut_decay"],
-         meta_fields=["tournament", "n_elite"])
+         data_fields=["pc", "eta_c", "sbx_swap", "blend_alpha", "pm", "mut_sigma", "mut_decay"],
+         meta_fields=["tournament", "n_elite", "crossover", "survivors"])
 @dataclasses.dataclass(frozen=True)
 class GAConfig:
-    """GA hyperparameters.
+    """GA hyperparameters (numeric fields are data; the static ones select code).
 
     Attributes:
         tournament: tournament size (static).
         n_elite: parents kept unchanged each generation (static).
-        crossover: ``sbx`` (0) or ``blend`` (1).
-        survivors: ``plus`` (0, best P of parents + offspring) or
-            ``generational`` (1, offspring + ``n_elite`` elite parents).
+        crossover: ``sbx`` or ``blend`` (static).
+        survivors: ``plus`` (best P of parents + offspring) or
+            ``generational`` (offspring + ``n_elite`` elite parents) (static).
         pc: crossover probability per pair.
         eta_c: SBX distribution index.
         sbx_swap: per-variable probability of exchanging the two SBX
@@ -49,8 +49,8 @@ class GAConfig:
 
     tournament: int = 3
     n_elite: int = 2
-    crossover: Any = 0
-    survivors: Any = 0
+    crossover: str = "sbx"
+    survivors: str = "plus"
     pc: Any = 0.9
     eta_c: Any = 15.0
     sbx_swap: Any = 0.5
@@ -60,14 +60,10 @@ class GAConfig:
     mut_decay: Any = 0.9
 
     def __post_init__(self):
-        if isinstance(self.crossover, str):
-            if self.crossover not in CROSSOVERS:
-                raise ValueError(f"unknown GA crossover {self.crossover!r}; choose one of {CROSSOVERS}")
-            object.__setattr__(self, "crossover", CROSSOVERS.index(self.crossover))
-        if isinstance(self.survivors, str):
-            if self.survivors not in SURVIVORS:
-                raise ValueError(f"unknown GA survivors {self.survivors!r}; choose one of {SURVIVORS}")
-            object.__setattr__(self, "survivors", SURVIVORS.index(self.survivors))
+        if not isinstance(self.crossover, str) or self.crossover not in CROSSOVERS:
+            raise ValueError(f"unknown GA crossover {self.crossover!r}; choose one of {CROSSOVERS} (static option)")
+        if not isinstance(self.survivors, str) or self.survivors not in SURVIVORS:
+            raise ValueError(f"unknown GA survivors {self.survivors!r}; choose one of {SURVIVORS} (static option)")
         if self.pm is None:
             object.__setattr__(self, "pm", -1.0)
         if not isinstance(self.tournament, int) or self.tournament < 1:
@@ -127,11 +123,11 @@ def _step(state: State, key, t, T, fitness) -> State:
     p1 = X[_tournament(ks[0], f, n_pairs, cfg.tournament)]
     p2 = X[_tournament(ks[1], f, n_pairs, cfg.tournament)]
 
-    sbx1, sbx2 = sbx(ks[2], ks[7], p1, p2, cfg.eta_c, cfg.sbx_swap)
-    g = jax.random.uniform(ks[3], (2,) + p1.shape, X.dtype, -cfg.blend_alpha, 1 + cfg.blend_alpha)
-    blx1, blx2 = p1 + g[0] * (p2 - p1), p1 + g[1] * (p2 - p1)
-    blend = cfg.crossover == 1
-    c1, c2 = jnp.where(blend, blx1, sbx1), jnp.where(blend, blx2, sbx2)
+    if cfg.crossover == "sbx":
+        c1, c2 = sbx(ks[2], ks[7], p1, p2, cfg.eta_c, cfg.sbx_swap)
+    else:  # BLX-alpha
+        g = jax.random.uniform(ks[3], (2,) + p1.shape, X.dtype, -cfg.blend_alpha, 1 + cfg.blend_alpha)
+        c1, c2 = p1 + g[0] * (p2 - p1), p1 + g[1] * (p2 - p1)
     do = jax.random.uniform(ks[4], (n_pairs, 1), X.dtype) < cfg.pc
     c1, c2 = jnp.where(do, c1, p1), jnp.where(do, c2, p2)
     kids = jnp.concatenate([c1, c2])[:P]
@@ -143,19 +139,17 @@ def _step(state: State, key, t, T, fitness) -> State:
     kf = evaluate(fitness, kids, state.ctx.aux)
 
     E = cfg.n_elite
-    if E:
+    if cfg.survivors == "plus":  # (mu + lambda): best P of the 2P pool (stable sort keeps parents first on ties)
+        pool_X, pool_f = jnp.concatenate([X, kids]), jnp.concatenate([f, kf])
+        best = jnp.argsort(pool_f, stable=True)[:P]
+        new_X, new_f = pool_X[best], pool_f[best]
+    elif E:  # generational with elitism
         elite = jnp.argsort(f)[:E]
         keep = jnp.argsort(kf)[:P - E]
-        gen_X = jnp.concatenate([X[elite], kids[keep]])
-        gen_f = jnp.concatenate([f[elite], kf[keep]])
+        new_X = jnp.concatenate([X[elite], kids[keep]])
+        new_f = jnp.concatenate([f[elite], kf[keep]])
     else:
-        gen_X, gen_f = kids, kf
-    # (mu + lambda): best P of the 2P pool (stable sort keeps parents first on ties)
-    pool_X, pool_f = jnp.concatenate([X, kids]), jnp.concatenate([f, kf])
-    best = jnp.argsort(pool_f, stable=True)[:P]
-    plus = cfg.survivors == 0
-    new_X = jnp.where(plus, pool_X[best], gen_X)
-    new_f = jnp.where(plus, pool_f[best], gen_f)
+        new_X, new_f = kids, kf
     best_x, best_f = update_best(state.best_x, state.best_f, kids, kf)
     return State(new_X, new_f, best_x, best_f, state.n_evals + P, (), state.ctx)
 

@@ -37,24 +37,27 @@ def strategy_index(strategy) -> int:
     raise ValueError(f"unknown strategy {strategy!r}; choose a name in {STRATEGIES} or an index 0-4")
 
 
-def dims_mask(key, shape, mode) -> jax.Array:
+def dims_mask(key, shape, mode: str = "subset") -> jax.Array:
     """Which coordinates of each row are mutated.
 
     Args:
         key: PRNG key.
         shape: (P, D).
-        mode: int data: 0 ``subset`` (a random subset of m_i ~ U{1..D}
-            dimensions per row; at least one), 1 ``all``, 2 ``one`` (a single
-            random dimension).
+        mode: static, one of :data:`DIM_MODES`: ``subset`` (a random subset of
+            m_i ~ U{1..D} dimensions per row; at least one), ``all``, ``one``
+            (a single random dimension).
 
     Returns:
         Boolean mask, shape (P, D).
     """
+    if mode not in DIM_MODES:
+        raise ValueError(f"unknown dims mode {mode!r}; choose one of {DIM_MODES} (static option)")
     P, D = shape
+    if mode == "all":
+        return jnp.ones(shape, bool)
     k_m, k_perm = jax.random.split(key)
-    m = jax.random.randint(k_m, (P, 1), 1, D + 1)
     rank = jnp.argsort(jnp.argsort(jax.random.uniform(k_perm, (P, D)), axis=1), axis=1)
-    m = jnp.where(mode == 1, D, jnp.where(mode == 2, 1, m))
+    m = 1 if mode == "one" else jax.random.randint(k_m, (P, 1), 1, D + 1)
     return rank < m
 
 
@@ -151,8 +154,10 @@ def mutate(key, x, mask, r_chaos, strategy, t, T, lb, ub, cfg) -> jax.Array:
         t, T: iteration and iteration count.
         lb, ub: bounds, (D,) (used by the ``matlab`` original seed and by the
             bound-relative wavelet step).
-        cfg: CGO config (fields ``step_scale``, ``sigma``, ``wavelet_g``,
-            ``wavelet_zeta``, ``wavelet_bounded``, ``original_uniform``).
+        cfg: CGO config (data fields ``step_scale``, ``sigma``, ``wavelet_g``,
+            ``wavelet_zeta``; static flags ``wavelet_bounded`` and
+            ``original_uniform`` pick the code of the wavelet and original
+            operators).
 
     Returns:
         Unclipped S^4, shape (P, D).
@@ -160,9 +165,10 @@ def mutate(key, x, mask, r_chaos, strategy, t, T, lb, ub, cfg) -> jax.Array:
     scale = jnp.asarray(cfg.step_scale, x.dtype)
 
     def original(k):  # eq. 15: x_k + R, R ~ U(0,1); matlab: uniform random point
-        add = x + scale * jax.random.uniform(k, x.shape, x.dtype)
-        uni = lb + jax.random.uniform(k, x.shape, x.dtype) * (ub - lb)
-        return jnp.where(cfg.original_uniform, uni, jnp.where(mask, add, x))
+        u = jax.random.uniform(k, x.shape, x.dtype)
+        if cfg.original_uniform:
+            return lb + u * (ub - lb)
+        return jnp.where(mask, x + scale * u, x)
 
     def chaos(k):  # eq. 17: x_k + r_t
         return jnp.where(mask, x + scale * r_chaos, x)
@@ -173,8 +179,8 @@ def mutate(key, x, mask, r_chaos, strategy, t, T, lb, ub, cfg) -> jax.Array:
     def wavelet(k):  # eq. 18 with Ling et al. (2008) dilation and normalisation
         a = wavelet_dilation(t, T, cfg.wavelet_g, cfg.wavelet_zeta)
         s = wavelet_sigma(k, x.shape, a, x.dtype)
-        additive = x + scale * s
-        bounded = jnp.where(s > 0, x + s * (ub - x), x + s * (x - lb))
-        return jnp.where(mask, jnp.where(cfg.wavelet_bounded, bounded, additive), x)
+        if cfg.wavelet_bounded:
+            return jnp.where(mask, jnp.where(s > 0, x + s * (ub - x), x + s * (x - lb)), x)
+        return jnp.where(mask, x + scale * s, x)
 
     return lax.switch(jnp.clip(strategy, 0, 3), (original, chaos, gaussian, wavelet), key)
