@@ -87,7 +87,7 @@ def _is_int(x) -> bool:
     return isinstance(x, int) and not isinstance(x, bool)
 
 
-#: Config nodes whose keys are :class:`icgo.study.StudyConfig` fields: key ``k`` of node ``g`` is the
+#: Config nodes whose keys are :class:`icgo.studies.icgo_relm.StudyConfig` fields: key ``k`` of node ``g`` is the
 #: field ``g_k`` if there is one (``msa.iterations`` -> ``msa_iterations``), else ``k``; except the aliases below.
 STUDY_NODES = ("split", "msa", "model", "fitness", "budget")
 #: The keys whose field name follows neither rule.
@@ -111,7 +111,7 @@ def _unknown(keys, allowed, where: str) -> None:
 def check_config(cfg: DictConfig) -> None:
     """Entry-point checks: no unknown key anywhere, and the data set settings.
 
-    The study's own settings are validated by :class:`icgo.study.StudyConfig`
+    The study's own settings are validated by :class:`icgo.studies.icgo_relm.StudyConfig`
     (one place); this checks what only the entry point reads.
 
     Raises:
@@ -147,7 +147,7 @@ def study_settings(cfg: DictConfig) -> tuple[dict, dict]:
     """
     import dataclasses
 
-    from icgo.study import StudyConfig
+    from icgo.studies.icgo_relm import StudyConfig
 
     fields = {f.name for f in dataclasses.fields(StudyConfig)}
     values, where = {}, {}
@@ -158,7 +158,7 @@ def study_settings(cfg: DictConfig) -> tuple[dict, dict]:
             _need(field not in where, f"settings {where.get(field)!r} and {key!r} both map to the study field "
                                       f"{field!r}")
             _need(field in fields, f"unknown setting {key!r}: not a setting of the study "
-                                   f"(icgo.study.StudyConfig has {sorted(fields)})")
+                                   f"(icgo.studies.icgo_relm.StudyConfig has {sorted(fields)})")
             values[field], where[field] = v, key
     for key, field in STUDY_ALIASES.items():
         if key not in where.values():
@@ -169,12 +169,12 @@ def study_settings(cfg: DictConfig) -> tuple[dict, dict]:
 
 
 def study_config(cfg: DictConfig):
-    """:class:`icgo.study.StudyConfig` from a composed config (entry-point checks first).
+    """:class:`icgo.studies.icgo_relm.StudyConfig` from a composed config (entry-point checks first).
 
     Raises:
         ConfigError: one line naming the config key (``split.n_repeats``), not the field.
     """
-    from icgo.study import StudyConfig
+    from icgo.studies.icgo_relm import StudyConfig
     from icgo.studies import SettingError
 
     check_config(cfg)
@@ -314,13 +314,13 @@ def progress_enabled(setting) -> bool:
 
 
 def run_with_progress(frame, scfg, meta, enable: bool, desc: str):
-    """``icgo.study.run_study`` with a progress bar over the optimizer's iterations.
+    """``icgo.studies.icgo_relm.run_study`` with a progress bar over the optimizer's iterations.
 
     The bar wraps the search's fitness (``run_study(wrap_fitness=...)``), so it
     advances from inside the scan; without an optimizer (plain RELM) there is no
     scan and no bar.
     """
-    from icgo import study
+    from icgo.studies import icgo_relm as study
 
     if not enable or scfg.optimizer is None:
         return study.run_study(frame, scfg, meta)

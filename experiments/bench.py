@@ -51,7 +51,8 @@ import jax.numpy as jnp
 import numpy as np
 
 import icgo  # noqa: F401  (enables float64)
-from icgo import datasets, relm, study
+from icgo import datasets, relm
+from icgo.studies import icgo_relm as study
 from icgo.optim import run_batch
 from icgo.optim.cgo import CGO
 

@@ -567,7 +567,7 @@ def plot_study(result, path: Path, title: str = "") -> None:
     """The run directory's figure: convergence, test error before/after, per-repeat MAE.
 
     Args:
-        result: :class:`icgo.study.StudyResult`.
+        result: :class:`icgo.studies.icgo_relm.StudyResult`.
         path: PNG path.
         title: figure title.
     """

@@ -1,7 +1,7 @@
 """ICGO-RELM study, the Hydra front door: ``python -m experiments.run strategy=three_stage``.
 
 Composes ``conf/config.yaml`` (groups: dataset, model, optimizer, strategy,
-schedule, budget, split, fitness, experiment), runs :func:`icgo.study.run_study`
+schedule, budget, split, fitness, experiment), runs :func:`icgo.studies.icgo_relm.run_study`
 and writes into the run directory (``HydraConfig.get().runtime.output_dir``):
 ``config.yaml`` (resolved), ``metrics.csv`` (per method, repeat, split),
 ``convergence.csv``, ``predictions.csv``, ``msa.csv``, ``summary.csv``,

@@ -184,10 +184,10 @@ def _fail_if_called(*a, **k):
 ])
 def test_bad_settings_fail_in_one_line_before_computation(override, expect, monkeypatch, capsys, tmp_path):
     import icgo.datasets
-    import icgo.study
+    import icgo.studies.icgo_relm
 
     monkeypatch.setattr(icgo.datasets, "lab_casing", _fail_if_called)
-    monkeypatch.setattr(icgo.study, "run_study", _fail_if_called)
+    monkeypatch.setattr(icgo.studies.icgo_relm, "_run", _fail_if_called)
     overrides = TINY + [override]
     if override.startswith("+dataset.path"):
         overrides = TINY + ["dataset=csv", "dataset.path=/no/such/file.csv"]
@@ -247,10 +247,10 @@ def test_progress_ticks_once_per_iteration_inside_the_scan():
 
 # ------------------------------------------------------------ one source of defaults
 def test_composed_default_equals_the_study_dataclass_defaults():
-    """`python -m experiments.run` with no override is icgo.study.StudyConfig() field by field (dtype=mixed)."""
+    """`python -m experiments.run` with no override is icgo.studies.icgo_relm.StudyConfig() field by field (dtype=mixed)."""
     import dataclasses
 
-    from icgo.study import StudyConfig
+    from icgo.studies.icgo_relm import StudyConfig
 
     cfg = C.study_config(_job_cfg([]))
     default = StudyConfig()
@@ -267,7 +267,7 @@ def test_every_study_field_has_a_config_key():
     """No StudyConfig field is unreachable from the command line (except those an entry point sets)."""
     import dataclasses
 
-    from icgo.study import StudyConfig
+    from icgo.studies.icgo_relm import StudyConfig
 
     _, where = C.study_settings(_job_cfg([]))
     missing = {f.name for f in dataclasses.fields(StudyConfig)} - set(where) - {"repeat_ids", "optimizer_config"}

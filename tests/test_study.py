@@ -7,7 +7,8 @@ import pandas as pd
 import pytest
 
 import icgo  # noqa: F401
-from icgo import effects, frames, metrics, study
+from icgo import effects, frames, metrics
+from icgo.studies import icgo_relm as study
 
 
 def sim_frame(seed=0, tf_step=10.0):

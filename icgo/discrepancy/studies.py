@@ -106,7 +106,7 @@ def lab_casing_study(config: WorkflowConfig = WorkflowConfig(), seed: int = 0) -
     the physics model + named effects and ICGO-RELM on the same test rows."""
     from icgo import io as icgo_io
     from icgo.datasets import lab_casing
-    from icgo.study import StudyConfig, run_study
+    from icgo.studies.icgo_relm import StudyConfig, run_study
 
     ds = lab_casing(seed)
     rec = icgo_io.validate(ds.frame, ds.meta, source="lab_casing")

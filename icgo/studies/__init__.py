@@ -71,12 +71,15 @@ class Study(NamedTuple):
             (the one source every Hydra config is checked against).
         run: ``(data, config, key) -> result`` with ``result.models`` and ``result.records``.
         description: one line.
+        example: ``() -> (data, config)``: a tiny but real instance of the study (seconds),
+            used by the registry-wide tests and as a usage example.
     """
 
     name: str
     config_cls: type
     run: Callable[[Any, Any, Any], Any]
     description: str = ""
+    example: Callable[[], tuple] | None = None
 
     def records(self, result) -> dict:
         """Named tables the study writes (``result.records``)."""

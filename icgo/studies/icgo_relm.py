@@ -40,7 +40,9 @@ from icgo import msa as _msa
 from icgo import relm as _relm
 from icgo.frames import angle_diff, azimuth_from_gv, wrap360
 from icgo.metrics import azimuth_metrics
+from icgo.optim.cgo import CGO
 from icgo.stats import mean_std_table
+from icgo.studies import Study, register_study
 
 REQUIRED_COLUMNS = ("gx", "gy", "gz", "bx", "by", "bz", "azimuth_deg")
 
@@ -105,7 +107,7 @@ class StudyConfig:
     val_fraction: float = 0.3
     k_folds: int = 5
     theta_bounds: tuple = (-1.0, 1.0)
-    optimizer: str | None = "cgo"
+    optimizer: str | None = CGO.name
     strategies: tuple = ("three_stage",)
     pop_size: int = 30
     iterations: int | None = 100
@@ -216,6 +218,17 @@ class StudyResult(NamedTuple):
     n_evals: np.ndarray
     model: Any
     msa_model: Any
+
+    @property
+    def records(self) -> dict:
+        """The tables a run directory holds (names and columns: :mod:`icgo.records`)."""
+        return {"metrics": self.metrics, "convergence": self.histories, "predictions": self.predictions,
+                "msa": self.msa.rename(columns={"condition": "condition_number"})}
+
+    @property
+    def models(self) -> dict:
+        """The fitted models by kind."""
+        return {self.model.KIND: self.model, self.msa_model.KIND: self.msa_model}
 
 
 # --------------------------------------------------------------------- filter
@@ -427,9 +440,33 @@ def _reference(cfg: StudyConfig, metadata):
 
 
 # --------------------------------------------------------------------- run
+class SurveyData(NamedTuple):
+    """The ICGO-RELM study's data: a data-contract frame and its metadata.
+
+    Attributes:
+        frame: DataFrame with gx, gy, gz (g), bx, by, bz (nT), azimuth_deg (deg).
+        meta: metadata dict (``total_field_nT``, ``dip_deg`` for msa_reference="known") or None.
+    """
+
+    frame: pd.DataFrame
+    meta: dict | None = None
+
+
+def run(data: SurveyData, config: StudyConfig, key, *, wrap_fitness=None) -> StudyResult:
+    """The registered study's ``run(data, config, key)``: repeat k uses ``fold_in(key, k)``.
+
+    Args:
+        data: :class:`SurveyData`.
+        config: :class:`StudyConfig` (its ``seed`` is recorded; the randomness comes from ``key``).
+        key: JAX PRNG key.
+        wrap_fitness: see :func:`run_study`.
+    """
+    return _run(data.frame, config, data.meta, key, wrap_fitness)
+
+
 def run_study(frame: pd.DataFrame, config: StudyConfig | None = None, metadata: dict | None = None, *,
               wrap_fitness=None) -> StudyResult:
-    """Run an ICGO-RELM study on a data-contract frame.
+    """Run an ICGO-RELM study on a data-contract frame with the key ``PRNGKey(config.seed)``.
 
     Args:
         frame: DataFrame with gx, gy, gz (g), bx, by, bz (nT), azimuth_deg (the
@@ -448,6 +485,10 @@ def run_study(frame: pd.DataFrame, config: StudyConfig | None = None, metadata: 
             that cannot determine the MSA parameters.
     """
     cfg = StudyConfig() if config is None else config
+    return _run(frame, cfg, metadata, jax.random.PRNGKey(cfg.seed), wrap_fitness)
+
+
+def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness) -> StudyResult:
     G_all, B_all, a_all = frame_arrays(frame)
     kept = sigma_filter(G_all, B_all, a_all, cfg.sigma_filter) if cfg.sigma_filter else np.ones(len(a_all), bool)
     G, B, a_true = G_all[kept], B_all[kept], a_all[kept]
@@ -456,8 +497,7 @@ def run_study(frame: pd.DataFrame, config: StudyConfig | None = None, metadata: 
     if cfg.msa_model == "biases_scales" and reference is None:
         raise ValueError("study: msa_model='biases_scales' needs msa_reference='known'")
     ids = cfg.ids()
-    base = jax.random.PRNGKey(cfg.seed)
-    keys = jnp.stack([jax.random.fold_in(base, i) for i in ids])
+    keys = jnp.stack([jax.random.fold_in(base_key, i) for i in ids])
 
     t0 = time.perf_counter()
     prep = _prepare(keys, jnp.asarray(G), jnp.asarray(B), jnp.asarray(a_true), reference, n_train=n_train,
@@ -468,10 +508,10 @@ def run_study(frame: pd.DataFrame, config: StudyConfig | None = None, metadata: 
     scored = _score_all(thetas, prep, jnp.asarray(a_true), cfg.lam, cfg.hidden)
     jax.block_until_ready(scored)
     wall = time.perf_counter() - t0
-    return _collect(cfg, frame, kept, a_true, G, B, prep, scored, curve, evals, ids, wall)
+    return _collect(cfg, frame, kept, a_true, G, B, prep, thetas, scored, curve, evals, ids, wall)
 
 
-def _collect(cfg, frame, kept, a_true, G, B, prep, scored, curve, evals, ids, wall) -> StudyResult:
+def _collect(cfg, frame, kept, a_true, G, B, prep, thetas, scored, curve, evals, ids, wall) -> StudyResult:
     methods = cfg.method_names()
     curve, evals = np.asarray(curve), np.asarray(evals)
     train = np.asarray(prep.train) > 0
@@ -548,3 +588,15 @@ def _fitted_models(cfg: StudyConfig, G, B, a_true, prep: Prepared, thetas, score
                            "train_fraction": cfg.train_fraction, "seed": cfg.seed},
                    bias=bias, scale=scale, repeat_ids=list(ids), **common)
     return relm, msa
+
+
+def example() -> tuple:
+    """A tiny ICGO-RELM study (seconds): lab_casing at a 45 deg toolface step, PSO, 2 repeats."""
+    from icgo import datasets
+
+    frame = datasets.lab_casing(0, toolface_step_deg=45.0).frame
+    return SurveyData(frame), StudyConfig(optimizer="pso", n_repeats=2, hidden=8, pop_size=6, iterations=3)
+
+
+register_study(Study("icgo_relm", StudyConfig, run, "MSA + RELM whose hidden weights an optimizer searches "
+                     "(ICGO paper sections 3.1-3.4)", example))
