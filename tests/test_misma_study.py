@@ -135,6 +135,7 @@ def test_same_key_same_records(tiny):
         np.testing.assert_array_equal(again.models[k].x_mag, res.models[k].x_mag)
 
 
+@pytest.mark.slow  # ~15 s of compilation in a fresh process; tests/test_studies.py runs the example in the fast suite
 def test_smoke_simulated_only_is_deterministic_by_key():
     cfg = config_from_mapping(misma.MismaConfig, {**TINY, "real": {"enabled": False}})
     data = misma.MismaData({"short": datasets.rotating_drill(0, duration_s=600.0)}, {})

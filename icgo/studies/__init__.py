@@ -89,7 +89,7 @@ class Study(NamedTuple):
 STUDIES: dict[str, Study] = {}
 
 #: Modules that register a study at import.
-_STUDY_MODULES = ("icgo.studies.icgo_relm", "icgo.studies.misma")
+_STUDY_MODULES = ("icgo.studies.icgo_relm", "icgo.studies.misma", "icgo.studies.gyro")
 
 
 def register_study(study: Study) -> Study:

@@ -689,4 +689,5 @@ def example() -> tuple[MismaData, MismaConfig]:
 
 
 STUDY = register_study(Study("misma", MismaConfig, run,
-                             "MISMA vs SMA 12-parameter magnetometer calibration: rotating_drill and 9 real devices"))
+                             "MISMA vs SMA 12-parameter magnetometer calibration: rotating_drill and 9 real devices",
+                             example))

@@ -1,0 +1,570 @@
+"""The gyro inclinometer study (issue #9, patent CN1888384): BP network vs lookup table (+ RELM, ICGO-RELM).
+
+Training data: the patent's turntable plan (:func:`icgo.datasets.turntable`:
+inclination 3, 5, 10, 15, 25, 35, 45, 55, 65, 75 deg x azimuth and toolface
+every 30 deg = 1440 points) from a 2-axis gyro + 2-accelerometer instrument
+with repeatable systematic errors. Test data: a dense random set of attitudes
+in the same ranges (:func:`icgo.datasets.turntable_random`) and a set half-way
+between the grid points in I, A and T (:func:`icgo.datasets.turntable_between`).
+
+Methods, each scored by the azimuth RMSE (deg) on both test sets, ``n_seeds``
+seeds per trained method (mean +/- std over seeds):
+
+* ``raw``: the instrument's computed azimuth (patent eq. 7);
+* ``table``: the prior-art error table over (I, A), toolface ignored, bilinear
+  (:class:`icgo.net_models.LookupTableModel`);
+* the network variants of ``variants`` (patent eqs. 8-12, :mod:`icgo.nets`; all
+  seeds of one variant train in one jitted, vmapped call;
+  :class:`icgo.net_models.GyroNetwork`);
+* ``relm`` / ``icgo_relm``: RELM (ICGO paper eqs. 8-9, :mod:`icgo.relm`) on the
+  encoded (I, T, computed A) with random hidden weights, or with hidden
+  weights searched by ``relm.optimizer`` (CGO with the three-stage 4th-seed
+  mutation by default) on the training-only RELM fitness
+  (:class:`icgo.net_models.GyroRELM`).
+
+Also: error vs number of turntable points (:func:`points_sweep`) and the
+``target=azimuth`` seam at north (:func:`seam_rows`).
+
+Randomness: ``key`` is split into the ``n_seeds`` per-seed keys shared by every
+trained method (seed k of every method uses key k); the data sets' noise comes
+from ``config.seed`` (train ``seed``, random ``seed + 1``, between ``seed + 2``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+
+from icgo import datasets, nets, relm
+from icgo.frames import angle_diff
+from icgo.net_models import GyroNetwork, GyroRELM, LookupTableModel, turntable_domain, turntable_hash
+from icgo.studies import Study, register_study
+
+log = logging.getLogger(__name__)
+
+
+# ===================================================================== config
+def _fail(where: str, msg: str):
+    raise ValueError(f"{where}: {msg}")
+
+
+def _integer(where, v, minimum=1):
+    """ValueError unless ``v`` is an integer >= minimum."""
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < minimum:
+        _fail(where, f"must be an integer >= {minimum}, got {v!r}")
+
+
+def _number(where, v, lo=0.0, hi=np.inf):
+    """ValueError unless ``v`` is a number with lo < v <= hi."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo < v <= hi:
+        _fail(where, f"must be a number in ({lo:g}, {hi:g}], got {v!r}")
+
+
+def _steps(where, values):
+    """Tuple of angle steps, each in (0, 360] deg."""
+    if isinstance(values, (str, bytes)) or not hasattr(values, "__len__"):
+        _fail(where, f"must be a list of steps in deg, got {values!r}")
+    for v in values:
+        _number(where, v, 0.0, 360.0)
+    return tuple(values)
+
+
+@dataclasses.dataclass(frozen=True)
+class DataConfig:
+    """The turntable plan (:func:`icgo.datasets.turntable`).
+
+    Attributes:
+        inclinations_deg: test inclinations, deg, each in (0, 90) (patent's 10 points).
+        azimuth_step_deg, toolface_step_deg: grid steps, deg, in (0, 360].
+        n_random: size of the dense random test set (I within the plan's range).
+        instrument: overrides of the simulated instrument (see ``turntable``'s docstring).
+    """
+
+    inclinations_deg: tuple = (3, 5, 10, 15, 25, 35, 45, 55, 65, 75)
+    azimuth_step_deg: float = 30
+    toolface_step_deg: float = 30
+    n_random: int = 2000
+    instrument: dict = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self):
+        inc = self.inclinations_deg
+        if isinstance(inc, (str, bytes)) or not hasattr(inc, "__len__") or len(inc) < 2:
+            _fail("data.inclinations_deg", f"must list at least 2 inclinations, got {inc!r}")
+        for v in inc:
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v < 90:
+                _fail("data.inclinations_deg", f"each must be in (0, 90) deg, got {v!r}")
+        object.__setattr__(self, "inclinations_deg", tuple(inc))
+        _number("data.azimuth_step_deg", self.azimuth_step_deg, 0.0, 360.0)
+        _number("data.toolface_step_deg", self.toolface_step_deg, 0.0, 360.0)
+        _integer("data.n_random", self.n_random)
+        if not isinstance(self.instrument, dict):
+            _fail("data.instrument", f"must be a mapping of instrument overrides, got {self.instrument!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class NetSection:
+    """:class:`icgo.nets.NetConfig` defaults of every network variant (same fields, same meaning)."""
+
+    hidden: tuple = (8, 8)
+    encoding: str = "scaled"
+    target: str = "error"
+    optimizer: str = "adam"
+    learning_rate: float = 0.01
+    epochs: int = 2000
+    batch_size: int = 32
+    val_fraction: float = 0.2
+    patience: int = 300
+    init_scale: float = 1.0
+
+    def __post_init__(self):
+        if isinstance(self.hidden, (list, tuple)):
+            object.__setattr__(self, "hidden", tuple(self.hidden))
+        self.netconfig({}, "net")
+
+    def netconfig(self, overrides: dict, where: str) -> nets.NetConfig:
+        """The checked :class:`icgo.nets.NetConfig` of these defaults updated by ``overrides``.
+
+        Raises:
+            ValueError: ``<where>: ...`` for an unknown key or a bad value.
+        """
+        d = {**dataclasses.asdict(self), **dict(overrides or {})}
+        unknown = sorted(set(d) - set(nets.NetConfig._fields))
+        if unknown:
+            _fail(where, f"unknown key(s) {unknown}; known: {list(nets.NetConfig._fields)}")
+        try:
+            d["hidden"] = tuple(int(h) for h in d["hidden"])
+            return nets._check_config(nets.NetConfig(**d))  # the one validation of NetConfig
+        except (TypeError, ValueError) as e:
+            _fail(where, str(e).splitlines()[0])
+
+
+def _default_variants():
+    patent_sgd = {"optimizer": "sgd", "batch_size": 1, "learning_rate": 0.01, "epochs": 1000, "patience": 200}
+    return {"net_error": {}, "net_error_sincos": {"encoding": "sincos"}, "net_error_sgd_patent": dict(patent_sgd),
+            "net_azimuth": {"target": "azimuth"}, "net_azimuth_sgd_patent": {"target": "azimuth", **patent_sgd}}
+
+
+@dataclasses.dataclass(frozen=True)
+class TableConfig:
+    """Lookup table: ``toolface="mean"`` (node = error averaged over toolface) or one toolface (deg)."""
+
+    toolface: str | float = "mean"
+
+    def __post_init__(self):
+        tf = self.toolface
+        if not (tf == "mean" or (isinstance(tf, (int, float)) and not isinstance(tf, bool))):
+            _fail("table.toolface", f"must be 'mean' or a toolface in deg, got {tf!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class RelmConfig:
+    """Plain RELM and ICGO-RELM on (I, T, computed A); target = azimuth error (deg).
+
+    Attributes:
+        enabled: run both. encoding: as the network's. hidden: L. lam: ridge lambda.
+        theta_bounds: (low, high) of the hidden weights. fitness: train (paper) | validation | kfold.
+        optimizer: registered optimizer of the search; strategy: its side-by-side axis value
+            (CGO: the 4th-seed mutation; ignored by optimizers without an axis).
+        pop_size, iterations: search budget.
+    """
+
+    enabled: bool = True
+    encoding: str = "scaled"
+    hidden: int = 30
+    lam: float = 1.0e-3
+    theta_bounds: tuple = (-1.0, 1.0)
+    fitness: str = "train"
+    optimizer: str = "cgo"
+    strategy: str = "three_stage"
+    pop_size: int = 30
+    iterations: int = 100
+
+    def __post_init__(self):
+        if self.encoding not in nets.ENCODINGS:
+            _fail("relm.encoding", f"must be one of {nets.ENCODINGS}, got {self.encoding!r}")
+        if self.fitness not in relm.FITNESS_MODES:
+            _fail("relm.fitness", f"must be one of {relm.FITNESS_MODES}, got {self.fitness!r}")
+        _integer("relm.hidden", self.hidden)
+        _number("relm.lam", self.lam)
+        tb = tuple(self.theta_bounds) if isinstance(self.theta_bounds, (list, tuple)) else ()
+        if len(tb) != 2 or not all(isinstance(x, (int, float)) for x in tb) or not tb[0] < tb[1]:
+            _fail("relm.theta_bounds", f"must be [low, high] with low < high, got {self.theta_bounds!r}")
+        object.__setattr__(self, "theta_bounds", tb)
+        _integer("relm.pop_size", self.pop_size, minimum=4)
+        _integer("relm.iterations", self.iterations)
+        self.search_configs()
+
+    def search_configs(self):
+        """``run_batch(configs=...)`` for the search: one config at ``strategy`` on the optimizer's axis, or None."""
+        from icgo.optim import get
+
+        try:
+            alg = get(self.optimizer)
+        except ValueError as e:
+            _fail("relm.optimizer", str(e))
+        if alg.axis is None:
+            return None
+        try:
+            return alg.axis_configs(None, [self.strategy])
+        except (TypeError, ValueError) as e:
+            _fail("relm.strategy", str(e).splitlines()[0])
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepConfig:
+    """Error vs number of turntable points: the network (``variant``) and the table on each step pair."""
+
+    enabled: bool = True
+    variant: str = "net_error"
+    azimuth_steps: tuple = (30, 60)
+    toolface_steps: tuple = (30, 45, 60, 90)
+    table_only_azimuth_steps: tuple = (10, 15)
+
+    def __post_init__(self):
+        for f in ("azimuth_steps", "toolface_steps", "table_only_azimuth_steps"):
+            object.__setattr__(self, f, _steps(f"sweep.{f}", getattr(self, f)))
+
+
+@dataclasses.dataclass(frozen=True)
+class SeamConfig:
+    """The 0/360 seam: "near north" = |true azimuth| < ``band_deg`` (deg, in (0, 180])."""
+
+    band_deg: float = 15
+
+    def __post_init__(self):
+        _number("seam.band_deg", self.band_deg, 0.0, 180.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class GyroConfig:
+    """The whole study (defaults = ``conf/gyro.yaml``; tested field by field).
+
+    Attributes:
+        seed: data noise seed (int >= 0). n_seeds: networks / RELMs per method.
+        data, net, table, relm, sweep, seam: the sections above.
+        variants: name -> overrides of ``net`` (one row of the methods table each).
+    """
+
+    seed: int = 0
+    n_seeds: int = 10
+    data: DataConfig = DataConfig()
+    net: NetSection = NetSection()
+    variants: dict = dataclasses.field(default_factory=_default_variants)
+    table: TableConfig = TableConfig()
+    relm: RelmConfig = RelmConfig()
+    sweep: SweepConfig = SweepConfig()
+    seam: SeamConfig = SeamConfig()
+
+    def __post_init__(self):
+        _integer("seed", self.seed, minimum=0)
+        _integer("n_seeds", self.n_seeds)
+        if not isinstance(self.variants, dict) or not self.variants:
+            _fail("variants", "at least one network variant is needed")
+        object.__setattr__(self, "variants", {str(k): dict(v or {}) for k, v in self.variants.items()})
+        for name, ov in self.variants.items():
+            self.net.netconfig(ov, f"variants.{name}")
+        if self.sweep.enabled and self.sweep.variant not in self.variants:
+            _fail("sweep.variant", f"{self.sweep.variant!r} is not one of variants {list(self.variants)}")
+
+    def netconfig(self, variant: str) -> nets.NetConfig:
+        """The :class:`icgo.nets.NetConfig` of one variant."""
+        return self.net.netconfig(self.variants[variant], f"variants.{variant}")
+
+
+# ======================================================================= data
+class GyroData(NamedTuple):
+    """Training turntable frame and the test frames ``{"random": ..., "between": ...}``."""
+
+    train: pd.DataFrame
+    tests: dict
+
+
+def turntable_train(config: GyroConfig, azimuth_step=None, toolface_step=None) -> pd.DataFrame:
+    """The training plan (seed ``config.seed``), optionally with other azimuth/toolface steps (deg)."""
+    d = config.data
+    return datasets.turntable(config.seed, inclinations_deg=[float(x) for x in d.inclinations_deg],
+                              azimuth_step_deg=float(d.azimuth_step_deg if azimuth_step is None else azimuth_step),
+                              toolface_step_deg=float(d.toolface_step_deg if toolface_step is None else toolface_step),
+                              **d.instrument).frame
+
+
+def load_data(config: GyroConfig) -> GyroData:
+    """Training plan and the two test sets of :class:`GyroConfig` ``.data``."""
+    d = config.data
+    inc = [float(x) for x in d.inclinations_deg]
+    tests = {
+        "random": datasets.turntable_random(config.seed + 1, n=int(d.n_random),
+                                            inclination_range_deg=(min(inc), max(inc)), **d.instrument).frame,
+        "between": datasets.turntable_between(config.seed + 2, inclinations_deg=inc,
+                                              azimuth_step_deg=float(d.azimuth_step_deg),
+                                              toolface_step_deg=float(d.toolface_step_deg), **d.instrument).frame,
+    }
+    return GyroData(turntable_train(config), tests)
+
+
+def _cols(f: pd.DataFrame):
+    """Measured (I, T, A_raw) and reference A (deg) of a turntable frame, four (N,) arrays."""
+    return (f["inclination_raw_deg"].to_numpy(), f["toolface_raw_deg"].to_numpy(),
+            f["azimuth_raw_deg"].to_numpy(), f["azimuth_deg"].to_numpy())
+
+
+# ==================================================================== scoring
+def azimuth_errors(a_true, a_pred):
+    """Wrapped errors ``A_pred - A_true`` (deg, (-180, 180]), shape of ``a_pred`` ((S, N) or (N,))."""
+    return np.asarray(angle_diff(np.asarray(a_pred), np.asarray(a_true)))
+
+
+def rmse(err, axis=-1):
+    """Root mean square over ``axis``."""
+    return np.sqrt(np.mean(np.asarray(err) ** 2, axis=axis))
+
+
+def pm(x, digits=3) -> str:
+    """``"mean +/- std"`` over seeds (population std), or the single value."""
+    x = np.atleast_1d(np.asarray(x, float))
+    return f"{x.mean():.{digits}f} +/- {x.std():.{digits}f}" if x.size > 1 else f"{x[0]:.{digits}f}"
+
+
+def score_rows(method, preds: dict, tests: dict, extra=None) -> list[dict]:
+    """One row per test set: RMSE / MAE / max |error| (deg) per seed, summarised over seeds.
+
+    Args:
+        preds: test name -> (S, N) or (N,) compensated azimuth, deg.
+        tests: test name -> frame with ``azimuth_deg``.
+        extra: columns added to every row.
+    """
+    rows = []
+    for k, f in tests.items():
+        e = np.atleast_2d(azimuth_errors(f["azimuth_deg"].to_numpy(), preds[k]))
+        r = rmse(e)
+        rows.append({"method": method, "test": k, "n_seeds": e.shape[0],
+                     "rmse_mean": r.mean(), "rmse_std": r.std(),
+                     "mae_mean": np.abs(e).mean(1).mean(), "max_abs_mean": np.abs(e).max(1).mean(),
+                     "rmse": pm(r), **(extra or {})})
+    return rows
+
+
+def seam_rows(method, preds, f: pd.DataFrame, band) -> dict:
+    """RMSE (deg) within ``band`` deg of north vs elsewhere, and their ratio; preds (S, N) or (N,)."""
+    a = f["azimuth_deg"].to_numpy()
+    north = np.abs(np.asarray(angle_diff(a, 0.0))) < band
+    e = np.atleast_2d(azimuth_errors(a, preds))
+    rn, rf = rmse(e[:, north]), rmse(e[:, ~north])
+    return {"method": method, "n_north": int(north.sum()), "rmse_north_mean": rn.mean(),
+            "rmse_north_std": rn.std(), "rmse_elsewhere_mean": rf.mean(), "rmse_elsewhere_std": rf.std(),
+            "ratio": rn.mean() / rf.mean()}
+
+
+def predict_all(model, tests: dict) -> dict:
+    """``{test: model.members(frame)}``, (S, N) compensated azimuth per test set."""
+    return {k: model.members(f) for k, f in tests.items()}
+
+
+# ==================================================================== methods
+def fit_table(tcfg: TableConfig, train: pd.DataFrame, config: dict) -> LookupTableModel:
+    """The lookup table from the turntable points (nominal I, A; error ``A_true - A_raw``)."""
+    err = azimuth_errors(train["azimuth_raw_deg"], train["azimuth_deg"])
+    tf = tcfg.toolface
+    t = nets.lookup_table_fit(train["inclination_deg"], train["azimuth_deg"], err, toolface_deg=train["toolface_deg"],
+                              at_toolface_deg=None if tf == "mean" else float(tf))
+    return LookupTableModel(config=dict(config), data_hash=turntable_hash(train), domain=turntable_domain(train),
+                            toolface=tf, inc_nodes=np.asarray(t.inc_nodes), az_nodes=np.asarray(t.az_nodes),
+                            error=np.asarray(t.error))
+
+
+def fit_network(variant: str, ncfg: nets.NetConfig, keys, train: pd.DataFrame, config: dict):
+    """Train ``len(keys)`` networks in one vmapped call; (GyroNetwork, seconds incl. compilation)."""
+    i, t, a, at = _cols(train)
+    t0 = time.perf_counter()
+    res = nets.fit(keys, i, t, a, at, ncfg)
+    jax.block_until_ready(res.params)
+    secs = time.perf_counter() - t0
+    return GyroNetwork.from_fit(variant, ncfg, res, train, config), secs
+
+
+def relm_fit_data(rc: RelmConfig, keys, X, T):
+    """Per-seed RELM fitness data (:class:`icgo.relm.FitData`) on all training points.
+
+    Inputs are standardised with the training statistics (:func:`icgo.relm.standardize_stats`);
+    the folds of ``rc.fitness`` are drawn from each seed's key.
+
+    Returns:
+        (FitData with leading axis S, theta keys (S, 2)).
+    """
+    S = keys.shape[0]
+    w = jnp.ones(X.shape[0])
+    k_theta, k_fold = jax.vmap(lambda k: jax.random.split(k, 2))(keys).transpose(1, 0, 2)
+    mean, std = relm.standardize_stats(X, w)
+    Xs = relm.standardize(X, mean, std)
+    fw, sw = jax.vmap(lambda k: relm.fold_weights(k, w, rc.fitness))(k_fold)
+    data = relm.FitData(jnp.broadcast_to(Xs, (S,) + Xs.shape), jnp.broadcast_to(T, (S,) + T.shape), fw, sw)
+    return data, k_theta
+
+
+def search_theta(rc: RelmConfig, keys, data: relm.FitData, n_in: int):
+    """Hidden weights searched by ``rc.optimizer`` on the training RELM fitness, all seeds in one call.
+
+    Returns:
+        (theta (S, (n_in + 1) L), best fitness (S,) deg).
+    """
+    from icgo.optim import run_batch
+
+    L, lo, hi = int(rc.hidden), *(float(x) for x in rc.theta_bounds)
+    D = relm.n_params(L, n_in)
+    configs = rc.search_configs()
+    res = run_batch(rc.optimizer, relm.make_fitness(float(rc.lam), L), (np.full(D, lo), np.full(D, hi)), keys,
+                    int(rc.pop_size), int(rc.iterations), configs=configs, aux=data)
+    if configs is not None:  # one value on the side-by-side axis: drop that axis
+        res = jax.tree_util.tree_map(lambda x: x[0], res)
+    return res.best_x, res.best_f
+
+
+def random_theta(rc: RelmConfig, k_theta, data: relm.FitData, n_in: int):
+    """Plain RELM: theta ~ U(theta_bounds) per seed and its training fitness; ((S, D), (S,))."""
+    L, lo, hi = int(rc.hidden), *(float(x) for x in rc.theta_bounds)
+    theta = jax.vmap(lambda k: relm.random_theta(k, L, (), lo, hi, n_inputs=n_in))(k_theta)
+    best_f = jax.vmap(lambda th, d: relm.fitness(th[None], d, float(rc.lam), L)[0])(theta, data)
+    return theta, best_f
+
+
+def fit_relm(rc: RelmConfig, keys, train: pd.DataFrame, optimized: bool, config: dict):
+    """Plain RELM or ICGO-RELM on the encoded (I, T, A_raw); target = wrapped error ``A_true - A_raw``.
+
+    Hidden weights per seed are random (``optimized=False``) or searched
+    (:func:`search_theta`); the output weights are the ridge solution (eq. 9) on
+    all training points (:func:`icgo.relm.fit_unchecked`).
+
+    Returns:
+        (GyroRELM, seconds incl. compilation).
+    """
+    L, lam = int(rc.hidden), float(rc.lam)
+    i, t, a, at = _cols(train)
+    X = jnp.asarray(nets.encode_inputs(i, t, a, rc.encoding))
+    T = jnp.asarray(azimuth_errors(a, at))
+    w = jnp.ones(X.shape[0])
+    t0 = time.perf_counter()
+    data, k_theta = relm_fit_data(rc, keys, X, T)
+    theta, best_f = (search_theta(rc, keys, data, X.shape[1]) if optimized
+                     else random_theta(rc, k_theta, data, X.shape[1]))
+    fitted = jax.vmap(lambda th: relm.fit_unchecked(th, X, T, lam, w, L))(theta)
+    jax.block_until_ready(fitted.beta)
+    secs = time.perf_counter() - t0
+    model = GyroRELM(config=dict(config), data_hash=turntable_hash(train), domain=turntable_domain(train),
+                     method="icgo_relm" if optimized else "relm", encoding=rc.encoding, hidden=L, lam=lam,
+                     theta=np.asarray(fitted.theta), beta=np.asarray(fitted.beta), mean=np.asarray(fitted.mean),
+                     std=np.asarray(fitted.std), train_fitness=np.asarray(best_f))
+    return model, secs
+
+
+# ===================================================================== sweep
+def sweep_steps(config: GyroConfig) -> list:
+    """(azimuth step, toolface step, with network) of the points sweep, deg."""
+    sw = config.sweep
+    steps = [(float(a), float(t), True) for a in sw.azimuth_steps for t in sw.toolface_steps]
+    return steps + [(float(a), float(t), False) for a in sw.table_only_azimuth_steps for t in sw.toolface_steps]
+
+
+def points_sweep(config: GyroConfig, keys, tests: dict, default_preds: dict) -> pd.DataFrame:
+    """Test RMSE vs number of turntable points: the table on every step pair, the network on the first ones.
+
+    ``default_preds`` are the sweep variant's predictions on the default plan (not retrained).
+    """
+    rows = [{**r, "azimuth_step_deg": np.nan, "toolface_step_deg": np.nan, "n_points": np.nan}
+            for r in score_rows("raw", {k: f["azimuth_raw_deg"].to_numpy() for k, f in tests.items()}, tests)]
+    ncfg = config.netconfig(config.sweep.variant)
+    default = (float(config.data.azimuth_step_deg), float(config.data.toolface_step_deg))
+    for a_step, t_step, with_net in sweep_steps(config):
+        tr = turntable_train(config, a_step, t_step)
+        meta = {"azimuth_step_deg": a_step, "toolface_step_deg": t_step, "n_points": len(tr)}
+        rows += score_rows("table", predict_all(fit_table(config.table, tr, {}), tests), tests, meta)
+        if with_net:
+            preds = default_preds if (a_step, t_step) == default else \
+                predict_all(fit_network(config.sweep.variant, ncfg, keys, tr, {})[0], tests)
+            rows += score_rows("network", preds, tests, meta)
+        log.info("[gyro] sweep A step %g, T step %g: %d points", a_step, t_step, len(tr))
+    return pd.DataFrame(rows)
+
+
+# ======================================================================= run
+class GyroResult(NamedTuple):
+    """Result of :func:`run`.
+
+    Attributes:
+        records: ``methods`` (one row per method and test set), ``seam`` (random test set),
+            ``points`` (if the sweep ran); RMSE etc. in deg.
+        models: ``table``, each network variant, ``relm`` and ``icgo_relm`` (if enabled).
+        summary: n_train, n_tests, train_seconds (per method, incl. compilation), best_epoch
+            (per variant and seed), ``<relm method>_train_fitness`` (deg, per seed).
+        predictions: method -> test -> (S, N) compensated azimuth, deg (``raw``: (N,)).
+    """
+
+    records: dict
+    models: dict
+    summary: dict
+    predictions: dict
+
+
+def _model_config(config: GyroConfig, method: str) -> dict:
+    return {"study": "gyro", "method": method, "seed": config.seed, "n_seeds": config.n_seeds}
+
+
+def run(data: GyroData | None, config: GyroConfig, key) -> GyroResult:
+    """Run the study (see the module doc).
+
+    Args:
+        data: :class:`GyroData`, or None for :func:`load_data` ``(config)``.
+        config: :class:`GyroConfig`.
+        key: JAX PRNG key, split into the ``n_seeds`` per-seed keys.
+    """
+    data = load_data(config) if data is None else data
+    train, tests = data
+    keys = jax.random.split(key, int(config.n_seeds))
+    log.info("[gyro] train %d turntable points; tests %s", len(train),
+             ", ".join(f"{k} {len(v)}" for k, v in tests.items()))
+    summary = {"n_train": len(train), "n_tests": {k: len(v) for k, v in tests.items()},
+               "train_seconds": {}, "best_epoch": {}}
+    preds = {"raw": {k: f["azimuth_raw_deg"].to_numpy() for k, f in tests.items()}}
+    models = {"table": fit_table(config.table, train, _model_config(config, "table"))}
+    preds["table"] = predict_all(models["table"], tests)
+    for name in config.variants:
+        models[name], summary["train_seconds"][name] = fit_network(name, config.netconfig(name), keys, train,
+                                                                  _model_config(config, name))
+        preds[name] = predict_all(models[name], tests)
+        summary["best_epoch"][name] = np.asarray(models[name].best_epoch).tolist()
+        log.info("[gyro] %s: %.1f s for %d networks; random RMSE %s", name, summary["train_seconds"][name],
+                 len(keys), pm(rmse(azimuth_errors(tests["random"]["azimuth_deg"].to_numpy(), preds[name]["random"]))))
+    if config.relm.enabled:
+        for name, optimized in (("relm", False), ("icgo_relm", True)):
+            models[name], summary["train_seconds"][name] = fit_relm(config.relm, keys, train, optimized,
+                                                                    _model_config(config, name))
+            preds[name] = predict_all(models[name], tests)
+            summary[f"{name}_train_fitness"] = models[name].train_fitness.tolist()
+            log.info("[gyro] %s: %.1f s", name, summary["train_seconds"][name])
+    records = {"methods": pd.DataFrame([r for m, p in preds.items() for r in score_rows(m, p, tests)])}
+    band = float(config.seam.band_deg)
+    records["seam"] = pd.DataFrame([seam_rows(m, p["random"], tests["random"], band) for m, p in preds.items()
+                                    if m != "table"])
+    if config.sweep.enabled:
+        records["points"] = points_sweep(config, keys, tests, preds[config.sweep.variant])
+    return GyroResult(records, models, summary, preds)
+
+
+def example() -> tuple[GyroData, GyroConfig]:
+    """A tiny real instance (seconds once compiled): a 32-point plan, 2 seeds, one network variant, no RELM/sweep."""
+    cfg = GyroConfig(n_seeds=2, data=DataConfig(inclinations_deg=(10, 40), azimuth_step_deg=90, toolface_step_deg=90,
+                                                n_random=50),
+                     net=NetSection(epochs=10, patience=10, batch_size=8), variants={"net_error": {}},
+                     relm=RelmConfig(enabled=False), sweep=SweepConfig(enabled=False))
+    return load_data(cfg), cfg
+
+
+STUDY = register_study(Study("gyro", GyroConfig, run,
+                             "gyro inclinometer: the patent's BP network vs its lookup table, plus RELM and ICGO-RELM",
+                             example))
