@@ -44,6 +44,7 @@ import pandas as pd
 
 from icgo import datasets, nets, relm
 from icgo.frames import angle_diff
+from icgo.optim.cgo import CGO
 from icgo.net_models import GyroNetwork, GyroRELM, LookupTableModel, turntable_domain, turntable_hash
 from icgo.studies import Study, register_study
 
@@ -181,7 +182,7 @@ class RelmConfig:
     lam: float = 1.0e-3
     theta_bounds: tuple = (-1.0, 1.0)
     fitness: str = "train"
-    optimizer: str = "cgo"
+    optimizer: str = CGO.name
     strategy: str = "three_stage"
     pop_size: int = 30
     iterations: int = 100
