@@ -1,5 +1,5 @@
-"""The fits: Levenberg-Marquardt over a free-parameter mask, the batched k-fold
-evaluation of candidate models, standard errors, and the inverse model
+"""The fits: Levenberg-Marquardt over a free-parameter mask (:func:`icgo.lsq.least_squares_fixed`), the
+batched k-fold evaluation of candidate models, standard errors, and the inverse model
 (:func:`correct`).
 
 All residuals are measured - predicted (see :mod:`icgo.discrepancy.model`).
@@ -18,48 +18,33 @@ from icgo import effects as _fx
 from icgo.discrepancy.model import Data, Layout, physical_residuals, predict, remove_accel_effects, residuals
 from icgo.discrepancy.noise import Noise, effective_sigma
 from icgo.frames import azimuth_from_gv, field_vector_ned, inclination_from_g, tool_to_earth, toolface_from_g
+from icgo.lsq import least_squares_fixed
 
 
 # ============================================================ Levenberg-Marquardt
 def lm_fit(theta0, free, w, data: Data, layout: Layout, n_iter: int):
-    """Weighted LM with exact forward-mode Jacobians; only ``free`` parameters move.
+    """Weighted fit of the scaled parameters; only ``free`` parameters move.
 
-    Marquardt damping ``lam * diag(JᵀJ)``, lam from 1e-3, x0.3 on an accepted
-    step and x10 on a rejected one, a fixed number of iterations (``lax.scan``).
+    The station-weighted, noise-normalized residuals (non-finite components
+    replaced by 1e6) minimized by :func:`icgo.lsq.least_squares_fixed`
+    (Marquardt-damped LM, a fixed number of steps in ``lax.scan``, so the
+    vmapped models x folds all cost ``n_iter`` steps).
 
     Args:
         theta0: (P,) start (scaled parameters, see :class:`~icgo.discrepancy.model.Layout`).
-        free: (P,) float 0/1. w: (n,) station weights (0 = not used).
+        free: (P,) 0/1 or bool. w: (n,) station weights (0 = not used).
         n_iter: LM iterations (static).
     Returns:
         (theta (P,), cost = sum of weighted squared noise-normalized residuals ()).
     """
     sw = jnp.sqrt(w)[:, None]
 
-    def res(th):
+    def res(th, _):
         r = residuals(th, data, layout) * sw
         return jnp.where(jnp.isfinite(r), r, 1e6).ravel()
 
-    def cost(th):
-        return jnp.sum(res(th) ** 2)
-
-    eye = jnp.eye(theta0.shape[0], dtype=theta0.dtype)
-
-    def step(carry, _):
-        th, lam, c = carry
-        r = res(th)
-        J = jax.jacfwd(res)(th) * free
-        H = J.T @ J
-        g = J.T @ r
-        Hd = H + lam * jnp.diag(jnp.diag(H) + 1e-9) + (1.0 - free)[:, None] * eye + 1e-10 * eye
-        delta = -jnp.linalg.solve(Hd, g) * free
-        th_new = th + delta
-        c_new = cost(th_new)
-        ok = jnp.isfinite(c_new) & (c_new < c)
-        return (jnp.where(ok, th_new, th), jnp.where(ok, lam * 0.3, lam * 10.0), jnp.where(ok, c_new, c)), None
-
-    (th, _, c), _ = jax.lax.scan(step, (theta0, jnp.asarray(1e-3, theta0.dtype), cost(theta0)), None, length=n_iter)
-    return th, c
+    out = least_squares_fixed(res, theta0, n_steps=n_iter, free=free)
+    return out.x, out.cost
 
 
 # ============================================================ k-fold evaluation
@@ -185,17 +170,18 @@ def model_params(res) -> dict:
 def correct(res, G, B, noise: Noise | None = None, n_iter: int = 10):
     """Invert the fitted model: the attitude that best explains each measured station.
 
-    Per station, Gauss-Newton on (A, I) (toolface from G with the model's
-    accelerometer effects removed) minimizing the noise-weighted residual of
-    the fitted forward model, started from the raw attitude; vmapped over
-    stations. Used to score an augmented physics model's azimuth against a
-    reference (e.g. against ICGO-RELM on the same test split).
+    Per station, (A, I) (toolface from G with the model's accelerometer
+    effects removed) minimizing the noise-weighted residual of the fitted
+    forward model, started from the raw attitude, by
+    :func:`icgo.lsq.least_squares_fixed` (Marquardt-damped LM, ``n_iter``
+    steps, vmapped over stations). Used to score an augmented physics model's
+    azimuth against a reference (e.g. against ICGO-RELM on the same test split).
 
     Args:
         res: a workflow result (its model, fitted parameters, field and config).
         G: (n, 3) g, B: (n, 3) nT measured.
         noise: residual weights; default the noise of ``res.config``.
-        n_iter: Gauss-Newton iterations per station.
+        n_iter: LM steps per station.
     Returns:
         (azimuth_deg (n,) in the frame of the fitted declination, inclination_deg (n,)).
     """
@@ -214,19 +200,14 @@ def _correct_jit(params, G, B, sig, f_ned, dec, n_iter):
     T = toolface_from_g(remove_accel_effects(params, G))
     g_ned = jnp.array([0.0, 0.0, 1.0]) * jnp.linalg.norm(G, axis=1).mean()
 
-    def res1(ai, t, g, b, s):  # (6,) measured - predicted, noise units
+    def res1(ai, tgbs):  # (6,) measured - predicted, noise units
+        t, g, b, s = tgbs
         C = tool_to_earth(ai[0], ai[1], t)
         Gp, Bp = _fx.apply_effects(params, C.T @ g_ned, C.T @ f_ned, C)
         return jnp.concatenate([g - Gp, b - Bp]) / s
 
     def solve(t, g, b, s, a0, i0):
-        def step(ai, _):
-            r = res1(ai, t, g, b, s)
-            J = jax.jacfwd(res1)(ai, t, g, b, s)
-            return ai - jnp.linalg.solve(J.T @ J + 1e-9 * jnp.eye(2), J.T @ r), None
-
-        ai, _ = jax.lax.scan(step, jnp.stack([a0, i0]), None, length=n_iter)
-        return ai
+        return least_squares_fixed(res1, jnp.stack([a0, i0]), (t, g, b, s), n_steps=n_iter).x
 
     a0 = azimuth_from_gv(G, B) + dec
     i0 = inclination_from_g(G)
