@@ -44,7 +44,7 @@ SCHEMA_VERSION = 1
 MODEL_KINDS: dict[str, type] = {}
 
 #: Modules that define model kinds (imported by :func:`load_model`).
-_MODEL_MODULES = ("icgo.compensation", "icgo.calibration_models", "icgo.net_models")
+_MODEL_MODULES = ("icgo.compensation", "icgo.calibration_models", "icgo.net_models", "icgo.discrepancy.artifact")
 
 
 class ModelError(ValueError):

@@ -186,10 +186,24 @@ def correct(res, G, B, noise: Noise | None = None, n_iter: int = 10):
         (azimuth_deg (n,) in the frame of the fitted declination, inclination_deg (n,)).
     """
     noise = res.config.noise if noise is None else noise
+    return correct_with(model_params(res), res.field, G, B, noise, n_iter)
+
+
+def correct_with(params: dict, field, G, B, noise: Noise, n_iter: int = 10):
+    """:func:`correct` for given effect parameters and field (what a saved physics model holds).
+
+    Args:
+        params: effect name -> (n_params,) physical parameters (:func:`model_params`).
+        field: (total nT, dip deg, declination deg).
+        G: (n, 3) g, B: (n, 3) nT measured.
+        noise: residual weights. n_iter: LM steps per station.
+    Returns:
+        (azimuth_deg (n,) in the frame of the declination, inclination_deg (n,)).
+    """
     G = jnp.asarray(np.asarray(G, np.float64))
     B = jnp.asarray(np.asarray(B, np.float64))
-    params = {k: jnp.asarray(v) for k, v in model_params(res).items()}
-    F, dip, dec = res.field
+    params = {k: jnp.asarray(v) for k, v in params.items()}
+    F, dip, dec = field
     f_ned = field_vector_ned(F, dip, dec)
     sig = jnp.asarray(effective_sigma(np.asarray(G), np.asarray(B), noise))
     return _correct_jit(params, G, B, sig, f_ned, dec, n_iter)

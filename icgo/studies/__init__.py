@@ -73,6 +73,8 @@ class Study(NamedTuple):
         description: one line.
         example: ``() -> (data, config)``: a tiny but real instance of the study (seconds),
             used by the registry-wide tests and as a usage example.
+        fits_models: False for a study that fits nothing to apply (the optimizer benchmark);
+            every other study's result carries at least one fitted model.
     """
 
     name: str
@@ -80,6 +82,7 @@ class Study(NamedTuple):
     run: Callable[[Any, Any, Any], Any]
     description: str = ""
     example: Callable[[], tuple] | None = None
+    fits_models: bool = True
 
     def records(self, result) -> dict:
         """Named tables the study writes (``result.records``)."""
@@ -89,7 +92,8 @@ class Study(NamedTuple):
 STUDIES: dict[str, Study] = {}
 
 #: Modules that register a study at import.
-_STUDY_MODULES = ("icgo.studies.icgo_relm", "icgo.studies.misma", "icgo.studies.gyro")
+_STUDY_MODULES = ("icgo.studies.icgo_relm", "icgo.studies.misma", "icgo.studies.gyro",
+                  "icgo.studies.discrepancy")
 
 
 def register_study(study: Study) -> Study:
