@@ -336,16 +336,17 @@ def run_with_progress(frame, scfg, meta, enable: bool, desc: str):
 
 
 # ------------------------------------------------------------------ outputs
+#: The paper's names for method labels (everything else is named by the rule in :func:`method_label`).
+PAPER_NAMES = {"raw": "raw (eq. 1)", "msa": "MSA only", "relm": "RELM", "cgo-original": "CGO-RELM",
+               "cgo-three_stage": "ICGO-RELM (three-stage)"}
+
+
 def method_label(method: str) -> str:
-    """Paper-style label: ``cgo-three_stage`` -> ``ICGO-RELM (three_stage)``."""
-    if method in ("raw", "msa"):
-        return {"raw": "raw (eq. 1)", "msa": "MSA only"}[method]
-    if method == "relm":
-        return "RELM"
-    if method.startswith("cgo-"):
-        s = method[4:]
-        return {"original": "CGO-RELM", "three_stage": "ICGO-RELM (three-stage)"}.get(s, f"CGO-RELM ({s})")
-    return f"{method.upper()}-RELM"
+    """Paper-style label: the paper's name if it has one, else ``<alg>-<value>`` -> ``ALG-RELM (value)``."""
+    if method in PAPER_NAMES:
+        return PAPER_NAMES[method]
+    name, _, value = method.partition("-")
+    return f"{name.upper()}-RELM" + (f" ({value})" if value else "")
 
 
 def summary_table(result, split: str = "test"):
