@@ -13,7 +13,6 @@ point prints ``error: <line>`` and exits with status 2, before any computation.
 from __future__ import annotations
 
 import json
-import math
 import os
 import sys
 import time
@@ -32,7 +31,7 @@ STUDY_GROUPS = ("dataset", "model", "optimizer", "strategy", "schedule", "budget
                 "experiment")
 
 #: Marker a failed multirun job leaves in its directory (one line: the error).
-FAILED = "FAILED"  # == icgo.records.FAILED_FILE (checked by tests; this module must not import icgo at import)
+FAILED = "FAILED"  # == icgo.records.FAILED_FILE (tests/test_experiments_run.py; no icgo import at module import)
 
 EXIT_CONFIG = 2
 
@@ -96,7 +95,7 @@ STUDY_ALIASES = {"fitness.mode": "fitness", "optimizer.name": "optimizer", "stra
 #: Keys read by the entry point itself (not StudyConfig fields), per node; "" = top level.
 ENTRY_KEYS = {"": ("dataset", "optimizer", "strategy", "schedule", "progress", "figures", "label", "jax_cache_dir",
                    *STUDY_NODES, "dtype"),
-              "optimizer": ("name", "label", "params"), "strategy": ("names",), "schedule": ("bounds", "order")}
+              "optimizer": ("name", "params"), "strategy": ("names",), "schedule": ("bounds", "order")}
 #: Keys of each data set option (``dataset.name``).
 DATASET_KEYS = {"lab_casing": ("name", "seed", "kwargs"), "well_conditions": ("name", "seed", "condition", "kwargs"),
                 "csv": ("name", "path", "require_meta")}
@@ -354,6 +353,8 @@ def summary_table(result, split: str = "test"):
     import numpy as np
     import pandas as pd
 
+    from icgo.records import SUMMARY_COLUMNS
+
     s = result.summary.xs(split, level="split")
     evals = dict(zip(result.config.method_names(), np.asarray(result.n_evals).mean(axis=1)))
     rows = []
@@ -362,7 +363,7 @@ def summary_table(result, split: str = "test"):
                      "MAE (deg)": s.loc[m, "mae"], "RMSE (deg)": s.loc[m, "rmse"], "R^2": s.loc[m, "r2"],
                      "R^2 of error": s.loc[m, "r2_error"],
                      "evaluations": int(evals[m]) if m in evals else 0})
-    return pd.DataFrame(rows)
+    return pd.DataFrame(rows, columns=list(SUMMARY_COLUMNS))
 
 
 def write_outputs(outdir: Path, cfg: DictConfig, result, info: dict) -> dict:
@@ -384,9 +385,7 @@ def write_outputs(outdir: Path, cfg: DictConfig, result, info: dict) -> dict:
     (outdir / R.CONFIG_FILE).write_text(OmegaConf.to_yaml(cfg, resolve=True))
     tags = {"label": info["label"], "dataset": info["dataset"], "condition": info["condition"],
             "seed": result.config.seed}
-    for name, df in (("metrics", result.metrics), ("convergence", result.histories),
-                     ("predictions", result.predictions), ("msa", result.msa)):
-        df = df.rename(columns={"condition": "condition_number"}) if name == "msa" else df
+    for name, df in result.records.items():
         R.check_table(name, R.tag_table(df, tags), name).to_csv(outdir / f"{name}.csv", index=False,
                                                                  float_format="%.10g")
     table = summary_table(result)

@@ -5,7 +5,9 @@ schedule, budget, split, fitness, experiment), runs :func:`icgo.studies.icgo_rel
 and writes into the run directory (``HydraConfig.get().runtime.output_dir``):
 ``config.yaml`` (resolved), ``metrics.csv`` (per method, repeat, split),
 ``convergence.csv``, ``predictions.csv``, ``msa.csv``, ``summary.csv``,
-``summary.md``, ``run.json`` and ``study.png``; prints the summary table and a
+``summary.md``, the fitted models ``relm_compensation.json/.npz`` and
+``msa.json/.npz`` (:mod:`icgo.models`), ``study.png`` and, last, ``run.json``
+(file and column names: :mod:`icgo.records`); prints the summary table and a
 final line with the wall time.
 
 Examples::

@@ -32,7 +32,7 @@ import json
 import os
 import tempfile
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import numpy as np
 import pandas as pd
@@ -198,6 +198,10 @@ def _json_default(v):
         return int(v)
     if isinstance(v, (np.floating,)):
         return float(v)
+    if isinstance(v, np.bool_):
+        return bool(v)
+    if isinstance(v, np.ndarray) and v.ndim <= 1 and v.size <= 64:
+        return v.tolist()
     if isinstance(v, (tuple, set)):
         return list(v)
     raise TypeError(f"not JSON-serialisable: {type(v).__name__}")

@@ -1,8 +1,8 @@
 """The run-record schema: the files of a study's run directory, shared by writers and readers.
 
-``experiments.run`` writes a run directory with :func:`write_run`-compatible
-files and ``experiments.figures`` reads them back with :func:`read_run` and
-:func:`read_table`; both take every file name, column name and run-record key
+``experiments.run`` writes a run directory (``experiments._common.write_outputs``,
+with :func:`tag_table` and :func:`check_table`) and ``experiments.figures`` reads
+it back with :func:`read_run` and :func:`read_table`; both take every file name, column name and run-record key
 from here, so a renamed column is renamed once.
 
 A run directory holds (ICGO-RELM study):

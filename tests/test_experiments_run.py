@@ -283,3 +283,9 @@ def test_unknown_settings_are_errors(override, capsys, tmp_path):
     err = capsys.readouterr().err.strip().splitlines()
     key = override.lstrip("+").split("=")[0]
     assert len(err) == 1 and "unknown setting" in err[0] and key in err[0], err
+
+
+def test_failed_marker_name_is_the_records_schema_name():
+    from icgo import records
+
+    assert C.FAILED == records.FAILED_FILE

@@ -118,7 +118,7 @@ class StudyConfig:
     def __post_init__(self):
         """Validate every setting that does not depend on the data (one-line SettingError naming the field)."""
         from icgo.optim import OPTIMIZERS  # importing the package registers every optimizer
-        from icgo.studies import is_int, is_real, need
+        from icgo.studies import SettingError, is_int, is_real, need
 
         for name in ("strategies", "theta_bounds", "repeat_ids"):  # Hydra/JSON give lists
             v = getattr(self, name)
@@ -160,6 +160,13 @@ class StudyConfig:
         need(isinstance(self.strategies, tuple) and len(self.strategies) >= 1
              and len(set(self.strategies)) == len(self.strategies), "strategies",
              f"must be a non-empty tuple of distinct names, got {self.strategies!r}")
+        alg = OPTIMIZERS[self.optimizer]
+        if alg.axis:  # the side-by-side values (CGO strategies) are checked by the optimizer itself
+            try:
+                alg.axis_configs(self.optimizer_config, self.strategies)
+            except (TypeError, ValueError) as e:
+                raise SettingError("strategies", f"must name {alg.name} {alg.axis} values: "
+                                                 f"{str(e).splitlines()[0]}") from None
         need(is_int(self.pop_size) and self.pop_size >= 4, "pop_size",
              f"must be an integer >= 4, got {self.pop_size!r}")
         need((self.iterations is None) != (self.max_evals is None), "iterations",
