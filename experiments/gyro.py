@@ -70,7 +70,7 @@ def _plt():
 
 def fig_seam(preds: dict, f: pd.DataFrame, band, path: Path) -> None:
     """|error| vs true azimuth (10-deg bins, RMS over points and seeds) per method."""
-    from icgo.studies.gyro import azimuth_errors, rmse
+    from icgo.metrics import rmse
 
     plt = _plt()
     a = np.mod(f["azimuth_deg"].to_numpy(), 360.0)
@@ -78,9 +78,10 @@ def fig_seam(preds: dict, f: pd.DataFrame, band, path: Path) -> None:
     centers = 0.5 * (edges[1:] + edges[:-1])
     fig, ax = plt.subplots(figsize=(8, 4.2))
     for name, p in preds.items():
-        e = np.atleast_2d(azimuth_errors(a, p))
+        p = np.atleast_2d(np.asarray(p))
         b = np.digitize(a, edges) - 1
-        y = [rmse(e[:, b == j].ravel(), 0) if np.any(b == j) else np.nan for j in range(len(centers))]
+        y = [float(rmse(np.broadcast_to(a[b == j], p[:, b == j].shape).ravel(), p[:, b == j].ravel()))
+             if np.any(b == j) else np.nan for j in range(len(centers))]
         ax.plot(centers, y, marker="o", ms=3, label=name)
     ax.axvspan(0, band, color="0.9")
     ax.axvspan(360 - band, 360, color="0.9")

@@ -16,7 +16,7 @@ import icgo  # noqa: F401
 from experiments import gyro as entry
 from experiments._common import CONF_DIR
 from icgo.models import load_model
-from icgo.studies import STUDIES, _STUDY_MODULES, config_from_mapping, config_to_mapping
+from icgo.studies import STUDIES, _STUDY_MODULES, SettingError, config_from_mapping, config_to_mapping
 from icgo.studies import gyro
 
 #: A study small enough for a test: 32 turntable points, 2 seeds, 2 variants, tiny RELM search and sweep.
@@ -64,8 +64,8 @@ def test_unknown_settings_are_refused():
 def test_config_errors_are_one_line_and_name_the_field():
     for ov, msg in [("n_seeds=0", "n_seeds"), ("data.azimuth_step_deg=0", "data.azimuth_step_deg"),
                     ("data.inclinations_deg=[10,95]", "data.inclinations_deg"),
-                    ("net.target=true_azimuth", "net: nets: target"),
-                    ("+variants.bad={optimiser: sgd}", r"variants.bad: unknown key"),
+                    ("net.target=true_azimuth", "net nets: target"),
+                    ("+variants.bad={optimiser: sgd}", r"variants.bad unknown key"),
                     ("sweep.variant=nope", "sweep.variant"), ("table.toolface=median", "table.toolface"),
                     ("relm.fitness=test", "relm.fitness"), ("relm.optimizer=adam", "relm.optimizer"),
                     ("relm.strategy=nope", "relm.strategy"), ("relm.theta_bounds=[1,-1]", "relm.theta_bounds"),
@@ -73,6 +73,7 @@ def test_config_errors_are_one_line_and_name_the_field():
         with pytest.raises(ValueError, match=msg) as e:
             entry.study_config(_compose(ov))
         assert "\n" not in str(e.value), ov
+        assert isinstance(e.value, SettingError), ov  # "<dotted key> <problem>"
 
 
 def _frame(I, A, T, rng):

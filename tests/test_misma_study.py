@@ -18,7 +18,7 @@ from icgo import datasets
 from icgo.calibration_models import MagCalibration
 from icgo.io import load_mag_cal_device
 from icgo.models import load_model
-from icgo.studies import STUDIES, _STUDY_MODULES, config_from_mapping, config_to_mapping
+from icgo.studies import STUDIES, _STUDY_MODULES, SettingError, config_from_mapping, config_to_mapping
 from icgo.studies import misma
 
 #: A short drilling run (600 s: two stops), 2 repeats of 5 iterations, one real device, no peer package.
@@ -70,12 +70,13 @@ def test_config_errors_are_one_line_and_name_the_field():
                     (["simulated.subsample=0"], "simulated.subsample"),
                     (["simulated.objective.pearson_mode=x"], "simulated.objective.pearson_mode"),
                     (["simulated.misma.d=1.5"], "simulated.misma.d"), (["simulated.sma.z=-1"], "simulated.sma.z"),
-                    (["+simulated.variants.bad={depth: 1}"], "simulated.variants.bad: unknown rotating_drill"),
+                    (["+simulated.variants.bad={depth: 1}"], "simulated.variants.bad unknown rotating_drill"),
                     (["real.misma_iter=0"], "real.misma_iter"), (["seed=-1"], "seed"),
                     (["simulated.enabled=false", "real.enabled=false"], "nothing to run")]:
         with pytest.raises(ValueError, match=msg) as e:
             entry.study_config(_compose(*ov))
         assert "\n" not in str(e.value), ov
+        assert isinstance(e.value, SettingError), ov  # "<dotted key> <problem>"
 
 
 def test_offset_key_is_the_seed_stream():

@@ -8,7 +8,7 @@ in the same ranges (:func:`icgo.datasets.turntable_random`) and a set half-way
 between the grid points in I, A and T (:func:`icgo.datasets.turntable_between`).
 
 Methods, each scored by the azimuth RMSE (deg) on both test sets, ``n_seeds``
-seeds per trained method (mean +/- std over seeds):
+seeds per trained method (mean +/- sample std over seeds, ddof 1):
 
 * ``raw``: the instrument's computed azimuth (patent eq. 7);
 * ``table``: the prior-art error table over (I, A), toolface ignored, bilinear
@@ -42,38 +42,33 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
-from icgo import datasets, nets, relm
+from icgo import datasets, metrics, nets, relm, stats
 from icgo.frames import angle_diff
 from icgo.optim.cgo import CGO
 from icgo.net_models import GyroNetwork, GyroRELM, LookupTableModel, turntable_domain, turntable_hash
-from icgo.studies import Study, register_study
+from icgo.studies import SettingError, Study, is_int, is_real, need, register_study
 
 log = logging.getLogger(__name__)
 
 
 # ===================================================================== config
-def _fail(where: str, msg: str):
-    raise ValueError(f"{where}: {msg}")
-
-
+# Every check raises icgo.studies.SettingError(<dotted key>, <problem>): one line, "<key> <problem>".
 def _integer(where, v, minimum=1):
-    """ValueError unless ``v`` is an integer >= minimum."""
-    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < minimum:
-        _fail(where, f"must be an integer >= {minimum}, got {v!r}")
+    """SettingError unless ``v`` is an integer >= minimum."""
+    need(is_int(v) and v >= minimum, where, f"must be an integer >= {minimum}, got {v!r}")
 
 
-def _number(where, v, lo=0.0, hi=np.inf):
-    """ValueError unless ``v`` is a number with lo < v <= hi."""
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo < v <= hi:
-        _fail(where, f"must be a number in ({lo:g}, {hi:g}], got {v!r}")
+def _in_range(where, v, lo, hi):
+    """SettingError unless ``v`` is a finite number with lo < v <= hi."""
+    need(is_real(v) and lo < v <= hi, where, f"must be a number in ({lo:g}, {hi:g}], got {v!r}")
 
 
 def _steps(where, values):
     """Tuple of angle steps, each in (0, 360] deg."""
-    if isinstance(values, (str, bytes)) or not hasattr(values, "__len__"):
-        _fail(where, f"must be a list of steps in deg, got {values!r}")
+    need(not isinstance(values, (str, bytes)) and hasattr(values, "__len__"), where,
+         f"must be a list of steps in deg, got {values!r}")
     for v in values:
-        _number(where, v, 0.0, 360.0)
+        _in_range(where, v, 0.0, 360.0)
     return tuple(values)
 
 
@@ -96,17 +91,16 @@ class DataConfig:
 
     def __post_init__(self):
         inc = self.inclinations_deg
-        if isinstance(inc, (str, bytes)) or not hasattr(inc, "__len__") or len(inc) < 2:
-            _fail("data.inclinations_deg", f"must list at least 2 inclinations, got {inc!r}")
+        need(not isinstance(inc, (str, bytes)) and hasattr(inc, "__len__") and len(inc) >= 2,
+             "data.inclinations_deg", f"must list at least 2 inclinations, got {inc!r}")
         for v in inc:
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v < 90:
-                _fail("data.inclinations_deg", f"each must be in (0, 90) deg, got {v!r}")
+            need(is_real(v) and 0 < v < 90, "data.inclinations_deg", f"each must be in (0, 90) deg, got {v!r}")
         object.__setattr__(self, "inclinations_deg", tuple(inc))
-        _number("data.azimuth_step_deg", self.azimuth_step_deg, 0.0, 360.0)
-        _number("data.toolface_step_deg", self.toolface_step_deg, 0.0, 360.0)
+        _in_range("data.azimuth_step_deg", self.azimuth_step_deg, 0.0, 360.0)
+        _in_range("data.toolface_step_deg", self.toolface_step_deg, 0.0, 360.0)
         _integer("data.n_random", self.n_random)
-        if not isinstance(self.instrument, dict):
-            _fail("data.instrument", f"must be a mapping of instrument overrides, got {self.instrument!r}")
+        need(isinstance(self.instrument, dict), "data.instrument",
+             f"must be a mapping of instrument overrides, got {self.instrument!r}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -133,17 +127,16 @@ class NetSection:
         """The checked :class:`icgo.nets.NetConfig` of these defaults updated by ``overrides``.
 
         Raises:
-            ValueError: ``<where>: ...`` for an unknown key or a bad value.
+            SettingError: ``<where> ...`` for an unknown key or a bad value.
         """
         d = {**dataclasses.asdict(self), **dict(overrides or {})}
         unknown = sorted(set(d) - set(nets.NetConfig._fields))
-        if unknown:
-            _fail(where, f"unknown key(s) {unknown}; known: {list(nets.NetConfig._fields)}")
+        need(not unknown, where, f"unknown key(s) {unknown}; known: {list(nets.NetConfig._fields)}")
         try:
             d["hidden"] = tuple(int(h) for h in d["hidden"])
             return nets._check_config(nets.NetConfig(**d))  # the one validation of NetConfig
         except (TypeError, ValueError) as e:
-            _fail(where, str(e).splitlines()[0])
+            raise SettingError(where, str(e).splitlines()[0]) from None
 
 
 def _default_variants():
@@ -160,8 +153,7 @@ class TableConfig:
 
     def __post_init__(self):
         tf = self.toolface
-        if not (tf == "mean" or (isinstance(tf, (int, float)) and not isinstance(tf, bool))):
-            _fail("table.toolface", f"must be 'mean' or a toolface in deg, got {tf!r}")
+        need(tf == "mean" or is_real(tf), "table.toolface", f"must be 'mean' or a toolface in deg, got {tf!r}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -188,15 +180,14 @@ class RelmConfig:
     iterations: int = 100
 
     def __post_init__(self):
-        if self.encoding not in nets.ENCODINGS:
-            _fail("relm.encoding", f"must be one of {nets.ENCODINGS}, got {self.encoding!r}")
-        if self.fitness not in relm.FITNESS_MODES:
-            _fail("relm.fitness", f"must be one of {relm.FITNESS_MODES}, got {self.fitness!r}")
+        need(self.encoding in nets.ENCODINGS, "relm.encoding", f"must be one of {nets.ENCODINGS}, got {self.encoding!r}")
+        need(self.fitness in relm.FITNESS_MODES, "relm.fitness",
+             f"must be one of {relm.FITNESS_MODES}, got {self.fitness!r}")
         _integer("relm.hidden", self.hidden)
-        _number("relm.lam", self.lam)
+        need(is_real(self.lam) and self.lam > 0, "relm.lam", f"must be a number > 0, got {self.lam!r}")
         tb = tuple(self.theta_bounds) if isinstance(self.theta_bounds, (list, tuple)) else ()
-        if len(tb) != 2 or not all(isinstance(x, (int, float)) for x in tb) or not tb[0] < tb[1]:
-            _fail("relm.theta_bounds", f"must be [low, high] with low < high, got {self.theta_bounds!r}")
+        need(len(tb) == 2 and all(is_real(x) for x in tb) and tb[0] < tb[1], "relm.theta_bounds",
+             f"must be [low, high] with low < high, got {self.theta_bounds!r}")
         object.__setattr__(self, "theta_bounds", tb)
         _integer("relm.pop_size", self.pop_size, minimum=4)
         _integer("relm.iterations", self.iterations)
@@ -209,13 +200,13 @@ class RelmConfig:
         try:
             alg = get(self.optimizer)
         except ValueError as e:
-            _fail("relm.optimizer", str(e))
+            raise SettingError("relm.optimizer", str(e)) from None
         if alg.axis is None:
             return None
         try:
             return alg.axis_configs(None, [self.strategy])
         except (TypeError, ValueError) as e:
-            _fail("relm.strategy", str(e).splitlines()[0])
+            raise SettingError("relm.strategy", str(e).splitlines()[0]) from None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -240,7 +231,7 @@ class SeamConfig:
     band_deg: float = 15
 
     def __post_init__(self):
-        _number("seam.band_deg", self.band_deg, 0.0, 180.0)
+        _in_range("seam.band_deg", self.band_deg, 0.0, 180.0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -266,13 +257,13 @@ class GyroConfig:
     def __post_init__(self):
         _integer("seed", self.seed, minimum=0)
         _integer("n_seeds", self.n_seeds)
-        if not isinstance(self.variants, dict) or not self.variants:
-            _fail("variants", "at least one network variant is needed")
+        need(isinstance(self.variants, dict) and bool(self.variants), "variants",
+             "at least one network variant is needed")
         object.__setattr__(self, "variants", {str(k): dict(v or {}) for k, v in self.variants.items()})
         for name, ov in self.variants.items():
             self.net.netconfig(ov, f"variants.{name}")
-        if self.sweep.enabled and self.sweep.variant not in self.variants:
-            _fail("sweep.variant", f"{self.sweep.variant!r} is not one of variants {list(self.variants)}")
+        need(not self.sweep.enabled or self.sweep.variant in self.variants, "sweep.variant",
+             f"{self.sweep.variant!r} is not one of variants {list(self.variants)}")
 
     def netconfig(self, variant: str) -> nets.NetConfig:
         """The :class:`icgo.nets.NetConfig` of one variant."""
@@ -322,15 +313,21 @@ def azimuth_errors(a_true, a_pred):
     return np.asarray(angle_diff(np.asarray(a_pred), np.asarray(a_true)))
 
 
-def rmse(err, axis=-1):
-    """Root mean square over ``axis``."""
-    return np.sqrt(np.mean(np.asarray(err) ** 2, axis=axis))
+def rmse_per_seed(a_true, a_pred) -> np.ndarray:
+    """(S,) azimuth RMSE (deg, :func:`icgo.metrics.rmse`, wrapped) per seed; ``a_pred`` (S, N) or (N,)."""
+    return np.asarray(metrics.rmse(np.asarray(a_true), np.atleast_2d(np.asarray(a_pred))))
+
+
+def seed_mean_std(x) -> tuple[float, float]:
+    """(mean, sample std) over seeds (:func:`icgo.stats.mean_std`, ddof 1); std 0 for a single value."""
+    x = np.atleast_1d(np.asarray(x, float))
+    return stats.mean_std(x) if x.size > 1 else (float(x[0]), 0.0)
 
 
 def pm(x, digits=3) -> str:
-    """``"mean +/- std"`` over seeds (population std), or the single value."""
+    """``"mean +/- std"`` over seeds (sample std, :func:`icgo.stats.format_mean_std`), or the single value."""
     x = np.atleast_1d(np.asarray(x, float))
-    return f"{x.mean():.{digits}f} +/- {x.std():.{digits}f}" if x.size > 1 else f"{x[0]:.{digits}f}"
+    return stats.format_mean_std(*seed_mean_std(x), digits=digits) if x.size > 1 else f"{x[0]:.{digits}f}"
 
 
 def score_rows(method, preds: dict, tests: dict, extra=None) -> list[dict]:
@@ -344,9 +341,10 @@ def score_rows(method, preds: dict, tests: dict, extra=None) -> list[dict]:
     rows = []
     for k, f in tests.items():
         e = np.atleast_2d(azimuth_errors(f["azimuth_deg"].to_numpy(), preds[k]))
-        r = rmse(e)
+        r = rmse_per_seed(f["azimuth_deg"].to_numpy(), preds[k])
+        r_mean, r_std = seed_mean_std(r)
         rows.append({"method": method, "test": k, "n_seeds": e.shape[0],
-                     "rmse_mean": r.mean(), "rmse_std": r.std(),
+                     "rmse_mean": r_mean, "rmse_std": r_std,
                      "mae_mean": np.abs(e).mean(1).mean(), "max_abs_mean": np.abs(e).max(1).mean(),
                      "rmse": pm(r), **(extra or {})})
     return rows
@@ -356,11 +354,11 @@ def seam_rows(method, preds, f: pd.DataFrame, band) -> dict:
     """RMSE (deg) within ``band`` deg of north vs elsewhere, and their ratio; preds (S, N) or (N,)."""
     a = f["azimuth_deg"].to_numpy()
     north = np.abs(np.asarray(angle_diff(a, 0.0))) < band
-    e = np.atleast_2d(azimuth_errors(a, preds))
-    rn, rf = rmse(e[:, north]), rmse(e[:, ~north])
-    return {"method": method, "n_north": int(north.sum()), "rmse_north_mean": rn.mean(),
-            "rmse_north_std": rn.std(), "rmse_elsewhere_mean": rf.mean(), "rmse_elsewhere_std": rf.std(),
-            "ratio": rn.mean() / rf.mean()}
+    p = np.atleast_2d(np.asarray(preds))
+    (rn, rn_std), (rf, rf_std) = (seed_mean_std(rmse_per_seed(a[m], p[:, m])) for m in (north, ~north))
+    return {"method": method, "n_north": int(north.sum()), "rmse_north_mean": rn,
+            "rmse_north_std": rn_std, "rmse_elsewhere_mean": rf, "rmse_elsewhere_std": rf_std,
+            "ratio": rn / rf}
 
 
 def predict_all(model, tests: dict) -> dict:
@@ -540,7 +538,7 @@ def run(data: GyroData | None, config: GyroConfig, key) -> GyroResult:
         preds[name] = predict_all(models[name], tests)
         summary["best_epoch"][name] = np.asarray(models[name].best_epoch).tolist()
         log.info("[gyro] %s: %.1f s for %d networks; random RMSE %s", name, summary["train_seconds"][name],
-                 len(keys), pm(rmse(azimuth_errors(tests["random"]["azimuth_deg"].to_numpy(), preds[name]["random"]))))
+                 len(keys), pm(rmse_per_seed(tests["random"]["azimuth_deg"].to_numpy(), preds[name]["random"])))
     if config.relm.enabled:
         for name, optimized in (("relm", False), ("icgo_relm", True)):
             models[name], summary["train_seconds"][name] = fit_relm(config.relm, keys, train, optimized,

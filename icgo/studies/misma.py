@@ -49,7 +49,7 @@ from icgo.io import MAG_CAL_DEVICE_TO_TOOL, load_mag_cal_device, mag_cal_devices
 from icgo.optim import base
 from icgo.optim import misma as misma_opt
 from icgo.optim.sma import SMAConfig
-from icgo.studies import Study, register_study
+from icgo.studies import Study, is_int, is_real, need, register_study
 
 log = logging.getLogger(__name__)
 
@@ -61,26 +61,21 @@ ROLLED_GROUPS = (8, 9)
 
 
 # ===================================================================== config
-def _fail(where: str, msg: str):
-    raise ValueError(f"{where}: {msg}")
-
-
+# Every check raises icgo.studies.SettingError(<dotted key>, <problem>): one line, "<key> <problem>".
 def _unit(where, v, lo=0.0, hi=1.0):
-    """ValueError unless ``v`` is a number in [lo, hi]."""
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
-        _fail(where, f"must be a number in [{lo}, {hi}], got {v!r}")
+    """SettingError unless ``v`` is a finite number in [lo, hi]."""
+    need(is_real(v) and lo <= v <= hi, where, f"must be a number in [{lo}, {hi}], got {v!r}")
 
 
 def _integer(where, v, minimum=1):
-    """ValueError unless ``v`` is an integer >= minimum."""
-    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < minimum:
-        _fail(where, f"must be an integer >= {minimum}, got {v!r}")
+    """SettingError unless ``v`` is an integer >= minimum."""
+    need(is_int(v) and v >= minimum, where, f"must be an integer >= {minimum}, got {v!r}")
 
 
-def _number(where, v, allow_zero=False):
-    """ValueError unless ``v`` is a number > 0 (>= 0 with ``allow_zero``)."""
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not (v >= 0 if allow_zero else v > 0):
-        _fail(where, f"must be a number {'>= 0' if allow_zero else '> 0'}, got {v!r}")
+def _positive(where, v, allow_zero=False):
+    """SettingError unless ``v`` is a finite number > 0 (>= 0 with ``allow_zero``)."""
+    need(is_real(v) and (v >= 0 if allow_zero else v > 0), where,
+         f"must be a number {'>= 0' if allow_zero else '> 0'}, got {v!r}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -94,10 +89,10 @@ class ObjectiveConfig:
 
     def __post_init__(self):
         _unit("simulated.objective.pearson_threshold", self.pearson_threshold)
-        if self.pearson_mode not in ("axis", "complex"):
-            _fail("simulated.objective.pearson_mode", f"must be axis or complex, got {self.pearson_mode!r}")
+        need(self.pearson_mode in ("axis", "complex"), "simulated.objective.pearson_mode",
+             f"must be axis or complex, got {self.pearson_mode!r}")
         for f in ("mu_magnitude", "mu_pearson"):
-            _number(f"simulated.objective.{f}", getattr(self, f), allow_zero=True)
+            _positive(f"simulated.objective.{f}", getattr(self, f), allow_zero=True)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -114,10 +109,10 @@ class MismaSearchConfig:
     def __post_init__(self):
         for f in ("z_max", "d", "gmr_threshold"):
             _unit(f"simulated.misma.{f}", getattr(self, f))
-        if self.p_mode not in ("normalized", "sma"):
-            _fail("simulated.misma.p_mode", f"must be normalized or sma, got {self.p_mode!r}")
+        need(self.p_mode in ("normalized", "sma"), "simulated.misma.p_mode",
+             f"must be normalized or sma, got {self.p_mode!r}")
         for f in ("matrix_halfwidth", "bias_halfwidth"):
-            _number(f"simulated.misma.{f}", getattr(self, f))
+            _positive(f"simulated.misma.{f}", getattr(self, f))
 
     def optimizer_config(self) -> misma_opt.MISMAConfig:
         """The :class:`icgo.optim.misma.MISMAConfig`."""
@@ -135,7 +130,7 @@ class SMASearchConfig:
     def __post_init__(self):
         _unit("simulated.sma.z", self.z)
         for f in ("matrix_halfwidth", "bias_halfwidth"):
-            _number(f"simulated.sma.{f}", getattr(self, f))
+            _positive(f"simulated.sma.{f}", getattr(self, f))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -146,8 +141,8 @@ class ToleranceConfig:
     bias_nT: float = 200.0
 
     def __post_init__(self):
-        _number("simulated.tolerance.matrix", self.matrix)
-        _number("simulated.tolerance.bias_nT", self.bias_nT)
+        _positive("simulated.tolerance.matrix", self.matrix)
+        _positive("simulated.tolerance.bias_nT", self.bias_nT)
 
     def vector(self) -> np.ndarray:
         """(12,) tolerances in parameter order."""
@@ -188,24 +183,23 @@ class SimulatedConfig:
     tolerance: ToleranceConfig = ToleranceConfig()
 
     def __post_init__(self):
-        if not isinstance(self.variants, dict) or not self.variants:
-            _fail("simulated.variants", f"must name at least one rotating_drill variant, got {self.variants!r}")
+        need(isinstance(self.variants, dict) and bool(self.variants), "simulated.variants",
+             f"must name at least one rotating_drill variant, got {self.variants!r}")
         known = set(inspect.signature(datasets.rotating_drill).parameters) - {"seed"}
         for name, ov in self.variants.items():
             ov = {} if ov is None else ov
-            if not isinstance(ov, dict):
-                _fail(f"simulated.variants.{name}", f"must be a mapping of rotating_drill arguments, got {ov!r}")
+            need(isinstance(ov, dict), f"simulated.variants.{name}",
+                 f"must be a mapping of rotating_drill arguments, got {ov!r}")
             bad = sorted(set(ov) - known)
-            if bad:
-                _fail(f"simulated.variants.{name}", f"unknown rotating_drill argument(s) {bad}")
+            need(not bad, f"simulated.variants.{name}", f"unknown rotating_drill argument(s) {bad}")
         object.__setattr__(self, "variants", {str(k): dict(v or {}) for k, v in self.variants.items()})
         _integer("simulated.subsample", self.subsample)
-        if self.dot_samples not in ("static", "all"):
-            _fail("simulated.dot_samples", f"must be static or all, got {self.dot_samples!r}")
+        need(self.dot_samples in ("static", "all"), "simulated.dot_samples",
+             f"must be static or all, got {self.dot_samples!r}")
         _integer("simulated.pop_size", self.pop_size, minimum=4)
         _integer("simulated.n_iter", self.n_iter)
         _integer("simulated.repeats", self.repeats)
-        _number("simulated.threshold_factor", self.threshold_factor)
+        _positive("simulated.threshold_factor", self.threshold_factor)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -237,8 +231,8 @@ class MismaConfig:
 
     def __post_init__(self):
         _integer("seed", self.seed, minimum=0)
-        if not (self.simulated.enabled or self.real.enabled):
-            _fail("simulated.enabled/real.enabled", "both parts are disabled; nothing to run")
+        need(self.simulated.enabled or self.real.enabled, "simulated.enabled/real.enabled",
+             "both parts are disabled; nothing to run")
 
 
 # ======================================================================= data
