@@ -6,9 +6,13 @@
     python -m experiments.discrepancy data=mag_cal:ab
     python -m experiments.discrepancy study=hidden|devices|lab_casing   # results/discrepancy_<study>.md
 
-Prints the search and the verdict; writes report.md, discrepancy.json and the
-figures into the run directory. Bad input or a bad option: one line per
-problem on stderr (``error: ...``), exit status 1. The workflow options are
+Prints the search and the verdict; writes report.md, discrepancy.json, the
+figures and the fitted physics model (``discrepancy_model.json`` + ``.npz``,
+:class:`icgo.discrepancy.artifact.PhysicsModel`) into the run directory. A bad
+setting (a workflow option, an unknown key, ``study=`` or ``design=``): one line
+per problem on stderr (``error: ...``), exit status 2 like the other entry
+points; bad input data (a bad file, an unknown effect in ``data=sim:...``):
+one line, exit status 1. The workflow options are
 :class:`icgo.discrepancy.WorkflowConfig` (``conf/discrepancy.yaml`` repeats its defaults).
 """
 
@@ -21,9 +25,18 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 import icgo  # noqa: F401  (float64)
+from experiments._common import EXIT_CONFIG, one_line
 from icgo import discrepancy as D
 from icgo import io as icgo_io
 from icgo.discrepancy import report
+from icgo.discrepancy.artifact import PhysicsModel
+from icgo.studies import config_from_mapping
+
+#: Settings of the entry point, not of the workflow (excluded from :class:`icgo.discrepancy.WorkflowConfig`).
+ENTRY_KEYS = ("data", "study", "seed", "n_stations", "design", "results_dir", "hydra")
+
+#: ``study=`` values.
+STUDIES = ("none", "hidden", "devices", "lab_casing")
 
 
 def load_stations(spec: str, seed: int = 0, n: int = 240, design: str = "random", noise: D.Noise = D.NOISE):
@@ -51,6 +64,22 @@ def load_stations(spec: str, seed: int = 0, n: int = 240, design: str = "random"
     return D.stations_from_recording(rec), spec, None
 
 
+def workflow_config(cfg: DictConfig) -> D.WorkflowConfig:
+    """The :class:`icgo.discrepancy.WorkflowConfig` of a composed config, and the entry settings checked.
+
+    Raises:
+        icgo.discrepancy.ConfigError: one line per bad workflow option.
+        ValueError: an unknown key, or a bad ``study=`` / ``design=`` (one line).
+    """
+    values = {k: v for k, v in OmegaConf.to_container(cfg, resolve=True).items() if k not in ENTRY_KEYS}
+    config = config_from_mapping(D.WorkflowConfig, values, "conf/discrepancy.yaml")
+    if str(cfg.study) not in STUDIES:
+        raise ValueError(f"study={cfg.study!r}: choose one of {', '.join(STUDIES)}")
+    if str(cfg.design) not in D.DESIGNS:
+        raise ValueError(f"design={cfg.design!r}: choose one of {', '.join(D.DESIGNS)}")
+    return config
+
+
 def run_study(name: str, config: D.WorkflowConfig, cfg: DictConfig) -> str:
     """Run ``study=name`` and return its Markdown (the lab_casing study also writes its full report)."""
     if name == "hidden":
@@ -65,8 +94,17 @@ def run_study(name: str, config: D.WorkflowConfig, cfg: DictConfig) -> str:
 
 
 def main_body(cfg: DictConfig, out_dir: Path) -> int:
+    """Run one composed config; 0, :data:`EXIT_CONFIG` (2) for a bad setting, 1 for bad input data."""
     try:
-        config = D.WorkflowConfig.from_mapping(OmegaConf.to_container(cfg))
+        config = workflow_config(cfg)
+    except D.ConfigError as err:
+        for line in err.problems:
+            print(f"error: {line}", file=sys.stderr)
+        return EXIT_CONFIG
+    except ValueError as err:
+        print(f"error: {one_line(err)}", file=sys.stderr)
+        return EXIT_CONFIG
+    try:
         if cfg.study != "none":
             text = run_study(str(cfg.study), config, cfg)
             print(text)
@@ -76,10 +114,6 @@ def main_body(cfg: DictConfig, out_dir: Path) -> int:
             print("wrote", path)
             return 0
         st, label, truth = load_stations(cfg.data, int(cfg.seed), int(cfg.n_stations), str(cfg.design), config.noise)
-    except D.ConfigError as err:
-        for line in err.problems:
-            print(f"error: {line}", file=sys.stderr)
-        return 1
     except (icgo_io.DataError, ValueError, FileNotFoundError) as err:
         print(f"error: {err}".splitlines()[0], file=sys.stderr)
         return 1
@@ -87,6 +121,7 @@ def main_body(cfg: DictConfig, out_dir: Path) -> int:
     res = D.run_workflow(st, config)
     print("\n".join(report.search_log(res) + report.step_summary(res)))
     print("report:", D.write_report(res, label, out_dir, truth))
+    print("model:", PhysicsModel.from_result(res, st.G, st.B).save(out_dir / "discrepancy_model"))
     return 0
 
 

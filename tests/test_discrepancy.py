@@ -12,14 +12,18 @@ from pathlib import Path
 
 import jax
 import numpy as np
+import pandas as pd
 import pytest
 from omegaconf import OmegaConf
 
 import icgo  # noqa: F401
+from experiments._common import EXIT_CONFIG
 from icgo import discrepancy as D
 from icgo import effects as fx
 from icgo import io as icgo_io
 from icgo.frames import angle_diff, azimuth_from_gv
+from icgo.models import load_model
+from icgo.studies import config_from_mapping, config_to_mapping
 
 DATA = Path(__file__).parent / "data"
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
@@ -209,14 +213,23 @@ def test_bad_input_one_line(capsys, tmp_path):
     cfg = OmegaConf.load(Path(__file__).parents[1] / "conf" / "discrepancy.yaml")
     cfg.pop("hydra")
     cfg.data = str(DATA / "bad_nan.csv")
-    assert main_body(cfg, tmp_path) == 1
+    assert main_body(cfg, tmp_path) == 1  # bad input data
     err = capsys.readouterr().err.strip()
     assert err.startswith("error:") and "\n" not in err and "bad_nan.csv" in err
-    # bad options: one line per bad value, each naming its field
+    # bad options: exit 2 (EXIT_CONFIG, as every entry point), one line per bad value, each naming its field
     cfg.k_folds, cfg.max_effects = 1, -1
-    assert main_body(cfg, tmp_path) == 1
+    assert main_body(cfg, tmp_path) == EXIT_CONFIG == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert [ln.split("=")[0] for ln in lines] == ["error: WorkflowConfig: k_folds", "error: WorkflowConfig: max_effects"]
+    cfg.k_folds, cfg.max_effects = 5, 6
+    for key, value, msg in [("max_effect", 4, "unknown setting"), ("study", "nope", "study='nope'"),
+                            ("design", "spiral", "design='spiral'")]:
+        bad = cfg.copy()
+        OmegaConf.set_struct(bad, False)
+        bad[key] = value
+        assert main_body(bad, tmp_path) == EXIT_CONFIG, key
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("error:") and "\n" not in err and msg in err, (key, err)
 
 
 def test_entry_point_writes_report_and_json(tmp_path):
@@ -227,6 +240,13 @@ def test_entry_point_writes_report_and_json(tmp_path):
     cfg.data = str(DATA / "handwritten_axial.csv")
     assert main_body(cfg, tmp_path) == 0
     js = json.loads((tmp_path / "discrepancy.json").read_text())
+    # the fitted physics model is saved with the report and applies to the survey
+    model = load_model(tmp_path / "discrepancy_model.json")
+    assert model.effects == ["hard_iron"] and (tmp_path / "discrepancy_model.npz").is_file()
+    assert js["config"] == model.config
+    survey = pd.read_csv(DATA / "handwritten_axial.csv")
+    got = model.apply(survey)
+    assert len(got) == len(survey) and np.isfinite(got.azimuth_compensated).all()
     assert [e["name"] for e in js["effects"]] == ["hard_iron"]
     e = js["effects"][0]
     assert e["gap_after"]["mag_rms_nT"] < 0.2 * e["gap_before"]["mag_rms_nT"]
@@ -280,7 +300,10 @@ def test_hydra_config_equals_workflow_config_defaults():
         assert f.name in cfg, f"conf/discrepancy.yaml lacks {f.name}"
         assert cfg[f.name] == getattr(defaults, f.name), (f.name, cfg[f.name], getattr(defaults, f.name))
         assert type(cfg[f.name]) is type(getattr(defaults, f.name)), f.name
-    assert D.WorkflowConfig.from_mapping(OmegaConf.to_container(cfg)) == defaults
+    from experiments.discrepancy import workflow_config
+
+    assert workflow_config(cfg) == defaults
+    assert config_from_mapping(D.WorkflowConfig, config_to_mapping(defaults)) == defaults
 
 
 def test_workflow_config_validates_every_field():

@@ -25,7 +25,10 @@ Modules: ``noise`` (the one set of noise constants), ``stations`` (input,
 checks, simulation, designs), ``model`` (layout, prepare, predict, residuals),
 ``stats`` (the paired z), ``fit``, ``identifiability``, ``compare``, ``config``
 (:class:`WorkflowConfig`, every option's one default), ``search``, ``report``,
-``plots``, ``studies`` (the ``results/discrepancy_*`` studies as data).
+``plots``, ``result_studies`` (the ``results/discrepancy_*`` studies as data;
+the workflow as a registered study is :mod:`icgo.studies.discrepancy`),
+``artifact`` (:class:`~icgo.discrepancy.artifact.PhysicsModel`, the fitted
+physics model saved and applied through :mod:`icgo.models`).
 Sign convention everywhere: residual = measured - predicted.
 Units: G in g, B in nT, angles in degrees at every public boundary.
 """
@@ -96,4 +99,4 @@ from icgo.discrepancy.stations import (
     stations_from_recording,
 )
 from icgo.discrepancy.stats import paired_z
-from icgo.discrepancy.studies import HIDDEN_CASES, devices_study, hidden_study, lab_casing_study
+from icgo.discrepancy.result_studies import HIDDEN_CASES, devices_study, hidden_study, lab_casing_study

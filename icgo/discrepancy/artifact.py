@@ -17,6 +17,7 @@ from icgo.discrepancy.fit import correct_with, model_params
 from icgo.discrepancy.noise import Noise
 from icgo.frames import azimuth_from_gv, inclination_from_g, toolface_from_g
 from icgo.models import FittedModel, frame_values, register_model, sensor_domain
+from icgo.studies import config_to_mapping
 
 SENSORS = ("gx", "gy", "gz", "bx", "by", "bz")
 
@@ -55,9 +56,7 @@ class PhysicsModel(FittedModel):
         p = model_params(res)
         names = list(res.model)
         flat = np.concatenate([np.asarray(p[n], float) for n in names]) if names else np.zeros(0)
-        cfg = {f.name: getattr(res.config, f.name) for f in dataclasses.fields(res.config)}
-        cfg["candidates"] = None if cfg["candidates"] is None else list(cfg["candidates"])
-        return cls(config=cfg, data_hash=data_hash(G, B), domain=sensor_domain(G, B), effects=names,
+        return cls(config=config_to_mapping(res.config), data_hash=data_hash(G, B), domain=sensor_domain(G, B), effects=names,
                    sizes=[int(np.size(p[n])) for n in names], params=flat,
                    field=np.asarray(res.field, float), sigma_b_nT=float(res.config.sigma_b_nT),
                    sigma_g=float(res.config.sigma_g))

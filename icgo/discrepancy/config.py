@@ -2,21 +2,28 @@
 
 ``conf/discrepancy.yaml`` repeats these defaults for the command line;
 ``tests/test_discrepancy.py`` checks that the composed Hydra config equals
-``WorkflowConfig()`` field by field, so the two cannot drift apart.
+``WorkflowConfig()`` field by field, so the two cannot drift apart. Like every
+study config, it is built from a plain mapping by
+:func:`icgo.studies.config_from_mapping` (unknown keys refused) and written back
+by :func:`icgo.studies.config_to_mapping` (tuples as lists).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 
 from icgo import effects as _fx
 from icgo.discrepancy.noise import NOISE, Noise
 
 
 class ConfigError(ValueError):
-    """Bad workflow options; ``problems`` holds one line per bad value, each naming its field."""
+    """Bad workflow options; ``problems`` holds one line per bad value, each naming its field.
+
+    Unlike :class:`icgo.studies.SettingError` (the first bad field only) it reports
+    every bad value at once, one line each (``WorkflowConfig: <field>=<value>: <problem>``).
+    """
 
     def __init__(self, problems):
         self.problems = tuple(problems)
@@ -115,18 +122,3 @@ class WorkflowConfig:
     def noise(self) -> Noise:
         """The sensor noise (``sigma_b_nT``, ``sigma_g``)."""
         return Noise(self.sigma_b_nT, self.sigma_g)
-
-    @classmethod
-    def from_mapping(cls, values: Mapping) -> "WorkflowConfig":
-        """The config from the fields present in ``values`` (other keys, e.g. a
-        Hydra config's ``data`` or ``seed``, are ignored); lists become tuples."""
-        kw = {}
-        for f in dataclasses.fields(cls):
-            if f.name in values:
-                v = values[f.name]
-                kw[f.name] = tuple(v) if isinstance(v, Sequence) and not isinstance(v, str) else v
-        return cls(**kw)
-
-    def to_dict(self) -> dict:
-        """Plain dict of the fields (tuples as lists), e.g. for a JSON record."""
-        return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self).items()}

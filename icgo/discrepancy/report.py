@@ -16,6 +16,7 @@ from icgo import effects as _fx
 from icgo.discrepancy.compare import Pattern
 from icgo.discrepancy.identifiability import Degeneracy, Separability
 from icgo.discrepancy.search import Result, Step
+from icgo.studies import config_to_mapping
 
 
 # ============================================================ sentences
@@ -152,7 +153,7 @@ def result_to_json(res: Result) -> dict:
         "verdict": verdict(res),
         "kind": res.kind,
         "pattern": pattern_sentences(res.pattern),
-        "config": res.config.to_dict(),
+        "config": config_to_mapping(res.config),
         "seconds": res.seconds,
     }
 
@@ -218,7 +219,7 @@ def _noise_words(config) -> str:
 
 
 def hidden_study_markdown(study) -> str:
-    """``results/discrepancy_hidden.md`` from :func:`~icgo.discrepancy.studies.hidden_study`."""
+    """``results/discrepancy_hidden.md`` from :func:`~icgo.discrepancy.result_studies.hidden_study`."""
     rows = ["| hidden | named (in order) | verdict | mag gap nT before -> after | azimuth gap deg before -> after | excess over noise before -> after | s |",
             "|---|---|---|---|---|---|---|"]
     for run in study.runs:
@@ -238,7 +239,7 @@ def hidden_study_markdown(study) -> str:
 
 
 def devices_study_markdown(runs, config) -> str:
-    """``results/discrepancy_devices.md`` from :func:`~icgo.discrepancy.studies.devices_study`."""
+    """``results/discrepancy_devices.md`` from :func:`~icgo.discrepancy.result_studies.devices_study`."""
     rows = ["| device | named (in order) | verdict kind | mag residual nT before -> after | azimuth spread deg before -> after |",
             "|---|---|---|---|---|"]
     for run in runs:
@@ -254,7 +255,7 @@ def devices_study_markdown(runs, config) -> str:
 
 
 def lab_casing_study_markdown(study) -> str:
-    """``results/discrepancy_lab_casing.md`` from :func:`~icgo.discrepancy.studies.lab_casing_study`."""
+    """``results/discrepancy_lab_casing.md`` from :func:`~icgo.discrepancy.result_studies.lab_casing_study`."""
     res = study.result
     table = [("raw (eq. 1 on raw data)", study.error_raw),
              (f"physics model + {', '.join(res.model)} (discrepancy workflow)", study.error_model)]

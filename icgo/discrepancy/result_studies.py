@@ -4,7 +4,8 @@
 random attitudes, plus what each design cannot separate), :func:`devices_study`
 (the 9 real circuitpython-mag-cal devices) and :func:`lab_casing_study` (the
 workflow against ICGO-RELM on the same split). :mod:`icgo.discrepancy.report`
-renders them as Markdown.
+renders them as Markdown. (Not :mod:`icgo.studies.discrepancy`, the workflow as a
+registered study.)
 """
 
 from __future__ import annotations
