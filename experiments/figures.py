@@ -32,8 +32,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-STRATEGIES5 = ("original", "chaos", "gaussian", "wavelet", "three_stage")
-STRATEGIES4 = ("chaos", "gaussian", "wavelet", "three_stage")
+from icgo.optim import STRATEGIES
+
+#: The five CGO 4th-seed strategies (:data:`icgo.optim.STRATEGIES`) and the four mutated ones.
+STRATEGIES5 = STRATEGIES
+STRATEGIES4 = tuple(s for s in STRATEGIES5 if s != "original")
 LABEL = {"original": "original", "chaos": "chaotic", "gaussian": "Gaussian", "wavelet": "wavelet",
          "three_stage": "three-stage"}
 METRICS = ("mae", "rmse", "r2")

@@ -88,10 +88,13 @@ def main(argv=None):
 
 def markdown(res, argv) -> list[str]:
     """The lines of optimizers.md for a :class:`icgo.studies.optimizers.OptimizerStudyResult`."""
+    from icgo.optim import iterations_for_budget
     from icgo.optim.cgo import CGO
+    from icgo.optim.pso import PSO
     from icgo.studies import optimizers as study
 
     cfg, names, df, summary = res.config, res.functions, res.records["cells"], res.records["summary"]
+    n_cgo, n_pso = (iterations_for_budget(a.name, cfg.pop_size, cfg.budget) for a in (CGO, PSO))
     fmt = lambda v: f"{v:.3g}"  # noqa: E731
     n_cells = len(names) * len(cfg.dims)
     lines = ["# Optimizer study: icgo.optim vs mealpy 3.x at equal evaluation budget", "",
@@ -100,8 +103,8 @@ def markdown(res, argv) -> list[str]:
              f"Functions: {', '.join(names)} (shifted + rotated with the CEC 2017 data, `icgo.benchmarks`), "
              f"box [-100, 100]^D, D in {list(cfg.dims)}; {cfg.runs} runs per cell; population {cfg.pop_size}; "
              f"budget {cfg.budget} fitness evaluations per run for every algorithm (CGO: "
-             f"{(cfg.budget - cfg.pop_size) // (4 * cfg.pop_size)} iterations x 4 evaluations per seed; "
-             f"PSO/GA/SMA: {(cfg.budget - cfg.pop_size) // cfg.pop_size} iterations). Values are errors "
+             f"{n_cgo} iterations x 4 evaluations per seed; "
+             f"PSO/GA/SMA: {n_pso} iterations). Values are errors "
              "f(x) - f* of the best point. The evaluation columns are the measured maxima over runs "
              "(mealpy: a call counter on the objective). mealpy runs use seeds 0..runs-1; its fitness is "
              "opfunu's numpy operator on the same shift/rotation data (an independent implementation).",

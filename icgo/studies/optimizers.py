@@ -51,6 +51,7 @@ import numpy as np
 import pandas as pd
 
 from icgo import benchmarks as bm
+from icgo.optim import iterations_for_budget
 from icgo.optim.cgo import CGO, CGOConfig
 from icgo.optim.ga import GA
 from icgo.optim.mutation import STRATEGIES
@@ -323,7 +324,8 @@ def mealpy_runs(name: str, dim: int, algo: str, runs: int, pop_size: int, budget
         count[0] += 1
         return f(x)
 
-    epochs = (budget - pop_size) // _per_iteration(algo, pop_size)  # same name in both registries
+    # same name in both registries; mealpy's initial population also costs pop_size evaluations
+    epochs = iterations_for_budget(algo, pop_size, budget)
     module, cls = PEERS[algo]
     make = getattr(getattr(mealpy, module), cls)
     problem = {"obj_func": obj, "bounds": mealpy.FloatVar(lb=(-bm.BOX,) * dim, ub=(bm.BOX,) * dim),
