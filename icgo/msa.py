@@ -15,10 +15,11 @@ factors) is only solved by the ``biases_scales`` model; the paper solves the
 three biases. Row weights ``w`` (0/1 masks) select the training stations of a
 repeat, so shapes stay fixed and :func:`msa_solve` vmaps over repeats.
 
-The minimisation is the library's one nonlinear least-squares solver,
-:func:`icgo.lsq.least_squares` (optimistix Levenberg-Marquardt, exact
-forward-mode Jacobian of the residual vector, trust-region damping, stops on
-convergence or after ``max_steps`` steps). Biases are solved in units of the
+The minimisation is :func:`icgo.lsq.least_squares`, the optimistix entry point
+of :mod:`icgo.lsq` (Levenberg-Marquardt, exact forward-mode Jacobian of the
+residual vector, trust-region damping, stops on convergence or after
+``max_steps`` steps; the module's other entry point, the in-house fixed-step
+:func:`icgo.lsq.least_squares_fixed`, serves the discrepancy package). Biases are solved in units of the
 mean measured field magnitude so that the variables are of order one (the
 solver's damping is the identity).
 
