@@ -103,20 +103,23 @@ class DataConfig:
              f"must be a mapping of instrument overrides, got {self.instrument!r}")
 
 
+_NET = nets.NetConfig()  # the one source of the network defaults
+
+
 @dataclasses.dataclass(frozen=True)
 class NetSection:
-    """:class:`icgo.nets.NetConfig` defaults of every network variant (same fields, same meaning)."""
+    """:class:`icgo.nets.NetConfig` defaults of every network variant (same fields, same meaning, same defaults)."""
 
-    hidden: tuple = (8, 8)
-    encoding: str = "scaled"
-    target: str = "error"
-    optimizer: str = "adam"
-    learning_rate: float = 0.01
-    epochs: int = 2000
-    batch_size: int = 32
-    val_fraction: float = 0.2
-    patience: int = 300
-    init_scale: float = 1.0
+    hidden: tuple = _NET.hidden
+    encoding: str = _NET.encoding
+    target: str = _NET.target
+    optimizer: str = _NET.optimizer
+    learning_rate: float = _NET.learning_rate
+    epochs: int = _NET.epochs
+    batch_size: int = _NET.batch_size
+    val_fraction: float = _NET.val_fraction
+    patience: int = _NET.patience
+    init_scale: float = _NET.init_scale
 
     def __post_init__(self):
         if isinstance(self.hidden, (list, tuple)):
