@@ -112,9 +112,9 @@ class MagCalibration(FittedModel):
         Returns:
             DataFrame with ``station`` (if given), ``bx_corrected, by_corrected,
             bz_corrected`` and ``b_total_nT`` (nT); with ``gx, gy, gz`` also
-            ``gx_corrected, gy_corrected, gz_corrected`` (g), ``inclination_deg``,
-            ``toolface_deg``, ``azimuth_deg`` (magnetic, from the corrected vectors)
-            and ``dip_deg``.
+            ``gx_corrected, gy_corrected, gz_corrected`` (g), ``inclination_compensated``,
+            ``toolface_compensated``, ``azimuth_compensated`` (magnetic, from the corrected
+            vectors) and ``dip_compensated_deg``.
         """
         B = frame_values(frame, _B_COLS, "mag_calibration model")
         has_g = all(c in frame.columns for c in _G_COLS)
@@ -129,10 +129,10 @@ class MagCalibration(FittedModel):
             gn = np.linalg.norm(Gc, axis=1)
             sin_dip = np.clip(np.sum(Gc * B_nT, axis=1) / (gn * bn), -1.0, 1.0)
             out.update({"gx_corrected": Gc[:, 0], "gy_corrected": Gc[:, 1], "gz_corrected": Gc[:, 2],
-                        "inclination_deg": np.asarray(inclination_from_g(Gc)),
-                        "toolface_deg": np.asarray(toolface_from_g(Gc)),
-                        "azimuth_deg": np.asarray(azimuth_from_gv(Gc, B_nT)),
-                        "dip_deg": np.degrees(np.arcsin(sin_dip))})
+                        "inclination_compensated": np.asarray(inclination_from_g(Gc)),
+                        "toolface_compensated": np.asarray(toolface_from_g(Gc)),
+                        "azimuth_compensated": np.asarray(azimuth_from_gv(Gc, B_nT)),
+                        "dip_compensated_deg": np.degrees(np.arcsin(sin_dip))})
         return pd.DataFrame(out)
 
 

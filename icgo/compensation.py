@@ -52,8 +52,8 @@ def _attitude_columns(frame: pd.DataFrame, G) -> dict:
     out = {}
     if "station" in frame.columns:
         out["station"] = frame["station"].to_numpy()
-    out["inclination_deg"] = np.asarray(inclination_from_g(G))
-    out["toolface_deg"] = np.asarray(toolface_from_g(G))
+    out["inclination_compensated"] = np.asarray(inclination_from_g(G))  # G is not corrected by these models
+    out["toolface_compensated"] = np.asarray(toolface_from_g(G))
     return out
 
 
@@ -75,7 +75,7 @@ class MSAModel(FittedModel):
     repeat_ids: list
 
     def apply(self, frame: pd.DataFrame) -> pd.DataFrame:
-        """Per row: corrected field (ensemble mean, nT), MSA azimuth (ensemble) and its spread."""
+        """Per row: corrected field (ensemble mean, nT), MSA azimuth (ensemble) and its spread (deg)."""
         v = frame_values(frame, SENSORS, "MSA model")
         G, B = v[:, :3], v[:, 3:]
         B_corr = np.asarray(_msa_members(jnp.asarray(B), jnp.asarray(self.bias), jnp.asarray(self.scale)))
@@ -156,16 +156,20 @@ class RELMCompensation(FittedModel):
         """Compensated azimuth per row: ensemble over repeats of ``method`` (default :attr:`selected`).
 
         Returns:
-            DataFrame with ``station`` (if given), ``inclination_deg``, ``toolface_deg``
-            (from G), ``azimuth_raw``, ``azimuth_msa``, ``predicted_error``,
+            DataFrame with ``station`` (if given), ``inclination_compensated``,
+            ``toolface_compensated`` (from G, which these models do not correct),
+            ``azimuth_raw``, ``azimuth_msa``, ``predicted_error``,
             ``azimuth_compensated`` (circular mean over repeats) and
-            ``azimuth_spread_deg`` (sample std over repeats), all deg.
+            ``azimuth_spread_deg`` (sample std over repeats), all deg; the MSA-corrected
+            field ``bx_corrected, by_corrected, bz_corrected`` (ensemble mean, nT).
         """
         a_msa, pred = self.members(frame, method)
         v = frame_values(frame, SENSORS, f"{self.KIND} model")
         G, B = v[:, :3], v[:, 3:]
         a_comp, spread = circular_mean_spread(np.asarray(wrap360(a_msa - pred)))
         a_msa_mean, _ = circular_mean_spread(a_msa)
+        Bm = np.asarray(_msa_members(jnp.asarray(B), jnp.asarray(self.msa_bias), jnp.asarray(self.msa_scale))).mean(0)
         return pd.DataFrame({**_attitude_columns(frame, G), "azimuth_raw": np.asarray(azimuth_from_gv(G, B)),
                              "azimuth_msa": a_msa_mean, "predicted_error": pred.mean(axis=0),
-                             "azimuth_compensated": a_comp, "azimuth_spread_deg": spread})
+                             "azimuth_compensated": a_comp, "azimuth_spread_deg": spread,
+                             "bx_corrected": Bm[:, 0], "by_corrected": Bm[:, 1], "bz_corrected": Bm[:, 2]})

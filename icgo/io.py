@@ -207,8 +207,8 @@ def _coerce_frame(frame: pd.DataFrame, source: str, line_of) -> pd.DataFrame:
 
 
 # --------------------------------------------------------------- validation
-def _check_columns(cols: list, source: str) -> None:
-    """Header-level checks: required, paired and grouped columns."""
+def _check_columns(cols: list, source: str, require_reference: bool = True) -> None:
+    """Header-level checks: required, paired and grouped columns (reference optional if not required)."""
     missing = [c for c in REQUIRED_COLUMNS if c not in cols]
     if missing:
         _fail(source, f"missing required column(s) {', '.join(missing)} (have: {', '.join(map(str, cols))})")
@@ -216,7 +216,7 @@ def _check_columns(cols: list, source: str) -> None:
     if len(ref) == 1:
         other = REFERENCE_COLUMNS[1 - REFERENCE_COLUMNS.index(ref[0])]
         _fail(source, f"column '{ref[0]}' given without '{other}' (the reference attitude needs both)")
-    if not ref and "group" not in cols:
+    if require_reference and not ref and "group" not in cols:
         _fail(source, "missing required columns azimuth_deg, inclination_deg "
                       "(reference attitude; they may be left out only when a 'group' column is present)")
     gyro = [c for c in GYRO_COLUMNS if c in cols]
@@ -224,12 +224,13 @@ def _check_columns(cols: list, source: str) -> None:
         _fail(source, f"gyro columns must come as wx, wy, wz together (have only {', '.join(gyro)})")
 
 
-def _check_frame(frame: pd.DataFrame, source: str, line_of, notices: list) -> pd.DataFrame:
+def _check_frame(frame: pd.DataFrame, source: str, line_of, notices: list,
+                 require_reference: bool = True) -> pd.DataFrame:
     """Contract checks on a frame whose contract columns are float64; returns the typed frame."""
     cols = list(frame.columns)
     if len(frame) == 0:
         _fail(source, "no data rows (header only)")
-    _check_columns(cols, source)
+    _check_columns(cols, source, require_reference)
 
     for name in [c for c in KNOWN_COLUMNS if c in cols]:
         v = frame[name].to_numpy(np.float64)
@@ -417,13 +418,16 @@ def _check_date(v, source: str) -> None:
     _fail(source, f"metadata key 'date': {v!r} is neither YYYY-MM-DD nor a decimal year")
 
 
-def validate(frame: pd.DataFrame, meta: dict | None = None, source: str = "<frame>") -> Recording:
+def validate(frame: pd.DataFrame, meta: dict | None = None, source: str = "<frame>", *,
+             require_reference: bool = True) -> Recording:
     """Check an in-memory frame and metadata against the contract.
 
     Args:
         frame: DataFrame with the contract columns (units as in the contract).
         meta: metadata dict (None means ``{}``).
         source: name used in error messages and notices.
+        require_reference: False accepts a frame with neither the reference attitude nor
+            a ``group`` column (a new survey to correct, where the attitude is the unknown).
     Returns:
         Recording with typed columns (station/group int64, others float64).
     Raises:
@@ -438,7 +442,7 @@ def validate(frame: pd.DataFrame, meta: dict | None = None, source: str = "<fram
     frame = frame.set_axis(names, axis=1).reset_index(drop=True)
     notices: list[str] = []
     line_of = lambda i: i + 2  # noqa: E731  (line in the CSV this frame would be written to)
-    typed = _check_frame(_coerce_frame(frame, source, line_of), source, line_of, notices)
+    typed = _check_frame(_coerce_frame(frame, source, line_of), source, line_of, notices, require_reference)
     meta = {} if meta is None else meta
     field = _check_meta(meta, source, notices)
     return Recording(typed, meta, notices, field, source)
@@ -452,7 +456,7 @@ def meta_path_for(csv_path) -> Path:
     return p.with_name(stem + ".meta.json")
 
 
-def read_recording(csv_path, meta_path=None, *, require_meta: bool = True) -> Recording:
+def read_recording(csv_path, meta_path=None, *, require_meta: bool = True, require_reference: bool = True) -> Recording:
     """Read and validate a contract CSV and its ``<name>.meta.json``.
 
     Args:
@@ -460,6 +464,8 @@ def read_recording(csv_path, meta_path=None, *, require_meta: bool = True) -> Re
         meta_path: metadata path; default ``<name>.meta.json`` beside the CSV.
         require_meta: if False, a missing metadata file reads as ``{}``
             (with a notice) instead of raising.
+        require_reference: False accepts a survey without the reference attitude
+            and without groups (see :func:`validate`).
     Returns:
         Recording.
     Raises:
@@ -497,12 +503,12 @@ def read_recording(csv_path, meta_path=None, *, require_meta: bool = True) -> Re
         if len(r) != len(header):
             _fail(src, f"{len(r)} fields, the header has {len(header)}", k + 1, None, ln)
     if body:
-        _check_columns(header, src)
+        _check_columns(header, src, require_reference)
     notices: list[str] = []
     rows = [r for _, r in body]
     line_of = lambda i: body[i][0]  # noqa: E731
     frame = _parse_columns(header, rows, src, line_of) if rows else pd.DataFrame(columns=header)
-    typed = _check_frame(frame, src, line_of, notices)
+    typed = _check_frame(frame, src, line_of, notices, require_reference)
 
     mpath = Path(meta_path) if meta_path is not None else meta_path_for(csv_path)
     msrc = str(mpath)
@@ -554,20 +560,22 @@ def _atomic_write_texts(items: list[tuple[Path, str]]) -> None:
                 os.unlink(tmp)
 
 
-def write_recording(csv_path, frame: pd.DataFrame, meta: dict | None = None) -> Recording:
+def write_recording(csv_path, frame: pd.DataFrame, meta: dict | None = None, *,
+                    require_reference: bool = True) -> Recording:
     """Validate, then atomically write ``csv_path`` and ``<name>.meta.json``.
 
     Args:
         csv_path: target CSV path (its directory must exist).
         frame: DataFrame in contract units.
         meta: metadata dict (None means ``{}``).
+        require_reference: see :func:`validate`.
     Returns:
         The validated Recording that was written.
     Raises:
         DataError: the frame or metadata breaks the contract (nothing written).
     """
     csv_path = Path(csv_path)
-    rec = validate(frame, meta, source=f"{csv_path} (to write)")
+    rec = validate(frame, meta, source=f"{csv_path} (to write)", require_reference=require_reference)
     # repr-exact float formatting: pandas writes the shortest string that round-trips.
     csv_text = rec.frame.to_csv(index=False, lineterminator="\n")
     try:

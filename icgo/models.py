@@ -280,3 +280,34 @@ def load_model(path) -> FittedModel:
         raise ModelError(f"{p}: model of kind {head['kind']!r} lacks {sorted(missing)}")
     kwargs = {n: (arrays[n] if n in arrays else fields[n]) for n in names}
     return cls(**kwargs)
+
+
+#: Overshoots of the training range smaller than these are not reported (units of each quantity):
+#: about the sensor noise of a new draw of the same stations, and the QC bands of icgo.qc.
+DOMAIN_TOLERANCE = {"inclination_deg": 0.5, "azimuth_deg": 1.0, "dip_deg": 0.25, "b_norm_nT": 300.0,
+                    "g_norm_g": 0.0025}
+
+
+def domain_notices(trained: dict, survey: dict, margin: float = 0.05) -> list[str]:
+    """One line per quantity whose survey range leaves the training range, saying how far.
+
+    Args:
+        trained: the model's ``domain`` (name -> [low, high]).
+        survey: the same quantities of the survey (e.g. :func:`sensor_domain`).
+        margin: overshoots up to this fraction of the training range's width, or up to
+            :data:`DOMAIN_TOLERANCE` of the quantity, are not reported (a new draw of the
+            same stations differs by noise alone).
+    Returns:
+        Lines such as ``"inclination_deg: survey 2 to 95, trained on 10 to 90 (5 below, 5 above)"``;
+        quantities missing from either side are not compared.
+    """
+    lines = []
+    for name, (lo, hi) in survey.items():
+        if name not in trained:
+            continue
+        tlo, thi = (float(x) for x in trained[name])
+        below, above = max(tlo - lo, 0.0), max(hi - thi, 0.0)
+        if max(below, above) > max(margin * (thi - tlo), DOMAIN_TOLERANCE.get(name, 0.0)):
+            lines.append(f"{name}: survey {lo:.6g} to {hi:.6g}, trained on {tlo:.6g} to {thi:.6g} "
+                         f"({below:.4g} below, {above:.4g} above the training range)")
+    return lines

@@ -83,7 +83,7 @@ class PhysicsModel(FittedModel):
         out = {}
         if "station" in frame.columns:
             out["station"] = frame["station"].to_numpy()
-        out.update({"inclination_raw": np.asarray(inclination_from_g(G)), "toolface_deg": np.asarray(toolface_from_g(G)),
+        out.update({"inclination_raw": np.asarray(inclination_from_g(G)), "toolface_raw": np.asarray(toolface_from_g(G)),
                     "azimuth_raw": np.mod(np.asarray(azimuth_from_gv(G, B)) + float(self.field[2]), 360.0),
                     "inclination_compensated": np.asarray(inc), "azimuth_compensated": np.asarray(a)})
         return pd.DataFrame(out)

@@ -1,0 +1,84 @@
+"""Survey quality control against the reference field: the checks MWD engineers run on every survey.
+
+Per station (row), three comparisons with the reference (:class:`icgo.io.ReferenceField`):
+
+* ``|G| - gravity_g`` within ``g_tol_g`` (default 0.0025 g: the common MWD
+  gravity-total acceptance band of +/- 2.5 mg);
+* ``|B| - total_field_nT`` within ``b_tol_nT`` (default 300 nT);
+* ``dip - dip_deg`` within ``dip_tol_deg`` (default 0.25 deg),
+
+with the measured dip ``asin(G . B / (|G| |B|))`` (positive down). The two field
+bands are the industry survey-QC bands quoted in ENGINEERING-NOTES ("Industry
+survey QC: |Btotal - Bref| <= 300 nT and |dip - dip_ref| <= 0.25 deg"); the
+gravity band is the usual companion (+/- 2.5 mg); all three are settings
+(:class:`QCBands`). Sources and choices: ``docs/qc.md``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import numpy as np
+import pandas as pd
+
+from icgo.studies import is_real, need
+
+
+@dataclasses.dataclass(frozen=True)
+class QCBands:
+    """Acceptance bands of the survey QC (half-widths).
+
+    Attributes:
+        g_tol_g: |G| band, g. b_tol_nT: |B| band, nT. dip_tol_deg: dip band, deg.
+    """
+
+    g_tol_g: float = 0.0025
+    b_tol_nT: float = 300.0
+    dip_tol_deg: float = 0.25
+
+    def __post_init__(self):
+        for name in ("g_tol_g", "b_tol_nT", "dip_tol_deg"):
+            v = getattr(self, name)
+            need(is_real(v) and v > 0, name, f"must be a number > 0, got {v!r}")
+
+
+class QCResult(NamedTuple):
+    """Per-row QC values and flags, and their counts.
+
+    Attributes:
+        table: DataFrame with ``g_total_g``, ``b_total_nT``, ``dip_deg`` and their
+            differences from the reference (``dg_g``, ``db_nT``, ``ddip_deg``), the
+            flags ``qc_g``, ``qc_b``, ``qc_dip`` (True = outside the band) and ``qc_pass``.
+        counts: ``{"n": rows, "g": flagged, "b": ..., "dip": ..., "any": rows failing any}``.
+    """
+
+    table: pd.DataFrame
+    counts: dict
+
+
+def survey_qc(G, B, total_field_nT: float, dip_deg: float, gravity_g: float = 1.0,
+              bands: QCBands = QCBands(), prefix: str = "") -> QCResult:
+    """QC of every station against the reference field.
+
+    Args:
+        G: (N, 3) gravity, g. B: (N, 3) field, nT (raw or corrected).
+        total_field_nT: reference total field, nT. dip_deg: reference dip, deg.
+        gravity_g: reference gravity, g.
+        bands: acceptance bands.
+        prefix: prepended to every column name (e.g. ``"raw_"``, ``"corrected_"``).
+    Returns:
+        QCResult.
+    """
+    G = np.asarray(G, float)
+    B = np.asarray(B, float)
+    gn = np.linalg.norm(G, axis=1)
+    bn = np.linalg.norm(B, axis=1)
+    dip = np.degrees(np.arcsin(np.clip(np.sum(G * B, 1) / (gn * bn), -1.0, 1.0)))
+    dg, db, dd = gn - gravity_g, bn - total_field_nT, dip - dip_deg
+    fg, fb, fd = np.abs(dg) > bands.g_tol_g, np.abs(db) > bands.b_tol_nT, np.abs(dd) > bands.dip_tol_deg
+    table = pd.DataFrame({"g_total_g": gn, "dg_g": dg, "b_total_nT": bn, "db_nT": db, "dip_deg": dip,
+                          "ddip_deg": dd, "qc_g": fg, "qc_b": fb, "qc_dip": fd, "qc_pass": ~(fg | fb | fd)})
+    counts = {"n": int(len(table)), "g": int(fg.sum()), "b": int(fb.sum()), "dip": int(fd.sum()),
+              "any": int((fg | fb | fd).sum())}
+    return QCResult(table.add_prefix(prefix), counts)
