@@ -64,7 +64,7 @@ def test_alignment_rotates_both_sensors():
     # a rotation about z changes toolface only: inclination and azimuth stay
     a, b = plain.apply(frame), rot.apply(frame)
     np.testing.assert_allclose(np.asarray(angle_diff(a.azimuth_compensated.to_numpy(), b.azimuth_compensated.to_numpy())), 0, atol=1e-9)
-    assert np.abs(np.asarray(angle_diff(a.toolface_deg.to_numpy(), b.toolface_deg.to_numpy()))).min() > 1.0
+    assert np.abs(np.asarray(angle_diff(a.toolface_compensated.to_numpy(), b.toolface_compensated.to_numpy()))).min() > 1.0
 
 
 def test_save_load_apply_is_bitwise(tmp_path):
