@@ -434,3 +434,16 @@ def test_no_optimizer_specific_code_in_the_runner():
 def test_dataclass_configs_replace():
     c = dataclasses.replace(CGOConfig(), strategy="wavelet")
     assert c.strategy == 3
+
+
+@pytest.mark.parametrize("name", sorted(OPTIMIZERS))
+def test_minus_inf_is_not_a_valid_fitness(name):
+    """A fitness that returns -inf for some candidates: they are dropped like NaN, never the best."""
+    def f(pop):
+        v = jnp.sum(pop**2, axis=1)
+        return jnp.where(pop[:, 0] > 0.5, -jnp.inf, v)
+
+    alg = OPTIMIZERS[name]
+    res = run(name, f, (-np.ones(3), np.ones(3)), jax.random.key(1), 8, 5, config=alg.config_cls())
+    assert np.isfinite(float(res.best_f)) and float(res.best_f) >= 0.0
+    assert float(res.best_x[0]) <= 0.5

@@ -201,3 +201,11 @@ def test_wrap_fitness_sees_every_search_call(frame):
     study.run_study(frame, cfg, wrap_fitness=wrap)
     jax.effects_barrier()
     assert len(calls) == 4 + 1  # initial population + one call per iteration, for the whole batch
+
+
+def test_a_search_that_never_found_a_finite_fitness_is_a_failed_run():
+    curve = np.ones((2, 3, 4))
+    study.check_search(curve, ["a", "b"], (0, 1, 2))
+    curve[1, 2, :] = np.inf
+    with pytest.raises(ValueError, match=r"search of b \(repeat 2\) never found a finite fitness \(1 of 6"):
+        study.check_search(curve, ["a", "b"], (0, 1, 2))

@@ -272,7 +272,10 @@ def bind(name: str, fitness: Fitness, bounds, pop_size: int, config=None) -> Bou
 
 
 def evaluate(fitness: Fitness, pop: Array, aux: Any) -> Array:
-    """Evaluate a population; NaN -> +inf; shape checked at trace time.
+    """Evaluate a population; NaN and -inf -> +inf; shape checked at trace time.
+
+    -inf is not a valid fitness: a minimised RMSE or error that reaches -inf is a
+    broken evaluation, not an optimum, so it is dropped like NaN.
 
     Args:
         fitness: ``fitness(pop)`` (aux None) or ``fitness(pop, aux)``.
@@ -290,7 +293,7 @@ def evaluate(fitness: Fitness, pop: Array, aux: Any) -> Array:
             f"{tuple(pop.shape)}, got {tuple(f.shape)}"
         )
     f = f.astype(pop.dtype)
-    return jnp.where(jnp.isnan(f), jnp.inf, f)
+    return jnp.where(jnp.isnan(f) | jnp.isneginf(f), jnp.inf, f)
 
 
 def uniform_population(key, lb: Array, ub: Array, pop_size: int) -> Array:

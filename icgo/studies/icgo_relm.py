@@ -512,10 +512,27 @@ def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness) -> StudyResu
                     mode=cfg.fitness, val_fraction=float(cfg.val_fraction), k_folds=int(cfg.k_folds))
     _msa.check_observability(prep.msa, cfg.msa_model, reference)
     thetas, curve, evals = _search(cfg, prep, wrap_fitness)
+    check_search(np.asarray(curve), cfg.method_names(), ids)
     scored = _score_all(thetas, prep, jnp.asarray(a_true), cfg.lam, cfg.hidden)
     jax.block_until_ready(scored)
     wall = time.perf_counter() - t0
     return _collect(cfg, frame, kept, a_true, G, B, prep, thetas, scored, curve, evals, ids, wall)
+
+
+def check_search(curve, methods, ids) -> None:
+    """A search in which no candidate was ever finite is a failed run, not a result.
+
+    Args:
+        curve: (S, R, T) best-so-far fitness. methods: the S labels. ids: the R repeat ids.
+    Raises:
+        ValueError: one line naming the first (method, repeat) whose best fitness is not finite.
+    """
+    bad = np.argwhere(~np.isfinite(np.asarray(curve)[..., -1]))
+    if bad.size:
+        s, r = bad[0]
+        raise ValueError(f"study: the search of {methods[s]} (repeat {ids[r]}) never found a finite fitness "
+                         f"({len(bad)} of {curve.shape[0] * curve.shape[1]} searches): every candidate's ridge "
+                         f"solve failed; check the data (constant or non-finite features) and model.lam")
 
 
 def _collect(cfg, frame, kept, a_true, G, B, prep, thetas, scored, curve, evals, ids, wall) -> StudyResult:
