@@ -366,7 +366,7 @@ def summary_table(result, split: str = "test"):
     return pd.DataFrame(rows, columns=list(SUMMARY_COLUMNS))
 
 
-def write_outputs(outdir: Path, cfg: DictConfig, result, info: dict) -> dict:
+def write_outputs(outdir: Path, cfg: DictConfig, result, info: dict, frame=None, meta=None) -> dict:
     """Write the run directory: config, tables, summary, fitted models, then run.json.
 
     File and column names come from :mod:`icgo.records`; the fitted models
@@ -374,12 +374,19 @@ def write_outputs(outdir: Path, cfg: DictConfig, result, info: dict) -> dict:
     saved with :meth:`icgo.models.FittedModel.save`. ``run.json`` is written
     last, so a run record always describes complete files.
 
+    Args:
+        frame, meta: the study's data and metadata; with a reference field in
+            ``meta``, the survey-QC counts before and after MSA (:func:`icgo.survey.study_qc`)
+            go into the summary and the run record.
     Returns:
         The run.json dictionary.
     """
     import numpy as np
 
     from icgo import records as R
+    from icgo.survey import study_qc
+
+    qc = None if frame is None else study_qc(frame[result.kept].reset_index(drop=True), meta, result.msa_model)
 
     outdir.mkdir(parents=True, exist_ok=True)
     (outdir / R.CONFIG_FILE).write_text(OmegaConf.to_yaml(cfg, resolve=True))
@@ -400,13 +407,17 @@ def write_outputs(outdir: Path, cfg: DictConfig, result, info: dict) -> dict:
           f"whole job {info['total_time_s']:.1f} s.", "",
           f"Fitted models: `{result.model.KIND}` (method used by default: {result.model.selected}) and "
           f"`{result.msa_model.KIND}`; apply them to a new survey with `icgo.models.load_model`."]
+    if qc:
+        md += ["", "Survey QC against the reference field (|G| 2.5 mg, |B| 300 nT, dip 0.25 deg; docs/qc.md): "
+               + "; ".join(f"{k}: {c['any']} of {c['n']} stations flagged (|G| {c['g']}, |B| {c['b']}, dip {c['dip']})"
+                           for k, c in qc.items()) + "."]
     (outdir / "summary.md").write_text("\n".join(md) + "\n")
     models = [result.model.save(outdir / result.model.KIND).name, result.msa_model.save(outdir / result.msa_model.KIND).name]
     methods = result.config.method_names()
     run = {**info, "records_version": R.RECORDS_VERSION, "status": "ok", "seed": result.config.seed,
            "wall_time_s": result.wall_time_s, "methods": methods,
            "n_evals": {m: int(v) for m, v in zip(methods, np.asarray(result.n_evals)[:, 0])},
-           "n_rows": int(result.kept.sum()), "n_repeats": result.config.n_repeats, "models": models}
+           "n_rows": int(result.kept.sum()), "n_repeats": result.config.n_repeats, "models": models, "qc": qc}
     missing = [k for k in R.RUN_KEYS if k not in run]
     assert not missing, f"run record lacks {missing}"  # a writer bug, not a user error
     (outdir / R.RUN_FILE).write_text(json.dumps(run, indent=2, default=str) + "\n")

@@ -81,7 +81,7 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
             "condition": cfg.dataset.get("condition", None), "description": desc,
             "optimizer": cfg.optimizer.name, "strategies": list(cfg.strategy.names),
             "total_time_s": time.perf_counter() - t0, **C.env_info()}
-    run = C.write_outputs(outdir, cfg, result, info)
+    run = C.write_outputs(outdir, cfg, result, info, frame, meta)
     if cfg.figures:
         from experiments.figures import plot_study
 

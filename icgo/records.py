@@ -41,7 +41,7 @@ TABLES = {
 
 #: Keys every run record has.
 RUN_KEYS = ("records_version", "status", "label", "dataset", "condition", "description", "optimizer", "strategies",
-            "seed", "n_repeats", "methods", "n_evals", "n_rows", "wall_time_s", "total_time_s", "models")
+            "seed", "n_repeats", "methods", "n_evals", "n_rows", "wall_time_s", "total_time_s", "models", "qc")
 
 #: Columns of the study's printed / Markdown summary table.
 SUMMARY_COLUMNS = ("method", "label", "n", "MAE (deg)", "RMSE (deg)", "R^2", "R^2 of error", "evaluations")

@@ -100,3 +100,23 @@ def correct_survey(model: FittedModel, frame: pd.DataFrame, field=None, *, metho
 def _metrics(a_true, a_est, err_before) -> dict:
     m = azimuth_metrics(a_true, a_est, err_before)
     return {k: float(v) for k, v in m._asdict().items()}
+
+
+def study_qc(frame: pd.DataFrame, meta: dict, msa_model, bands: QCBands = QCBands()) -> dict | None:
+    """QC counts of a study's stations before and after MSA, or None without a reference field.
+
+    Args:
+        frame: the stations the study used (data contract). meta: their metadata
+            (``total_field_nT``, ``dip_deg``, optional ``gravity_g``).
+        msa_model: the study's :class:`icgo.compensation.MSAModel` (its corrected field is "after").
+        bands: QC bands.
+    Returns:
+        ``{"raw": counts, "msa": counts}`` (see :class:`icgo.qc.QCResult`).
+    """
+    if not meta or "total_field_nT" not in meta or "dip_deg" not in meta:
+        return None
+    G = frame[["gx", "gy", "gz"]].to_numpy(float)
+    B = frame[["bx", "by", "bz"]].to_numpy(float)
+    ref = (float(meta["total_field_nT"]), float(meta["dip_deg"]), float(meta.get("gravity_g", 1.0)))
+    after = msa_model.apply(frame)[list(CORRECTED_B)].to_numpy(float)
+    return {"raw": survey_qc(G, B, *ref, bands).counts, "msa": survey_qc(G, after, *ref, bands).counts}

@@ -125,7 +125,17 @@ def test_run_writes_outputs_and_prints_table(small_csv, tmp_path, capsys):
     # CGO: 8 initial + 4 x 8 per iteration
     assert set(conv[conv.iteration == 3].evals) == {8 + 3 * 32}
     assert run["n_evals"]["cgo-three_stage"] == 8 + 3 * 32
-    assert json.loads((tmp_path / "run.json").read_text())["status"] == "ok"
+    rec = json.loads((tmp_path / "run.json").read_text())
+    assert rec["status"] == "ok" and rec["models"] == ["relm_compensation.json", "msa.json"]
+    # survey QC of the raw stations, recomputed with numpy against the recording's reference field
+    from icgo.io import read_recording
+
+    r = read_recording(small_csv)
+    keep = pd.read_csv(tmp_path / "predictions.csv").query("method == 'cgo-chaos' and repeat == 0").row.to_numpy()
+    G, B = r.G[keep], r.B[keep]
+    bad_b = np.abs(np.linalg.norm(B, axis=1) - r.meta["total_field_nT"]) > 300.0
+    assert rec["qc"]["raw"]["n"] == len(keep) and rec["qc"]["raw"]["b"] == int(bad_b.sum())
+    assert rec["qc"]["msa"]["n"] == len(keep) and "Survey QC" in (tmp_path / "summary.md").read_text()
     out = capsys.readouterr().out
     assert "MAE (deg)" in out and "+/-" in out and "wall time:" in out
     # the summary equals a recomputation from the per-repeat CSV
