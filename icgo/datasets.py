@@ -700,3 +700,34 @@ def main(argv=None) -> int:
 
 if __name__ == "__main__":
     raise SystemExit(main())
+
+
+def noise_floor(name: str, seed: int = 0, **kwargs) -> pd.DataFrame:
+    """The azimuth error the simulator's sensor noise alone implies for a data set (deg).
+
+    The same protocol and seed with the casing, every systematic sensor effect and
+    the spikes removed, so that only the simulated accelerometer and magnetometer
+    noise remains; the standard azimuth formula on those readings against the true
+    azimuth is the best any compensation could do on average. Rows of the
+    noise-only draw line up with the study's (same plan and noise draws).
+
+    Args:
+        name: ``lab_casing`` or ``well_conditions``.
+        seed: the data set's seed. kwargs: other arguments of the protocol (not the
+            casing/effects/spikes, which are switched off).
+    Returns:
+        DataFrame with ``condition`` (-1 when the data set has none), ``n``,
+        ``mae`` and ``rmse`` of the noise-only azimuth error (deg).
+    """
+    from icgo.frames import angle_diff, azimuth_from_gv
+
+    if name not in ("lab_casing", "well_conditions"):
+        raise ValueError(f"noise_floor: {name!r} has no azimuth compensation study; use lab_casing or well_conditions")
+    fn = lab_casing if name == "lab_casing" else well_conditions
+    f = fn(seed, **{**kwargs, "casing": None, "effects": None, "spike_prob": 0.0}).frame
+    a = np.asarray(azimuth_from_gv(f[["gx", "gy", "gz"]].to_numpy(float), f[["bx", "by", "bz"]].to_numpy(float)))
+    err = np.asarray(angle_diff(a, f["azimuth_deg"].to_numpy(float)))
+    cond = f["condition"].to_numpy() if "condition" in f.columns else np.full(len(f), -1)
+    rows = [{"condition": int(c), "n": int((cond == c).sum()), "mae": float(np.abs(err[cond == c]).mean()),
+             "rmse": float(np.sqrt(np.mean(err[cond == c] ** 2)))} for c in np.unique(cond)]
+    return pd.DataFrame(rows)

@@ -213,3 +213,15 @@ def test_seed_determinism_and_bad_seed():
 def test_cli_writes_files(tmp_path, capsys):
     assert D.main(["well_conditions", "--out", str(tmp_path), "--seed", "1"]) == 0
     assert (tmp_path / "well_conditions.csv").exists() and (tmp_path / "well_conditions.meta.json").exists()
+
+
+def test_noise_floor_is_the_noise_only_azimuth_error():
+    """Without sensor noise the floor is zero (so nothing systematic is left); with it, it grows with the noise."""
+    zero = D.noise_floor("lab_casing", 0, accel_noise_g=0.0, mag_noise_nT=0.0)
+    assert zero.mae.iloc[0] < 1e-9 and zero.n.iloc[0] >= 576
+    base = D.noise_floor("lab_casing", 0).mae.iloc[0]
+    double = D.noise_floor("lab_casing", 0, accel_noise_g=1e-3, mag_noise_nT=60.0).mae.iloc[0]
+    assert 0.005 < base < 0.1 and 1.7 < double / base < 2.3
+    wc = D.noise_floor("well_conditions", 0)
+    assert list(wc.condition) == list(range(6))
+    assert wc.mae.iloc[0] > 10 * wc.mae.iloc[3]  # near vertical the azimuth is ill-conditioned
