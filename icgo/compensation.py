@@ -48,6 +48,40 @@ def circular_mean_spread(a_deg):
     return np.asarray(wrap360(ref + mean_dev)), spread
 
 
+#: Nominal coverage of the conformal azimuth interval the models carry.
+INTERVAL_LEVEL = 0.9
+
+
+def out_of_bag_halfwidth(a_comp, a_true, train, level: float = INTERVAL_LEVEL):
+    """Split-conformal half-width of the azimuth interval from out-of-bag errors (deg).
+
+    Each repeat of a study is fitted on its own training rows; a row is out of bag
+    for the repeats that did not train on it. The out-of-bag error of a row is the
+    mean of those repeats' compensated-azimuth errors (wrapped); the half-width is
+    the ``ceil((n + 1) level) / n`` empirical quantile of their absolute values over
+    the ``n`` rows that are out of bag at least once (the split-conformal rule, with
+    every repeat's held-out rows as calibration rows). Rows no repeat held out are
+    not used.
+
+    Args:
+        a_comp: (S, R, N) compensated azimuths (deg) of S methods and R repeats.
+        a_true: (N,) reference azimuth (deg). train: (R, N) bool, training rows of each repeat.
+        level: nominal coverage.
+    Returns:
+        (S,) half-widths (deg); NaN for a method with no out-of-bag row.
+    """
+    err = np.asarray(angle_diff(np.asarray(a_comp, float), np.asarray(a_true, float)[None, None]))  # (S, R, N)
+    oob = ~np.asarray(train, bool)                                                                   # (R, N)
+    k = oob.sum(axis=0)
+    used = k > 0
+    mean_err = np.where(oob[None], err, 0.0).sum(axis=1)[:, used] / k[used]                           # (S, n)
+    n = int(used.sum())
+    if n == 0:
+        return np.full(err.shape[0], np.nan)
+    rank = min(int(np.ceil((n + 1) * level)), n)
+    return np.sort(np.abs(mean_err), axis=1)[:, rank - 1]
+
+
 def _attitude_columns(frame: pd.DataFrame, G) -> dict:
     out = {}
     if "station" in frame.columns:
@@ -119,6 +153,9 @@ class RELMCompensation(FittedModel):
         x_mean, x_std: (R, 6) input standardisation per repeat (g, nT).
         theta: (S, R, 7 L) hidden weights and biases. beta: (S, R, L) output weights (deg).
         train_rmse: (S, R) training RMSE of the refit (deg).
+        interval_halfwidth: (S,) half-width (deg) of the conformal azimuth interval at
+            :attr:`interval_level` (:func:`out_of_bag_halfwidth`).
+        interval_level: its nominal coverage.
     """
 
     KIND = "relm_compensation"
@@ -138,6 +175,8 @@ class RELMCompensation(FittedModel):
     theta: np.ndarray
     beta: np.ndarray
     train_rmse: np.ndarray
+    interval_halfwidth: np.ndarray
+    interval_level: float = INTERVAL_LEVEL
 
     def members(self, frame: pd.DataFrame, method: str | None = None):
         """Every repeat's (A_msa, predicted error) for one method: two (R, N) arrays, deg."""
@@ -160,8 +199,9 @@ class RELMCompensation(FittedModel):
             ``toolface_compensated`` (from G, which these models do not correct),
             ``azimuth_raw``, ``azimuth_msa``, ``predicted_error``,
             ``azimuth_compensated`` (circular mean over repeats) and
-            ``azimuth_spread_deg`` (sample std over repeats), all deg; the MSA-corrected
-            field ``bx_corrected, by_corrected, bz_corrected`` (ensemble mean, nT).
+            ``azimuth_spread_deg`` (sample std over repeats), ``azimuth_interval_deg``
+            (half-width of the conformal interval at ``interval_level``), all deg; the
+            MSA-corrected field ``bx_corrected, by_corrected, bz_corrected`` (ensemble mean, nT).
         """
         a_msa, pred = self.members(frame, method)
         v = frame_values(frame, SENSORS, f"{self.KIND} model")
@@ -172,4 +212,6 @@ class RELMCompensation(FittedModel):
         return pd.DataFrame({**_attitude_columns(frame, G), "azimuth_raw": np.asarray(azimuth_from_gv(G, B)),
                              "azimuth_msa": a_msa_mean, "predicted_error": pred.mean(axis=0),
                              "azimuth_compensated": a_comp, "azimuth_spread_deg": spread,
+                             "azimuth_interval_deg": np.full(len(a_comp), float(
+                                 self.interval_halfwidth[self.methods.index(method or self.selected)])),
                              "bx_corrected": Bm[:, 0], "by_corrected": Bm[:, 1], "bz_corrected": Bm[:, 2]})

@@ -111,3 +111,26 @@ def test_circular_mean_across_north():
     mean, spread = circular_mean_spread(np.array([[359.0, 10.0], [1.0, 12.0]]))
     np.testing.assert_allclose(mean, [0.0, 11.0], atol=1e-12)
     np.testing.assert_allclose(spread, [np.sqrt(2.0), np.sqrt(2.0)], atol=1e-12)
+
+
+def test_out_of_bag_halfwidth_is_the_conformal_quantile():
+    from icgo.compensation import out_of_bag_halfwidth
+
+    a_true = np.array([10.0, 20.0, 30.0, 359.0, 0.5])
+    # member 0 held out rows 0, 1, 3; member 1 held out rows 1, 2, 3; row 4 is never held out
+    train = np.array([[0, 0, 1, 0, 1], [1, 0, 0, 0, 1]], bool)
+    err = np.array([[0.1, 0.2, 9.0, -0.4, 50.0], [7.0, 0.4, -0.3, -0.2, 50.0]])  # deg, per member
+    a_comp = (a_true[None] + err)[None]                                            # (S=1, R=2, N)
+    oob = np.array([0.1, 0.3, 0.3, 0.3])  # |mean OOB error| of rows 0-3: 0.1, (0.2+0.4)/2, 0.3, (0.4+0.2)/2
+    n = 4
+    for level, rank in ((0.5, int(np.ceil(5 * 0.5))), (0.9, n)):
+        got = out_of_bag_halfwidth(a_comp, a_true, train, level)
+        assert got.shape == (1,) and got[0] == pytest.approx(np.sort(oob)[rank - 1], abs=1e-12)
+
+
+def test_models_carry_their_interval(fitted):
+    frame, res = fitted
+    out = res.model.apply(datasets.lab_casing(3).frame)
+    hw = res.model.interval_halfwidth
+    assert hw.shape == (1,) and np.isfinite(hw).all() and hw[0] > 0
+    assert (out.azimuth_interval_deg == hw[0]).all() and res.model.interval_level == 0.9

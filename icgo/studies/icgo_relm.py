@@ -592,7 +592,7 @@ def _collect(cfg, frame, kept, a_true, G, B, prep, thetas, scored, curve, evals,
 
 def _fitted_models(cfg: StudyConfig, G, B, a_true, prep: Prepared, thetas, scored: _Scored, ids):
     """The study's fitted artifacts: (RELMCompensation, MSAModel), host-side numpy."""
-    from icgo.compensation import MSAModel, RELMCompensation
+    from icgo.compensation import MSAModel, RELMCompensation, out_of_bag_halfwidth
     from icgo.models import data_hash, sensor_domain
 
     methods = cfg.method_names()
@@ -607,7 +607,9 @@ def _fitted_models(cfg: StudyConfig, G, B, a_true, prep: Prepared, thetas, score
                             hidden=int(cfg.hidden), lam=float(cfg.lam), features=cfg.features,
                             msa_bias=bias, msa_scale=scale, x_mean=np.asarray(prep.x_mean),
                             x_std=np.asarray(prep.x_std), theta=np.asarray(thetas), beta=np.asarray(scored.beta),
-                            train_rmse=train_rmse, **common)
+                            train_rmse=train_rmse,
+                            interval_halfwidth=out_of_bag_halfwidth(np.asarray(scored.a_comp), a_true,
+                                                                    np.asarray(prep.train) > 0), **common)
     msa = MSAModel(config={"msa_model": cfg.msa_model, "msa_reference": cfg.msa_reference,
                            "train_fraction": cfg.train_fraction, "seed": cfg.seed},
                    bias=bias, scale=scale, repeat_ids=list(ids), **common)
