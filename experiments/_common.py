@@ -94,7 +94,7 @@ STUDY_ALIASES = {"fitness.mode": "fitness", "optimizer.name": "optimizer", "stra
                  "dtype": "dtype"}
 #: Keys read by the entry point itself (not StudyConfig fields), per node; "" = top level.
 ENTRY_KEYS = {"": ("dataset", "optimizer", "strategy", "schedule", "progress", "figures", "label", "jax_cache_dir",
-                   *STUDY_NODES, "dtype"),
+                   "overwrite", *STUDY_NODES, "dtype"),
               "optimizer": ("name", "params"), "strategy": ("names",), "schedule": ("bounds", "order")}
 #: Keys of each data set option (``dataset.name``).
 DATASET_KEYS = {"lab_casing": ("name", "seed", "kwargs"), "well_conditions": ("name", "seed", "condition", "kwargs"),
@@ -366,21 +366,59 @@ def summary_table(result, split: str = "test"):
     return pd.DataFrame(rows, columns=list(SUMMARY_COLUMNS))
 
 
-def write_outputs(outdir: Path, cfg: DictConfig, result, info: dict, frame=None, meta=None) -> dict:
-    """Write the run directory: config, tables, summary, fitted models, then run.json.
+#: Files of a run directory that a new run replaces or removes (besides the tables and models it writes).
+RUN_EXTRAS = ("study.png", "error.txt", FAILED)
 
-    File and column names come from :mod:`icgo.records`; the fitted models
-    (:class:`icgo.compensation.RELMCompensation` and the MSA-only model) are
-    saved with :meth:`icgo.models.FittedModel.save`. ``run.json`` is written
-    last, so a run record always describes complete files.
+
+def write_outputs(outdir: Path, cfg: DictConfig, result, info: dict, frame=None, meta=None, plot=None) -> dict:
+    """Write the run directory atomically: config, tables, summary, fitted models, figure, then run.json.
+
+    Everything is written into a staging directory first (``outdir/.staging``);
+    only when every file is complete is the previous run record removed, the
+    files moved into place (``os.replace``) and the new ``run.json`` moved last.
+    An interruption or a full disk before that leaves the previous run as it was
+    (and no staging directory); during the moves it leaves no ``run.json``, so no
+    reader takes the directory for a complete run. File and column names come
+    from :mod:`icgo.records`; the fitted models are saved with
+    :meth:`icgo.models.FittedModel.save`.
 
     Args:
         frame, meta: the study's data and metadata; with a reference field in
             ``meta``, the survey-QC counts before and after MSA (:func:`icgo.survey.study_qc`)
             go into the summary and the run record.
+        plot: optional ``path -> None`` writing the study figure (``study.png``).
     Returns:
         The run.json dictionary.
     """
+    import shutil
+
+    stage = outdir / ".staging"
+    shutil.rmtree(stage, ignore_errors=True)
+    stage.mkdir(parents=True)
+    try:
+        run = _write_run_files(stage, cfg, result, info, frame, meta, plot)
+        _commit_run(stage, outdir)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+    return run
+
+
+def _commit_run(stage: Path, outdir: Path) -> None:
+    """Move a complete staged run into ``outdir``: old record out, files in, new run.json last."""
+    from icgo import records as R
+
+    (outdir / R.RUN_FILE).unlink(missing_ok=True)
+    for name in RUN_EXTRAS:
+        if not (stage / name).exists():
+            (outdir / name).unlink(missing_ok=True)
+    for f in sorted(stage.iterdir()):
+        if f.name != R.RUN_FILE:
+            os.replace(f, outdir / f.name)
+    os.replace(stage / R.RUN_FILE, outdir / R.RUN_FILE)
+
+
+def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, meta, plot) -> dict:
+    """Every file of a run into ``outdir`` (the staging directory), run.json last."""
     import numpy as np
 
     from icgo import records as R
@@ -412,6 +450,8 @@ def write_outputs(outdir: Path, cfg: DictConfig, result, info: dict, frame=None,
                + "; ".join(f"{k}: {c['any']} of {c['n']} stations flagged (|G| {c['g']}, |B| {c['b']}, dip {c['dip']})"
                            for k, c in qc.items()) + "."]
     (outdir / "summary.md").write_text("\n".join(md) + "\n")
+    if plot is not None:
+        plot(outdir / "study.png")
     models = [result.model.save(outdir / result.model.KIND).name, result.msa_model.save(outdir / result.msa_model.KIND).name]
     methods = result.config.method_names()
     run = {**info, "records_version": R.RECORDS_VERSION, "status": "ok", "seed": result.config.seed,
@@ -422,6 +462,18 @@ def write_outputs(outdir: Path, cfg: DictConfig, result, info: dict, frame=None,
     assert not missing, f"run record lacks {missing}"  # a writer bug, not a user error
     (outdir / R.RUN_FILE).write_text(json.dumps(run, indent=2, default=str) + "\n")
     return run
+
+
+def previous_run(outdir: Path) -> dict | None:
+    """The run record of a complete previous run in ``outdir``, or None (no run, or an unreadable record)."""
+    from icgo import records as R
+
+    if not (outdir / R.RUN_FILE).is_file():
+        return None
+    try:
+        return R.read_run(outdir)
+    except R.RecordError:
+        return None
 
 
 def write_failure(outdir: Path, message: str, tb: str | None = None) -> None:

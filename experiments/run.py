@@ -55,6 +55,15 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
     # JAX's backend probe ("Unable to initialize backend 'tpu'") is noise in Hydra's INFO log.
     logging.getLogger("jax._src.xla_bridge").setLevel(logging.WARNING)
     t0 = time.perf_counter()
+    previous = C.previous_run(outdir)
+    if previous is not None and not cfg.overwrite:
+        if multirun:  # re-running a sweep into its directory resumes it: a finished job is kept
+            log.info("kept the finished job in %s (overwrite=true reruns it)", outdir)
+            (outdir / C.FAILED).unlink(missing_ok=True)
+            return previous
+        print(f"error: {outdir} already holds a complete run; choose another hydra.run.dir or pass overwrite=true "
+              f"(the old run is then replaced whole)", file=sys.stderr)
+        raise SystemExit(EXIT_CONFIG)
     try:
         scfg = C.study_config(cfg)  # every check before any computation
         bar = C.progress_enabled(cfg.progress)
@@ -81,11 +90,19 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
             "condition": cfg.dataset.get("condition", None), "description": desc,
             "optimizer": cfg.optimizer.name, "strategies": list(cfg.strategy.names),
             "total_time_s": time.perf_counter() - t0, **C.env_info()}
-    run = C.write_outputs(outdir, cfg, result, info, frame, meta)
+    plot = None
     if cfg.figures:
         from experiments.figures import plot_study
 
-        plot_study(result, outdir / "study.png", title=desc)
+        def plot(path):
+            plot_study(result, path, title=desc)
+    try:
+        run = C.write_outputs(outdir, cfg, result, info, frame, meta, plot)
+    except OSError as e:  # a full disk, a read-only directory: the previous run (if any) is intact
+        print(f"error: writing the run directory {outdir} failed ({e.strerror or e}); "
+              f"{'the previous run there is unchanged' if (outdir / 'run.json').exists() else 'no run was written'}",
+              file=sys.stderr)
+        raise SystemExit(EXIT_CONFIG) from None
     table = C.summary_table(result).drop(columns=["method"])
     print(f"\nICGO-RELM study on {desc}: test split, {scfg.n_repeats} repeats (mean +/- std)")
     print(table.to_markdown(index=False))

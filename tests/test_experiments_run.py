@@ -299,3 +299,56 @@ def test_failed_marker_name_is_the_records_schema_name():
     from icgo import records
 
     assert C.FAILED == records.FAILED_FILE
+
+
+# ------------------------------------------------------ atomic run directories
+def test_a_finished_run_directory_is_refused_then_replaced_whole(small_csv, tmp_path, capsys):
+    base = TINY + ["dataset=csv", f"dataset.path={small_csv}", "strategy=chaos", "split.n_repeats=1"]
+    run_job(_job_cfg(base + ["figures=true"]), tmp_path)
+    first = (tmp_path / "run.json").read_text()
+    assert (tmp_path / "study.png").is_file() and not (tmp_path / ".staging").exists()
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as e:
+        run_job(_job_cfg(base), tmp_path)
+    assert e.value.code == C.EXIT_CONFIG
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "already holds a complete run" in err[0] and "overwrite=true" in err[0]
+    assert (tmp_path / "run.json").read_text() == first
+    run_job(_job_cfg(base + ["overwrite=true", "figures=false", "split.seed=3"]), tmp_path)
+    assert json.loads((tmp_path / "run.json").read_text())["seed"] == 3
+    assert not (tmp_path / "study.png").exists()  # nothing of the old run is left beside the new one
+    assert set(pd.read_csv(tmp_path / "metrics.csv").seed) == {3}
+
+
+def test_a_writer_failing_midway_leaves_the_previous_run_intact(small_csv, tmp_path, monkeypatch, capsys):
+    """A full disk (ENOSPC) while the tables are written: the previous complete run is untouched, one line."""
+    base = TINY + ["dataset=csv", f"dataset.path={small_csv}", "strategy=chaos", "split.n_repeats=1"]
+    run_job(_job_cfg(base), tmp_path)
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()}
+    real = pd.DataFrame.to_csv
+    calls = {"n": 0}
+
+    def failing(self, path=None, *a, **k):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise OSError(28, "No space left on device")
+        return real(self, path, *a, **k)
+
+    monkeypatch.setattr(pd.DataFrame, "to_csv", failing)
+    capsys.readouterr()
+    with pytest.raises(SystemExit):
+        run_job(_job_cfg(base + ["overwrite=true", "split.seed=5"]), tmp_path)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "No space left" in err[0] and "previous run there is unchanged" in err[0]
+    after = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()}
+    assert after == before and not (tmp_path / ".staging").exists()
+
+
+def test_rerunning_a_sweep_keeps_finished_jobs(small_csv, tmp_path):
+    base = TINY + ["dataset=csv", f"dataset.path={small_csv}", "strategy=chaos", "split.n_repeats=1"]
+    first = run_job(_job_cfg(base), tmp_path / "0", multirun=True)
+    (tmp_path / "0" / C.FAILED).write_text("stale\n")
+    stamp = (tmp_path / "0" / "run.json").stat().st_mtime_ns
+    again = run_job(_job_cfg(base), tmp_path / "0", multirun=True)
+    assert again["seed"] == first["seed"] and (tmp_path / "0" / "run.json").stat().st_mtime_ns == stamp
+    assert not (tmp_path / "0" / C.FAILED).exists()
