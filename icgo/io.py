@@ -334,8 +334,13 @@ def _check_meta(meta, source: str, notices: list) -> ReferenceField | None:
     numeric = [k for k in FIELD_KEYS + ("latitude", "longitude", "altitude_km") if k in meta]
     for k in numeric:
         v = meta[k]
-        if not _is_number(v) or not math.isfinite(float(v)):
-            _fail(source, f"metadata key '{k}': expected a finite number, got {v!r}")
+        try:
+            finite = _is_number(v) and math.isfinite(float(v))
+        except OverflowError:  # an integer with hundreds of digits
+            finite = False
+        if not finite:
+            shown = repr(v) if len(repr(v)) <= 40 else repr(v)[:20] + f"... ({len(repr(v))} characters)"
+            _fail(source, f"metadata key '{k}': expected a finite number, got {shown}")
 
     def in_range(k, lo, hi, unit, hint=""):
         if k in meta and not lo <= float(meta[k]) <= hi:
@@ -529,6 +534,8 @@ def read_recording(csv_path, meta_path=None, *, require_meta: bool = True, requi
             meta = json.loads(mtext, parse_constant=lambda c: _fail(msrc, f"{c} is not allowed in metadata"))
         except json.JSONDecodeError as e:
             _fail(msrc, f"invalid JSON at line {e.lineno}, column {e.colno}: {e.msg}")
+        except RecursionError:
+            _fail(msrc, "metadata nested too deeply to read (the contract's metadata is a flat JSON object)")
     field = _check_meta(meta, msrc, notices)
     return Recording(typed, meta, notices, field, src)
 
