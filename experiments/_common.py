@@ -257,7 +257,12 @@ def enable_jax_cache(path: str | None) -> None:
         return
     import jax
 
-    Path(path).expanduser().mkdir(parents=True, exist_ok=True)
+    p = Path(path).expanduser()
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as e:  # a read-only file system, a file in the way
+        raise ConfigError(f"jax_cache_dir {str(p)!r}: cannot create the cache directory ({e.strerror}); "
+                          f"set jax_cache_dir=null to run without the cache") from None
     jax.config.update("jax_compilation_cache_dir", str(Path(path).expanduser()))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 

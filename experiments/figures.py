@@ -106,7 +106,11 @@ class Runs:
         if name not in self._cache:
             frames = []
             for order, r in enumerate(self.runs):
-                df = R.read_table(r["dir"], name)
+                try:
+                    df = R.read_table(r["dir"], name)
+                except R.RecordError as e:
+                    print(f"skipped {r['dir']} for {name}: {e}", file=sys.stderr)
+                    continue
                 df["run_order"] = order
                 df["condition"] = df["condition"].astype("float").fillna(-1).astype(int)
                 frames.append(df)

@@ -478,6 +478,8 @@ def read_recording(csv_path, meta_path=None, *, require_meta: bool = True, requi
     """
     csv_path = Path(csv_path)
     src = str(csv_path)
+    if csv_path.exists() and not csv_path.is_file():  # a FIFO would block, /dev/zero never ends
+        _fail(src, "not a regular file (a directory, pipe or device); give a CSV file")
     try:
         text = csv_path.read_text(encoding="utf-8-sig")
     except FileNotFoundError:
@@ -517,6 +519,8 @@ def read_recording(csv_path, meta_path=None, *, require_meta: bool = True, requi
 
     mpath = Path(meta_path) if meta_path is not None else meta_path_for(csv_path)
     msrc = str(mpath)
+    if mpath.exists() and not mpath.is_file():
+        _fail(str(mpath), "not a regular file (a directory, pipe or device); give a JSON file")
     if not mpath.exists():
         if require_meta:
             _fail(msrc, "metadata file not found (the contract needs it beside the CSV; "

@@ -352,3 +352,13 @@ def test_rerunning_a_sweep_keeps_finished_jobs(small_csv, tmp_path):
     again = run_job(_job_cfg(base), tmp_path / "0", multirun=True)
     assert again["seed"] == first["seed"] and (tmp_path / "0" / "run.json").stat().st_mtime_ns == stamp
     assert not (tmp_path / "0" / C.FAILED).exists()
+
+
+def test_jax_cache_dir_that_cannot_be_created_is_one_line(tmp_path, capsys):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    with pytest.raises(SystemExit) as e:
+        run_job(_job_cfg(["budget=smoke", "progress=false", "figures=false", f"jax_cache_dir={blocker}/cache"]),
+                tmp_path / "out")
+    err = capsys.readouterr().err.strip().splitlines()
+    assert e.value.code == C.EXIT_CONFIG and len(err) == 1 and "jax_cache_dir" in err[0] and "null" in err[0]

@@ -171,3 +171,15 @@ def test_missing_directory_is_one_line(tmp_path):
     with pytest.raises(SystemExit) as e:
         F.Runs([tmp_path / "nope"])
     assert "no such directory" in str(e.value)
+
+
+def test_a_truncated_table_is_skipped_and_named(tmp_path, capsys):
+    rng = np.random.default_rng(0)
+    _run_dir(tmp_path / "m" / "good", _metrics(["relm", "cgo-original"], rng))
+    _run_dir(tmp_path / "m" / "bad", _metrics(["relm", "cgo-original"], rng))
+    (tmp_path / "m" / "bad" / "metrics.csv").write_text("label,dataset,condition,seed,method,rep")
+    runs = F.Runs([tmp_path / "m"])
+    m = runs.metrics()
+    err = capsys.readouterr().err
+    assert "skipped" in err and str(tmp_path / "m" / "bad") in err and "metrics" in err
+    assert len(m) == 2 * R

@@ -323,3 +323,14 @@ def test_mag_cal_files_are_package_data_with_licence():
     d = resources.files("icgo").joinpath("data").joinpath("mag_cal")
     assert "Permission is hereby granted" in d.joinpath("LICENSE").read_text()
     assert "Phil Underwood" in d.joinpath("LICENSE").read_text()
+
+
+def test_a_pipe_or_device_is_refused_at_once(tmp_path):
+    import os
+
+    fifo = tmp_path / "fifo.csv"
+    os.mkfifo(fifo)
+    for p in (fifo, "/dev/zero", tmp_path):
+        with pytest.raises(io.DataError, match="not a regular file") as e:
+            io.read_recording(p)
+        assert "\n" not in str(e.value)
