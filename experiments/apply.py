@@ -14,9 +14,7 @@ stderr and exit status 2; nothing is written then.
 from __future__ import annotations
 
 import json
-import os
 import sys
-import tempfile
 from pathlib import Path
 
 import hydra
@@ -38,20 +36,13 @@ def model_path(path: Path) -> Path:
     return path
 
 
-def _atomic_write(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        fh.write(text)
-    os.replace(tmp, path)
-
-
 def run_apply(cfg: DictConfig, out_dir: Path) -> dict:
     """Check the settings, correct the survey, write the two files; return the meta dict.
 
     Raises:
         ValueError (ModelError, DataError, RecordError, SettingError): one line.
     """
-    from icgo.io import read_recording
+    from icgo.io import atomic_write_texts, read_recording
     from icgo.models import load_model
     from icgo.qc import QCBands
     from icgo.studies import config_from_mapping
@@ -78,8 +69,8 @@ def run_apply(cfg: DictConfig, out_dir: Path) -> dict:
     if rec.field is not None:
         meta.update({k: getattr(rec.field, k) for k in ("total_field_nT", "dip_deg", "declination_deg", "gravity_g")})
     out_dir.mkdir(parents=True, exist_ok=True)
-    _atomic_write(out_dir / f"{stem}_corrected.csv", res.table.to_csv(index=False, lineterminator="\n"))
-    _atomic_write(out_dir / f"{stem}_corrected.meta.json", json.dumps(meta, indent=2) + "\n")
+    atomic_write_texts([(out_dir / f"{stem}_corrected.csv", res.table.to_csv(index=False, lineterminator="\n")),
+                        (out_dir / f"{stem}_corrected.meta.json", json.dumps(meta, indent=2) + "\n")])
     return meta
 
 

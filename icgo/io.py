@@ -545,7 +545,7 @@ def read_recording(csv_path, meta_path=None, *, require_meta: bool = True, requi
 
 
 # ------------------------------------------------------------------ writing
-def _atomic_write_texts(items: list[tuple[Path, str]]) -> None:
+def atomic_write_texts(items: list[tuple[Path, str]]) -> None:
     """Write every (path, text) to a temp file in its directory, then os.replace each.
 
     All temp files are complete and fsynced before any target is replaced, so a
@@ -595,7 +595,7 @@ def write_recording(csv_path, frame: pd.DataFrame, meta: dict | None = None, *,
         _fail(f"{meta_path_for(csv_path)} (to write)", f"metadata is not JSON-serialisable: {e}")
     if not csv_path.parent.is_dir():
         _fail(str(csv_path), f"directory {csv_path.parent} does not exist")
-    _atomic_write_texts([(csv_path, csv_text), (meta_path_for(csv_path), meta_text)])
+    atomic_write_texts([(csv_path, csv_text), (meta_path_for(csv_path), meta_text)])
     return rec._replace(source=str(csv_path))
 
 
