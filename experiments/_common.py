@@ -469,6 +469,26 @@ def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, m
     return run
 
 
+def study_main(cfg: DictConfig, build_config, run) -> None:
+    """Body of a study entry point's Hydra main: settings checked first (one line, exit 2), then ``run``.
+
+    Args:
+        cfg: the composed config. build_config: ``cfg -> the study's config dataclass``
+            (raises ValueError on a bad setting). run: ``(cfg, models_dir, config) -> None``.
+    """
+    import logging
+
+    from hydra.core.hydra_config import HydraConfig
+
+    try:
+        config = build_config(cfg)
+    except ValueError as e:
+        print(f"error: {one_line(e)}", file=sys.stderr)
+        raise SystemExit(EXIT_CONFIG) from None
+    logging.getLogger("icgo").setLevel(logging.INFO)
+    run(cfg, Path(HydraConfig.get().runtime.output_dir) / "models", config)
+
+
 def previous_run(outdir: Path) -> dict | None:
     """The run record of a complete previous run in ``outdir``, or None (no run, or an unreadable record)."""
     from icgo import records as R

@@ -14,15 +14,13 @@ writes tables, figures, the summary and the models.
 from __future__ import annotations
 
 import json
-import logging
-import sys
 from pathlib import Path
 
 import hydra
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from experiments._common import EXIT_CONFIG, one_line
+from experiments._common import study_main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -133,15 +131,7 @@ def run(cfg: DictConfig, models_dir: Path | None = None, config=None):
 @hydra.main(config_path="../conf", config_name="misma", version_base="1.3")
 def main(cfg: DictConfig) -> None:
     """Hydra entry point: ``python -m experiments.misma [overrides]``; a bad setting exits 2 with one line."""
-    from hydra.core.hydra_config import HydraConfig
-
-    try:
-        config = study_config(cfg)
-    except ValueError as e:
-        print(f"error: {one_line(e)}", file=sys.stderr)
-        raise SystemExit(EXIT_CONFIG) from None
-    logging.getLogger("icgo").setLevel(logging.INFO)
-    run(cfg, Path(HydraConfig.get().runtime.output_dir) / "models", config)
+    study_main(cfg, study_config, run)
 
 
 if __name__ == "__main__":

@@ -94,8 +94,10 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
     if cfg.figures:
         from experiments.figures import plot_study
 
-        def plot(path):
+        def _plot(path):
             plot_study(result, path, title=desc)
+
+        plot = _plot
     try:
         run = C.write_outputs(outdir, cfg, result, info, frame, meta, plot)
     except OSError as e:  # a full disk, a read-only directory: the previous run (if any) is intact
