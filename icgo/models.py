@@ -26,6 +26,7 @@ the columns.
 
 from __future__ import annotations
 
+import abc
 import dataclasses
 import hashlib
 import json
@@ -78,12 +79,14 @@ def sensor_domain(G, B) -> dict:
         ``{"inclination_deg": [lo, hi], "g_norm_g": [...], "b_norm_nT": [...], "dip_deg": [...]}``,
         plain floats (JSON).
     """
+    from icgo.qc import measured_dip_deg
+
     G = np.asarray(G, float)
     B = np.asarray(B, float)
     gn = np.linalg.norm(G, axis=1)
     bn = np.linalg.norm(B, axis=1)
     inc = np.degrees(np.arctan2(np.hypot(G[:, 0], G[:, 1]), G[:, 2]))
-    dip = np.degrees(np.arcsin(np.clip(np.sum(G * B, 1) / (gn * bn), -1.0, 1.0)))
+    dip = measured_dip_deg(G, B)
 
     def rng(x):
         return [float(np.min(x)), float(np.max(x))]
@@ -127,8 +130,8 @@ def _atomic_write(path: Path, write) -> None:
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
-class FittedModel:
-    """Base of every fitted model.
+class FittedModel(abc.ABC):
+    """Base of every fitted model (abstract: a subclass implements :meth:`apply`).
 
     Attributes:
         config: the settings the fit used (JSON-able dict).
@@ -147,9 +150,9 @@ class FittedModel:
     data_hash: str
     domain: dict
 
-    def apply(self, frame: pd.DataFrame) -> pd.DataFrame:  # pragma: no cover - abstract
+    @abc.abstractmethod
+    def apply(self, frame: pd.DataFrame) -> pd.DataFrame:
         """Corrected values and/or attitude per row of a data-contract frame."""
-        raise NotImplementedError
 
     # ---------------------------------------------------------------- files
     def _split_fields(self) -> tuple[dict, dict]:

@@ -25,6 +25,20 @@ import pandas as pd
 from icgo.studies import is_real, need
 
 
+def measured_dip_deg(G, B):
+    """Measured magnetic dip per shot, deg (positive down): ``asin(G . B / (|G| |B|))``.
+
+    Args:
+        G: (N, 3) gravity, g. B: (N, 3) field, nT.
+    Returns:
+        (N,) numpy array, deg.
+    """
+    G = np.asarray(G, float)
+    B = np.asarray(B, float)
+    s = np.sum(G * B, 1) / (np.linalg.norm(G, axis=1) * np.linalg.norm(B, axis=1))
+    return np.degrees(np.arcsin(np.clip(s, -1.0, 1.0)))
+
+
 @dataclasses.dataclass(frozen=True)
 class QCBands:
     """Acceptance bands of the survey QC (half-widths).
@@ -74,7 +88,7 @@ def survey_qc(G, B, total_field_nT: float, dip_deg: float, gravity_g: float = 1.
     B = np.asarray(B, float)
     gn = np.linalg.norm(G, axis=1)
     bn = np.linalg.norm(B, axis=1)
-    dip = np.degrees(np.arcsin(np.clip(np.sum(G * B, 1) / (gn * bn), -1.0, 1.0)))
+    dip = measured_dip_deg(G, B)
     dg, db, dd = gn - gravity_g, bn - total_field_nT, dip - dip_deg
     fg, fb, fd = np.abs(dg) > bands.g_tol_g, np.abs(db) > bands.b_tol_nT, np.abs(dd) > bands.dip_tol_deg
     table = pd.DataFrame({"g_total_g": gn, "dg_g": dg, "b_total_nT": bn, "db_nT": db, "dip_deg": dip,

@@ -41,6 +41,7 @@ from icgo import relm as _relm
 from icgo.frames import angle_diff, azimuth_from_gv, wrap360
 from icgo.metrics import azimuth_metrics
 from icgo.optim.cgo import CGO
+from icgo.qc import measured_dip_deg
 from icgo.stats import mean_std_table
 from icgo.studies import Study, register_study
 
@@ -259,7 +260,7 @@ def sigma_filter(G, B, azimuth_true, n_sigma: float = 3.0):
     a = np.asarray(azimuth_true, float)
     gn = np.linalg.norm(G, axis=1)
     bn = np.linalg.norm(B, axis=1)
-    dip = np.degrees(np.arcsin(np.clip(np.sum(G * B, 1) / (gn * bn), -1, 1)))
+    dip = measured_dip_deg(G, B)
     keep = np.ones(len(a), bool)
     for q in (gn, bn, dip):
         s = q.std()
