@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test test-all figures bench optimizers misma gyro discrepancy dataset-figures venv clean
+.PHONY: run test test-all figures bench optimizers misma gyro discrepancy generalisation dataset-figures venv clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -48,3 +48,6 @@ dataset-figures: $(STAMP)
 
 clean:
 	rm -rf $(VENV) outputs multirun
+
+generalisation: $(STAMP)
+	$(BIN)/python -m experiments.generalisation

@@ -96,6 +96,10 @@ STUDY_ALIASES = {"fitness.mode": "fitness", "optimizer.name": "optimizer", "stra
 ENTRY_KEYS = {"": ("dataset", "optimizer", "strategy", "schedule", "progress", "figures", "label", "jax_cache_dir",
                    "overwrite", *STUDY_NODES, "dtype"),
               "optimizer": ("name", "params"), "strategy": ("names",), "schedule": ("bounds", "order")}
+#: Keys of the study nodes that the entry point reads itself (not StudyConfig fields): the transfer target.
+STUDY_NODE_ENTRY_KEYS = ("split.target",)
+#: Keys of ``split.target`` (:class:`icgo.splits.TransferDraw` fields, plus a recording's path).
+TARGET_KEYS = ("seed", "casing_distance_scale", "casing_strength_scale", "misalignment_deg", "path")
 #: Keys of each data set option (``dataset.name``).
 DATASET_KEYS = {"lab_casing": ("name", "seed", "kwargs"), "well_conditions": ("name", "seed", "condition", "kwargs"),
                 "csv": ("name", "path", "require_meta")}
@@ -132,6 +136,17 @@ def check_config(cfg: DictConfig) -> None:
         c = ds.condition
         _need(c is None or (_is_int(c) and 0 <= c <= 5),
               f"dataset.condition must be null or an integer 0-5 (Table 4 row), got {c!r}")
+    target = OmegaConf.select(cfg, "split.target")
+    protocol = OmegaConf.select(cfg, "split.protocol")
+    if target is not None:
+        _need(protocol == "transfer", f"split.target is read only by split.protocol=transfer (split=transfer); "
+                                      f"here split.protocol={protocol!r}, so it would do nothing")
+        _unknown(target.keys(), TARGET_KEYS, "split.target.")
+        if target.get("path") is not None:
+            p = Path(str(target.path)).expanduser()
+            _need(p.is_file(), f"split.target.path {str(p)!r}: file not found")
+    elif protocol == "transfer":
+        _need(False, "split.protocol=transfer needs split.target (use split=transfer, which defines it)")
     b = list(cfg.schedule.bounds)
     _need(len(b) == 2 and all(isinstance(x, (int, float)) for x in b) and 0.0 < b[0] < b[1] < 1.0,
           f"schedule.bounds must be two fractions 0 < b1 < b2 < 1, got {b}")
@@ -153,6 +168,8 @@ def study_settings(cfg: DictConfig) -> tuple[dict, dict]:
     for node in STUDY_NODES:
         for k, v in OmegaConf.to_container(cfg[node], resolve=True).items():
             key = f"{node}.{k}"
+            if key in STUDY_NODE_ENTRY_KEYS:
+                continue
             field = STUDY_ALIASES.get(key) or (f"{node}_{k}" if f"{node}_{k}" in fields else k)
             _need(field not in where, f"settings {where.get(field)!r} and {key!r} both map to the study field "
                                       f"{field!r}")
@@ -236,6 +253,38 @@ def load_data(cfg: DictConfig):
     return frame, meta, desc
 
 
+def load_target(cfg: DictConfig):
+    """The second instrument's survey of ``split=transfer`` (a DataFrame), or None for other protocols.
+
+    ``split.target.path`` reads a recording; otherwise the data set's simulator draws
+    the target with the changes of ``split.target`` (:func:`icgo.splits.transfer_survey`).
+
+    Raises:
+        ConfigError / icgo.io.DataError: one line.
+    """
+    if OmegaConf.select(cfg, "split.protocol") != "transfer":
+        return None
+    t = OmegaConf.to_container(cfg.split.target, resolve=True)
+    path = t.pop("path", None)
+    if path is not None:
+        from icgo.io import read_recording
+
+        return read_recording(Path(str(path)).expanduser(), require_meta=False).frame
+    from icgo.splits import TransferDraw, transfer_survey
+    from icgo.studies import SettingError
+
+    ds = cfg.dataset
+    if ds.name == "csv":
+        raise ConfigError("split=transfer on dataset=csv needs split.target.path (a recording of the second "
+                          "instrument); only the simulated data sets can draw one")
+    try:
+        draw = TransferDraw(**t)
+        return transfer_survey(ds.name, int(ds.seed), dict(OmegaConf.to_container(ds.kwargs, resolve=True) or {}),
+                               draw).frame
+    except SettingError as e:
+        raise ConfigError(f"split.target.{e.field} {e.problem}") from None
+
+
 def select_condition(frame, condition: int):
     """Rows of one Table 4 condition of a well_conditions frame (column ``condition``)."""
     if "condition" not in frame.columns:
@@ -317,7 +366,7 @@ def progress_enabled(setting) -> bool:
     raise ConfigError(f"progress must be auto, true or false, got {setting!r}")
 
 
-def run_with_progress(frame, scfg, meta, enable: bool, desc: str):
+def run_with_progress(frame, scfg, meta, enable: bool, desc: str, target=None):
     """``icgo.studies.icgo_relm.run_study`` with a progress bar over the optimizer's iterations.
 
     The bar wraps the search's fitness (``run_study(wrap_fitness=...)``), so it
@@ -327,14 +376,14 @@ def run_with_progress(frame, scfg, meta, enable: bool, desc: str):
     from icgo.studies import icgo_relm as study
 
     if not enable or scfg.optimizer is None:
-        return study.run_study(frame, scfg, meta)
+        return study.run_study(frame, scfg, meta, target=target)
     from icgo.optim import iterations_for_budget
 
     n_iter = scfg.iterations if scfg.max_evals is None else iterations_for_budget(
         scfg.optimizer, scfg.pop_size, scfg.max_evals, scfg.optimizer_config)
     bar = Progress(int(n_iter) + 1, desc, True)
     try:
-        return study.run_study(frame, scfg, meta, wrap_fitness=bar.wrap)
+        return study.run_study(frame, scfg, meta, wrap_fitness=bar.wrap, target=target)
     finally:
         bar.close()
 

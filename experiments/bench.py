@@ -128,13 +128,9 @@ def study_data(n_repeats: int, seed: int = 0, dataset_seed: int = 0, tile: int =
     G, B, a = study.frame_arrays(datasets.lab_casing(dataset_seed).frame)
     kept = study.sigma_filter(G, B, a, cfg.sigma_filter)
     G, B, a = (np.tile(x[kept], (tile, 1)) if x.ndim == 2 else np.tile(x[kept], tile) for x in (G, B, a))
-    n_train = study._check_config(cfg, len(a))
-    base = jax.random.PRNGKey(seed)
-    keys = jnp.stack([jax.random.fold_in(base, i) for i in range(n_repeats)])
-    prep = study._prepare(keys, jnp.asarray(G), jnp.asarray(B), jnp.asarray(a), None, n_train=n_train,
-                          msa_model=cfg.msa_model, msa_iter=cfg.msa_iterations, features=cfg.features,
-                          mode=cfg.fitness, val_fraction=float(cfg.val_fraction), k_folds=int(cfg.k_folds))
-    return StudyData(prep.data, study._train_rows(prep.data, n_train), n_train, len(a), prep, a)
+    prep, _ = study.prepare(None, G, B, a, cfg, jax.random.PRNGKey(seed))
+    rows = study.train_rows(prep)
+    return StudyData(prep.data, rows, int(rows.T.shape[1]), len(a), prep, a)
 
 
 def _slice(tree, i):

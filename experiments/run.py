@@ -69,7 +69,9 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
         bar = C.progress_enabled(cfg.progress)
         C.enable_jax_cache(cfg.jax_cache_dir)
         frame, meta, desc = C.load_data(cfg)
-        result = C.run_with_progress(frame, scfg, meta, bar, desc=f"{desc} {'/'.join(scfg.method_names())}")
+        target = C.load_target(cfg)
+        result = C.run_with_progress(frame, scfg, meta, bar, desc=f"{desc} {'/'.join(scfg.method_names())}",
+                                     target=target)
     except ValueError as e:  # ConfigError, icgo.io.DataError, study/optimizer checks: one line each
         if multirun:
             C.write_failure(outdir, C.one_line(e), C.format_traceback(e))

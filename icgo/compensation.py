@@ -26,6 +26,7 @@ import pandas as pd
 
 from icgo import msa as _msa
 from icgo import relm as _relm
+from icgo.conformal import conformal_quantile
 from icgo.frames import angle_diff, azimuth_from_gv, inclination_from_g, toolface_from_g, wrap360
 from icgo.models import FittedModel, ModelError, frame_values, register_model
 
@@ -75,11 +76,7 @@ def out_of_bag_halfwidth(a_comp, a_true, train, level: float = INTERVAL_LEVEL):
     k = oob.sum(axis=0)
     used = k > 0
     mean_err = np.where(oob[None], err, 0.0).sum(axis=1)[:, used] / k[used]                           # (S, n)
-    n = int(used.sum())
-    if n == 0:
-        return np.full(err.shape[0], np.nan)
-    rank = min(int(np.ceil((n + 1) * level)), n)
-    return np.sort(np.abs(mean_err), axis=1)[:, rank - 1]
+    return np.array([conformal_quantile(np.abs(e), level) for e in mean_err])
 
 
 def _attitude_columns(frame: pd.DataFrame, G) -> dict:
@@ -98,7 +95,7 @@ class MSAModel(FittedModel):
 
     Attributes:
         bias: (R, 3) biases eps, nT. scale: (R, 3) scale errors s.
-        repeat_ids: the R repeat ids.
+        repeat_ids: the repeat id of each of the R members (a fold protocol has one member per repeat and fold).
     """
 
     KIND = "msa"
@@ -147,7 +144,7 @@ class RELMCompensation(FittedModel):
         methods: the S method labels (e.g. ``["cgo-three_stage"]``, ``["relm"]``).
         selected: the method :meth:`apply` uses by default: the one with the
             lowest mean training RMSE over repeats (training rows only).
-        repeat_ids: the R repeat ids.
+        repeat_ids: the repeat id of each of the R members (a fold protocol has one member per repeat and fold).
         hidden: RELM hidden units L. lam: ridge lambda. features: ``raw`` or ``msa``.
         msa_bias, msa_scale: (R, 3) MSA biases (nT) and scale errors per repeat.
         x_mean, x_std: (R, 6) input standardisation per repeat (g, nT).

@@ -37,6 +37,7 @@ TABLES = {
     "predictions": ("method", "repeat", "row", "station", "split", "azimuth_true", "azimuth_raw", "azimuth_msa",
                     "error_msa", "predicted_error", "azimuth_compensated", "error_compensated"),
     "msa": ("repeat", "cost_V", "condition_number", "bias_x", "bias_y", "bias_z"),
+    "coverage": ("method", "repeat", "fold", "level", "halfwidth_deg", "coverage", "n_test"),
 }
 
 #: Keys every run record has.

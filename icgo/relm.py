@@ -172,24 +172,31 @@ class TrainRows(NamedTuple):
     Attributes:
         Xa: (n, 7) standardised inputs with a trailing column of ones (the bias).
         T: (n,) targets (deg).
+        w: None (every row counts) or (n,) 0/1 row weights: batch members with
+            different numbers of training rows (the folds of
+            ``split=leave_azimuth_out``) are padded to one shape with weight-0 rows.
     """
 
     Xa: jnp.ndarray
     T: jnp.ndarray
+    w: jnp.ndarray | None = None
 
 
-def train_rows(data: FitData, n_train: int) -> TrainRows:
+def train_rows(data: FitData, n_train: int, padded: bool = False) -> TrainRows:
     """Gather the rows of a train-mode FitData (``fit_w`` of one fold) into TrainRows.
 
     Args:
         data: FitData with K = 1 whose ``fit_w[0]`` marks the training rows.
-        n_train: number of training rows (static; every repeat has as many).
+        n_train: number of training rows (static; every repeat has as many), or with
+            ``padded`` the largest number over the batch.
+        padded: gather ``n_train`` rows, the training rows first, and weight the rest 0.
     Returns:
-        TrainRows, (n_train, 7) and (n_train,).
+        TrainRows, (n_train, 7) and (n_train,) (and (n_train,) weights when padded).
     """
     idx = jnp.nonzero(data.fit_w[0] > 0, size=n_train)[0]
     X = data.X[idx]
-    return TrainRows(jnp.concatenate([X, jnp.ones((n_train, 1), X.dtype)], axis=1), data.T[idx])
+    w = (jnp.arange(n_train) < jnp.sum(data.fit_w[0] > 0)).astype(X.dtype) if padded else None
+    return TrainRows(jnp.concatenate([X, jnp.ones((n_train, 1), X.dtype)], axis=1), data.T[idx], w)
 
 
 def _train_rmse_chunk(pop, rows: TrainRows, lam, hidden: int, refine: int, gram_dtype):
@@ -200,25 +207,34 @@ def _train_rmse_chunk(pop, rows: TrainRows, lam, hidden: int, refine: int, gram_
     H = jax.nn.sigmoid(jnp.einsum("nd,pdl->pnl", rows.Xa, W))                       # eq. (8), (P, n, L)
     # Sigmoid columns share a large mean, which ruins a float32 Gram; centred
     # columns do not, and H^T H = Hc^T Hc + n m m^T exactly (mean term in float64).
-    m = jnp.mean(H, axis=1)
-    Hc = (H - m[:, None, :]).astype(gram_dtype)
+    if rows.w is None:
+        m = jnp.mean(H, axis=1)
+        Hc = (H - m[:, None, :]).astype(gram_dtype)
+        Tw = rows.T
+    else:  # 0/1 weights: padded rows drop out of every sum (w^2 = w)
+        n = jnp.sum(rows.w)
+        m = jnp.einsum("pnl,n->pl", H, rows.w) / n
+        Hc = ((H - m[:, None, :]) * rows.w[None, :, None]).astype(gram_dtype)
+        Tw = rows.T * rows.w
     A = jnp.einsum("pni,pnj->pij", Hc, Hc).astype(H.dtype) + n * m[:, :, None] * m[:, None, :]
     C = jnp.linalg.cholesky(A + lam * jnp.eye(hidden, dtype=H.dtype))
 
     def solve(b):
         return jax.scipy.linalg.cho_solve((C, True), b[..., None])[..., 0]
 
-    beta = solve(jnp.einsum("pni,n->pi", H, rows.T))                                # eq. (9)
+    beta = solve(jnp.einsum("pni,n->pi", H, Tw))                                    # eq. (9)
     for _ in range(refine):  # iterative refinement: float64 residual of the exact normal equations
         r = rows.T - jnp.einsum("pni,pi->pn", H, beta)
+        if rows.w is not None:
+            r = r * rows.w
         beta = beta + solve(jnp.einsum("pni,pn->pi", H, r) - lam * beta)
     r = jnp.einsum("pni,pi->pn", H, beta) - rows.T
-    f = jnp.sqrt(jnp.mean(r * r, axis=1))
+    f = jnp.sqrt(jnp.mean(r * r, axis=1)) if rows.w is None else jnp.sqrt(jnp.einsum("pn,n->p", r * r, rows.w) / n)
     return jnp.where(jnp.isfinite(f), f, jnp.inf)
 
 
-def _train_fitness_impl(pop, Xa, T, lam, hidden: int, chunk: int, refine: int, gram_dtype):
-    rows = TrainRows(Xa, T)
+def _train_fitness_impl(pop, Xa, T, lam, hidden: int, chunk: int, refine: int, gram_dtype, w=None):
+    rows = TrainRows(Xa, T, w)
     P, D = pop.shape
     if chunk >= P:
         return _train_rmse_chunk(pop, rows, lam, hidden, refine, gram_dtype)
@@ -229,7 +245,7 @@ def _train_fitness_impl(pop, Xa, T, lam, hidden: int, chunk: int, refine: int, g
 
 
 @lru_cache(maxsize=None)
-def _sequential_over_batches(hidden: int, chunk: int, refine: int, gram_dtype: str):
+def _sequential_over_batches(hidden: int, chunk: int, refine: int, gram_dtype: str, weighted: bool = False):
     """The kernel with a batching rule that runs batch members one after another.
 
     Under the runner's vmap over repeats and strategies a plainly batched kernel
@@ -238,8 +254,12 @@ def _sequential_over_batches(hidden: int, chunk: int, refine: int, gram_dtype: s
     batch keeps each chunk cache-sized, makes the cost linear in the batch, and
     makes a batch member's result bitwise that of the same call alone.
     """
-    def one(pop, Xa, T, lam):
-        return _train_fitness_impl(pop, Xa, T, lam, hidden, chunk, refine, jnp.dtype(gram_dtype))
+    if weighted:
+        def one(pop, Xa, T, lam, w):
+            return _train_fitness_impl(pop, Xa, T, lam, hidden, chunk, refine, jnp.dtype(gram_dtype), w)
+    else:
+        def one(pop, Xa, T, lam):
+            return _train_fitness_impl(pop, Xa, T, lam, hidden, chunk, refine, jnp.dtype(gram_dtype))
 
     f = jax.custom_batching.custom_vmap(one)
 
@@ -274,8 +294,9 @@ def train_fitness(pop, rows: TrainRows, lam, hidden: int, chunk: int = 10, refin
     Returns:
         (P,) fitness; +inf where not finite.
     """
-    f = _sequential_over_batches(hidden, chunk, refine, str(jnp.dtype(gram_dtype)))
-    return f(pop, rows.Xa, rows.T, jnp.asarray(lam, pop.dtype))
+    weighted = rows.w is not None
+    f = _sequential_over_batches(hidden, chunk, refine, str(jnp.dtype(gram_dtype)), weighted)
+    return f(pop, rows.Xa, rows.T, jnp.asarray(lam, pop.dtype), *((rows.w,) if weighted else ()))
 
 
 def make_train_fitness(lam: float, hidden: int, chunk: int = 10, refine: int = 2, gram_dtype: str = "float32"):

@@ -191,6 +191,9 @@ def _fail_if_called(*a, **k):
     ("schedule.bounds=[0.7,0.2]", "schedule.bounds must be two fractions"),
     ("dataset=csv", "dataset.path is required"),
     ("+dataset.path=/no/such/file.csv", None),
+    ("+split.target.seed=3", "split.target is read only by split.protocol=transfer"),
+    ("split.protocol=transfer", "split.protocol=transfer needs split.target"),
+    ("split.protocol=leave_one_out", "split.protocol must be one of"),
 ])
 def test_bad_settings_fail_in_one_line_before_computation(override, expect, monkeypatch, capsys, tmp_path):
     import icgo.datasets
@@ -362,3 +365,33 @@ def test_jax_cache_dir_that_cannot_be_created_is_one_line(tmp_path, capsys):
                 tmp_path / "out")
     err = capsys.readouterr().err.strip().splitlines()
     assert e.value.code == C.EXIT_CONFIG and len(err) == 1 and "jax_cache_dir" in err[0] and "null" in err[0]
+
+
+def test_split_options_compose_their_protocol_and_the_transfer_draw_defaults():
+    """Each conf/split option sets its protocol; split=transfer's target equals icgo.splits.TransferDraw()."""
+    import dataclasses
+
+    from icgo.splits import PROTOCOLS, TransferDraw
+
+    for option, protocol in (("paper", "random"), ("single", "random"), ("leave_azimuth_out", "leave_azimuth_out"),
+                             ("leave_condition_out", "leave_condition_out"), ("transfer", "transfer")):
+        assert C.study_config(_job_cfg([f"split={option}"])).protocol == protocol
+    assert set(PROTOCOLS) == {"random", "leave_azimuth_out", "leave_condition_out", "transfer"}
+    target = _job_cfg(["split=transfer"]).split.target
+    assert target.path is None
+    for f in dataclasses.fields(TransferDraw):
+        v = target[f.name]
+        assert (tuple(v) if f.name == "misalignment_deg" else v) == getattr(TransferDraw(), f.name), f.name
+
+
+def test_transfer_run_writes_coverage_and_tests_the_target_only(tmp_path):
+    run = run_job(_job_cfg(TINY + ["split=transfer", "split.n_repeats=2", "+dataset.kwargs.toolface_step_deg=45.0"]),
+                  tmp_path / "t")
+    import pandas as pd
+
+    p = pd.read_csv(tmp_path / "t" / "predictions.csv")
+    assert set(p[p["split"] == "test"]["survey"]) == {"target"}
+    assert set(p[p["survey"] == "target"]["split"]) == {"test"}
+    cov = pd.read_csv(tmp_path / "t" / "coverage.csv")
+    assert len(cov) == 2 and cov["coverage"].between(0, 1).all()
+    assert run["n_repeats"] == 2

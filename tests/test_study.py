@@ -175,13 +175,11 @@ def test_tiny_cgo_study_mixed_precision_batched_equals_alone(frame):
     np.testing.assert_array_equal(alone.curves["best_fitness"][:, 0], res.curves["best_fitness"][:, 1])
     # the fast fitness on this study's own prepared data equals the row-weighted float64 fitness
     G, B, a = study.frame_arrays(frame)
-    n_train = study._check_config(cfg, len(a))
-    keys = jax.random.PRNGKey(0)[None]
-    prep = study._prepare(keys, G, B, a, None, n_train=n_train, msa_model="biases", msa_iter=30,
-                          features="raw", mode="train", val_fraction=0.3, k_folds=5)
+    prep, _ = study.prepare(None, G, B, a, dataclasses.replace(cfg, n_repeats=1), jax.random.PRNGKey(0))
     data = jax.tree_util.tree_map(lambda x: x[0], prep.data)
+    rows = jax.tree_util.tree_map(lambda x: x[0], study.train_rows(prep))
     pop = relm.random_theta(jax.random.PRNGKey(1), 10, (12,))
-    np.testing.assert_allclose(np.asarray(relm.train_fitness(pop, relm.train_rows(data, n_train), 1e-3, 10)),
+    np.testing.assert_allclose(np.asarray(relm.train_fitness(pop, rows, 1e-3, 10)),
                                np.asarray(relm.fitness(pop, data, 1e-3, 10)), rtol=1e-9)
 
 

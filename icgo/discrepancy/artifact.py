@@ -87,3 +87,60 @@ class PhysicsModel(FittedModel):
                     "azimuth_raw": np.mod(np.asarray(azimuth_from_gv(G, B)) + float(self.field[2]), 360.0),
                     "inclination_compensated": np.asarray(inc), "azimuth_compensated": np.asarray(a)})
         return pd.DataFrame(out)
+
+
+#: The physics baseline of the generalisation protocols: the 12-parameter magnetometer
+#: model (bias, scale, cross-coupling, misalignment) with an earth-fixed external field.
+TWELVE_PLUS_FIELD = ("hard_iron", "mag_scale", "mag_cross_coupling", "mag_misalignment", "external_field")
+
+
+def fit_members(st, weights, effects=TWELVE_PLUS_FIELD, noise=None, n_iter: int = 30) -> list:
+    """Fit one fixed physics model per row-weight vector (no search): the discrepancy
+    engine's Levenberg-Marquardt (:func:`icgo.discrepancy.fit.lm_fit`) over ``effects``,
+    vmapped over the members (one compile for every member).
+
+    Args:
+        st: :class:`icgo.discrepancy.stations.Stations` with a reference attitude.
+        weights: (M, n) 0/1 station weights, one row per member (its training rows).
+        effects: effect names (``icgo.effects`` vocabulary) that are fitted.
+        noise: residual weights (:class:`icgo.discrepancy.noise.Noise`); default the
+            workflow's noise constants.
+        n_iter: LM steps (fixed; 30 reach the converged cost on the bundled data to 1e-9 relative).
+    Returns:
+        M :class:`PhysicsModel`, each with the effects' parameters and the field (the
+        metadata's field when the stations carry one, else the fitted one).
+    """
+    import jax
+    import jax.numpy as jnp
+
+    from icgo.discrepancy.config import WorkflowConfig
+    from icgo.discrepancy.fit import lm_fit
+    from icgo.discrepancy.model import fitted_field, prepare
+    from icgo.models import data_hash
+
+    if not st.has_reference:
+        raise ValueError("physics baseline: the stations need a reference attitude (azimuth_deg, inclination_deg)")
+    cfg = WorkflowConfig()
+    noise = cfg.noise if noise is None else noise
+    prep = prepare(st, noise)
+    layout = prep.layout
+    free = prep.free_nuisance.astype(float)
+    for e in effects:
+        free[layout.slice(e)] = 1.0
+    w = np.asarray(weights, float) * prep.valid[None]
+    fit = jax.jit(jax.vmap(lambda wm: lm_fit(jnp.zeros(layout.n_params), jnp.asarray(free), wm, prep.data, layout,
+                                             n_iter)[0]))
+    thetas = np.asarray(fit(jnp.asarray(w)))
+    scales = layout.scales()
+    out = []
+    for th, wm in zip(thetas, w):
+        rows = wm > 0
+        phys = th * scales
+        out.append(PhysicsModel(
+            config={"effects": list(effects), "n_iter": int(n_iter), "baseline": "twelve_plus_field"},
+            data_hash=data_hash(st.G[rows], st.B[rows]), domain=sensor_domain(st.G[rows], st.B[rows]),
+            effects=list(effects), sizes=[int(layout.sizes[layout.names.index(e)]) for e in effects],
+            params=np.concatenate([phys[layout.slice(e)] for e in effects]),
+            field=np.asarray(fitted_field(th, layout, prep.data), float),
+            sigma_b_nT=float(noise.sigma_b_nT), sigma_g=float(noise.sigma_g)))
+    return out

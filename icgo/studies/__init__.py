@@ -93,7 +93,7 @@ STUDIES: dict[str, Study] = {}
 
 #: Modules that register a study at import.
 _STUDY_MODULES = ("icgo.studies.icgo_relm", "icgo.studies.misma", "icgo.studies.gyro",
-                  "icgo.studies.optimizers", "icgo.studies.discrepancy")
+                  "icgo.studies.optimizers", "icgo.studies.discrepancy", "icgo.studies.generalisation")
 
 
 def register_study(study: Study) -> Study:

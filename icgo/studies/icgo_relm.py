@@ -3,8 +3,11 @@
 Pipeline, per repeat (one PRNG key each, ``fold_in(PRNGKey(seed), repeat_id)``):
 
 1. 3-sigma filter (host-side, once for the data set; :func:`sigma_filter`);
-2. random 7:3 split: a permutation of the rows, the first ``round(0.7 N)`` are
-   training rows (a 0/1 mask, so shapes stay fixed across repeats);
+2. the split (``protocol``, :mod:`icgo.splits`): the paper's random 7:3 split
+   (a permutation of the rows, the first ``round(0.7 N)`` are training rows)
+   or a generalisation protocol (whole azimuths or well conditions held out,
+   or a second instrument build as the test set). Each fitted model is a
+   *member* with 0/1 row masks, so shapes stay fixed across members;
 3. multi-station analysis on the training rows only (:mod:`icgo.msa`);
 4. target = azimuth error left after MSA, ``wrap(A_msa - A_true)`` (deg);
 5. model: RELM on the six raw sensor values standardised with training
@@ -20,6 +23,10 @@ observability check, the optimizer's runner (:func:`icgo.optim.run_batch`,
 one call vmapped over repeats and CGO strategies), then ``_score_all`` (refit
 and metrics, vmapped over strategies, mapped over repeats).
 Repeat k of a batched run equals the same repeat run alone (``repeat_ids``).
+
+Fold protocols fit one member per (repeat, fold); a repeat's metrics pool its
+folds' test rows (each row is held out by exactly one fold), so every protocol
+gives one number per method and repeat.
 
 Entry point: :func:`run_study` ``(frame, StudyConfig) -> StudyResult``.
 """
@@ -38,6 +45,7 @@ import pandas as pd
 
 from icgo import msa as _msa
 from icgo import relm as _relm
+from icgo import splits as _splits
 from icgo.frames import angle_diff, azimuth_from_gv, wrap360
 from icgo.metrics import azimuth_metrics
 from icgo.optim.cgo import CGO
@@ -57,7 +65,11 @@ class StudyConfig:
         seed: base seed; repeat k uses key ``fold_in(PRNGKey(seed), k)``.
         repeat_ids: run only these repeat ids (e.g. ``(3,)`` to rerun repeat 3
             alone); None = ``range(n_repeats)``.
-        train_fraction: training share of each split (paper 7:3 -> 0.7).
+        protocol: the split (:data:`icgo.splits.PROTOCOLS`): ``random`` (paper),
+            ``leave_azimuth_out``, ``leave_condition_out`` or ``transfer`` (needs
+            ``SurveyData.target``, the second instrument's survey).
+        train_fraction: training share of each split (paper 7:3 -> 0.7; random
+            and transfer protocols).
         sigma_filter: n-sigma outlier rule applied once before splitting
             (paper: 3); None disables.
         msa_model: ``"biases"`` (paper), ``"axial"`` or ``"biases_scales"``.
@@ -96,6 +108,7 @@ class StudyConfig:
     n_repeats: int = 10
     seed: int = 0
     repeat_ids: tuple | None = None
+    protocol: str = "random"
     train_fraction: float = 0.7
     sigma_filter: float | None = 3.0
     msa_model: str = "biases"
@@ -130,8 +143,14 @@ class StudyConfig:
         need(is_int(self.seed) and self.seed >= 0, "seed", f"must be an integer >= 0, got {self.seed!r}")
         need(self.repeat_ids is None or (len(self.repeat_ids) >= 1 and all(is_int(i) and i >= 0 for i in self.repeat_ids)),
              "repeat_ids", f"must be None or a non-empty tuple of integers >= 0, got {self.repeat_ids!r}")
+        need(self.protocol in _splits.PROTOCOLS, "protocol",
+             f"must be one of {list(_splits.PROTOCOLS)}, got {self.protocol!r}")
         need(is_real(self.train_fraction) and 0.0 < self.train_fraction < 1.0, "train_fraction",
              f"must be in (0, 1), got {self.train_fraction!r}")
+        default_fraction = StudyConfig.__dataclass_fields__["train_fraction"].default
+        need(self.protocol not in _splits.FOLD_PROTOCOLS or self.train_fraction == default_fraction, "train_fraction",
+             f"has no effect under protocol {self.protocol!r} (its folds set the training rows); leave it at "
+             f"{default_fraction}, got {self.train_fraction!r}")
         need(self.sigma_filter is None or (is_real(self.sigma_filter) and self.sigma_filter > 0), "sigma_filter",
              f"must be > 0 or null, got {self.sigma_filter!r}")
         need(self.msa_model in _msa.MODELS, "msa_model",
@@ -198,16 +217,23 @@ class StudyResult(NamedTuple):
     Attributes:
         metrics: one row per (method, repeat, split): mae, rmse, r2 (eq. 21),
             r2_error; methods include ``raw`` (eq. 1 on raw data) and ``msa``
-            (after MSA only) as baselines.
+            (after MSA only) as baselines. Fold protocols: over every (fold, row)
+            of the split, i.e. the test metrics of each row's held-out fold.
         summary: mean +/- std over repeats per (method, split).
-        histories: long table (method, repeat, iteration, evals, best_fitness).
-        predictions: per (method, repeat, row) azimuths and errors, with split.
-        msa: per repeat: biases (nT), standard errors, condition number, V.
-        curves: dict of arrays: ``best_fitness`` and ``evals`` (S, R, T).
-        kept: (N_in,) bool, rows surviving the sigma filter.
+        histories: long table (method, repeat, fold, iteration, evals, best_fitness).
+        predictions: per (method, repeat, fold, row) azimuths and errors, with split
+            (``train``, ``test``, or ``heldout``: transfer's unused source rows).
+        msa: per member (repeat, fold): biases (nT), standard errors, condition number, V.
+        coverage: per (method, repeat, fold): the member's conformal half-width
+            (deg, :func:`icgo.conformal.member_coverage`), its coverage of the test
+            rows at :data:`icgo.compensation.INTERVAL_LEVEL`, the test and calibration row counts.
+        curves: dict of arrays: ``best_fitness`` and ``evals`` (S, M, T) over members.
+        kept: (N_in,) bool, rows of the input frame surviving the sigma filter
+            (for transfer: of the source; the target's kept rows are the
+            predictions' ``survey == "target"`` rows).
         config: the StudyConfig.
         wall_time_s: wall time of the jitted stages (incl. compile), s.
-        n_evals: fitness evaluations per method and repeat (S, R).
+        n_evals: fitness evaluations per method and member (S, M).
         model: the fitted compensation (:class:`icgo.compensation.RELMCompensation`):
             MSA biases, input statistics, hidden and output weights per method
             and repeat; ``model.apply(frame)`` corrects a new survey.
@@ -219,6 +245,7 @@ class StudyResult(NamedTuple):
     histories: pd.DataFrame
     predictions: pd.DataFrame
     msa: pd.DataFrame
+    coverage: pd.DataFrame
     curves: dict
     kept: np.ndarray
     config: StudyConfig
@@ -231,7 +258,7 @@ class StudyResult(NamedTuple):
     def records(self) -> dict:
         """The tables a run directory holds (names and columns: :mod:`icgo.records`)."""
         return {"metrics": self.metrics, "convergence": self.histories, "predictions": self.predictions,
-                "msa": self.msa.rename(columns={"condition": "condition_number"})}
+                "msa": self.msa.rename(columns={"condition": "condition_number"}), "coverage": self.coverage}
 
     @property
     def models(self) -> dict:
@@ -280,6 +307,7 @@ class Prepared(NamedTuple):
     """Per-repeat arrays (leading axis R when batched)."""
 
     train: jnp.ndarray      # (N,) 0/1
+    test: jnp.ndarray       # (N,) 0/1
     msa: _msa.MSAResult
     a_msa: jnp.ndarray      # (N,) deg
     target: jnp.ndarray     # (N,) deg
@@ -289,14 +317,17 @@ class Prepared(NamedTuple):
     x_std: jnp.ndarray      # (6,) feature std over the training rows (g, nT)
 
 
-@functools.partial(jax.jit, static_argnames=("n_train", "msa_model", "msa_iter", "features", "mode",
-                                             "val_fraction", "k_folds"))
-def _prepare(keys, G, B, a_true, reference, *, n_train, msa_model, msa_iter, features, mode,
+@functools.partial(jax.jit, static_argnames=("msa_model", "msa_iter", "features", "mode", "val_fraction",
+                                             "k_folds"))
+def _prepare(keys, train, test, G, B, a_true, reference, *, msa_model, msa_iter, features, mode,
              val_fraction, k_folds) -> Prepared:
-    def one(key):
-        k_split, k_fold, k_model = jax.random.split(key, 3)
-        perm = jax.random.permutation(k_split, G.shape[0])
-        train = jnp.zeros(G.shape[0], G.dtype).at[perm[:n_train]].set(1.0)
+    """Per member (lax.map): MSA on its training rows, targets, standardised features, fold weights.
+
+    keys: (M, 2); train, test: (M, N) 0/1 masks (:func:`icgo.splits.members`).
+    """
+    def one(args):
+        key, train, test = args
+        _, k_fold, k_model = jax.random.split(key, 3)  # the first split drew the random protocol's permutation
         m = _msa.msa_solve(G, B, train, reference, model=msa_model, max_steps=msa_iter)
         b_corr = _msa.correct_field(B, m.bias, m.scale)
         a_msa = azimuth_from_gv(G, b_corr)
@@ -305,13 +336,14 @@ def _prepare(keys, G, B, a_true, reference, *, n_train, msa_model, msa_iter, fea
         mean, std = _relm.standardize_stats(X, train)
         Xs = _relm.standardize(X, mean, std)
         fit_w, score_w = _relm.fold_weights(k_fold, train, mode, val_fraction, k_folds)
-        return Prepared(train, m, a_msa, target, _relm.FitData(Xs, target, fit_w, score_w), k_model, mean, std)
+        return Prepared(train, test, m, a_msa, target, _relm.FitData(Xs, target, fit_w, score_w), k_model, mean,
+                        std)
 
     # lax.map, not vmap: the per-repeat program is then the same whatever the
     # number of repeats, so repeat k of a batch equals repeat k alone bitwise
     # (a vmapped reduction may be reordered by XLA for another batch size).
     # These stages are cheap; the search (the cost) is vmapped by the runner.
-    return jax.lax.map(one, keys)
+    return jax.lax.map(one, (keys, train.astype(G.dtype), test.astype(G.dtype)))
 
 
 @functools.lru_cache(maxsize=None)
@@ -341,7 +373,7 @@ def _score(theta, prep: Prepared, a_true, lam, hidden):
     beta = _relm.ridge_solve(H, prep.target, lam, prep.train)
     pred = H @ beta
     a_comp = wrap360(prep.a_msa - pred)
-    test = azimuth_metrics(a_true, a_comp, prep.target, 1.0 - prep.train)
+    test = azimuth_metrics(a_true, a_comp, prep.target, prep.test)
     train = azimuth_metrics(a_true, a_comp, prep.target, prep.train)
     return pred, a_comp, test, train, beta
 
@@ -364,9 +396,9 @@ def _plain(keys, data, lam, hidden, low, high, dtype):
     return jax.lax.map(one, (keys, data))
 
 
-@functools.partial(jax.jit, static_argnames=("n_train",))
-def _train_rows(data, n_train):
-    return jax.vmap(lambda d: _relm.train_rows(d, n_train))(data)
+@functools.partial(jax.jit, static_argnames=("n_train", "padded"))
+def _train_rows(data, n_train, padded):
+    return jax.vmap(lambda d: _relm.train_rows(d, n_train, padded))(data)
 
 
 def _search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None):
@@ -386,8 +418,7 @@ def _search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None):
     dtype = _search_dtype(cfg)
     aux = prep.data
     if dtype == "mixed":
-        n_train = int(np.asarray(prep.train[0]).sum())
-        aux = _train_rows(prep.data, n_train)
+        aux = train_rows(prep)
     fitness = _fitness_fn(float(cfg.lam), int(cfg.hidden), dtype)
     if wrap_fitness is not None:
         fitness = wrap_fitness(fitness)
@@ -400,21 +431,23 @@ def _search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None):
 
 
 # ----------------------------------------------------------------- checking
-def _check_config(cfg: StudyConfig, n_rows: int) -> int:
+def _check_config(cfg: StudyConfig, mem: _splits.Members) -> None:
     """The data-dependent checks (the settings validated themselves in ``StudyConfig.__post_init__``)."""
     if not isinstance(cfg, StudyConfig):
         raise ValueError(f"config must be a StudyConfig, got {type(cfg).__name__}")
-    n_train = int(round(cfg.train_fraction * n_rows))
-    n_fit = n_train
+    n_train = mem.train.sum(axis=1)
+    n_test = mem.test.sum(axis=1)
+    m = int(np.argmin(n_train))
+    n_fit = int(n_train[m])
     if cfg.fitness == "validation":
-        n_fit = n_train - int(round(cfg.val_fraction * n_train))
+        n_fit -= int(round(cfg.val_fraction * n_fit))
     elif cfg.fitness == "kfold":
-        n_fit = n_train - int(np.ceil(n_train / cfg.k_folds))
-    if n_fit < cfg.hidden or n_rows - n_train < 1:
-        raise ValueError(f"study: a split of {n_rows} rows gives {n_train} training rows ({n_fit} per fit) "
-                         f"and {n_rows - n_train} test rows; need at least hidden = {cfg.hidden} rows per fit "
-                         f"and one test row")
-    return n_train
+        n_fit -= int(np.ceil(n_fit / cfg.k_folds))
+    where = "" if cfg.protocol == "random" else f" ({cfg.protocol}, fold {mem.fold_label[mem.fold[m]]!r})"
+    if n_fit < cfg.hidden or n_test.min() < 1:
+        raise ValueError(f"study: a split{where} of {mem.train.shape[1]} rows gives {int(n_train[m])} training rows "
+                         f"({n_fit} per fit) and {int(n_test.min())} test rows; need at least hidden = {cfg.hidden} "
+                         f"rows per fit and one test row")
 
 
 def frame_arrays(frame: pd.DataFrame):
@@ -452,12 +485,16 @@ class SurveyData(NamedTuple):
     """The ICGO-RELM study's data: a data-contract frame and its metadata.
 
     Attributes:
-        frame: DataFrame with gx, gy, gz (g), bx, by, bz (nT), azimuth_deg (deg).
+        frame: DataFrame with gx, gy, gz (g), bx, by, bz (nT), azimuth_deg (deg);
+            ``condition`` for ``protocol="leave_condition_out"``.
         meta: metadata dict (``total_field_nT``, ``dip_deg`` for msa_reference="known") or None.
+        target: ``protocol="transfer"`` only: the second instrument's survey (same
+            columns; :func:`icgo.splits.transfer_survey` simulates one), every row a test row.
     """
 
     frame: pd.DataFrame
     meta: dict | None = None
+    target: pd.DataFrame | None = None
 
 
 def run(data: SurveyData, config: StudyConfig, key, *, wrap_fitness=None) -> StudyResult:
@@ -469,11 +506,11 @@ def run(data: SurveyData, config: StudyConfig, key, *, wrap_fitness=None) -> Stu
         key: JAX PRNG key.
         wrap_fitness: see :func:`run_study`.
     """
-    return _run(data.frame, config, data.meta, key, wrap_fitness)
+    return _run(data.frame, config, data.meta, key, wrap_fitness, data.target)
 
 
 def run_study(frame: pd.DataFrame, config: StudyConfig | None = None, metadata: dict | None = None, *,
-              wrap_fitness=None) -> StudyResult:
+              wrap_fitness=None, target: pd.DataFrame | None = None) -> StudyResult:
     """Run an ICGO-RELM study on a data-contract frame with the key ``PRNGKey(config.seed)``.
 
     Args:
@@ -485,6 +522,7 @@ def run_study(frame: pd.DataFrame, config: StudyConfig | None = None, metadata: 
             ``f(pop, aux)``, e.g. to report progress from inside the scan
             (``experiments._common.Progress.wrap``). A wrapped fitness is a new
             static argument of the runner, so that run compiles afresh.
+        target: the second instrument's survey (``protocol="transfer"`` only).
     Returns:
         StudyResult.
     Raises:
@@ -493,31 +531,71 @@ def run_study(frame: pd.DataFrame, config: StudyConfig | None = None, metadata: 
             that cannot determine the MSA parameters.
     """
     cfg = StudyConfig() if config is None else config
-    return _run(frame, cfg, metadata, jax.random.PRNGKey(cfg.seed), wrap_fitness)
+    return _run(frame, cfg, metadata, jax.random.PRNGKey(cfg.seed), wrap_fitness, target)
 
 
-def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness) -> StudyResult:
-    G_all, B_all, a_all = frame_arrays(frame)
-    kept = sigma_filter(G_all, B_all, a_all, cfg.sigma_filter) if cfg.sigma_filter else np.ones(len(a_all), bool)
-    G, B, a_true = G_all[kept], B_all[kept], a_all[kept]
-    n_train = _check_config(cfg, len(a_true))
+def filtered(frame: pd.DataFrame, cfg: StudyConfig):
+    """(kept rows of the frame, G, B, azimuth) after the sigma filter."""
+    G, B, a = frame_arrays(frame)
+    kept = sigma_filter(G, B, a, cfg.sigma_filter) if cfg.sigma_filter else np.ones(len(a), bool)
+    return frame[kept], G[kept], B[kept], a[kept], kept
+
+
+def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None) -> StudyResult:
+    if (cfg.protocol == "transfer") != (target is not None):
+        raise ValueError("study: protocol 'transfer' needs the second instrument's survey (target) and no other "
+                         f"protocol takes one; got protocol {cfg.protocol!r} with"
+                         f"{'out' if target is None else ''} a target")
+    rows, G, B, a_true, kept = filtered(frame, cfg)
+    n_source = len(a_true)
+    if target is not None:  # the sigma filter is applied to each instrument's survey on its own
+        t_rows, Gt, Bt, at, _ = filtered(target, cfg)
+        rows = pd.concat([rows, t_rows])
+        G, B, a_true = np.vstack([G, Gt]), np.vstack([B, Bt]), np.concatenate([a_true, at])
     reference = _reference(cfg, metadata)
     if cfg.msa_model == "biases_scales" and reference is None:
         raise ValueError("study: msa_model='biases_scales' needs msa_reference='known'")
-    ids = cfg.ids()
-    keys = jnp.stack([jax.random.fold_in(base_key, i) for i in ids])
 
     t0 = time.perf_counter()
-    prep = _prepare(keys, jnp.asarray(G), jnp.asarray(B), jnp.asarray(a_true), reference, n_train=n_train,
-                    msa_model=cfg.msa_model, msa_iter=cfg.msa_iterations, features=cfg.features,
-                    mode=cfg.fitness, val_fraction=float(cfg.val_fraction), k_folds=int(cfg.k_folds))
+    prep, mem = prepare(rows, G, B, a_true, cfg, base_key, reference, n_source)
     _msa.check_observability(prep.msa, cfg.msa_model, reference)
     thetas, curve, evals = _search(cfg, prep, wrap_fitness)
-    check_search(np.asarray(curve), cfg.method_names(), ids)
+    check_search(np.asarray(curve), cfg.method_names(), [f"{r}" if cfg.protocol not in _splits.FOLD_PROTOCOLS
+                                                          else f"{r}, {mem.fold_label[f]}"
+                                                          for r, f in zip(mem.repeat, mem.fold)])
     scored = _score_all(thetas, prep, jnp.asarray(a_true), cfg.lam, cfg.hidden)
     jax.block_until_ready(scored)
     wall = time.perf_counter() - t0
-    return _collect(cfg, frame, kept, a_true, G, B, prep, thetas, scored, curve, evals, ids, wall)
+    return _collect(cfg, rows, kept, a_true, G, B, n_source, mem, prep, thetas, scored, curve, evals, wall)
+
+
+def prepare(rows: pd.DataFrame, G, B, a_true, cfg: StudyConfig, base_key, reference=None,
+            n_source: int | None = None) -> tuple[Prepared, _splits.Members]:
+    """The members of ``cfg.protocol`` and their prepared arrays (split, MSA, features), checked.
+
+    Args:
+        rows: the filtered rows (a DataFrame; fold protocols read their groups from it).
+        G: (N, 3) g. B: (N, 3) nT. a_true: (N,) deg; the filtered rows' arrays.
+        cfg: StudyConfig. base_key: the study's PRNG key.
+        reference: (3,) known reference field or None (station mean).
+        n_source: transfer only: the source's row count (the target's rows follow).
+    Returns:
+        (:class:`Prepared` with a leading member axis, :class:`icgo.splits.Members`).
+    """
+    mem = _splits.members(cfg.protocol, rows, base_key, cfg.ids(), cfg.train_fraction, n_source)
+    _check_config(cfg, mem)
+    prep = _prepare(jnp.asarray(mem.keys), jnp.asarray(mem.train), jnp.asarray(mem.test), jnp.asarray(G),
+                    jnp.asarray(B), jnp.asarray(a_true), reference, msa_model=cfg.msa_model,
+                    msa_iter=cfg.msa_iterations, features=cfg.features, mode=cfg.fitness,
+                    val_fraction=float(cfg.val_fraction), k_folds=int(cfg.k_folds))
+    return prep, mem
+
+
+def train_rows(prep: Prepared):
+    """The fast fitness's data (:class:`icgo.relm.TrainRows`, leading member axis): each member's training
+    rows gathered, padded with weight-0 rows where members have different numbers of them."""
+    n_train = np.asarray(prep.train).sum(axis=1).astype(int)
+    return _train_rows(prep.data, int(n_train.max()), bool(n_train.min() != n_train.max()))
 
 
 def check_search(curve, methods, ids) -> None:
@@ -536,84 +614,121 @@ def check_search(curve, methods, ids) -> None:
                          f"solve failed; check the data (constant or non-finite features) and model.lam")
 
 
-def _collect(cfg, frame, kept, a_true, G, B, prep, thetas, scored, curve, evals, ids, wall) -> StudyResult:
+def _pooled_metrics(a_true, a_est, err_before, w) -> dict:
+    """Metrics over every (member, row) pair of weight 1: a repeat's folds pooled.
+
+    a_est, w: (F, N); err_before: (N,) or (F, N). One member (F = 1) is the plain weighted metric.
+    """
+    F = a_est.shape[0]
+    m = azimuth_metrics(np.tile(a_true, F), a_est.ravel(), np.broadcast_to(err_before, a_est.shape).ravel(), w.ravel())
+    return {k: float(v) for k, v in m._asdict().items()}
+
+
+def _collect(cfg, rows, kept, a_true, G, B, n_source, mem: _splits.Members, prep, thetas, scored, curve, evals,
+             wall) -> StudyResult:
+    from icgo.compensation import INTERVAL_LEVEL
+    from icgo.conformal import member_coverage
+
     methods = cfg.method_names()
+    ids = cfg.ids()
     curve, evals = np.asarray(curve), np.asarray(evals)
     train = np.asarray(prep.train) > 0
+    test = np.asarray(prep.test) > 0
     target = np.asarray(prep.target)
     a_msa = np.asarray(prep.a_msa)
+    a_comp = np.asarray(scored.a_comp)
     a_raw = np.asarray(azimuth_from_gv(G, B))
     err_raw = np.asarray(angle_diff(a_raw, a_true))
-    rows = []
-    for r, rid in enumerate(ids):
-        for split, mask in (("test", ~train[r]), ("train", train[r])):
+    one_member = len(mem.fold_label) == 1  # random / transfer: the jitted per-member metrics are the repeat's
+    out = []
+    for rid in ids:
+        sel = np.flatnonzero(mem.repeat == rid)
+        for split, mask in (("test", test[sel]), ("train", train[sel])):
             w = mask.astype(float)
-            for name, a_est in (("raw", a_raw), ("msa", a_msa[r])):
-                m = azimuth_metrics(a_true, a_est, err_raw, w)
-                rows.append({"method": name, "repeat": rid, "split": split,
-                             **{k: float(v) for k, v in m._asdict().items()}})
+            for name, a_est in (("raw", np.broadcast_to(a_raw, mask.shape)), ("msa", a_msa[sel])):
+                out.append({"method": name, "repeat": rid, "split": split,
+                            **_pooled_metrics(a_true, a_est, err_raw, w)})
             for s, name in enumerate(methods):
-                m = scored.test if split == "test" else scored.train
-                rows.append({"method": name, "repeat": rid, "split": split,
-                             **{k: float(np.asarray(v)[s, r]) for k, v in m._asdict().items()}})
-    metrics = pd.DataFrame(rows)
+                if one_member:
+                    m = scored.test if split == "test" else scored.train
+                    vals = {k: float(np.asarray(v)[s, sel[0]]) for k, v in m._asdict().items()}
+                else:
+                    vals = _pooled_metrics(a_true, a_comp[s, sel], target[sel], w)
+                out.append({"method": name, "repeat": rid, "split": split, **vals})
+    metrics = pd.DataFrame(out)
     summary = mean_std_table(metrics, ["method", "split"], ["mae", "rmse", "r2", "r2_error"])
 
-    S, R, T = curve.shape
+    S, M, T = curve.shape
     histories = pd.DataFrame({
-        "method": np.repeat(methods, R * T), "repeat": np.tile(np.repeat(ids, T), S),
-        "iteration": np.tile(np.arange(1, T + 1), S * R), "evals": evals.ravel(), "best_fitness": curve.ravel()})
+        "method": np.repeat(methods, M * T), "repeat": np.tile(np.repeat(mem.repeat, T), S),
+        "fold": np.tile(np.repeat(mem.fold, T), S),
+        "iteration": np.tile(np.arange(1, T + 1), S * M), "evals": evals.ravel(), "best_fitness": curve.ravel()})
 
     N = len(a_true)
-    rows_idx = np.asarray(frame.index[kept])
-    station = frame["station"].to_numpy()[kept] if "station" in frame.columns else np.arange(N)
-    pred = np.asarray(scored.pred)
-    a_comp = np.asarray(scored.a_comp)
+    station = rows["station"].to_numpy() if "station" in rows.columns else np.arange(N)
+    split = np.where(train, "train", np.where(test, "test", "heldout"))
     predictions = pd.DataFrame({
-        "method": np.repeat(methods, R * N), "repeat": np.tile(np.repeat(ids, N), S),
-        "row": np.tile(rows_idx, S * R), "station": np.tile(station, S * R),
-        "split": np.where(np.tile(train.ravel(), S), "train", "test"),
-        "azimuth_true": np.tile(a_true, S * R), "azimuth_raw": np.tile(a_raw, S * R),
+        "method": np.repeat(methods, M * N), "repeat": np.tile(np.repeat(mem.repeat, N), S),
+        "fold": np.tile(np.repeat(mem.fold, N), S),
+        "row": np.tile(np.asarray(rows.index), S * M), "station": np.tile(station, S * M),
+        "split": np.tile(split.ravel(), S),
+        "azimuth_true": np.tile(a_true, S * M), "azimuth_raw": np.tile(a_raw, S * M),
         "azimuth_msa": np.tile(a_msa.ravel(), S), "error_msa": np.tile(target.ravel(), S),
-        "predicted_error": pred.ravel(), "azimuth_compensated": a_comp.ravel(),
+        "predicted_error": np.asarray(scored.pred).ravel(), "azimuth_compensated": a_comp.ravel(),
         "error_compensated": np.asarray(angle_diff(a_comp, a_true[None, None])).ravel()})
-    if "toolface_deg" in frame.columns:
-        predictions.insert(5, "toolface_deg", np.tile(frame["toolface_deg"].to_numpy()[kept], S * R))
+    if "toolface_deg" in rows.columns:
+        predictions.insert(6, "toolface_deg", np.tile(rows["toolface_deg"].to_numpy(), S * M))
+    if cfg.protocol == "transfer":
+        predictions["survey"] = np.tile(np.where(np.arange(N) < n_source, "source", "target"), S * M)
 
     names = _msa.MODELS[cfg.msa_model]
     m = prep.msa
-    msa_df = pd.DataFrame({"repeat": ids, "cost_V": np.asarray(m.cost), "condition": np.asarray(m.condition),
+    msa_df = pd.DataFrame({"repeat": mem.repeat, "fold": mem.fold, "cost_V": np.asarray(m.cost),
+                           "condition": np.asarray(m.condition),
                            **{f"bias_{ax}": np.asarray(m.bias)[:, i] for i, ax in enumerate("xyz")},
                            **{f"scale_{ax}": np.asarray(m.scale)[:, i] for i, ax in enumerate("xyz")},
                            **{f"std_{n}": np.asarray(m.std_error)[:, i] for i, n in enumerate(names)}})
-    return StudyResult(metrics, summary, histories, predictions, msa_df,
+    pool = mem.repeat if cfg.protocol in _splits.FOLD_PROTOCOLS else np.zeros(M, int)
+    q, cov, n_cal = member_coverage(a_comp, a_true, mem.train, mem.heldout, mem.test, pool, INTERVAL_LEVEL)
+    coverage = pd.DataFrame({"method": np.repeat(methods, M), "repeat": np.tile(mem.repeat, S),
+                             "fold": np.tile(mem.fold, S), "fold_label": np.tile(np.asarray(mem.fold_label)[mem.fold], S),
+                             "level": INTERVAL_LEVEL, "halfwidth_deg": q.ravel(), "coverage": cov.ravel(),
+                             "n_test": np.tile(mem.test.sum(axis=1).astype(int), S), "n_calibration": np.tile(n_cal, S)})
+    return StudyResult(metrics, summary, histories, predictions, msa_df, coverage,
                        {"best_fitness": curve, "evals": evals}, kept, cfg, wall, evals[..., -1],
-                       *_fitted_models(cfg, G, B, a_true, prep, thetas, scored, ids))
+                       *_fitted_models(cfg, G[:n_source], B[:n_source], a_true, mem, prep, thetas, scored))
 
 
-def _fitted_models(cfg: StudyConfig, G, B, a_true, prep: Prepared, thetas, scored: _Scored, ids):
-    """The study's fitted artifacts: (RELMCompensation, MSAModel), host-side numpy."""
+def _fitted_models(cfg: StudyConfig, G, B, a_true, mem: _splits.Members, prep: Prepared, thetas, scored: _Scored):
+    """The study's fitted artifacts: (RELMCompensation, MSAModel), host-side numpy.
+
+    One member per fitted model (repeat, fold); G, B are the training survey's rows
+    (for transfer: the source instrument's), which set the data hash and domain; the
+    conformal half-width uses the rows each member held out of that survey only.
+    """
     from icgo.compensation import MSAModel, RELMCompensation, out_of_bag_halfwidth
     from icgo.models import data_hash, sensor_domain
 
     methods = cfg.method_names()
+    ids = [int(r) for r in mem.repeat]
     train_rmse = np.asarray(scored.train.rmse)
     selected = methods[int(np.argmin(train_rmse.mean(axis=1)))]
-    common = dict(data_hash=data_hash(G, B, a_true),
-                  domain={**sensor_domain(G, B), "azimuth_deg": [float(np.min(a_true)), float(np.max(a_true))]})
+    a_src = a_true[:len(G)]
+    common = dict(data_hash=data_hash(G, B, a_src),
+                  domain={**sensor_domain(G, B), "azimuth_deg": [float(np.min(a_src)), float(np.max(a_src))]})
     bias, scale = np.asarray(prep.msa.bias), np.asarray(prep.msa.scale)
     settings = {f.name: getattr(cfg, f.name) for f in dataclasses.fields(cfg) if f.name != "optimizer_config"}
     settings["optimizer_config"] = None if cfg.optimizer_config is None else repr(cfg.optimizer_config)
-    relm = RELMCompensation(config=settings, methods=list(methods), selected=selected, repeat_ids=list(ids),
+    relm = RELMCompensation(config=settings, methods=list(methods), selected=selected, repeat_ids=ids,
                             hidden=int(cfg.hidden), lam=float(cfg.lam), features=cfg.features,
                             msa_bias=bias, msa_scale=scale, x_mean=np.asarray(prep.x_mean),
                             x_std=np.asarray(prep.x_std), theta=np.asarray(thetas), beta=np.asarray(scored.beta),
                             train_rmse=train_rmse,
                             interval_halfwidth=out_of_bag_halfwidth(np.asarray(scored.a_comp), a_true,
-                                                                    np.asarray(prep.train) > 0), **common)
+                                                                    mem.heldout == 0), **common)
     msa = MSAModel(config={"msa_model": cfg.msa_model, "msa_reference": cfg.msa_reference,
-                           "train_fraction": cfg.train_fraction, "seed": cfg.seed},
-                   bias=bias, scale=scale, repeat_ids=list(ids), **common)
+                           "train_fraction": cfg.train_fraction, "seed": cfg.seed, "protocol": cfg.protocol},
+                   bias=bias, scale=scale, repeat_ids=ids, **common)
     return relm, msa
 
 

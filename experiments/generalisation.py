@@ -1,0 +1,180 @@
+"""Generalisation table: every method under every split protocol (issue 15).
+
+    .venv/bin/python -m experiments.generalisation       # results/generalisation.md + CSVs + figure (make generalisation)
+    .venv/bin/python -m experiments.generalisation --n-repeats 2 --iterations 5 --out /tmp/g   # quick look
+
+The study is ``icgo.studies.generalisation`` (registered as ``generalisation``):
+raw, MSA only, RELM, PSO-RELM, GA-RELM, CGO-RELM, the four ICGO strategies and the
+physics baseline, under the random 7:3 split, leave-azimuth-out and transfer on
+lab_casing and the random split and leave-condition-out on the six well
+conditions; paired repeats, Wilcoxon against the best with Holm adjustment, the
+coverage of the 90 % conformal interval and the noise floor of every cell.
+Writes generalisation.md, generalisation.csv (per cell, method and repeat),
+generalisation_coverage.csv, generalisation_tests.csv and generalisation.png.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io as _io
+import sys
+from pathlib import Path
+
+NAMES = {"raw": "raw (eq. 1)", "msa": "MSA only", "relm": "RELM", "pso": "PSO-RELM", "ga": "GA-RELM",
+         "cgo-original": "CGO-RELM", "cgo-chaos": "ICGO-RELM (chaos)", "cgo-gaussian": "ICGO-RELM (Gaussian)",
+         "cgo-wavelet": "ICGO-RELM (wavelet)", "cgo-three_stage": "ICGO-RELM (three-stage)",
+         "physics": "physics (12-par + field)"}
+PROTOCOL_NAMES = {"random": "random 7:3", "leave_azimuth_out": "leave-azimuth-out",
+                  "leave_condition_out": "leave-condition-out", "transfer": "transfer"}
+
+
+def parser() -> argparse.ArgumentParser:
+    from icgo.studies.generalisation import GeneralisationConfig
+
+    d = GeneralisationConfig()
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--n-repeats", type=int, default=d.n_repeats)
+    ap.add_argument("--iterations", type=int, default=d.iterations)
+    ap.add_argument("--pop-size", type=int, default=d.pop_size)
+    ap.add_argument("--seed", type=int, default=d.seed)
+    ap.add_argument("--out", default="results")
+    return ap
+
+
+def _cell(name, protocol) -> str:
+    return f"{name} / {PROTOCOL_NAMES[protocol]}"
+
+
+def markdown(rec: dict, config, seconds: dict) -> str:
+    """The Markdown report: MAE table (mean +/- std), significance marks, coverage table, noise floors."""
+    import pandas as pd
+
+    m, cov, tests, floor = rec["metrics"], rec["coverage"], rec["tests"], rec["noise_floor"]
+    cells = list(dict.fromkeys(zip(m["dataset"], m["protocol"])))
+    methods = [k for k in NAMES if k in set(m["method"])]
+    lines = ["# Generalisation: every method under every protocol", "",
+             f"Azimuth MAE (deg) on the test rows, mean +/- std over {config.n_repeats} repeats (fold protocols: "
+             "each repeat a full pass, every row predicted by the fold that held it out). Best of each column in "
+             "bold; `*` = different from the best at Holm-adjusted p < 0.05 (two-sided Wilcoxon signed-rank on the "
+             "paired repeats); `=` = not significantly different. Budget: population "
+             f"{config.pop_size}, {config.iterations} iterations, L = {config.hidden} hidden units. "
+             "Command: `make generalisation` (`python -m experiments.generalisation`).", ""]
+    head = "| method | " + " | ".join(_cell(*c) for c in cells) + " |"
+    lines += [head, "|" + "---|" * (len(cells) + 1)]
+    for meth in methods:
+        row = [NAMES[meth]]
+        for c in cells:
+            g = m[(m["dataset"] == c[0]) & (m["protocol"] == c[1])]
+            means = g.groupby("method")["mae"].mean()
+            x = g[g["method"] == meth]["mae"]
+            cell = f"{x.mean():.4f} +/- {x.std(ddof=1):.4f}"
+            if means.idxmin() == meth:
+                cell = f"**{cell}**"
+            else:
+                t = tests[(tests["dataset"] == c[0]) & (tests["protocol"] == c[1]) & (tests["method"] == meth)]
+                cell += " *" if float(t["p_holm"].iloc[0]) < 0.05 else " ="
+            row.append(cell)
+        lines.append("| " + " | ".join(row) + " |")
+    fl = ["noise floor"]
+    for c in cells:
+        f = floor[(floor["dataset"] == c[0]) & (floor["protocol"] == c[1])]
+        fl.append(f"{float(f['mae'].iloc[0]):.4f}")
+    lines.append("| " + " | ".join(fl) + " |")
+    lines += ["", "The noise floor is the MAE of the standard formula on a draw with the same plan and noise but "
+              "no casing and no sensor errors (`icgo.datasets.noise_floor`): what no compensation can beat on "
+              "average.", "",
+              "## Coverage of the 90 % conformal interval", "",
+              "Fraction of test rows whose azimuth error lies within the member's interval, mean over repeats "
+              "(mean half-width in deg in brackets). Each fitted model's half-width is calibrated on rows of its "
+              "own training data predicted by the other members that held them out (`icgo.conformal`); its test "
+              "rows never calibrate it. For transfer, only the source instrument's rows calibrate.", ""]
+    cov_methods = [k for k in methods if k in set(cov["method"])]
+    lines += ["| method | " + " | ".join(_cell(*c) for c in cells) + " |", "|" + "---|" * (len(cells) + 1)]
+    for meth in cov_methods:
+        row = [NAMES[meth]]
+        for c in cells:
+            g = cov[(cov["dataset"] == c[0]) & (cov["protocol"] == c[1]) & (cov["method"] == meth)]
+            row.append(f"{g['coverage'].mean():.3f} ({g['halfwidth_deg'].mean():.3f})")
+        lines.append("| " + " | ".join(row) + " |")
+    lines += ["", "## Per-cell tests against the best", "", "| cell | best | method | mean diff (deg) | p | p (Holm) |",
+              "|---|---|---|---|---|---|"]
+    for _, t in tests.iterrows():
+        lines.append(f"| {_cell(t['dataset'], t['protocol'])} | {NAMES[t['best']]} | {NAMES[t['method']]} | "
+                     f"{t['mean_diff']:+.4f} | {t['p_value']:.3g} | {t['p_holm']:.3g} |")
+    tr = config.transfer
+    lines += ["", "## Settings", "",
+              f"- Transfer target: noise seed {tr.seed}, casing position x {tr.casing_distance_scale}, "
+              f"magnetization x {tr.casing_strength_scale}, magnetometer misalignment + {list(tr.misalignment_deg)} "
+              "deg (chosen before any run; docs/generalisation.md).",
+              f"- Seconds per cell: " + ", ".join(f"{k} {v:.0f} s" for k, v in seconds.items()) + "."]
+    return "\n".join(lines) + "\n"
+
+
+def figure(rec: dict) -> bytes:
+    """Mean MAE per method (log scale), one group of bars per cell, the noise floor dashed. Returns PNG bytes."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    m, floor = rec["metrics"], rec["noise_floor"]
+    cells = list(dict.fromkeys(zip(m["dataset"], m["protocol"])))
+    methods = [k for k in NAMES if k in set(m["method"])]
+    fig, ax = plt.subplots(figsize=(12, 4.5))
+    width = 0.8 / len(methods)
+    for j, meth in enumerate(methods):
+        vals = [m[(m["dataset"] == c[0]) & (m["protocol"] == c[1]) & (m["method"] == meth)]["mae"].mean()
+                for c in cells]
+        ax.bar(np.arange(len(cells)) + (j - len(methods) / 2 + 0.5) * width, vals, width, label=NAMES[meth])
+    for i, c in enumerate(cells):
+        f = float(floor[(floor["dataset"] == c[0]) & (floor["protocol"] == c[1])]["mae"].iloc[0])
+        ax.hlines(f, i - 0.45, i + 0.45, colors="k", linestyles="--", lw=1, label="noise floor" if i == 0 else None)
+    ax.set_yscale("log")
+    ax.set_xticks(np.arange(len(cells)), [_cell(*c).replace(" / ", "\n") for c in cells])
+    ax.set_ylabel("test azimuth MAE (deg)")
+    ax.legend(ncol=4, fontsize=7)
+    fig.tight_layout()
+    buf = _io.BytesIO()
+    fig.savefig(buf, format="png", dpi=120)
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def main(argv=None) -> int:
+    args = parser().parse_args(sys.argv[1:] if argv is None else argv)
+    import dataclasses
+    import os
+    import tempfile
+
+    import jax
+
+    from icgo.io import atomic_write_texts
+    from icgo.studies import SettingError
+    from icgo.studies.generalisation import GeneralisationConfig, build_data, run
+
+    try:
+        config = dataclasses.replace(GeneralisationConfig(), n_repeats=args.n_repeats, iterations=args.iterations,
+                                     pop_size=args.pop_size, seed=args.seed)
+    except SettingError as e:
+        print(f"error: --{e.field.replace('_', '-')} {e.problem}", file=sys.stderr)
+        return 2
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    res = run(build_data(config), config, jax.random.PRNGKey(config.seed), progress=lambda s: print(s, flush=True))
+    rec = res.records
+    png = figure(rec)
+    fd, tmp = tempfile.mkstemp(prefix=".generalisation.png.", dir=out)
+    with os.fdopen(fd, "wb") as f:
+        f.write(png)
+    atomic_write_texts([(out / "generalisation.md", markdown(rec, config, res.seconds)),
+                        (out / "generalisation.csv", rec["metrics"].to_csv(index=False)),
+                        (out / "generalisation_coverage.csv", rec["coverage"].to_csv(index=False)),
+                        (out / "generalisation_tests.csv", rec["tests"].to_csv(index=False))])
+    os.replace(tmp, out / "generalisation.png")
+    print((out / "generalisation.md").read_text())
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

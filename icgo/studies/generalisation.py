@@ -1,0 +1,255 @@
+"""Generalisation study: every method under every protocol of :mod:`icgo.splits` (issue 15).
+
+A *cell* is a (data set, protocol) pair. In each cell every method is fitted on
+the same members (the split depends only on the key, the repeat and the fold, so
+the methods are paired repeat by repeat) and scored on the members' test rows:
+
+* ``raw`` (eq. 1 on the raw sensors) and ``msa`` (MSA only);
+* ``relm`` (random hidden weights), ``pso`` and ``ga`` (PSO-/GA-RELM) and the five
+  CGO 4th-seed strategies (``cgo-original`` = CGO-RELM, then chaos, Gaussian,
+  wavelet and the three-stage ICGO), all through :mod:`icgo.studies.icgo_relm`;
+* ``physics``: the 12-parameter magnetometer model with an earth-fixed external
+  field, fitted by the discrepancy engine on the member's training rows
+  (:func:`icgo.discrepancy.artifact.fit_members`) and inverted per station on
+  its test rows.
+
+Per (cell, method, repeat): MAE / RMSE / R^2 over the repeat's test rows (fold
+protocols pool the folds: every row is predicted by the fold that held it out)
+and the coverage of the member's 90 % conformal interval (:mod:`icgo.conformal`;
+not for raw, msa and physics, which carry no interval). Per cell: a two-sided
+Wilcoxon signed-rank test of every method against the best (lowest mean MAE) on
+the paired repeats, Holm-adjusted over the cell's comparisons.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import numpy as np
+import pandas as pd
+
+from icgo import splits as _splits
+from icgo.frames import angle_diff
+from icgo.stats import holm, wilcoxon_paired
+from icgo.studies import Study, register_study
+
+#: The data sets a cell can use (simulated; ``SurveyData`` built by :func:`build_data`).
+DATASETS = ("lab_casing", "well_conditions")
+#: The default cells: every protocol on the data set it is meant for, and the random split on both.
+CELLS = (("lab_casing", "random"), ("lab_casing", "leave_azimuth_out"), ("lab_casing", "transfer"),
+         ("well_conditions", "random"), ("well_conditions", "leave_condition_out"))
+#: Learned methods compared: plain RELM and the optimizers that search its hidden weights.
+METHODS = ("relm", "pso", "ga", "cgo")
+PHYSICS = "physics"
+
+
+@dataclasses.dataclass(frozen=True)
+class GeneralisationConfig:
+    """Settings of the generalisation study.
+
+    Attributes:
+        cells: (data set, protocol) pairs (:data:`DATASETS` x :data:`icgo.splits.PROTOCOLS`).
+        n_repeats: repeats per cell (each a full pass over the folds for fold protocols).
+        seed: the study key's seed (every method of a cell shares it: paired repeats).
+        data_seed: noise seed of the simulated data sets (the transfer target's is ``transfer.seed``).
+        methods: learned methods (:data:`METHODS`; ``relm`` = random hidden weights).
+        strategies: the CGO strategies run side by side.
+        pop_size, iterations: every optimizer's budget (paper: 30, 100).
+        hidden: RELM hidden units. physics: include the physics baseline.
+        transfer: how the transfer target differs (:class:`icgo.splits.TransferDraw`).
+    """
+
+    cells: tuple = CELLS
+    n_repeats: int = 10
+    seed: int = 0
+    data_seed: int = 0
+    methods: tuple = METHODS
+    strategies: tuple = ("original", "chaos", "gaussian", "wavelet", "three_stage")
+    pop_size: int = 30
+    iterations: int = 100
+    hidden: int = 30
+    physics: bool = True
+    transfer: _splits.TransferDraw = _splits.TransferDraw()
+
+    def __post_init__(self):
+        from icgo.studies import is_int, need
+
+        cells = tuple(tuple(c) for c in self.cells)
+        object.__setattr__(self, "cells", cells)
+        object.__setattr__(self, "strategies", tuple(self.strategies))
+        object.__setattr__(self, "methods", tuple(self.methods))
+        if isinstance(self.transfer, dict):
+            object.__setattr__(self, "transfer", _splits.TransferDraw(**self.transfer))
+        need(len(cells) >= 1 and all(len(c) == 2 and c[0] in DATASETS and c[1] in _splits.PROTOCOLS for c in cells),
+             "cells", f"must be [data set, protocol] pairs with a data set in {list(DATASETS)} and a protocol in "
+                      f"{list(_splits.PROTOCOLS)}, got {list(cells)}")
+        need(len(set(cells)) == len(cells), "cells", f"must be distinct, got {list(cells)}")
+        need(len(self.methods) >= 1 and set(self.methods) <= set(METHODS) and len(set(self.methods)) == len(self.methods),
+             "methods", f"must be distinct names from {list(METHODS)}, got {list(self.methods)}")
+        for name, lo in (("n_repeats", 2), ("seed", 0), ("data_seed", 0), ("pop_size", 4), ("iterations", 1),
+                         ("hidden", 1)):
+            v = getattr(self, name)
+            need(is_int(v) and v >= lo, name, f"must be an integer >= {lo}, got {v!r}")
+        need(isinstance(self.physics, bool), "physics", f"must be true or false, got {self.physics!r}")
+
+    def study_config(self, protocol: str, optimizer):
+        """The ICGO-RELM study config of one method in a cell of ``protocol``."""
+        from icgo.studies.icgo_relm import StudyConfig
+
+        return StudyConfig(protocol=protocol, n_repeats=self.n_repeats, seed=self.seed, optimizer=optimizer,
+                           strategies=self.strategies if optimizer == "cgo" else ("three_stage",),
+                           pop_size=self.pop_size, iterations=self.iterations, hidden=self.hidden)
+
+
+def build_data(config: GeneralisationConfig) -> dict:
+    """(data set, protocol) -> :class:`icgo.studies.icgo_relm.SurveyData` for every cell, simulated."""
+    from icgo import datasets
+    from icgo.studies.icgo_relm import SurveyData
+
+    out = {}
+    for name, protocol in config.cells:
+        ds = getattr(datasets, name)(config.data_seed)
+        target = None
+        if protocol == "transfer":
+            target = _splits.transfer_survey(name, config.data_seed, {}, config.transfer).frame
+        out[(name, protocol)] = SurveyData(ds.frame, ds.meta, target)
+    return out
+
+
+def noise_floors(config: GeneralisationConfig) -> pd.DataFrame:
+    """Per cell: the azimuth error the simulator's noise alone implies on the rows the cell tests (deg)."""
+    from icgo.datasets import noise_floor
+
+    rows = []
+    for name, protocol in config.cells:
+        seed = config.transfer.seed if protocol == "transfer" else config.data_seed
+        f = noise_floor(name, seed)
+        n = f["n"].to_numpy(float)
+        rows.append({"dataset": name, "protocol": protocol, "mae": float(np.sum(f["mae"] * n) / n.sum()),
+                     "rmse": float(np.sqrt(np.sum(f["rmse"] ** 2 * n) / n.sum()))})
+    return pd.DataFrame(rows)
+
+
+class GeneralisationResult(NamedTuple):
+    """Attributes: records (``metrics``, ``coverage``, ``tests``, ``noise_floor``), models (none: an
+    evaluation; ``experiments.run split=<protocol>`` saves the models of one method), seconds per cell."""
+
+    records: dict
+    models: dict
+    seconds: dict
+
+
+def _physics(data, config: GeneralisationConfig, protocol: str, key) -> list[dict]:
+    """Metric rows of the physics baseline in one cell (members as the ICGO-RELM study builds them)."""
+    from icgo import io as icgo_io
+    from icgo.discrepancy.artifact import fit_members
+    from icgo.discrepancy.stations import stations_from_recording
+    from icgo.frames import azimuth_from_gv
+    from icgo.metrics import azimuth_metrics
+    from icgo.studies.icgo_relm import filtered
+
+    cfg = config.study_config(protocol, None)
+    rows = filtered(data.frame, cfg)[0]
+    n_source = len(rows)
+    if data.target is not None:
+        rows = pd.concat([rows, filtered(data.target, cfg)[0]])
+    mem = _splits.members(protocol, rows, key, cfg.ids(), cfg.train_fraction, n_source)
+    source = icgo_io.validate(rows.iloc[:n_source].reset_index(drop=True), data.meta, source="physics baseline")
+    models = fit_members(stations_from_recording(source), mem.train[:, :n_source])
+    a_true = rows["azimuth_deg"].to_numpy(float)
+    est = np.tile(a_true, (len(models), 1))  # rows a member does not test keep weight 0
+    for m, model in enumerate(models):
+        sel = mem.test[m] > 0
+        est[m, sel] = model.apply(rows[sel])["azimuth_compensated"].to_numpy(float)
+    G, B = rows[["gx", "gy", "gz"]].to_numpy(float), rows[["bx", "by", "bz"]].to_numpy(float)
+    err_raw = np.asarray(angle_diff(np.asarray(azimuth_from_gv(G, B)), a_true))
+    out = []
+    for r in cfg.ids():
+        sel = mem.repeat == r
+        F = int(sel.sum())
+        m = azimuth_metrics(np.tile(a_true, F), est[sel].ravel(), np.tile(err_raw, F), mem.test[sel].ravel())
+        out.append({"method": PHYSICS, "repeat": r, **{k: float(v) for k, v in m._asdict().items()}})
+    return out
+
+
+def paired_tests(metrics: pd.DataFrame, value: str = "mae") -> pd.DataFrame:
+    """Per cell: every method against the cell's best (lowest mean ``value``), Wilcoxon signed-rank on the
+    paired repeats, Holm-adjusted over the cell's comparisons."""
+    out = []
+    for (name, protocol), g in metrics.groupby(["dataset", "protocol"], sort=False):
+        wide = g.pivot_table(index="repeat", columns="method", values=value)
+        best = wide.mean().idxmin()
+        others = [m for m in wide.columns if m != best]
+        p = [wilcoxon_paired(wide[m], wide[best]).p_value for m in others]
+        for m, pv, pa in zip(others, p, holm(p) if p else []):
+            out.append({"dataset": name, "protocol": protocol, "method": m, "best": best,
+                        "mean_diff": float((wide[m] - wide[best]).mean()), "p_value": pv, "p_holm": float(pa)})
+    return pd.DataFrame(out, columns=["dataset", "protocol", "method", "best", "mean_diff", "p_value", "p_holm"])
+
+
+def run(data: dict, config: GeneralisationConfig, key, progress=None) -> GeneralisationResult:
+    """Every method in every cell.
+
+    Args:
+        data: (data set, protocol) -> SurveyData (:func:`build_data`).
+        config: :class:`GeneralisationConfig`. key: PRNG key shared by the methods of a cell.
+        progress: optional ``callable(str)`` told which cell / method starts.
+    """
+    import time
+
+    from icgo.studies.icgo_relm import run as run_relm
+
+    metrics, coverage, seconds = [], [], {}
+    for cell in config.cells:
+        name, protocol = cell
+        if cell not in data:
+            raise ValueError(f"generalisation: no data for cell {cell}; build it with build_data(config)")
+        t0 = time.perf_counter()
+        for i, meth in enumerate(config.methods):
+            if progress:
+                progress(f"{name} / {protocol}: {meth}")
+            res = run_relm(data[cell], config.study_config(protocol, None if meth == "relm" else meth), key)
+            test = res.metrics[res.metrics["split"] == "test"]
+            if i > 0:  # raw and msa once per cell
+                test = test[~test["method"].isin(["raw", "msa"])]
+            metrics.append(test.drop(columns="split").assign(dataset=name, protocol=protocol))
+            c = res.coverage
+            pooled = (c.assign(hit=c["coverage"] * c["n_test"]).groupby(["method", "repeat"], sort=False)
+                      .agg(hit=("hit", "sum"), n_test=("n_test", "sum"), halfwidth_deg=("halfwidth_deg", "mean"))
+                      .reset_index())
+            pooled["coverage"] = pooled.pop("hit") / pooled["n_test"]
+            coverage.append(pooled.assign(dataset=name, protocol=protocol))
+        if config.physics:
+            if progress:
+                progress(f"{name} / {protocol}: physics")
+            metrics.append(pd.DataFrame(_physics(data[cell], config, protocol, key)).assign(dataset=name,
+                                                                                             protocol=protocol))
+        seconds[f"{name}/{protocol}"] = time.perf_counter() - t0
+    front = ["dataset", "protocol", "method", "repeat"]
+    metrics = pd.concat(metrics, ignore_index=True)
+    metrics = metrics[front + [c for c in metrics.columns if c not in front]]
+    coverage = pd.concat(coverage, ignore_index=True)
+    coverage = coverage[front + [c for c in coverage.columns if c not in front]]
+    return GeneralisationResult({"metrics": metrics, "coverage": coverage, "tests": paired_tests(metrics),
+                                 "noise_floor": noise_floors(config)}, {}, seconds)
+
+
+def example() -> tuple:
+    """A tiny instance: leave-azimuth-out and transfer on lab_casing at a 45 deg toolface step, RELM and CGO."""
+    from icgo import datasets
+    from icgo.studies.icgo_relm import SurveyData
+
+    cfg = GeneralisationConfig(cells=(("lab_casing", "leave_azimuth_out"), ("lab_casing", "transfer")), n_repeats=2,
+                               methods=("relm", "cgo"), strategies=("original", "three_stage"), pop_size=6,
+                               iterations=3, hidden=8)
+    ds = datasets.lab_casing(0, toolface_step_deg=45.0)
+    target = _splits.transfer_survey("lab_casing", 0, {"toolface_step_deg": 45.0}, cfg.transfer).frame
+    data = {("lab_casing", "leave_azimuth_out"): SurveyData(ds.frame, ds.meta),
+            ("lab_casing", "transfer"): SurveyData(ds.frame, ds.meta, target)}
+    return data, cfg
+
+
+register_study(Study("generalisation", GeneralisationConfig, run, "every method under the random, "
+                     "leave-azimuth-out, leave-condition-out and transfer protocols (paired repeats, Holm-adjusted "
+                     "tests, conformal coverage)", example, fits_models=False))

@@ -1,0 +1,171 @@
+"""Split protocols (icgo.splits), the padded fast fitness, split-conformal coverage (icgo.conformal),
+the protocols through the ICGO-RELM study and the physics baseline of the generalisation table."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import numpy as np
+import pandas as pd
+import pytest
+
+from icgo import datasets, relm, splits
+from icgo.conformal import conformal_quantile, member_coverage
+from icgo.studies import SettingError
+from icgo.studies.icgo_relm import StudyConfig, run_study
+
+
+@pytest.fixture(scope="module")
+def lab():
+    return datasets.lab_casing(0, toolface_step_deg=45.0)
+
+
+def test_random_members_are_the_papers_permutation_split(lab):
+    key = jax.random.PRNGKey(4)
+    mem = splits.members("random", lab.frame, key, [0, 3], 0.7)
+    n = len(lab.frame)
+    for i, r in enumerate((0, 3)):
+        perm = np.asarray(jax.random.permutation(jax.random.split(jax.random.fold_in(key, r), 3)[0], n))
+        expect = np.zeros(n)
+        expect[perm[:round(0.7 * n)]] = 1
+        np.testing.assert_array_equal(mem.train[i], expect)
+        np.testing.assert_array_equal(mem.test[i], 1 - expect)
+        np.testing.assert_array_equal(mem.heldout[i], mem.test[i])
+
+
+def test_leave_azimuth_out_holds_out_each_station_once_per_repeat(lab):
+    mem = splits.members("leave_azimuth_out", lab.frame, jax.random.PRNGKey(0), [0, 1], 0.7)
+    az = lab.frame["azimuth_deg"].to_numpy()
+    assert len(mem.fold_label) == len(np.unique(az)) == 8 and mem.train.shape[0] == 16
+    for r in (0, 1):
+        sel = mem.repeat == r
+        np.testing.assert_array_equal(mem.test[sel].sum(axis=0), np.ones(len(az)))  # every row tested exactly once
+        for t, tr in zip(mem.test[sel], mem.train[sel]):
+            assert len(np.unique(az[t > 0])) == 1                                    # one whole azimuth
+            assert not np.isin(az[tr > 0], az[t > 0]).any()                          # never seen in training
+    assert len({tuple(k) for k in mem.keys.tolist()}) == 16                            # one key per member
+
+
+def test_transfer_trains_on_the_random_splits_rows_and_tests_only_the_target(lab):
+    key = jax.random.PRNGKey(2)
+    n = len(lab.frame)
+    both = pd.concat([lab.frame, lab.frame.iloc[:10]])
+    tr = splits.members("transfer", both, key, [0, 1], 0.7, n_source=n)
+    rnd = splits.members("random", lab.frame, key, [0, 1], 0.7)
+    np.testing.assert_array_equal(tr.train[:, :n], rnd.train)
+    assert (tr.train[:, n:] == 0).all() and (tr.test[:, :n] == 0).all() and (tr.test[:, n:] == 1).all()
+    assert (tr.heldout[:, n:] == 0).all()                          # the target never calibrates an interval
+    np.testing.assert_array_equal(tr.heldout[:, :n], rnd.test)
+
+
+def test_fold_protocols_name_a_missing_column_or_a_single_group(lab):
+    with pytest.raises(ValueError, match="needs a 'condition' column"):
+        splits.members("leave_condition_out", lab.frame, jax.random.PRNGKey(0), [0], 0.7)
+    one = lab.frame[lab.frame["azimuth_deg"] == 30.0]
+    with pytest.raises(ValueError, match="need at least 2"):
+        splits.members("leave_azimuth_out", one, jax.random.PRNGKey(0), [0], 0.7)
+
+
+def test_transfer_draw_changes_only_what_it_says():
+    d = splits.TransferDraw(seed=3, casing_distance_scale=1.2, casing_strength_scale=0.5, misalignment_deg=(0.1, 0, 0))
+    t = splits.transfer_survey("lab_casing", 0, {"toolface_step_deg": 90.0}, d)
+    c = datasets.LAB_CASING
+    truth = t.truth
+    assert t.meta["seed"] == 3
+    np.testing.assert_allclose(truth["effects"]["mag_misalignment"],
+                               np.asarray(datasets.LAB_EFFECTS["mag_misalignment"]) + [0.1, 0, 0])
+    cas = truth["casing"]
+    np.testing.assert_allclose(cas["end_ned"], 1.2 * np.asarray(c.end_ned))
+    assert cas["magnetization_A_m"] == pytest.approx(0.5 * c.magnetization_A_m)
+    with pytest.raises(ValueError, match="another noise draw"):
+        splits.transfer_survey("lab_casing", 3, {}, d)
+    with pytest.raises(SettingError, match="misalignment_deg"):
+        splits.TransferDraw(misalignment_deg=(0.1, 0.2))
+
+
+@pytest.mark.parametrize("n_train", [37, 52])
+def test_padded_fast_fitness_equals_the_float64_row_weighted_fitness(n_train):
+    N, L = 80, 9
+    X = jax.random.normal(jax.random.PRNGKey(0), (N, 6))
+    T = jax.random.normal(jax.random.PRNGKey(1), (N,))
+    m = np.zeros(N)
+    m[np.random.default_rng(n_train).permutation(N)[:n_train]] = 1
+    data = relm.FitData(X, T, m[None], m[None])
+    pop = relm.random_theta(jax.random.PRNGKey(3), L, (13,))
+    ref = np.asarray(relm.fitness(pop, data, 1e-3, L))
+    padded = relm.train_rows(data, 60, padded=True)          # 60 >= n_train rows, the rest weight 0
+    assert float(padded.w.sum()) == n_train
+    np.testing.assert_allclose(np.asarray(relm.train_fitness(pop, padded, 1e-3, L)), ref, rtol=1e-10)
+
+
+def test_conformal_quantile_is_the_ceil_rank_order_statistic():
+    x = np.arange(1.0, 20.0)                                  # n = 19: ceil(20 * 0.9) = 18th smallest
+    assert conformal_quantile(np.random.default_rng(0).permutation(x), 0.9) == 18.0
+    assert conformal_quantile(x[:5], 0.9) == 5.0              # ceil(6 * 0.9) = 6 > n: the largest
+    assert np.isnan(conformal_quantile([], 0.9))
+
+
+def test_member_coverage_never_calibrates_on_the_members_own_test_rows():
+    # two members: each tests half of the rows and trains on the other half. Member 0's test rows carry
+    # large errors; its interval comes from member 1's held-out rows (small errors), so it covers nothing.
+    N = 20
+    a_true = np.zeros(N)
+    first = (np.arange(N) < 10).astype(float)
+    test = np.stack([first, 1 - first])
+    a_comp = np.stack([np.where(first > 0, 5.0, 0.0), np.where(first > 0, 0.0, 0.1)])[None]
+    q, cov, n_cal = member_coverage(a_comp, a_true, 1 - test, test, test, np.zeros(2, int), 0.9)
+    assert q[0, 0] == pytest.approx(0.1) and cov[0, 0] == 0.0
+    assert q[0, 1] == pytest.approx(5.0) and cov[0, 1] == 1.0
+    np.testing.assert_array_equal(n_cal, [10, 10])
+
+
+def test_leave_azimuth_out_study_pools_each_rows_held_out_prediction(lab):
+    cfg = StudyConfig(protocol="leave_azimuth_out", optimizer="pso", n_repeats=2, hidden=8, pop_size=6,
+                      iterations=3)
+    res = run_study(lab.frame, cfg)
+    p = res.predictions
+    test = p[(p["split"] == "test") & (p["method"] == "pso")]
+    assert sorted(test.groupby("repeat")["row"].nunique()) == [len(res.kept.nonzero()[0])] * 2
+    for r, g in test.groupby("repeat"):
+        mae = float(np.abs(g["error_compensated"]).mean())
+        m = res.metrics[(res.metrics["method"] == "pso") & (res.metrics["repeat"] == r) & (res.metrics["split"] == "test")]
+        assert float(m["mae"].iloc[0]) == pytest.approx(mae, rel=1e-12)
+    assert set(res.coverage["fold"]) == set(range(8)) and res.coverage["coverage"].between(0, 1).all()
+    # the folds' searches batch together: fold 3 of repeat 1 equals that member run alone
+    alone = run_study(lab.frame, dataclasses.replace(cfg, repeat_ids=(1,)))
+    h, ha = res.histories, alone.histories
+    np.testing.assert_array_equal(h[(h["repeat"] == 1) & (h["fold"] == 3)]["best_fitness"].to_numpy(),
+                                  ha[ha["fold"] == 3]["best_fitness"].to_numpy())
+
+
+def test_transfer_study_refuses_a_missing_target_and_fold_protocols_refuse_train_fraction(lab):
+    with pytest.raises(ValueError, match="needs the second instrument"):
+        run_study(lab.frame, StudyConfig(protocol="transfer", optimizer=None, n_repeats=2, hidden=8))
+    with pytest.raises(SettingError, match="train_fraction has no effect"):
+        StudyConfig(protocol="leave_azimuth_out", train_fraction=0.5)
+    with pytest.raises(SettingError, match="protocol must be one of"):
+        StudyConfig(protocol="leave_one_out")
+
+
+def test_physics_baseline_recovers_the_twelve_parameters_and_an_earth_fixed_field():
+    """Independent reference: data simulated with exactly the baseline's effects and no casing; the fit must
+    recover them and leave an azimuth error at the noise level."""
+    from icgo import io as icgo_io
+    from icgo.discrepancy.artifact import TWELVE_PLUS_FIELD, fit_members
+    from icgo.discrepancy.stations import stations_from_recording
+    from icgo.frames import angle_diff
+
+    truth = {"hard_iron": (400.0, -300.0, 250.0), "mag_scale": (0.004, -0.003, 0.002),
+             "mag_cross_coupling": (0.003, -0.002, 0.001), "mag_misalignment": (0.2, -0.1, 0.15),
+             "external_field": (300.0, -200.0, 100.0)}
+    ds = datasets.lab_casing(1, toolface_step_deg=30.0, casing=None, effects=truth, spike_prob=0.0,
+                             inclination_deg=60.0)
+    st = stations_from_recording(icgo_io.validate(ds.frame, ds.meta, source="sim"))
+    (model,) = fit_members(st, np.ones((1, st.n)), TWELVE_PLUS_FIELD)
+    got = model.effect_params()
+    np.testing.assert_allclose(got["hard_iron"], truth["hard_iron"], atol=15.0)          # nT
+    np.testing.assert_allclose(got["mag_misalignment"], truth["mag_misalignment"], atol=0.02)  # deg
+    err = np.asarray(angle_diff(model.apply(ds.frame)["azimuth_compensated"].to_numpy(), ds.frame["azimuth_deg"]))
+    floor = datasets.noise_floor("lab_casing", 1, toolface_step_deg=30.0, inclination_deg=60.0)
+    assert np.abs(err).mean() < 2 * float(floor["mae"].iloc[0])
