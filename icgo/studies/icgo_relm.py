@@ -574,7 +574,8 @@ def prepare(rows: pd.DataFrame, G, B, a_true, cfg: StudyConfig, base_key, refere
     """The members of ``cfg.protocol`` and their prepared arrays (split, MSA, features), checked.
 
     Args:
-        rows: the filtered rows (a DataFrame; fold protocols read their groups from it).
+        rows: the filtered rows (a DataFrame; fold protocols read their groups from it), or None
+            (the random protocol on arrays).
         G: (N, 3) g. B: (N, 3) nT. a_true: (N,) deg; the filtered rows' arrays.
         cfg: StudyConfig. base_key: the study's PRNG key.
         reference: (3,) known reference field or None (station mean).
@@ -582,6 +583,8 @@ def prepare(rows: pd.DataFrame, G, B, a_true, cfg: StudyConfig, base_key, refere
     Returns:
         (:class:`Prepared` with a leading member axis, :class:`icgo.splits.Members`).
     """
+    if rows is None:  # arrays only: enough for the random protocol
+        rows = pd.DataFrame(index=pd.RangeIndex(len(a_true)))
     mem = _splits.members(cfg.protocol, rows, base_key, cfg.ids(), cfg.train_fraction, n_source)
     _check_config(cfg, mem)
     prep = _prepare(jnp.asarray(mem.keys), jnp.asarray(mem.train), jnp.asarray(mem.test), jnp.asarray(G),
