@@ -165,13 +165,16 @@ def main(argv=None) -> int:
     rec = res.records
     png = figure(rec)
     fd, tmp = tempfile.mkstemp(prefix=".generalisation.png.", dir=out)
-    with os.fdopen(fd, "wb") as f:
-        f.write(png)
-    atomic_write_texts([(out / "generalisation.md", markdown(rec, config, res.seconds)),
-                        (out / "generalisation.csv", rec["metrics"].to_csv(index=False)),
-                        (out / "generalisation_coverage.csv", rec["coverage"].to_csv(index=False)),
-                        (out / "generalisation_tests.csv", rec["tests"].to_csv(index=False))])
-    os.replace(tmp, out / "generalisation.png")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(png)
+        atomic_write_texts([(out / "generalisation.md", markdown(rec, config, res.seconds)),
+                            (out / "generalisation.csv", rec["metrics"].to_csv(index=False)),
+                            (out / "generalisation_coverage.csv", rec["coverage"].to_csv(index=False)),
+                            (out / "generalisation_tests.csv", rec["tests"].to_csv(index=False))])
+        os.replace(tmp, out / "generalisation.png")
+    finally:  # a failed write leaves the previous files and no temp file
+        Path(tmp).unlink(missing_ok=True)
     print((out / "generalisation.md").read_text())
     return 0
 

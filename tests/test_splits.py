@@ -169,3 +169,11 @@ def test_physics_baseline_recovers_the_twelve_parameters_and_an_earth_fixed_fiel
     err = np.asarray(angle_diff(model.apply(ds.frame)["azimuth_compensated"].to_numpy(), ds.frame["azimuth_deg"]))
     floor = datasets.noise_floor("lab_casing", 1, toolface_step_deg=30.0, inclination_deg=60.0)
     assert np.abs(err).mean() < 2 * float(floor["mae"].iloc[0])
+
+
+def test_generalisation_defaults_are_the_relm_studys():
+    from icgo.studies.generalisation import GeneralisationConfig
+
+    g, r = GeneralisationConfig(), StudyConfig()
+    assert (g.pop_size, g.iterations, g.hidden) == (r.pop_size, r.iterations, r.hidden)
+    assert g.transfer == splits.TransferDraw()

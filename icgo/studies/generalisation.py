@@ -33,6 +33,9 @@ from icgo import splits as _splits
 from icgo.frames import angle_diff
 from icgo.stats import holm, wilcoxon_paired
 from icgo.studies import Study, register_study
+from icgo.studies.icgo_relm import StudyConfig
+
+_RELM = StudyConfig()  # the budget and model size default to the ICGO-RELM study's own (one source)
 
 #: The data sets a cell can use (simulated; ``SurveyData`` built by :func:`build_data`).
 DATASETS = ("lab_casing", "well_conditions")
@@ -55,8 +58,8 @@ class GeneralisationConfig:
         data_seed: noise seed of the simulated data sets (the transfer target's is ``transfer.seed``).
         methods: learned methods (:data:`METHODS`; ``relm`` = random hidden weights).
         strategies: the CGO strategies run side by side.
-        pop_size, iterations: every optimizer's budget (paper: 30, 100).
-        hidden: RELM hidden units. physics: include the physics baseline.
+        pop_size, iterations: every optimizer's budget (default: the ICGO-RELM study's, the paper's 30, 100).
+        hidden: RELM hidden units (default: the ICGO-RELM study's). physics: include the physics baseline.
         transfer: how the transfer target differs (:class:`icgo.splits.TransferDraw`).
     """
 
@@ -66,9 +69,9 @@ class GeneralisationConfig:
     data_seed: int = 0
     methods: tuple = METHODS
     strategies: tuple = ("original", "chaos", "gaussian", "wavelet", "three_stage")
-    pop_size: int = 30
-    iterations: int = 100
-    hidden: int = 30
+    pop_size: int = _RELM.pop_size
+    iterations: int = _RELM.iterations
+    hidden: int = _RELM.hidden
     physics: bool = True
     transfer: _splits.TransferDraw = _splits.TransferDraw()
 
@@ -95,8 +98,6 @@ class GeneralisationConfig:
 
     def study_config(self, protocol: str, optimizer):
         """The ICGO-RELM study config of one method in a cell of ``protocol``."""
-        from icgo.studies.icgo_relm import StudyConfig
-
         return StudyConfig(protocol=protocol, n_repeats=self.n_repeats, seed=self.seed, optimizer=optimizer,
                            strategies=self.strategies if optimizer == "cgo" else ("three_stage",),
                            pop_size=self.pop_size, iterations=self.iterations, hidden=self.hidden)
