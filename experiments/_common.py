@@ -476,6 +476,7 @@ def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, m
     import numpy as np
 
     from icgo import records as R
+    from icgo.qc import qc_sentence
     from icgo.survey import study_qc
 
     qc = None if frame is None else study_qc(frame[result.kept].reset_index(drop=True), meta, result.msa_model)
@@ -500,9 +501,7 @@ def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, m
           f"Fitted models: `{result.model.KIND}` (method used by default: {result.model.selected}) and "
           f"`{result.msa_model.KIND}`; apply them to a new survey with `icgo.models.load_model`."]
     if qc:
-        md += ["", "Survey QC against the reference field (|G| 2.5 mg, |B| 300 nT, dip 0.25 deg; docs/qc.md): "
-               + "; ".join(f"{k}: {c['any']} of {c['n']} stations flagged (|G| {c['g']}, |B| {c['b']}, dip {c['dip']})"
-                           for k, c in qc.items()) + "."]
+        md += ["", qc_sentence(qc)]
     (outdir / "summary.md").write_text("\n".join(md) + "\n")
     if plot is not None:
         plot(outdir / "study.png")

@@ -29,7 +29,8 @@ from experiments._common import EXIT_CONFIG, one_line
 from icgo import discrepancy as D
 from icgo import io as icgo_io
 from icgo.discrepancy import report
-from icgo.discrepancy.artifact import PhysicsModel
+from icgo.discrepancy.artifact import PhysicsModel, station_qc
+from icgo.qc import qc_sentence
 from icgo.studies import config_from_mapping
 
 #: Settings of the entry point, not of the workflow (excluded from :class:`icgo.discrepancy.WorkflowConfig`).
@@ -120,8 +121,11 @@ def main_body(cfg: DictConfig, out_dir: Path) -> int:
     print(f"data: {label} ({st.n} stations, {'reference attitude' if st.has_reference else 'groups, no reference'})")
     res = D.run_workflow(st, config)
     print("\n".join(report.search_log(res) + report.step_summary(res)))
-    print("report:", D.write_report(res, label, out_dir, truth))
-    print("model:", PhysicsModel.from_result(res, st.G, st.B).save(out_dir / "discrepancy_model"))
+    model = PhysicsModel.from_result(res, st.G, st.B)
+    qc = station_qc(model, st)
+    print(qc_sentence(qc) if qc else "survey QC: no reference field given")
+    print("report:", D.write_report(res, label, out_dir, truth, qc))
+    print("model:", model.save(out_dir / "discrepancy_model"))
     return 0
 
 

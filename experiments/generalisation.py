@@ -101,6 +101,17 @@ def markdown(rec: dict, config, seconds: dict) -> str:
     for _, t in tests.iterrows():
         lines.append(f"| {_cell(t['dataset'], t['protocol'])} | {NAMES[t['best']]} | {NAMES[t['method']]} | "
                      f"{t['mean_diff']:+.4f} | {t['p_value']:.3g} | {t['p_holm']:.3g} |")
+    qc = rec["qc"]
+    lines += ["", "## Survey QC of the tested stations", "",
+              "Stations outside the QC bands (|G| 2.5 mg, |B| 300 nT, dip 0.25 deg; docs/qc.md) of the stations each "
+              "cell tests (the target instrument's under transfer), before and after the corrections that correct "
+              "the field itself. RELM and the searched methods correct the azimuth only; their field is MSA's. "
+              "Physics: each station corrected by the repeat-0 member that tested it (random split: repeat 0's "
+              "test rows).", "",
+              "| cell | stage | stations | flagged | \\|G\\| | \\|B\\| | dip |", "|---|---|---|---|---|---|---|"]
+    for _, q in qc.iterrows():
+        lines.append(f"| {_cell(q['dataset'], q['protocol'])} | {q['stage']} | {q['n']} | {q['any']} | {q['g']} | "
+                     f"{q['b']} | {q['dip']} |")
     tr = config.transfer
     lines += ["", "## Settings", "",
               f"- Transfer target: noise seed {tr.seed}, casing position x {tr.casing_distance_scale}, "
@@ -171,7 +182,8 @@ def main(argv=None) -> int:
         atomic_write_texts([(out / "generalisation.md", markdown(rec, config, res.seconds)),
                             (out / "generalisation.csv", rec["metrics"].to_csv(index=False)),
                             (out / "generalisation_coverage.csv", rec["coverage"].to_csv(index=False)),
-                            (out / "generalisation_tests.csv", rec["tests"].to_csv(index=False))])
+                            (out / "generalisation_tests.csv", rec["tests"].to_csv(index=False)),
+                            (out / "generalisation_qc.csv", rec["qc"].to_csv(index=False))])
         os.replace(tmp, out / "generalisation.png")
     finally:  # a failed write leaves the previous files and no temp file
         Path(tmp).unlink(missing_ok=True)

@@ -148,6 +148,12 @@ def fig_toolface(train: pd.DataFrame, path: Path, inclination=25.0) -> None:
 
 
 # ------------------------------------------------------------------ outputs
+def rate_qc_sentence(qc: dict) -> str:
+    """The earth-rate QC counts of the raw gyro (:func:`icgo.studies.gyro.rate_qc`) as one sentence."""
+    return ("Survey QC of the raw gyro (|total rate - earth rate| <= 0.5 deg/h; docs/qc.md): "
+            + "; ".join(f"{k}: {c['any']} of {c['n']} stations flagged" for k, c in qc.items())
+            + ". The |G|, |B| and dip checks cannot fail on this instrument (no magnetometer, gz implied by |g|), "
+            "and the methods correct the azimuth, not the rates: no count after.")
 def write_results(result, data, config, out: Path, models_dir: Path | None) -> None:
     """Tables and figures into ``out`` (``gyro_*``), the fitted models into ``models_dir``."""
     out.mkdir(parents=True, exist_ok=True)
@@ -157,7 +163,8 @@ def write_results(result, data, config, out: Path, models_dir: Path | None) -> N
                 "Gyro inclinometer: azimuth RMSE (deg) on attitudes off the training grid",
                 f"Trained on the patent's turntable plan ({len(data.train)} points); {config.n_seeds} seeds "
                 "per trained method (mean +/- std over seeds, one run). `train_s`: wall time of one "
-                "vmapped call for all seeds, including compilation. Command: `python -m experiments.gyro`.")
+                "vmapped call for all seeds, including compilation. Command: `python -m experiments.gyro`.\n\n"
+                + rate_qc_sentence(result.summary["qc"]))
     band = float(config.seam.band_deg)
     write_table(result.records["seam"], out / "gyro_seam", "The 0/360 seam: RMSE near north vs elsewhere",
                 f"Random test set; 'north' = |true azimuth| < {band:g} deg. ratio = north / elsewhere.")
@@ -201,6 +208,7 @@ def run(cfg: DictConfig, models_dir: Path | None = None, config=None) -> dict:
     summary = {**result.summary, "total_seconds": time.perf_counter() - t_start,
                "config": OmegaConf.to_container(cfg, resolve=True)}
     (out / "gyro_run.json").write_text(json.dumps(summary, indent=1, default=float))
+    print(rate_qc_sentence(result.summary["qc"]))
     print(f"[gyro] done in {summary['total_seconds']:.0f} s; results in {out}"
           + (f"; {len(result.models)} models in {models_dir}" if models_dir is not None else ""), flush=True)
     return summary

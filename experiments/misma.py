@@ -69,6 +69,8 @@ def _plots(name, plot, out: Path) -> None:
 
 def summary_lines(result) -> list[str]:
     """The Markdown summary ``misma_summary.md``."""
+    from icgo.qc import qc_sentence
+
     lines = ["# MISMA study (issue #8)", "", "Command: `python -m experiments.misma` (config `conf/misma.yaml`).", ""]
     if "simulated" in result.summary:
         lines += ["## rotating_drill: MISMA vs SMA (same run)", "",
@@ -77,9 +79,13 @@ def summary_lines(result) -> list[str]:
             lines += [f"Baselines, mean |azimuth error| at the stops, variant {s['variant']}: "
                       + ", ".join(f"{k} {v:.3f} deg" for k, v in s["baselines_az_err_deg"].items()),
                       f"Relative singular values of the fitness Jacobian at the truth ({s['variant']}): "
-                      + ", ".join(f"{v:.2g}" for v in s["jacobian_singular_values"]), ""]
+                      + ", ".join(f"{v:.2g}" for v in s["jacobian_singular_values"]),
+                      f"At the static survey points ({s['variant']}; SMA and MISMA: the median-fitness repeat): "
+                      + qc_sentence(s["qc_static"]), ""]
     if "real" in result.summary:
         lines += ["## 9 real devices: peer metric (deg), ours vs circuitpython-mag-cal", "",
+                  "The recordings carry no reference field (location and date unknown): survey QC against a "
+                  "reference does not apply to them.", "",
                   result.records["real_devices"].to_markdown(index=False, floatfmt=".3f"), "",
                   result.records["real_summary"].to_markdown(floatfmt=".3f"), ""]
     return lines

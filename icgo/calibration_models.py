@@ -32,7 +32,7 @@ import pandas as pd
 
 from icgo import calibration as cal
 from icgo.frames import azimuth_from_gv, inclination_from_g, toolface_from_g
-from icgo.models import FittedModel, ModelError, data_hash, frame_values, register_model, sensor_domain
+from icgo.models import CORRECTED_B, FittedModel, ModelError, data_hash, frame_values, register_model, sensor_domain
 
 #: Methods a :class:`MagCalibration` may come from.
 METHODS = ("ellipsoid", "twelve", "misma", "sma", "joint", "modulus")
@@ -123,8 +123,7 @@ class MagCalibration(FittedModel):
         B_nT = Bc * self.field_scale_nT
         bn = np.linalg.norm(B_nT, axis=1)
         out = {"station": frame["station"].to_numpy()} if "station" in frame.columns else {}
-        out.update({"bx_corrected": B_nT[:, 0], "by_corrected": B_nT[:, 1], "bz_corrected": B_nT[:, 2],
-                    "b_total_nT": bn})
+        out.update({**dict(zip(CORRECTED_B, B_nT.T)), "b_total_nT": bn})
         if has_g:
             gn = np.linalg.norm(Gc, axis=1)
             sin_dip = np.clip(np.sum(Gc * B_nT, axis=1) / (gn * bn), -1.0, 1.0)

@@ -28,7 +28,7 @@ from icgo import msa as _msa
 from icgo import relm as _relm
 from icgo.conformal import conformal_quantile
 from icgo.frames import angle_diff, azimuth_from_gv, inclination_from_g, toolface_from_g, wrap360
-from icgo.models import FittedModel, ModelError, frame_values, register_model
+from icgo.models import CORRECTED_B, FittedModel, ModelError, frame_values, register_model
 
 SENSORS = ("gx", "gy", "gz", "bx", "by", "bz")
 
@@ -114,8 +114,8 @@ class MSAModel(FittedModel):
         a_mean, spread = circular_mean_spread(a)
         Bm = B_corr.mean(axis=0)
         return pd.DataFrame({**_attitude_columns(frame, G), "azimuth_raw": np.asarray(azimuth_from_gv(G, B)),
-                             "bx_corrected": Bm[:, 0], "by_corrected": Bm[:, 1], "bz_corrected": Bm[:, 2],
-                             "azimuth_compensated": a_mean, "azimuth_spread_deg": spread})
+                             **dict(zip(CORRECTED_B, Bm.T)), "azimuth_compensated": a_mean,
+                             "azimuth_spread_deg": spread})
 
 
 @jax.jit
@@ -211,4 +211,4 @@ class RELMCompensation(FittedModel):
                              "azimuth_compensated": a_comp, "azimuth_spread_deg": spread,
                              "azimuth_interval_deg": np.full(len(a_comp), float(
                                  self.interval_halfwidth[self.methods.index(method or self.selected)])),
-                             "bx_corrected": Bm[:, 0], "by_corrected": Bm[:, 1], "bz_corrected": Bm[:, 2]})
+                             **dict(zip(CORRECTED_B, Bm.T))})

@@ -41,6 +41,9 @@ import pandas as pd
 #: Version of the header/array layout written by :meth:`FittedModel.save`.
 SCHEMA_VERSION = 1
 
+#: Output columns of a model that corrects the field itself (nT); survey QC after the model checks them.
+CORRECTED_B = ("bx_corrected", "by_corrected", "bz_corrected")
+
 #: KIND -> model class, filled by :func:`register_model` at import.
 MODEL_KINDS: dict[str, type] = {}
 

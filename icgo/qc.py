@@ -96,3 +96,39 @@ def survey_qc(G, B, total_field_nT: float, dip_deg: float, gravity_g: float = 1.
     counts = {"n": int(len(table)), "g": int(fg.sum()), "b": int(fb.sum()), "dip": int(fd.sum()),
               "any": int((fg | fb | fd).sum())}
     return QCResult(table.add_prefix(prefix), counts)
+
+
+def qc_sentence(qc: dict, bands: QCBands = QCBands()) -> str:
+    """One Markdown sentence of QC counts per stage, e.g. for a study summary.
+
+    Args:
+        qc: stage label (``"raw"``, ``"msa"``, ...) -> counts of :class:`QCResult`.
+        bands: the bands the counts were taken with (named in the sentence).
+    """
+    head = (f"Survey QC against the reference field (|G| {1000 * bands.g_tol_g:g} mg, |B| {bands.b_tol_nT:g} nT, "
+            f"dip {bands.dip_tol_deg:g} deg; docs/qc.md): ")
+    return head + "; ".join(f"{k}: {c['any']} of {c['n']} stations flagged (|G| {c['g']}, |B| {c['b']}, "
+                            f"dip {c['dip']})" for k, c in qc.items()) + "."
+
+
+def earth_rate_qc(W, tol_deg_h: float = 0.5, rate_deg_h: float | None = None) -> QCResult:
+    """The gyro's survey check: measured total rotation rate against the earth rate, per station.
+
+    A gyro survey's counterpart of the |B| check. The band (default 0.5 deg/h) is our choice, twice
+    the largest gyro bias of the patent instrument (``icgo.datasets.PATENT_GYRO``); docs/qc.md.
+
+    Args:
+        W: (N, 3) measured rates, deg/h (tool frame). tol_deg_h: band half-width, deg/h.
+        rate_deg_h: the earth rate, deg/h (default :data:`icgo.frames.EARTH_RATE_DEG_H`).
+    Returns:
+        QCResult with columns ``w_total_deg_h``, ``dw_deg_h``, ``qc_rate``, ``qc_pass``;
+        counts ``{"n", "rate", "any"}``.
+    """
+    from icgo.frames import EARTH_RATE_DEG_H
+
+    need(is_real(tol_deg_h) and tol_deg_h > 0, "tol_deg_h", f"must be a number > 0, got {tol_deg_h!r}")
+    rate = float(EARTH_RATE_DEG_H if rate_deg_h is None else rate_deg_h)
+    wn = np.linalg.norm(np.asarray(W, float), axis=1)
+    flag = np.abs(wn - rate) > tol_deg_h
+    table = pd.DataFrame({"w_total_deg_h": wn, "dw_deg_h": wn - rate, "qc_rate": flag, "qc_pass": ~flag})
+    return QCResult(table, {"n": int(len(table)), "rate": int(flag.sum()), "any": int(flag.sum())})

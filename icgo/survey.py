@@ -18,11 +18,9 @@ import pandas as pd
 
 from icgo.frames import angle_diff
 from icgo.metrics import azimuth_metrics
-from icgo.models import FittedModel, ModelError, domain_notices, sensor_domain
+from icgo.models import CORRECTED_B, FittedModel, ModelError, domain_notices, sensor_domain
 from icgo.qc import QCBands, survey_qc
 
-#: Columns of the model output that hold its corrected field (QC after correction uses them).
-CORRECTED_B = ("bx_corrected", "by_corrected", "bz_corrected")
 
 
 class CorrectedSurvey(NamedTuple):

@@ -23,6 +23,7 @@ from icgo import effects as fx
 from icgo import io as icgo_io
 from icgo.frames import angle_diff, azimuth_from_gv
 from icgo.models import load_model
+from icgo.qc import measured_dip_deg
 from icgo.studies import config_from_mapping, config_to_mapping
 
 DATA = Path(__file__).parent / "data"
@@ -172,7 +173,7 @@ def test_handwritten_csv():
 def test_correct_recovers_azimuth():
     st, truth = _hidden(["hard_iron"], seed=3, n=120)
     res = D.run_workflow(st)
-    a, i = D.correct(res, st.G, st.B)
+    a, i, _ = D.correct(res, st.G, st.B)
     ok = (st.inclination > 10) & (st.inclination < 170)
     err = np.asarray(angle_diff(np.asarray(a), st.azimuth))[ok]
     raw = np.asarray(angle_diff(azimuth_from_gv(st.G, st.B), st.azimuth))[ok]
@@ -314,3 +315,20 @@ def test_workflow_config_validates_every_field():
     assert all("\n" not in ln for ln in lines)
     assert D.WorkflowConfig(candidates=["hard_iron"]).candidates == ("hard_iron",)
     assert D.WorkflowConfig(min_z=3).min_z == 3.0 and isinstance(D.WorkflowConfig(min_z=3).min_z, float)
+
+
+def test_inversion_removes_the_disturbance_from_the_field():
+    # with the true effect parameters, the corrected field is the earth field in the tool frame:
+    # |B| = F and dip = the field's dip to the sensor noise, while the raw field is off by the hard iron
+    st, truth = _hidden(["hard_iron", "mag_scale", "mag_misalignment"], seed=4, n=60)
+    inv = D.correct_with(truth, st.field, st.G, st.B, D.NOISE)
+    F, dip, _ = st.field
+    dip_c = measured_dip_deg(st.G, inv.b_corrected)
+    raw_db = np.linalg.norm(st.B, axis=1) - F
+    db = np.linalg.norm(inv.b_corrected, axis=1) - F
+    assert np.abs(raw_db).max() > 100.0
+    assert np.abs(db).max() < 5 * D.NOISE.sigma_b_nT * np.sqrt(3), np.abs(db).max()
+    dip_sigma = np.degrees(np.hypot(D.NOISE.sigma_g, D.NOISE.sigma_b_nT / F))  # 1 sigma, one axis each
+    assert np.abs(dip_c - dip).max() < 5 * dip_sigma, (np.abs(dip_c - dip).max(), dip_sigma)
+    ok = (st.inclination > 10) & (st.inclination < 170)
+    assert np.abs(np.asarray(angle_diff(inv.azimuth, st.azimuth)))[ok].max() < 0.2

@@ -44,3 +44,21 @@ def test_save_load_apply_is_bitwise(fitted, tmp_path):
     steps = out.records["steps"]
     assert list(steps.effect) == ["hard_iron"] and bool(steps.separable.iloc[0])
     assert steps.heldout_after.iloc[0] < steps.heldout_before.iloc[0]
+
+
+def test_corrected_field_and_station_qc(fitted):
+    # a hard-iron-only model's disturbance is the constant bias: the corrected field is B - bias exactly
+    from icgo.discrepancy.artifact import station_qc
+    from icgo.qc import survey_qc
+
+    st, out = fitted
+    m = out.models["discrepancy_model"]
+    frame = pd.DataFrame(np.column_stack([st.G, st.B]), columns=["gx", "gy", "gz", "bx", "by", "bz"])
+    b_after = m.apply(frame)[["bx_corrected", "by_corrected", "bz_corrected"]].to_numpy()
+    np.testing.assert_allclose(b_after, st.B - m.effect_params()["hard_iron"], rtol=0, atol=1e-6)
+    qc = station_qc(m, st)
+    F, dip = st.field[0], st.field[1]
+    assert qc == {"raw": survey_qc(st.G, st.B, F, dip, st.gravity_g).counts,
+                  "physics": survey_qc(st.G, b_after, F, dip, st.gravity_g).counts}
+    assert qc["physics"]["b"] < qc["raw"]["b"]
+    assert station_qc(m, st._replace(field=None)) is None

@@ -131,6 +131,8 @@ def test_tiny_run_records_models_and_raw_scores(tiny):
     m = res.records["methods"]
     assert list(dict.fromkeys(m.method)) == ["raw", "table", "net_error", "net_azimuth", "relm", "icgo_relm"]
     assert set(res.models) == {"table", "net_error", "net_azimuth", "relm", "icgo_relm"}
+    assert {k: c["n"] for k, c in res.summary["qc"].items()} == {"train": len(data.train),
+                                                                  **{k: len(f) for k, f in data.tests.items()}}
     assert (m.loc[m.method == "net_error", "n_seeds"] == 2).all()
     # raw RMSE recomputed independently from the data (numpy, no icgo angle helpers)
     for k, f in data.tests.items():

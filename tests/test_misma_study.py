@@ -112,6 +112,10 @@ def test_tiny_run_records_and_models(tiny):
     assert s["variant"] == "short" and s["overrides"] == {"duration_s": 600.0}
     # the true parameters cut the raw static-point azimuth error (noise floor below the raw error)
     assert s["baselines_az_err_deg"]["true parameters"] < s["az_err_raw_deg"]
+    # survey QC at the static points: raw and after every fit, against the run's reference field
+    n_static = int(data.simulated["short"].frame["static"].sum())
+    assert list(s["qc_static"]) == ["raw", "U", "twelve", "SMA", "MISMA"]
+    assert all(c["n"] == n_static for c in s["qc_static"].values())
     real = res.records["real_devices"]
     assert list(real.split) == ["in-sample", "held-out group 8", "held-out group 9"]
     assert {"ab_ellipsoid", "ab_twelve_axis", "ab_misma_axis", "ab_joint", "short_misma", "short_sma",

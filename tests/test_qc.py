@@ -36,3 +36,20 @@ def test_dip_flag_and_band_settings():
     assert np.allclose(field_vector_ned(50_000.0, 60.0)[2], 50_000.0 * np.sin(np.radians(60.0)))
     with pytest.raises(SettingError, match="b_tol_nT must be a number > 0"):
         QCBands(b_tol_nT=0.0)
+
+
+def test_earth_rate_check_and_the_summary_sentence():
+    from icgo.frames import EARTH_RATE_DEG_H
+    from icgo.qc import earth_rate_qc, qc_sentence
+
+    rate = float(EARTH_RATE_DEG_H)
+    np.testing.assert_allclose(rate, 15.041, atol=1e-3)  # 7.2921150e-5 rad/s in deg/h
+    W = np.array([[rate, 0.0, 0.0], [0.0, rate + 0.4, 0.0], [0.0, 0.0, rate - 0.6]])
+    res = earth_rate_qc(W)
+    np.testing.assert_allclose(res.table.dw_deg_h, [0.0, 0.4, -0.6], atol=1e-12)
+    assert res.counts == {"n": 3, "rate": 1, "any": 1}
+    assert earth_rate_qc(W, tol_deg_h=0.3).counts["rate"] == 2
+    with pytest.raises(SettingError, match="tol_deg_h must be a number > 0"):
+        earth_rate_qc(W, tol_deg_h=-1.0)
+    s = qc_sentence({"raw": {"n": 5, "g": 0, "b": 2, "dip": 1, "any": 3}}, QCBands(b_tol_nT=200.0))
+    assert "|B| 200 nT" in s and "raw: 3 of 5 stations flagged (|G| 0, |B| 2, dip 1)" in s

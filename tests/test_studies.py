@@ -76,3 +76,22 @@ def test_example_runs_deterministically_with_records_and_models(name, runs, tmp_
         assert isinstance(model, FittedModel), label
         path = model.save(tmp_path / label)
         assert type(load_model(path)) is type(model)
+
+
+def test_generalisation_qc_counts_are_the_survey_qc_of_the_tested_stations(runs):
+    from icgo.qc import survey_qc
+    from icgo.studies.generalisation import _qc_stations
+    from icgo.studies.icgo_relm import StudyConfig
+
+    _, data, cfg, res, _ = runs("generalisation")
+    qc = res.records["qc"]
+    for cell in cfg.cells:
+        got = qc[(qc.dataset == cell[0]) & (qc.protocol == cell[1])].set_index("stage")[["n", "g", "b", "dip", "any"]]
+        assert list(got.index) == ["raw", "msa", "physics"]
+        st = _qc_stations(data[cell], StudyConfig(protocol=cell[1]))
+        meta = data[cell].meta
+        raw = survey_qc(st[["gx", "gy", "gz"]].to_numpy(), st[["bx", "by", "bz"]].to_numpy(),
+                        meta["total_field_nT"], meta["dip_deg"]).counts
+        assert got.loc["raw"].to_dict() == raw
+        # fold protocols and transfer test every station once per repeat: the physics count sees them all
+        assert got.loc["physics", "n"] == got.loc["msa", "n"] == raw["n"]

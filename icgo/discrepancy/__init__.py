@@ -45,7 +45,7 @@ from icgo.discrepancy.compare import (
     gap,
 )
 from icgo.discrepancy.config import ConfigError, WorkflowConfig
-from icgo.discrepancy.fit import (Evaluation, correct, correct_with, evaluate_models, folds, lm_fit, model_params,
+from icgo.discrepancy.fit import (Evaluation, Inversion, correct, correct_with, evaluate_models, folds, lm_fit, model_params,
                                   standard_errors)
 from icgo.discrepancy.identifiability import (
     Degeneracy,

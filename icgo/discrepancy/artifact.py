@@ -16,7 +16,8 @@ import pandas as pd
 from icgo.discrepancy.fit import correct_with, model_params
 from icgo.discrepancy.noise import Noise
 from icgo.frames import azimuth_from_gv, inclination_from_g, toolface_from_g
-from icgo.models import FittedModel, frame_values, register_model, sensor_domain
+from icgo.models import CORRECTED_B, FittedModel, frame_values, register_model, sensor_domain
+from icgo.qc import QCBands, survey_qc
 from icgo.studies import config_to_mapping
 
 SENSORS = ("gx", "gy", "gz", "bx", "by", "bz")
@@ -75,18 +76,41 @@ class PhysicsModel(FittedModel):
         ``azimuth_compensated`` is in the frame of the fitted declination (true
         north when the field was given with its declination), as is
         ``azimuth_raw`` (the standard formula on the raw sensors, + declination).
+        ``bx_corrected .. bz_corrected`` (nT): the measured field with the fitted disturbance
+        removed (:class:`icgo.discrepancy.fit.Inversion`), what survey QC checks after the model.
         """
         v = frame_values(frame, SENSORS, f"{self.KIND} model")
         G, B = v[:, :3], v[:, 3:]
-        a, inc = correct_with(self.effect_params(), tuple(float(x) for x in self.field), G, B,
-                              Noise(self.sigma_b_nT, self.sigma_g), int(self.n_iter))
+        inv = correct_with(self.effect_params(), tuple(float(x) for x in self.field), G, B,
+                           Noise(self.sigma_b_nT, self.sigma_g), int(self.n_iter))
         out = {}
         if "station" in frame.columns:
             out["station"] = frame["station"].to_numpy()
         out.update({"inclination_raw": np.asarray(inclination_from_g(G)), "toolface_raw": np.asarray(toolface_from_g(G)),
                     "azimuth_raw": np.mod(np.asarray(azimuth_from_gv(G, B)) + float(self.field[2]), 360.0),
-                    "inclination_compensated": np.asarray(inc), "azimuth_compensated": np.asarray(a)})
+                    "inclination_compensated": inv.inclination, "azimuth_compensated": inv.azimuth})
+        out.update(dict(zip(CORRECTED_B, inv.b_corrected.T)))
         return pd.DataFrame(out)
+
+
+def station_qc(model: PhysicsModel, st, bands: QCBands = QCBands()) -> dict | None:
+    """Survey-QC counts of the stations before and after the model, or None without a reference field.
+
+    Args:
+        model: the fitted physics model. st: :class:`icgo.discrepancy.stations.Stations`
+            (its ``field`` is the reference: total nT, dip deg, declination deg).
+        bands: QC bands.
+    Returns:
+        ``{"raw": counts, "physics": counts}`` (:class:`icgo.qc.QCResult` counts); "after" checks
+        the field with the fitted disturbance removed (``bx_corrected ..``).
+    """
+    if st.field is None:
+        return None
+    F, dip = float(st.field[0]), float(st.field[1])
+    frame = pd.DataFrame(np.hstack([st.G, st.B]), columns=list(SENSORS))
+    after = model.apply(frame)[list(CORRECTED_B)].to_numpy(float)
+    return {"raw": survey_qc(st.G, st.B, F, dip, st.gravity_g, bands).counts,
+            "physics": survey_qc(st.G, after, F, dip, st.gravity_g, bands).counts}
 
 
 #: The physics baseline of the generalisation protocols: the 12-parameter magnetometer

@@ -167,7 +167,22 @@ def model_params(res) -> dict:
     return {nm: phys[res.layout.slice(nm)] for nm in res.model}
 
 
-def correct(res, G, B, noise: Noise | None = None, n_iter: int = 10):
+class Inversion(NamedTuple):
+    """Per station, what the inverted physics model says (:func:`correct`, :func:`correct_with`).
+
+    Attributes:
+        azimuth: (n,) deg in the frame of the fitted declination. inclination: (n,) deg.
+        b_corrected: (n, 3) nT, the measured field with the model's fitted disturbance removed:
+            ``B_meas - (B_pred - C^T f)`` at the solved attitude ``C`` (f the earth field, NED), i.e.
+            the earth field in the tool frame plus what the model leaves unexplained.
+    """
+
+    azimuth: np.ndarray
+    inclination: np.ndarray
+    b_corrected: np.ndarray
+
+
+def correct(res, G, B, noise: Noise | None = None, n_iter: int = 10) -> Inversion:
     """Invert the fitted model: the attitude that best explains each measured station.
 
     Per station, (A, I) (toolface from G with the model's accelerometer
@@ -183,13 +198,13 @@ def correct(res, G, B, noise: Noise | None = None, n_iter: int = 10):
         noise: residual weights; default the noise of ``res.config``.
         n_iter: LM steps per station.
     Returns:
-        (azimuth_deg (n,) in the frame of the fitted declination, inclination_deg (n,)).
+        :class:`Inversion`.
     """
     noise = res.config.noise if noise is None else noise
     return correct_with(model_params(res), res.field, G, B, noise, n_iter)
 
 
-def correct_with(params: dict, field, G, B, noise: Noise, n_iter: int = 10):
+def correct_with(params: dict, field, G, B, noise: Noise, n_iter: int = 10) -> Inversion:
     """:func:`correct` for given effect parameters and field (what a saved physics model holds).
 
     Args:
@@ -198,7 +213,7 @@ def correct_with(params: dict, field, G, B, noise: Noise, n_iter: int = 10):
         G: (n, 3) g, B: (n, 3) nT measured.
         noise: residual weights. n_iter: LM steps per station.
     Returns:
-        (azimuth_deg (n,) in the frame of the declination, inclination_deg (n,)).
+        :class:`Inversion`.
     """
     G = jnp.asarray(np.asarray(G, np.float64))
     B = jnp.asarray(np.asarray(B, np.float64))
@@ -206,7 +221,7 @@ def correct_with(params: dict, field, G, B, noise: Noise, n_iter: int = 10):
     F, dip, dec = field
     f_ned = field_vector_ned(F, dip, dec)
     sig = jnp.asarray(effective_sigma(np.asarray(G), np.asarray(B), noise))
-    return _correct_jit(params, G, B, sig, f_ned, dec, n_iter)
+    return Inversion(*(np.asarray(x) for x in _correct_jit(params, G, B, sig, f_ned, dec, n_iter)))
 
 
 @partial(jax.jit, static_argnames=("n_iter",))
@@ -223,7 +238,12 @@ def _correct_jit(params, G, B, sig, f_ned, dec, n_iter):
     def solve(t, g, b, s, a0, i0):
         return least_squares_fixed(res1, jnp.stack([a0, i0]), (t, g, b, s), n_steps=n_iter).x
 
+    def disturbance(ai, t, g):  # (3,) B_pred - C^T f at the solved attitude, nT
+        C = tool_to_earth(ai[0], ai[1], t)
+        b0 = C.T @ f_ned
+        return _fx.apply_effects(params, C.T @ g_ned, b0, C)[1] - b0
+
     a0 = azimuth_from_gv(G, B) + dec
     i0 = inclination_from_g(G)
     ai = jax.vmap(solve)(T, G, B, sig, a0, i0)
-    return jnp.mod(ai[:, 0], 360.0), ai[:, 1]
+    return jnp.mod(ai[:, 0], 360.0), ai[:, 1], B - jax.vmap(disturbance)(ai, T, G)

@@ -16,6 +16,7 @@ from icgo import effects as _fx
 from icgo.discrepancy.compare import Pattern
 from icgo.discrepancy.identifiability import Degeneracy, Separability
 from icgo.discrepancy.search import Result, Step
+from icgo.qc import qc_sentence
 from icgo.studies import config_to_mapping
 
 
@@ -158,8 +159,12 @@ def result_to_json(res: Result) -> dict:
     }
 
 
-def report_markdown(res: Result, label: str, truth=None) -> str:
-    """The workflow report (steps, gap table, remaining pattern, residual by toolface bin, figures)."""
+def report_markdown(res: Result, label: str, truth=None, qc=None) -> str:
+    """The workflow report (steps, gap table, remaining pattern, residual by toolface bin, QC, figures).
+
+    ``qc``: survey-QC counts before and after the fitted model
+    (:func:`icgo.discrepancy.artifact.station_qc`), or None without a reference field.
+    """
     lines = [f"# Discrepancy report: {label}", "", f"**Verdict:** {verdict(res)}", "",
              "## Where the reference model disagrees (before)", ""]
     lines += [f"- {s}" for s in pattern_sentences(res.pattern_before)]
@@ -181,22 +186,27 @@ def report_markdown(res: Result, label: str, truth=None) -> str:
               "| toolface (deg) | n | RMS abs(dB) (nT) | RMS azimuth error (deg) |", "|---|---|---|---|"]
     for b in res.compare_after.bins["toolface"]:
         lines.append(f"| {b.lo:.0f}-{b.hi:.0f} | {b.n} | {b.rms_b_nT:.3g} | {b.rms_azimuth_deg:.3g} |")
+    lines += ["", "## Survey QC (every station)", "",
+              qc_sentence(qc) if qc else "No reference field given: survey QC against a reference does not apply."]
     lines += ["", "![residual vs toolface](residual_vs_toolface.png)", "", "![gap per step](gap_per_step.png)",
               "", f"Wall time {res.seconds:.1f} s (including JIT compilation)."]
     return "\n".join(lines) + "\n"
 
 
-def write_report(res: Result, label: str, out_dir, truth=None) -> Path:
-    """report.md + discrepancy.json + the two figures into ``out_dir``; returns the report path."""
+def write_report(res: Result, label: str, out_dir, truth=None, qc=None) -> Path:
+    """report.md + discrepancy.json + the two figures into ``out_dir``; returns the report path.
+
+    ``qc``: as in :func:`report_markdown` (also written to discrepancy.json).
+    """
     from icgo.discrepancy.plots import plot_gap_per_step, plot_residual_vs_toolface
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "discrepancy.json").write_text(json.dumps(result_to_json(res), indent=2, default=float))
+    (out_dir / "discrepancy.json").write_text(json.dumps({**result_to_json(res), "qc": qc}, indent=2, default=float))
     plot_residual_vs_toolface(res, out_dir / "residual_vs_toolface.png")
     plot_gap_per_step(res, out_dir / "gap_per_step.png")
     path = out_dir / "report.md"
-    path.write_text(report_markdown(res, label, truth))
+    path.write_text(report_markdown(res, label, truth, qc))
     return path
 
 

@@ -122,7 +122,7 @@ def lab_casing_study(config: WorkflowConfig = WorkflowConfig(), seed: int = 0) -
     itr = np.array([pos[r] for r in rows_train])
     ite = np.array([pos[r] for r in rows_test])
     res = run_workflow(select_stations(st_all, itr), config)
-    a_corr, _ = correct(res, st_all.G[ite], st_all.B[ite])
+    a_corr = correct(res, st_all.G[ite], st_all.B[ite]).azimuth
     err = np.asarray(angle_diff(np.asarray(a_corr), st_all.azimuth[ite]))
     err_raw = np.asarray(angle_diff(np.asarray(azimuth_from_gv(st_all.G[ite], st_all.B[ite])), st_all.azimuth[ite]))
     test = p0[p0["split"] == "test"]

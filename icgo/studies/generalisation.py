@@ -18,7 +18,11 @@ protocols pool the folds: every row is predicted by the fold that held it out)
 and the coverage of the member's 90 % conformal interval (:mod:`icgo.conformal`;
 not for raw, msa and physics, which carry no interval). Per cell: a two-sided
 Wilcoxon signed-rank test of every method against the best (lowest mean MAE) on
-the paired repeats, Holm-adjusted over the cell's comparisons.
+the paired repeats, Holm-adjusted over the cell's comparisons. Per cell, survey-QC
+counts (:mod:`icgo.qc`) of the stations it tests (the target instrument's under
+transfer): raw, after MSA (the first method's MSA ensemble) and after the physics
+baseline (the field with its fitted disturbance removed, by the member of repeat 0
+that tested the station; under the random split only repeat 0's test rows).
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ import pandas as pd
 
 from icgo import splits as _splits
 from icgo.frames import angle_diff
+from icgo.models import CORRECTED_B
 from icgo.stats import holm, wilcoxon_paired
 from icgo.studies import Study, register_study
 from icgo.studies.icgo_relm import StudyConfig
@@ -133,7 +138,8 @@ def noise_floors(config: GeneralisationConfig) -> pd.DataFrame:
 
 
 class GeneralisationResult(NamedTuple):
-    """Attributes: records (``metrics``, ``coverage``, ``tests``, ``noise_floor``), models (none: an
+    """Attributes: records (``metrics``, ``coverage``, ``tests``, ``noise_floor``, ``qc``: survey-QC counts
+    per cell and stage raw / msa / physics, see :func:`run`), models (none: an
     evaluation; ``experiments.run split=<protocol>`` saves the models of one method), seconds per cell."""
 
     records: dict
@@ -141,8 +147,25 @@ class GeneralisationResult(NamedTuple):
     seconds: dict
 
 
-def _physics(data, config: GeneralisationConfig, protocol: str, key) -> list[dict]:
-    """Metric rows of the physics baseline in one cell (members as the ICGO-RELM study builds them)."""
+def _qc_stations(data, cfg) -> pd.DataFrame:
+    """The stations a cell's QC counts: the target instrument's under transfer, else the source's (filtered)."""
+    from icgo.studies.icgo_relm import filtered
+
+    return filtered(data.target if data.target is not None else data.frame, cfg)[0].reset_index(drop=True)
+
+
+def _qc_row(stage: str, frame: pd.DataFrame, B_after, meta: dict) -> dict:
+    """One QC record: counts of :func:`icgo.qc.survey_qc` of ``frame``'s G with ``B_after`` (nT)."""
+    from icgo.qc import survey_qc
+
+    ref = (float(meta["total_field_nT"]), float(meta["dip_deg"]), float(meta.get("gravity_g", 1.0)))
+    return {"stage": stage, **survey_qc(frame[["gx", "gy", "gz"]].to_numpy(float), B_after, *ref).counts}
+
+
+def _physics(data, config: GeneralisationConfig, protocol: str, key) -> tuple[list[dict], dict]:
+    """Metric rows of the physics baseline in one cell (members as the ICGO-RELM study builds them), and its
+    QC record on the cell's QC stations (:func:`_qc_stations`) that repeat 0 tests, corrected by the member
+    that tested each."""
     from icgo import io as icgo_io
     from icgo.discrepancy.artifact import fit_members
     from icgo.discrepancy.stations import stations_from_recording
@@ -160,9 +183,13 @@ def _physics(data, config: GeneralisationConfig, protocol: str, key) -> list[dic
     models = fit_members(stations_from_recording(source), mem.train[:, :n_source])
     a_true = rows["azimuth_deg"].to_numpy(float)
     est = np.tile(a_true, (len(models), 1))  # rows a member does not test keep weight 0
+    b_after = np.full((len(rows), 3), np.nan)
     for m, model in enumerate(models):
         sel = mem.test[m] > 0
-        est[m, sel] = model.apply(rows[sel])["azimuth_compensated"].to_numpy(float)
+        out = model.apply(rows[sel])
+        est[m, sel] = out["azimuth_compensated"].to_numpy(float)
+        if mem.repeat[m] == cfg.ids()[0]:
+            b_after[sel] = out[list(CORRECTED_B)].to_numpy(float)
     G, B = rows[["gx", "gy", "gz"]].to_numpy(float), rows[["bx", "by", "bz"]].to_numpy(float)
     err_raw = np.asarray(angle_diff(np.asarray(azimuth_from_gv(G, B)), a_true))
     out = []
@@ -171,7 +198,9 @@ def _physics(data, config: GeneralisationConfig, protocol: str, key) -> list[dic
         F = int(sel.sum())
         m = azimuth_metrics(np.tile(a_true, F), est[sel].ravel(), np.tile(err_raw, F), mem.test[sel].ravel())
         out.append({"method": PHYSICS, "repeat": r, **{k: float(v) for k, v in m._asdict().items()}})
-    return out
+    qc_rows = np.arange(len(rows)) >= (n_source if data.target is not None else 0)
+    qc_rows &= np.isfinite(b_after[:, 0])
+    return out, _qc_row(PHYSICS, rows[qc_rows], b_after[qc_rows], data.meta)
 
 
 def paired_tests(metrics: pd.DataFrame, value: str = "mae") -> pd.DataFrame:
@@ -201,7 +230,7 @@ def run(data: dict, config: GeneralisationConfig, key, progress=None) -> General
 
     from icgo.studies.icgo_relm import run as run_relm
 
-    metrics, coverage, seconds = [], [], {}
+    metrics, coverage, qc, seconds = [], [], [], {}
     for cell in config.cells:
         name, protocol = cell
         if cell not in data:
@@ -214,6 +243,12 @@ def run(data: dict, config: GeneralisationConfig, key, progress=None) -> General
             test = res.metrics[res.metrics["split"] == "test"]
             if i > 0:  # raw and msa once per cell
                 test = test[~test["method"].isin(["raw", "msa"])]
+            else:
+                st = _qc_stations(data[cell], res.config)
+                after = res.msa_model.apply(st)[list(CORRECTED_B)].to_numpy(float)
+                qc += [{"dataset": name, "protocol": protocol, **row} for row in
+                       (_qc_row("raw", st, st[["bx", "by", "bz"]].to_numpy(float), data[cell].meta),
+                        _qc_row("msa", st, after, data[cell].meta))]
             metrics.append(test.drop(columns="split").assign(dataset=name, protocol=protocol))
             c = res.coverage
             pooled = (c.assign(hit=c["coverage"] * c["n_test"]).groupby(["method", "repeat"], sort=False)
@@ -224,8 +259,9 @@ def run(data: dict, config: GeneralisationConfig, key, progress=None) -> General
         if config.physics:
             if progress:
                 progress(f"{name} / {protocol}: physics")
-            metrics.append(pd.DataFrame(_physics(data[cell], config, protocol, key)).assign(dataset=name,
-                                                                                             protocol=protocol))
+            rows, qc_phys = _physics(data[cell], config, protocol, key)
+            metrics.append(pd.DataFrame(rows).assign(dataset=name, protocol=protocol))
+            qc.append({"dataset": name, "protocol": protocol, **qc_phys})
         seconds[f"{name}/{protocol}"] = time.perf_counter() - t0
     front = ["dataset", "protocol", "method", "repeat"]
     metrics = pd.concat(metrics, ignore_index=True)
@@ -233,7 +269,7 @@ def run(data: dict, config: GeneralisationConfig, key, progress=None) -> General
     coverage = pd.concat(coverage, ignore_index=True)
     coverage = coverage[front + [c for c in coverage.columns if c not in front]]
     return GeneralisationResult({"metrics": metrics, "coverage": coverage, "tests": paired_tests(metrics),
-                                 "noise_floor": noise_floors(config)}, {}, seconds)
+                                 "noise_floor": noise_floors(config), "qc": pd.DataFrame(qc)}, {}, seconds)
 
 
 def example() -> tuple:

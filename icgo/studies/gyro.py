@@ -46,6 +46,7 @@ from icgo import datasets, metrics, nets, relm, stats
 from icgo.frames import angle_diff
 from icgo.optim.cgo import CGO
 from icgo.net_models import GyroNetwork, GyroRELM, LookupTableModel, turntable_domain, turntable_hash
+from icgo.qc import earth_rate_qc
 from icgo.studies import SettingError, Study, is_int, is_real, need, register_study
 
 log = logging.getLogger(__name__)
@@ -517,6 +518,17 @@ def _model_config(config: GyroConfig, method: str) -> dict:
     return {"study": "gyro", "method": method, "seed": config.seed, "n_seeds": config.n_seeds}
 
 
+def rate_qc(train: pd.DataFrame, tests: dict) -> dict:
+    """Earth-rate QC counts (:func:`icgo.qc.earth_rate_qc`) of the raw gyro, per data set.
+
+    The instrument has no magnetometer and its gz is implied by |g|, so the |G| / |B| / dip
+    checks cannot fail here; the total-rate check is the gyro survey's. The methods correct the
+    azimuth, not the rates, so there is no "after" count.
+    """
+    return {name: earth_rate_qc(f[["wx", "wy", "wz"]].to_numpy(float)).counts
+            for name, f in {"train": train, **tests}.items()}
+
+
 def run(data: GyroData | None, config: GyroConfig, key) -> GyroResult:
     """Run the study (see the module doc).
 
@@ -531,7 +543,7 @@ def run(data: GyroData | None, config: GyroConfig, key) -> GyroResult:
     log.info("[gyro] train %d turntable points; tests %s", len(train),
              ", ".join(f"{k} {len(v)}" for k, v in tests.items()))
     summary = {"n_train": len(train), "n_tests": {k: len(v) for k, v in tests.items()},
-               "train_seconds": {}, "best_epoch": {}}
+               "train_seconds": {}, "best_epoch": {}, "qc": rate_qc(train, tests)}
     preds = {"raw": {k: f["azimuth_raw_deg"].to_numpy() for k, f in tests.items()}}
     models = {"table": fit_table(config.table, train, _model_config(config, "table"))}
     preds["table"] = predict_all(models["table"], tests)

@@ -49,6 +49,7 @@ from icgo.io import MAG_CAL_DEVICE_TO_TOOL, load_mag_cal_device, mag_cal_devices
 from icgo.optim import base
 from icgo.optim import misma as misma_opt
 from icgo.optim.sma import SMAConfig
+from icgo.qc import survey_qc
 from icgo.studies import Study, is_int, is_real, need, register_study
 
 log = logging.getLogger(__name__)
@@ -373,6 +374,24 @@ def baselines(p: Problem, U, name: str) -> tuple[dict, Any]:
     return out, x12
 
 
+def static_qc(p: Problem, meta: dict, fits: dict) -> dict:
+    """Survey-QC counts (:func:`icgo.qc.survey_qc`) at the static samples, raw and after each fit.
+
+    Args:
+        meta: the run's metadata (reference ``total_field_nT``, ``dip_deg``, ``gravity_g``).
+        fits: label -> (12,) calibration parameters (None entries are skipped).
+    Returns:
+        ``{"raw": counts, label: counts, ...}``.
+    """
+    Gs, Bs = p.G[p.static], p.B[p.static]
+    ref = (float(meta["total_field_nT"]), float(meta["dip_deg"]), float(meta.get("gravity_g", 1.0)))
+    out = {"raw": survey_qc(Gs, Bs, *ref).counts}
+    for lab, x in fits.items():
+        if x is not None:
+            out[lab] = survey_qc(Gs, np.asarray(cal.correct(jnp.asarray(x), Bs)), *ref).counts
+    return out
+
+
 def identifiability(G, B, ref, x):
     """Singular values (descending, relative to the largest) of d(residuals)/d(scaled params) at x.
 
@@ -491,6 +510,7 @@ def simulated_variant(name: str, ds: datasets.Dataset, scfg: SimulatedConfig, ke
         "repeats_all_params_within_tolerance_MISMA": within["MISMA"],
         "repeats_all_params_within_tolerance_SMA": within["SMA"],
         "jacobian_singular_values": sv.tolist(), "runtime_s": secs,
+        "qc_static": static_qc(p, ds.meta, {"U": U, "twelve": x12, "SMA": x_med["SMA"], "MISMA": x_med["MISMA"]}),
     }
     plot = VariantPlot({lab: np.asarray(r.curve) for lab, r in res.items()}, thr, moduli, p.ref_nT, p.t,
                        {"before": static_azimuth_error(p, None), "SMA": static_azimuth_error(p, x_med["SMA"]),
