@@ -19,7 +19,7 @@ line naming the file, row and column. Unknown columns and metadata keys are
 kept and listed in ``Recording.notices``. Writes are atomic (temp file in the
 same directory + ``os.replace``). Host-side numpy/pandas code, not jitted.
 
-Command line: ``python -m icgo.io check FILE.csv`` and
+Command line: ``python -m icgo.io check FILE.csv|FILE.json`` (JSON: :mod:`icgo.mag_cal_json`) and
 ``python -m icgo.io export-mag-cal OUTDIR``.
 """
 
@@ -631,6 +631,30 @@ def _fixture_triples(values, src: str, key: str) -> np.ndarray:
     return np.asarray(kept, np.float64).reshape(-1, 3)
 
 
+def fixture_shots(d, src: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """mag_cal's fixture layout (``{"shots": {"mag", "grav"}}``, device frame, g and uT) -> tool frame.
+
+    Returns:
+        (G (24, 3) g, B (24, 3) nT, group (24,)): shot k < 8 is its own group k; shots
+        8-15 are group 8 and 16-23 group 9 (rolled about the pointing axis).
+    Raises:
+        DataError: one line naming ``src``.
+    """
+    shots = d.get("shots") if isinstance(d, dict) else None
+    if not isinstance(shots, dict) or "mag" not in shots or "grav" not in shots:
+        _fail(src, "no 'shots' with 'mag' and 'grav'")
+    mag = _fixture_triples(shots["mag"], src, "mag")
+    grav = _fixture_triples(shots["grav"], src, "grav")
+    if len(mag) != MAG_CAL_SHOTS or len(grav) != MAG_CAL_SHOTS:
+        _fail(src, f"expected {MAG_CAL_SHOTS} shots, got {len(mag)} mag and {len(grav)} grav")
+    perm = list(MAG_CAL_DEVICE_TO_TOOL)
+    group = np.arange(MAG_CAL_SHOTS)
+    for gid, (a, b) in zip((8, 9), MAG_CAL_RUNS):
+        group[a:b] = gid
+    # fixtures are in g already (median |G| ~ 1.00), gravity pointing down; uT -> nT
+    return grav[:, perm], mag[:, perm] * 1000.0, group
+
+
 def load_mag_cal_device(name: str) -> Recording:
     """One real device of circuitpython-mag-cal 1.4.1 as a contract Recording.
 
@@ -652,19 +676,7 @@ def load_mag_cal_device(name: str) -> Recording:
     res = _mag_cal_dir().joinpath(f"{name}.json")
     src = f"icgo/data/mag_cal/{name}.json"
     d = json.loads(res.read_text(encoding="utf-8"))
-    shots = d.get("shots") if isinstance(d, dict) else None
-    if not isinstance(shots, dict) or "mag" not in shots or "grav" not in shots:
-        _fail(src, "no 'shots' with 'mag' and 'grav'")
-    mag = _fixture_triples(shots["mag"], src, "mag")
-    grav = _fixture_triples(shots["grav"], src, "grav")
-    if len(mag) != MAG_CAL_SHOTS or len(grav) != MAG_CAL_SHOTS:
-        _fail(src, f"expected {MAG_CAL_SHOTS} shots, got {len(mag)} mag and {len(grav)} grav")
-    perm = list(MAG_CAL_DEVICE_TO_TOOL)
-    G = grav[:, perm]  # fixtures are in g already (median |G| ~ 1.00), gravity pointing down
-    B = mag[:, perm] * 1000.0  # uT -> nT
-    group = np.arange(MAG_CAL_SHOTS)
-    for gid, (a, b) in zip((8, 9), MAG_CAL_RUNS):
-        group[a:b] = gid
+    G, B, group = fixture_shots(d, src)
     frame = pd.DataFrame({
         "station": np.arange(MAG_CAL_SHOTS),
         "gx": G[:, 0], "gy": G[:, 1], "gz": G[:, 2],
@@ -684,15 +696,26 @@ def load_mag_cal_device(name: str) -> Recording:
 
 # ---------------------------------------------------------------------- CLI
 def main(argv=None) -> int:
-    """``check FILE.csv [...]`` or ``export-mag-cal OUTDIR``; a DataError prints one line, exit 1."""
+    """``check FILE.csv|FILE.json [...]`` or ``export-mag-cal OUTDIR``; a DataError prints one line, exit 1.
+
+    A ``.json`` file is read as a circuitpython-mag-cal recording (either layout,
+    :func:`icgo.mag_cal_json.read_mag_cal_json`).
+    """
     argv = list(sys.argv[1:] if argv is None else argv)
-    usage = "usage: python -m icgo.io check FILE.csv [FILE.csv ...] | export-mag-cal OUTDIR"
+    usage = "usage: python -m icgo.io check FILE.csv|FILE.json [...] | export-mag-cal OUTDIR"
     if len(argv) < 2 or argv[0] not in ("check", "export-mag-cal"):
         print(usage, file=sys.stderr)
         return 2
     try:
         if argv[0] == "check":
             for p in argv[1:]:
+                if str(p).lower().endswith(".json"):
+                    from icgo.mag_cal_json import read_mag_cal_json
+
+                    rec = read_mag_cal_json(p)
+                    print(f"{p}: ok, {len(rec.frame)} shots, {rec.frame['group'].nunique()} groups; "
+                          f"{rec.meta['description']}")
+                    continue
                 rec = read_recording(p)
                 f = rec.field
                 fdesc = (f"field {f.total_field_nT:.1f} nT, dip {f.dip_deg:.3f}, decl {f.declination_deg:.3f} "
