@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test test-all figures bench optimizers misma gyro discrepancy generalisation dataset-figures venv clean
+.PHONY: run test test-all figures bench optimizers misma gyro discrepancy generalisation calibration dataset-figures venv clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -51,3 +51,6 @@ clean:
 
 generalisation: $(STAMP)
 	$(BIN)/python -m experiments.generalisation
+
+calibration: $(STAMP)
+	$(BIN)/python -m experiments.calibrate data=bundled

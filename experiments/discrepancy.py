@@ -89,7 +89,8 @@ def run_study(name: str, config: D.WorkflowConfig, cfg: DictConfig) -> str:
         return report.devices_study_markdown(D.devices_study(config), config)
     if name == "lab_casing":
         study = D.lab_casing_study(config, int(cfg.seed))
-        D.write_report(study.result, "lab_casing (training split)", Path(cfg.results_dir) / "discrepancy_lab_casing_report")
+        D.write_report(study.result, "lab_casing (training split; QC on the test split)",
+                       Path(cfg.results_dir) / "discrepancy_lab_casing_report", qc=study.qc)
         return report.lab_casing_study_markdown(study)
     raise ValueError(f"study={name!r}: choose none, hidden, devices or lab_casing")
 

@@ -184,6 +184,7 @@ def main(argv=None) -> int:
                             (out / "generalisation_coverage.csv", rec["coverage"].to_csv(index=False)),
                             (out / "generalisation_tests.csv", rec["tests"].to_csv(index=False)),
                             (out / "generalisation_qc.csv", rec["qc"].to_csv(index=False))])
+        os.chmod(tmp, 0o644)  # mkstemp creates 0600; the figure is a result like the others
         os.replace(tmp, out / "generalisation.png")
     finally:  # a failed write leaves the previous files and no temp file
         Path(tmp).unlink(missing_ok=True)

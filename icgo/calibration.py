@@ -697,7 +697,7 @@ def _pointing_jnp(G, B):
     return jnp.stack([north[..., 2], east[..., 2], down[..., 2]], -1)
 
 
-def fit_joint(G, B, groups, xg0, xm0, min_size=4, ridge=1e-5, group_weight=100.0):
+def fit_joint(G, B, groups, xg0, xm0, min_size=4, ridge=1e-5, group_weight=1.0):
     """Accelerometer (12) and magnetometer (12) parameters fitted together on rolled groups.
 
     The group-aware pipeline (like mag_cal's fit_to_axis, but one least-squares
@@ -713,6 +713,12 @@ def fit_joint(G, B, groups, xg0, xm0, min_size=4, ridge=1e-5, group_weight=100.0
             radius 1).
         min_size: smallest group treated as a rolled group.
         ridge: weight of the pull towards the start (scaled variables).
+        group_weight: weight of the direction deviations against the dot-invariance
+            (one common dip over all shots) and unit-sphere residuals. 1: both are
+            angles in rad to first order. The first build used 100, which let the fit
+            trade the common dip for tighter groups: the dip then varied by 2.5-50 deg
+            over one device's shots (degenerate by :mod:`icgo.cal_sanity` on all 27
+            fits of the 9 bundled devices; at 1, none is).
     Returns:
         (xg, xm) numpy (12,) each.
     """

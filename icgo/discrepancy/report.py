@@ -186,7 +186,7 @@ def report_markdown(res: Result, label: str, truth=None, qc=None) -> str:
               "| toolface (deg) | n | RMS abs(dB) (nT) | RMS azimuth error (deg) |", "|---|---|---|---|"]
     for b in res.compare_after.bins["toolface"]:
         lines.append(f"| {b.lo:.0f}-{b.hi:.0f} | {b.n} | {b.rms_b_nT:.3g} | {b.rms_azimuth_deg:.3g} |")
-    lines += ["", "## Survey QC (every station)", "",
+    lines += ["", "## Survey QC", "",
               qc_sentence(qc) if qc else "No reference field given: survey QC against a reference does not apply."]
     lines += ["", "![residual vs toolface](residual_vs_toolface.png)", "", "![gap per step](gap_per_step.png)",
               "", f"Wall time {res.seconds:.1f} s (including JIT compilation)."]

@@ -91,6 +91,8 @@ class LabCasingStudy(NamedTuple):
         error_msa: MSA only (repeat 0).
         truth_effects: effects the simulation injected besides the casing.
         seed: data-set and study seed.
+        qc: survey-QC counts of the test stations, raw and after the physics model
+            (:func:`icgo.discrepancy.artifact.station_qc`).
     """
 
     result: Result
@@ -100,6 +102,7 @@ class LabCasingStudy(NamedTuple):
     error_msa: np.ndarray
     truth_effects: dict
     seed: int
+    qc: dict | None = None
 
 
 def lab_casing_study(config: WorkflowConfig = WorkflowConfig(), seed: int = 0) -> LabCasingStudy:
@@ -129,4 +132,7 @@ def lab_casing_study(config: WorkflowConfig = WorkflowConfig(), seed: int = 0) -
     methods = {m: test[test["method"] == m]["error_compensated"].to_numpy() for m in meth}
     err_msa = test[test["method"] == meth[0]]["error_msa"].to_numpy()
     truth = {k: np.asarray(v, float) for k, v in (ds.truth.get("effects") or {}).items()}
-    return LabCasingStudy(res, err_raw, err, methods, err_msa, truth, int(seed))
+    from icgo.discrepancy.artifact import PhysicsModel, station_qc
+
+    qc = station_qc(PhysicsModel.from_result(res, st_all.G[itr], st_all.B[itr]), select_stations(st_all, ite))
+    return LabCasingStudy(res, err_raw, err, methods, err_msa, truth, int(seed), qc)

@@ -93,7 +93,8 @@ STUDIES: dict[str, Study] = {}
 
 #: Modules that register a study at import.
 _STUDY_MODULES = ("icgo.studies.icgo_relm", "icgo.studies.misma", "icgo.studies.gyro",
-                  "icgo.studies.optimizers", "icgo.studies.discrepancy", "icgo.studies.generalisation")
+                  "icgo.studies.optimizers", "icgo.studies.discrepancy", "icgo.studies.generalisation",
+                  "icgo.studies.calibration")
 
 
 def register_study(study: Study) -> Study:

@@ -523,10 +523,11 @@ def rate_qc(train: pd.DataFrame, tests: dict) -> dict:
 
     The instrument has no magnetometer and its gz is implied by |g|, so the |G| / |B| / dip
     checks cannot fail here; the total-rate check is the gyro survey's. The methods correct the
-    azimuth, not the rates, so there is no "after" count.
+    azimuth, not the rates, so there is no "after" count. Data sets without the rate columns
+    (``wx, wy, wz``) are left out.
     """
     return {name: earth_rate_qc(f[["wx", "wy", "wz"]].to_numpy(float)).counts
-            for name, f in {"train": train, **tests}.items()}
+            for name, f in {"train": train, **tests}.items() if {"wx", "wy", "wz"} <= set(f.columns)}
 
 
 def run(data: GyroData | None, config: GyroConfig, key) -> GyroResult:

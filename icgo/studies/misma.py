@@ -11,12 +11,10 @@ SMA a prior box around ``R^-1 = I, b = 0``. Scored by: iterations to reach
 after, and the absolute azimuth error at the static survey points (raw, SMA,
 MISMA and the deterministic baselines).
 
-Real part (:func:`real_study`): each circuitpython-mag-cal device calibrated
-by the ellipsoid fit, the 12-parameter least squares (+ axis alignment),
-MISMA (+ axis alignment) and the group-aware joint fit; scored by the peer
-package's metric (:func:`icgo.calibration.group_spread_deg`, deg) in-sample
-and held out (fit without one rolled group, score on it), with the peer's own
-``fit_ellipsoid`` / ``fit_to_axis`` / ``fit_non_linear`` side by side.
+Real part (:func:`real_study`): the 9 circuitpython-mag-cal devices through
+:mod:`icgo.studies.calibration` (ellipsoid fit, 12-parameter least squares +
+axis, MISMA + axis in a box in the data's units, the joint fit, the peer's
+pipeline side by side; in-sample and held out; physical sanity per fit).
 
 Randomness: ``run(data, config, key)`` draws the simulated searches from
 ``offset_key(key, 1)`` and the real-device MISMA runs from ``offset_key(key,
@@ -34,7 +32,6 @@ import dataclasses
 import inspect
 import logging
 import time
-from functools import lru_cache
 from typing import Any, NamedTuple
 
 import jax
@@ -44,22 +41,18 @@ import pandas as pd
 
 from icgo import calibration as cal
 from icgo import datasets
-from icgo.calibration_models import MagCalibration, mag_calibration
-from icgo.io import MAG_CAL_DEVICE_TO_TOOL, load_mag_cal_device, mag_cal_devices
+from icgo.calibration_models import mag_calibration
+from icgo.io import load_mag_cal_device, mag_cal_devices
 from icgo.optim import base
 from icgo.optim import misma as misma_opt
 from icgo.optim.sma import SMAConfig
 from icgo.qc import survey_qc
-from icgo.studies import Study, is_int, is_real, need, register_study
+from icgo.studies import Study, calibration, is_int, is_real, need, register_study
 
 log = logging.getLogger(__name__)
 
 #: Names of the 12 parameters ``[R^-1 row-major, b]`` in the tables.
 PARAM_NAMES = tuple(f"Rinv_{i}{j}" for i in range(1, 4) for j in range(1, 4)) + ("b_x_nT", "b_y_nT", "b_z_nT")
-
-#: The two rolled groups of a mag_cal device (shots 8-15 and 16-23).
-ROLLED_GROUPS = (8, 9)
-
 
 # ===================================================================== config
 # Every check raises icgo.studies.SettingError(<dotted key>, <problem>): one line, "<key> <problem>".
@@ -526,123 +519,16 @@ def simulated_table(summaries: list) -> pd.DataFrame:
 
 
 # ===================================================================== real
-def _device_frame(G, B):
-    """Tool frame -> mag_cal device frame (inverse of icgo.io's permutation); mag in uT."""
-    perm = list(MAG_CAL_DEVICE_TO_TOOL)
-    gd, md = np.empty_like(G), np.empty_like(B)
-    gd[:, perm], md[:, perm] = G, B / 1000.0
-    return gd, md
-
-
-def peer_scores(G, B, train, rolled_train, score_groups) -> dict:
-    """circuitpython-mag-cal's pipeline fitted on ``train`` rows; its metric (deg) on the score groups per stage."""
-    from mag_cal import Calibration
-
-    gd, md = _device_frame(G, B)
-    fit_pairs = [(md[m], gd[m]) for m in rolled_train]
-    score_pairs = [(md[m], gd[m]) for m in score_groups]
-    c = Calibration()
-    c.fit_ellipsoid(md[train], gd[train])
-    out = {"peer_ellipsoid": c.accuracy(score_pairs)}
-    c.fit_to_axis(fit_pairs)
-    out["peer_fit_to_axis"] = c.accuracy(score_pairs)
-    c.fit_non_linear(fit_pairs)
-    out["peer_fit_non_linear"] = c.accuracy(score_pairs)
-    return out
-
-
-@lru_cache(maxsize=None)
-def _device_objective(n: int):
-    """One MismaObjective per recording size (the data travel as aux, so it compiles once per size)."""
-    return cal.MismaObjective(cal.make_caldata(np.ones((n, 3)), np.ones((n, 3)), 1.0))
-
-
-def misma_on_shots(G_cal, B, rcfg: RealConfig, x_centre, key) -> np.ndarray:
-    """MISMA on static shots (unit-sphere field), ``misma_repeats`` repeats; the lowest-fitness (12,)."""
-    R = int(rcfg.misma_repeats)
-    data = cal.make_caldata(G_cal, B, 1.0)
-    aux = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (R,) + jnp.shape(a)), data)
-    lb, ub = misma_opt.misma_bounds(x_centre, 1.0)
-    r = base.run_batch("misma", _device_objective(len(B)), (lb, ub), jax.random.split(key, R), 30,
-                       int(rcfg.misma_iter), aux=aux)
-    return np.asarray(r.best_x[int(np.argmin(np.asarray(r.best_f)))])
-
-
-def fit_device(G, B, groups, rcfg: RealConfig, key, config: dict) -> dict:
-    """Our four pipelines fitted on the given shots (unit-sphere fits), as calibrations.
-
-    ``ellipsoid`` (accelerometer and magnetometer), ``twelve+axis`` (12-parameter
-    least squares, then one rotation putting the rolled groups' axis on tool z),
-    ``misma+axis`` and ``joint`` (24 parameters on the group directions).
-    """
-    xg = cal.ellipsoid_fit_accel(G)
-    xm = cal.ellipsoid_fit(B, 1.0, G)
-    G_c = np.asarray(cal.correct(jnp.asarray(xg), G))
-    scale = float(np.median(np.linalg.norm(B, axis=1)))
-
-    def model(method, x, alignment=None, x_accel=xg):
-        return mag_calibration(method, x, G, B, config, x_accel=x_accel, alignment=alignment, field_scale_nT=scale)
-
-    def aligned(method, x):
-        return model(method, x, cal.align_to_axis(G_c, np.asarray(cal.correct(jnp.asarray(x), B)), groups))
-
-    out = {"ellipsoid": model("ellipsoid", xm)}
-    out["twelve+axis"] = aligned("twelve", cal.fit_twelve(G_c, B, 1.0, x0=xm))
-    out["misma+axis"] = aligned("misma", misma_on_shots(G_c, B, rcfg, xm, key))
-    jg, jm = cal.fit_joint(G, B, groups, xg, xm)
-    out["joint"] = model("joint", jm, x_accel=jg)
-    return out
-
-
-def group_score(model: MagCalibration, G, B, groups, score_mask) -> float:
-    """The peer metric (deg) of a calibration on the rows of ``score_mask``."""
-    Gc, Bc = model.corrected(G, B)
-    return cal.group_spread_deg(Gc[score_mask], Bc[score_mask], groups[score_mask])[0]
-
-
-def device_splits(groups):
-    """(label, train mask, rolled-group masks for the peer's fit, score mask): in-sample and one per held-out group."""
-    rolled = [groups == g for g in ROLLED_GROUPS]
-    allrows = np.ones(len(groups), bool)
-    splits = [("in-sample", allrows, rolled, allrows)]
-    for h, g in enumerate(ROLLED_GROUPS):
-        splits.append((f"held-out group {g}", groups != g, [rolled[1 - h]], groups == g))
-    return splits
-
-
 def real_study(devices: dict, rcfg: RealConfig, key) -> tuple[pd.DataFrame, dict]:
-    """All devices: in-sample and held-out spread, ours and the peer's, one row per device and split.
+    """All devices through :func:`icgo.studies.calibration.evaluate` (scores, sanity, the peer side by side).
 
     Returns:
-        (table, {"<device>_<method>": in-sample calibration}).
+        (long table: device, split, method, score_deg, sanity columns; {"<device>_<method>": in-sample calibration}).
     """
-    rows, models = [], {}
-    for name, rec in devices.items():
-        G, B, groups = rec.G, rec.B, rec.frame["group"].to_numpy()
-        rolled = [groups == g for g in ROLLED_GROUPS]
-        for split, train, rolled_train, score_mask in device_splits(groups):
-            key, sub = jax.random.split(key)
-            cfg = {"study": "misma", "device": name, "split": split, "misma_iter": int(rcfg.misma_iter),
-                   "misma_repeats": int(rcfg.misma_repeats)}
-            fitted = fit_device(G[train], B[train], groups[train], rcfg, sub, cfg)
-            row = {"device": name, "split": split,
-                   **{m: group_score(c, G, B, groups, score_mask) for m, c in fitted.items()}}
-            if rcfg.peer:
-                row.update(peer_scores(G, B, train, rolled_train, [m for m in rolled if (m & score_mask).any()]))
-            if split == "in-sample":
-                models.update({f"{name}_{m.replace('+axis', '_axis')}": c for m, c in fitted.items()})
-            rows.append(row)
-            log.info("  %-4s %-18s %s", name, split,
-                     " ".join(f"{k}={v:.3f}" for k, v in row.items() if isinstance(v, float)))
-    return pd.DataFrame(rows), models
-
-
-def real_summary(df: pd.DataFrame) -> pd.DataFrame:
-    """Mean over devices of each score column, in-sample and held out (deg); index = method."""
-    cols = [c for c in df.columns if c not in ("device", "split")]
-    ins = df[df.split == "in-sample"][cols].mean()
-    held = df[df.split != "in-sample"][cols].mean()
-    return pd.DataFrame({"in-sample mean (deg)": ins, "held-out mean (deg)": held})
+    config = calibration.CalibrationConfig(peer=rcfg.peer, misma_iter=rcfg.misma_iter,
+                                           misma_repeats=rcfg.misma_repeats)
+    df, models = calibration.evaluate(devices, config, key)
+    return df.rename(columns={"recording": "device"}), models
 
 
 # ====================================================================== run
@@ -688,7 +574,7 @@ def run(data: MismaData | None, config: MismaConfig, key) -> MismaResult:
     if config.real.enabled:
         log.info("[real] circuitpython-mag-cal devices ...")
         df, real_models = real_study(data.devices, config.real, offset_key(key, 7))
-        records["real_devices"], records["real_summary"] = df, real_summary(df)
+        records["real_devices"], records["real_summary"] = df, calibration.summary(df)
         summary["real"] = records["real_summary"].to_dict()
         models.update(real_models)
     return MismaResult(records, models, summary, plots)

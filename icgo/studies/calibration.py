@@ -1,0 +1,302 @@
+"""Magnetometer calibration from grouped static shots: every method, in-sample and held out, with sanity (issue 16).
+
+A recording is static shots (``G`` g, ``B`` nT) with a ``group`` column: shots of
+one group share one true direction. Groups of at least :data:`MIN_ROLLED` shots are
+*rolled groups* (turned about the pointing axis); the others are single shots. No
+reference attitude is needed.
+
+Methods (unit-sphere fits; :func:`fit_recording`):
+
+* ``ellipsoid``: accelerometer and magnetometer ellipsoid fits;
+* ``twelve+axis``: 12-parameter least squares (dot invariance eq. 5 + modulus), then
+  one rotation putting the rolled groups' roll axis on tool z;
+* ``misma+axis``: MISMA on the same objective, in a box in the data's units that
+  contains the least-squares solution (:func:`misma_box`), then the axis rotation;
+* ``joint``: accelerometer and magnetometer (24 parameters) fitted together on the
+  rolled groups' directions, with one common dip over all shots (:func:`icgo.calibration.fit_joint`);
+* the peer package circuitpython-mag-cal side by side (``peer_*``), when installed.
+
+Splits (:func:`splits`): in-sample (fit and score on every shot) and one held-out
+split per rolled group (fit without it, score on it). Score: the peer's metric
+(:func:`icgo.calibration.group_spread_deg`, deg) on the scored rolled groups. Every
+fit also gets its physical sanity on all shots (:func:`icgo.cal_sanity.sanity`);
+a degenerate fit's score is withheld (NaN) and it is never counted as a win.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from functools import lru_cache
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+
+from icgo import calibration as cal
+from icgo.cal_sanity import sanity
+from icgo.calibration_models import MagCalibration, mag_calibration
+from icgo.io import MAG_CAL_DEVICE_TO_TOOL
+from icgo.optim import base
+from icgo.optim import misma as misma_opt
+from icgo.studies import Study, is_int, need, register_study
+
+log = logging.getLogger(__name__)
+
+#: Smallest group treated as a rolled group (the axis alignment and the joint fit need a roll).
+MIN_ROLLED = 4
+#: Our methods, in table order.
+METHODS = ("ellipsoid", "twelve+axis", "misma+axis", "joint")
+#: The peer's stages (circuitpython-mag-cal), in table order.
+PEER_METHODS = ("peer_ellipsoid", "peer_fit_to_axis", "peer_fit_non_linear")
+
+
+@dataclasses.dataclass(frozen=True)
+class CalibrationConfig:
+    """Settings of the calibration of grouped shots.
+
+    Attributes:
+        peer: run circuitpython-mag-cal side by side (skipped with a notice when not installed).
+        misma_iter: MISMA iterations. misma_repeats: independent MISMA runs (the lowest fitness is kept).
+        misma_pop: MISMA population.
+    """
+
+    peer: bool = True
+    misma_iter: int = 300
+    misma_repeats: int = 4
+    misma_pop: int = 30
+
+    def __post_init__(self):
+        need(isinstance(self.peer, bool), "peer", f"must be true or false, got {self.peer!r}")
+        for name, lo in (("misma_iter", 1), ("misma_repeats", 1), ("misma_pop", 4)):
+            v = getattr(self, name)
+            need(is_int(v) and v >= lo, name, f"must be an integer >= {lo}, got {v!r}")
+
+
+def rolled_ids(groups) -> list:
+    """Ids of the rolled groups (at least :data:`MIN_ROLLED` shots), sorted."""
+    groups = np.asarray(groups)
+    return [g for g in np.unique(groups) if (groups == g).sum() >= MIN_ROLLED]
+
+
+def splits(groups) -> list[tuple]:
+    """(label, train mask, score mask): in-sample, then one per rolled group held out.
+
+    A rolled group is held out only when another rolled group remains to fit on.
+    Raises ValueError (one line) when the recording has no rolled group.
+    """
+    groups = np.asarray(groups)
+    ids = rolled_ids(groups)
+    if not ids:
+        raise ValueError(f"calibration: no rolled group (a group of {MIN_ROLLED} or more shots about one "
+                         "pointing direction); the group column has none")
+    allrows = np.ones(len(groups), bool)
+    out = [("in-sample", allrows, allrows)]
+    if len(ids) > 1:
+        out += [(f"held-out group {g}", groups != g, groups == g) for g in ids]
+    return out
+
+
+def misma_box(x_centre, x_lsq, field_scale_nT: float, matrix_halfwidth: float = 0.05,
+              bias_halfwidth: float = 0.02, margin: float = 1.5):
+    """MISMA's box in the data's units, grown until it contains the least-squares solution.
+
+    The box of eqs. 9-11 around the ellipsoid fit ``x_centre``
+    (:func:`icgo.optim.misma.misma_bounds`): matrix entries +/- ``matrix_halfwidth``
+    x their largest magnitude, biases +/- ``bias_halfwidth`` x the median |B| of
+    the data (``field_scale_nT``, nT; the first build used 1.0 here, which pinned
+    the biases to +/- 0.02 nT). Each half-width is then at least ``margin`` x the
+    distance from the centre to the 12-parameter least-squares solution
+    ``x_lsq``, so the box contains it with room on both sides.
+
+    Returns:
+        (lb, ub), two (12,) arrays (matrix: per unit-sphere fit unit, biases: nT).
+    """
+    x_centre = np.asarray(x_centre, np.float64)
+    lb, ub = misma_opt.misma_bounds(x_centre, float(field_scale_nT), matrix_halfwidth, bias_halfwidth)
+    h = np.maximum(ub - x_centre, margin * np.abs(np.asarray(x_lsq, np.float64) - x_centre))
+    return x_centre - h, x_centre + h
+
+
+@lru_cache(maxsize=None)
+def _objective(n: int):
+    """One MismaObjective per recording size (the data travel as aux, so it compiles once per size)."""
+    return cal.MismaObjective(cal.make_caldata(np.ones((n, 3)), np.ones((n, 3)), 1.0))
+
+
+def misma_on_shots(G_cal, B, config: CalibrationConfig, box, key) -> np.ndarray:
+    """MISMA on static shots (unit-sphere field) in ``box``, ``misma_repeats`` repeats; the lowest-fitness (12,)."""
+    R = int(config.misma_repeats)
+    data = cal.make_caldata(G_cal, B, 1.0)
+    aux = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (R,) + jnp.shape(a)), data)
+    r = base.run_batch("misma", _objective(len(B)), box, jax.random.split(key, R), int(config.misma_pop),
+                       int(config.misma_iter), aux=aux)
+    return np.asarray(r.best_x[int(np.argmin(np.asarray(r.best_f)))])
+
+
+def fit_recording(G, B, groups, config: CalibrationConfig, key, header: dict) -> dict:
+    """Our four methods fitted on the given shots, as :class:`MagCalibration` s (see the module doc)."""
+    xg = cal.ellipsoid_fit_accel(G)
+    xm = cal.ellipsoid_fit(B, 1.0, G)
+    G_c = np.asarray(cal.correct(jnp.asarray(xg), G))
+    scale = float(np.median(np.linalg.norm(B, axis=1)))
+
+    def model(method, x, alignment=None, x_accel=xg, extra=None):
+        return mag_calibration(method, x, G, B, {**header, **(extra or {})}, x_accel=x_accel, alignment=alignment,
+                               field_scale_nT=scale)
+
+    def aligned(method, x, extra=None):
+        return model(method, x, cal.align_to_axis(G_c, np.asarray(cal.correct(jnp.asarray(x), B)), groups),
+                     extra=extra)
+
+    x12 = cal.fit_twelve(G_c, B, 1.0, x0=xm)
+    lb, ub = misma_box(xm, x12, scale)
+    out = {"ellipsoid": model("ellipsoid", xm), "twelve+axis": aligned("twelve", x12)}
+    out["misma+axis"] = aligned("misma", misma_on_shots(G_c, B, config, (lb, ub), key),
+                                {"misma_box_lb": lb.tolist(), "misma_box_ub": ub.tolist(),
+                                 "misma_box": "misma_box: ellipsoid fit +/- 5 % matrix, 2 % of median |B|, grown "
+                                              "to contain the least squares"})
+    jg, jm = cal.fit_joint(G, B, groups, xg, xm)
+    out["joint"] = model("joint", jm, x_accel=jg)
+    return out
+
+
+def _device_frame(G, B):
+    """Tool frame -> mag_cal device frame (inverse of icgo.io's permutation); mag in uT."""
+    perm = list(MAG_CAL_DEVICE_TO_TOOL)
+    gd, md = np.empty_like(G), np.empty_like(B)
+    gd[:, perm], md[:, perm] = G, B / 1000.0
+    return gd, md
+
+
+def peer_available() -> bool:
+    """Whether circuitpython-mag-cal (``mag_cal``) can be imported."""
+    try:
+        import mag_cal  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def peer_rows(G, B, groups, train, score) -> list[dict]:
+    """circuitpython-mag-cal's pipeline fitted on ``train``: per stage its score on ``score`` and its sanity."""
+    from mag_cal import Calibration
+
+    gd, md = _device_frame(G, B)
+    ids = rolled_ids(groups)
+    fit_pairs = [(md[(groups == g) & train], gd[(groups == g) & train]) for g in ids if ((groups == g) & train).any()]
+    score_pairs = [(md[(groups == g) & score], gd[(groups == g) & score]) for g in ids if ((groups == g) & score).any()]
+    c = Calibration()
+    out = []
+
+    def stage(name):
+        s = sanity(c.grav.apply(gd), c.mag.apply(md), c.mag.transform)
+        out.append({"method": name, "score_deg": c.accuracy(score_pairs), **s.row(), "reasons": "; ".join(s.reasons)})
+
+    c.fit_ellipsoid(md[train], gd[train])
+    stage("peer_ellipsoid")
+    c.fit_to_axis(fit_pairs)
+    stage("peer_fit_to_axis")
+    c.fit_non_linear(fit_pairs)
+    stage("peer_fit_non_linear")
+    return out
+
+
+def group_score(model: MagCalibration, G, B, groups, score_mask) -> float:
+    """The peer metric (deg) of a calibration on the rows of ``score_mask``."""
+    Gc, Bc = model.corrected(G, B)
+    return cal.group_spread_deg(Gc[score_mask], Bc[score_mask], groups[score_mask])[0]
+
+
+def model_sanity(model: MagCalibration, G, B):
+    """:func:`icgo.cal_sanity.sanity` of a calibration on all the shots."""
+    Gc, Bc = model.corrected(G, B)
+    return sanity(Gc, Bc, np.asarray(model.x_mag[:9]).reshape(3, 3))
+
+
+def evaluate(recordings: dict, config: CalibrationConfig, key) -> tuple[pd.DataFrame, dict]:
+    """Every recording x split x method: score (NaN when degenerate) and sanity, long format.
+
+    Args:
+        recordings: name -> :class:`icgo.io.Recording` with a ``group`` column.
+        config: :class:`CalibrationConfig`. key: PRNG key (split once per fit).
+    Returns:
+        (table with columns recording, split, method, score_deg, dip_spread_deg, b_spread_pct,
+        cond, degenerate, reasons; {"<recording>_<method>": in-sample calibration}).
+    """
+    peer = config.peer and peer_available()
+    if config.peer and not peer:
+        log.warning("circuitpython-mag-cal is not installed: the peer's columns are left out")
+    rows, models = [], {}
+    for name, rec in recordings.items():
+        G, B, groups = rec.G, rec.B, rec.frame["group"].to_numpy()
+        for split, train, score in splits(groups):
+            key, sub = jax.random.split(key)
+            header = {"study": "calibration", "recording": name, "split": split, **dataclasses.asdict(config)}
+            fitted = fit_recording(G[train], B[train], groups[train], config, sub, header)
+            for m, c in fitted.items():
+                s = model_sanity(c, G, B)
+                rows.append({"recording": name, "split": split, "method": m,
+                             "score_deg": group_score(c, G, B, groups, score), **s.row(),
+                             "reasons": "; ".join(s.reasons)})
+            if peer:
+                rows += [{"recording": name, "split": split, **r} for r in peer_rows(G, B, groups, train, score)]
+            if split == "in-sample":
+                models.update({f"{name}_{m.replace('+axis', '_axis')}": c for m, c in fitted.items()})
+            log.info("  %-6s %-18s %s", name, split, " ".join(
+                f"{r['method']}={r['score_deg']:.3f}{'(DEGENERATE)' if r['degenerate'] else ''}"
+                for r in rows if r["recording"] == name and r["split"] == split))
+    df = pd.DataFrame(rows)
+    df.loc[df["degenerate"], "score_deg"] = np.nan  # a degenerate fit has no score (module doc)
+    return df, models
+
+
+def summary(df: pd.DataFrame) -> pd.DataFrame:
+    """Per method: mean score in-sample and held out over the sound fits, and how many fits were degenerate."""
+    order = [m for m in METHODS + PEER_METHODS if m in set(df["method"])]
+    out = []
+    for m in order:
+        g = df[df["method"] == m]
+        ins, held = g[g["split"] == "in-sample"], g[g["split"] != "in-sample"]
+        out.append({"method": m, "in-sample mean (deg)": ins["score_deg"].mean(),
+                    "held-out mean (deg)": held["score_deg"].mean(),
+                    "degenerate fits": f"{int(g['degenerate'].sum())} of {len(g)}",
+                    "max dip spread (deg)": g["dip_spread_deg"].max(), "max cond": g["cond"].max()})
+    return pd.DataFrame(out).set_index("method")
+
+
+def wide(df: pd.DataFrame) -> pd.DataFrame:
+    """One row per recording and split, one column per method: the score (deg), or ``degenerate`` for a
+    fit the sanity check rejects (its reasons in the long table)."""
+    order = [m for m in METHODS + PEER_METHODS if m in set(df["method"])]
+    cell = df.assign(cell=[("degenerate" if d else f"{s:.3f}") for s, d in zip(df["score_deg"], df["degenerate"])])
+    out = cell.pivot(index=["recording", "split"], columns="method", values="cell")[order]
+    return out.reindex(pd.unique(pd.MultiIndex.from_frame(df[["recording", "split"]]))).reset_index()
+
+
+class CalibrationResult(NamedTuple):
+    """Attributes: records (``fits``: the long table of :func:`evaluate`; ``summary``: :func:`summary`),
+    models (``<recording>_<method>`` in-sample calibrations)."""
+
+    records: dict
+    models: dict
+
+
+def run(data: dict, config: CalibrationConfig, key) -> CalibrationResult:
+    """Every recording of ``data`` (name -> Recording with a ``group`` column) through :func:`evaluate`."""
+    df, models = evaluate(data, config, key)
+    return CalibrationResult({"fits": df, "summary": summary(df).reset_index()}, models)
+
+
+def example() -> tuple[dict, CalibrationConfig]:
+    """A tiny real instance: one bundled device, MISMA 3 iterations x 2 repeats, no peer."""
+    from icgo.io import load_mag_cal_device
+
+    return {"ab": load_mag_cal_device("ab")}, CalibrationConfig(peer=False, misma_iter=3, misma_repeats=2, misma_pop=6)
+
+
+register_study(Study("calibration", CalibrationConfig, run, "magnetometer calibration of grouped static shots: "
+                     "ellipsoid, 12-parameter LSQ + axis, MISMA + axis, joint, the peer; in-sample and held out, "
+                     "with physical sanity", example))

@@ -1,0 +1,146 @@
+"""Calibration of grouped shots (icgo.studies.calibration, icgo.cal_sanity) and its front door experiments.calibrate."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import jax
+import numpy as np
+import pandas as pd
+import pytest
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
+
+import icgo  # noqa: F401
+from experiments import calibrate as entry
+from experiments._common import CONF_DIR
+from icgo import calibration as cal
+from icgo import io
+from icgo.cal_sanity import LIMITS, sanity
+from icgo.frames import sensors_from_attitude
+from icgo.models import load_model
+from icgo.studies import config_to_mapping
+from icgo.studies import calibration as C
+
+ROOT = CONF_DIR.parent
+FAST = ["peer=false", "misma_iter=3", "misma_repeats=2", "misma_pop=6"]
+
+
+def _compose(*overrides):
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        return compose("calibrate", list(overrides))
+
+
+def test_conf_yaml_equals_the_dataclass_defaults():
+    composed = {k: v for k, v in OmegaConf.to_container(_compose(), resolve=True).items() if k not in entry.ENTRY_KEYS}
+    assert composed == config_to_mapping(C.CalibrationConfig())
+
+
+def _one_field(n=40, seed=0, F=50_000.0, dip=60.0):
+    """Shots of one field at random attitudes (tool frame), exact: the closed-form sanity reference."""
+    r = np.random.default_rng(seed)
+    A, I, T = r.uniform(0, 360, n), r.uniform(5, 175, n), r.uniform(0, 360, n)
+    G, B = (np.asarray(x) for x in sensors_from_attitude(A, I, T, F, dip)[:2])
+    return G, B
+
+
+def test_sanity_passes_one_field_and_flags_a_collapsed_matrix():
+    G, B = _one_field()
+    ok = sanity(G, B, np.eye(3))
+    assert not ok.degenerate and ok.dip_spread_deg < 1e-9 and ok.b_spread_pct < 1e-9 and ok.cond == pytest.approx(1.0)
+    # a rank-1 matrix maps every shot onto one line: the score can be 0 while the field is gone
+    u = np.array([1.0, 0.2, -0.1])
+    collapsed = B @ np.outer(u, u).T
+    bad = sanity(G, collapsed + 1e-9, np.outer(u, u))
+    assert bad.degenerate and any(r.startswith("cond") for r in bad.reasons)
+    assert any(r.startswith("dip_spread_deg") for r in bad.reasons)
+    # a 1 % gain error on one axis bends |B| and the dip within the limits; a 5 % one moves the dip too far
+    s = sanity(G, B * np.array([1.01, 1.0, 1.0]), np.diag([1.01, 1.0, 1.0]))
+    assert 0 < s.b_spread_pct < LIMITS["b_spread_pct"] and s.cond == pytest.approx(1.01) and not s.degenerate
+    s = sanity(G, B * np.array([1.05, 1.0, 1.0]), np.diag([1.05, 1.0, 1.0]))
+    assert s.degenerate and s.reasons == (f"dip_spread_deg {s.dip_spread_deg:.3g} > 2",)
+
+
+def test_misma_box_is_in_data_units_and_contains_the_least_squares():
+    rec = io.load_mag_cal_device("fb")
+    G, B = rec.G, rec.B
+    xg = cal.ellipsoid_fit_accel(G)
+    xm = cal.ellipsoid_fit(B, 1.0, G)
+    Gc = np.asarray(cal.correct(xg, G))
+    x12 = cal.fit_twelve(Gc, B, 1.0, x0=xm)
+    lb, ub = C.misma_box(xm, x12, float(np.median(np.linalg.norm(B, axis=1))))
+    assert np.all((lb < x12) & (x12 < ub))
+    # the bias half-width is 2 % of the field in nT (hundreds of nT), not 2 % of 1.0
+    assert np.all(ub[9:] - xm[9:] >= 0.02 * np.median(np.linalg.norm(B, axis=1)) - 1e-9)
+    assert np.all(ub[9:] - xm[9:] > 100.0)
+
+
+def test_splits_hold_out_each_rolled_group():
+    groups = io.load_mag_cal_device("ab").frame.group.to_numpy()
+    labels = [s[0] for s in C.splits(groups)]
+    assert labels == ["in-sample", "held-out group 8", "held-out group 9"]
+    with pytest.raises(ValueError, match="no rolled group"):
+        C.splits(np.arange(10))
+
+
+def _run_entry(tmp_path, *args):
+    cmd = [sys.executable, "-m", "experiments.calibrate", f"hydra.run.dir={tmp_path / 'run'}", *args]
+    return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)
+
+
+@pytest.mark.slow
+def test_front_door_on_an_exported_device_and_apply_on_another(tmp_path):
+    rec = io.load_mag_cal_device("bh")
+    csv = tmp_path / "bh.csv"
+    io.write_recording(csv, rec.frame, rec.meta)
+    out = _run_entry(tmp_path, f"data={csv}", *FAST)
+    assert out.returncode == 0, out.stderr
+    run = tmp_path / "run"
+    for name in ("report.md", "calibration.csv", "bh.png", "models/bh_twelve_axis.json", "models/bh_joint.json"):
+        assert (run / name).is_file(), name
+    fits = pd.read_csv(run / "calibration.csv")
+    assert set(fits.method) == set(C.METHODS) and set(fits.split) == {"in-sample", "held-out group 8",
+                                                                      "held-out group 9"}
+    assert fits.loc[fits.degenerate, "score_deg"].isna().all()
+    # the saved calibration applies to a second recording of the same family
+    model = load_model(run / "models" / "bh_twelve_axis.json")
+    other = io.load_mag_cal_device("jd").frame
+    applied = model.apply(other)
+    assert np.isfinite(applied[["bx_corrected", "by_corrected", "bz_corrected"]].to_numpy()).all()
+
+
+@pytest.mark.slow
+def test_front_door_on_a_raw_layout_json(tmp_path):
+    rec = io.load_mag_cal_device("ee")
+    inv = np.argsort(io.MAG_CAL_DEVICE_TO_TOOL)
+    doc = {"mag": (rec.B[:, inv] / 1000.0).tolist(), "grav": (rec.G[:, inv] * io.STANDARD_GRAVITY).tolist()}
+    path = tmp_path / "ee_raw.json"
+    path.write_text(json.dumps(doc))
+    out = _run_entry(tmp_path, f"data={path}", "mag_axes=+x+y+z", *FAST)
+    assert out.returncode == 0, out.stderr
+    assert "m/s^2 / 9.80665 -> g" in (tmp_path / "run" / "report.md").read_text()
+
+
+@pytest.mark.parametrize("args,code,match", [
+    ([], 2, "data= is required"),
+    (["data=bundled", "mag_axes=+x+y+z"], 2, "mag_axes / grav_axes apply"),
+    (["data=x.json", "misma_iter=0"], 2, "misma_iter must be an integer >= 1"),
+    (["data=x.csv", "+no_such=1"], 2, "unknown setting"),
+    (["data=/nonexistent/shots.csv"], 1, "/nonexistent/shots.csv"),
+])
+def test_bad_settings_and_data_are_one_line(tmp_path, args, code, match):
+    out = _run_entry(tmp_path, *args)
+    assert out.returncode == code, out.stderr
+    err = out.stderr.strip()
+    assert match in err and len(err.splitlines()) == 1, err
+    assert not (tmp_path / "run" / "report.md").exists()
+
+
+def test_csv_without_groups_is_one_line(tmp_path):
+    rec = io.load_mag_cal_device("ab")
+    csv = tmp_path / "nogroup.csv"
+    io.write_recording(csv, rec.frame.drop(columns="group").assign(azimuth_deg=0.0, inclination_deg=0.0), {})
+    out = _run_entry(tmp_path, f"data={csv}")
+    assert out.returncode == 1 and "no 'group' column" in out.stderr and len(out.stderr.strip().splitlines()) == 1
