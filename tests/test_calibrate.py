@@ -138,6 +138,16 @@ def test_bad_settings_and_data_are_one_line(tmp_path, args, code, match):
     assert not (tmp_path / "run" / "report.md").exists()
 
 
+def test_rolls_alone_are_refused_with_a_hint(tmp_path):
+    rec = io.load_mag_cal_device("ee")
+    csv = tmp_path / "rolls.csv"
+    io.write_recording(csv, rec.frame.iloc[8:].reset_index(drop=True), {})
+    out = _run_entry(tmp_path, f"data={csv}", *FAST)
+    err = out.stderr.strip()
+    assert out.returncode == 1 and len(err.splitlines()) == 1, err
+    assert "rolls, in-sample: ellipsoid fit" in err and "many orientations" in err
+
+
 def test_csv_without_groups_is_one_line(tmp_path):
     rec = io.load_mag_cal_device("ab")
     csv = tmp_path / "nogroup.csv"

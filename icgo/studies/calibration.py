@@ -235,7 +235,12 @@ def evaluate(recordings: dict, config: CalibrationConfig, key) -> tuple[pd.DataF
         for split, train, score in splits(groups):
             key, sub = jax.random.split(key)
             header = {"study": "calibration", "recording": name, "split": split, **dataclasses.asdict(config)}
-            fitted = fit_recording(G[train], B[train], groups[train], config, sub, header)
+            try:
+                fitted = fit_recording(G[train], B[train], groups[train], config, sub, header)
+            except ValueError as e:  # the fits refuse a geometry they cannot solve: say where, and what helps
+                raise ValueError(f"{name}, {split}: {str(e).splitlines()[0]} (the fits need shots in many "
+                                 "orientations besides the rolls, e.g. the 8 single shots of the mag_cal "
+                                 "procedure)") from None
             for m, c in fitted.items():
                 s = model_sanity(c, G, B)
                 rows.append({"recording": name, "split": split, "method": m,
