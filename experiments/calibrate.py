@@ -153,7 +153,7 @@ def run(cfg: DictConfig, out: Path, config=None) -> None:
         (stage / "report.md").write_text(text)
         df.to_csv(stage / "calibration.csv", index=False, float_format="%.6g")
         for name, rec in recordings.items():
-            figure(rec, {m: models[f"{name}_{m.replace('+axis', '_axis')}"] for m in calibration.METHODS},
+            figure(rec, {m: models[calibration.model_label(name, m)] for m in calibration.METHODS},
                      stage / f"{name}.png")
         for label_, model in models.items():
             model.save(stage / "models" / label_)

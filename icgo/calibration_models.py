@@ -35,7 +35,7 @@ from icgo.frames import azimuth_from_gv, inclination_from_g, toolface_from_g
 from icgo.models import CORRECTED_B, FittedModel, ModelError, data_hash, frame_values, register_model, sensor_domain
 
 #: Methods a :class:`MagCalibration` may come from.
-METHODS = ("ellipsoid", "twelve", "misma", "sma", "joint", "modulus")
+METHODS = ("ellipsoid", "twelve", "misma", "sma", "joint", "modulus", "twelve_relm")
 
 _G_COLS = ("gx", "gy", "gz")
 _B_COLS = ("bx", "by", "bz")
@@ -61,6 +61,8 @@ class MagCalibration(FittedModel):
             raw nT always, since ``b`` is subtracted from the raw reading).
         x_accel: (12,) ``[S, c (g)]`` or None (accelerometer used as read).
         alignment: (3, 3) rotation Q or None.
+        nl_hidden, nl_out: the non-linear residual correction (:mod:`icgo.mag_relm`), applied after
+            the alignment: (4, L) hidden and (L, 3) output weights, or None (a linear calibration).
     """
 
     KIND = "mag_calibration"
@@ -73,6 +75,8 @@ class MagCalibration(FittedModel):
     x_mag: np.ndarray
     x_accel: np.ndarray | None = None
     alignment: np.ndarray | None = None
+    nl_hidden: np.ndarray | None = None
+    nl_out: np.ndarray | None = None
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -86,6 +90,14 @@ class MagCalibration(FittedModel):
         _check_params("x_mag", self.x_mag)
         if self.x_accel is not None:
             _check_params("x_accel", self.x_accel)
+        if (self.nl_hidden is None) != (self.nl_out is None):
+            raise ModelError("mag_calibration: nl_hidden and nl_out come together")
+        if self.nl_hidden is not None:
+            h, o = np.asarray(self.nl_hidden), np.asarray(self.nl_out)
+            if h.ndim != 2 or h.shape[0] != 4 or o.shape != (h.shape[1], 3) or not (np.all(np.isfinite(h))
+                                                                                  and np.all(np.isfinite(o))):
+                raise ModelError(f"mag_calibration: nl_hidden (4, L) and nl_out (L, 3) must be finite, got "
+                                 f"{h.shape} and {o.shape}")
 
     def corrected_field(self, B) -> np.ndarray:
         """Corrected field in fit units (before alignment): eq. (4), (N, 3) -> (N, 3)."""
@@ -104,6 +116,10 @@ class MagCalibration(FittedModel):
             Q = np.asarray(self.alignment)
             Bc = Bc @ Q.T
             Gc = None if Gc is None else Gc @ Q.T
+        if self.nl_hidden is not None:
+            from icgo.mag_relm import apply as relm_apply
+
+            Bc = relm_apply(self.nl_hidden, self.nl_out, Bc)
         return Gc, Bc
 
     def apply(self, frame: pd.DataFrame) -> pd.DataFrame:

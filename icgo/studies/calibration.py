@@ -14,6 +14,8 @@ Methods (unit-sphere fits; :func:`fit_recording`):
   contains the least-squares solution (:func:`misma_box`), then the axis rotation;
 * ``joint``: accelerometer and magnetometer (24 parameters) fitted together on the
   rolled groups' directions, with one common dip over all shots (:func:`icgo.calibration.fit_joint`);
+* ``twelve+axis+relm``: ``twelve+axis`` plus a RELM on its field residual, trained by group
+  consistency with its ridge chosen by leave-one-group-out on the training shots (:mod:`icgo.mag_relm`);
 * the peer package circuitpython-mag-cal side by side (``peer_*``), when installed.
 
 Splits (:func:`splits`): in-sample (fit and score on every shot) and one held-out
@@ -36,6 +38,7 @@ import numpy as np
 import pandas as pd
 
 from icgo import calibration as cal
+from icgo import mag_relm
 from icgo.cal_sanity import sanity
 from icgo.calibration_models import MagCalibration, mag_calibration
 from icgo.io import MAG_CAL_DEVICE_TO_TOOL
@@ -48,7 +51,7 @@ log = logging.getLogger(__name__)
 #: Smallest group treated as a rolled group (the axis alignment and the joint fit need a roll).
 MIN_ROLLED = 4
 #: Our methods, in table order.
-METHODS = ("ellipsoid", "twelve+axis", "misma+axis", "joint")
+METHODS = ("ellipsoid", "twelve+axis", "misma+axis", "joint", "twelve+axis+relm")
 #: The peer's stages (circuitpython-mag-cal), in table order.
 PEER_METHODS = ("peer_ellipsoid", "peer_fit_to_axis", "peer_fit_non_linear")
 
@@ -73,6 +76,11 @@ class CalibrationConfig:
         for name, lo in (("misma_iter", 1), ("misma_repeats", 1), ("misma_pop", 4)):
             v = getattr(self, name)
             need(is_int(v) and v >= lo, name, f"must be an integer >= {lo}, got {v!r}")
+
+
+def model_label(recording: str, method: str) -> str:
+    """File-name label of a saved calibration: ``<recording>_<method>`` with ``+`` -> ``_``."""
+    return f"{recording}_{method.replace('+', '_')}"
 
 
 def rolled_ids(groups) -> list:
@@ -136,10 +144,21 @@ def misma_on_shots(G_cal, B, config: CalibrationConfig, box, key) -> np.ndarray:
     return np.asarray(r.best_x[int(np.argmin(np.asarray(r.best_f)))])
 
 
+class GeometryError(ValueError):
+    """The shots do not span the orientations the linear fits need (one line)."""
+
+
 def fit_recording(G, B, groups, config: CalibrationConfig, key, header: dict) -> dict:
-    """Our four methods fitted on the given shots, as :class:`MagCalibration` s (see the module doc)."""
-    xg = cal.ellipsoid_fit_accel(G)
-    xm = cal.ellipsoid_fit(B, 1.0, G)
+    """Our methods fitted on the given shots, as :class:`MagCalibration` s (see the module doc).
+
+    Raises:
+        GeometryError: the ellipsoid or 12-parameter fit refuses the shots' geometry.
+    """
+    try:
+        xg = cal.ellipsoid_fit_accel(G)
+        xm = cal.ellipsoid_fit(B, 1.0, G)
+    except ValueError as e:
+        raise GeometryError(str(e).splitlines()[0]) from None
     G_c = np.asarray(cal.correct(jnp.asarray(xg), G))
     scale = float(np.median(np.linalg.norm(B, axis=1)))
 
@@ -151,7 +170,10 @@ def fit_recording(G, B, groups, config: CalibrationConfig, key, header: dict) ->
         return model(method, x, cal.align_to_axis(G_c, np.asarray(cal.correct(jnp.asarray(x), B)), groups),
                      extra=extra)
 
-    x12 = cal.fit_twelve(G_c, B, 1.0, x0=xm)
+    try:
+        x12 = cal.fit_twelve(G_c, B, 1.0, x0=xm)
+    except ValueError as e:
+        raise GeometryError(str(e).splitlines()[0]) from None
     lb, ub = misma_box(xm, x12, scale)
     out = {"ellipsoid": model("ellipsoid", xm), "twelve+axis": aligned("twelve", x12)}
     out["misma+axis"] = aligned("misma", misma_on_shots(G_c, B, config, (lb, ub), key),
@@ -160,6 +182,12 @@ def fit_recording(G, B, groups, config: CalibrationConfig, key, header: dict) ->
                                               "to contain the least squares"})
     jg, jm = cal.fit_joint(G, B, groups, xg, xm)
     out["joint"] = model("joint", jm, x_accel=jg)
+    lin = out["twelve+axis"]
+    Gc_lin, Bc_lin = lin.corrected(G, B)
+    nl = mag_relm.fit(Gc_lin, Bc_lin, groups)
+    out["twelve+axis+relm"] = dataclasses.replace(
+        lin, method="twelve_relm", nl_hidden=nl.hidden, nl_out=nl.out,
+        config={**lin.config, "relm_lambda": nl.lam, "relm_hidden": int(nl.hidden.shape[1])})
     return out
 
 
@@ -237,8 +265,8 @@ def evaluate(recordings: dict, config: CalibrationConfig, key) -> tuple[pd.DataF
             header = {"study": "calibration", "recording": name, "split": split, **dataclasses.asdict(config)}
             try:
                 fitted = fit_recording(G[train], B[train], groups[train], config, sub, header)
-            except ValueError as e:  # the fits refuse a geometry they cannot solve: say where, and what helps
-                raise ValueError(f"{name}, {split}: {str(e).splitlines()[0]} (the fits need shots in many "
+            except GeometryError as e:  # the fits refuse a geometry they cannot solve: say where, and what helps
+                raise ValueError(f"{name}, {split}: {e} (the fits need shots in many "
                                  "orientations besides the rolls, e.g. the 8 single shots of the mag_cal "
                                  "procedure)") from None
             for m, c in fitted.items():
@@ -249,7 +277,7 @@ def evaluate(recordings: dict, config: CalibrationConfig, key) -> tuple[pd.DataF
             if peer:
                 rows += [{"recording": name, "split": split, **r} for r in peer_rows(G, B, groups, train, score)]
             if split == "in-sample":
-                models.update({f"{name}_{m.replace('+axis', '_axis')}": c for m, c in fitted.items()})
+                models.update({model_label(name, m): c for m, c in fitted.items()})
             log.info("  %-6s %-18s %s", name, split, " ".join(
                 f"{r['method']}={r['score_deg']:.3f}{'(DEGENERATE)' if r['degenerate'] else ''}"
                 for r in rows if r["recording"] == name and r["split"] == split))
