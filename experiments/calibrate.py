@@ -6,7 +6,8 @@
     python -m experiments.calibrate data=bundled                         # the 9 bundled devices -> results/
 
 Fits every method (ellipsoid, 12-parameter least squares + axis, MISMA + axis, the
-joint fit, the peer package side by side), scores each in-sample and with each
+joint fit, least squares + axis + a RELM on the residual, the peer package side by
+side), scores each in-sample and with each
 rolled group held out, checks each for physical sanity, and writes into the run
 directory ``report.md``, ``calibration.csv`` (every fit: score and sanity), one
 figure per recording and ``models/<recording>_<method>.json`` (the in-sample
@@ -126,7 +127,7 @@ def report(df, summ, recordings: dict, label: str) -> str:
              "without group g, scored on it. `degenerate`: the fit fails the physical sanity check on all shots "
              f"(dip spread > {LIMITS['dip_spread_deg']:g} deg, |B| std > {LIMITS['b_spread_pct']:g} % of its mean, "
              f"or cond(R^-1) > {LIMITS['cond']:g}; docs/calibrate.md): no score, never a win.", "",
-             wide(df).to_markdown(index=False), "", "## Per method (sound fits only)", "",
+             wide(df).to_markdown(index=False), "", "## Per method (means over the sound fits; maxima over all fits)", "",
              summ.to_markdown(floatfmt=".3f"), ""]
     for name, rec in recordings.items():
         lines += [f"- `{name}`: {len(rec.frame)} shots; {rec.meta.get('description', '')}"]

@@ -45,6 +45,13 @@ def _cell(name, protocol) -> str:
     return f"{name} / {PROTOCOL_NAMES[protocol]}"
 
 
+def _bands() -> str:
+    from icgo.qc import QCBands
+
+    b = QCBands()
+    return f"|G| {1000 * b.g_tol_g:g} mg, |B| {b.b_tol_nT:g} nT, dip {b.dip_tol_deg:g} deg"
+
+
 def markdown(rec: dict, config, seconds: dict) -> str:
     """The Markdown report: MAE table (mean +/- std), significance marks, coverage table, noise floors."""
     import pandas as pd
@@ -102,12 +109,12 @@ def markdown(rec: dict, config, seconds: dict) -> str:
         lines.append(f"| {_cell(t['dataset'], t['protocol'])} | {NAMES[t['best']]} | {NAMES[t['method']]} | "
                      f"{t['mean_diff']:+.4f} | {t['p_value']:.3g} | {t['p_holm']:.3g} |")
     qc = rec["qc"]
-    lines += ["", "## Survey QC of the tested stations", "",
-              "Stations outside the QC bands (|G| 2.5 mg, |B| 300 nT, dip 0.25 deg; docs/qc.md) of the stations each "
-              "cell tests (the target instrument's under transfer), before and after the corrections that correct "
-              "the field itself. RELM and the searched methods correct the azimuth only; their field is MSA's. "
+    lines += ["", "## Survey QC", "",
+              f"Stations outside the QC bands ({_bands()}; docs/qc.md), before and after the corrections that "
+              "correct the field itself: raw and MSA on all the cell's stations (the target instrument's under "
+              "transfer). RELM and the searched methods correct the azimuth only; their field is MSA's. "
               "Physics: each station corrected by the repeat-0 member that tested it (random split: repeat 0's "
-              "test rows).", "",
+              "test rows only).", "",
               "| cell | stage | stations | flagged | \\|G\\| | \\|B\\| | dip |", "|---|---|---|---|---|---|---|"]
     for _, q in qc.iterrows():
         lines.append(f"| {_cell(q['dataset'], q['protocol'])} | {q['stage']} | {q['n']} | {q['any']} | {q['g']} | "

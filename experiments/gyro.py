@@ -150,7 +150,9 @@ def fig_toolface(train: pd.DataFrame, path: Path, inclination=25.0) -> None:
 # ------------------------------------------------------------------ outputs
 def rate_qc_sentence(qc: dict) -> str:
     """The earth-rate QC counts of the raw gyro (:func:`icgo.studies.gyro.rate_qc`) as one sentence."""
-    return ("Survey QC of the raw gyro (|total rate - earth rate| <= 0.5 deg/h; docs/qc.md): "
+    from icgo.qc import EARTH_RATE_TOL_DEG_H
+
+    return (f"Survey QC of the raw gyro (|total rate - earth rate| <= {EARTH_RATE_TOL_DEG_H:g} deg/h; docs/qc.md): "
             + ("; ".join(f"{k}: {c['any']} of {c['n']} stations flagged" for k, c in qc.items())
                or "no gyro rates (wx, wy, wz) in the data")
             + ". The |G|, |B| and dip checks cannot fail on this instrument (no magnetometer, gz implied by |g|), "

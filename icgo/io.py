@@ -626,6 +626,9 @@ def _fixture_triples(values, src: str, key: str) -> np.ndarray:
     if not isinstance(values, list):
         _fail(src, f"'shots.{key}' is not a list")
     kept = [v for v in values if v is not None and not (isinstance(v, float) and math.isnan(v))]
+    bad = next((i for i, v in enumerate(kept) if not _is_number(v) or not math.isfinite(v)), None)
+    if bad is not None:
+        _fail(src, f"'shots.{key}' value {bad} is not a finite number: {str(kept[bad])[:40]!r}")
     if len(kept) % 3:
         _fail(src, f"'shots.{key}' has {len(kept)} values, not a multiple of 3")
     return np.asarray(kept, np.float64).reshape(-1, 3)

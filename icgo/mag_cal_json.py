@@ -53,7 +53,7 @@ def parse_axes(axes: str, what: str) -> tuple[list[int], list[int]]:
         DataError: one line naming ``what`` and the expected form.
     """
     s = str(axes).strip().upper()
-    bad = f"{what}={axes!r}: expected 6 characters, a sign and one of X, Y, Z per device axis, e.g. +x+y-z"
+    bad = f"{axes!r}: expected 6 characters, a sign and one of X, Y, Z per device axis, e.g. +x+y-z"
     if len(s) != 6 or any(s[i] not in "+-" or s[i + 1] not in "XYZ" for i in (0, 2, 4)):
         _fail(what, bad)
     idx = ["XYZ".index(s[i + 1]) for i in (0, 2, 4)]

@@ -111,7 +111,11 @@ def qc_sentence(qc: dict, bands: QCBands = QCBands()) -> str:
                             f"dip {c['dip']})" for k, c in qc.items()) + "."
 
 
-def earth_rate_qc(W, tol_deg_h: float = 0.5, rate_deg_h: float | None = None) -> QCResult:
+#: Default band of the gyro's total-rate check, deg/h (:func:`earth_rate_qc`).
+EARTH_RATE_TOL_DEG_H = 0.5
+
+
+def earth_rate_qc(W, tol_deg_h: float = EARTH_RATE_TOL_DEG_H, rate_deg_h: float | None = None) -> QCResult:
     """The gyro's survey check: measured total rotation rate against the earth rate, per station.
 
     A gyro survey's counterpart of the |B| check. The band (default 0.5 deg/h) is our choice, twice

@@ -60,6 +60,7 @@ def test_roll_groups_find_both_rolls_on_every_bundled_device():
 
 @pytest.mark.parametrize("doc,kw,match", [
     ({"shots": {"mag": [1.0] * 72}}, {}, "expected a circuitpython-mag-cal JSON"),
+    ({"shots": {"mag": ["a"] + [1.0] * 71, "grav": [1.0] * 72}}, {}, "'shots.mag' value 0 is not a finite number"),
     ({"mag": [[1, 2, 3]], "grav": [[0, 0, 9.8]]}, {"mag_axes": "+x+x+z"}, "each axis once"),
     ({"mag": [[1, 2, 3]], "grav": [[0, 0, 9.8]]}, {"mag_axes": "xyz"}, "expected 6 characters"),
     ({"mag": [[1, 2, 3]], "grav": [[0, 0, 9.8], [0, 0, 9.8]]}, {}, "one of each per shot"),

@@ -248,14 +248,14 @@ def _evaluated(ctx: SearchContext, model: tuple, theta, steps: tuple, gaps: tupl
     ev = evaluate_models(jnp.asarray(theta), jnp.asarray(masks), jnp.asarray(ctx.train), jnp.asarray(ctx.test),
                          jnp.asarray(ctx.valid_w), jnp.asarray(ctx.group_free), ctx.data, layout, cfg.n_iter)
     ev = Evaluation(*(np.asarray(x) for x in ev))
+    g0 = _gap_of(ctx, ev, 0)
     if before is None:
         before = compare(ctx.stations, predict(jnp.asarray(ev.theta_full[0]), ctx.data, layout), valid)
-        gaps = (_gap_of(ctx, ev, 0),)
+        gaps = (g0,)
     chi2 = ev.chi2_held
     S = chi2[:, valid].mean(1) / 6.0
     bic = ev.cost_full + masks.sum(1) * np.log(max(ctx.n_res, 2))
     scales = layout.scales()
-    g0 = _gap_of(ctx, ev, 0)
     cands = []
     for m, c in enumerate(trial):
         if not c:
@@ -333,7 +333,7 @@ def step(state: SearchState) -> SearchState:
                          if e in d.sources]
     sl = layout.slice(best.name)
     se = standard_errors(J, state.masks[best.index], ev.cost_full[best.index], ctx.n_res)[sl] * layout.scales()[sl]
-    gap_after = _gap_of(ctx, ev, best.index)
+    gap_after = best.gap
     new = Step(
         name=best.name, params=tuple(float(x) for x in best.params), stderr=tuple(float(x) for x in se),
         units=_fx.EFFECTS[best.name].units, gap_before=state.gaps[-1], gap_after=gap_after,

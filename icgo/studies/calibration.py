@@ -178,8 +178,7 @@ def fit_recording(G, B, groups, config: CalibrationConfig, key, header: dict) ->
     out = {"ellipsoid": model("ellipsoid", xm), "twelve+axis": aligned("twelve", x12)}
     out["misma+axis"] = aligned("misma", misma_on_shots(G_c, B, config, (lb, ub), key),
                                 {"misma_box_lb": lb.tolist(), "misma_box_ub": ub.tolist(),
-                                 "misma_box": "misma_box: ellipsoid fit +/- 5 % matrix, 2 % of median |B|, grown "
-                                              "to contain the least squares"})
+                                 "misma_box": "icgo.studies.calibration.misma_box (defaults)"})
     jg, jm = cal.fit_joint(G, B, groups, xg, xm)
     out["joint"] = model("joint", jm, x_accel=jg)
     lin = out["twelve+axis"]
@@ -221,7 +220,7 @@ def peer_rows(G, B, groups, train, score) -> list[dict]:
 
     def stage(name):
         s = sanity(c.grav.apply(gd), c.mag.apply(md), c.mag.transform)
-        out.append({"method": name, "score_deg": c.accuracy(score_pairs), **s.row(), "reasons": "; ".join(s.reasons)})
+        out.append({"method": name, "score_deg": c.accuracy(score_pairs), **s.row()})
 
     c.fit_ellipsoid(md[train], gd[train])
     stage("peer_ellipsoid")
@@ -272,8 +271,7 @@ def evaluate(recordings: dict, config: CalibrationConfig, key) -> tuple[pd.DataF
             for m, c in fitted.items():
                 s = model_sanity(c, G, B)
                 rows.append({"recording": name, "split": split, "method": m,
-                             "score_deg": group_score(c, G, B, groups, score), **s.row(),
-                             "reasons": "; ".join(s.reasons)})
+                             "score_deg": group_score(c, G, B, groups, score), **s.row()})
             if peer:
                 rows += [{"recording": name, "split": split, **r} for r in peer_rows(G, B, groups, train, score)]
             if split == "in-sample":
@@ -287,7 +285,8 @@ def evaluate(recordings: dict, config: CalibrationConfig, key) -> tuple[pd.DataF
 
 
 def summary(df: pd.DataFrame) -> pd.DataFrame:
-    """Per method: mean score in-sample and held out over the sound fits, and how many fits were degenerate."""
+    """Per method: mean score in-sample and held out over the sound fits, how many fits were degenerate, and the
+    largest dip spread and condition number over all its fits (degenerate ones included)."""
     order = [m for m in METHODS + PEER_METHODS if m in set(df["method"])]
     out = []
     for m in order:
@@ -331,5 +330,5 @@ def example() -> tuple[dict, CalibrationConfig]:
 
 
 register_study(Study("calibration", CalibrationConfig, run, "magnetometer calibration of grouped static shots: "
-                     "ellipsoid, 12-parameter LSQ + axis, MISMA + axis, joint, the peer; in-sample and held out, "
-                     "with physical sanity", example))
+                     "ellipsoid, 12-parameter LSQ + axis, MISMA + axis, joint, LSQ + axis + RELM, the peer; "
+                     "in-sample and held out, with physical sanity", example))

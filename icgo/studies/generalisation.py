@@ -19,10 +19,11 @@ and the coverage of the member's 90 % conformal interval (:mod:`icgo.conformal`;
 not for raw, msa and physics, which carry no interval). Per cell: a two-sided
 Wilcoxon signed-rank test of every method against the best (lowest mean MAE) on
 the paired repeats, Holm-adjusted over the cell's comparisons. Per cell, survey-QC
-counts (:mod:`icgo.qc`) of the stations it tests (the target instrument's under
-transfer): raw, after MSA (the first method's MSA ensemble) and after the physics
-baseline (the field with its fitted disturbance removed, by the member of repeat 0
-that tested the station; under the random split only repeat 0's test rows).
+counts (:mod:`icgo.qc`): raw and after MSA (the first method's MSA ensemble) on all
+the cell's stations (the target instrument's under transfer); after the physics
+baseline (the field with its fitted disturbance removed) on the stations repeat 0
+tests, each corrected by the member that tested it (all of them for fold protocols
+and transfer; repeat 0's 30 % under the random split).
 """
 
 from __future__ import annotations

@@ -13,8 +13,9 @@ MISMA and the deterministic baselines).
 
 Real part (:func:`real_study`): the 9 circuitpython-mag-cal devices through
 :mod:`icgo.studies.calibration` (ellipsoid fit, 12-parameter least squares +
-axis, MISMA + axis in a box in the data's units, the joint fit, the peer's
-pipeline side by side; in-sample and held out; physical sanity per fit).
+axis, MISMA + axis in a box in the data's units, the joint fit, least squares +
+axis + RELM, the peer's pipeline side by side; in-sample and held out; physical
+sanity per fit).
 
 Randomness: ``run(data, config, key)`` draws the simulated searches from
 ``offset_key(key, 1)`` and the real-device MISMA runs from ``offset_key(key,
@@ -539,7 +540,7 @@ class MismaResult(NamedTuple):
         records: ``params_<variant>`` and ``modulus_<variant>`` (index = method), ``simulated``
             (scalar summary, one column per variant), ``real_devices``, ``real_summary`` (index = method).
         models: fitted :class:`MagCalibration` s: ``<variant>_{misma,sma,modulus,twelve}``,
-            ``<device>_{ellipsoid,twelve_axis,misma_axis,joint}`` (in-sample fits).
+            ``<device>_{ellipsoid,twelve_axis,misma_axis,joint,twelve_axis_relm}`` (in-sample fits).
         summary: ``{"simulated": [variant summary, ...], "real": {column: {method: deg}}}`` (JSON-able).
         plots: variant -> :class:`VariantPlot`.
     """
