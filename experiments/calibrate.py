@@ -62,9 +62,12 @@ def load(cfg: DictConfig) -> dict:
             raise SettingProblem("mag_axes / grav_axes apply to a raw-layout JSON file, not to data=bundled")
         return {name: io.load_mag_cal_device(name) for name in io.mag_cal_devices()}
     if data.lower().endswith(".json"):
-        from icgo.mag_cal_json import read_mag_cal_json
+        from icgo.mag_cal_json import AxesNotApplicable, read_mag_cal_json
 
-        rec = read_mag_cal_json(data, **{k: (None if v is None else str(v)) for k, v in axes.items()})
+        try:
+            rec = read_mag_cal_json(data, **{k: (None if v is None else str(v)) for k, v in axes.items()})
+        except AxesNotApplicable as e:  # a bad setting, as for a CSV
+            raise SettingProblem(str(e)) from None
     else:
         if any(v is not None for v in axes.values()):
             raise SettingProblem("mag_axes / grav_axes apply to a raw-layout JSON file; a contract CSV is in the tool "

@@ -46,6 +46,10 @@ MIN_ROLL_SHOTS = 4
 MIN_ROLL_SPAN_DEG = 90.0
 
 
+class AxesNotApplicable(DataError):
+    """``mag_axes`` / ``grav_axes`` given for a fixture-layout file (already in the device frame): a bad setting."""
+
+
 def parse_axes(axes: str, what: str) -> tuple[list[int], list[int]]:
     """mag_cal's axis string (``+X+Y+Z``, case-insensitive) -> (sensor index, sign) per device axis.
 
@@ -179,8 +183,8 @@ def read_mag_cal_json(path, mag_axes: str | None = None, grav_axes: str | None =
         _fail(src, str(e))
     if layout == "fixture":
         if mag_axes is not None or grav_axes is not None:
-            _fail(src, "mag_axes / grav_axes apply to the raw layout; this fixture-layout file is in the device "
-                       "frame already: drop them")
+            raise AxesNotApplicable(f"{src}: mag_axes / grav_axes apply to the raw layout; this fixture-layout file "
+                                    "is in the device frame already: drop them")
         G, B, group = fixture_shots(d, src)
         g_unit, axes_note = "g", "device frame (fixture layout)"
     else:

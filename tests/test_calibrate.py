@@ -126,6 +126,7 @@ def test_front_door_on_a_raw_layout_json(tmp_path):
 @pytest.mark.parametrize("args,code,match", [
     ([], 2, "data= is required"),
     (["data=bundled", "mag_axes=+x+y+z"], 2, "mag_axes / grav_axes apply"),
+    ([f"data={io._mag_cal_dir().joinpath('ab.json')}", "mag_axes=+x+y+z"], 2, "device frame already"),
     (["data=x.json", "misma_iter=0"], 2, "misma_iter must be an integer >= 1"),
     (["data=x.csv", "+no_such=1"], 2, "unknown setting"),
     (["data=/nonexistent/shots.csv"], 1, "/nonexistent/shots.csv"),

@@ -71,7 +71,7 @@ def test_config_errors_are_one_line_and_name_the_field():
                     (["simulated.objective.pearson_mode=x"], "simulated.objective.pearson_mode"),
                     (["simulated.misma.d=1.5"], "simulated.misma.d"), (["simulated.sma.z=-1"], "simulated.sma.z"),
                     (["+simulated.variants.bad={depth: 1}"], "simulated.variants.bad unknown rotating_drill"),
-                    (["real.misma_iter=0"], "real.misma_iter"), (["seed=-1"], "seed"),
+                    (["real.misma_iter=0"], "real.misma_iter"), (["seed=-1"], "seed"), (["real.peer=2"], "real.peer"),
                     (["simulated.enabled=false", "real.enabled=false"], "nothing to run")]:
         with pytest.raises(ValueError, match=msg) as e:
             entry.study_config(_compose(*ov))

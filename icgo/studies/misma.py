@@ -209,6 +209,7 @@ class RealConfig:
     def __post_init__(self):
         _integer("real.misma_iter", self.misma_iter)
         _integer("real.misma_repeats", self.misma_repeats)
+        need(isinstance(self.peer, bool), "real.peer", f"must be true or false, got {self.peer!r}")
 
 
 @dataclasses.dataclass(frozen=True)
