@@ -50,6 +50,7 @@ def study_config(cfg: DictConfig):
 def load(cfg: DictConfig) -> dict:
     """name -> Recording with a ``group`` column, from ``data=`` (raises icgo.io.DataError / ValueError)."""
     from icgo import io
+    from icgo.calibration import MIN_ROLLED_SHOTS
 
     data = cfg.data
     if data is None or str(data) == "":
@@ -75,7 +76,7 @@ def load(cfg: DictConfig) -> dict:
         rec = io.read_recording(data, require_meta=False, require_reference=False)
         if "group" not in rec.frame.columns:
             io._fail(data, "no 'group' column: calibration needs shots grouped by true direction "
-                           "(rolled groups of 4 or more shots about one pointing direction)")
+                           f"(rolled groups of {MIN_ROLLED_SHOTS} or more shots about one pointing direction)")
     return {Path(data).stem: rec}
 
 
@@ -121,16 +122,15 @@ def figure(rec, models: dict, path: Path) -> None:
 
 def report(df, summ, recordings: dict, label: str) -> str:
     """The Markdown report: the scores (degenerate marked), the per-method summary, the sanity limits."""
-    from icgo.cal_sanity import LIMITS
+    from icgo.cal_sanity import limits_sentence
     from icgo.studies.calibration import wide
 
     lines = [f"# Magnetometer calibration: {label}", "",
              "Score: the peer's metric (circuitpython-mag-cal `accuracy`, deg: spread of the pointing direction "
              "within each rolled group). In-sample: fitted and scored on every shot; held-out group g: fitted "
-             "without group g, scored on it. `degenerate`: the fit fails the physical sanity check on all shots "
-             f"(dip spread > {LIMITS['dip_spread_deg']:g} deg, |B| std > {LIMITS['b_spread_pct']:g} % of its mean, "
-             f"or cond(R^-1) > {LIMITS['cond']:g}; docs/calibrate.md): no score, never a win.", "",
-             wide(df).to_markdown(index=False), "", "## Per method (means over the sound fits; maxima over all fits)", "",
+             "without group g, scored on it. " + limits_sentence(), "",
+             wide(df).to_markdown(index=False), "",
+             "## Per method (means over the sound fits; maxima over all fits)", "",
              summ.to_markdown(floatfmt=".3f"), ""]
     for name, rec in recordings.items():
         lines += [f"- `{name}`: {len(rec.frame)} shots; {rec.meta.get('description', '')}"]

@@ -83,14 +83,11 @@ def summary_lines(result) -> list[str]:
                       f"At the static survey points ({s['variant']}; SMA and MISMA: the median-fitness repeat): "
                       + qc_sentence(s["qc_static"]), ""]
     if "real" in result.summary:
-        from icgo.cal_sanity import LIMITS
+        from icgo.cal_sanity import limits_sentence
         from icgo.studies.calibration import wide
 
         lines += ["## 9 real devices: peer metric (deg), ours vs circuitpython-mag-cal", "",
-                  "`degenerate`: the fit fails the physical sanity check on all shots (dip spread > "
-                  f"{LIMITS['dip_spread_deg']:g} deg, |B| std > {LIMITS['b_spread_pct']:g} % or cond(R^-1) > "
-                  f"{LIMITS['cond']:g}; `icgo.cal_sanity`, docs/calibrate.md); it has no score and is left out "
-                  "of the means. Values and reasons per fit: `misma_real_devices.csv`. The recordings carry no "
+                  limits_sentence() + " Values and reasons per fit: `misma_real_devices.csv`. The recordings carry no "
                   "reference field (location and date unknown): survey QC against a reference does not apply.", "",
                   wide(result.records["real_devices"].rename(columns={"device": "recording"})).to_markdown(
                       index=False), "",

@@ -55,6 +55,13 @@ class Sanity(NamedTuple):
                 "degenerate": self.degenerate, "reasons": "; ".join(self.reasons)}
 
 
+def limits_sentence(limits: dict = LIMITS) -> str:
+    """What ``degenerate`` means in a results table, one sentence naming the limits."""
+    return (f"`degenerate`: the fit fails the physical sanity check on all shots (dip spread > "
+            f"{limits['dip_spread_deg']:g} deg, |B| std > {limits['b_spread_pct']:g} % of its mean, or cond(R^-1) > "
+            f"{limits['cond']:g}; `icgo.cal_sanity`, docs/calibrate.md): no score, never in a mean or a win.")
+
+
 def sanity(G_cal, B_cal, matrix, limits: dict = LIMITS) -> Sanity:
     """The invariants of calibrated shots and the magnetometer matrix that produced them.
 

@@ -59,6 +59,8 @@ DISTINCT_SEPARATION_DEG = 2.0
 MIN_ORIENTATIONS_12 = 12
 #: ... and the 9-coefficient ellipsoid (quadric) fit.
 MIN_ORIENTATIONS_ELLIPSOID = 9
+#: Smallest group treated as rolled about the pointing axis (axis alignment, joint fit, roll finding).
+MIN_ROLLED_SHOTS = 4
 
 
 # ----------------------------------------------------------------------- model
@@ -670,7 +672,7 @@ def roll_axis(vectors_by_group):
     return acc / np.linalg.norm(acc)
 
 
-def align_to_axis(G_cal, B_cal, groups, min_size=4):
+def align_to_axis(G_cal, B_cal, groups, min_size=MIN_ROLLED_SHOTS):
     """Rotation Q (3, 3) putting the rolled groups' roll axis on tool z (mag_cal ``fit_to_axis``).
 
     One rotation common to both sensors (so the dot products fitted before are
@@ -697,7 +699,7 @@ def _pointing_jnp(G, B):
     return jnp.stack([north[..., 2], east[..., 2], down[..., 2]], -1)
 
 
-def fit_joint(G, B, groups, xg0, xm0, min_size=4, ridge=1e-5, group_weight=1.0):
+def fit_joint(G, B, groups, xg0, xm0, min_size=MIN_ROLLED_SHOTS, ridge=1e-5, group_weight=1.0):
     """Accelerometer (12) and magnetometer (12) parameters fitted together on rolled groups.
 
     The group-aware pipeline (like mag_cal's fit_to_axis, but one least-squares

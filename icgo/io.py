@@ -607,6 +607,8 @@ MAG_CAL_LICENSE = "MIT, Copyright (c) 2022 Phil Underwood for Underwood Undergro
 #: Z (up, so a level upright device has toolface 0), y = device X; right-handed
 #: since Z x X = Y.
 MAG_CAL_DEVICE_TO_TOOL = (2, 0, 1)  # tool[i] = device[MAG_CAL_DEVICE_TO_TOOL[i]]
+#: nT per uT (circuitpython-mag-cal reports the field in uT).
+UT_TO_NT = 1000.0
 #: Shots rolled about the pointing axis in one direction (mag_cal read_fixture: mag[8:16], mag[16:24]).
 MAG_CAL_RUNS = ((8, 16), (16, 24))
 MAG_CAL_SHOTS = 24
@@ -634,6 +636,11 @@ def _fixture_triples(values, src: str, key: str) -> np.ndarray:
     return np.asarray(kept, np.float64).reshape(-1, 3)
 
 
+def device_to_tool(v) -> np.ndarray:
+    """mag_cal device frame (X right, Y pointing, Z up) -> tool frame, (N, 3) (:data:`MAG_CAL_DEVICE_TO_TOOL`)."""
+    return np.asarray(v, np.float64)[:, list(MAG_CAL_DEVICE_TO_TOOL)]
+
+
 def fixture_shots(d, src: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """mag_cal's fixture layout (``{"shots": {"mag", "grav"}}``, device frame, g and uT) -> tool frame.
 
@@ -650,12 +657,11 @@ def fixture_shots(d, src: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     grav = _fixture_triples(shots["grav"], src, "grav")
     if len(mag) != MAG_CAL_SHOTS or len(grav) != MAG_CAL_SHOTS:
         _fail(src, f"expected {MAG_CAL_SHOTS} shots, got {len(mag)} mag and {len(grav)} grav")
-    perm = list(MAG_CAL_DEVICE_TO_TOOL)
     group = np.arange(MAG_CAL_SHOTS)
     for gid, (a, b) in zip((8, 9), MAG_CAL_RUNS):
         group[a:b] = gid
     # fixtures are in g already (median |G| ~ 1.00), gravity pointing down; uT -> nT
-    return grav[:, perm], mag[:, perm] * 1000.0, group
+    return device_to_tool(grav), device_to_tool(mag) * UT_TO_NT, group
 
 
 def load_mag_cal_device(name: str) -> Recording:

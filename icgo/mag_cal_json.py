@@ -29,20 +29,20 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from icgo.io import MAG_CAL_DEVICE_TO_TOOL, STANDARD_GRAVITY, DataError, Recording, _fail, fixture_shots, validate
+from icgo.calibration import MIN_ROLLED_SHOTS
+from icgo.io import STANDARD_GRAVITY, UT_TO_NT, DataError, Recording, _fail, device_to_tool, fixture_shots, validate
 
 #: Median |G| bands that identify the gravity unit of a raw recording.
 G_UNIT_BANDS = {"g": (0.5, 1.5), "m/s^2": (5.0, 15.0)}
 #: Median |B| band (uT) of a magnetometer reading the earth's field in uT.
 B_UT_BAND = (5.0, 500.0)
 #: Roll-group finder: consecutive shots whose tool-z components of G (g) and of B (relative
-#: to the median |B|) stay within these tolerances of the run's mean, at least MIN_ROLL_SHOTS
+#: to the median |B|) stay within these tolerances of the run's mean, at least MIN_ROLLED_SHOTS (icgo.calibration)
 #: long and spanning at least MIN_ROLL_SPAN_DEG of toolface, are one rolled group (one true
 #: direction). A hand-held roll wobbles: on the 9 bundled devices the pointing axis moves by up
 #: to 0.13 g in G_z and 0.06 |B| in B_z within a roll, and two rolls differ by 0.17 |B| in B_z.
 ROLL_G_TOL = 0.15
 ROLL_B_TOL = 0.10
-MIN_ROLL_SHOTS = 4
 MIN_ROLL_SPAN_DEG = 90.0
 
 
@@ -73,18 +73,13 @@ def sensor_to_device(data, axes: str, what: str) -> np.ndarray:
     return data[:, idx] * np.asarray(sign, np.float64)
 
 
-def device_to_tool(v) -> np.ndarray:
-    """Device frame (X right, Y pointing, Z up) -> tool frame, (N, 3)."""
-    return np.asarray(v, np.float64)[:, list(MAG_CAL_DEVICE_TO_TOOL)]
-
-
 def roll_groups(G, B) -> np.ndarray:
     """Group ids of rolled shots (one true direction each), found from the data; other shots alone.
 
     A roll about the pointing axis (tool z) keeps the tool-z components of gravity and of the
     field (a body-fixed bias included) while the toolface turns. Consecutive shots within
     :data:`ROLL_G_TOL` (g) and :data:`ROLL_B_TOL` (x median |B|) of the run's mean form a
-    run; a run of at least :data:`MIN_ROLL_SHOTS` spanning at least :data:`MIN_ROLL_SPAN_DEG` of
+    run; a run of at least :data:`icgo.calibration.MIN_ROLLED_SHOTS` spanning at least :data:`MIN_ROLL_SPAN_DEG` of
     toolface is a group. Group ids: singles 0, 1, ... in shot order, then the rolled groups.
 
     Args:
@@ -104,7 +99,7 @@ def roll_groups(G, B) -> np.ndarray:
             start = k
     rolled = []
     for a, b in runs:
-        if b - a >= MIN_ROLL_SHOTS:
+        if b - a >= MIN_ROLLED_SHOTS:
             t = np.sort(np.mod(tf[a:b], 360.0))
             gaps = np.diff(np.concatenate([t, t[:1] + 360.0]))
             if 360.0 - gaps.max() >= MIN_ROLL_SPAN_DEG:
@@ -144,7 +139,7 @@ def _field_to_nT(mag: np.ndarray, src: str) -> np.ndarray:
     if not B_UT_BAND[0] <= med <= B_UT_BAND[1]:
         _fail(src, f"'mag': median |B| = {med:.4g}; expected the earth's field in uT "
                    f"({B_UT_BAND[0]:g}-{B_UT_BAND[1]:g})")
-    return mag * 1000.0
+    return mag * UT_TO_NT
 
 
 def layout_of(d) -> str:

@@ -1,7 +1,7 @@
 """Magnetometer calibration from grouped static shots: every method, in-sample and held out, with sanity (issue 16).
 
 A recording is static shots (``G`` g, ``B`` nT) with a ``group`` column: shots of
-one group share one true direction. Groups of at least :data:`MIN_ROLLED` shots are
+one group share one true direction. Groups of at least :data:`icgo.calibration.MIN_ROLLED_SHOTS` shots are
 *rolled groups* (turned about the pointing axis); the others are single shots. No
 reference attitude is needed.
 
@@ -40,16 +40,15 @@ import pandas as pd
 from icgo import calibration as cal
 from icgo import mag_relm
 from icgo.cal_sanity import sanity
+from icgo.calibration import MIN_ROLLED_SHOTS
 from icgo.calibration_models import MagCalibration, mag_calibration
-from icgo.io import MAG_CAL_DEVICE_TO_TOOL
+from icgo.io import MAG_CAL_DEVICE_TO_TOOL, UT_TO_NT
 from icgo.optim import base
 from icgo.optim import misma as misma_opt
 from icgo.studies import Study, is_int, need, register_study
 
 log = logging.getLogger(__name__)
 
-#: Smallest group treated as a rolled group (the axis alignment and the joint fit need a roll).
-MIN_ROLLED = 4
 #: Our methods, in table order.
 METHODS = ("ellipsoid", "twelve+axis", "misma+axis", "joint", "twelve+axis+relm")
 #: The peer's stages (circuitpython-mag-cal), in table order.
@@ -84,9 +83,9 @@ def model_label(recording: str, method: str) -> str:
 
 
 def rolled_ids(groups) -> list:
-    """Ids of the rolled groups (at least :data:`MIN_ROLLED` shots), sorted."""
+    """Ids of the rolled groups (at least :data:`icgo.calibration.MIN_ROLLED_SHOTS` shots), sorted."""
     groups = np.asarray(groups)
-    return [g for g in np.unique(groups) if (groups == g).sum() >= MIN_ROLLED]
+    return [g for g in np.unique(groups) if (groups == g).sum() >= MIN_ROLLED_SHOTS]
 
 
 def splits(groups) -> list[tuple]:
@@ -98,7 +97,7 @@ def splits(groups) -> list[tuple]:
     groups = np.asarray(groups)
     ids = rolled_ids(groups)
     if not ids:
-        raise ValueError(f"calibration: no rolled group (a group of {MIN_ROLLED} or more shots about one "
+        raise ValueError(f"calibration: no rolled group (a group of {MIN_ROLLED_SHOTS} or more shots about one "
                          "pointing direction); the group column has none")
     allrows = np.ones(len(groups), bool)
     out = [("in-sample", allrows, allrows)]
@@ -194,7 +193,7 @@ def _device_frame(G, B):
     """Tool frame -> mag_cal device frame (inverse of icgo.io's permutation); mag in uT."""
     perm = list(MAG_CAL_DEVICE_TO_TOOL)
     gd, md = np.empty_like(G), np.empty_like(B)
-    gd[:, perm], md[:, perm] = G, B / 1000.0
+    gd[:, perm], md[:, perm] = G, B / UT_TO_NT
     return gd, md
 
 
