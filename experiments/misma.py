@@ -45,14 +45,13 @@ def _plots(name, plot, out: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(1, 3, figsize=(15, 4))
-    it = np.arange(1, plot.curves["MISMA"].shape[1] + 1)
-    for lab, c in (("MISMA", "C0"), ("SMA", "C3")):
-        cu = plot.curves[lab]
-        ax[0].plot(it, np.median(cu, 0), c, label=f"{lab} (median of {cu.shape[0]})")
-        ax[0].fill_between(it, np.quantile(cu, 0.25, 0), np.quantile(cu, 0.75, 0), color=c, alpha=0.25)
-    ax[0].axhline(plot.threshold, color="k", ls=":", label="threshold")
-    ax[0].set(yscale="log", xlabel="iteration", ylabel="best fitness", title=f"convergence ({name})")
-    ax[0].legend()
+    for i, (lab, cu) in enumerate(plot.curves.items()):
+        it = np.arange(1, cu.shape[1] + 1)
+        ax[0].plot(it, np.median(cu, 0), f"C{i}", label=f"{lab} (median of {cu.shape[0]})")
+        ax[0].fill_between(it, np.quantile(cu, 0.25, 0), np.quantile(cu, 0.75, 0), color=f"C{i}", alpha=0.2)
+    ax[0].axhline(plot.threshold, color="k", ls=":", label="2 x F(true), magnetometer objective")
+    ax[0].set(yscale="log", xlabel="iteration", ylabel="best fitness (own objective)", title=f"convergence ({name})")
+    ax[0].legend(fontsize=6)
     for k, v in plot.moduli.items():
         ax[1].plot(plot.t, v / 1000.0, lw=0.6, label=k)
     ax[1].axhline(plot.ref_nT / 1000.0, color="k", ls=":", label="|M_omega|")
@@ -67,6 +66,26 @@ def _plots(name, plot, out: Path) -> None:
     plt.close(fig)
 
 
+def _sweep_plot(sweep, out: Path) -> None:
+    """Static-point |azimuth error| of MISMA with the gyro term against the gyro grade -> ``misma_gyro_sweep.png``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for i, (variant, g) in enumerate(sweep.groupby("variant", sort=False)):
+        x = g["bias_deg_h_max"].clip(lower=0.01)
+        ax.plot(x, g["MISMA_gyro_az_err_mean_deg"], "o-", color=f"C{i}", label=f"{variant}: MISMA with J_gyro")
+        ax.axhline(g["MISMA_no_gyro_az_err_mean_deg"].iloc[0], color=f"C{i}", ls="--", label=f"{variant}: without")
+    ax.set(xscale="log", yscale="log", xlabel="gyro bias, largest axis (deg/h; 0 plotted at 0.01)",
+           ylabel="mean |azimuth error| at the stops (deg)", title="gyro grade (errors and noise scaled together)")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / "misma_gyro_sweep.png", dpi=110)
+    plt.close(fig)
+
+
 def summary_lines(result) -> list[str]:
     """The Markdown summary ``misma_summary.md``."""
     from icgo.qc import qc_sentence
@@ -76,12 +95,30 @@ def summary_lines(result) -> list[str]:
         lines += ["## rotating_drill: MISMA vs SMA (same run)", "",
                   result.records["simulated"].to_markdown(floatfmt=".4g"), ""]
         for s in result.summary["simulated"]:
-            lines += [f"Baselines, mean |azimuth error| at the stops, variant {s['variant']}: "
+            name = s["variant"]
+            fair = result.records[f"fair_{name}"]
+            lines += [f"### One contribution at a time ({name}; {len(fair)} searches on the same repeat keys)", "",
+                      f"MISMA reported above = `{s['MISMA_row']}` ({s['MISMA_box']}); SMA = the standard SMA "
+                      f"({s['SMA_box']}).", "", fair.to_markdown(index=False, floatfmt=".4g"), "",
+                      "Paired Wilcoxon tests (per-repeat mean |azimuth error|, Holm-adjusted within the variant):", "",
+                      result.records[f"tests_{name}"].to_markdown(index=False, floatfmt=".3g"), "",
+                      "Convergence (iterations to the worse of the two median final fitness values, a level both "
+                      "reach): " + "; ".join(f"{k}: {c['median_iters_a']:.0f} vs {c['median_iters_b']:.0f} "
+                                             f"iterations ({c['faster_pct']:.1f} % faster; reached {c['reached_a']} "
+                                             f"and {c['reached_b']} repeats)" for k, c in s["convergence"].items()), "",
+                      f"Baselines, mean |azimuth error| at the stops, variant {name}: "
                       + ", ".join(f"{k} {v:.3f} deg" for k, v in s["baselines_az_err_deg"].items()),
-                      f"Relative singular values of the fitness Jacobian at the truth ({s['variant']}): "
-                      + ", ".join(f"{v:.2g}" for v in s["jacobian_singular_values"]),
+                      f"Relative singular values of the fitness Jacobian at the truth ({name}): "
+                      + "; ".join(f"{k}: " + (", ".join(f"{v:.2g}" for v in sv) if isinstance(sv, list)
+                                              else ", ".join(f"{p} {v:g}" for p, v in sv.items()))
+                                  for k, sv in s["jacobian_singular_values"].items()),
                       f"At the static survey points ({s['variant']}; SMA and MISMA: the median-fitness repeat): "
                       + qc_sentence(s["qc_static"]), ""]
+    if "gyro_sweep" in result.records:
+        lines += ["## Gyro grade (MISMA with J_gyro vs without; errors and noise of the simulated gyro x factor)", "",
+                  "Command: `python -m experiments.misma` (`simulated.gyro.sweep`). `reference_error_deg_rms`: angle "
+                  "between the truly corrected field and M_omega at the window samples.", "",
+                  result.records["gyro_sweep"].to_markdown(index=False, floatfmt=".4g"), ""]
     if "real" in result.summary:
         from icgo.cal_sanity import limits_sentence
         from icgo.studies.calibration import wide
@@ -103,7 +140,12 @@ def write_results(result, composed: dict, out: Path, models_dir: Path | None) ->
         params.to_csv(out / f"misma_params_{name}.csv", index=False)
         (out / f"misma_params_{name}.md").write_text(params.to_markdown(index=False, floatfmt=".5g") + "\n")
         result.records[f"modulus_{name}"].to_csv(out / f"misma_modulus_{name}.csv")
+        result.records[f"fair_{name}"].to_csv(out / f"misma_fair_{name}.csv", index=False)
+        result.records[f"tests_{name}"].to_csv(out / f"misma_tests_{name}.csv", index=False)
         _plots(name, plot, out)
+    if "gyro_sweep" in result.records:
+        result.records["gyro_sweep"].to_csv(out / "misma_gyro_sweep.csv", index=False)
+        _sweep_plot(result.records["gyro_sweep"], out)
     if "real_devices" in result.records:
         result.records["real_devices"].to_csv(out / "misma_real_devices.csv", index=False)
         result.records["real_summary"].to_csv(out / "misma_real_summary.csv")

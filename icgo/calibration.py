@@ -292,9 +292,11 @@ def make_caldata(G, B, ref_nT, segment=None, rotating=None, weights=None, dot_we
 class MismaObjective:
     """The penalised MISMA fitness over a fixed data set (eqs. 5, 7, 8).
 
-    ``F(x) = J_dot(x) + mu_m J_mag(x) + mu_p sum_{s,axis} max(0, th - |rho_s|)^2 / n``
+    ``F(x) = J_dot(x) + mu_m J_mag(x) + mu_p sum_{s,axis} max(0, th - |rho_s|)^2 / n [+ mu_g J_gyro(x)]``
 
-    where the Pearson sum runs over rotating segments with at least 3 samples.
+    where the Pearson sum runs over rotating segments with at least 3 samples
+    and ``J_gyro`` (:func:`icgo.gyro_reference.gyro_term`) compares the corrected
+    field with the gyro-derived reference M_omega when ``gyro`` is given.
     The equality constraint ``|B| = |M_omega|`` is a quadratic penalty
     (``mu_m = 1`` makes it as strong as the objective, both being squared
     relative quantities); the inequality constraint ``|rho| >= th`` is an
@@ -311,16 +313,20 @@ class MismaObjective:
         mu_magnitude: weight of the magnitude penalty (0 disables it).
         mu_pearson: weight of the Pearson penalty (0 disables it).
         n_segments: number of segment ids (static); default max(segment) + 1.
+        gyro: ``(GyroReference, B)`` (the reference and the (M, 3) raw field at its samples, nT) or None.
+        mu_gyro: weight of ``J_gyro`` (used only with ``gyro``).
     """
 
     def __init__(self, data: CalData, pearson_threshold=0.8, pearson_mode="axis",
-                 mu_magnitude=1.0, mu_pearson=1.0, n_segments=None):
+                 mu_magnitude=1.0, mu_pearson=1.0, n_segments=None, gyro=None, mu_gyro=1.0):
         if pearson_mode not in ("axis", "complex"):
             raise ValueError(f"pearson_mode {pearson_mode!r}: choose 'axis' or 'complex'")
         if not 0.0 <= float(pearson_threshold) <= 1.0:
             raise ValueError(f"pearson_threshold must be in [0, 1], got {pearson_threshold}")
-        if mu_magnitude < 0 or mu_pearson < 0:
-            raise ValueError("penalty weights mu_magnitude and mu_pearson must be >= 0")
+        if mu_magnitude < 0 or mu_pearson < 0 or mu_gyro < 0:
+            raise ValueError("penalty weights mu_magnitude, mu_pearson and mu_gyro must be >= 0")
+        self.gyro = None if gyro is None else (gyro[0], jnp.asarray(gyro[1]))
+        self.mu_gyro = float(mu_gyro)
         self.data = data
         self.pearson_threshold = float(pearson_threshold)
         self.pearson_mode = pearson_mode
@@ -340,10 +346,18 @@ class MismaObjective:
         p = jnp.sum(viol * valid) / jnp.maximum(jnp.sum(valid), 1.0)
         return j_dot, j_mag, p
 
+    def gyro_term(self, x):
+        """``J_gyro`` of one (12,) candidate (0 without a gyro reference)."""
+        if self.gyro is None:
+            return jnp.zeros((), jnp.asarray(x).dtype)
+        from icgo.gyro_reference import gyro_term
+
+        return gyro_term(x, self.gyro[1], self.gyro[0])
+
     def single(self, x, data=None):
         """Penalised fitness of one (12,) candidate; +inf when not finite."""
         j_dot, j_mag, p = self.terms(x, data)
-        f = j_dot + self.mu_magnitude * j_mag + self.mu_pearson * p
+        f = j_dot + self.mu_magnitude * j_mag + self.mu_pearson * p + self.mu_gyro * self.gyro_term(x)
         return jnp.where(jnp.isfinite(f), f, jnp.inf)
 
     def __call__(self, pop, aux=None):

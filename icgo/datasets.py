@@ -33,6 +33,7 @@ from scipy.signal import lfilter
 
 from icgo import frames as F
 from icgo import instruments as ins
+from icgo import strapdown
 
 
 class Dataset(NamedTuple):
@@ -585,8 +586,10 @@ def rotating_drill(
     centripetal term ``omega^2 r`` on x for an accelerometer ``r`` off axis
     (G is gravity minus the tool's acceleration in our sign convention, so the
     centripetal acceleration toward the axis reads as ``+omega^2 r`` on x);
-    gyro ``W`` = earth rate + string rotation about z, with :class:`GyroErrors`
-    and white noise, in deg/h. Site: MISMA's (dip 53.8 deg, 52.65 uT,
+    gyro ``W`` (deg/h) = the body's mean rate over each sample interval relative to
+    inertial space (string rotation, build and turn, earth rate; exact increments:
+    :func:`icgo.strapdown.gyro_rates_from_attitude`), with :class:`GyroErrors`
+    and white noise. Site: MISMA's (dip 53.8 deg, 52.65 uT,
     g = 9.7966 m/s^2, Jiaozuo ~35.2 N).
 
     Returns:
@@ -625,7 +628,8 @@ def rotating_drill(
     vib = r_vib.standard_normal((n, 3)) * np.array([vibration_g, vibration_g, axial_vibration_g])
     centripetal = np.stack([omega**2 * accel_radius_m / 9.80665, 0 * omega, 0 * omega], -1)
     G = _np(s.G) + rot * (vib + centripetal) + accel_noise_g * r_g.standard_normal((n, 3))
-    W_true = _np(s.W) + np.stack([0 * t, 0 * t, rate_deg_s * 3600.0], -1)
+    # the gyro's true sample = the constant body rate (earth rate included) that turns attitude k-1 into k
+    W_true = strapdown.gyro_rates_from_attitude(A, I, T, dt, latitude_deg, rate_deg_s)
     W = _np(ins.gyro_measure(W_true, _np(s.G), gyro)) + gyro_noise_deg_h * r_w.standard_normal((n, 3))
     frame = _contract_frame(
         np.arange(n), G, B, A, I, T,

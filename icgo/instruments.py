@@ -272,6 +272,13 @@ class GyroErrors(NamedTuple):
     scale: tuple = (0.0, 0.0, 0.0)
     misalignment_deg: tuple = (0.0, 0.0, 0.0)
 
+    def scaled(self, factor: float) -> "GyroErrors":
+        """Every error times ``factor`` (a gyro grade relative to this one: 0 = perfect)."""
+        f = float(factor)
+        return GyroErrors(tuple(f * float(v) for v in self.bias_deg_h),
+                          tuple(tuple(f * float(v) for v in row) for row in self.g_sensitivity_deg_h_g),
+                          tuple(f * float(v) for v in self.scale), tuple(f * float(v) for v in self.misalignment_deg))
+
 
 def gyro_measure(W, G, errors: GyroErrors = GyroErrors()):
     """Gyro reading (deg/h) of a true tool-frame rate W (deg/h) under gravity G (g).

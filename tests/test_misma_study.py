@@ -19,7 +19,7 @@ from icgo.calibration_models import MagCalibration
 from icgo.io import load_mag_cal_device
 from icgo.models import load_model
 from icgo.studies import STUDIES, _STUDY_MODULES, SettingError, config_from_mapping, config_to_mapping
-from icgo.studies import calibration, misma
+from icgo.studies import calibration, misma, misma_compare
 
 #: A short drilling run (600 s: two stops), 2 repeats of 5 iterations, one real device, no peer package.
 TINY = {"simulated": {"variants": {"short": {"duration_s": 600.0}}, "repeats": 2, "n_iter": 5, "pop_size": 6},
@@ -90,7 +90,7 @@ def test_prior_box_and_iters_to():
     np.testing.assert_allclose(0.5 * (lb + ub), np.r_[np.eye(3).ravel(), np.zeros(3)])
     np.testing.assert_allclose((ub - lb)[9:], 2 * 0.2 * 50_000.0)
     curve = np.array([[5.0, 3.0, 1.0, 1.0], [5.0, 4.0, 4.0, 4.0]])
-    np.testing.assert_array_equal(misma.iters_to(curve, 2.0), [3.0, np.nan])
+    np.testing.assert_array_equal(misma_compare.iters_to(curve, 2.0), [3.0, np.nan])
 
 
 @pytest.fixture(scope="module")

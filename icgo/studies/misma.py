@@ -41,14 +41,17 @@ import numpy as np
 import pandas as pd
 
 from icgo import calibration as cal
-from icgo import datasets
+from icgo import datasets, stats
+from icgo import instruments as ins
 from icgo.calibration_models import mag_calibration
+from icgo.gyro_reference import fit_to_reference, gyro_reference, reference_at
 from icgo.io import load_mag_cal_device, mag_cal_devices
 from icgo.optim import base
 from icgo.optim import misma as misma_opt
 from icgo.optim.sma import SMAConfig
 from icgo.qc import survey_qc
 from icgo.studies import Study, calibration, is_int, is_real, need, register_study
+from icgo.studies import misma_compare as compare
 
 log = logging.getLogger(__name__)
 
@@ -90,9 +93,14 @@ class ObjectiveConfig:
             _positive(f"simulated.objective.{f}", getattr(self, f), allow_zero=True)
 
 
+#: MISMA's search box: ``around_u`` = U -/+ the half-widths (eqs. 9-11; U is the gyro-reference fit
+#: with the gyro term, else the modulus fit); ``paper`` = the paper's 128 / -68 uT for all 12 parameters.
+BOUNDS = ("around_u", "paper")
+
+
 @dataclasses.dataclass(frozen=True)
 class MismaSearchConfig:
-    """MISMA (eqs. 11-19): its hyperparameters and the half-widths of its box around U."""
+    """MISMA (eqs. 11-19): its hyperparameters, its box (``bounds``) and the half-widths of the box around U."""
 
     z_max: float = 0.1
     d: float = 0.1
@@ -100,12 +108,14 @@ class MismaSearchConfig:
     p_mode: str = "normalized"
     matrix_halfwidth: float = 0.05
     bias_halfwidth: float = 0.02
+    bounds: str = "around_u"
 
     def __post_init__(self):
         for f in ("z_max", "d", "gmr_threshold"):
             _unit(f"simulated.misma.{f}", getattr(self, f))
         need(self.p_mode in ("normalized", "sma"), "simulated.misma.p_mode",
              f"must be normalized or sma, got {self.p_mode!r}")
+        need(self.bounds in BOUNDS, "simulated.misma.bounds", f"must be one of {', '.join(BOUNDS)}, got {self.bounds!r}")
         for f in ("matrix_halfwidth", "bias_halfwidth"):
             _positive(f"simulated.misma.{f}", getattr(self, f))
 
@@ -126,6 +136,47 @@ class SMASearchConfig:
         _unit("simulated.sma.z", self.z)
         for f in ("matrix_halfwidth", "bias_halfwidth"):
             _positive(f"simulated.sma.{f}", getattr(self, f))
+
+
+@dataclasses.dataclass(frozen=True)
+class GyroConfig:
+    """The gyro-derived reference M_omega (:mod:`icgo.gyro_reference`) and its objective term.
+
+    Attributes:
+        term: ``vector`` (the paper's magneto-inertial reading: J_gyro in the objective, the box
+            centred on the gyro-reference fit) or ``off`` (magnetometer and accelerometer only).
+        window_s: rotating seconds propagated on each side of a stop (s).
+        bias: ``stop`` (gyro bias from each stop) or ``none``.
+        mu: weight of J_gyro (dimensionless, like mu_magnitude).
+        sweep: gyro grades for the sweep, as factors on the simulated gyro's errors and noise
+            (1 = the dataset's CRG20-class MEMS gyro, 0 = perfect); empty: no sweep.
+    """
+
+    term: str = "vector"
+    window_s: float = 10.0
+    bias: str = "stop"
+    mu: float = 1.0
+    sweep: tuple = (0.0, 0.001, 0.01, 0.1, 1.0)
+
+    def __post_init__(self):
+        from icgo.gyro_reference import BIAS_MODES
+
+        need(self.term in GYRO_TERMS, "simulated.gyro.term", f"must be one of {', '.join(GYRO_TERMS)}, got {self.term!r}")
+        need(self.bias in BIAS_MODES, "simulated.gyro.bias", f"must be one of {', '.join(BIAS_MODES)}, got {self.bias!r}")
+        _positive("simulated.gyro.window_s", self.window_s, allow_zero=True)
+        _positive("simulated.gyro.mu", self.mu, allow_zero=True)
+        sweep = tuple(self.sweep) if isinstance(self.sweep, (list, tuple)) else None
+        need(sweep is not None and all(is_real(v) and v >= 0 for v in sweep), "simulated.gyro.sweep",
+             f"must be a list of numbers >= 0, got {self.sweep!r}")
+        object.__setattr__(self, "sweep", tuple(float(v) for v in sweep))
+
+    @property
+    def on(self) -> bool:
+        return self.term == "vector"
+
+
+#: ``simulated.gyro.term`` values.
+GYRO_TERMS = ("vector", "off")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -162,6 +213,7 @@ class SimulatedConfig:
         dot_samples: ``static`` (dot invariance on zero-velocity samples) or ``all``.
         pop_size: population (paper 30). n_iter: iterations (paper 2051). repeats: vmapped repeats.
         threshold_factor: "reached" = best fitness <= factor * F(true parameters).
+        objective, misma, sma, gyro, tolerance: the sections below.
     """
 
     enabled: bool = True
@@ -175,6 +227,7 @@ class SimulatedConfig:
     objective: ObjectiveConfig = ObjectiveConfig()
     misma: MismaSearchConfig = MismaSearchConfig()
     sma: SMASearchConfig = SMASearchConfig()
+    gyro: GyroConfig = GyroConfig()
     tolerance: ToleranceConfig = ToleranceConfig()
 
     def __post_init__(self):
@@ -270,9 +323,11 @@ class Problem(NamedTuple):
         G, B: (N, 3) all samples, g and nT. static: (N,) bool zero-velocity samples.
         t: (N,) time, s. sel: (N,) bool samples the fitness uses.
         ref_nT: |M_omega|, the modulus of the gyro-rotated reference field (nT).
-        objective: the penalised fitness (:class:`icgo.calibration.MismaObjective`).
-        x_true: (12,) true parameters. f_true: their fitness.
+        objective: the study's penalised fitness (:class:`icgo.calibration.MismaObjective`; with
+            J_gyro when the gyro term is on). objective_mag: the same without J_gyro.
+        x_true: (12,) true parameters. f_true, f_true_mag: their fitness under the two objectives.
         az_ref: (n_static,) true magnetic azimuth at the static samples, deg.
+        gyro: the :class:`icgo.gyro_reference.GyroReference` (None with the term off).
     """
 
     G: np.ndarray
@@ -282,16 +337,20 @@ class Problem(NamedTuple):
     sel: np.ndarray
     ref_nT: float
     objective: Any
+    objective_mag: Any
     x_true: np.ndarray
     f_true: float
+    f_true_mag: float
     az_ref: np.ndarray
+    gyro: Any
 
 
 def prepare_problem(ds: datasets.Dataset, scfg: SimulatedConfig) -> Problem:
     """Fitness data of one variant: every ``subsample``-th rotating sample plus all static ones.
 
     Segments (for the Pearson constraint, eqs. 6-7) are the intervals between
-    stops; the dot-invariance term (eq. 5) sees the static samples (or all).
+    stops; the dot-invariance term (eq. 5) sees the static samples (or all);
+    the gyro term (:mod:`icgo.gyro_reference`) every sample of its windows.
     """
     fr, meta, truth = ds.frame, ds.meta, ds.truth
     G, B = fr[["gx", "gy", "gz"]].to_numpy(float), fr[["bx", "by", "bz"]].to_numpy(float)
@@ -303,10 +362,25 @@ def prepare_problem(ds: datasets.Dataset, scfg: SimulatedConfig) -> Problem:
     dotw = static[sel].astype(float) if scfg.dot_samples == "static" else None
     data = cal.make_caldata(G[sel], B[sel], ref, seg[sel], ~static[sel], dot_weights=dotw)
     ob = scfg.objective
-    obj = cal.MismaObjective(data, ob.pearson_threshold, ob.pearson_mode, ob.mu_magnitude, ob.mu_pearson)
+    args = (data, ob.pearson_threshold, ob.pearson_mode, ob.mu_magnitude, ob.mu_pearson)
+    obj_mag = cal.MismaObjective(*args)
+    gref, obj = None, obj_mag
+    if scfg.gyro.on:
+        gref = gyro_reference(G, fr[["wx", "wy", "wz"]].to_numpy(float), t, static, float(meta["latitude"]), ref,
+                              float(meta["dip_deg"]), scfg.gyro.window_s, scfg.gyro.bias)
+        obj = cal.MismaObjective(*args, gyro=(gref, B[gref.index]), mu_gyro=scfg.gyro.mu)
     x_true = np.asarray(cal.params_from_error_model(np.asarray(truth["R"]), np.asarray(truth["b_nT"])))
-    f_true = float(obj(x_true[None])[0])
-    return Problem(G, B, static, t, sel, ref, obj, x_true, f_true, fr["azimuth_deg"].to_numpy(float)[static])
+    f_true, f_true_mag = (float(o(x_true[None])[0]) for o in (obj, obj_mag))
+    return Problem(G, B, static, t, sel, ref, obj, obj_mag, x_true, f_true, f_true_mag,
+                   fr["azimuth_deg"].to_numpy(float)[static], gref)
+
+
+def misma_centre(p: Problem):
+    """U (eqs. 9-10): the gyro-reference fit with the gyro term, else the modulus fit; and the modulus fit."""
+    u_mod = cal.modulus_fit(p.B[p.sel], p.ref_nT)
+    if p.gyro is None:
+        return u_mod, u_mod
+    return fit_to_reference(p.B[p.gyro.index], p.gyro, u_mod), u_mod
 
 
 def prior_box(ref_nT, matrix_halfwidth, bias_halfwidth):
@@ -316,31 +390,37 @@ def prior_box(ref_nT, matrix_halfwidth, bias_halfwidth):
     return c - h, c + h
 
 
-def iters_to(curve, threshold):
-    """First iteration (1-based) with best fitness <= threshold, NaN if never; curve (R, T) -> (R,)."""
-    hit = np.asarray(curve) <= threshold
-    return np.where(hit.any(1), hit.argmax(1) + 1.0, np.nan)
+def boxes(p: Problem, U, U_mod, scfg: SimulatedConfig) -> tuple[dict, dict]:
+    """The search boxes of the comparison ({name: (lb, ub)}) and a one-line description of each (units)."""
+    mc, sc = scfg.misma, scfg.sma
+    out = {"prior": prior_box(p.ref_nT, sc.matrix_halfwidth, sc.bias_halfwidth),
+           "U": misma_opt.misma_bounds(U_mod, p.ref_nT, mc.matrix_halfwidth, mc.bias_halfwidth),
+           "paper": compare.paper_box()}
+    text = {"prior": f"prior: R^-1 = I +/- {sc.matrix_halfwidth:g}, b = 0 +/- {sc.bias_halfwidth * p.ref_nT:.0f} nT",
+            "U": f"U (modulus fit) +/- {mc.matrix_halfwidth:g} max|U_R| and {mc.bias_halfwidth * p.ref_nT:.0f} nT",
+            "paper": "paper: 128 / -68 uT (R^-1 entries -68 .. 128, b -68 000 .. 128 000 nT)"}
+    if p.gyro is not None:
+        out["U_omega"] = misma_opt.misma_bounds(U, p.ref_nT, mc.matrix_halfwidth, mc.bias_halfwidth)
+        text["U_omega"] = (f"U_omega (gyro-reference fit) +/- {mc.matrix_halfwidth:g} max|U_R| and "
+                           f"{mc.bias_halfwidth * p.ref_nT:.0f} nT")
+    return out, text
 
 
-def search(p: Problem, U, scfg: SimulatedConfig, key):
-    """MISMA (box around U) and SMA (prior box), ``repeats`` repeats each in one vmapped call.
+def search(p: Problem, U, U_mod, scfg: SimulatedConfig, key) -> tuple[dict, dict]:
+    """Every row of :func:`icgo.studies.misma_compare.rows`, ``repeats`` repeats each, on the same keys.
 
     Returns:
-        ({"MISMA": RunResult, "SMA": RunResult}, {"MISMA": seconds, "SMA": seconds}).
+        ({Row: RowRun}, {box name: description}).
     """
-    mc = scfg.misma
-    boxes = {"MISMA": misma_opt.misma_bounds(U, p.ref_nT, mc.matrix_halfwidth, mc.bias_halfwidth),
-             "SMA": prior_box(p.ref_nT, scfg.sma.matrix_halfwidth, scfg.sma.bias_halfwidth)}
-    algs = {"MISMA": ("misma", mc.optimizer_config()), "SMA": ("sma", SMAConfig(z=scfg.sma.z))}
-    keys = dict(zip(("MISMA", "SMA"), jax.random.split(key)))
-    R, T, P = int(scfg.repeats), int(scfg.n_iter), int(scfg.pop_size)
-    res, secs = {}, {}
-    for lab, (name, cfg) in algs.items():
-        t0 = time.time()
-        res[lab] = base.run_batch(name, p.objective, boxes[lab], jax.random.split(keys[lab], R), P, T, config=cfg)
-        jax.block_until_ready(res[lab].best_f)
-        secs[lab] = time.time() - t0
-    return res, secs
+    box, text = boxes(p, U, U_mod, scfg)
+    keys = jax.random.split(key, int(scfg.repeats))
+    objectives = {"mag": p.objective_mag, "mag+gyro": p.objective}
+    runs = {}
+    for row in compare.rows(scfg.gyro.on):
+        log.info("  %s ...", row.label)
+        runs[row] = compare.run_row(row, objectives[row.objective], box[row.box], keys, int(scfg.pop_size),
+                                    int(scfg.n_iter), scfg.misma.optimizer_config(), scfg.sma.z)
+    return runs, text
 
 
 def static_azimuth_error(p: Problem, x) -> np.ndarray:
@@ -387,11 +467,16 @@ def static_qc(p: Problem, meta: dict, fits: dict) -> dict:
     return out
 
 
-def identifiability(G, B, ref, x):
+def identifiability(G, B, ref, x, gyro=None):
     """Singular values (descending, relative to the largest) of d(residuals)/d(scaled params) at x.
 
-    Residuals: the dot-invariance deviations (eq. 5) and the relative modulus
-    deviations (eq. 8); parameters scaled so R^-1 (1) and b (units of ``ref``) compare.
+    Residuals: the dot-invariance deviations (eq. 5), the relative modulus
+    deviations (eq. 8) and, with ``gyro = (GyroReference, B_window)``, the
+    relative deviations from M_omega at the best headings (J_gyro's residuals);
+    parameters scaled so R^-1 (1) and b (units of ``ref``) compare.
+
+    Returns:
+        (singular values (12,), the right singular vector of the smallest (12,), in scaled parameters).
     """
     scale = np.r_[np.full(9, 1.0), np.full(3, ref)]
     Gj, Bj = jnp.asarray(G), jnp.asarray(B)
@@ -399,10 +484,14 @@ def identifiability(G, B, ref, x):
     def res(u):
         Bc = cal.correct(u * scale, Bj)
         d = cal.normalized_dot(Gj, Bc)
-        return jnp.concatenate([d - jnp.mean(d), jnp.linalg.norm(Bc, axis=1) / ref - 1.0])
+        out = [d - jnp.mean(d), jnp.linalg.norm(Bc, axis=1) / ref - 1.0]
+        if gyro is not None:
+            Bw = cal.correct(u * scale, jnp.asarray(gyro[1]))
+            out.append(((Bw - reference_at(Bw, gyro[0])[1]) / ref).ravel())
+        return jnp.concatenate(out)
 
-    s = np.linalg.svd(np.asarray(jax.jacfwd(res)(jnp.asarray(x / scale))), compute_uv=False)
-    return s / s[0]
+    _, s, vt = np.linalg.svd(np.asarray(jax.jacfwd(res)(jnp.asarray(x / scale))))
+    return s / s[0], vt[-1]
 
 
 def params_table(x_true, x_misma, x_sma, tol) -> pd.DataFrame:
@@ -422,7 +511,8 @@ class VariantPlot(NamedTuple):
     """What the variant's figure shows.
 
     Attributes:
-        curves: {"MISMA": (R, T), "SMA": (R, T)} best-so-far fitness. threshold: reached level.
+        curves: row label -> (R, T) best-so-far fitness (each on its own objective).
+        threshold: threshold_factor x F(true) on the magnetometer objective.
         moduli: {"raw", "SMA", "MISMA"} -> (N,) |B| per sample, nT. ref_nT: |M_omega|. t: (N,) s.
         az_errors: {"before", "SMA", "MISMA"} -> (n_static,) |azimuth error|, deg.
     """
@@ -443,6 +533,9 @@ class VariantResult(NamedTuple):
     modulus: pd.DataFrame
     plot: VariantPlot
     models: dict
+    fair: pd.DataFrame
+    tests: pd.DataFrame
+    sweep: pd.DataFrame
 
 
 def _variant_models(name, p: Problem, res, U, x12, scfg) -> dict:
@@ -461,57 +554,139 @@ def _variant_models(name, p: Problem, res, U, x12, scfg) -> dict:
     return out
 
 
-def simulated_variant(name: str, ds: datasets.Dataset, scfg: SimulatedConfig, key) -> VariantResult:
-    """Run MISMA and SMA on one rotating_drill variant and score them (see the module doc)."""
-    p = prepare_problem(ds, scfg)
-    U = cal.modulus_fit(p.B[p.sel], p.ref_nT)
-    res, secs = search(p, U, scfg, key)
-    R = int(scfg.repeats)
-    az = {lab: np.array([np.mean(static_azimuth_error(p, x)) for x in np.asarray(r.best_x)])
-          for lab, r in res.items()}
-    raw = float(np.mean(static_azimuth_error(p, None)))
-    base_err, x12 = baselines(p, U, name)
+def _repeat_scores(p: Problem, run, tol):
+    """Per repeat: mean static |azimuth error| (deg) and the number of parameters within tolerance."""
+    err = np.array([np.mean(static_azimuth_error(p, x)) for x in run.best_x])
+    within = np.sum(np.abs(run.best_x - p.x_true) <= tol, axis=1)
+    return err, within
 
-    thr = scfg.threshold_factor * p.f_true
-    it = {lab: iters_to(r.curve, thr) for lab, r in res.items()}
+
+def grade_dataset(seed: int, overrides: dict, factor: float) -> datasets.Dataset:
+    """The variant's run with its gyro errors and gyro noise times ``factor`` (magnetometer data unchanged)."""
+    sig = inspect.signature(datasets.rotating_drill).parameters
+    gyro = overrides.get("gyro", sig["gyro"].default)
+    gyro = gyro if isinstance(gyro, ins.GyroErrors) else ins.GyroErrors(**gyro)
+    noise = float(overrides.get("gyro_noise_deg_h", sig["gyro_noise_deg_h"].default))
+    return datasets.rotating_drill(seed, **{**overrides, "gyro": gyro.scaled(factor), "gyro_noise_deg_h": noise * factor})
+
+
+def gyro_sweep(name: str, ds: datasets.Dataset, scfg: SimulatedConfig, key, no_gyro_errors) -> pd.DataFrame:
+    """MISMA with the gyro term at each gyro grade of ``scfg.gyro.sweep`` against MISMA without it (item 4).
+
+    Same repeat keys as :func:`search`, so each grade is paired with the
+    no-gyro row repeat by repeat (Wilcoxon, Holm over the grades).
+
+    Args:
+        no_gyro_errors: (R,) per-repeat static |azimuth error| of MISMA without the gyro term (deg).
+    Returns:
+        One row per grade (factor, the gyro's errors, the reference's error at the true parameters, scores, test).
+    """
+    gcfg = dataclasses.replace(scfg, gyro=dataclasses.replace(scfg.gyro, term="vector"))
+    row = compare.headline_misma(True, scfg.misma.bounds)
+    keys = jax.random.split(key, int(scfg.repeats))
+    tol = scfg.tolerance.vector()
+    recs = []
+    for f in scfg.gyro.sweep:
+        gds = grade_dataset(int(ds.meta["seed"]), scfg.variants[name], f)
+        p = prepare_problem(gds, gcfg)
+        U, U_mod = misma_centre(p)
+        rr = compare.run_row(row, p.objective, boxes(p, U, U_mod, gcfg)[0][row.box], keys, int(scfg.pop_size),
+                             int(scfg.n_iter), scfg.misma.optimizer_config(), scfg.sma.z)
+        err, within = _repeat_scores(p, rr, tol)
+        Bc = cal.correct(jnp.asarray(p.x_true), p.B[p.gyro.index])
+        m = np.asarray(reference_at(Bc, p.gyro)[1])
+        cosang = np.sum(np.asarray(Bc) * m, 1) / np.linalg.norm(Bc, axis=1) / np.linalg.norm(m, axis=1)
+        g = gds.truth["gyro"]
+        recs.append({"variant": name, "grade_factor": f, "bias_deg_h_max": float(np.max(np.abs(g["bias_deg_h"]))),
+                     "scale_ppm_max": float(np.max(np.abs(g["scale"]))) * 1e6,
+                     "noise_deg_h": float(gds.truth["gyro_noise_deg_h"]),
+                     "reference_error_deg_rms": float(np.degrees(np.sqrt(np.mean(np.arccos(np.clip(cosang, -1, 1)) ** 2)))),
+                     "U_omega_az_err_deg": float(np.mean(static_azimuth_error(p, U))),
+                     "MISMA_gyro_az_err_mean_deg": float(err.mean()), "MISMA_gyro_az_err_max_deg": float(err.max()),
+                     "MISMA_no_gyro_az_err_mean_deg": float(np.mean(no_gyro_errors)),
+                     "params_within_median": float(np.median(within)), "repeats_all_12_within": int((within == 12).sum()),
+                     "p": stats.wilcoxon_paired(err, no_gyro_errors).p_value})
+    df = pd.DataFrame(recs)
+    if len(df):
+        df["p_holm"] = stats.holm(df["p"].to_numpy())
+        df["gyro_helps"] = (df["MISMA_gyro_az_err_mean_deg"] < df["MISMA_no_gyro_az_err_mean_deg"]) & (df["p_holm"] < 0.05)
+    return df
+
+
+def simulated_variant(name: str, ds: datasets.Dataset, scfg: SimulatedConfig, key) -> VariantResult:
+    """Run every comparison row on one rotating_drill variant and score it (see the module doc)."""
+    p = prepare_problem(ds, scfg)
+    U, U_mod = misma_centre(p)
+    runs, box_text = search(p, U, U_mod, scfg, key)
+    tol = scfg.tolerance.vector()
+    scores = {row: _repeat_scores(p, rr, tol) for row, rr in runs.items()}
+    errors = {row: sc[0] for row, sc in scores.items()}
+    fair = compare.fair_table(runs, errors, {row: sc[1] for row, sc in scores.items()}, box_text)
+    tests = compare.paired_tests(compare.contrasts(scfg.gyro.on), errors)
+    head = {"MISMA": compare.headline_misma(scfg.gyro.on, scfg.misma.bounds), "SMA": compare.STANDARD_SMA}
+    res = {lab: runs[row] for lab, row in head.items()}
+    az = {lab: errors[row] for lab, row in head.items()}
+    R = int(scfg.repeats)
+    raw = float(np.mean(static_azimuth_error(p, None)))
+    base_err, x12 = baselines(p, U_mod, name)
+    if p.gyro is not None:
+        base_err["U_omega (gyro-reference fit, MISMA's centre)"] = float(np.mean(static_azimuth_error(p, U)))
+
+    # the paper's "converges X % faster": MISMA vs SMA on one objective (compare.convergence)
+    mag_misma, mag_sma = compare.Row("MISMA", "U", "unit", "mag"), compare.STANDARD_SMA
+    conv = {"MISMA vs standard SMA, magnetometer objective": compare.convergence(runs[mag_misma], runs[mag_sma]),
+            "MISMA vs SMA, same U box and coordinates, magnetometer objective (operators only)":
+                compare.convergence(runs[mag_misma], runs[compare.Row("SMA", "U", "unit", "mag")])}
+    if scfg.gyro.on:
+        conv["MISMA vs SMA, same U_omega box, objective with J_gyro"] = compare.convergence(
+            runs[compare.Row("MISMA", "U_omega", "unit", "mag+gyro")], runs[compare.Row("SMA", "U_omega", "unit", "mag+gyro")])
+    f_true = {"MISMA": p.f_true if head["MISMA"].objective == "mag+gyro" else p.f_true_mag, "SMA": p.f_true_mag}
+    it = {lab: compare.iters_to(r.curve, scfg.threshold_factor * f_true[lab]) for lab, r in res.items()}
     med = {lab: float(np.nanmedian(v)) if np.isfinite(v).any() else float("nan") for lab, v in it.items()}
-    speedup = (100.0 * (1.0 - med["MISMA"] / med["SMA"]) if np.isfinite(med["MISMA"]) and np.isfinite(med["SMA"])
-               else float("nan"))
 
     # recovered parameters: the median-fitness repeat of each algorithm
-    x_med = {lab: np.asarray(r.best_x[int(np.argsort(np.asarray(r.best_f))[R // 2])]) for lab, r in res.items()}
-    tol = scfg.tolerance.vector()
+    x_med = {lab: r.best_x[int(np.argsort(r.best_f)[R // 2])] for lab, r in res.items()}
     params = params_table(p.x_true, x_med["MISMA"], x_med["SMA"], tol)
-    sv = identifiability(p.G[p.sel], p.B[p.sel], p.ref_nT, p.x_true)
+    sv, _ = identifiability(p.G[p.sel], p.B[p.sel], p.ref_nT, p.x_true)
+    ident = {"magnetometer objective": sv.tolist()}
+    if p.gyro is not None:
+        sv_g, v_g = identifiability(p.G[p.sel], p.B[p.sel], p.ref_nT, p.x_true, (p.gyro, p.B[p.gyro.index]))
+        ident["with J_gyro"] = sv_g.tolist()
+        ident["with J_gyro: weakest direction (scaled parameters)"] = dict(zip(PARAM_NAMES, np.round(v_g, 3).tolist()))
 
     def modulus(x):
         return np.linalg.norm(np.asarray(cal.correct(jnp.asarray(x), p.B)), axis=1)
 
     moduli = {"raw": np.linalg.norm(p.B, axis=1), "SMA": modulus(x_med["SMA"]), "MISMA": modulus(x_med["MISMA"])}
-    within = {lab: int(np.all(np.abs(np.asarray(r.best_x) - p.x_true) <= tol, 1).sum()) for lab, r in res.items()}
     summary = {
         "variant": name, "overrides": dict(scfg.variants[name]), "n_samples_fitness": int(p.sel.sum()),
-        "F_true": p.f_true, "threshold": thr,
+        "n_samples_gyro": int(len(p.gyro.index)) if p.gyro is not None else 0,
+        "MISMA_row": head["MISMA"].label, "MISMA_box": box_text[head["MISMA"].box],
+        "SMA_box": box_text[head["SMA"].box],
+        "F_true": f_true["MISMA"], "F_true_magnetometer_objective": p.f_true_mag,
         "MISMA_best_f_median": float(np.median(res["MISMA"].best_f)),
         "SMA_best_f_median": float(np.median(res["SMA"].best_f)),
         "MISMA_iters_to_threshold_median": med["MISMA"], "SMA_iters_to_threshold_median": med["SMA"],
         "MISMA_reached": int(np.isfinite(it["MISMA"]).sum()), "SMA_reached": int(np.isfinite(it["SMA"]).sum()),
-        "speedup_pct": speedup,
         "az_err_raw_deg": raw, "az_err_SMA_deg_mean": float(az["SMA"].mean()),
         "az_err_MISMA_deg_mean": float(az["MISMA"].mean()), "az_err_MISMA_deg_max": float(az["MISMA"].max()),
         "az_reduction_MISMA_pct": 100 * (1 - az["MISMA"].mean() / raw),
         "az_reduction_SMA_pct": 100 * (1 - az["SMA"].mean() / raw), "baselines_az_err_deg": base_err,
         "params_within_tolerance_MISMA": int(params["MISMA_within"].sum()),
-        "repeats_all_params_within_tolerance_MISMA": within["MISMA"],
-        "repeats_all_params_within_tolerance_SMA": within["SMA"],
-        "jacobian_singular_values": sv.tolist(), "runtime_s": secs,
+        "repeats_all_params_within_tolerance_MISMA": int((scores[head["MISMA"]][1] == 12).sum()),
+        "repeats_all_params_within_tolerance_SMA": int((scores[head["SMA"]][1] == 12).sum()),
+        "jacobian_singular_values": ident, "convergence": conv,
+        "runtime_s": {row.label: rr.seconds for row, rr in runs.items()},
         "qc_static": static_qc(p, ds.meta, {"U": U, "twelve": x12, "SMA": x_med["SMA"], "MISMA": x_med["MISMA"]}),
     }
-    plot = VariantPlot({lab: np.asarray(r.curve) for lab, r in res.items()}, thr, moduli, p.ref_nT, p.t,
+    thr = scfg.threshold_factor * p.f_true_mag
+    plot = VariantPlot({f"{row.algorithm} ({row.box}; {row.objective})": rr.curve for row, rr in runs.items()}, thr,
+                       moduli, p.ref_nT, p.t,
                        {"before": static_azimuth_error(p, None), "SMA": static_azimuth_error(p, x_med["SMA"]),
                         "MISMA": static_azimuth_error(p, x_med["MISMA"])})
+    sweep = gyro_sweep(name, ds, scfg, key, errors[mag_misma]) if scfg.gyro.sweep else pd.DataFrame()
     return VariantResult(summary, params, modulus_table(moduli, p.ref_nT), plot,
-                         _variant_models(name, p, res, U, x12, scfg))
+                         _variant_models(name, p, res, U_mod, x12, scfg), fair, tests, sweep)
 
 
 def simulated_table(summaries: list) -> pd.DataFrame:
@@ -538,7 +713,8 @@ class MismaResult(NamedTuple):
     """Result of :func:`run`.
 
     Attributes:
-        records: ``params_<variant>`` and ``modulus_<variant>`` (index = method), ``simulated``
+        records: ``params_<variant>`` and ``modulus_<variant>`` (index = method), ``fair_<variant>`` (the
+            comparison rows), ``tests_<variant>`` (paired tests of the contrasts), ``gyro_sweep``, ``simulated``
             (scalar summary, one column per variant), ``real_devices``, ``real_summary`` (index = method).
         models: fitted :class:`MagCalibration` s: ``<variant>_{misma,sma,modulus,twelve}``,
             ``<device>_{ellipsoid,twelve_axis,misma_axis,joint,twelve_axis_relm}`` (in-sample fits).
@@ -563,16 +739,20 @@ def run(data: MismaData | None, config: MismaConfig, key) -> MismaResult:
     data = load_data(config) if data is None else data
     records, models, summary, plots = {}, {}, {}, {}
     if config.simulated.enabled:
-        sims = []
+        sims, sweeps = [], []
         for name in config.simulated.variants:
             log.info("[simulated] rotating_drill variant %r ...", name)
             v = simulated_variant(name, data.simulated[name], config.simulated, offset_key(key, 1))
             sims.append(v.summary)
             records[f"params_{name}"], records[f"modulus_{name}"] = v.params, v.modulus
+            records[f"fair_{name}"], records[f"tests_{name}"] = v.fair, v.tests
+            sweeps.append(v.sweep)
             plots[name] = v.plot
             models.update(v.models)
         summary["simulated"] = sims
         records["simulated"] = simulated_table(sims)
+        if config.simulated.gyro.sweep:
+            records["gyro_sweep"] = pd.concat(sweeps, ignore_index=True)
     if config.real.enabled:
         log.info("[real] circuitpython-mag-cal devices ...")
         df, real_models = real_study(data.devices, config.real, offset_key(key, 7))
@@ -585,7 +765,7 @@ def run(data: MismaData | None, config: MismaConfig, key) -> MismaResult:
 def example() -> tuple[MismaData, MismaConfig]:
     """A tiny real instance (seconds): a 600 s rotating_drill run, 2 repeats of 5 iterations, no real devices."""
     cfg = MismaConfig(simulated=SimulatedConfig(variants={"short": {"duration_s": 600.0}}, repeats=2, n_iter=5,
-                                                pop_size=6),
+                                                pop_size=6, gyro=GyroConfig(sweep=(0.0,))),
                       real=RealConfig(enabled=False))
     return load_data(cfg), cfg
 

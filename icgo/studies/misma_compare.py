@@ -1,0 +1,182 @@
+"""MISMA vs SMA, one contribution at a time (issue 17): rows, boxes, paired tests, convergence, gyro grades.
+
+MISMA differs from the standard SMA in four things at once: its box (around
+U instead of a prior box around ``R^-1 = I, b = 0``), its coordinates
+(box-normalised), its update operators (eqs. 12-19) and, in the paper's
+reading, its objective (the gyro term J_gyro). Each row below changes one of
+them; every row runs the same ``repeats`` keys (common random numbers), so
+rows are compared repeat by repeat with the paired Wilcoxon test
+(:func:`icgo.stats.wilcoxon_paired`, Holm-adjusted within a variant).
+
+Boxes (all (12,) in parameter units: ``R^-1`` dimensionless, ``b`` in nT):
+``prior`` (SMA's prior knowledge), ``U`` (MISMA's box around the modulus fit),
+``U_omega`` (around the gyro-reference fit), ``paper`` (128 / -68 uT:
+:data:`PAPER_BOUNDS_UT`).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+
+from icgo import stats
+from icgo.optim import base
+from icgo.optim import misma as misma_opt
+from icgo.optim.sma import SMAConfig
+
+#: The paper's search bounds (section 3, table 3: "upper / lower bound 128 / -68 uT"), for all 12
+#: parameters: the biases in uT (we search nT: x 1000) and, literally, the R^-1 entries as numbers.
+PAPER_BOUNDS_UT = (-68.0, 128.0)
+OBJECTIVES = {"mag": "magnetometer + accelerometer (eqs. 5-8)", "mag+gyro": "eqs. 5-8 + J_gyro (M_omega)"}
+
+
+class Row(NamedTuple):
+    """One search: algorithm (``MISMA``/``SMA``), box name, coordinates (``raw``/``unit``), objective key."""
+
+    algorithm: str
+    box: str
+    coords: str
+    objective: str
+
+    @property
+    def label(self) -> str:
+        return f"{self.algorithm} | box {self.box} | {self.coords} | {self.objective}"
+
+
+#: The standard SMA (Li et al. 2020) as the paper compares against it.
+STANDARD_SMA = Row("SMA", "prior", "raw", "mag")
+
+
+def rows(gyro_on: bool) -> list[Row]:
+    """The rows of the comparison, each differing from a neighbour in one thing."""
+    out = [STANDARD_SMA, Row("SMA", "U", "unit", "mag"), Row("MISMA", "U", "unit", "mag")]
+    if gyro_on:
+        out += [Row("SMA", "U_omega", "unit", "mag+gyro"), Row("MISMA", "U_omega", "unit", "mag+gyro")]
+    return out + [Row("MISMA", "paper", "unit", "mag+gyro" if gyro_on else "mag")]
+
+
+def headline_misma(gyro_on: bool, bounds: str) -> Row:
+    """The row the study reports as "MISMA": the configured objective and box."""
+    box = "paper" if bounds == "paper" else ("U_omega" if gyro_on else "U")
+    return Row("MISMA", box, "unit", "mag+gyro" if gyro_on else "mag")
+
+
+#: (name, row a, row b): what the contrast isolates. Rows missing in a run are skipped.
+def contrasts(gyro_on: bool) -> list[tuple[str, Row, Row]]:
+    r = rows(gyro_on)
+    out = [("box + coordinates (SMA)", r[0], r[1]), ("update operators, magnetometer objective", r[1], r[2])]
+    if gyro_on:
+        out += [("gyro term + U_omega box (SMA)", r[1], r[3]), ("update operators, with the gyro term", r[3], r[4]),
+                ("gyro term + U_omega box (MISMA)", r[2], r[4]), ("paper box vs U_omega box (MISMA)", r[4], r[5])]
+    else:
+        out += [("paper box vs U box (MISMA)", r[2], r[3])]
+    return out
+
+
+def paper_box():
+    """(lb, ub): -68 .. 128 for the nine R^-1 entries, -68 000 .. 128 000 nT for the biases."""
+    lo, hi = PAPER_BOUNDS_UT
+    return np.r_[np.full(9, lo), np.full(3, lo * 1e3)], np.r_[np.full(9, hi), np.full(3, hi * 1e3)]
+
+
+class UnitBoxFitness:
+    """A fitness seen in box-normalised coordinates ``u = (x - lb) / (ub - lb)`` in [0, 1]^12.
+
+    Lets SMA search MISMA's coordinates, so that only the update operators differ.
+    Hashed by identity (one compiled program per instance), like the objectives.
+    """
+
+    def __init__(self, fitness, lb, ub):
+        self.fitness, self.lb, self.span = fitness, jnp.asarray(lb), jnp.asarray(ub) - jnp.asarray(lb)
+
+    def to_x(self, u):
+        return self.lb + jnp.asarray(u) * self.span
+
+    def __call__(self, pop, aux=None):
+        return self.fitness(self.to_x(pop), aux)
+
+
+class RowRun(NamedTuple):
+    """A row's repeats: best_x (R, 12) in parameter units, best_f (R,), curve (R, T), seconds (wall)."""
+
+    best_x: np.ndarray
+    best_f: np.ndarray
+    curve: np.ndarray
+    seconds: float
+
+
+def run_row(row: Row, objective, box, keys, pop_size: int, n_iter: int, misma_cfg, sma_z: float) -> RowRun:
+    """Run one row's repeats in one vmapped call (``keys``: (R, 2), shared by every row)."""
+    lb, ub = (np.asarray(v, np.float64) for v in box)
+    fit, bounds = objective, (lb, ub)
+    if row.coords == "unit" and row.algorithm == "SMA":  # MISMA normalises internally (icgo.optim.misma)
+        fit, bounds = UnitBoxFitness(objective, lb, ub), (np.zeros(12), np.ones(12))
+    name, cfg = ("misma", misma_cfg) if row.algorithm == "MISMA" else ("sma", SMAConfig(z=sma_z))
+    t0 = time.time()
+    r = base.run_batch(name, fit, bounds, keys, pop_size, n_iter, config=cfg)
+    jax.block_until_ready(r.best_f)
+    bx = np.asarray(fit.to_x(r.best_x)) if isinstance(fit, UnitBoxFitness) else np.asarray(r.best_x)
+    return RowRun(bx, np.asarray(r.best_f), np.asarray(r.curve), time.time() - t0)
+
+
+def iters_to(curve, threshold):
+    """First iteration (1-based) with best fitness <= threshold, NaN if never; curve (R, T) -> (R,)."""
+    hit = np.asarray(curve) <= threshold
+    return np.where(hit.any(1), hit.argmax(1) + 1.0, np.nan)
+
+
+def convergence(fast: RowRun, slow: RowRun) -> dict:
+    """The paper's "converges X % faster", defined so that it can be computed.
+
+    Level = the worse (larger) of the two rows' median final best fitness: a
+    fitness each reaches in at least half of its repeats. Iterations to reach
+    it per repeat; ``faster_pct = 100 (1 - median_fast / median_slow)``. Both
+    rows must minimise the same objective.
+    """
+    level = float(max(np.median(fast.best_f), np.median(slow.best_f)))
+    it_f, it_s = iters_to(fast.curve, level), iters_to(slow.curve, level)
+    mf, ms = float(np.nanmedian(it_f)), float(np.nanmedian(it_s))
+    return {"level": level, "median_iters_a": mf, "median_iters_b": ms,
+            "reached_a": int(np.isfinite(it_f).sum()), "reached_b": int(np.isfinite(it_s).sum()),
+            "faster_pct": 100.0 * (1.0 - mf / ms)}
+
+
+def fair_table(runs: dict, errors: dict, within: dict, boxes_used: dict) -> pd.DataFrame:
+    """One row per search: its settings, static-point |azimuth error| (deg) over repeats, parameters recovered.
+
+    (Wall times are in the study summary's ``runtime_s``, not here: records are deterministic.)
+
+    Args:
+        runs: Row -> RowRun. errors: Row -> (R,) mean static |azimuth error| per repeat, deg.
+        within: Row -> (R,) number of the 12 parameters within tolerance per repeat.
+        boxes_used: box name -> a short description with units.
+    """
+    out = []
+    for row, rr in runs.items():
+        e = errors[row]
+        out.append({"algorithm": row.algorithm, "box": boxes_used[row.box], "coordinates": row.coords,
+                    "objective": OBJECTIVES[row.objective], "az_err_mean_deg": float(e.mean()),
+                    "az_err_std_deg": float(e.std(ddof=1)) if len(e) > 1 else 0.0, "az_err_max_deg": float(e.max()),
+                    "params_within_median": float(np.median(within[row])),
+                    "repeats_all_12_within": int((within[row] == 12).sum()),
+                    "best_f_median": float(np.median(rr.best_f))})
+    return pd.DataFrame(out)
+
+
+def paired_tests(pairs: list, errors: dict) -> pd.DataFrame:
+    """Paired Wilcoxon (two-sided) on per-repeat errors for each contrast, Holm-adjusted together."""
+    recs = []
+    for name, a, b in pairs:
+        if a in errors and b in errors:
+            t = stats.wilcoxon_paired(errors[a], errors[b])
+            recs.append({"contrast": name, "a": a.label, "b": b.label, "mean_a_deg": float(errors[a].mean()),
+                         "mean_b_deg": float(errors[b].mean()), "p": t.p_value})
+    df = pd.DataFrame(recs)
+    if len(df):
+        df["p_holm"] = stats.holm(df["p"].to_numpy())
+    return df
