@@ -12,6 +12,7 @@ point prints ``error: <line>`` and exits with status 2, before any computation.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import sys
@@ -455,6 +456,34 @@ def write_outputs(outdir: Path, cfg: DictConfig, result, info: dict, frame=None,
     finally:
         shutil.rmtree(stage, ignore_errors=True)
     return run
+
+
+@contextlib.contextmanager
+def staged_results(out: Path, last: str | None = None):
+    """Write a study's files into a shared results folder all at once, or not at all.
+
+    Yields a fresh staging directory inside ``out`` (same file system). When the
+    block ends normally every staged file is moved into ``out`` with
+    ``os.replace`` (``last``, the study's summary record, moved last); when it
+    raises (Ctrl-C, a full disk, a bug) the staging directory is removed and
+    ``out`` holds exactly what it held before, and a line says so on stderr.
+    Sub-directories are not supported (the studies write flat files).
+    """
+    import shutil
+    import tempfile
+
+    out.mkdir(parents=True, exist_ok=True)
+    stage = Path(tempfile.mkdtemp(prefix=".staging-", dir=out))
+    try:
+        try:
+            yield stage
+        except BaseException:
+            print(f"[results] stopped before the files were complete: nothing in {out} was changed", file=sys.stderr)
+            raise
+        for f in sorted(stage.iterdir(), key=lambda f: f.name == last):
+            os.replace(f, out / f.name)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
 
 
 def _commit_run(stage: Path, outdir: Path) -> None:

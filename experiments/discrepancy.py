@@ -25,7 +25,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 import icgo  # noqa: F401  (float64)
-from experiments._common import EXIT_CONFIG, one_line
+from experiments._common import EXIT_CONFIG, one_line, staged_results
 from icgo import discrepancy as D
 from icgo import io as icgo_io
 from icgo.discrepancy import report
@@ -112,7 +112,7 @@ def main_body(cfg: DictConfig, out_dir: Path) -> int:
             print(text)
             path = Path(cfg.results_dir) / f"discrepancy_{cfg.study}.md"
             path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_text(text + "\n")
+            icgo_io.atomic_write_texts([(path, text + "\n")])
             print("wrote", path)
             return 0
         st, label, truth = load_stations(cfg.data, int(cfg.seed), int(cfg.n_stations), str(cfg.design), config.noise)
@@ -125,7 +125,9 @@ def main_body(cfg: DictConfig, out_dir: Path) -> int:
     model = PhysicsModel.from_result(res, st.G, st.B)
     qc = station_qc(model, st)
     print(qc_sentence(qc) if qc else "survey QC: no reference field given")
-    print("report:", D.write_report(res, label, out_dir, truth, qc))
+    with staged_results(out_dir, last="report.md") as stage:
+        D.write_report(res, label, stage, truth, qc)
+    print("report:", out_dir / "report.md")
     print("model:", model.save(out_dir / "discrepancy_model"))
     return 0
 

@@ -25,7 +25,7 @@ import numpy as np
 import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
-from experiments._common import enable_jax_cache, study_main
+from experiments._common import enable_jax_cache, staged_results, study_main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -207,10 +207,11 @@ def run(cfg: DictConfig, models_dir: Path | None = None, config=None) -> dict:
     t_start = time.perf_counter()
     data = study.load_data(config)
     result = study.run(data, config, jax.random.PRNGKey(config.seed))
-    write_results(result, data, config, out, models_dir)
-    summary = {**result.summary, "total_seconds": time.perf_counter() - t_start,
-               "config": OmegaConf.to_container(cfg, resolve=True)}
-    (out / "gyro_run.json").write_text(json.dumps(summary, indent=1, default=float))
+    with staged_results(out, last="gyro_run.json") as stage:
+        write_results(result, data, config, stage, models_dir)
+        summary = {**result.summary, "total_seconds": time.perf_counter() - t_start,
+                   "config": OmegaConf.to_container(cfg, resolve=True)}
+        (stage / "gyro_run.json").write_text(json.dumps(summary, indent=1, default=float))
     print(rate_qc_sentence(result.summary["qc"]))
     print(f"[gyro] done in {summary['total_seconds']:.0f} s; results in {out}"
           + (f"; {len(result.models)} models in {models_dir}" if models_dir is not None else ""), flush=True)

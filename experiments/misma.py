@@ -20,7 +20,7 @@ import hydra
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from experiments._common import study_main
+from experiments._common import staged_results, study_main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -174,7 +174,8 @@ def run(cfg: DictConfig, models_dir: Path | None = None, config=None):
     out = Path(str(cfg.out_dir))
     out = out if out.is_absolute() else ROOT / out
     result = study.run(None, config, jax.random.PRNGKey(config.seed))
-    write_results(result, OmegaConf.to_container(cfg, resolve=True), out, models_dir)
+    with staged_results(out, last="misma_summary.json") as stage:
+        write_results(result, OmegaConf.to_container(cfg, resolve=True), stage, models_dir)
     if models_dir is not None:
         print(f"[misma] {len(result.models)} fitted calibrations in {models_dir}")
     return result

@@ -21,7 +21,7 @@ from icgo import io
 from icgo.cal_sanity import LIMITS, sanity
 from icgo.frames import sensors_from_attitude
 from icgo.models import load_model
-from icgo.studies import config_to_mapping
+from icgo.studies import SettingError, config_to_mapping
 from icgo.studies import calibration as C
 
 ROOT = CONF_DIR.parent
@@ -209,3 +209,14 @@ def test_a_relm_calibration_saves_and_applies_bitwise(tmp_path):
     lin = fitted["twelve+axis"]
     assert isinstance(lin, type(model)) and lin.nl_hidden is None
     assert not np.allclose(model.apply(rec.frame).bx_corrected, lin.apply(rec.frame).bx_corrected)
+
+
+def test_misma_bounds_option_reaches_the_search_and_is_recorded():
+    rec = io.load_mag_cal_device("ai")
+    cfg = C.CalibrationConfig(peer=False, misma_iter=2, misma_repeats=1, misma_pop=6, misma_bounds="paper")
+    fitted = C.fit_recording(rec.G, rec.B, rec.frame.group.to_numpy(), cfg, jax.random.PRNGKey(0), {})
+    header = fitted["misma+axis"].config
+    assert header["misma_box"].startswith("icgo.optim.misma.paper_bounds")
+    assert header["misma_box_lb"][9:] == [-68_000.0] * 3 and header["misma_box_ub"][:9] == [128.0] * 9
+    with pytest.raises(SettingError, match="misma_bounds must be one of around_lsq, paper"):
+        C.CalibrationConfig(misma_bounds="wide")

@@ -167,7 +167,9 @@ def test_gyro_and_bounds_settings_fail_in_one_line(section, value, needle):
 
 
 def test_paper_box_unit_coordinates_and_rows():
-    lb, ub = compare.paper_box()
+    from icgo.optim.misma import paper_bounds
+
+    lb, ub = paper_bounds()
     np.testing.assert_array_equal(lb, np.r_[np.full(9, -68.0), np.full(3, -68_000.0)])
     np.testing.assert_array_equal(ub, np.r_[np.full(9, 128.0), np.full(3, 128_000.0)])
     seen = []

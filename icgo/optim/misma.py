@@ -191,3 +191,18 @@ def misma_bounds(u, ref_nT, matrix_halfwidth=0.05, bias_halfwidth=0.02):
         raise ValueError("misma_bounds: half-widths and ref_nT must be > 0")
     h = np.concatenate([np.full(9, matrix_halfwidth * np.abs(u[:9]).max()), np.full(3, bias_halfwidth * ref_nT)])
     return u - h, u + h
+
+
+#: The paper's search bounds (section 3, table 3: "search upper / lower bound 128 / -68 uT").
+PAPER_BOUNDS_UT = (-68.0, 128.0)
+
+
+def paper_bounds():
+    """The paper's box, literally, for all 12 parameters: (lb, ub), two (12,) arrays.
+
+    The paper gives one pair of numbers for its 12-vector; we read the biases
+    in uT (-68 000 .. 128 000 nT, our unit) and the nine ``R^-1`` entries as the
+    same plain numbers (-68 .. 128), about 100 times wider than :func:`misma_bounds`.
+    """
+    lo, hi = PAPER_BOUNDS_UT
+    return np.r_[np.full(9, lo), np.full(3, lo * 1e3)], np.r_[np.full(9, hi), np.full(3, hi * 1e3)]

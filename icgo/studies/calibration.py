@@ -55,6 +55,10 @@ METHODS = ("ellipsoid", "twelve+axis", "misma+axis", "joint", "twelve+axis+relm"
 PEER_METHODS = ("peer_ellipsoid", "peer_fit_to_axis", "peer_fit_non_linear")
 
 
+#: ``misma_bounds`` values (see :class:`CalibrationConfig`).
+MISMA_BOUNDS = ("around_lsq", "paper")
+
+
 @dataclasses.dataclass(frozen=True)
 class CalibrationConfig:
     """Settings of the calibration of grouped shots.
@@ -63,15 +67,21 @@ class CalibrationConfig:
         peer: run circuitpython-mag-cal side by side (skipped with a notice when not installed).
         misma_iter: MISMA iterations. misma_repeats: independent MISMA runs (the lowest fitness is kept).
         misma_pop: MISMA population.
+        misma_bounds: ``around_lsq`` (:func:`misma_box`: around the ellipsoid fit, in the data's units,
+            grown to contain the least-squares solution) or ``paper`` (the paper's 128 / -68 uT,
+            :func:`icgo.optim.misma.paper_bounds`).
     """
 
     peer: bool = True
     misma_iter: int = 300
     misma_repeats: int = 4
     misma_pop: int = 30
+    misma_bounds: str = "around_lsq"
 
     def __post_init__(self):
         need(isinstance(self.peer, bool), "peer", f"must be true or false, got {self.peer!r}")
+        need(self.misma_bounds in MISMA_BOUNDS, "misma_bounds",
+             f"must be one of {', '.join(MISMA_BOUNDS)}, got {self.misma_bounds!r}")
         for name, lo in (("misma_iter", 1), ("misma_repeats", 1), ("misma_pop", 4)):
             v = getattr(self, name)
             need(is_int(v) and v >= lo, name, f"must be an integer >= {lo}, got {v!r}")
@@ -173,11 +183,13 @@ def fit_recording(G, B, groups, config: CalibrationConfig, key, header: dict) ->
         x12 = cal.fit_twelve(G_c, B, 1.0, x0=xm)
     except ValueError as e:
         raise GeometryError(str(e).splitlines()[0]) from None
-    lb, ub = misma_box(xm, x12, scale)
+    if config.misma_bounds == "paper":
+        (lb, ub), box = misma_opt.paper_bounds(), "icgo.optim.misma.paper_bounds (128 / -68 uT)"
+    else:
+        (lb, ub), box = misma_box(xm, x12, scale), "icgo.studies.calibration.misma_box (defaults)"
     out = {"ellipsoid": model("ellipsoid", xm), "twelve+axis": aligned("twelve", x12)}
     out["misma+axis"] = aligned("misma", misma_on_shots(G_c, B, config, (lb, ub), key),
-                                {"misma_box_lb": lb.tolist(), "misma_box_ub": ub.tolist(),
-                                 "misma_box": "icgo.studies.calibration.misma_box (defaults)"})
+                                {"misma_box_lb": lb.tolist(), "misma_box_ub": ub.tolist(), "misma_box": box})
     jg, jm = cal.fit_joint(G, B, groups, xg, xm)
     out["joint"] = model("joint", jm, x_accel=jg)
     lin = out["twelve+axis"]

@@ -395,7 +395,7 @@ def boxes(p: Problem, U, U_mod, scfg: SimulatedConfig) -> tuple[dict, dict]:
     mc, sc = scfg.misma, scfg.sma
     out = {"prior": prior_box(p.ref_nT, sc.matrix_halfwidth, sc.bias_halfwidth),
            "U": misma_opt.misma_bounds(U_mod, p.ref_nT, mc.matrix_halfwidth, mc.bias_halfwidth),
-           "paper": compare.paper_box()}
+           "paper": misma_opt.paper_bounds()}
     text = {"prior": f"prior: R^-1 = I +/- {sc.matrix_halfwidth:g}, b = 0 +/- {sc.bias_halfwidth * p.ref_nT:.0f} nT",
             "U": f"U (modulus fit) +/- {mc.matrix_halfwidth:g} max|U_R| and {mc.bias_halfwidth * p.ref_nT:.0f} nT",
             "paper": "paper: 128 / -68 uT (R^-1 entries -68 .. 128, b -68 000 .. 128 000 nT)"}

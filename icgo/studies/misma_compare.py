@@ -11,7 +11,7 @@ rows are compared repeat by repeat with the paired Wilcoxon test
 Boxes (all (12,) in parameter units: ``R^-1`` dimensionless, ``b`` in nT):
 ``prior`` (SMA's prior knowledge), ``U`` (MISMA's box around the modulus fit),
 ``U_omega`` (around the gyro-reference fit), ``paper`` (128 / -68 uT:
-:data:`PAPER_BOUNDS_UT`).
+:func:`icgo.optim.misma.paper_bounds`).
 """
 
 from __future__ import annotations
@@ -26,12 +26,8 @@ import pandas as pd
 
 from icgo import stats
 from icgo.optim import base
-from icgo.optim import misma as misma_opt
 from icgo.optim.sma import SMAConfig
 
-#: The paper's search bounds (section 3, table 3: "upper / lower bound 128 / -68 uT"), for all 12
-#: parameters: the biases in uT (we search nT: x 1000) and, literally, the R^-1 entries as numbers.
-PAPER_BOUNDS_UT = (-68.0, 128.0)
 OBJECTIVES = {"mag": "magnetometer + accelerometer (eqs. 5-8)", "mag+gyro": "eqs. 5-8 + J_gyro (M_omega)"}
 
 
@@ -76,12 +72,6 @@ def contrasts(gyro_on: bool) -> list[tuple[str, Row, Row]]:
     else:
         out += [("paper box vs U box (MISMA)", r[2], r[3])]
     return out
-
-
-def paper_box():
-    """(lb, ub): -68 .. 128 for the nine R^-1 entries, -68 000 .. 128 000 nT for the biases."""
-    lo, hi = PAPER_BOUNDS_UT
-    return np.r_[np.full(9, lo), np.full(3, lo * 1e3)], np.r_[np.full(9, hi), np.full(3, hi * 1e3)]
 
 
 class UnitBoxFitness:

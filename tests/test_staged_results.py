@@ -1,0 +1,48 @@
+"""experiments._common.staged_results: a study's files land in a shared results folder all at once or not at all."""
+
+from __future__ import annotations
+
+import errno
+
+import pytest
+
+from experiments._common import staged_results
+
+
+def _previous(out):
+    out.mkdir()
+    (out / "misma_summary.md").write_text("old summary\n")
+    (out / "misma_summary.json").write_text("{\"old\": 1}\n")
+    (out / "other_study.csv").write_text("untouched\n")
+    return {f.name: f.read_text() for f in out.iterdir()}
+
+
+@pytest.mark.parametrize("failure", [KeyboardInterrupt, OSError(errno.ENOSPC, "No space left on device"), ValueError])
+def test_a_failed_write_leaves_the_folder_as_it_was(tmp_path, capsys, failure):
+    out = tmp_path / "results"
+    before = _previous(out)
+    with pytest.raises(type(failure) if isinstance(failure, BaseException) else failure):
+        with staged_results(out, last="misma_summary.json") as stage:
+            (stage / "misma_summary.md").write_text("new, complete\n")
+            (stage / "misma_fair_curving.csv").write_text("a,b\n1,")  # cut off mid-write
+            raise failure
+    assert {f.name: f.read_text() for f in out.iterdir()} == before  # no staging directory left either
+    assert f"nothing in {out} was changed" in capsys.readouterr().err
+
+
+def test_a_complete_write_replaces_only_its_files_record_last(tmp_path, monkeypatch):
+    out = tmp_path / "results"
+    _previous(out)
+    import os
+
+    order = []
+    real = os.replace
+    monkeypatch.setattr(os, "replace", lambda a, b: (order.append(os.path.basename(b)), real(a, b)))
+    with staged_results(out, last="misma_summary.json") as stage:
+        for name in ("misma_summary.json", "misma_summary.md", "misma_fair_curving.csv"):
+            (stage / name).write_text(f"new {name}\n")
+    assert order[-1] == "misma_summary.json" and len(order) == 3
+    assert (out / "misma_summary.md").read_text() == "new misma_summary.md\n"
+    assert (out / "other_study.csv").read_text() == "untouched\n"
+    assert sorted(f.name for f in out.iterdir()) == ["misma_fair_curving.csv", "misma_summary.json",
+                                                     "misma_summary.md", "other_study.csv"]
