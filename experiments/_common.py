@@ -151,6 +151,13 @@ def check_config(cfg: DictConfig) -> None:
     b = list(cfg.schedule.bounds)
     _need(len(b) == 2 and all(isinstance(x, (int, float)) for x in b) and 0.0 < b[0] < b[1] < 1.0,
           f"schedule.bounds must be two fractions 0 < b1 < b2 < 1, got {b}")
+    if OmegaConf.select(cfg, "model.tune") is True:
+        from icgo.studies.icgo_relm import StudyConfig
+
+        for k in ("hidden", "lam"):
+            default = StudyConfig.__dataclass_fields__[k].default
+            _need(cfg.model[k] == default, f"model.{k}={cfg.model[k]} has no effect with model.tune=true (the tuning "
+                                           f"grid chooses it); leave it at {default}")
 
 
 def study_settings(cfg: DictConfig) -> tuple[dict, dict]:
@@ -540,6 +547,8 @@ def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, m
            "wall_time_s": result.wall_time_s, "methods": methods,
            "n_evals": {m: int(v) for m, v in zip(methods, np.asarray(result.n_evals)[:, 0])},
            "n_rows": int(result.kept.sum()), "n_repeats": result.config.n_repeats, "models": models, "qc": qc}
+    if result.tuning is not None:
+        run["tuning"] = result.tuning
     missing = [k for k in R.RUN_KEYS if k not in run]
     assert not missing, f"run record lacks {missing}"  # a writer bug, not a user error
     (outdir / R.RUN_FILE).write_text(json.dumps(run, indent=2, default=str) + "\n")

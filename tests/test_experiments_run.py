@@ -194,6 +194,10 @@ def _fail_if_called(*a, **k):
     ("+split.target.seed=3", "split.target is read only by split.protocol=transfer"),
     ("split.protocol=transfer", "split.protocol=transfer needs split.target"),
     ("split.protocol=leave_one_out", "split.protocol must be one of"),
+    ("model.tune=true", "model.tune tunes plain RELM only: set optimizer none"),
+    ("model.tune=true optimizer=none", "model.tune chooses hidden and lam by validation on the training rows"),
+    ("model.tune=true optimizer=none fitness=validation model.hidden=50",
+     "model.hidden=50 has no effect with model.tune=true"),
 ])
 def test_bad_settings_fail_in_one_line_before_computation(override, expect, monkeypatch, capsys, tmp_path):
     import icgo.datasets
@@ -201,7 +205,7 @@ def test_bad_settings_fail_in_one_line_before_computation(override, expect, monk
 
     monkeypatch.setattr(icgo.datasets, "lab_casing", _fail_if_called)
     monkeypatch.setattr(icgo.studies.icgo_relm, "_run", _fail_if_called)
-    overrides = TINY + [override]
+    overrides = TINY + override.split()
     if override.startswith("+dataset.path"):
         overrides = TINY + ["dataset=csv", "dataset.path=/no/such/file.csv"]
         expect = "dataset.path '/no/such/file.csv': file not found"

@@ -207,3 +207,34 @@ def test_a_search_that_never_found_a_finite_fitness_is_a_failed_run():
     curve[1, 2, :] = np.inf
     with pytest.raises(ValueError, match=r"search of b \(repeat 2\) never found a finite fitness \(1 of 6"):
         study.check_search(curve, ["a", "b"], (0, 1, 2))
+
+
+def test_tuned_relm_picks_the_best_mean_validation_cell_from_training_rows_only(frame):
+    """Issue 18's honest baseline: (L, lambda) chosen on the grid by validation on the training rows."""
+    from icgo import relm
+
+    cfg = dataclasses.replace(PLAIN, hidden=30, tune=True, fitness="validation", sigma_filter=None)
+    res = study.run_study(frame, cfg)
+    grid = pd.DataFrame(res.tuning["grid"])
+    best = grid.loc[grid.val_mean.idxmin()]
+    assert (res.config.hidden, res.config.lam) == (best.hidden, best.lam) == (res.tuning["hidden"], res.tuning["lam"])
+    assert set(grid.lam) == set(relm.TUNE_LAMBDA) and set(grid.hidden) <= set(relm.TUNE_HIDDEN)
+    assert res.config.method_names() == ["relm-tuned"] and set(res.metrics.method) >= {"relm-tuned"}
+    # the chosen cell's run is plain RELM at that cell: its fitness is the grid's value
+    np.testing.assert_allclose(res.curves["best_fitness"][0, :, -1].mean(), best.val_mean, rtol=1e-12)
+    # the test rows never steer the choice
+    test_rows = res.predictions.row[(res.predictions.split == "test") & (res.predictions.repeat == 0)].to_numpy()
+    bad = frame.copy()
+    bad.loc[test_rows, "azimuth_deg"] = np.mod(bad.loc[test_rows, "azimuth_deg"] + 7.0, 360.0)
+    other = study.run_study(bad, dataclasses.replace(cfg, repeat_ids=(0,)))
+    alone = study.run_study(frame, dataclasses.replace(cfg, repeat_ids=(0,)))
+    assert other.tuning == alone.tuning
+
+
+@pytest.mark.parametrize("change, match", [
+    ({"optimizer": "cgo"}, "tune tunes plain RELM only"),
+    ({"fitness": "train"}, "tune chooses hidden and lam by validation"),
+])
+def test_tune_needs_plain_relm_and_a_validation_fitness(change, match):
+    with pytest.raises(ValueError, match=match):
+        study.StudyConfig(**{"optimizer": None, "tune": True, "fitness": "validation", **change})

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import logging
 import time
 from typing import Any, NamedTuple
 
@@ -55,6 +56,8 @@ from icgo.studies import Study, register_study
 
 REQUIRED_COLUMNS = ("gx", "gy", "gz", "bx", "by", "bz", "azimuth_deg")
 
+
+log = logging.getLogger(__name__)
 
 @dataclasses.dataclass(frozen=True)
 class StudyConfig:
@@ -90,6 +93,10 @@ class StudyConfig:
             optimizer's search box and plain RELM's uniform draw.
         optimizer: registry name in :mod:`icgo.optim` (``cgo``, ``pso``, ``ga``,
             ``sma``) or None for plain RELM (one random theta per repeat).
+        tune: plain RELM only (``optimizer=None``): choose ``hidden`` and ``lam`` on the grid
+            :data:`icgo.relm.TUNE_HIDDEN` x :data:`icgo.relm.TUNE_LAMBDA` by the mean over repeats of
+            the validation fitness on the training rows (``fitness`` ``validation`` or ``kfold``;
+            the test rows are never seen), then fit at the chosen cell (method ``relm-tuned``).
         strategies: CGO 4th-seed strategies run side by side (vmapped); ignored
             for other optimizers.
         pop_size: population size (paper: 30).
@@ -122,6 +129,7 @@ class StudyConfig:
     k_folds: int = 5
     theta_bounds: tuple = (-1.0, 1.0)
     optimizer: str | None = CGO.name
+    tune: bool = False
     strategies: tuple = ("three_stage",)
     pop_size: int = 30
     iterations: int | None = 100
@@ -172,6 +180,12 @@ class StudyConfig:
              "theta_bounds", f"must be [low, high] with low < high, got {tb!r}")
         need(self.dtype in ("mixed", "float64", "float32"), "dtype",
              f"must be mixed, float64 or float32, got {self.dtype!r}")
+        need(isinstance(self.tune, bool), "tune", f"must be true or false, got {self.tune!r}")
+        if self.tune:
+            need(self.optimizer is None, "tune", f"tunes plain RELM only: set optimizer none (got {self.optimizer!r})")
+            need(self.fitness in ("validation", "kfold"), "tune",
+                 f"chooses hidden and lam by validation on the training rows: set fitness validation or kfold "
+                 f"(got {self.fitness!r})")
         if self.optimizer is None:
             return
         need(isinstance(self.optimizer, str) and self.optimizer in OPTIMIZERS, "optimizer",
@@ -205,7 +219,7 @@ class StudyConfig:
     def method_names(self) -> list[str]:
         """One label per model the study fits, e.g. ``["cgo-original"]`` or ``["relm"]``."""
         if self.optimizer is None:
-            return ["relm"]
+            return ["relm-tuned" if self.tune else "relm"]
         from icgo.optim import get
 
         return get(self.optimizer).labels(self.strategies)
@@ -238,6 +252,8 @@ class StudyResult(NamedTuple):
             MSA biases, input statistics, hidden and output weights per method
             and repeat; ``model.apply(frame)`` corrects a new survey.
         msa_model: the MSA-only fit (:class:`icgo.compensation.MSAModel`).
+        tuning: with ``config.tune``: ``{"hidden", "lam", "grid": [{hidden, lam, val_mean, val_std}, ...]}``
+            (the chosen cell is ``config.hidden`` / ``config.lam``); else None.
     """
 
     metrics: pd.DataFrame
@@ -253,6 +269,7 @@ class StudyResult(NamedTuple):
     n_evals: np.ndarray
     model: Any
     msa_model: Any
+    tuning: Any = None
 
     @property
     def records(self) -> dict:
@@ -438,16 +455,23 @@ def _check_config(cfg: StudyConfig, mem: _splits.Members) -> None:
     n_train = mem.train.sum(axis=1)
     n_test = mem.test.sum(axis=1)
     m = int(np.argmin(n_train))
-    n_fit = int(n_train[m])
+    n_fit = rows_per_fit(cfg, mem)
+    hidden = min(_relm.TUNE_HIDDEN) if cfg.tune else cfg.hidden
+    where = "" if cfg.protocol == "random" else f" ({cfg.protocol}, fold {mem.fold_label[mem.fold[m]]!r})"
+    if n_fit < hidden or n_test.min() < 1:
+        raise ValueError(f"study: a split{where} of {mem.train.shape[1]} rows gives {int(n_train[m])} training rows "
+                         f"({n_fit} per fit) and {int(n_test.min())} test rows; need at least hidden = {hidden} "
+                         f"rows per fit and one test row")
+
+
+def rows_per_fit(cfg: StudyConfig, mem: _splits.Members) -> int:
+    """Training rows the smallest member fits the output weights on (less the validation share or one fold)."""
+    n_fit = int(mem.train.sum(axis=1).min())
     if cfg.fitness == "validation":
         n_fit -= int(round(cfg.val_fraction * n_fit))
     elif cfg.fitness == "kfold":
         n_fit -= int(np.ceil(n_fit / cfg.k_folds))
-    where = "" if cfg.protocol == "random" else f" ({cfg.protocol}, fold {mem.fold_label[mem.fold[m]]!r})"
-    if n_fit < cfg.hidden or n_test.min() < 1:
-        raise ValueError(f"study: a split{where} of {mem.train.shape[1]} rows gives {int(n_train[m])} training rows "
-                         f"({n_fit} per fit) and {int(n_test.min())} test rows; need at least hidden = {cfg.hidden} "
-                         f"rows per fit and one test row")
+    return n_fit
 
 
 def frame_arrays(frame: pd.DataFrame):
@@ -559,6 +583,9 @@ def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None)
     t0 = time.perf_counter()
     prep, mem = prepare(rows, G, B, a_true, cfg, base_key, reference, n_source)
     _msa.check_observability(prep.msa, cfg.msa_model, reference)
+    tuning = None
+    if cfg.tune:
+        cfg, tuning = _tune(cfg, prep, rows_per_fit(cfg, mem))
     thetas, curve, evals = _search(cfg, prep, wrap_fitness)
     check_search(np.asarray(curve), cfg.method_names(), [f"{r}" if cfg.protocol not in _splits.FOLD_PROTOCOLS
                                                           else f"{r}, {mem.fold_label[f]}"
@@ -566,7 +593,33 @@ def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None)
     scored = _score_all(thetas, prep, jnp.asarray(a_true), cfg.lam, cfg.hidden)
     jax.block_until_ready(scored)
     wall = time.perf_counter() - t0
-    return _collect(cfg, rows, kept, a_true, G, B, n_source, mem, prep, thetas, scored, curve, evals, wall)
+    res = _collect(cfg, rows, kept, a_true, G, B, n_source, mem, prep, thetas, scored, curve, evals, wall)
+    return res if tuning is None else res._replace(tuning=tuning)
+
+
+def _tune(cfg: StudyConfig, prep: Prepared, n_fit: int):
+    """Plain RELM's (hidden, lam) by the mean validation fitness over repeats on the grid (training rows only).
+
+    Each cell draws theta from the repeat's model key (so the lambdas of one L
+    share their theta, and the chosen cell's run reuses it) and scores it with the
+    study's fitness mode (``validation``/``kfold``: fitted on part of the training
+    rows, scored on the rest). Widths above ``n_fit`` (rows per fit) are left out,
+    as the study refuses them. Returns (config at the chosen cell, tuning record).
+    """
+    low, high = (float(v) for v in cfg.theta_bounds)
+    dtype = "float32" if cfg.dtype == "float32" else None
+    grid = []
+    for hidden in (h for h in _relm.TUNE_HIDDEN if h <= n_fit):
+        for lam in _relm.TUNE_LAMBDA:
+            _, f = _plain(prep.key, prep.data, lam, hidden, low, high, dtype)
+            f = np.asarray(f)
+            grid.append({"hidden": hidden, "lam": lam, "val_mean": float(f.mean()), "val_std": float(f.std(ddof=1))
+                         if f.size > 1 else 0.0})
+    best = min(grid, key=lambda g: g["val_mean"])
+    log.info("tuned plain RELM: hidden %d, lam %g (mean validation fitness %.4g)", best["hidden"], best["lam"],
+             best["val_mean"])
+    return (dataclasses.replace(cfg, hidden=best["hidden"], lam=best["lam"]),
+            {"hidden": best["hidden"], "lam": best["lam"], "grid": grid})
 
 
 def prepare(rows: pd.DataFrame, G, B, a_true, cfg: StudyConfig, base_key, reference=None,
