@@ -228,6 +228,25 @@ def _tuned_note(runs: Runs, m: pd.DataFrame, others) -> str:
             f"{cell.get('lam')}. Against it: {'; '.join(parts) or 'no paired CGO runs'}. The CGO rows use L = 30.")
 
 
+def _paper_variances() -> dict:
+    """Target variance each published row implies, ``RMSE^2 / (1 - R^2)`` (deg^2), from :data:`PAPER`."""
+    rows = {f"Table 1 {m}": v for m, v in PAPER["table1"].items()}
+    rows.update({f"Table 2 {m}": v for m, v in PAPER["table2"].items()})
+    rows.update({f"Table 3 {m}": tuple(x[0] for x in v) for m, v in PAPER["table3"].items()})
+    return {k: rmse ** 2 / (1.0 - r2) for k, (_, rmse, r2) in rows.items()}
+
+
+def _paper_consistency_note() -> str:
+    """The paper's Table 3 three-stage row against the target variance its other rows imply (issue 18)."""
+    var = _paper_variances()
+    odd = var["Table 3 three_stage"]
+    rest = [v for k, v in var.items() if k != "Table 3 three_stage"]
+    return (f"The paper's own three-stage row of Table 3 is internally inconsistent: RMSE and R^2 imply a target "
+            f"variance RMSE^2 / (1 - R^2) = {odd:.2f} deg^2, while every other row of its Tables 1-3 implies "
+            f"{min(rest):.2f}-{max(rest):.2f} deg^2 (the same data set; Table 3's from its means over repeats). One of "
+            "its two numbers is likely misprinted; comparisons by R^2 in the paper should be read with that in mind.")
+
+
 def _floor_note(dataset: str = "lab_casing") -> str:
     """The noise floor of the data set beside every table (:func:`icgo.datasets.noise_floor`, data seed 0)."""
     from icgo.datasets import noise_floor
@@ -452,7 +471,7 @@ def table3(runs: Runs, out: Path) -> bool:
               f"{', '.join(lost) or 'none'}; no significant difference from {', '.join(tied) or 'none'} (5 %). "
               "The paper claims three-stage beats all three; our simulated study supports that only for the "
               "strategies listed as significantly better.",
-              _floor_note(), "", "## Statistics", "", stats_df.to_markdown(index=False)]
+              _paper_consistency_note(), _floor_note(), "", "## Statistics", "", stats_df.to_markdown(index=False)]
     _write(df, out, "table3", "Table 3: 10 repeats, mean +/- std (test split)", notes)
     _write(stats_df, out, "table3_stats", "Table 3 statistics: Friedman and Wilcoxon signed-rank")
     return True

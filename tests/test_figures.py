@@ -183,3 +183,15 @@ def test_a_truncated_table_is_skipped_and_named(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "skipped" in err and str(tmp_path / "m" / "bad") in err and "metrics" in err
     assert len(m) == 2 * R
+
+
+def test_paper_consistency_note_flags_the_three_stage_row():
+    from experiments.figures import PAPER, _paper_consistency_note, _paper_variances
+
+    var = _paper_variances()
+    mae, rmse, r2 = (x[0] for x in PAPER["table3"]["three_stage"])
+    assert var["Table 3 three_stage"] == pytest.approx(rmse ** 2 / (1 - r2))
+    assert var["Table 1 relm"] == pytest.approx(0.6035 ** 2 / (1 - 0.866))
+    others = [v for k, v in var.items() if k != "Table 3 three_stage"]
+    assert var["Table 3 three_stage"] < 0.65 * min(others)
+    assert "1.58 deg^2" in _paper_consistency_note() and "2.67-3.05" in _paper_consistency_note()
