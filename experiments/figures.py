@@ -12,7 +12,9 @@
   Table 2 / Figs. 10-13, identical to the ``table2`` preset run alone because
   repeat k of a batched study equals that repeat run alone), the plain RELM
   job of ``table1``, the tuned plain RELM (``model.tune=true``, Table 1's
-  honest baseline), the PSO and GA jobs of ``fig9`` and ``table4``.
+  honest baseline), the PSO and GA jobs of ``fig9``, ``fig9`` again at equal
+  fitness evaluations (``budget=evaluations label=fig9_evals``: ``fig9_budgets``)
+  and ``table4``.
 
 Outputs (``--out``, default ``results/``): ``tableN.csv`` + ``tableN.md`` with
 the paper's published numbers in adjacent columns, ``table3_stats.*``
@@ -60,10 +62,16 @@ PAPER = {
                (135.0, 210.0, 9.2645, 0.4551, 0.0049, 0.0117), (150.0, 270.0, 7.1916, 0.3263, 0.0621, 0.0521)),
 }
 
+#: Run label of Fig. 9 at equal fitness evaluations (``experiment=fig9 budget=evaluations label=fig9_evals``).
+EQUAL_EVALS_LABEL = "fig9_evals"
+FIG9_NAMES = {"pso": "PSO-RELM", "ga": "GA-RELM", "cgo-original": "CGO-RELM"}
+
+
 #: The default plan: (sweep directory name, preset, extra overrides). See the module docstring.
 PLAN = (("table3", "table3", []), ("table1", "table1", ["optimizer=none"]),
         ("table1_tuned", "table1", ["optimizer=none", "model.tune=true", "fitness=validation"]),
-        ("fig9", "fig9", ["optimizer=pso,ga"]), ("table4", "table4", []))
+        ("fig9", "fig9", ["optimizer=pso,ga"]),
+        ("fig9_evals", "fig9", ["budget=evaluations", f"label={EQUAL_EVALS_LABEL}"]), ("table4", "table4", []))
 
 
 # ------------------------------------------------------------------ collect
@@ -77,9 +85,13 @@ class Runs:
 
     KEY = ["dataset", "condition", "seed", "method", "repeat"]
 
-    def __init__(self, dirs):
+    def __init__(self, dirs, runs=None):
         from icgo import records as R
 
+        self._cache: dict = {}
+        if runs is not None:  # a subset of another collection (see split_label)
+            self.runs = runs
+            return
         self.runs = []
         for d in dirs:
             d = Path(d)
@@ -101,7 +113,11 @@ class Runs:
                 info["mtime"] = rj.stat().st_mtime
                 self.runs.append(info)
         self.runs.sort(key=lambda r: r["mtime"])
-        self._cache: dict = {}
+
+    def split_label(self, label: str) -> tuple["Runs", "Runs"]:
+        """(the runs with this run label, the others): runs that must not replace the pooled ones."""
+        return (Runs(None, [r for r in self.runs if r.get("label") == label]),
+                Runs(None, [r for r in self.runs if r.get("label") != label]))
 
     def _table(self, name: str) -> pd.DataFrame:
         from icgo import records as R
@@ -320,6 +336,39 @@ def _fig9_notes(m, conv, methods, df) -> list[str]:
                      + ", ".join(f"{k} {v}" for k, v in ev.items())
                      + "; `budget=evaluations` compares at equal evaluations.")
     return notes
+
+
+def fig9_budgets(iters: Runs, evals: Runs, out: Path) -> bool:
+    """Fig. 9 at equal iterations and at equal fitness evaluations, side by side (issue 18, item 3)."""
+    from icgo.stats import holm, wilcoxon_paired
+
+    mi, me = iters.metrics(), evals.metrics()
+    methods = list(FIG9_NAMES)
+    if not (_have(mi, methods) and _have(me, methods)):
+        return False
+    ci, ce = iters.convergence(), evals.convergence()
+    rows, tests = [], []
+    for budget, m, conv in (("equal iterations (30 x 100)", mi, ci), ("equal evaluations (12 030)", me, ce)):
+        w = m.pivot_table(index="repeat", columns="method", values="mae")
+        for x in methods:
+            mae = _ms(m[m.method == x]["mae"])
+            rows.append({"budget": budget, "method": FIG9_NAMES[x], "MAE (deg)": _fmt(*mae),
+                         "RMSE (deg)": _fmt(*_ms(m[m.method == x]["rmse"])),
+                         "evaluations per run": float(conv[conv.method == x]["evals"].max()) if not conv.empty
+                         else np.nan})
+        for x in ("pso", "ga"):
+            t = wilcoxon_paired(w["cgo-original"], w[x])
+            tests.append({"budget": budget, "comparison": f"CGO-RELM vs {FIG9_NAMES[x]}",
+                          "median MAE difference (deg)": float((w["cgo-original"] - w[x]).median()), "p": t.p_value})
+    tdf = pd.DataFrame(tests)
+    tdf["p_holm"] = holm(tdf["p"].to_numpy())
+    df = pd.DataFrame(rows)
+    notes = ["Commands: `python -m experiments.run -m experiment=fig9` and `python -m experiments.run -m "
+             "experiment=fig9 budget=evaluations label=fig9_evals` (both in `experiments.figures`' plan); same "
+             "splits and keys, 10 repeats each. Paired Wilcoxon on MAE, Holm-adjusted over the four tests:", "",
+             tdf.to_markdown(index=False, floatfmt=".4g"), "", _floor_note()]
+    _write(df, out, "fig9_budgets", "Fig. 9 at equal iterations and at equal fitness evaluations (test split)", notes)
+    return True
 
 
 def table2(runs: Runs, out: Path) -> bool:
@@ -626,8 +675,9 @@ def build(dirs, out: Path) -> dict:
         {name: True if written, False if its runs were missing}.
     """
     out.mkdir(parents=True, exist_ok=True)
-    runs = Runs(dirs)
+    evals, runs = Runs(dirs).split_label(EQUAL_EVALS_LABEL)
     done = {name: fn(runs, out) for name, fn in BUILDERS.items()}
+    done["fig9_budgets"] = fig9_budgets(runs, evals, out)
     missing = [n for n, ok in done.items() if not ok]
     miss = out / "tables_missing.txt"
     if missing:

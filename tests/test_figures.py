@@ -24,17 +24,17 @@ R = 10
 
 
 def _run_dir(path: Path, metrics: pd.DataFrame, *, dataset="lab_casing", seed=0, conv=None, pred=None,
-             failed=False):
+             failed=False, label="t"):
     """A run directory in the icgo.records schema, written by hand with known numbers."""
     path.mkdir(parents=True)
-    tag = {"label": "t", "dataset": dataset, "condition": None, "seed": seed}
+    tag = {"label": label, "dataset": dataset, "condition": None, "seed": seed}
     for name, df in (("metrics", metrics), ("convergence", conv), ("predictions", pred)):
         df = pd.DataFrame(columns=list(REC.TABLES[name])) if df is None else df.copy()
         for c in REC.TABLES[name]:
             if c not in df.columns:
                 df[c] = np.nan
         REC.tag_table(df, tag).to_csv(path / f"{name}.csv", index=False)
-    run = {k: None for k in REC.RUN_KEYS} | {"status": "ok", "dataset": dataset, "seed": seed}
+    run = {k: None for k in REC.RUN_KEYS} | {"status": "ok", "dataset": dataset, "seed": seed, "label": label}
     (path / "run.json").write_text(json.dumps(run))
     if failed:
         (path / "FAILED").write_text("boom\n")
@@ -85,8 +85,8 @@ def runs_dir(tmp_path):
 def test_tables_match_direct_computation(runs_dir, tmp_path):
     out = tmp_path / "results"
     done = F.build([runs_dir / "m"], out)
-    assert done == {**{k: True for k in F.BUILDERS}, "table4": False}
-    assert (out / "tables_missing.txt").read_text().strip() == "no runs found for: table4"
+    assert done == {**{k: True for k in F.BUILDERS}, "table4": False, "fig9_budgets": False}
+    assert (out / "tables_missing.txt").read_text().strip() == "no runs found for: table4, fig9_budgets"
     m = pd.concat([pd.read_csv(p) for p in sorted((runs_dir / "m").rglob("metrics.csv"))])
     m = m[m.split == "test"]
 
@@ -195,3 +195,27 @@ def test_paper_consistency_note_flags_the_three_stage_row():
     others = [v for k, v in var.items() if k != "Table 3 three_stage"]
     assert var["Table 3 three_stage"] < 0.65 * min(others)
     assert "1.58 deg^2" in _paper_consistency_note() and "2.67-3.05" in _paper_consistency_note()
+
+
+def test_equal_evaluation_runs_sit_beside_not_over_the_equal_iteration_ones(runs_dir, tmp_path):
+    """Issue 18 item 3: Fig. 9 at equal iterations and at equal evaluations, side by side."""
+    import time
+
+    rng = np.random.default_rng(3)
+    fig9 = ["pso", "ga", "cgo-original"]
+    time.sleep(0.01)  # newer than the equal-iteration runs: it must still not replace them
+    _run_dir(runs_dir / "m" / "fig9_evals", _metrics(fig9, rng, {"pso": 0.03, "ga": 0.04, "cgo-original": 0.06}),
+             conv=_conv(fig9), label=F.EQUAL_EVALS_LABEL)
+    out = tmp_path / "results"
+    done = F.build([runs_dir / "m"], out)
+    assert done["fig9_budgets"] and done["fig9"]
+    m = pd.concat([pd.read_csv(p) for p in sorted((runs_dir / "m").rglob("metrics.csv"))])
+    m = m[m.split == "test"]
+    f9 = pd.read_csv(out / "fig9.csv").set_index("method")
+    pso_iter = m[(m.method == "pso") & (m.label == "t")].mae
+    assert f9.loc["PSO-RELM", "mae_mean"] == pytest.approx(pso_iter.mean())  # not the equal-evaluation run's
+    b = pd.read_csv(out / "fig9_budgets.csv")
+    pso_ev = m[(m.method == "pso") & (m.label == F.EQUAL_EVALS_LABEL)].mae
+    row = b[(b.method == "PSO-RELM") & b.budget.str.startswith("equal evaluations")].iloc[0]
+    assert row["MAE (deg)"] == f"{pso_ev.mean():.4f} +/- {pso_ev.std(ddof=1):.4f}"
+    assert "Holm" in (out / "fig9_budgets.md").read_text()
