@@ -3,13 +3,19 @@
 Simulated part (per ``rotating_drill`` variant, :func:`simulated_variant`):
 MISMA and the standard SMA minimise the penalised MISMA fitness
 (:class:`icgo.calibration.MismaObjective`: dot invariance eq. 5, Pearson
-constraint eqs. 6-7, field modulus eq. 8) over the 12 parameters
-``[R^-1, b]`` (eqs. 2-4), ``repeats`` vmapped repeats each, population
-``pop_size``. MISMA searches the box around the modulus fit U (eqs. 9-10),
-SMA a prior box around ``R^-1 = I, b = 0``. Scored by: iterations to reach
-``threshold_factor * F(true)``, recovered vs true parameters, |B| before and
-after, and the absolute azimuth error at the static survey points (raw, SMA,
-MISMA and the deterministic baselines).
+constraint eqs. 6-7, field modulus eq. 8 and, in the paper's magneto-inertial
+reading, the gyro term J_gyro on the reference field M_omega of
+:mod:`icgo.gyro_reference`) over the 12 parameters ``[R^-1, b]`` (eqs. 2-4),
+``repeats`` vmapped repeats each, population ``pop_size``. The comparison runs
+one contribution at a time (:mod:`icgo.studies.misma_compare`: boxes,
+coordinates, operators, objective; same repeat keys, paired tests), and
+:func:`gyro_sweep` repeats MISMA over gyro grades. MISMA searches the box
+around U (eqs. 9-10: the gyro-reference fit, or the modulus fit without the
+gyro term; ``bounds=paper``: the paper's 128 / -68 uT), SMA a prior box around
+``R^-1 = I, b = 0``. Scored by: iterations to reach ``threshold_factor *
+F(true)`` and the convergence comparison, recovered vs true parameters, |B|
+before and after, and the absolute azimuth error at the static survey points
+(raw, SMA, MISMA and the deterministic baselines).
 
 Real part (:func:`real_study`): the 9 circuitpython-mag-cal devices through
 :mod:`icgo.studies.calibration` (ellipsoid fit, 12-parameter least squares +
