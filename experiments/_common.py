@@ -96,7 +96,7 @@ STUDY_ALIASES = {"fitness.mode": "fitness", "optimizer.name": "optimizer", "stra
 #: Keys read by the entry point itself (not StudyConfig fields), per node; "" = top level.
 ENTRY_KEYS = {"": ("dataset", "optimizer", "strategy", "schedule", "progress", "figures", "label", "jax_cache_dir",
                    "overwrite", *STUDY_NODES, "dtype"),
-              "optimizer": ("name", "params"), "strategy": ("names",), "schedule": ("bounds", "order")}
+              "optimizer": ("name", "params"), "strategy": ("names",), "schedule": ("bounds", "order", "clock")}
 #: Keys of the study nodes that the entry point reads itself (not StudyConfig fields): the transfer target.
 STUDY_NODE_ENTRY_KEYS = ("split.target",)
 #: Keys of ``split.target`` (:class:`icgo.splits.TransferDraw` fields, plus a recording's path).
@@ -151,6 +151,8 @@ def check_config(cfg: DictConfig) -> None:
     b = list(cfg.schedule.bounds)
     _need(len(b) == 2 and all(isinstance(x, (int, float)) for x in b) and 0.0 < b[0] < b[1] < 1.0,
           f"schedule.bounds must be two fractions 0 < b1 < b2 < 1, got {b}")
+    _need(cfg.schedule.get("clock", "global") in ("global", "stage"),
+          f"schedule.clock must be global or stage, got {cfg.schedule.get('clock')!r}")
     if OmegaConf.select(cfg, "model.tune") is True:
         from icgo.studies.icgo_relm import StudyConfig
 
@@ -224,6 +226,7 @@ def optimizer_config(cfg: DictConfig):
     if {"stage_bounds", "stage_order"} <= fields:
         params.setdefault("stage_bounds", tuple(float(x) for x in cfg.schedule.bounds))
         params.setdefault("stage_order", tuple(cfg.schedule.order))
+        params.setdefault("wavelet_stage_clock", cfg.schedule.get("clock", "global") == "stage")
     try:
         return alg.make_config(**params)
     except (TypeError, ValueError) as e:

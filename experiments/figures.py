@@ -13,8 +13,8 @@
   repeat k of a batched study equals that repeat run alone), the plain RELM
   job of ``table1``, the tuned plain RELM (``model.tune=true``, Table 1's
   honest baseline), the PSO and GA jobs of ``fig9``, ``fig9`` again at equal
-  fitness evaluations (``budget=evaluations label=fig9_evals``: ``fig9_budgets``)
-  and ``table4``.
+  fitness evaluations (``budget=evaluations label=fig9_evals``: ``fig9_budgets``),
+  the schedules sweep (``sweep_schedules``) and ``table4``.
 
 Outputs (``--out``, default ``results/``): ``tableN.csv`` + ``tableN.md`` with
 the paper's published numbers in adjacent columns, ``table3_stats.*``
@@ -67,11 +67,16 @@ EQUAL_EVALS_LABEL = "fig9_evals"
 FIG9_NAMES = {"pso": "PSO-RELM", "ga": "GA-RELM", "cgo-original": "CGO-RELM"}
 
 
+#: Run label of the schedules sweep (``experiment=sweep_schedules``, issue 18).
+SCHEDULES_LABEL = "sweep_schedules"
+
+
 #: The default plan: (sweep directory name, preset, extra overrides). See the module docstring.
 PLAN = (("table3", "table3", []), ("table1", "table1", ["optimizer=none"]),
         ("table1_tuned", "table1", ["optimizer=none", "model.tune=true", "fitness=validation"]),
         ("fig9", "fig9", ["optimizer=pso,ga"]),
-        ("fig9_evals", "fig9", ["budget=evaluations", f"label={EQUAL_EVALS_LABEL}"]), ("table4", "table4", []))
+        ("fig9_evals", "fig9", ["budget=evaluations", f"label={EQUAL_EVALS_LABEL}"]),
+        ("sweep_schedules", "sweep_schedules", []), ("table4", "table4", []))
 
 
 # ------------------------------------------------------------------ collect
@@ -368,6 +373,64 @@ def fig9_budgets(iters: Runs, evals: Runs, out: Path) -> bool:
              "splits and keys, 10 repeats each. Paired Wilcoxon on MAE, Holm-adjusted over the four tests:", "",
              tdf.to_markdown(index=False, floatfmt=".4g"), "", _floor_note()]
     _write(df, out, "fig9_budgets", "Fig. 9 at equal iterations and at equal fitness evaluations (test split)", notes)
+    return True
+
+
+def _schedule_name(info: dict) -> str:
+    """A readable name of a run's three-stage schedule from its run record."""
+    sc = info.get("schedule") or {}
+    b = "/".join(f"{100 * x:.0f}" for x in sc.get("bounds", []))
+    clock = " (wavelet on its stage clock)" if sc.get("clock") == "stage" else ""
+    return f"three-stage {'>'.join(sc.get('order', []))} at {b} %{clock}"
+
+
+def sweep_schedules(pooled: Runs, sched: Runs, out: Path) -> bool:
+    """Three-stage under each schedule beside the single strategies (issue 18, sweep 1).
+
+    Every column holds the same 10 repeats (splits and keys of Table 3), so the
+    comparison is paired: Friedman over all columns, Wilcoxon of each schedule
+    against the best single strategy (Holm), and per-repeat winners.
+    """
+    from icgo import records as R
+    from icgo.stats import friedman, holm, wilcoxon_paired
+
+    m = pooled.metrics()
+    singles = [s for s in STRATEGIES4 if s != "three_stage" and f"cgo-{s}" in set(m.method)]
+    if not sched.runs or not singles:
+        return False
+    cols = {LABEL[s]: m[m.method == f"cgo-{s}"].set_index("repeat")["mae"] for s in singles}
+    for info in sched.runs:
+        t = R.read_table(info["dir"], "metrics")
+        t = t[(t.split == "test") & (t.method == "cgo-three_stage")]
+        cols[_schedule_name(info)] = t.set_index("repeat")["mae"]
+    wide = pd.DataFrame(cols).dropna()
+    names = list(wide.columns)
+    fr = friedman({c: wide[c].to_numpy() for c in names})
+    best_single = min((LABEL[s] for s in singles), key=lambda c: wide[c].mean())
+    sched_cols = [c for c in names if c.startswith("three-stage")]
+    tests = [wilcoxon_paired(wide[c], wide[best_single]).p_value for c in sched_cols]
+    p_holm = dict(zip(sched_cols, holm(tests)))
+    winners = wide.idxmin(axis=1).value_counts()
+    rows = [{"column": c, "MAE (deg)": _fmt(*_ms(wide[c])), "mean rank": round(fr.mean_ranks[c], 2),
+             "repeats best": int(winners.get(c, 0)),
+             f"p vs {best_single} (Holm)": round(float(p_holm[c]), 4) if c in p_holm else np.nan}
+            for c in sorted(names, key=lambda c: wide[c].mean())]
+    df = pd.DataFrame(rows)
+    first = df.iloc[0]["column"]
+    notes = [f"Command: `python -m experiments.run -m experiment=sweep_schedules` (5 jobs) with Table 3's runs; "
+             f"{len(wide)} paired repeats (same splits and keys in every column).",
+             f"Friedman over all {len(names)} columns: chi2 = {fr.statistic:.2f}, p = {fr.p_value:.3g}. First by mean "
+             f"MAE: {first} (best in {int(winners.get(first, 0))} of {len(wide)} repeats). Wilcoxon of each "
+             f"schedule against the best single strategy ({best_single}), Holm over the schedules, in the table.",
+             _floor_note()]
+    _write(df, out, "sweep_schedules", "Sweep: three-stage schedules vs the single strategies (test MAE)", notes)
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(10, 4))
+    order = [r["column"] for r in rows]
+    ax.boxplot([wide[c] for c in order], orientation="horizontal", tick_labels=order)
+    ax.set(xlabel="test MAE (deg), 10 paired repeats")
+    ax.tick_params(axis="y", labelsize=7)
+    _save(fig, out / "sweep_schedules.png", "Three-stage schedules and single strategies (lab_casing)")
     return True
 
 
@@ -676,8 +739,10 @@ def build(dirs, out: Path) -> dict:
     """
     out.mkdir(parents=True, exist_ok=True)
     evals, runs = Runs(dirs).split_label(EQUAL_EVALS_LABEL)
+    sched, runs = runs.split_label(SCHEDULES_LABEL)
     done = {name: fn(runs, out) for name, fn in BUILDERS.items()}
     done["fig9_budgets"] = fig9_budgets(runs, evals, out)
+    done["sweep_schedules"] = sweep_schedules(runs, sched, out)
     missing = [n for n, ok in done.items() if not ok]
     miss = out / "tables_missing.txt"
     if missing:

@@ -30,7 +30,7 @@ import time
 from pathlib import Path
 
 import hydra
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from experiments._common import CONF_DIR, EXIT_CONFIG, check_overrides
 
@@ -91,6 +91,7 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
     info = {"label": cfg.label, "dataset": cfg.dataset.name,
             "condition": cfg.dataset.get("condition", None), "description": desc,
             "optimizer": cfg.optimizer.name, "strategies": list(cfg.strategy.names),
+            "schedule": OmegaConf.to_container(cfg.schedule, resolve=True),
             "total_time_s": time.perf_counter() - t0, **C.env_info()}
     plot = None
     if cfg.figures:

@@ -194,6 +194,7 @@ def _fail_if_called(*a, **k):
     ("+split.target.seed=3", "split.target is read only by split.protocol=transfer"),
     ("split.protocol=transfer", "split.protocol=transfer needs split.target"),
     ("split.protocol=leave_one_out", "split.protocol must be one of"),
+    ("schedule.clock=wall", "schedule.clock must be global or stage, got 'wall'"),
     ("model.tune=true", "model.tune tunes plain RELM only: set optimizer none"),
     ("model.tune=true optimizer=none", "model.tune chooses hidden and lam by validation on the training rows"),
     ("model.tune=true optimizer=none fitness=validation model.hidden=50",
@@ -399,3 +400,11 @@ def test_transfer_run_writes_coverage_and_tests_the_target_only(tmp_path):
     cov = pd.read_csv(tmp_path / "t" / "coverage.csv")
     assert len(cov) == 2 and cov["coverage"].between(0, 1).all()
     assert run["n_repeats"] == 2
+
+
+@pytest.mark.parametrize("schedule, bounds, clock", [("thirds", (1 / 3, 2 / 3), False),
+                                                     ("pct_10_30_60", (0.1, 0.4), False),
+                                                     ("own_clock", (1 / 3, 2 / 3), True)])
+def test_schedules_reach_the_cgo_config(schedule, bounds, clock):
+    oc = C.optimizer_config(_job_cfg(TINY + [f"schedule={schedule}"]))
+    assert oc.stage_bounds == pytest.approx(bounds) and oc.wavelet_stage_clock is clock

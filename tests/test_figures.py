@@ -24,7 +24,7 @@ R = 10
 
 
 def _run_dir(path: Path, metrics: pd.DataFrame, *, dataset="lab_casing", seed=0, conv=None, pred=None,
-             failed=False, label="t"):
+             failed=False, label="t", extra=None):
     """A run directory in the icgo.records schema, written by hand with known numbers."""
     path.mkdir(parents=True)
     tag = {"label": label, "dataset": dataset, "condition": None, "seed": seed}
@@ -34,7 +34,8 @@ def _run_dir(path: Path, metrics: pd.DataFrame, *, dataset="lab_casing", seed=0,
             if c not in df.columns:
                 df[c] = np.nan
         REC.tag_table(df, tag).to_csv(path / f"{name}.csv", index=False)
-    run = {k: None for k in REC.RUN_KEYS} | {"status": "ok", "dataset": dataset, "seed": seed, "label": label}
+    run = {k: None for k in REC.RUN_KEYS} | {"status": "ok", "dataset": dataset, "seed": seed, "label": label,
+                                               **(extra or {})}
     (path / "run.json").write_text(json.dumps(run))
     if failed:
         (path / "FAILED").write_text("boom\n")
@@ -85,8 +86,10 @@ def runs_dir(tmp_path):
 def test_tables_match_direct_computation(runs_dir, tmp_path):
     out = tmp_path / "results"
     done = F.build([runs_dir / "m"], out)
-    assert done == {**{k: True for k in F.BUILDERS}, "table4": False, "fig9_budgets": False}
-    assert (out / "tables_missing.txt").read_text().strip() == "no runs found for: table4, fig9_budgets"
+    assert done == {**{k: True for k in F.BUILDERS}, "table4": False, "fig9_budgets": False,
+                    "sweep_schedules": False}
+    assert (out / "tables_missing.txt").read_text().strip() == \
+        "no runs found for: table4, fig9_budgets, sweep_schedules"
     m = pd.concat([pd.read_csv(p) for p in sorted((runs_dir / "m").rglob("metrics.csv"))])
     m = m[m.split == "test"]
 
@@ -219,3 +222,25 @@ def test_equal_evaluation_runs_sit_beside_not_over_the_equal_iteration_ones(runs
     row = b[(b.method == "PSO-RELM") & b.budget.str.startswith("equal evaluations")].iloc[0]
     assert row["MAE (deg)"] == f"{pso_ev.mean():.4f} +/- {pso_ev.std(ddof=1):.4f}"
     assert "Holm" in (out / "fig9_budgets.md").read_text()
+
+
+def test_schedules_sweep_pairs_each_schedule_with_the_single_strategies(runs_dir, tmp_path):
+    """Issue 18 sweep 1: one column per schedule run, kept apart from Table 3's three-stage."""
+    rng = np.random.default_rng(4)
+    for i, (bounds, clock) in enumerate((([0.2, 0.7], "global"), ([1 / 3, 2 / 3], "stage"))):
+        _run_dir(runs_dir / "m" / f"sched{i}", _metrics(["cgo-three_stage"], rng, {"cgo-three_stage": 0.01 + 0.1 * i}),
+                 label=F.SCHEDULES_LABEL,
+                 extra={"schedule": {"bounds": bounds, "order": ["chaos", "gaussian", "wavelet"], "clock": clock}})
+    out = tmp_path / "results"
+    done = F.build([runs_dir / "m"], out)
+    assert done["sweep_schedules"] and done["table3"]
+    t = pd.read_csv(out / "sweep_schedules.csv").set_index("column")
+    fast = t.loc["three-stage chaos>gaussian>wavelet at 20/70 %"]
+    assert t.index[0] == "three-stage chaos>gaussian>wavelet at 20/70 %" and fast["repeats best"] == 10
+    assert "three-stage chaos>gaussian>wavelet at 33/67 % (wavelet on its stage clock)" in t.index
+    assert {"chaotic", "Gaussian", "wavelet"} <= set(t.index)
+    # Table 3 still reads its own three-stage runs, not the sweep's
+    m = pd.concat([pd.read_csv(p) for p in sorted((runs_dir / "m" / "table3").rglob("metrics.csv"))])
+    t3 = pd.read_csv(out / "table3.csv").set_index("strategy")
+    ts = m[(m.split == "test") & (m.method == "cgo-three_stage")].mae
+    assert t3.loc["three-stage", "MAE (deg) ours"] == f"{ts.mean():.4f} +/- {ts.std(ddof=1):.4f}"

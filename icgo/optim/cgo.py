@@ -96,7 +96,7 @@ def _flag(name, value):
          data_fields=["strategy", "bg_low", "mg_size", "step_scale", "sigma", "mu", "wavelet_g", "wavelet_zeta",
                       "stage_bounds", "stage_order"],
          meta_fields=["variant", "selection", "dims", "original_uniform", "wavelet_bounded", "bound_mode",
-                      "chaos_guard", "overrides"])
+                      "chaos_guard", "wavelet_stage_clock", "overrides"])
 @dataclasses.dataclass(frozen=True)
 class CGOConfig:
     """CGO hyperparameters: data fields are traced (and may be vmapped), static fields select code.
@@ -144,6 +144,9 @@ class CGOConfig:
             ``three_stage`` start (default thirds; data).
         stage_order: strategy indices of stages 1-3 (default chaos, gaussian,
             wavelet; data).
+        wavelet_stage_clock: in ``three_stage``, the wavelet's dilation runs on its
+            stage's own clock (:func:`icgo.optim.mutation.stage_clock`) instead of
+            the whole run's ``t/T`` (static; default False, the run's clock).
         bound_mode: out-of-box coordinates of a new seed are ``clip``-ped (both
             reference codes), set to the ``midpoint`` of the parent and the
             violated bound, or redrawn uniformly in the box (``random``) (static).
@@ -167,6 +170,7 @@ class CGOConfig:
     wavelet_bounded: bool = False
     stage_bounds: Any = (1.0 / 3.0, 2.0 / 3.0)
     stage_order: Any = (mut.CHAOS, mut.GAUSSIAN, mut.WAVELET)
+    wavelet_stage_clock: bool = False
     bound_mode: str = "clip"
     overrides: tuple = ()
 
@@ -179,6 +183,7 @@ class CGOConfig:
         set_("original_uniform", _flag("original_uniform", self.original_uniform))
         set_("wavelet_bounded", _flag("wavelet_bounded", self.wavelet_bounded))
         set_("chaos_guard", _flag("chaos_guard", self.chaos_guard))
+        set_("wavelet_stage_clock", _flag("wavelet_stage_clock", self.wavelet_stage_clock))
         if isinstance(self.strategy, str) or _scalar(self.strategy):
             set_("strategy", mut.strategy_index(self.strategy))
         if _scalar(self.mg_size) and (self.mg_size < 0 or self.mg_size != int(self.mg_size)):
@@ -362,7 +367,8 @@ def _step(state: State, key, t, T, fitness) -> State:
         S3 = MG + a3 * (b3 * X - g3 * GB)  # eq. 14
     eff = mut.effective_strategy(cfg.strategy, t, T, cfg.stage_bounds, cfg.stage_order)
     mask = mut.dims_mask(ks[3], (P, D), cfg.dims)
-    S4 = mut.mutate(ks[4], X, mask, state.extra, eff, t, T, lb, ub, cfg)  # eqs. 15-18
+    t_m, T_m = mut.stage_clock(cfg.strategy, t, T, cfg.stage_bounds) if cfg.wavelet_stage_clock else (t, T)
+    S4 = mut.mutate(ks[4], X, mask, state.extra, eff, t_m, T_m, lb, ub, cfg)  # eqs. 15-18
 
     seeds = repair(ks[6], jnp.stack([S1, S2, S3, S4], axis=1), X[:, None], lb, ub, cfg.bound_mode)  # (P, 4, D)
     fs = evaluate(fitness, seeds.reshape(4 * P, D), aux).reshape(P, 4)

@@ -142,6 +142,22 @@ def effective_strategy(strategy, t, T, stage_bounds, stage_order) -> jax.Array:
     return jnp.where(strategy == THREE_STAGE, jnp.asarray(stage_order)[stage], strategy)
 
 
+def stage_clock(strategy, t, T, stage_bounds) -> tuple:
+    """(t, T) on the clock of the current ``three_stage`` stage; the run's clock for the other strategies.
+
+    Stage s runs from ``start_s T`` to ``end_s T`` (starts 0, b1, b2; ends b1, b2, 1): its own
+    clock is ``(t - start_s T, (end_s - start_s) T)``, so a wavelet placed in a stage sweeps its
+    whole dilation schedule (Ling et al.) within that stage instead of its last part.
+    """
+    frac = t / T
+    b = jnp.asarray(stage_bounds)
+    stage = jnp.sum(frac >= b)
+    edges = jnp.concatenate([jnp.zeros(1, b.dtype), b, jnp.ones(1, b.dtype)])
+    start, end = edges[stage], edges[stage + 1]
+    own = strategy == THREE_STAGE
+    return jnp.where(own, t - start * T, t), jnp.where(own, (end - start) * T, T)
+
+
 def mutate(key, x, mask, r_chaos, strategy, t, T, lb, ub, cfg) -> jax.Array:
     """Fourth seeds S^4 for the whole population (eqs. 15-18).
 
