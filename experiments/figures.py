@@ -14,7 +14,8 @@
   job of ``table1``, the tuned plain RELM (``model.tune=true``, Table 1's
   honest baseline), the PSO and GA jobs of ``fig9``, ``fig9`` again at equal
   fitness evaluations (``budget=evaluations label=fig9_evals``: ``fig9_budgets``),
-  the schedules sweep (``sweep_schedules``) and ``table4``.
+  the schedules sweep (``sweep_schedules``), the mutation readings
+  (``sweep_wavelet``, ``sweep_sigma``: ``sweep_mutations``) and ``table4``.
 
 Outputs (``--out``, default ``results/``): ``tableN.csv`` + ``tableN.md`` with
 the paper's published numbers in adjacent columns, ``table3_stats.*``
@@ -71,12 +72,17 @@ FIG9_NAMES = {"pso": "PSO-RELM", "ga": "GA-RELM", "cgo-original": "CGO-RELM"}
 SCHEDULES_LABEL = "sweep_schedules"
 
 
+#: Run label of the mutation-readings sweeps (``experiment=sweep_wavelet`` and ``sweep_sigma``, issue 18).
+MUTATIONS_LABEL = "sweep_mutations"
+
+
 #: The default plan: (sweep directory name, preset, extra overrides). See the module docstring.
 PLAN = (("table3", "table3", []), ("table1", "table1", ["optimizer=none"]),
         ("table1_tuned", "table1", ["optimizer=none", "model.tune=true", "fitness=validation"]),
         ("fig9", "fig9", ["optimizer=pso,ga"]),
         ("fig9_evals", "fig9", ["budget=evaluations", f"label={EQUAL_EVALS_LABEL}"]),
-        ("sweep_schedules", "sweep_schedules", []), ("table4", "table4", []))
+        ("sweep_schedules", "sweep_schedules", []), ("sweep_wavelet", "sweep_wavelet", []),
+        ("sweep_sigma", "sweep_sigma", []), ("table4", "table4", []))
 
 
 # ------------------------------------------------------------------ collect
@@ -434,6 +440,59 @@ def sweep_schedules(pooled: Runs, sched: Runs, out: Path) -> bool:
     return True
 
 
+def _reading(params: dict) -> str:
+    """The mutation reading a sweep run used, from its optimizer params (the rest at CGOConfig's defaults)."""
+    from icgo.optim.cgo import CGOConfig
+
+    d = CGOConfig()
+    if "sigma" in params:
+        return f"Gaussian sigma {params['sigma']:g} ({params['sigma'] / 2:g} of the box width)"
+    zeta = params.get("wavelet_zeta", d.wavelet_zeta)
+    return f"wavelet zeta {zeta:g}, amplitude {params.get('wavelet_amplitude', d.wavelet_amplitude)}"
+
+
+def sweep_mutations(pooled: Runs, sweep: Runs, out: Path) -> bool:
+    """Mutation readings (issue 18, sweep 2): each reading's single strategy and three-stage, and the ranking.
+
+    Each run holds one reading's single strategy (wavelet or Gaussian) and
+    three-stage on Table 3's splits and keys; the other strategies keep their
+    default readings (Table 3). Per reading: both MAEs, the paired Wilcoxon
+    of three-stage vs the single strategy (Holm over the readings), and the
+    order of the four strategies by mean MAE against the paper's.
+    """
+    from icgo import records as R
+    from icgo.stats import holm, wilcoxon_paired
+
+    m = pooled.metrics()
+    base = {s: m[m.method == f"cgo-{s}"].set_index("repeat")["mae"] for s in STRATEGIES4 if f"cgo-{s}" in set(m.method)}
+    if not sweep.runs or len(base) < len(STRATEGIES4):
+        return False
+    paper = sorted(STRATEGIES4, key=lambda s: PAPER["table3"][s][0][0])
+    rows = []
+    for info in sweep.runs:
+        t = R.read_table(info["dir"], "metrics")
+        t = t[t.split == "test"]
+        single = next(s for s in info.get("strategies", []) if s != "three_stage")
+        mae = {**base, **{s: t[t.method == f"cgo-{s}"].set_index("repeat")["mae"] for s in (single, "three_stage")}}
+        order = sorted(STRATEGIES4, key=lambda s: mae[s].mean())
+        w = pd.DataFrame({"three": mae["three_stage"], "single": mae[single]}).dropna()
+        rows.append({"reading": _reading(info.get("optimizer_params") or {}),
+                     "single strategy alone (deg)": _fmt(*_ms(mae[single])), "three-stage (deg)": _fmt(*_ms(mae["three_stage"])),
+                     "p three-stage vs single": wilcoxon_paired(w["three"], w["single"]).p_value,
+                     "order by MAE": " < ".join(LABEL[s] for s in order), "paper's order": order == paper})
+    df = pd.DataFrame(rows)
+    df["p Holm"] = holm(df["p three-stage vs single"].to_numpy())
+    df = df.sort_values("reading").reset_index(drop=True)
+    hits = df[df["paper's order"]]["reading"].tolist()
+    notes = ["Commands: `python -m experiments.run -m experiment=sweep_wavelet` (6 jobs) and `... experiment=sweep_sigma` "
+             "(3 jobs), with Table 3's runs for the strategies a reading does not touch (their defaults: wavelet zeta "
+             "5 with Ling's amplitude, Gaussian sigma 1.0 = half the box). 10 paired repeats per column.",
+             f"The paper's order: {' < '.join(LABEL[s] for s in paper)}. Readings that reproduce it: "
+             f"{', '.join(hits) if hits else 'none'}.", _floor_note()]
+    _write(df, out, "sweep_mutations", "Sweep: mutation readings (test MAE)", notes)
+    return True
+
+
 def table2(runs: Runs, out: Path) -> bool:
     """Table 2: five 4th-seed strategies on one split (repeat 0), with the paper's Table 2."""
     m = runs.metrics()
@@ -740,7 +799,9 @@ def build(dirs, out: Path) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     evals, runs = Runs(dirs).split_label(EQUAL_EVALS_LABEL)
     sched, runs = runs.split_label(SCHEDULES_LABEL)
+    mutations, runs = runs.split_label(MUTATIONS_LABEL)
     done = {name: fn(runs, out) for name, fn in BUILDERS.items()}
+    done["sweep_mutations"] = sweep_mutations(runs, mutations, out)
     done["fig9_budgets"] = fig9_budgets(runs, evals, out)
     done["sweep_schedules"] = sweep_schedules(runs, sched, out)
     missing = [n for n, ok in done.items() if not ok]

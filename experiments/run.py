@@ -92,6 +92,8 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
             "condition": cfg.dataset.get("condition", None), "description": desc,
             "optimizer": cfg.optimizer.name, "strategies": list(cfg.strategy.names),
             "schedule": OmegaConf.to_container(cfg.schedule, resolve=True),
+            "optimizer_params": OmegaConf.to_container(cfg.optimizer.params, resolve=True) if cfg.optimizer.name
+            else None,
             "total_time_s": time.perf_counter() - t0, **C.env_info()}
     plot = None
     if cfg.figures:

@@ -87,9 +87,9 @@ def test_tables_match_direct_computation(runs_dir, tmp_path):
     out = tmp_path / "results"
     done = F.build([runs_dir / "m"], out)
     assert done == {**{k: True for k in F.BUILDERS}, "table4": False, "fig9_budgets": False,
-                    "sweep_schedules": False}
+                    "sweep_schedules": False, "sweep_mutations": False}
     assert (out / "tables_missing.txt").read_text().strip() == \
-        "no runs found for: table4, fig9_budgets, sweep_schedules"
+        "no runs found for: table4, sweep_mutations, fig9_budgets, sweep_schedules"
     m = pd.concat([pd.read_csv(p) for p in sorted((runs_dir / "m").rglob("metrics.csv"))])
     m = m[m.split == "test"]
 
@@ -244,3 +244,25 @@ def test_schedules_sweep_pairs_each_schedule_with_the_single_strategies(runs_dir
     t3 = pd.read_csv(out / "table3.csv").set_index("strategy")
     ts = m[(m.split == "test") & (m.method == "cgo-three_stage")].mae
     assert t3.loc["three-stage", "MAE (deg) ours"] == f"{ts.mean():.4f} +/- {ts.std(ddof=1):.4f}"
+
+
+def test_mutation_readings_sweep_names_each_reading_and_checks_the_paper_order(runs_dir, tmp_path):
+    rng = np.random.default_rng(5)
+    # a reading under which three-stage is best and wavelet second: the paper's order if Gaussian < chaos
+    _run_dir(runs_dir / "m" / "wav", _metrics(["cgo-wavelet", "cgo-three_stage"], rng,
+                                              {"cgo-wavelet": 0.02, "cgo-three_stage": 0.001}),
+             label=F.MUTATIONS_LABEL, extra={"strategies": ["wavelet", "three_stage"],
+                                             "optimizer_params": {"variant": "paper", "wavelet_zeta": 1.0,
+                                                                  "wavelet_amplitude": "none"}})
+    _run_dir(runs_dir / "m" / "sig", _metrics(["cgo-gaussian", "cgo-three_stage"], rng,
+                                              {"cgo-gaussian": 0.5, "cgo-three_stage": 0.6}),
+             label=F.MUTATIONS_LABEL, extra={"strategies": ["gaussian", "three_stage"],
+                                             "optimizer_params": {"variant": "paper", "sigma": 0.2}})
+    out = tmp_path / "results"
+    assert F.build([runs_dir / "m"], out)["sweep_mutations"]
+    t = pd.read_csv(out / "sweep_mutations.csv").set_index("reading")
+    assert set(t.index) == {"wavelet zeta 1, amplitude none", "Gaussian sigma 0.2 (0.1 of the box width)"}
+    wav = t.loc["wavelet zeta 1, amplitude none"]
+    assert wav["order by MAE"].startswith("three-stage < wavelet")
+    assert not t.loc["Gaussian sigma 0.2 (0.1 of the box width)", "paper's order"]
+    assert 0 <= wav["p Holm"] <= 1

@@ -183,3 +183,15 @@ def test_cgo_stage_clock_reaches_the_three_stage_search():
     assert not all(np.array_equal(np.asarray(x.best_x), np.asarray(y.best_x)) for x, y in zip(a, b))
     with pytest.raises(ValueError, match="wavelet_stage_clock must be True or False"):
         CGOConfig.paper(strategy="three_stage", wavelet_stage_clock="yes")
+
+
+def test_wavelet_amplitude_reading():
+    """Issue 18 sweep 2: without Ling's a^(-1/2) the step is the Morlet value alone, whatever the dilation."""
+    key = jax.random.key(3)
+    for a in (1.0, 100.0, 1e4):
+        ling = np.asarray(mut.wavelet_sigma(key, (2000,), a, jnp.float64))
+        none = np.asarray(mut.wavelet_sigma(key, (2000,), a, jnp.float64, "none"))
+        np.testing.assert_allclose(ling, none / np.sqrt(a), rtol=1e-12)
+        assert np.abs(none).max() <= 1.0 and np.abs(none).max() > 0.9
+    with pytest.raises(ValueError, match="unknown CGO wavelet_amplitude 'half'"):
+        CGOConfig.paper(wavelet_amplitude="half")

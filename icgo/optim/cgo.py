@@ -96,7 +96,7 @@ def _flag(name, value):
          data_fields=["strategy", "bg_low", "mg_size", "step_scale", "sigma", "mu", "wavelet_g", "wavelet_zeta",
                       "stage_bounds", "stage_order"],
          meta_fields=["variant", "selection", "dims", "original_uniform", "wavelet_bounded", "bound_mode",
-                      "chaos_guard", "wavelet_stage_clock", "overrides"])
+                      "chaos_guard", "wavelet_stage_clock", "wavelet_amplitude", "overrides"])
 @dataclasses.dataclass(frozen=True)
 class CGOConfig:
     """CGO hyperparameters: data fields are traced (and may be vmapped), static fields select code.
@@ -147,6 +147,8 @@ class CGOConfig:
         wavelet_stage_clock: in ``three_stage``, the wavelet's dilation runs on its
             stage's own clock (:func:`icgo.optim.mutation.stage_clock`) instead of
             the whole run's ``t/T`` (static; default False, the run's clock).
+        wavelet_amplitude: ``ling`` (the step carries Ling et al.'s ``a^(-1/2)``)
+            or ``none`` (the Morlet value alone) (static).
         bound_mode: out-of-box coordinates of a new seed are ``clip``-ped (both
             reference codes), set to the ``midpoint`` of the parent and the
             violated bound, or redrawn uniformly in the box (``random``) (static).
@@ -171,6 +173,7 @@ class CGOConfig:
     stage_bounds: Any = (1.0 / 3.0, 2.0 / 3.0)
     stage_order: Any = (mut.CHAOS, mut.GAUSSIAN, mut.WAVELET)
     wavelet_stage_clock: bool = False
+    wavelet_amplitude: str = "ling"
     bound_mode: str = "clip"
     overrides: tuple = ()
 
@@ -180,6 +183,7 @@ class CGOConfig:
         _choice("selection", self.selection, SELECTIONS)
         _choice("dims mode", self.dims, mut.DIM_MODES)
         _choice("bound_mode", self.bound_mode, BOUND_MODES)
+        _choice("wavelet_amplitude", self.wavelet_amplitude, mut.WAVELET_AMPLITUDES)
         set_("original_uniform", _flag("original_uniform", self.original_uniform))
         set_("wavelet_bounded", _flag("wavelet_bounded", self.wavelet_bounded))
         set_("chaos_guard", _flag("chaos_guard", self.chaos_guard))

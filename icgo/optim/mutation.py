@@ -111,14 +111,19 @@ def morlet(u) -> jax.Array:
     return jnp.exp(-0.5 * u * u) * jnp.cos(5.0 * u)
 
 
-def wavelet_sigma(key, shape, a, dtype) -> jax.Array:
+#: Readings of the wavelet step's amplitude: Ling et al.'s ``a^(-1/2)`` factor, or none (psi alone).
+WAVELET_AMPLITUDES = ("ling", "none")
+
+
+def wavelet_sigma(key, shape, a, dtype, amplitude: str = "ling") -> jax.Array:
     """Wavelet step sigma = a^(-1/2) psi(phi/a), phi ~ U(-2.5a, 2.5a) (Ling et al.).
 
     Returns values in [-a^(-1/2), a^(-1/2)]: large moves early (a ~ 1), fine
-    moves late (a -> g).
+    moves late (a -> g). ``amplitude="none"`` drops Ling's ``a^(-1/2)``: the
+    step is ``psi(phi/a)`` in [-1, 1] throughout (issue 18's reading without it).
     """
     u = jax.random.uniform(key, shape, dtype, -2.5, 2.5)  # phi / a
-    return morlet(u) / jnp.sqrt(a)
+    return morlet(u) / jnp.sqrt(a) if amplitude == "ling" else morlet(u)
 
 
 # --- operators ----------------------------------------------------------------
@@ -194,7 +199,7 @@ def mutate(key, x, mask, r_chaos, strategy, t, T, lb, ub, cfg) -> jax.Array:
 
     def wavelet(k):  # eq. 18 with Ling et al. (2008) dilation and normalisation
         a = wavelet_dilation(t, T, cfg.wavelet_g, cfg.wavelet_zeta)
-        s = wavelet_sigma(k, x.shape, a, x.dtype)
+        s = wavelet_sigma(k, x.shape, a, x.dtype, cfg.wavelet_amplitude)
         if cfg.wavelet_bounded:
             return jnp.where(mask, jnp.where(s > 0, x + s * (ub - x), x + s * (x - lb)), x)
         return jnp.where(mask, x + scale * s, x)
