@@ -72,8 +72,8 @@ FIG9_NAMES = {"pso": "PSO-RELM", "ga": "GA-RELM", "cgo-original": "CGO-RELM"}
 SCHEDULES_LABEL = "sweep_schedules"
 
 
-#: Run label of the mutation-readings sweeps (``experiment=sweep_wavelet`` and ``sweep_sigma``, issue 18).
-MUTATIONS_LABEL = "sweep_mutations"
+#: Run labels of the mutation-readings sweeps (``experiment=sweep_wavelet`` and ``sweep_sigma``, issue 18).
+MUTATIONS_LABELS = ("sweep_wavelet", "sweep_sigma")
 
 
 #: The default plan: (sweep directory name, preset, extra overrides). See the module docstring.
@@ -125,10 +125,10 @@ class Runs:
                 self.runs.append(info)
         self.runs.sort(key=lambda r: r["mtime"])
 
-    def split_label(self, label: str) -> tuple["Runs", "Runs"]:
-        """(the runs with this run label, the others): runs that must not replace the pooled ones."""
-        return (Runs(None, [r for r in self.runs if r.get("label") == label]),
-                Runs(None, [r for r in self.runs if r.get("label") != label]))
+    def split_label(self, *labels: str) -> tuple["Runs", "Runs"]:
+        """(the runs with one of these run labels, the others): runs that must not replace the pooled ones."""
+        return (Runs(None, [r for r in self.runs if r.get("label") in labels]),
+                Runs(None, [r for r in self.runs if r.get("label") not in labels]))
 
     def _table(self, name: str) -> pd.DataFrame:
         from icgo import records as R
@@ -799,7 +799,7 @@ def build(dirs, out: Path) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     evals, runs = Runs(dirs).split_label(EQUAL_EVALS_LABEL)
     sched, runs = runs.split_label(SCHEDULES_LABEL)
-    mutations, runs = runs.split_label(MUTATIONS_LABEL)
+    mutations, runs = runs.split_label(*MUTATIONS_LABELS)
     done = {name: fn(runs, out) for name, fn in BUILDERS.items()}
     done["sweep_mutations"] = sweep_mutations(runs, mutations, out)
     done["fig9_budgets"] = fig9_budgets(runs, evals, out)

@@ -251,12 +251,12 @@ def test_mutation_readings_sweep_names_each_reading_and_checks_the_paper_order(r
     # a reading under which three-stage is best and wavelet second: the paper's order if Gaussian < chaos
     _run_dir(runs_dir / "m" / "wav", _metrics(["cgo-wavelet", "cgo-three_stage"], rng,
                                               {"cgo-wavelet": 0.02, "cgo-three_stage": 0.001}),
-             label=F.MUTATIONS_LABEL, extra={"strategies": ["wavelet", "three_stage"],
+             label="sweep_wavelet", extra={"strategies": ["wavelet", "three_stage"],
                                              "optimizer_params": {"variant": "paper", "wavelet_zeta": 1.0,
                                                                   "wavelet_amplitude": "none"}})
     _run_dir(runs_dir / "m" / "sig", _metrics(["cgo-gaussian", "cgo-three_stage"], rng,
                                               {"cgo-gaussian": 0.5, "cgo-three_stage": 0.6}),
-             label=F.MUTATIONS_LABEL, extra={"strategies": ["gaussian", "three_stage"],
+             label="sweep_sigma", extra={"strategies": ["gaussian", "three_stage"],
                                              "optimizer_params": {"variant": "paper", "sigma": 0.2}})
     out = tmp_path / "results"
     assert F.build([runs_dir / "m"], out)["sweep_mutations"]
