@@ -78,6 +78,9 @@ def workflow_config(cfg: DictConfig) -> D.WorkflowConfig:
         raise ValueError(f"study={cfg.study!r}: choose one of {', '.join(STUDIES)}")
     if str(cfg.design) not in D.DESIGNS:
         raise ValueError(f"design={cfg.design!r}: choose one of {', '.join(D.DESIGNS)}")
+    n = cfg.n_stations
+    if not (isinstance(n, int) and not isinstance(n, bool) and n >= D.MIN_STATIONS):
+        raise ValueError(f"n_stations={n!r}: must be an integer >= {D.MIN_STATIONS} (simulated stations)")
     return config
 
 
@@ -116,6 +119,7 @@ def main_body(cfg: DictConfig, out_dir: Path) -> int:
             print("wrote", path)
             return 0
         st, label, truth = load_stations(cfg.data, int(cfg.seed), int(cfg.n_stations), str(cfg.design), config.noise)
+        D.check_stations(st)  # too few stations, NaN: one line here, not a traceback from the workflow
     except (icgo_io.DataError, ValueError, FileNotFoundError) as err:
         print(f"error: {err}".splitlines()[0], file=sys.stderr)
         return 1

@@ -217,6 +217,15 @@ def test_bad_input_one_line(capsys, tmp_path):
     assert main_body(cfg, tmp_path) == 1  # bad input data
     err = capsys.readouterr().err.strip()
     assert err.startswith("error:") and "\n" not in err and "bad_nan.csv" in err
+    # a readable file with too few stations: one line before the workflow starts (issue 19)
+    few = pd.read_csv(DATA / "handwritten_axial.csv").head(3)
+    few.to_csv(tmp_path / "few.csv", index=False)
+    (tmp_path / "few.meta.json").write_text((DATA / "handwritten_axial.meta.json").read_text()
+                                            if (DATA / "handwritten_axial.meta.json").exists() else "{}")
+    cfg.data = str(tmp_path / "few.csv")
+    assert main_body(cfg, tmp_path) == 1
+    assert capsys.readouterr().err.strip().splitlines()[-1] == "error: stations: need at least 6 stations, got 3"
+    cfg.data = str(DATA / "bad_nan.csv")
     # bad options: exit 2 (EXIT_CONFIG, as every entry point), one line per bad value, each naming its field
     cfg.k_folds, cfg.max_effects = 1, -1
     assert main_body(cfg, tmp_path) == EXIT_CONFIG == 2
@@ -224,7 +233,8 @@ def test_bad_input_one_line(capsys, tmp_path):
     assert [ln.split("=")[0] for ln in lines] == ["error: WorkflowConfig: k_folds", "error: WorkflowConfig: max_effects"]
     cfg.k_folds, cfg.max_effects = 5, 6
     for key, value, msg in [("max_effect", 4, "unknown setting"), ("study", "nope", "study='nope'"),
-                            ("design", "spiral", "design='spiral'")]:
+                            ("design", "spiral", "design='spiral'"),
+                            ("n_stations", 0, "n_stations=0: must be an integer >= 6")]:
         bad = cfg.copy()
         OmegaConf.set_struct(bad, False)
         bad[key] = value

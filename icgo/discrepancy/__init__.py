@@ -88,6 +88,7 @@ from icgo.discrepancy.report import (
 from icgo.discrepancy.search import KINDS, Candidate, Result, SearchState, Step, finish, init, run_workflow, step
 from icgo.discrepancy.stations import (
     DESIGNS,
+    MIN_STATIONS,
     Stations,
     check_stations,
     design_attitudes,

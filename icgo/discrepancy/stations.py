@@ -52,13 +52,17 @@ class Stations(NamedTuple):
         return self.azimuth is not None and self.inclination is not None
 
 
+#: Fewest stations the workflow accepts.
+MIN_STATIONS = 6
+
+
 def check_stations(st: Stations) -> None:
     """Raise ValueError (one line) for inputs the workflow cannot use."""
     G, B = np.asarray(st.G), np.asarray(st.B)
     if G.ndim != 2 or G.shape[1] != 3 or B.shape != G.shape:
         raise ValueError(f"stations: G and B must both be (n, 3), got {G.shape} and {B.shape}")
-    if G.shape[0] < 6:
-        raise ValueError(f"stations: need at least 6 stations, got {G.shape[0]}")
+    if G.shape[0] < MIN_STATIONS:
+        raise ValueError(f"stations: need at least {MIN_STATIONS} stations, got {G.shape[0]}")
     if not (np.all(np.isfinite(G)) and np.all(np.isfinite(B))):
         raise ValueError("stations: G or B contains NaN/inf")
     if not st.has_reference:
