@@ -1,0 +1,166 @@
+"""Property-based tests (Hypothesis) of the data contract's readers and the study configs (issue 19, item 7).
+
+* Valid recordings, generated, round-trip through ``write_recording`` / ``read_recording`` exactly.
+* Malformed CSVs (valid ones with bytes cut, replaced or inserted) and arbitrary JSON metadata end
+  in :class:`icgo.io.DataError` with one line, or read; never another exception.
+* Arbitrary values for the study settings end in a one-line ``SettingError`` or a valid config.
+
+The fast suite runs a bounded number of examples (``FAST``); ``make test-all`` runs the
+``slow`` variants with many more.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import icgo  # noqa: F401
+from icgo import io
+from icgo.studies import SettingError
+from icgo.studies.icgo_relm import StudyConfig
+
+FAST = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
+                                                                       HealthCheck.too_slow])
+LONG = settings(max_examples=1500, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
+                                                                         HealthCheck.too_slow])
+
+
+def _unit(v):
+    v = np.asarray(v, float)
+    return v / np.linalg.norm(v)
+
+
+@st.composite
+def recordings(draw):
+    """A valid contract frame: G near 1 g, B near the earth's field in nT, the reference attitude."""
+    n = draw(st.integers(1, 12))
+    direction = st.tuples(*[st.floats(-1, 1, allow_nan=False)] * 3).filter(lambda v: math.hypot(*v) > 0.1)
+    rows = []
+    for i in range(n):
+        g = _unit(draw(direction)) * draw(st.floats(0.95, 1.05))
+        b = _unit(draw(direction)) * draw(st.floats(30_000.0, 65_000.0))
+        rows.append({"station": i + draw(st.integers(0, 5)) * 100, "gx": g[0], "gy": g[1], "gz": g[2],
+                     "bx": b[0], "by": b[1], "bz": b[2],
+                     "azimuth_deg": draw(st.floats(0.0, 359.999, allow_nan=False)),
+                     "inclination_deg": draw(st.floats(0.0, 180.0, allow_nan=False))})
+    frame = pd.DataFrame(rows).drop_duplicates("station")
+    meta = draw(st.one_of(st.just({}), st.fixed_dictionaries({
+        "total_field_nT": st.floats(30_000.0, 65_000.0), "dip_deg": st.floats(-89.0, 89.0)})))
+    return frame, meta
+
+
+def _round_trip(tmp_path, frame, meta):
+    path = tmp_path / "rec.csv"
+    io.write_recording(path, frame, meta)
+    back = io.read_recording(path)
+    cols = list(frame.columns)
+    pd.testing.assert_frame_equal(back.frame[cols].reset_index(drop=True), frame.reset_index(drop=True)[cols],
+                                  check_dtype=False, check_exact=True)
+    assert back.meta == meta
+
+
+@FAST
+@given(recordings())
+def test_valid_recordings_round_trip_exactly(tmp_path_factory, rec):
+    _round_trip(tmp_path_factory.mktemp("rt"), *rec)
+
+
+def _mutated_text(draw, text):
+    ops = draw(st.lists(st.tuples(st.sampled_from(["cut", "replace", "insert", "truncate"]),
+                                  st.integers(0, max(len(text) - 1, 0)),
+                                  st.text(alphabet=st.sampled_from(list(",.-e+\n\r\"x0123456789 naif\x00")),
+                                          min_size=1, max_size=6)), min_size=1, max_size=4))
+    for op, i, s in ops:
+        i = min(i, len(text))
+        if op == "cut":
+            text = text[:i] + text[i + len(s):]
+        elif op == "replace":
+            text = text[:i] + s + text[i + len(s):]
+        elif op == "insert":
+            text = text[:i] + s + text[i:]
+        else:
+            text = text[:i]
+    return text
+
+
+def _read_or_one_line_error(path):
+    try:
+        io.read_recording(path, require_meta=False)
+    except io.DataError as e:
+        msg = str(e)
+        assert msg and "\n" not in msg, msg
+        assert path.name in msg or io.meta_path_for(path).name in msg, msg  # names the file at fault
+
+
+def _check_mutated_csvs(tmp_path_factory, data):
+    frame, meta = data.draw(recordings())
+    d = tmp_path_factory.mktemp("fz")
+    path = d / "rec.csv"
+    io.write_recording(path, frame, meta)
+    path.write_text(_mutated_text(data.draw, path.read_text()))
+    _read_or_one_line_error(path)
+
+
+@FAST
+@given(st.data())
+def test_mutated_csvs_read_or_fail_in_one_line(tmp_path_factory, data):
+    _check_mutated_csvs(tmp_path_factory, data)
+
+
+@pytest.mark.slow
+@LONG
+@given(st.data())
+def test_mutated_csvs_read_or_fail_in_one_line_long(tmp_path_factory, data):
+    _check_mutated_csvs(tmp_path_factory, data)
+
+
+JSON = st.recursive(st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=8),
+                    lambda kids: st.lists(kids, max_size=4) | st.dictionaries(st.text(max_size=8), kids, max_size=4),
+                    max_leaves=12)
+META_KEYS = st.sampled_from(["total_field_nT", "dip_deg", "declination_deg", "latitude", "gravity_g", "date",
+                             "name", "units", "x"])
+
+
+def _check_metadata(tmp_path_factory, rec, meta):
+    frame, _ = rec
+    d = tmp_path_factory.mktemp("meta")
+    path = d / "rec.csv"
+    io.write_recording(path, frame, {})
+    (d / "rec.meta.json").write_text(json.dumps(meta, allow_nan=True))
+    _read_or_one_line_error(path)
+
+
+@FAST
+@given(recordings(), st.one_of(JSON, st.dictionaries(META_KEYS, JSON, max_size=5)))
+def test_arbitrary_metadata_reads_or_fails_in_one_line(tmp_path_factory, rec, meta):
+    _check_metadata(tmp_path_factory, rec, meta)
+
+
+@pytest.mark.slow
+@LONG
+@given(recordings(), st.one_of(JSON, st.dictionaries(META_KEYS, JSON, max_size=5)))
+def test_arbitrary_metadata_reads_or_fails_in_one_line_long(tmp_path_factory, rec, meta):
+    _check_metadata(tmp_path_factory, rec, meta)
+
+
+SETTING_VALUES = st.one_of(st.none(), st.booleans(), st.integers(-10**6, 10**6), st.floats(), st.text(max_size=6),
+                           st.lists(st.floats(), max_size=3))
+FIELDS = st.sampled_from(["n_repeats", "seed", "train_fraction", "sigma_filter", "msa_iterations", "hidden", "lam",
+                          "fitness", "val_fraction", "k_folds", "theta_bounds", "pop_size", "iterations", "dtype",
+                          "protocol", "features", "msa_model", "tune", "strategies"])
+
+
+@FAST
+@given(st.dictionaries(FIELDS, SETTING_VALUES, min_size=1, max_size=3))
+def test_study_settings_are_valid_or_one_line_setting_errors(values):
+    try:
+        StudyConfig(**values)
+    except SettingError as e:
+        msg = str(e)
+        assert "\n" not in msg and e.field in msg, msg
