@@ -161,7 +161,7 @@ class StudyConfig:
              f"{default_fraction}, got {self.train_fraction!r}")
         need(self.sigma_filter is None or (is_real(self.sigma_filter) and self.sigma_filter > 0), "sigma_filter",
              f"must be > 0 or null, got {self.sigma_filter!r}")
-        need(self.msa_model in _msa.MODELS, "msa_model",
+        need(isinstance(self.msa_model, str) and self.msa_model in _msa.MODELS, "msa_model",
              f"must be one of {list(_msa.MODELS)}, got {self.msa_model!r}")
         need(self.msa_reference in ("station_mean", "known"), "msa_reference",
              f"must be station_mean or known, got {self.msa_reference!r}")
