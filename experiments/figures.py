@@ -27,7 +27,6 @@ the paper's published numbers in adjacent columns, ``table3_stats.*``
 from __future__ import annotations
 
 import argparse
-import json
 import subprocess
 import sys
 import time
@@ -249,10 +248,15 @@ def _tuned_note(runs: Runs, m: pd.DataFrame, others) -> str:
         if list(x["repeat"]) == list(t["repeat"]):
             p = stats.wilcoxon_paired(x["mae"], t["mae"]).p_value
             parts.append(f"{o}: MAE {100 * (x['mae'].mean() / t['mae'].mean() - 1):+.1f} % (paired Wilcoxon p = {p:.3g})")
+    from icgo.relm import TUNE_HIDDEN, TUNE_LAMBDA
+    from icgo.studies.icgo_relm import StudyConfig
+
+    d = StudyConfig()
     return (f"Tuned RELM (`model.tune=true fitness=validation optimizer=none`): hidden L and lambda chosen on "
-            f"L in {{10, 20, 30, 50, 80, 120}} x lambda in 1e-6 .. 1e-1 by the mean validation RMSE over repeats on "
-            f"the training rows only (30 % of them held out), chosen L = {cell.get('hidden')}, lambda = "
-            f"{cell.get('lam')}. Against it: {'; '.join(parts) or 'no paired CGO runs'}. The CGO rows use L = 30.")
+            f"L in {{{', '.join(map(str, TUNE_HIDDEN))}}} x lambda in {TUNE_LAMBDA[0]:g} .. {TUNE_LAMBDA[-1]:g} by the "
+            f"mean validation RMSE over repeats on the training rows only ({100 * d.val_fraction:.0f} % of them held "
+            f"out), chosen L = {cell.get('hidden')}, lambda = {cell.get('lam')}. Against it: "
+            f"{'; '.join(parts) or 'no paired CGO runs'}. The CGO rows use L = {d.hidden}.")
 
 
 def _paper_variances() -> dict:
@@ -303,7 +307,7 @@ def fig9(runs: Runs, out: Path) -> bool:
         return False
     rows = []
     for x in methods:
-        row = {"method": {"pso": "PSO-RELM", "ga": "GA-RELM", "cgo-original": "CGO-RELM"}[x]}
+        row = {"method": FIG9_NAMES[x]}
         for k in METRICS:
             row[f"{k}_mean"], row[f"{k}_std"] = _ms(m[m.method == x][k])
             p = PAPER["fig9"].get(x)
@@ -333,13 +337,14 @@ def _fig9_notes(m, conv, methods, df) -> list[str]:
     order = df.sort_values("mae_mean")["method"].tolist()
     w = m.pivot_table(index="repeat", columns="method", values="mae")
     notes = [f"Order by mean MAE, ours: {' < '.join(order)}; the paper reports CGO-RELM best (MAE 0.052)."]
-    for x, label in (("pso", "PSO-RELM"), ("ga", "GA-RELM")):
+    for x in ("pso", "ga"):
+        label = FIG9_NAMES[x]
         t = wilcoxon_paired(w["cgo-original"], w[x])
         verdict = "no significant difference" if t.p_value >= 0.05 else (
             "CGO-RELM significantly better" if (w["cgo-original"] - w[x]).median() < 0 else
             f"{label} significantly better")
         notes.append(f"Wilcoxon signed-rank, CGO-RELM vs {label} (MAE, paired repeats): p = {t.p_value:.4f}, {verdict}.")
-    ev = {label: conv[conv.method == x]["evals"].max() for x, label in zip(methods, ("PSO-RELM", "GA-RELM", "CGO-RELM"))
+    ev = {FIG9_NAMES[x]: conv[conv.method == x]["evals"].max() for x in methods
           if not conv.empty}
     if ev and all(np.isfinite(v) for v in ev.values()):
         ev = {k: int(v) for k, v in ev.items()}
@@ -359,7 +364,7 @@ def fig9_budgets(iters: Runs, evals: Runs, out: Path) -> bool:
         return False
     ci, ce = iters.convergence(), evals.convergence()
     rows, tests = [], []
-    for budget, m, conv in (("equal iterations (30 x 100)", mi, ci), ("equal evaluations (12 030)", me, ce)):
+    for budget, m, conv in (("equal iterations", mi, ci), ("equal evaluations", me, ce)):
         w = m.pivot_table(index="repeat", columns="method", values="mae")
         for x in methods:
             mae = _ms(m[m.method == x]["mae"])
@@ -444,9 +449,12 @@ def _reading(params: dict) -> str:
     """The mutation reading a sweep run used, from its optimizer params (the rest at CGOConfig's defaults)."""
     from icgo.optim.cgo import CGOConfig
 
+    from icgo.studies.icgo_relm import StudyConfig
+
     d = CGOConfig()
     if "sigma" in params:
-        return f"Gaussian sigma {params['sigma']:g} ({params['sigma'] / 2:g} of the box width)"
+        low, high = StudyConfig().theta_bounds
+        return f"Gaussian sigma {params['sigma']:g} ({params['sigma'] / (high - low):g} of the box width)"
     zeta = params.get("wavelet_zeta", d.wavelet_zeta)
     return f"wavelet zeta {zeta:g}, amplitude {params.get('wavelet_amplitude', d.wavelet_amplitude)}"
 
@@ -461,6 +469,7 @@ def sweep_mutations(pooled: Runs, sweep: Runs, out: Path) -> bool:
     order of the four strategies by mean MAE against the paper's.
     """
     from icgo import records as R
+    from icgo.optim.cgo import CGOConfig
     from icgo.stats import holm, wilcoxon_paired
 
     m = pooled.metrics()
@@ -485,8 +494,8 @@ def sweep_mutations(pooled: Runs, sweep: Runs, out: Path) -> bool:
     df = df.sort_values("reading").reset_index(drop=True)
     hits = df[df["paper's order"]]["reading"].tolist()
     notes = ["Commands: `python -m experiments.run -m experiment=sweep_wavelet` (6 jobs) and `... experiment=sweep_sigma` "
-             "(3 jobs), with Table 3's runs for the strategies a reading does not touch (their defaults: wavelet zeta "
-             "5 with Ling's amplitude, Gaussian sigma 1.0 = half the box). 10 paired repeats per column.",
+             "(3 jobs), with Table 3's runs for the strategies a reading does not touch (their defaults: "
+             f"{_reading({})}, Gaussian sigma {CGOConfig().sigma:g}). 10 paired repeats per column.",
              f"The paper's order: {' < '.join(LABEL[s] for s in paper)}. Readings that reproduce it: "
              f"{', '.join(hits) if hits else 'none'}.", _floor_note()]
     _write(df, out, "sweep_mutations", "Sweep: mutation readings (test MAE)", notes)

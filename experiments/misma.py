@@ -49,7 +49,7 @@ def _plots(name, plot, out: Path) -> None:
         it = np.arange(1, cu.shape[1] + 1)
         ax[0].plot(it, np.median(cu, 0), f"C{i}", label=f"{lab} (median of {cu.shape[0]})")
         ax[0].fill_between(it, np.quantile(cu, 0.25, 0), np.quantile(cu, 0.75, 0), color=f"C{i}", alpha=0.2)
-    ax[0].axhline(plot.threshold, color="k", ls=":", label="2 x F(true), magnetometer objective")
+    ax[0].axhline(plot.threshold, color="k", ls=":", label="threshold_factor x F(true), magnetometer objective")
     ax[0].set(yscale="log", xlabel="iteration", ylabel="best fitness (own objective)", title=f"convergence ({name})")
     ax[0].legend(fontsize=6)
     for k, v in plot.moduli.items():

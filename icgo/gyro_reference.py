@@ -40,7 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from icgo import calibration as cal
-from icgo.frames import earth_rate_ned, field_vector_ned, inclination_from_g, rot_y, rot_z, toolface_from_g
+from icgo.frames import earth_rate_ned, field_vector_ned, inclination_from_g, tool_to_earth, toolface_from_g
 from icgo.strapdown import earth_rotation, relative_rotations
 
 #: Ways to take the gyro bias out before propagating: at each stop, or not at all.
@@ -115,7 +115,7 @@ def gyro_reference(G, W, t, static, latitude_deg, total_field_nT, dip_deg, windo
         bw = W[first:last + 1].mean(0) - w_down * down if bias == "stop" else np.zeros(3)
         biases.append(bw)
         Q = relative_rotations(W - bw, dt, anchor, lo, hi)
-        C0 = np.asarray(rot_y(inclination_from_g(g)) @ rot_z(toolface_from_g(g)), np.float64)
+        C0 = np.asarray(tool_to_earth(0.0, inclination_from_g(g), toolface_from_g(g)), np.float64)  # heading 0
         P = np.einsum("kji,lj->kil", Q, C0)  # Q_k^T C0^T
         v = earth_rotation(latitude_deg, t[lo:hi + 1] - t[anchor]) @ m_n  # (n, 3) NED
         zero = np.zeros(len(v))

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from icgo.frames import EARTH_RATE_DEG_H, earth_rate_ned, tool_to_earth
+from icgo.frames import earth_rate_ned, tool_to_earth
 
 DEG_H_TO_RAD_S = np.pi / 180.0 / 3600.0
 
@@ -74,8 +74,8 @@ def gyro_rates_from_attitude(azimuth_deg, inclination_deg, toolface_deg, dt_s, l
     near = np.zeros((len(C) - 1, 3))
     near[:, 2] = np.deg2rad(np.asarray(nominal_deg_s, np.float64)[1:]) * dt_s
     phi = rot_log(inc, near)
-    w0 = np.einsum("ji,j->i", C[0], np.asarray(earth_rate_ned(latitude_deg), np.float64))
-    return np.vstack([w0[None] * DEG_H_TO_RAD_S * dt_s, phi]) / (dt_s * DEG_H_TO_RAD_S)
+    w0 = np.einsum("ji,j->i", C[0], np.asarray(earth_rate_ned(latitude_deg), np.float64))  # deg/h
+    return np.vstack([w0[None], phi / (dt_s * DEG_H_TO_RAD_S)])
 
 
 def relative_rotations(W_deg_h, dt_s, anchor: int, lo: int, hi: int) -> np.ndarray:
@@ -101,5 +101,5 @@ def relative_rotations(W_deg_h, dt_s, anchor: int, lo: int, hi: int) -> np.ndarr
     return Q
 
 
-__all__ = ["DEG_H_TO_RAD_S", "EARTH_RATE_DEG_H", "earth_rotation", "gyro_rates_from_attitude", "relative_rotations",
+__all__ = ["DEG_H_TO_RAD_S", "earth_rotation", "gyro_rates_from_attitude", "relative_rotations",
            "rot_exp", "rot_log"]

@@ -190,7 +190,7 @@ def test_gyro_grade_factor_scales_every_error():
                                              tuple(tuple(map(float, r)) for r in v) for v in g])
     z = g.scaled(0.0)
     assert all(np.all(np.asarray(v) == 0) for v in z)
-    ds = misma.grade_dataset(0, {"duration_s": 600.0}, 0.0)
+    ds = misma.grade_dataset(datasets.rotating_drill(0, duration_s=600.0), {"duration_s": 600.0}, 0.0)
     assert ds.truth["gyro_noise_deg_h"] == 0.0 and np.all(np.asarray(ds.truth["gyro"]["bias_deg_h"]) == 0)
     # the magnetometer data do not depend on the gyro grade
     np.testing.assert_array_equal(ds.frame[["bx", "by", "bz"]].to_numpy(),

@@ -142,9 +142,12 @@ def effective_strategy(strategy, t, T, stage_bounds, stage_order) -> jax.Array:
     Returns:
         Index in 0..3.
     """
-    frac = t / T
-    stage = jnp.sum(frac >= jnp.asarray(stage_bounds))
-    return jnp.where(strategy == THREE_STAGE, jnp.asarray(stage_order)[stage], strategy)
+    return jnp.where(strategy == THREE_STAGE, jnp.asarray(stage_order)[_stage(t, T, stage_bounds)], strategy)
+
+
+def _stage(t, T, stage_bounds) -> jax.Array:
+    """Index 0, 1 or 2 of the ``three_stage`` stage at iteration t of T (``stage_bounds``: fractions of T)."""
+    return jnp.sum(t / T >= jnp.asarray(stage_bounds))
 
 
 def stage_clock(strategy, t, T, stage_bounds) -> tuple:
@@ -154,9 +157,8 @@ def stage_clock(strategy, t, T, stage_bounds) -> tuple:
     clock is ``(t - start_s T, (end_s - start_s) T)``, so a wavelet placed in a stage sweeps its
     whole dilation schedule (Ling et al.) within that stage instead of its last part.
     """
-    frac = t / T
     b = jnp.asarray(stage_bounds)
-    stage = jnp.sum(frac >= b)
+    stage = _stage(t, T, b)
     edges = jnp.concatenate([jnp.zeros(1, b.dtype), b, jnp.ones(1, b.dtype)])
     start, end = edges[stage], edges[stage + 1]
     own = strategy == THREE_STAGE

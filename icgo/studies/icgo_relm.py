@@ -371,6 +371,11 @@ def _fitness_fn(lam: float, hidden: int, dtype: str | None):
     return _relm.make_fitness(lam, hidden, None if dtype == "float64" else dtype)
 
 
+def _plain_dtype(cfg: StudyConfig) -> str | None:
+    """Plain RELM's fitness precision: ``float32`` when asked, else None (the float64 library path)."""
+    return "float32" if cfg.dtype == "float32" else None
+
+
 def _search_dtype(cfg: StudyConfig) -> str:
     """The fitness precision actually used: ``mixed`` only exists for fitness="train"."""
     return "float64" if cfg.dtype == "mixed" and cfg.fitness != "train" else cfg.dtype
@@ -424,8 +429,7 @@ def _search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None):
     R = prep.key.shape[0]
     low, high = cfg.theta_bounds
     if cfg.optimizer is None:
-        theta, f = _plain(prep.key, prep.data, cfg.lam, cfg.hidden, float(low), float(high),
-                          "float32" if cfg.dtype == "float32" else None)
+        theta, f = _plain(prep.key, prep.data, cfg.lam, cfg.hidden, float(low), float(high), _plain_dtype(cfg))
         return theta[None], f[None, :, None], jnp.ones((1, R, 1), jnp.int32)
     from icgo.optim import get, run_batch
 
@@ -607,7 +611,7 @@ def _tune(cfg: StudyConfig, prep: Prepared, n_fit: int):
     as the study refuses them. Returns (config at the chosen cell, tuning record).
     """
     low, high = (float(v) for v in cfg.theta_bounds)
-    dtype = "float32" if cfg.dtype == "float32" else None
+    dtype = _plain_dtype(cfg)
     grid = []
     for hidden in (h for h in _relm.TUNE_HIDDEN if h <= n_fit):
         for lam in _relm.TUNE_LAMBDA:

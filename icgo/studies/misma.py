@@ -38,7 +38,6 @@ from __future__ import annotations
 import dataclasses
 import inspect
 import logging
-import time
 from typing import Any, NamedTuple
 
 import jax
@@ -50,11 +49,10 @@ from icgo import calibration as cal
 from icgo import datasets, stats
 from icgo import instruments as ins
 from icgo.calibration_models import mag_calibration
-from icgo.gyro_reference import fit_to_reference, gyro_reference, reference_at
+from icgo.gyro_reference import BIAS_MODES, fit_to_reference, gyro_reference, reference_at
 from icgo.io import load_mag_cal_device, mag_cal_devices
-from icgo.optim import base
 from icgo.optim import misma as misma_opt
-from icgo.optim.sma import SMAConfig
+from icgo.cal_sanity import sanity
 from icgo.qc import survey_qc
 from icgo.studies import Study, calibration, is_int, is_real, need, register_study
 from icgo.studies import misma_compare as compare
@@ -165,8 +163,6 @@ class GyroConfig:
     sweep: tuple = (0.0, 0.001, 0.01, 0.1, 1.0)
 
     def __post_init__(self):
-        from icgo.gyro_reference import BIAS_MODES
-
         need(self.term in GYRO_TERMS, "simulated.gyro.term", f"must be one of {', '.join(GYRO_TERMS)}, got {self.term!r}")
         need(self.bias in BIAS_MODES, "simulated.gyro.bias", f"must be one of {', '.join(BIAS_MODES)}, got {self.bias!r}")
         _positive("simulated.gyro.window_s", self.window_s, allow_zero=True)
@@ -560,20 +556,39 @@ def _variant_models(name, p: Problem, res, U, x12, scfg) -> dict:
     return out
 
 
-def _repeat_scores(p: Problem, run, tol):
-    """Per repeat: mean static |azimuth error| (deg) and the number of parameters within tolerance."""
+def median_repeat(run) -> np.ndarray:
+    """The (12,) parameters of the median-fitness repeat of a row's runs."""
+    return np.asarray(run.best_x[int(np.argsort(np.asarray(run.best_f))[len(run.best_f) // 2])])
+
+
+class Scores(NamedTuple):
+    """A row's scores: per repeat ``err`` (mean static |azimuth error|, deg) and ``within`` (parameters in
+    tolerance, of 12); ``physics``: the median repeat's invariants at the stops (:func:`icgo.cal_sanity.sanity`:
+    dip spread, |B| spread, cond(R^-1), degenerate)."""
+
+    err: np.ndarray
+    within: np.ndarray
+    physics: dict
+
+
+def _repeat_scores(p: Problem, run, tol) -> Scores:
+    """:class:`Scores` of one row's repeats."""
     err = np.array([np.mean(static_azimuth_error(p, x)) for x in run.best_x])
     within = np.sum(np.abs(run.best_x - p.x_true) <= tol, axis=1)
-    return err, within
+    x = median_repeat(run)
+    Bc = np.asarray(cal.correct(jnp.asarray(x), p.B[p.static]))
+    physics = sanity(p.G[p.static], Bc, x[:9].reshape(3, 3)).row()
+    return Scores(err, within, physics)
 
 
-def grade_dataset(seed: int, overrides: dict, factor: float) -> datasets.Dataset:
-    """The variant's run with its gyro errors and gyro noise times ``factor`` (magnetometer data unchanged)."""
-    sig = inspect.signature(datasets.rotating_drill).parameters
-    gyro = overrides.get("gyro", sig["gyro"].default)
-    gyro = gyro if isinstance(gyro, ins.GyroErrors) else ins.GyroErrors(**gyro)
-    noise = float(overrides.get("gyro_noise_deg_h", sig["gyro_noise_deg_h"].default))
-    return datasets.rotating_drill(seed, **{**overrides, "gyro": gyro.scaled(factor), "gyro_noise_deg_h": noise * factor})
+def grade_dataset(ds: datasets.Dataset, overrides: dict, factor: float) -> datasets.Dataset:
+    """The run ``ds`` (made with ``overrides``) again, its gyro errors and gyro noise times ``factor``.
+
+    The magnetometer and accelerometer data are unchanged (their noise streams do not depend on the gyro).
+    """
+    gyro = ins.GyroErrors(**ds.truth["gyro"]).scaled(factor)
+    noise = float(ds.truth["gyro_noise_deg_h"]) * factor
+    return datasets.rotating_drill(int(ds.meta["seed"]), **{**overrides, "gyro": gyro, "gyro_noise_deg_h": noise})
 
 
 def gyro_sweep(name: str, ds: datasets.Dataset, scfg: SimulatedConfig, key, no_gyro_errors) -> pd.DataFrame:
@@ -593,12 +608,12 @@ def gyro_sweep(name: str, ds: datasets.Dataset, scfg: SimulatedConfig, key, no_g
     tol = scfg.tolerance.vector()
     recs = []
     for f in scfg.gyro.sweep:
-        gds = grade_dataset(int(ds.meta["seed"]), scfg.variants[name], f)
+        gds = grade_dataset(ds, scfg.variants[name], f)
         p = prepare_problem(gds, gcfg)
         U, U_mod = misma_centre(p)
         rr = compare.run_row(row, p.objective, boxes(p, U, U_mod, gcfg)[0][row.box], keys, int(scfg.pop_size),
                              int(scfg.n_iter), scfg.misma.optimizer_config(), scfg.sma.z)
-        err, within = _repeat_scores(p, rr, tol)
+        err, within, physics = _repeat_scores(p, rr, tol)
         Bc = cal.correct(jnp.asarray(p.x_true), p.B[p.gyro.index])
         m = np.asarray(reference_at(Bc, p.gyro)[1])
         cosang = np.sum(np.asarray(Bc) * m, 1) / np.linalg.norm(Bc, axis=1) / np.linalg.norm(m, axis=1)
@@ -611,6 +626,7 @@ def gyro_sweep(name: str, ds: datasets.Dataset, scfg: SimulatedConfig, key, no_g
                      "MISMA_gyro_az_err_mean_deg": float(err.mean()), "MISMA_gyro_az_err_max_deg": float(err.max()),
                      "MISMA_no_gyro_az_err_mean_deg": float(np.mean(no_gyro_errors)),
                      "params_within_median": float(np.median(within)), "repeats_all_12_within": int((within == 12).sum()),
+                     **{f"median_repeat_{k}": v for k, v in physics.items()},
                      "p": stats.wilcoxon_paired(err, no_gyro_errors).p_value})
     df = pd.DataFrame(recs)
     if len(df):
@@ -626,32 +642,31 @@ def simulated_variant(name: str, ds: datasets.Dataset, scfg: SimulatedConfig, ke
     runs, box_text = search(p, U, U_mod, scfg, key)
     tol = scfg.tolerance.vector()
     scores = {row: _repeat_scores(p, rr, tol) for row, rr in runs.items()}
-    errors = {row: sc[0] for row, sc in scores.items()}
-    fair = compare.fair_table(runs, errors, {row: sc[1] for row, sc in scores.items()}, box_text)
+    errors = {row: sc.err for row, sc in scores.items()}
+    fair = compare.fair_table(runs, scores, box_text)
     tests = compare.paired_tests(compare.contrasts(scfg.gyro.on), errors)
     head = {"MISMA": compare.headline_misma(scfg.gyro.on, scfg.misma.bounds), "SMA": compare.STANDARD_SMA}
     res = {lab: runs[row] for lab, row in head.items()}
     az = {lab: errors[row] for lab, row in head.items()}
-    R = int(scfg.repeats)
     raw = float(np.mean(static_azimuth_error(p, None)))
     base_err, x12 = baselines(p, U_mod, name)
     if p.gyro is not None:
         base_err["U_omega (gyro-reference fit, MISMA's centre)"] = float(np.mean(static_azimuth_error(p, U)))
 
     # the paper's "converges X % faster": MISMA vs SMA on one objective (compare.convergence)
-    mag_misma, mag_sma = compare.Row("MISMA", "U", "unit", "mag"), compare.STANDARD_SMA
+    mag_misma, mag_sma = compare.MISMA_U, compare.STANDARD_SMA
     conv = {"MISMA vs standard SMA, magnetometer objective": compare.convergence(runs[mag_misma], runs[mag_sma]),
             "MISMA vs SMA, same U box and coordinates, magnetometer objective (operators only)":
-                compare.convergence(runs[mag_misma], runs[compare.Row("SMA", "U", "unit", "mag")])}
+                compare.convergence(runs[mag_misma], runs[compare.SMA_U])}
     if scfg.gyro.on:
         conv["MISMA vs SMA, same U_omega box, objective with J_gyro"] = compare.convergence(
-            runs[compare.Row("MISMA", "U_omega", "unit", "mag+gyro")], runs[compare.Row("SMA", "U_omega", "unit", "mag+gyro")])
+            runs[compare.MISMA_U_OMEGA], runs[compare.SMA_U_OMEGA])
     f_true = {"MISMA": p.f_true if head["MISMA"].objective == "mag+gyro" else p.f_true_mag, "SMA": p.f_true_mag}
     it = {lab: compare.iters_to(r.curve, scfg.threshold_factor * f_true[lab]) for lab, r in res.items()}
     med = {lab: float(np.nanmedian(v)) if np.isfinite(v).any() else float("nan") for lab, v in it.items()}
 
     # recovered parameters: the median-fitness repeat of each algorithm
-    x_med = {lab: r.best_x[int(np.argsort(r.best_f)[R // 2])] for lab, r in res.items()}
+    x_med = {lab: median_repeat(r) for lab, r in res.items()}
     params = params_table(p.x_true, x_med["MISMA"], x_med["SMA"], tol)
     sv, _ = identifiability(p.G[p.sel], p.B[p.sel], p.ref_nT, p.x_true)
     ident = {"magnetometer objective": sv.tolist()}
@@ -679,8 +694,8 @@ def simulated_variant(name: str, ds: datasets.Dataset, scfg: SimulatedConfig, ke
         "az_reduction_MISMA_pct": 100 * (1 - az["MISMA"].mean() / raw),
         "az_reduction_SMA_pct": 100 * (1 - az["SMA"].mean() / raw), "baselines_az_err_deg": base_err,
         "params_within_tolerance_MISMA": int(params["MISMA_within"].sum()),
-        "repeats_all_params_within_tolerance_MISMA": int((scores[head["MISMA"]][1] == 12).sum()),
-        "repeats_all_params_within_tolerance_SMA": int((scores[head["SMA"]][1] == 12).sum()),
+        "repeats_all_params_within_tolerance_MISMA": int((scores[head["MISMA"]].within == 12).sum()),
+        "repeats_all_params_within_tolerance_SMA": int((scores[head["SMA"]].within == 12).sum()),
         "jacobian_singular_values": ident, "convergence": conv,
         "runtime_s": {row.label: rr.seconds for row, rr in runs.items()},
         "qc_static": static_qc(p, ds.meta, {"U": U, "twelve": x12, "SMA": x_med["SMA"], "MISMA": x_med["MISMA"]}),

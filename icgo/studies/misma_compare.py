@@ -46,32 +46,43 @@ class Row(NamedTuple):
 
 #: The standard SMA (Li et al. 2020) as the paper compares against it.
 STANDARD_SMA = Row("SMA", "prior", "raw", "mag")
+#: SMA in MISMA's box (around the modulus fit U) and coordinates: only the operators differ from MISMA_U.
+SMA_U = Row("SMA", "U", "unit", "mag")
+#: MISMA without the gyro term (the magnetometer-only reading).
+MISMA_U = Row("MISMA", "U", "unit", "mag")
+#: SMA with MISMA's objective (J_gyro) and box (around the gyro-reference fit U_omega).
+SMA_U_OMEGA = Row("SMA", "U_omega", "unit", "mag+gyro")
+#: MISMA as the paper describes it (J_gyro, box around U_omega).
+MISMA_U_OMEGA = Row("MISMA", "U_omega", "unit", "mag+gyro")
 
 
 def rows(gyro_on: bool) -> list[Row]:
     """The rows of the comparison, each differing from a neighbour in one thing."""
-    out = [STANDARD_SMA, Row("SMA", "U", "unit", "mag"), Row("MISMA", "U", "unit", "mag")]
-    if gyro_on:
-        out += [Row("SMA", "U_omega", "unit", "mag+gyro"), Row("MISMA", "U_omega", "unit", "mag+gyro")]
-    return out + [Row("MISMA", "paper", "unit", "mag+gyro" if gyro_on else "mag")]
+    out = [STANDARD_SMA, SMA_U, MISMA_U] + ([SMA_U_OMEGA, MISMA_U_OMEGA] if gyro_on else [])
+    return out + [paper_row(gyro_on)]
+
+
+def paper_row(gyro_on: bool) -> Row:
+    """MISMA in the paper's 128 / -68 uT box, with the study's objective."""
+    return Row("MISMA", "paper", "unit", "mag+gyro" if gyro_on else "mag")
 
 
 def headline_misma(gyro_on: bool, bounds: str) -> Row:
     """The row the study reports as "MISMA": the configured objective and box."""
-    box = "paper" if bounds == "paper" else ("U_omega" if gyro_on else "U")
-    return Row("MISMA", box, "unit", "mag+gyro" if gyro_on else "mag")
+    if bounds == "paper":
+        return paper_row(gyro_on)
+    return MISMA_U_OMEGA if gyro_on else MISMA_U
 
 
-#: (name, row a, row b): what the contrast isolates. Rows missing in a run are skipped.
 def contrasts(gyro_on: bool) -> list[tuple[str, Row, Row]]:
-    r = rows(gyro_on)
-    out = [("box + coordinates (SMA)", r[0], r[1]), ("update operators, magnetometer objective", r[1], r[2])]
+    """(name, row a, row b): what each pair of rows isolates."""
+    out = [("box + coordinates (SMA)", STANDARD_SMA, SMA_U), ("update operators, magnetometer objective", SMA_U, MISMA_U)]
     if gyro_on:
-        out += [("gyro term + U_omega box (SMA)", r[1], r[3]), ("update operators, with the gyro term", r[3], r[4]),
-                ("gyro term + U_omega box (MISMA)", r[2], r[4]), ("paper box vs U_omega box (MISMA)", r[4], r[5])]
-    else:
-        out += [("paper box vs U box (MISMA)", r[2], r[3])]
-    return out
+        return out + [("gyro term + U_omega box (SMA)", SMA_U, SMA_U_OMEGA),
+                      ("update operators, with the gyro term", SMA_U_OMEGA, MISMA_U_OMEGA),
+                      ("gyro term + U_omega box (MISMA)", MISMA_U, MISMA_U_OMEGA),
+                      ("paper box vs U_omega box (MISMA)", MISMA_U_OMEGA, paper_row(True))]
+    return out + [("paper box vs U box (MISMA)", MISMA_U, paper_row(False))]
 
 
 class UnitBoxFitness:
@@ -136,25 +147,27 @@ def convergence(fast: RowRun, slow: RowRun) -> dict:
             "faster_pct": 100.0 * (1.0 - mf / ms)}
 
 
-def fair_table(runs: dict, errors: dict, within: dict, boxes_used: dict) -> pd.DataFrame:
-    """One row per search: its settings, static-point |azimuth error| (deg) over repeats, parameters recovered.
+def fair_table(runs: dict, scores: dict, boxes_used: dict) -> pd.DataFrame:
+    """One row per search: its settings, static-point |azimuth error| (deg) over repeats, parameters recovered,
+    and the physics its median repeat must respect at the stops (dip spread, |B| spread, cond(R^-1),
+    ``degenerate`` by :data:`icgo.cal_sanity.LIMITS`): an error that looks small on a degenerate fit is no win.
 
     (Wall times are in the study summary's ``runtime_s``, not here: records are deterministic.)
 
     Args:
-        runs: Row -> RowRun. errors: Row -> (R,) mean static |azimuth error| per repeat, deg.
-        within: Row -> (R,) number of the 12 parameters within tolerance per repeat.
+        runs: Row -> RowRun. scores: Row -> :class:`icgo.studies.misma.Scores`.
         boxes_used: box name -> a short description with units.
     """
     out = []
     for row, rr in runs.items():
-        e = errors[row]
+        sc = scores[row]
+        e = sc.err
         out.append({"algorithm": row.algorithm, "box": boxes_used[row.box], "coordinates": row.coords,
                     "objective": OBJECTIVES[row.objective], "az_err_mean_deg": float(e.mean()),
                     "az_err_std_deg": float(e.std(ddof=1)) if len(e) > 1 else 0.0, "az_err_max_deg": float(e.max()),
-                    "params_within_median": float(np.median(within[row])),
-                    "repeats_all_12_within": int((within[row] == 12).sum()),
-                    "best_f_median": float(np.median(rr.best_f))})
+                    "params_within_median": float(np.median(sc.within)),
+                    "repeats_all_12_within": int((sc.within == 12).sum()),
+                    "best_f_median": float(np.median(rr.best_f)), **sc.physics})
     return pd.DataFrame(out)
 
 
