@@ -67,6 +67,8 @@ EQUAL_EVALS_LABEL = "fig9_evals"
 FIG9_NAMES = {"pso": "PSO-RELM", "ga": "GA-RELM", "cgo-original": "CGO-RELM"}
 
 
+#: Runs whose label starts with this are sweeps: kept out of the pooled paper tables.
+SWEEP_PREFIX = "sweep_"
 #: Run label of the schedules sweep (``experiment=sweep_schedules``, issue 18).
 SCHEDULES_LABEL = "sweep_schedules"
 
@@ -807,8 +809,11 @@ def build(dirs, out: Path) -> dict:
     """
     out.mkdir(parents=True, exist_ok=True)
     evals, runs = Runs(dirs).split_label(EQUAL_EVALS_LABEL)
-    sched, runs = runs.split_label(SCHEDULES_LABEL)
-    mutations, runs = runs.split_label(*MUTATIONS_LABELS)
+    # a sweep's runs (label "sweep_...") never replace the paper presets' runs in the pooled tables,
+    # whether or not a builder reads them
+    sweeps, runs = runs.split_label(*{str(r.get("label")) for r in runs.runs
+                                      if str(r.get("label") or "").startswith(SWEEP_PREFIX)})
+    sched, mutations = sweeps.split_label(SCHEDULES_LABEL)[0], sweeps.split_label(*MUTATIONS_LABELS)[0]
     done = {name: fn(runs, out) for name, fn in BUILDERS.items()}
     done["sweep_mutations"] = sweep_mutations(runs, mutations, out)
     done["fig9_budgets"] = fig9_budgets(runs, evals, out)

@@ -266,3 +266,18 @@ def test_mutation_readings_sweep_names_each_reading_and_checks_the_paper_order(r
     assert wav["order by MAE"].startswith("three-stage < wavelet")
     assert not t.loc["Gaussian sigma 0.2 (0.1 of the box width)", "paper's order"]
     assert 0 <= wav["p Holm"] <= 1
+
+
+def test_an_unknown_sweep_never_replaces_the_paper_runs(runs_dir, tmp_path):
+    import time
+
+    rng = np.random.default_rng(6)
+    out0 = tmp_path / "before"
+    F.build([runs_dir / "m"], out0)
+    time.sleep(0.01)
+    _run_dir(runs_dir / "m" / "other", _metrics(["cgo-three_stage", "relm"], rng, {"cgo-three_stage": 9.0, "relm": 9.0}),
+             label="sweep_something_new")
+    out1 = tmp_path / "after"
+    F.build([runs_dir / "m"], out1)
+    for name in ("table1.csv", "table3.csv", "table3_stats.csv"):
+        assert (out1 / name).read_text() == (out0 / name).read_text(), name
