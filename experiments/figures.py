@@ -902,7 +902,13 @@ def main(argv=None) -> int:
     if not dirs:
         stamp = time.strftime("%Y-%m-%d_%H-%M-%S")
         dirs = run_plan(Path("multirun") / f"figures-{stamp}", a.jobs, a.override)
-    done = build(dirs, Path(a.out))
+    from experiments._common import staged_results
+
+    out = Path(a.out)
+    with staged_results(out) as stage:  # all tables and figures move in together, or none (Ctrl-C, full disk)
+        done = build(dirs, stage)
+    if all(done.values()):
+        (out / "tables_missing.txt").unlink(missing_ok=True)
     for name, ok in done.items():
         print(f"{name}: {'written' if ok else 'missing runs'}")
     print(f"figures: {time.perf_counter() - t0:.0f} s, output in {a.out}")

@@ -46,3 +46,21 @@ def test_a_complete_write_replaces_only_its_files_record_last(tmp_path, monkeypa
     assert (out / "other_study.csv").read_text() == "untouched\n"
     assert sorted(f.name for f in out.iterdir()) == ["misma_fair_curving.csv", "misma_summary.json",
                                                      "misma_summary.md", "other_study.csv"]
+
+
+def test_figures_entry_writes_through_the_staging(tmp_path, monkeypatch):
+    """experiments.figures moves its tables in only when the build finished (a failing builder changes nothing)."""
+    from experiments import figures
+
+    out = tmp_path / "results"
+    before = _previous(out)
+
+    def boom(dirs, stage):
+        (stage / "table1.md").write_text("half")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(figures, "build", boom)
+    (tmp_path / "runs").mkdir()
+    with pytest.raises(OSError):
+        figures.main([str(tmp_path / "runs"), "--out", str(out)])
+    assert {f.name: f.read_text() for f in out.iterdir()} == before
