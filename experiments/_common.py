@@ -599,15 +599,17 @@ def write_failure(outdir: Path, message: str, tb: str | None = None) -> None:
 
 
 class FailureReport(Callback):
-    """Hydra callback: after a multirun, list failed jobs and exit with status 1 if any failed."""
+    """Hydra callback: after a multirun, report every job's status (:mod:`experiments._sweep`);
+    exit with status 1 unless every job is ok."""
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
-        sweep = Path(str(config.hydra.sweep.dir))
-        failed = sorted(sweep.glob(f"*/{FAILED}")) if sweep.is_dir() else []
-        for f in failed:
-            print(f"job {f.parent.name} failed: {f.read_text().strip()}", file=sys.stderr)
-        if failed:
-            print(f"{len(failed)} job(s) failed; the other jobs' results are in {sweep}", file=sys.stderr)
+        from experiments import _sweep
+
+        jobs = _sweep.report(config)
+        bad = [j for j in jobs if j["status"] != "ok"]
+        if bad:
+            print(f"{len(bad)} of {len(jobs)} job(s) did not finish; the others' results are in "
+                  f"{config.hydra.sweep.dir} (re-running the sweep into it resumes it)", file=sys.stderr)
             raise SystemExit(1)
 
 

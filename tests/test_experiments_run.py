@@ -226,17 +226,29 @@ def test_bad_csv_content_is_one_line(tmp_path, capsys):
 
 
 def test_failed_multirun_job_leaves_marker_and_others_intact(tmp_path, capsys):
+    import json
+
+    from omegaconf import open_dict
+
+    from icgo import records as R
+
     ok = tmp_path / "0"
     ok.mkdir()
-    (ok / "run.json").write_text("{}")
+    record = json.dumps({k: None for k in R.RUN_KEYS} | {"status": "ok"})
+    (ok / "run.json").write_text(record)
     assert run_job(_job_cfg(TINY + ["split.n_repeats=-3"]), tmp_path / "1", multirun=True) is None
     assert (tmp_path / "1" / C.FAILED).read_text().startswith("split.n_repeats must be")
-    assert (ok / "run.json").read_text() == "{}"
+    assert (ok / "run.json").read_text() == record
     cfg = _compose([f"hydra.sweep.dir={tmp_path}"], hydra=True)
+    with open_dict(cfg):
+        cfg.hydra.overrides.task = ["split.n_repeats=2,-3,4"]   # the sweep as typed: jobs 0, 1, 2
     with pytest.raises(SystemExit) as e:
         C.FailureReport().on_multirun_end(cfg)
     assert e.value.code == 1
-    assert "job 1 failed: split.n_repeats must be" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "3 job(s): 1 ok, 1 failed, 1 not run" in err
+    assert "job 1  failed   split.n_repeats=-3  -- split.n_repeats must be" in err
+    assert "job 2  not run  split.n_repeats=4" in err
 
 
 # ----------------------------------------------------------------- progress

@@ -1,0 +1,94 @@
+"""The end-of-sweep report: every job of a multirun with its status (ok / failed / killed / not run).
+
+The job list is expanded from the sweep's own config (``hydra.sweeper.params``
+plus the command line's sweep overrides, the basic sweeper's order), so the
+report is the same for every launcher (``icgo_local``, joblib, submitit,
+SLURM) and names the jobs that never started. A job's status is read from its
+directory:
+
+* ``ok``: a complete run record (``run.json``);
+* ``killed``: a ``FAILED`` marker saying so, or a directory with neither a
+  marker nor a run record (the job started and its process died);
+* ``failed``: any other ``FAILED`` marker (its one line is the reason);
+* ``not run``: no directory.
+
+The report is printed (stderr) and written to ``sweep_report.json`` in the
+sweep directory (atomically). Like :mod:`experiments._common`, nothing here
+imports JAX.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from pathlib import Path
+
+from omegaconf import DictConfig, OmegaConf
+
+REPORT_FILE = "sweep_report.json"
+STATUSES = ("ok", "failed", "killed", "not run")
+
+
+def job_overrides(config: DictConfig) -> list[list[str]]:
+    """Each job's overrides, in the basic sweeper's order (job number = position)."""
+    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    params = OmegaConf.select(config, "hydra.sweeper.params") or {}
+    args = [f"{k}={v}" for k, v in params.items()] + list(config.hydra.overrides.task)
+    parsed = OverridesParser.create().parse_overrides(args)
+    return [job for batch in BasicSweeper.split_arguments(parsed, None) for job in batch]
+
+
+def job_status(job_dir: Path) -> tuple[str, str]:
+    """(status, reason) of one job's directory; see the module docstring."""
+    from experiments import _common as C
+
+    if not job_dir.is_dir():
+        return "not run", ""
+    if C.previous_run(job_dir) is not None:
+        return "ok", ""
+    marker = job_dir / C.FAILED
+    if marker.is_file():
+        reason = marker.read_text(errors="replace").strip()
+        return ("killed" if reason.startswith("killed") else "failed"), reason
+    return "killed", "the job started and ended without a result or a FAILED marker"
+
+
+def statuses(config: DictConfig) -> list[dict]:
+    """One entry per job: num, overrides (the swept ones), dir, status, reason."""
+    sweep = Path(str(config.hydra.sweep.dir))
+    subdir = OmegaConf.to_container(config.hydra.sweep, resolve=False).get("subdir")
+    jobs = []
+    for num, overrides in enumerate(job_overrides(config)):
+        # The default subdir is the job number; another pattern is resolved per job as Hydra does.
+        name = str(num) if subdir == "${hydra.job.num}" else _subdir(config, overrides, num)
+        status, reason = job_status(sweep / name)
+        jobs.append({"num": num, "overrides": list(overrides), "dir": name, "status": status, "reason": reason})
+    return jobs
+
+
+def _subdir(config: DictConfig, overrides, num: int) -> str:
+    c = OmegaConf.create(OmegaConf.to_container(config, resolve=False))
+    OmegaConf.set_struct(c, False)
+    c.hydra.job.num = num
+    c.hydra.job.override_dirname = ",".join(overrides)
+    return str(OmegaConf.select(c, "hydra.sweep.subdir"))
+
+
+def report(config: DictConfig, file=sys.stderr) -> list[dict]:
+    """Print the report, write ``sweep_report.json``; return the jobs (see :func:`statuses`)."""
+    sweep = Path(str(config.hydra.sweep.dir))
+    jobs = statuses(config)
+    counts = {s: sum(j["status"] == s for j in jobs) for s in STATUSES}
+    print(f"sweep {sweep}: {len(jobs)} job(s): " + ", ".join(f"{n} {s}" for s, n in counts.items() if n), file=file)
+    width = max((len(str(j["num"])) for j in jobs), default=1)
+    for j in jobs:
+        line = f"  job {j['num']:>{width}}  {j['status']:<7}  {' '.join(j['overrides']) or '(no overrides)'}"
+        print(line + (f"  -- {j['reason']}" if j["reason"] else ""), file=file)
+    if sweep.is_dir():
+        tmp = sweep / f".{REPORT_FILE}.{os.getpid()}"
+        tmp.write_text(json.dumps({"sweep_dir": str(sweep), "counts": counts, "jobs": jobs}, indent=1) + "\n")
+        os.replace(tmp, sweep / REPORT_FILE)
+    return jobs
