@@ -27,6 +27,7 @@ the paper's published numbers in adjacent columns, ``table3_stats.*``
 from __future__ import annotations
 
 import argparse
+import contextvars
 import subprocess
 import sys
 import time
@@ -84,6 +85,18 @@ PLAN = (("table3", "table3", []), ("table1", "table1", ["optimizer=none"]),
         ("fig9_evals", "fig9", ["budget=evaluations", f"label={EQUAL_EVALS_LABEL}"]),
         ("sweep_schedules", "sweep_schedules", []), ("sweep_wavelet", "sweep_wavelet", []),
         ("sweep_sigma", "sweep_sigma", []), ("table4", "table4", []))
+
+#: The plan entries whose runs each output is made from (named in its "missing runs" line).
+SOURCES = {"table1": ("table1", "table3"), "fig9": ("fig9", "table3"), "table2": ("table3",), "fig10": ("table3",),
+           "fig11": ("table3",), "table3": ("table3",), "fig12": ("table3",), "fig13": ("table3",),
+           "table4": ("table4",), "sweep_mutations": ("sweep_wavelet", "sweep_sigma", "table3"),
+           "fig9_budgets": ("fig9_evals", "fig9"), "sweep_schedules": ("sweep_schedules", "table3")}
+
+
+def plan_command(name: str) -> str:
+    """The command that makes the runs of plan entry ``name``."""
+    _, preset, overrides = next(p for p in PLAN if p[0] == name)
+    return " ".join(["python -m experiments.run -m", f"experiment={preset}", *overrides])
 
 
 # ------------------------------------------------------------------ collect
@@ -168,8 +181,16 @@ class Runs:
         return df if df.empty else df[(df.dataset == dataset) & (df.seed == seed)]
 
 
+#: What the builder now running lacks (set per builder by :func:`build`, filled by :func:`_have`).
+_LACKING: contextvars.ContextVar[list] = contextvars.ContextVar("lacking")
+
+
 def _have(df: pd.DataFrame, methods) -> bool:
-    return not df.empty and all(m in set(df["method"]) for m in methods)
+    """True if ``df`` has rows of every method; else the missing ones are noted for the builder's message."""
+    missing = list(methods) if df.empty else [m for m in methods if m not in set(df["method"])]
+    if missing:
+        _LACKING.get([]).extend(m for m in missing if m not in _LACKING.get([]))
+    return not missing
 
 
 def _ms(x) -> tuple[float, float]:
@@ -805,7 +826,7 @@ def build(dirs, out: Path) -> dict:
     """Collect runs below ``dirs`` and write every table and figure they support into ``out``.
 
     Returns:
-        {name: True if written, False if its runs were missing}.
+        {name: True if written, else a line naming the methods whose runs were missing}.
     """
     out.mkdir(parents=True, exist_ok=True)
     evals, runs = Runs(dirs).split_label(EQUAL_EVALS_LABEL)
@@ -814,14 +835,24 @@ def build(dirs, out: Path) -> dict:
     sweeps, runs = runs.split_label(*{str(r.get("label")) for r in runs.runs
                                       if str(r.get("label") or "").startswith(SWEEP_PREFIX)})
     sched, mutations = sweeps.split_label(SCHEDULES_LABEL)[0], sweeps.split_label(*MUTATIONS_LABELS)[0]
-    done = {name: fn(runs, out) for name, fn in BUILDERS.items()}
-    done["sweep_mutations"] = sweep_mutations(runs, mutations, out)
-    done["fig9_budgets"] = fig9_budgets(runs, evals, out)
-    done["sweep_schedules"] = sweep_schedules(runs, sched, out)
-    missing = [n for n, ok in done.items() if not ok]
+    calls = {name: (lambda fn=fn: fn(runs, out)) for name, fn in BUILDERS.items()}
+    calls |= {"sweep_mutations": lambda: sweep_mutations(runs, mutations, out),
+              "fig9_budgets": lambda: fig9_budgets(runs, evals, out),
+              "sweep_schedules": lambda: sweep_schedules(runs, sched, out)}
+    done = {}
+    for name, call in calls.items():
+        lacking = []
+        token = _LACKING.set(lacking)
+        try:
+            done[name] = True if call() else (
+                ("no runs of " + ", ".join(lacking) if lacking else "no runs") + "; made by "
+                + " and ".join(f"`{plan_command(src)}`" for src in SOURCES[name]))
+        finally:
+            _LACKING.reset(token)
+    missing = {n: why for n, why in done.items() if why is not True}
     miss = out / "tables_missing.txt"
     if missing:
-        miss.write_text("no runs found for: " + ", ".join(missing) + "\n")
+        miss.write_text("".join(f"{n}: {why}\n" for n, why in missing.items()))
     elif miss.exists():
         miss.unlink()
     return done
@@ -880,8 +911,8 @@ def run_plan(base: Path, jobs: int, extra=()) -> list[Path]:
         d = base / name
         cmd = [sys.executable, "-m", "experiments.run", "-m", f"experiment={preset}", *overrides,
                f"hydra.sweep.dir={d}", "progress=false", *extra]
-        if jobs > 1:
-            cmd += ["hydra/launcher=joblib", f"hydra.launcher.n_jobs={jobs}"]
+        if jobs is not None:  # else the launcher's default: one job per core
+            cmd += [f"hydra.launcher.workers={jobs}"]
         print("+", " ".join(cmd), flush=True)
         t = time.perf_counter()
         rc = subprocess.call(cmd, cwd=Path(__file__).resolve().parent.parent)
@@ -894,7 +925,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("dirs", nargs="*", help="run/multirun directories to collect (default: run the presets)")
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent.parent / "results"))
-    ap.add_argument("--jobs", type=int, default=1, help="parallel jobs (joblib launcher) for the preset plan")
+    ap.add_argument("--jobs", type=int, default=None,
+                    help="jobs at once for the preset plan (icgo_local launcher; default one per core)")
     ap.add_argument("--override", action="append", default=[], help="extra Hydra override for the preset plan")
     a = ap.parse_args(argv)
     t0 = time.perf_counter()
@@ -907,10 +939,10 @@ def main(argv=None) -> int:
     out = Path(a.out)
     with staged_results(out) as stage:  # all tables and figures move in together, or none (Ctrl-C, full disk)
         done = build(dirs, stage)
-    if all(done.values()):
+    if all(v is True for v in done.values()):
         (out / "tables_missing.txt").unlink(missing_ok=True)
     for name, ok in done.items():
-        print(f"{name}: {'written' if ok else 'missing runs'}")
+        print(f"{name}: {'written' if ok is True else 'missing runs: ' + ok}")
     print(f"figures: {time.perf_counter() - t0:.0f} s, output in {a.out}")
     return 0
 
