@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test test-all figures bench optimizers misma gyro discrepancy generalisation calibration dataset-figures venv clean
+.PHONY: run test test-all test-slurm figures bench optimizers misma gyro discrepancy generalisation calibration dataset-figures venv clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -22,6 +22,9 @@ test: $(STAMP)
 
 test-all: $(STAMP)
 	$(BIN)/python -m pytest -q -n 2 -m ''
+
+test-slurm: $(STAMP)
+	ICGO_REQUIRE_SLURM=1 $(BIN)/python -m pytest -q -m slurm tests/test_slurm.py
 
 figures: $(STAMP)
 	$(BIN)/python -m experiments.figures
