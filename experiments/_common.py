@@ -77,10 +77,120 @@ def check_overrides(args: list[str], groups=STUDY_GROUPS, conf_dir: Path = CONF_
     return None
 
 
+#: Hydra's run-mode flags that take no value (moved in front of the overrides by :func:`preflight`).
+MULTIRUN_FLAGS = ("-m", "--multirun")
+#: Overrides naming a directory Hydra creates before the task function runs.
+HYDRA_DIR_KEYS = ("hydra.run.dir", "hydra.sweep.dir")
+
+
+def check_hydra_dirs(args: list[str]) -> str | None:
+    """One-line error for a ``hydra.run.dir`` / ``hydra.sweep.dir`` that cannot be a directory, else None.
+
+    Hydra creates these before any entry-point code runs, and a failure there is
+    a traceback; so the directory is created here first (a value with an
+    interpolation, e.g. ``${now:...}``, is left to Hydra).
+    """
+    for arg in args:
+        key, sep, value = arg.lstrip("+").partition("=")
+        if not sep or key not in HYDRA_DIR_KEYS or "${" in value:
+            continue
+        p = Path(value).expanduser()
+        if p.exists() and not p.is_dir():
+            return f"{key} {value!r} is a file, not a directory; give a directory"
+        try:
+            p.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            return f"{key} {value!r}: cannot create the directory ({e.strerror or type(e).__name__})"
+    return None
+
+
+def check_plain_overrides(args: list[str], config_name: str, conf_dir: Path = CONF_DIR) -> str | None:
+    """One-line error for an override ``key=value`` (no ``+``) whose key is not in the composed config.
+
+    Hydra refuses such an override itself, but with a six-line block and exit
+    status 1; this composes the config the way the entry point will (with the
+    command line's group choices, a sweep's first value) and names the key.
+    """
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.core.override_parser.types import OverrideType
+
+    try:
+        overrides = OverridesParser.create().parse_overrides([a for a in args if not a.startswith("-")])
+    except Exception:  # Hydra's grammar: let Hydra print its own message for a malformed override
+        return None
+    groups, plain = [], []
+    for ov in overrides:
+        key = ov.key_or_group
+        if key.startswith("hydra") or (ov.type != OverrideType.CHANGE and not (conf_dir / key).is_dir()):
+            continue  # Hydra's own settings; an added or deleted key (the entry points refuse unknown ones)
+        if (conf_dir / key).is_dir():
+            value = next(iter(ov.sweep_string_iterator())) if ov.is_sweep_override() else ov.get_value_element_as_str()
+            prefix = {OverrideType.ADD: "+", OverrideType.FORCE_ADD: "++"}.get(ov.type, "")
+            groups.append(f"{prefix}{key}={value}")
+        else:
+            plain.append(ov)
+    if not plain:
+        return None
+    GlobalHydra.instance().clear()
+    try:
+        with initialize_config_dir(config_dir=str(conf_dir), version_base="1.3"):
+            cfg = compose(config_name=config_name, overrides=groups)
+    except Exception:  # a bad group choice: the entry point's own checks name it
+        return None
+    finally:
+        GlobalHydra.instance().clear()
+    for ov in plain:
+        if not _has_key(cfg, ov.key_or_group):
+            where = (conf_dir / f"{config_name}.yaml").relative_to(CONF_DIR.parent)
+            return (f"unknown setting {ov.key_or_group!r} in override {ov.input_line!r}: {where} (with the chosen "
+                    f"groups) has no such key")
+    return None
+
+
+def _has_key(cfg, dotted: str) -> bool:
+    """Whether the composed config has the key ``a.b.c`` (a mandatory ``???`` value counts as present)."""
+    from omegaconf import ListConfig
+
+    node = cfg
+    for part in dotted.split("."):
+        if isinstance(node, DictConfig) and part in node.keys():
+            node = node._get_node(part)
+        elif isinstance(node, ListConfig) and part.isdigit() and int(part) < len(node):
+            node = node._get_node(int(part))
+        else:
+            return False
+    return True
+
+
+def preflight(config_name: str, args: list[str] | None = None, conf_dir: Path = CONF_DIR) -> None:
+    """Checks of a Hydra entry point's command line before Hydra starts; one line and exit 2 on a bad one.
+
+    Moves ``-m``/``--multirun`` in front of the overrides (Hydra's parser refuses
+    them after one), then :func:`check_hydra_dirs` and :func:`check_plain_overrides`.
+    Rewrites ``sys.argv`` when ``args`` is None.
+    """
+    argv = sys.argv[1:] if args is None else args
+    flags = [a for a in argv if a in MULTIRUN_FLAGS]
+    rest = [a for a in argv if a not in MULTIRUN_FLAGS]
+    if args is None:
+        sys.argv[1:] = flags + rest
+    err = check_hydra_dirs(rest) or check_plain_overrides(rest, config_name, conf_dir)
+    if err:
+        print(f"error: {err}", file=sys.stderr)
+        raise SystemExit(EXIT_CONFIG)
+
+
 # ------------------------------------------------------------------ checks
 def _need(cond: bool, msg: str) -> None:
     if not cond:
         raise ConfigError(msg)
+
+
+def _need_file(p: Path, key: str) -> None:
+    _need(p.exists(), f"{key} {str(p)!r}: file not found")
+    _need(p.is_file(), f"{key} {str(p)!r}: not a regular file (a directory, pipe or device); give a CSV file")
 
 
 def _is_int(x) -> bool:
@@ -131,8 +241,7 @@ def check_config(cfg: DictConfig) -> None:
     if ds.name == "csv":
         _need(OmegaConf.select(ds, "path", throw_on_missing=False) not in (None, "???"),
               "dataset.path is required with dataset=csv (dataset.path=/path/to/file.csv)")
-        p = Path(str(ds.path)).expanduser()
-        _need(p.is_file(), f"dataset.path {str(p)!r}: file not found")
+        _need_file(Path(str(ds.path)).expanduser(), "dataset.path")
     elif ds.name == "well_conditions":
         c = ds.condition
         _need(c is None or (_is_int(c) and 0 <= c <= 5),
@@ -144,8 +253,7 @@ def check_config(cfg: DictConfig) -> None:
                                       f"here split.protocol={protocol!r}, so it would do nothing")
         _unknown(target.keys(), TARGET_KEYS, "split.target.")
         if target.get("path") is not None:
-            p = Path(str(target.path)).expanduser()
-            _need(p.is_file(), f"split.target.path {str(p)!r}: file not found")
+            _need_file(Path(str(target.path)).expanduser(), "split.target.path")
     elif protocol == "transfer":
         _need(False, "split.protocol=transfer needs split.target (use split=transfer, which defines it)")
     b = list(cfg.schedule.bounds)

@@ -107,4 +107,7 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
+    from experiments._common import preflight
+
+    preflight("apply", conf_dir=CONF_DIR / "apply")
     main()

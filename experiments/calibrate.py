@@ -203,4 +203,7 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
+    from experiments._common import preflight
+
+    preflight("calibrate")
     main()

@@ -146,4 +146,7 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
+    from experiments._common import preflight
+
+    preflight("discrepancy")
     main()

@@ -225,4 +225,7 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
+    from experiments._common import preflight
+
+    preflight("gyro")
     main()

@@ -32,7 +32,7 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from experiments._common import CONF_DIR, EXIT_CONFIG, check_overrides
+from experiments._common import CONF_DIR, EXIT_CONFIG, check_overrides, preflight
 
 log = logging.getLogger(__name__)
 
@@ -130,6 +130,7 @@ def app(cfg: DictConfig) -> None:
 
 def main() -> None:
     """Entry point: reject unknown group options in one line, then hand over to Hydra."""
+    preflight("config")
     err = check_overrides(sys.argv[1:])
     if err:
         print(f"error: {err}", file=sys.stderr)

@@ -190,6 +190,8 @@ def _fail_if_called(*a, **k):
     ("split.train_fraction=1.5", "split.train_fraction must be in (0, 1)"),
     ("schedule.bounds=[0.7,0.2]", "schedule.bounds must be two fractions"),
     ("dataset=csv", "dataset.path is required"),
+    ("dataset=csv dataset.path=/dev/zero", "dataset.path '/dev/zero': not a regular file (a directory, pipe or device)"),
+    ("dataset=csv dataset.path=/tmp", "dataset.path '/tmp': not a regular file"),
     ("+dataset.path=/no/such/file.csv", None),
     ("+split.target.seed=3", "split.target is read only by split.protocol=transfer"),
     ("split.protocol=transfer", "split.protocol=transfer needs split.target"),
