@@ -657,7 +657,8 @@ def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, m
     run = {**info, "records_version": R.RECORDS_VERSION, "status": "ok", "seed": result.config.seed,
            "wall_time_s": result.wall_time_s, "methods": methods,
            "n_evals": {m: int(v) for m, v in zip(methods, np.asarray(result.n_evals)[:, 0])},
-           "n_rows": int(result.kept.sum()), "n_repeats": result.config.n_repeats, "models": models, "qc": qc}
+           "n_rows": int(result.kept.sum()), "n_repeats": result.config.n_repeats,
+           "repeat_ids": list(result.config.ids()), "models": models, "qc": qc}
     if result.tuning is not None:
         run["tuning"] = result.tuning
     missing = [k for k in R.RUN_KEYS if k not in run]

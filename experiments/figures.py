@@ -100,6 +100,18 @@ def plan_command(name: str) -> str:
 
 
 # ------------------------------------------------------------------ collect
+def _check_repeats(df: pd.DataFrame, run: dict, name: str) -> None:
+    """RecordError unless every method of a run's table has exactly the repeats its run record names."""
+    from icgo import records as R
+
+    expected = set(run.get("repeat_ids") or range(int(run["n_repeats"])))
+    for method, g in df.groupby("method"):
+        got = set(pd.to_numeric(g["repeat"], errors="coerce").dropna().astype(int))
+        if got != expected:
+            raise R.RecordError(f"{Path(run['dir']) / (name + '.csv')}: method {method!r} has {len(got)} of the "
+                                f"{len(expected)} repeats the run record names (a truncated or edited file?)")
+
+
 class Runs:
     """Pooled outputs of many run directories (newest wins on duplicates).
 
@@ -152,14 +164,15 @@ class Runs:
             for order, r in enumerate(self.runs):
                 try:
                     df = R.read_table(r["dir"], name)
+                    _check_repeats(df, r, name)
                 except R.RecordError as e:
                     print(f"skipped {r['dir']} for {name}: {e}", file=sys.stderr)
                     continue
                 df["run_order"] = order
                 df["condition"] = df["condition"].astype("float").fillna(-1).astype(int)
                 frames.append(df)
-            if not frames:
-                self._cache[name] = pd.DataFrame()
+            if not frames:  # the schema's columns, so that a builder's column tests see "no runs", not an error
+                self._cache[name] = pd.DataFrame(columns=list(R.TAG_COLUMNS) + list(R.TABLES[name]))
             else:
                 df = pd.concat(frames, ignore_index=True)
                 newest = df.groupby(self.KEY)["run_order"].transform("max")

@@ -73,6 +73,10 @@ def read_table(run_dir, name: str) -> pd.DataFrame:
     """Read and check one table of a run directory."""
     path = Path(run_dir) / f"{name}.csv"
     try:
+        with open(path, "rb") as fh:  # every table is written whole, ending in a newline; a cut file does not
+            fh.seek(0, 2)
+            if fh.tell() and (fh.seek(-1, 2), fh.read(1))[1] != b"\n":
+                raise RecordError(f"{path}: does not end with a newline (a truncated file?)")
         df = pd.read_csv(path)
     except (OSError, ValueError, pd.errors.ParserError) as e:
         raise RecordError(f"{path}: unreadable table ({type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''})") from None

@@ -35,7 +35,7 @@ def _run_dir(path: Path, metrics: pd.DataFrame, *, dataset="lab_casing", seed=0,
                 df[c] = np.nan
         REC.tag_table(df, tag).to_csv(path / f"{name}.csv", index=False)
     run = {k: None for k in REC.RUN_KEYS} | {"status": "ok", "dataset": dataset, "seed": seed, "label": label,
-                                               **(extra or {})}
+                                               "n_repeats": R, **(extra or {})}
     (path / "run.json").write_text(json.dumps(run))
     if failed:
         (path / "FAILED").write_text("boom\n")
@@ -61,7 +61,7 @@ def _conv(methods, T=5):
 def _pred(methods, rng, azimuths=(30.0, 60.0), n=6):
     rows = []
     for m in methods:
-        for r in (0, 1):
+        for r in range(R):
             for j in range(n * len(azimuths)):
                 a = azimuths[j % len(azimuths)]
                 e = 1 + 0.1 * rng.standard_normal()
@@ -178,6 +178,29 @@ def test_missing_directory_is_one_line(tmp_path):
     with pytest.raises(SystemExit) as e:
         F.Runs([tmp_path / "nope"])
     assert "no such directory" in str(e.value)
+
+
+def test_a_table_missing_repeats_or_cut_short_is_skipped_and_named(tmp_path, capsys):
+    rng = np.random.default_rng(0)
+    _run_dir(tmp_path / "m" / "good", _metrics(["relm", "cgo-original"], rng))
+    m = _metrics(["relm", "cgo-original"], rng)
+    _run_dir(tmp_path / "m" / "rows_lost", m[m.repeat < 5])             # whole rows cut: 5 of 10 repeats
+    _run_dir(tmp_path / "m" / "cut", m)
+    cut = tmp_path / "m" / "cut" / "metrics.csv"
+    cut.write_bytes(cut.read_bytes()[:-7])                               # cut inside the last line
+    runs = F.Runs([tmp_path / "m"])
+    got = runs.metrics()
+    assert len(got) == 2 * R                                             # only the good run
+    err = capsys.readouterr().err
+    assert "rows_lost/metrics.csv: method 'cgo-original' has 5 of the 10 repeats the run record names" in err
+    assert "cut/metrics.csv: does not end with a newline (a truncated file?)" in err
+
+
+def test_no_runs_at_all_is_missing_runs_not_a_traceback(tmp_path):
+    (tmp_path / "empty").mkdir()
+    done = F.build([tmp_path / "empty"], tmp_path / "out")
+    assert not any(v is True for v in done.values())
+    assert all(v.startswith("no runs") for v in done.values())
 
 
 def test_a_truncated_table_is_skipped_and_named(tmp_path, capsys):
