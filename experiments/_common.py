@@ -353,6 +353,8 @@ def load_data(cfg: DictConfig):
         from icgo.io import read_recording
 
         rec = read_recording(Path(str(ds.path)).expanduser(), require_meta=bool(ds.require_meta))
+        for line in rec.notices:  # what the reader noticed but accepted (icgo.io check prints the same)
+            print(f"notice: {line}", file=sys.stderr)
         return rec.frame, dict(rec.meta), f"csv:{ds.path}"
     from icgo import datasets
 
