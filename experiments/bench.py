@@ -12,18 +12,36 @@ machine it runs on (CPU here; unchanged with ``JAX_PLATFORMS=cuda``):
 * ``flop_fraction``: fast throughput x :func:`flops_per_eval` / the rate of a
   large dense float32 matrix product (the precision of the fast kernel's Gram
   product), measured in the same run;
-* ``table3_s``: the full Table 3 study (5 strategies x 10 repeats, population
-  30, 100 iterations, 12,030 evaluations per run) with the fast kernel,
-  compile included, and ``compile_s``;
-* ``mealpy_table3_s`` and ``speedup_vs_mealpy``: the same study with mealpy 3.x
+* ``table3_kernel_s``: the full Table 3 study (5 strategies x 10 repeats,
+  population 30, 100 iterations, 12,030 evaluations per run) through this
+  file's own path (fast kernel, compile included), and ``compile_s``;
+* ``table3_s`` (what a user runs, :func:`experiments.bench_user.front_door`):
+  ``python -m experiments.run experiment=table3`` end to end in a fresh process
+  with a warm compilation cache; ``table3_cold_s`` with an empty one; the same
+  table as a five-job sweep on 1 and 2 workers (``front_door``,
+  ``sweep_workers_speedup``; the sweep's tables are checked bitwise against the
+  one-job run). ``--skip-front-door``: ``table3_s`` is ``table3_kernel_s``;
+* ``mealpy_table3_s`` and ``speedup_vs_mealpy`` (vs ``table3_s``): the same study with mealpy 3.x
   ``OriginalCGO`` on the same data and the same RELM fitness in numpy
-  (:func:`numpy_fitness`), same population, iterations and runs;
+  (:func:`numpy_fitness`), same population, iterations and runs; also in
+  mealpy's own parallel mode on 2 processes (``mealpy_parallel_table3_s``,
+  ``speedup_vs_mealpy_parallel``);
+* ``peers``, ``pso_speedup_vs_evosax``: evosax's PSO and DE beside icgo's PSO on
+  the same fast fitness at equal evaluations (:func:`experiments.bench_user.peer_comparison`);
 * ``numpy_evals_per_s``: :func:`numpy_fitness` in a plain loop;
 * scaling rows: study wall time for 1, 10, 100 repeats (one strategy), and
   fitness time per batch of 120 for 582, 5,820 and 58,200 data rows.
 
 It prints a Markdown table and, as its last line, one JSON object.
 ``--quick`` runs a small version of everything (smoke use, minutes).
+
+``--rows 1e3,1e4,1e5,1e6`` instead measures the commands a user runs on a
+large contract CSV (:func:`rows_scaling`): a recording of that many rows is
+written (:func:`write_large_recording`), then each command runs in its own
+process and its wall time and peak resident memory (``os.wait4``) are
+printed: the reader (``icgo.io.read_recording``), the ICGO-RELM study
+(``experiments.run dataset=csv``, ``--rows-budget`` and ``--rows-repeats``)
+and the discrepancy workflow (``experiments.discrepancy data=FILE``).
 
 The fast kernel (see ``results/performance.md`` for the measurements behind
 each step): only the training rows (gathered once per repeat, so shapes stay
@@ -41,8 +59,11 @@ import argparse
 import json
 import os
 import platform
+import subprocess
 import sys
+import tempfile
 import time
+from pathlib import Path
 from functools import partial
 from typing import NamedTuple
 
@@ -51,6 +72,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import icgo  # noqa: F401  (enables float64)
+from experiments.bench_user import front_door, peer_comparison, run_mealpy_parallel
 from icgo import datasets, relm
 from icgo.studies import icgo_relm as study
 from icgo.optim import run_batch
@@ -195,13 +217,25 @@ def run_fast_study(sd: StudyData, strategies=STRATEGIES, pop_size=30, iterations
             "best_f": np.asarray(best_f), "test_rmse": np.asarray(scored.test.rmse).mean(axis=1)}
 
 
-def run_mealpy(sd: StudyData, n_runs: int, pop_size=30, iterations=100):
+class _NumpyObjective:
+    """:func:`numpy_fitness` on one repeat's rows, picklable (mealpy's ``mode="process"`` sends it to workers)."""
+
+    def __init__(self, X: np.ndarray, T: np.ndarray):
+        self.X, self.T = X, T
+
+    def __call__(self, theta) -> float:
+        return numpy_fitness(np.asarray(theta), self.X, self.T)
+
+
+def run_mealpy(sd: StudyData, n_runs: int, pop_size=30, iterations=100, mode: str = "single",
+               n_workers: int | None = None):
     """mealpy 3.x OriginalCGO on :func:`numpy_fitness`, one run per (strategy, repeat) slot.
 
-    Run j uses repeat ``j % R`` of the study's data and seed j.
+    Run j uses repeat ``j % R`` of the study's data and seed j. ``mode``/``n_workers``:
+    mealpy's own parallel modes (``"process"``: each population's fitness on ``n_workers`` processes).
 
     Returns:
-        dict: total_s, per_run_s, evals_per_run, best_f (n_runs,).
+        dict: total_s, per_run_s, evals_per_run (mealpy's counter), best_f (n_runs,).
     """
     from mealpy import CGO, FloatVar
 
@@ -210,23 +244,126 @@ def run_mealpy(sd: StudyData, n_runs: int, pop_size=30, iterations=100):
     best, evals = [], []
     t0 = time.perf_counter()
     for j in range(n_runs):
-        Xa = np.asarray(sd.compact.Xa[j % R])[:, :N_INPUTS]
-        T = np.asarray(sd.compact.T[j % R])
-        count = [0]
-
-        def obj(theta, X=Xa, T=T, count=count):
-            count[0] += 1
-            return numpy_fitness(np.asarray(theta), X, T)
-
+        obj = _NumpyObjective(np.asarray(sd.compact.Xa[j % R])[:, :N_INPUTS], np.asarray(sd.compact.T[j % R]))
         problem = {"obj_func": obj, "bounds": FloatVar(lb=[-1.0] * D, ub=[1.0] * D), "minmax": "min",
                    "log_to": None}
         model = CGO.OriginalCGO(epoch=iterations, pop_size=pop_size)
-        g = model.solve(problem, seed=j)
+        g = model.solve(problem, mode=mode, n_workers=n_workers, seed=j)
         best.append(float(g.target.fitness))
-        evals.append(count[0])
+        evals.append(model.nfe_counter)
     total = time.perf_counter() - t0
     return {"total_s": total, "per_run_s": total / n_runs, "evals_per_run": int(np.median(evals)),
             "best_f": np.asarray(best)}
+
+
+# -------------------------------------------------------------------- rows scaling
+#: Measurement noise added to each tiled copy of the lab_casing rows (1 sigma per axis): g and nT,
+#: the discrepancy workflow's default noise (``icgo.discrepancy.NOISE``).
+TILE_NOISE = (3e-4, 15.0)
+
+
+def write_large_recording(path, n_rows: int, seed: int = 0):
+    """A contract CSV (+ ``.meta.json``) of ``n_rows`` rows: lab_casing tiled, fresh noise on every copy.
+
+    The simulated lab_casing survey (583 rows, ICGO 3.1) is repeated until it has
+    ``n_rows`` rows; every copy gets independent white noise of :data:`TILE_NOISE`
+    on G (g) and B (nT), the reference attitude is kept, ``station`` counts rows.
+
+    Args:
+        path: CSV path (its directory must exist). n_rows: rows (>= 1). seed: noise seed.
+    Returns:
+        The written :class:`icgo.io.Recording`.
+    """
+    from icgo.io import write_recording
+
+    ds = datasets.lab_casing(0)
+    base = ds.frame
+    idx = np.arange(n_rows) % len(base)
+    frame = base.iloc[idx].reset_index(drop=True)
+    rng = np.random.default_rng(seed)
+    for cols, sigma in zip((["gx", "gy", "gz"], ["bx", "by", "bz"]), TILE_NOISE):
+        frame[cols] = frame[cols].to_numpy() + sigma * rng.standard_normal((n_rows, 3))
+    frame["station"] = np.arange(n_rows)
+    meta = {k: v for k, v in ds.meta.items() if k in ("name", "total_field_nT", "dip_deg", "declination_deg",
+                                                      "gravity_g")}
+    meta["name"] = f"lab_casing tiled to {n_rows} rows"
+    return write_recording(path, frame, meta)
+
+
+#: Runs argv[2:] as its child and writes that child's peak resident memory (kB) to the file argv[1]. The
+#: command must be started by a small process: a child's ru_maxrss includes the memory of the process it
+#: was forked from (Linux carries the pre-exec high-water mark over exec), so forking it straight from a
+#: benchmark that holds a large data set would report that data set as the command's own.
+_SHIM = """import os, sys
+pid = os.fork()
+if pid == 0:
+    os.execvp(sys.argv[2], sys.argv[2:])
+_, status, ru = os.wait4(pid, 0)
+open(sys.argv[1], "w").write(str(ru.ru_maxrss))
+sys.exit(os.waitstatus_to_exitcode(status))
+"""
+
+
+def measure(cmd: list[str], timeout: float | None = None) -> dict:
+    """Run ``cmd`` in a child process: wall time (s), peak resident memory (GB), exit status, output tail.
+
+    Peak memory is the command's own ``ru_maxrss`` (``os.wait4`` in a small launcher process, see
+    :data:`_SHIM`), whatever the size of this process.
+    """
+    with tempfile.TemporaryDirectory() as tmp:
+        log_path, rss_path = Path(tmp) / "log", Path(tmp) / "rss"
+        with open(log_path, "w") as log:
+            t = time.perf_counter()
+            proc = subprocess.Popen([sys.executable, "-c", _SHIM, str(rss_path), *cmd], stdout=log,
+                                    stderr=subprocess.STDOUT, start_new_session=True)
+            try:
+                rc = proc.wait(timeout)
+            except subprocess.TimeoutExpired:  # the launcher and the command are one process group
+                os.killpg(proc.pid, 9)
+                proc.wait()
+                rc = None
+            wall = time.perf_counter() - t
+        rss_kb = float(rss_path.read_text()) if rss_path.exists() else float("nan")
+        tail = log_path.read_text()[-2000:]
+    return {"wall_s": wall, "peak_rss_gb": rss_kb * 1024 / 1e9, "rc": rc, "tail": tail}
+
+
+def rows_scaling(sizes, budget: str = "smoke", repeats: int | None = None, workdir=None,
+                 commands=("reader", "study", "discrepancy"), timeout: float | None = None) -> list[dict]:
+    """Wall time and peak memory of the user-facing commands on contract CSVs of ``sizes`` rows.
+
+    Args:
+        sizes: row counts. budget: ``conf/budget`` option of the study. repeats: the study's
+            ``split.n_repeats`` (None: the config's 10). workdir: where the CSVs and run directories
+            go (default a temporary directory). commands: which of reader, study, discrepancy.
+        timeout: seconds per command (None: no limit).
+    Returns:
+        One dict per (rows, command): rows, command, wall_s, peak_rss_gb, rc (None: timed out).
+    """
+    work = Path(workdir or tempfile.mkdtemp(prefix="icgo-rows-"))
+    work.mkdir(parents=True, exist_ok=True)
+    py = sys.executable
+    out = []
+    for n in sizes:
+        csv = work / f"rows_{n}.csv"
+        if not csv.exists():
+            write_large_recording(csv, n)
+        cmds = {
+            "reader": [py, "-c", f"import icgo.io; icgo.io.read_recording({str(csv)!r})"],
+            "study": [py, "-m", "experiments.run", "dataset=csv", f"dataset.path={csv}", f"budget={budget}",
+                      "figures=false", "progress=false", "overwrite=true", f"hydra.run.dir={work / f'run_{n}'}"]
+            + ([f"split.n_repeats={repeats}"] if repeats else []),
+            "discrepancy": [py, "-m", "experiments.discrepancy", f"data={csv}",
+                            f"hydra.run.dir={work / f'discrepancy_{n}'}"],
+        }
+        for name in commands:
+            m = measure(cmds[name], timeout)
+            m.update(rows=n, command=name)
+            out.append(m)
+            status = "ok" if m["rc"] == 0 else f"exit {m['rc']}: {m['tail'].strip().splitlines()[-1:]}"
+            print(f"  {name:12s} {n:>9d} rows  {m['wall_s']:8.1f} s  {m['peak_rss_gb']:6.2f} GB  {status}",
+                  file=sys.stderr, flush=True)
+    return out
 
 
 # --------------------------------------------------------------------------- main
@@ -242,8 +379,32 @@ def main(argv=None) -> dict:
     p.add_argument("--scaling-repeats", default=None, help="comma list of repeat counts (default 1,10,100)")
     p.add_argument("--scaling-iterations", type=int, default=None, help="iterations of the scaling rows (default --iterations)")
     p.add_argument("--skip-scaling", action="store_true", help="skip the scaling rows")
+    p.add_argument("--skip-front-door", action="store_true",
+                   help="skip the front-door runs (then table3_s is the benchmark's own path)")
+    p.add_argument("--skip-peers", action="store_true", help="skip the evosax comparison")
     p.add_argument("--out", default=None, help="also write the JSON and the table to results/bench_<out>.{json,md}")
+    p.add_argument("--rows", default=None,
+                   help="comma list of row counts (e.g. 1e3,1e4,1e5,1e6): only measure time and peak memory of the "
+                        "reader, the study and the discrepancy workflow on contract CSVs of that many rows")
+    p.add_argument("--rows-budget", default="smoke", help="--rows: the study's conf/budget option (default smoke)")
+    p.add_argument("--rows-repeats", type=int, default=None, help="--rows: the study's split.n_repeats (default 10)")
+    p.add_argument("--rows-commands", default="reader,study,discrepancy", help="--rows: which commands to run")
+    p.add_argument("--rows-dir", default=None, help="--rows: directory for the CSVs and run directories")
     a = p.parse_args(argv)
+    if a.rows:
+        sizes = [int(float(x)) for x in a.rows.split(",")]
+        if min(sizes) < 1:
+            p.error("--rows sizes must be >= 1")
+        res = rows_scaling(sizes, a.rows_budget, a.rows_repeats, a.rows_dir, tuple(a.rows_commands.split(",")))
+        table = ["| command | rows | wall s | peak RSS GB | exit |", "| --- | ---: | ---: | ---: | ---: |"]
+        table += [f"| {m['command']} | {m['rows']:,} | {m['wall_s']:.1f} | {m['peak_rss_gb']:.2f} | {m['rc']} |"
+                  for m in res]
+        line = json.dumps({"rows_scaling": [{k: v for k, v in m.items() if k != "tail"} for m in res],
+                           "budget": a.rows_budget, "repeats": a.rows_repeats or 10,
+                           "cpu_count": os.cpu_count(), "loadavg_end": list(os.getloadavg())})
+        print("\n".join(table))
+        print(line)
+        return json.loads(line)
     if a.chunk < 1 or a.refine < 0:
         p.error("--chunk must be >= 1 and --refine >= 0")
     quick = a.quick
@@ -315,12 +476,29 @@ def main(argv=None) -> dict:
 
     # Table 3 study
     res = run_fast_study(sd, STRATEGIES, 30, iters, a.chunk, a.refine)
-    out.update(table3_s=res["total_s"], compile_s=res["compile_s"], table3_run_s=res["run_s"],
+    out.update(table3_kernel_s=res["total_s"], compile_s=res["compile_s"], table3_run_s=res["run_s"],
                evals_per_run=res["evals_per_run"],
                table3_test_rmse={s: float(v) for s, v in zip(STRATEGIES, res["test_rmse"])},
                table3_best_fitness_mean=float(res["best_f"].mean()))
-    row(f"Table 3 study ({len(STRATEGIES)} x {n_rep} runs, pop 30, {iters} it), compile included", res["total_s"], "s",
-        f"compile {res['compile_s']:.1f} s, {res['evals_per_run']} evals/run")
+    row(f"Table 3 study, the benchmark's own path ({len(STRATEGIES)} x {n_rep} runs, pop 30, {iters} it), compile "
+        f"included", res["total_s"], "s", f"compile {res['compile_s']:.1f} s, {res['evals_per_run']} evals/run")
+
+    # what a user runs: the front door in fresh processes (table3_s = warm cache), as one job and as a sweep
+    if not a.skip_front_door:
+        fd = front_door(extra=[f"split.n_repeats={n_rep}", f"budget.iterations={iters}"])
+        out["front_door"] = fd
+        out["table3_s"], out["table3_cold_s"] = fd["warm"]["wall_s"], fd["cold"]["wall_s"]
+        out["sweep_workers_speedup"] = fd["sweep_1_worker"]["wall_s"] / fd["sweep_2_workers"]["wall_s"]
+        row("Table 3 through the front door, cold compilation cache", fd["cold"]["wall_s"], "s",
+            f"python -m experiments.run experiment=table3, fresh process, peak {fd['cold']['peak_rss_gb']:.2f} GB")
+        row("Table 3 through the front door, warm cache (table3_s)", fd["warm"]["wall_s"], "s",
+            f"peak {fd['warm']['peak_rss_gb']:.2f} GB")
+        for k, w in (("sweep_1_worker", 1), ("sweep_2_workers", 2)):
+            row(f"Table 3 as a 5-job sweep (one strategy each), {w} worker(s)", fd[k]["wall_s"], "s",
+                "bitwise the one-job tables" if fd["identical"] else "TABLES DIFFER from the one-job run")
+        row("sweep speed-up, 2 workers / 1", out["sweep_workers_speedup"], "x")
+    else:
+        out["table3_s"] = res["total_s"]
 
     # mealpy
     if mealpy_runs:
@@ -335,7 +513,28 @@ def main(argv=None) -> dict:
         note = f"{mealpy_runs} of {n_all} runs timed, extrapolated" if out["mealpy_extrapolated"] else "all runs timed"
         row("mealpy OriginalCGO + numpy fitness, same study", out["mealpy_table3_s"], "s",
             f"{note}; {m['evals_per_run']} evals/run")
-        row("speedup vs mealpy", out["speedup_vs_mealpy"], "x")
+        row("speedup vs mealpy", out["speedup_vs_mealpy"], "x",
+            "front door, warm cache" if not a.skip_front_door else "the benchmark's own path")
+        if not a.skip_front_door:
+            out["speedup_vs_mealpy_cold"] = out["mealpy_table3_s"] / out["table3_cold_s"]
+            row("speedup vs mealpy, front door with a cold cache", out["speedup_vs_mealpy_cold"], "x")
+        mp = run_mealpy_parallel(sd, mealpy_runs, 30, iters, workers=2)
+        out["mealpy_parallel_table3_s"] = mp["per_run_s"] * n_all
+        out["speedup_vs_mealpy_parallel"] = out["mealpy_parallel_table3_s"] / out["table3_s"]
+        row("mealpy OriginalCGO, its parallel mode (process, 2 workers), same study", out["mealpy_parallel_table3_s"],
+            "s", note)
+        row("speedup vs mealpy's parallel mode", out["speedup_vs_mealpy_parallel"], "x")
+
+    # a JAX peer on the same fitness: evosax PSO and DE vs icgo's PSO at equal evaluations
+    if not a.skip_peers:
+        peers = peer_comparison(sd.compact, LAM, HIDDEN, 30, iters, reps=2 if quick else 3)
+        out["peers"] = peers
+        by = {p["name"]: p for p in peers}
+        out["pso_speedup_vs_evosax"] = by["evosax PSO"]["wall_s"] / by["icgo PSO"]["wall_s"]
+        for p in peers:
+            row(f"{p['name']}, {n_rep} searches x {p['evals']} evals, after compile", p["wall_s"], "s",
+                f"best training RMSE mean {p['best_f_mean']:.4f} deg")
+        row("icgo PSO speed vs evosax PSO (time ratio)", out["pso_speedup_vs_evosax"], "x")
 
     # scaling
     if not a.skip_scaling:

@@ -129,8 +129,7 @@ def _relm_members(G, B, bias, scale, mean, std, theta, beta, hidden, raw_feature
     def one(b, s, m, sd, th, be):
         B_corr = _msa.correct_field(B, b, s)
         X = jnp.concatenate([G, B if raw_features else B_corr], axis=1)
-        H = _relm.hidden_layer(th, _relm.standardize(X, m, sd), hidden)
-        return azimuth_from_gv(G, B_corr), H @ be
+        return azimuth_from_gv(G, B_corr), _relm.predict_rows(th, be, _relm.standardize(X, m, sd), hidden)
 
     return jax.vmap(one)(bias, scale, mean, std, theta, beta)
 

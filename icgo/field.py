@@ -39,6 +39,11 @@ class FieldReference(NamedTuple):
         return self.total_field_nT * float(np.sin(np.deg2rad(self.dip_deg)))
 
 
+#: Years the bundled field models cover (WMM2020: 2020-2025, WMM2025: 2025-2030); outside them the
+#: field is extrapolated (``reference_field`` still answers; the data reader gives a notice).
+FIELD_MODEL_YEARS = (2020.0, 2030.0)
+
+
 def decimal_year(date) -> float:
     """Decimal year from a float/int year, ``datetime.date``/``datetime`` or ISO string ``YYYY-MM-DD``."""
     if isinstance(date, (int, float, np.floating, np.integer)):

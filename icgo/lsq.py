@@ -109,7 +109,7 @@ def least_squares(residual_fn: Callable[[jax.Array, Any], jax.Array], x0, args=N
 
 
 def least_squares_fixed(residual_fn: Callable[[jax.Array, Any], jax.Array], x0, args=None, *, n_steps: int,
-                        free=None, lam0: float = 1e-3) -> LSQResult:
+                        free=None, lam0: float = 1e-3, blocks=None) -> LSQResult:
     """Minimise ``sum(residual_fn(x, args)**2)`` by Levenberg-Marquardt with exactly ``n_steps`` steps.
 
     For large vmapped batches of fits: the steps run in ``lax.scan``, so a
@@ -149,6 +149,12 @@ def least_squares_fixed(residual_fn: Callable[[jax.Array, Any], jax.Array], x0, 
             parameters keep their ``x0`` value exactly. 0/1 floats are read as
             bool (nonzero = free).
         lam0: initial damping ``lam`` (dimensionless, >= 0).
+        blocks: None, or a pytree of arrays with a leading block axis (nb, ...) for a residual
+            vector too long to hold its Jacobian: the residuals are then the concatenation over
+            blocks b of ``residual_fn(x, (args, blocks[b]))``, and ``JᵀJ``, ``Jᵀr`` and the cost
+            are accumulated over the blocks (``lax.scan``), so memory is that of one block's
+            Jacobian (M_b x P) whatever the number of blocks. Same steps as unblocked, up to
+            floating-point rounding of the sums.
     Returns:
         LSQResult (x (P,), cost (), n_steps () = ``n_steps``, ok ()).
     """
@@ -157,20 +163,41 @@ def least_squares_fixed(residual_fn: Callable[[jax.Array, Any], jax.Array], x0, 
     P = x0.shape[0]
     f = jnp.ones((P,), dtype) if free is None else (jnp.asarray(free) != 0).astype(dtype)
 
-    def res(x):
-        return jnp.ravel(residual_fn(x, args))
+    if blocks is None:
+        def res(x):
+            return jnp.ravel(residual_fn(x, args))
 
-    def cost(x):
-        return jnp.sum(res(x) ** 2)
+        def cost(x):
+            return jnp.sum(res(x) ** 2)
+
+        def normal(x):
+            r = res(x)
+            J = jax.jacfwd(res)(x) * f
+            return J.T @ J, J.T @ r
+    else:
+        def res_b(x, blk):
+            return jnp.ravel(residual_fn(x, (args, blk)))
+
+        def over_blocks(fn, init):  # sum of fn(block) over the leading block axis
+            def body(acc, blk):
+                return jax.tree_util.tree_map(jnp.add, acc, fn(blk)), None
+            return jax.lax.scan(body, init, blocks)[0]
+
+        def cost(x):
+            return over_blocks(lambda blk: jnp.sum(res_b(x, blk) ** 2), jnp.zeros((), dtype))
+
+        def normal(x):
+            def one(blk):
+                r = res_b(x, blk)
+                J = jax.jacfwd(res_b)(x, blk) * f
+                return J.T @ J, J.T @ r
+            return over_blocks(one, (jnp.zeros((P, P), dtype), jnp.zeros((P,), dtype)))
 
     eye = jnp.eye(P, dtype=dtype)
 
     def step(carry, _):
         x, lam, c = carry
-        r = res(x)
-        J = jax.jacfwd(res)(x) * f
-        H = J.T @ J
-        g = J.T @ r
+        H, g = normal(x)
         Hd = H + lam * jnp.diag(jnp.diag(H) + 1e-9) + (1.0 - f)[:, None] * eye + 1e-10 * eye
         delta = -jnp.linalg.solve(Hd, g) * f
         x_new = x + delta

@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 #: Version of this schema, written into every run record.
@@ -53,10 +54,18 @@ class RecordError(ValueError):
 
 
 def tag_table(df: pd.DataFrame, tags: dict) -> pd.DataFrame:
-    """A copy of ``df`` with the tag columns (in :data:`TAG_COLUMNS` order) in front."""
-    out = df.copy()
+    """``df`` with the tag columns (in :data:`TAG_COLUMNS` order) in front; ``df`` itself is unchanged.
+
+    The table's columns are shared, not copied, and each tag column is a one-value categorical
+    (one byte a row; written to CSV exactly as the plain value, an empty cell for None), so
+    tagging a table of millions of rows (the study's predictions) costs no second copy of it.
+    """
+    out = df.copy(deep=False)
+    n = len(df)
     for k in reversed(TAG_COLUMNS):
-        out.insert(0, k, tags[k])
+        v = tags[k]
+        codes = np.full(n, -1 if v is None else 0, np.int8)
+        out.insert(0, k, pd.Categorical.from_codes(codes, categories=pd.Index([] if v is None else [v], dtype=object)))
     return out
 
 

@@ -39,6 +39,13 @@ FITNESS_MODES = ("train", "validation", "kfold")
 TUNE_HIDDEN = (10, 20, 30, 50, 80, 120)
 TUNE_LAMBDA = (1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1)
 _STD_FLOOR = 1e-12
+#: Rows per block (rows) of the row-blocked paths: above this many rows the fast fitness
+#: (:func:`train_fitness`), the refit (:func:`fit`, :func:`ridge_beta`) and the prediction
+#: (:func:`predict`, :func:`predict_rows`) never hold the hidden outputs of all rows, only those of one
+#: block (chunk x ROW_BLOCK x L float64 for the fitness: 10 x 4096 x 30 x 8 B = 9.8 MB), and accumulate
+#: the normal equations over blocks (``lax.scan``), so memory stays flat and time grows linearly in
+#: rows. At or below it the unblocked code runs, unchanged (the study's 407 training rows).
+ROW_BLOCK = 4096
 
 
 def n_params(hidden: int, n_inputs: int = N_INPUTS) -> int:
@@ -112,6 +119,84 @@ def ridge_solve(H, T, lam, weights=None):
     return jax.scipy.linalg.cho_solve(c, Hw.T @ T)
 
 
+def row_blocks(block: int, *arrays):
+    """Arrays of N rows as (nb, block, ...) blocks, nb = ceil(N / block), the last block zero-padded.
+
+    Args:
+        block: rows per block. arrays: each (N, ...).
+    Returns:
+        tuple of (nb, block, ...) arrays, then the (nb, block) 0/1 mask of real rows.
+    """
+    n = arrays[0].shape[0]
+    nb = -(-n // block)
+    pad = nb * block - n
+
+    def split(a):
+        a = jnp.asarray(a)
+        return jnp.pad(a, [(0, pad)] + [(0, 0)] * (a.ndim - 1)).reshape((nb, block) + a.shape[1:])
+
+    real = (jnp.arange(nb * block) < n).reshape(nb, block)
+    return tuple(split(a) for a in arrays) + (real,)
+
+
+def _scan_sum(f, init, blocks):
+    """``sum_b f(*blocks[b])`` over the leading block axis (``lax.scan``; pytrees of sums)."""
+    def body(acc, blk):
+        return jax.tree_util.tree_map(jnp.add, acc, f(*blk)), None
+
+    return jax.lax.scan(body, init, blocks)[0]
+
+
+def ridge_beta(theta, Xs, T, lam, hidden: int, weights=None, row_block: int = ROW_BLOCK):
+    """Eq. (9) for hidden parameters ``theta``: :func:`ridge_solve` of :func:`hidden_layer`, in bounded memory.
+
+    Up to ``row_block`` rows this is ``ridge_solve(hidden_layer(theta, Xs, hidden), T, lam, weights)``
+    exactly; above, ``H^T diag(w) H`` and ``H^T diag(w) T`` are accumulated over row blocks of
+    ``row_block`` rows (``lax.scan``, in the dtype of ``Xs``), so ``H`` (N, L) is never held whole.
+
+    Args:
+        theta: (7 L,) hidden parameters. Xs: (N, 6) standardised inputs. T: (N,) targets.
+        lam: ridge lambda. hidden: L. weights: (N,) row weights or None.
+        row_block: rows per block (static).
+    Returns:
+        beta (L,).
+    """
+    Xs = jnp.asarray(Xs)
+    n = Xs.shape[0]
+    if n <= row_block:
+        return ridge_solve(hidden_layer(theta, Xs, hidden), T, lam, weights)
+    dt = Xs.dtype
+    w = jnp.ones(n, dt) if weights is None else jnp.asarray(weights, dt)
+    Xb, Tb, wb, _ = row_blocks(row_block, Xs, jnp.asarray(T, dt), w)
+
+    def normal(x, t, w):  # this block's H^T diag(w) H (L, L) and H^T diag(w) T (L,)
+        H = hidden_layer(theta, x, hidden)
+        Hw = H * w[:, None]
+        return Hw.T @ H, Hw.T @ t
+
+    A, b = _scan_sum(normal, (jnp.zeros((hidden, hidden), dt), jnp.zeros(hidden, dt)), (Xb, Tb, wb))
+    c = jax.scipy.linalg.cho_factor(A + jnp.asarray(lam, dt) * jnp.eye(hidden, dtype=dt), lower=True)
+    return jax.scipy.linalg.cho_solve(c, b)
+
+
+def predict_rows(theta, beta, Xs, hidden: int, row_block: int = ROW_BLOCK):
+    """RELM output ``hidden_layer(theta, Xs) @ beta`` (N,) for standardised inputs, in bounded memory.
+
+    Above ``row_block`` rows the hidden outputs are formed one block at a time (``lax.map``).
+
+    Args:
+        theta: (7 L,). beta: (L,). Xs: (N, 6) standardised inputs. hidden: L. row_block: rows per block.
+    Returns:
+        (N,) predictions.
+    """
+    Xs = jnp.asarray(Xs)
+    n = Xs.shape[0]
+    if n <= row_block:
+        return hidden_layer(theta, Xs, hidden) @ beta
+    Xb, _ = row_blocks(row_block, Xs)
+    return jax.lax.map(lambda x: hidden_layer(theta, x, hidden) @ beta, Xb).reshape(-1)[:n]
+
+
 class FitData(NamedTuple):
     """Per-repeat data for the fitness (the optimizer's ``aux``).
 
@@ -140,9 +225,42 @@ def _rmse_one(theta, data: FitData, lam, hidden: int):
     return jnp.where(jnp.isfinite(f), f, jnp.inf)
 
 
-@partial(jax.jit, static_argnames=("hidden", "dtype"))
-def fitness(pop, data: FitData, lam, hidden: int, dtype=None):
+def _rmse_one_blocked(theta, data: FitData, lam, hidden: int, row_block: int):
+    """:func:`_rmse_one` over row blocks: every fold's normal equations, then its scored residuals,
+    summed block by block (``lax.scan``), so ``H`` (N, L) is never held whole."""
+    dt = data.X.dtype
+    K = data.fit_w.shape[0]
+    Xb, Tb, fwb, swb, _ = row_blocks(row_block, data.X, data.T, data.fit_w.T, data.score_w.T)  # weights (nb, B, K)
+    blocks = (Xb, Tb, fwb, swb)
+
+    def normal(x, t, fw, sw):  # per fold: H^T diag(w_k) H (K, L, L) and H^T diag(w_k) T (K, L)
+        H = hidden_layer(theta, x, hidden)
+        return jnp.einsum("bk,bi,bj->kij", fw, H, H), jnp.einsum("bk,bi,b->ki", fw, H, t)
+
+    A, b = _scan_sum(normal, (jnp.zeros((K, hidden, hidden), dt), jnp.zeros((K, hidden), dt)), blocks)
+
+    def solve(A, b):
+        c = jax.scipy.linalg.cho_factor(A + lam * jnp.eye(hidden, dtype=dt), lower=True)
+        return jax.scipy.linalg.cho_solve(c, b)
+
+    beta = jax.vmap(solve)(A, b)                                                      # (K, L)
+
+    def scored(x, t, fw, sw):  # per fold: sum of score-weighted squared residuals (K,)
+        r = hidden_layer(theta, x, hidden) @ beta.T - t[:, None]
+        return jnp.sum(sw * r * r, axis=0)
+
+    sse = _scan_sum(scored, jnp.zeros(K, dt), blocks)
+    f = jnp.mean(jnp.sqrt(sse / jnp.sum(data.score_w, axis=1)))
+    return jnp.where(jnp.isfinite(f), f, jnp.inf)
+
+
+@partial(jax.jit, static_argnames=("hidden", "dtype", "row_block"))
+def fitness(pop, data: FitData, lam, hidden: int, dtype=None, row_block: int = ROW_BLOCK):
     """Batched RELM fitness: mean over folds of the scored RMSE (deg) of each theta.
+
+    Above ``row_block`` rows (all rows, test rows included) the thetas run one after another
+    and each one's fold fits and scores are accumulated over row blocks (:data:`ROW_BLOCK`),
+    so memory does not grow with population x rows x hidden; the same sums, in another order.
 
     Args:
         pop: (P, 7 L) population of hidden parameters.
@@ -150,6 +268,7 @@ def fitness(pop, data: FitData, lam, hidden: int, dtype=None):
         lam: ridge lambda.
         hidden: L.
         dtype: None to keep the input dtype, or ``"float32"`` / ``"float64"``.
+        row_block: rows per block (static).
     Returns:
         (P,) fitness; +inf where the solve is not finite.
     """
@@ -158,6 +277,8 @@ def fitness(pop, data: FitData, lam, hidden: int, dtype=None):
         pop = pop.astype(dt)
         data = FitData(*(jnp.asarray(a).astype(dt) for a in data))
         lam = jnp.asarray(lam, dt)
+    if data.X.shape[0] > row_block:  # one theta at a time: a block's (folds, rows, L) stays in cache
+        return jax.lax.map(lambda th: _rmse_one_blocked(th, data, lam, hidden, row_block), pop)
     return jax.vmap(_rmse_one, in_axes=(0, None, None, None))(pop, data, lam, hidden)
 
 
@@ -236,19 +357,79 @@ def _train_rmse_chunk(pop, rows: TrainRows, lam, hidden: int, refine: int, gram_
     return jnp.where(jnp.isfinite(f), f, jnp.inf)
 
 
-def _train_fitness_impl(pop, Xa, T, lam, hidden: int, chunk: int, refine: int, gram_dtype, w=None):
+def _train_rmse_chunk_blocked(pop, rows: TrainRows, lam, hidden: int, refine: int, gram_dtype, row_block: int):
+    """:func:`_train_rmse_chunk` over row blocks: the same normal equations, accumulated block by block.
+
+    One pass forms, per block b, the block's column means ``m_b``, its Gram centred on them in
+    ``gram_dtype`` and ``H^T T``; ``H_b^T H_b = Hc_b^T Hc_b + n_b m_b m_b^T`` exactly, so the
+    sum over blocks is the Gram of all rows, with the float32 rounding relative to the centred
+    columns as in the unblocked kernel (block means are at least as close to a block's rows as
+    the global mean). Each refinement step and the final residual recompute ``H`` block by
+    block. Rows past the end (the last block's padding) and rows of weight 0 drop out of every sum.
+    """
+    P = pop.shape[0]
+    d1 = rows.Xa.shape[1]
+    dt = pop.dtype
+    W = jnp.concatenate([pop[:, : (d1 - 1) * hidden].reshape(P, d1 - 1, hidden),
+                         pop[:, None, (d1 - 1) * hidden:]], axis=1)                 # (P, 7, L): W and b
+    Xb, Tb, real = row_blocks(row_block, rows.Xa, rows.T)
+    wb = real.astype(dt) if rows.w is None else row_blocks(row_block, rows.w)[0]
+    blocks = (Xb, Tb, wb)
+
+    def hidden_out(x):                                                               # eq. (8), (P, block, L)
+        return jax.nn.sigmoid(jnp.einsum("nd,pdl->pnl", x, W))
+
+    def gram(x, t, w):  # this block's H^T H (centred Gram in gram_dtype + float64 mean term) and H^T T
+        H = hidden_out(x)
+        nb = jnp.sum(w)
+        mb = jnp.einsum("pnl,n->pl", H, w) / jnp.maximum(nb, 1.0)
+        Hc = ((H - mb[:, None, :]) * w[None, :, None]).astype(gram_dtype)
+        A = jnp.einsum("pni,pnj->pij", Hc, Hc).astype(dt) + nb * mb[:, :, None] * mb[:, None, :]
+        return A, jnp.einsum("pni,n->pi", H, t * w)
+
+    A, HtT = _scan_sum(gram, (jnp.zeros((P, hidden, hidden), dt), jnp.zeros((P, hidden), dt)), blocks)
+    n = jnp.sum(wb)
+    C = jnp.linalg.cholesky(A + lam * jnp.eye(hidden, dtype=dt))
+
+    def solve(b):
+        return jax.scipy.linalg.cho_solve((C, True), b[..., None])[..., 0]
+
+    beta = solve(HtT)                                                                # eq. (9)
+    for _ in range(refine):
+        def h_r(x, t, w, beta=beta):  # H^T r of the float64 residual r = w (T - H beta)
+            H = hidden_out(x)
+            return jnp.einsum("pni,pn->pi", H, (t - jnp.einsum("pni,pi->pn", H, beta)) * w)
+
+        beta = beta + solve(_scan_sum(h_r, jnp.zeros((P, hidden), dt), blocks) - lam * beta)
+
+    def sse(x, t, w):
+        r = jnp.einsum("pni,pi->pn", hidden_out(x), beta) - t
+        return jnp.einsum("pn,n->p", r * r, w)
+
+    f = jnp.sqrt(_scan_sum(sse, jnp.zeros(P, dt), blocks) / n)
+    return jnp.where(jnp.isfinite(f), f, jnp.inf)
+
+
+def _train_fitness_impl(pop, Xa, T, lam, hidden: int, chunk: int, refine: int, gram_dtype, w=None,
+                        row_block: int = ROW_BLOCK):
     rows = TrainRows(Xa, T, w)
     P, D = pop.shape
+    if Xa.shape[0] <= row_block:
+        kernel = partial(_train_rmse_chunk, rows=rows, lam=lam, hidden=hidden, refine=refine, gram_dtype=gram_dtype)
+    else:
+        kernel = partial(_train_rmse_chunk_blocked, rows=rows, lam=lam, hidden=hidden, refine=refine,
+                         gram_dtype=gram_dtype, row_block=row_block)
     if chunk >= P:
-        return _train_rmse_chunk(pop, rows, lam, hidden, refine, gram_dtype)
+        return kernel(pop)
     k = -(-P // chunk)
     padded = jnp.concatenate([pop, jnp.zeros((k * chunk - P, D), pop.dtype)]).reshape(k, chunk, D)
-    out = jax.lax.map(lambda p: _train_rmse_chunk(p, rows, lam, hidden, refine, gram_dtype), padded)
+    out = jax.lax.map(kernel, padded)
     return out.reshape(-1)[:P]
 
 
 @lru_cache(maxsize=None)
-def _sequential_over_batches(hidden: int, chunk: int, refine: int, gram_dtype: str, weighted: bool = False):
+def _sequential_over_batches(hidden: int, chunk: int, refine: int, gram_dtype: str, weighted: bool = False,
+                             row_block: int = ROW_BLOCK):
     """The kernel with a batching rule that runs batch members one after another.
 
     Under the runner's vmap over repeats and strategies a plainly batched kernel
@@ -259,10 +440,11 @@ def _sequential_over_batches(hidden: int, chunk: int, refine: int, gram_dtype: s
     """
     if weighted:
         def one(pop, Xa, T, lam, w):
-            return _train_fitness_impl(pop, Xa, T, lam, hidden, chunk, refine, jnp.dtype(gram_dtype), w)
+            return _train_fitness_impl(pop, Xa, T, lam, hidden, chunk, refine, jnp.dtype(gram_dtype), w, row_block)
     else:
         def one(pop, Xa, T, lam):
-            return _train_fitness_impl(pop, Xa, T, lam, hidden, chunk, refine, jnp.dtype(gram_dtype))
+            return _train_fitness_impl(pop, Xa, T, lam, hidden, chunk, refine, jnp.dtype(gram_dtype), None,
+                                       row_block)
 
     f = jax.custom_batching.custom_vmap(one)
 
@@ -274,9 +456,9 @@ def _sequential_over_batches(hidden: int, chunk: int, refine: int, gram_dtype: s
     return f
 
 
-@partial(jax.jit, static_argnames=("hidden", "chunk", "refine", "gram_dtype"))
+@partial(jax.jit, static_argnames=("hidden", "chunk", "refine", "gram_dtype", "row_block"))
 def train_fitness(pop, rows: TrainRows, lam, hidden: int, chunk: int = 10, refine: int = 2,
-                  gram_dtype: str = "float32"):
+                  gram_dtype: str = "float32", row_block: int = ROW_BLOCK):
     """Fast batched training RMSE (deg): the paper's fitness on gathered training rows.
 
     Mixed precision (``gram_dtype="float32"``): the Gram product of the centred
@@ -285,8 +467,12 @@ def train_fitness(pop, rows: TrainRows, lam, hidden: int, chunk: int = 10, refin
     ridge solution (tested against :func:`fitness` on the study's own data).
     The population is processed in chunks of ``chunk`` thetas (``lax.map``) so a
     chunk's hidden outputs stay in cache; under ``vmap`` (repeats, strategies)
-    batch members run one after another for the same reason. Measurements:
-    ``results/performance.md``.
+    batch members run one after another for the same reason. Above ``row_block``
+    training rows the rows are processed in blocks too (:data:`ROW_BLOCK`): the
+    column means, the centred Gram and ``H^T T`` are accumulated over blocks and
+    each refinement step recomputes the hidden outputs block by block, so memory
+    does not grow with the rows (the same float64 solution; tested against the
+    unblocked kernel and :func:`fitness`). Measurements: ``results/performance.md``.
 
     Args:
         pop: (P, 7 L) hidden parameters. rows: TrainRows of one repeat.
@@ -294,18 +480,20 @@ def train_fitness(pop, rows: TrainRows, lam, hidden: int, chunk: int = 10, refin
         chunk: thetas per ``lax.map`` step (>= P: no chunking).
         refine: iterative-refinement steps (2 reach float64 accuracy here).
         gram_dtype: ``"float32"`` (mixed precision) or ``"float64"``.
+        row_block: rows per block above which (and in which) the rows are processed in blocks.
     Returns:
         (P,) fitness; +inf where not finite.
     """
     weighted = rows.w is not None
-    f = _sequential_over_batches(hidden, chunk, refine, str(jnp.dtype(gram_dtype)), weighted)
+    f = _sequential_over_batches(hidden, chunk, refine, str(jnp.dtype(gram_dtype)), weighted, row_block)
     return f(pop, rows.Xa, rows.T, jnp.asarray(lam, pop.dtype), *((rows.w,) if weighted else ()))
 
 
-def make_train_fitness(lam: float, hidden: int, chunk: int = 10, refine: int = 2, gram_dtype: str = "float32"):
+def make_train_fitness(lam: float, hidden: int, chunk: int = 10, refine: int = 2, gram_dtype: str = "float32",
+                       row_block: int = ROW_BLOCK):
     """``fitness(pop (P, D), aux: TrainRows) -> (P,)`` closure for optimizers."""
     def f(pop, aux):
-        return train_fitness(pop, aux, lam, hidden, chunk, refine, gram_dtype)
+        return train_fitness(pop, aux, lam, hidden, chunk, refine, gram_dtype, row_block)
     return f
 
 
@@ -396,8 +584,7 @@ def fit(theta, X, T, lam: float, hidden: int, weights=None) -> RELM:
 @partial(jax.jit, static_argnames=("hidden",))
 def _fit(theta, X, T, lam, w, hidden):
     mean, std = standardize_stats(X, w)
-    H = hidden_layer(theta, standardize(X, mean, std), hidden)
-    return RELM(theta, ridge_solve(H, T, lam, w), mean, std)
+    return RELM(theta, ridge_beta(theta, standardize(X, mean, std), T, lam, hidden, w), mean, std)
 
 
 def fit_unchecked(theta, X, T, lam, weights, hidden: int) -> RELM:
@@ -406,7 +593,5 @@ def fit_unchecked(theta, X, T, lam, weights, hidden: int) -> RELM:
 
 
 def predict(model: RELM, X):
-    """RELM output for raw inputs X (N, 6) -> (N,)."""
-    hidden = model.beta.shape[-1]
-    H = hidden_layer(model.theta, standardize(X, model.mean, model.std), hidden)
-    return H @ model.beta
+    """RELM output for raw inputs X (N, 6) -> (N,) (in row blocks above :data:`ROW_BLOCK` rows)."""
+    return predict_rows(model.theta, model.beta, standardize(X, model.mean, model.std), model.beta.shape[-1])

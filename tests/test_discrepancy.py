@@ -194,6 +194,38 @@ def test_lm_jacobian_is_exact():
     assert np.allclose(J, Jfd, rtol=1e-5, atol=1e-5 * np.abs(J).max())
 
 
+def test_row_blocked_evaluation_matches_unblocked():
+    """row_block below the station count: normal equations, held-out residuals and the Jacobian
+    (as its triangular factor) accumulated over blocks give the unblocked evaluation up to rounding."""
+    from icgo.discrepancy.fit import evaluate_models, standard_errors
+    from icgo.discrepancy.search import _mask
+
+    st, _ = _hidden(["hard_iron", "accel_bias"], seed=3, n=120)
+    state = D.init(st, D.WorkflowConfig())
+    ctx = state.ctx
+    args = (jax.numpy.asarray(state.theta), jax.numpy.asarray(state.masks), jax.numpy.asarray(ctx.train),
+            jax.numpy.asarray(ctx.test), jax.numpy.asarray(ctx.valid_w), jax.numpy.asarray(ctx.group_free),
+            ctx.data, ctx.layout, ctx.config.n_iter)
+    a = D.Evaluation(*(np.asarray(x) for x in state.evaluation))
+    b = D.Evaluation(*(np.asarray(x) for x in evaluate_models(*args, row_block=50)))  # 3 blocks, the last padded
+    np.testing.assert_allclose(b.theta_full, a.theta_full, rtol=0, atol=1e-7 * np.abs(a.theta_full).max())
+    np.testing.assert_allclose(b.cost_full, a.cost_full, rtol=1e-9)
+    np.testing.assert_allclose(b.chi2_held, a.chi2_held, rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(b.az_held, a.az_held, rtol=0, atol=1e-7)
+    J, R = a.J_full, b.J_full
+    assert J.shape[1:] == (6 * 120, ctx.layout.n_params) and R.shape[1:] == (ctx.layout.n_params,) * 2
+    JtJ, RtR = np.einsum("mij,mik->mjk", J, J), np.einsum("mij,mik->mjk", R, R)
+    np.testing.assert_allclose(RtR, JtJ, rtol=0, atol=1e-9 * np.abs(JtJ).max())
+    m = state.candidates[0].index
+    se = [standard_errors(X[m], state.masks[m], a.cost_full[m], ctx.n_res) for X in (J, R)]
+    np.testing.assert_allclose(se[1], se[0], rtol=1e-7)
+    for e in ctx.names:
+        free = _mask(ctx, ()).astype(bool)
+        dj, dr = (D.identifiability(X[m], ctx.layout, e, free) for X in (J, R))
+        assert [(d.direction, d.mimics) for d in dj] == [(d.direction, d.mimics) for d in dr]
+        np.testing.assert_allclose([d.s for d in dr], [d.s for d in dj], rtol=0, atol=1e-9)
+
+
 @pytest.mark.slow
 def test_compiles_once_across_steps_and_sizes():
     before = D.evaluate_models._cache_size()
@@ -207,8 +239,13 @@ def test_compiles_once_across_steps_and_sizes():
 def test_bad_input_one_line(capsys, tmp_path):
     with pytest.raises(ValueError, match="stations: G and B"):
         D.check_stations(D.Stations(G=np.zeros((10, 2)), B=np.zeros((10, 3))))
+    rng = np.random.default_rng(0)
     with pytest.raises(ValueError, match="reference attitude .* or a group"):
-        D.check_stations(D.Stations(G=np.ones((10, 3)), B=np.ones((10, 3))))
+        D.check_stations(D.Stations(G=rng.normal(size=(10, 3)), B=rng.normal(size=(10, 3))))
+    with pytest.raises(ValueError, match=r"^stations: 200 stations but only 1 distinct \(G, B\) reading\(s\); need at "
+                                         r"least 6 different readings \(are the rows copies of one station\?\)$"):
+        D.check_stations(D.Stations(G=np.tile([0.1, 0.2, 0.97], (200, 1)), B=np.tile([2e4, 0.0, 4e4], (200, 1)),
+                                    group=np.zeros(200, int)))
     from experiments.discrepancy import main_body
 
     cfg = OmegaConf.load(Path(__file__).parents[1] / "conf" / "discrepancy.yaml")

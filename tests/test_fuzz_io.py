@@ -122,6 +122,46 @@ def test_mutated_csvs_read_or_fail_in_one_line_long(tmp_path_factory, data):
     _check_mutated_csvs(tmp_path_factory, data)
 
 
+def _check_fast_reader_is_exact(data):
+    """The pandas fast path of read_recording returns a frame only when the exact (csv module) reader
+    returns the same frame and notices; where the exact reader refuses the text, the fast one declines."""
+    frame, _ = data.draw(recordings())
+    extra = data.draw(st.sampled_from(["none", "number", "text", "mixed"]))
+    if extra == "number":
+        frame = frame.assign(temperature_x=np.arange(len(frame)) * 0.5)
+    elif extra == "text":
+        frame = frame.assign(operator="jd")
+    elif extra == "mixed":
+        frame = frame.assign(operator=[f"{i}.5" if i % 2 else "x" for i in range(len(frame))])
+    text = _mutated_text(data.draw, frame.to_csv(index=False, lineterminator="\n"))
+    text = text.replace("\r\n", "\n").replace("\r", "\n")  # what read_text's universal newlines leave
+    if not text.strip():
+        return
+    fast_notes, exact_notes = [], []
+    fast = io._read_fast(text, "f.csv", fast_notes, True)
+    try:
+        exact = io._read_exact(text, "f.csv", exact_notes, True)
+    except io.DataError:
+        assert fast is None
+        return
+    if fast is not None:
+        pd.testing.assert_frame_equal(fast, exact, check_exact=True)
+        assert fast_notes == exact_notes
+
+
+@FAST
+@given(st.data())
+def test_fast_reader_equals_the_exact_reader(data):
+    _check_fast_reader_is_exact(data)
+
+
+@pytest.mark.slow
+@LONG
+@given(st.data())
+def test_fast_reader_equals_the_exact_reader_long(data):
+    _check_fast_reader_is_exact(data)
+
+
 JSON = st.recursive(st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=8),
                     lambda kids: st.lists(kids, max_size=4) | st.dictionaries(st.text(max_size=8), kids, max_size=4),
                     max_leaves=12)

@@ -334,3 +334,79 @@ def test_a_pipe_or_device_is_refused_at_once(tmp_path):
         with pytest.raises(io.DataError, match="not a regular file") as e:
             io.read_recording(p)
         assert "\n" not in str(e.value)
+
+
+def test_plain_files_take_the_fast_reader_and_read_as_the_exact_one():
+    """A plain contract CSV is parsed by pandas' C parser (no Python object per cell) with the same
+    frame, dtypes and notices as the csv-module reader; quoted text is left to the exact reader."""
+    for name in ("survey.csv", "extras.csv", "groups.csv", "handwritten_axial.csv"):
+        text = (DATA / name).read_text(encoding="utf-8-sig")
+        notes_fast, notes_exact = [], []
+        fast = io._read_fast(text, name, notes_fast, True)
+        exact = io._read_exact(text, name, notes_exact, True)
+        assert fast is not None, name
+        pd.testing.assert_frame_equal(fast, exact, check_exact=True)
+        assert notes_fast == notes_exact
+    assert io._read_fast(text.replace("\n", '\n""\n', 1), "q.csv", [], True) is None
+
+
+# ------------------------------------------- values a reader used to accept silently (issue 19)
+def _survey_with(tmp_path, edit, name="s.csv"):
+    """survey.csv (+ its metadata) with ``edit(lines) -> lines`` applied to its text lines."""
+    lines = (DATA / "survey.csv").read_text().splitlines()
+    path = tmp_path / name
+    path.write_text("\n".join(edit(lines)) + "\n")
+    shutil.copy(DATA / "survey.meta.json", tmp_path / name.replace(".csv", ".meta.json"))
+    return path
+
+
+def _cell(lines, row, col, value):
+    cells = lines[row].split(",")
+    cells[col] = value
+    return lines[:row] + [",".join(cells)] + lines[row + 1:]
+
+
+@pytest.mark.parametrize("row, col, value, expect", [
+    (3, 0, "1e300", "row 3 (line 4), column 'station': 1e+300 is too large for an id (at most 9,007,199,254,740,992 "
+                    "in magnitude)"),
+    (2, 7, "1e300", "row 2 (line 3), column 'azimuth_deg': 1e+300 deg outside [-360, 720]"),
+    (2, 9, "-400", "row 2 (line 3), column 'toolface_deg': -400.0 deg outside [-360, 720]"),
+    (4, 4, "1_000_000", "row 4 (line 5), column 'bx': non-numeric value '1_000_000'"),
+])
+def test_values_out_of_their_domain_are_one_line(tmp_path, row, col, value, expect):
+    path = _survey_with(tmp_path, lambda ls: _cell(ls, row, col, value))
+    assert _one_line_error(io.read_recording, path) == f"{path}, {expect}"
+
+
+def test_rows_in_other_units_are_named(tmp_path):
+    def half_in_uT(lines):
+        out = lines[:1]
+        for i, ln in enumerate(lines[1:]):
+            c = ln.split(",")
+            if i % 2:
+                c[4:7] = [repr(float(v) / 1000) for v in c[4:7]]
+            out.append(",".join(c))
+        return out
+
+    path = _survey_with(tmp_path, half_in_uT)
+    msg = _one_line_error(io.read_recording, path)
+    assert msg.startswith(f"{path}, row 2 (line 3), columns 'bx', 'by', 'bz': |B| = 48 while the median is ")
+    assert msg.endswith("nT (3 row(s) more than 10x off: rows in other units?)")
+
+
+def test_a_file_without_its_last_newline_gets_a_notice(tmp_path):
+    path = tmp_path / "cut.csv"
+    path.write_text((DATA / "survey.csv").read_text().rstrip("\n")[:-2])  # the last value cut short
+    shutil.copy(DATA / "survey.meta.json", tmp_path / "cut.meta.json")
+    rec = io.read_recording(path)
+    assert f"{path}: the file does not end with a newline; check that its last row (row 6) is complete" in rec.notices
+
+
+@pytest.mark.parametrize("date, notice", [("2099-01-01", True), (1901.5, True), ("2024-06-01", False)])
+def test_a_field_model_date_outside_its_years_gets_a_notice(tmp_path, date, notice):
+    shutil.copy(DATA / "groups.csv", tmp_path / "g.csv")
+    meta = json.loads((DATA / "groups.meta.json").read_text()) | {"date": date}
+    (tmp_path / "g.meta.json").write_text(json.dumps(meta))
+    rec = io.read_recording(tmp_path / "g.csv")
+    said = [n for n in rec.notices if "outside the field model's years (2020-2030" in n]
+    assert bool(said) == notice, rec.notices

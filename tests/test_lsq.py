@@ -201,3 +201,27 @@ def test_fixed_nan_residual_is_not_ok_and_nan_trial_points_are_rejected():
     # with lam0 = 0 the damping stays 0 (0 x 10), so the rejected Gauss-Newton step repeats: x stays at x0
     r0 = least_squares_fixed(log_fn, jnp.array([1.0]), n_steps=30, lam0=0.0)
     assert bool(r0.ok) and float(r0.x[0]) == 1.0
+
+
+@pytest.mark.parametrize("fn, x0", [("linear", np.zeros(4)), ("exp_decay", np.array([1.0, 1.0]))])
+def test_fixed_lm_over_row_blocks_equals_unblocked(fn, x0):
+    """blocks=: the same steps with JᵀJ, Jᵀr and the cost summed over row blocks (rounding only)."""
+    rng = np.random.default_rng(3)
+    n, nb = 48, 4
+    if fn == "linear":
+        A = rng.standard_normal((n, 4))
+        data = (A, A @ np.array([1.0, -2.0, 0.5, 3.0]) + 0.1 * rng.standard_normal(n))
+        res = _linear
+    else:
+        t = np.linspace(0.0, 3.0, n)
+        data = (t, 2.0 * np.exp(-0.7 * t) + 0.01 * rng.standard_normal(n))
+        res = _exp_decay
+    data = tuple(jnp.asarray(d) for d in data)
+    free = jnp.array([1.0, 0.0, 1.0, 1.0]) if fn == "linear" else None
+    one = least_squares_fixed(res, x0, data, n_steps=8, free=free)
+    blocks = tuple(d.reshape((nb, n // nb) + d.shape[1:]) for d in data)
+    blocked = least_squares_fixed(lambda x, a: res(x, a[1]), x0, None, n_steps=8, free=free, blocks=blocks)
+    np.testing.assert_allclose(np.asarray(blocked.x), np.asarray(one.x), rtol=1e-12, atol=1e-12)
+    assert float(blocked.cost) == pytest.approx(float(one.cost), rel=1e-12)
+    if free is not None:
+        assert float(blocked.x[1]) == 0.0

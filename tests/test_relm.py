@@ -180,3 +180,80 @@ def test_train_fitness_vmapped_runs_members_one_by_one_bitwise():
     batched = jax.vmap(lambda p: relm.train_fitness(p, rows, 1e-3, 5, chunk=3))(pops)
     for k in range(3):
         np.testing.assert_array_equal(np.asarray(batched[k]), np.asarray(relm.train_fitness(pops[k], rows, 1e-3, 5, chunk=3)))
+
+
+# ------------------------------------------------------------ row-blocked paths (issue: rows in bounded memory)
+@pytest.mark.parametrize("scale", [1.0, 0.05])
+@pytest.mark.parametrize("padded", [False, True])
+def test_row_blocked_train_fitness_matches_unblocked_and_float64(scale, padded):
+    """A small row_block forces the blocked kernel (last block padded, weight-0 rows): the float64 solution."""
+    _, _, mask, pop, fit = relm_train_data(n=200, scale=scale, seed=2)
+    n = int(mask.sum()) + (5 if padded else 0)
+    rows = relm.train_rows(fit, n, padded=padded)
+    assert n > 16 and n % 16
+    ref = np.asarray(relm.fitness(pop, fit, 1e-3, 5))
+    unblocked = np.asarray(relm.train_fitness(pop, rows, 1e-3, 5, chunk=3))
+    blocked = np.asarray(relm.train_fitness(pop, rows, 1e-3, 5, chunk=3, row_block=16))
+    np.testing.assert_allclose(blocked, unblocked, rtol=1e-11)
+    np.testing.assert_allclose(blocked, ref, rtol=1e-9)
+    # a block size at least the row count runs the unblocked kernel itself, bitwise
+    np.testing.assert_array_equal(np.asarray(relm.train_fitness(pop, rows, 1e-3, 5, chunk=3, row_block=n)), unblocked)
+
+
+def test_row_blocked_train_fitness_without_refinement_is_no_worse():
+    # Each block's Gram is centred on the block's own means, so even with no refinement the
+    # float32 error stays at the unblocked kernel's level (the refinement then removes it).
+    _, _, mask, pop, fit = relm_train_data(n=200, scale=0.05, seed=1)
+    rows = relm.train_rows(fit, int(mask.sum()))
+    ref = np.asarray(relm.fitness(pop, fit, 1e-3, 5))
+    err = lambda rb: np.max(np.abs(np.asarray(relm.train_fitness(pop, rows, 1e-3, 5, 3, 0, row_block=rb)) / ref - 1))  # noqa: E731
+    assert err(16) <= 2 * err(10_000)
+
+
+def test_row_blocked_train_fitness_at_scale_and_under_vmap():
+    """20,000 rows with the default ROW_BLOCK: blocked, equal to float64; batch members equal runs alone."""
+    rng = np.random.default_rng(3)
+    n, hidden = 20_000, 6
+    assert n > relm.ROW_BLOCK
+    X = rng.standard_normal((n, 6))
+    T = np.sin(X[:, 0]) + 0.3 * X[:, 1] * X[:, 2]
+    ones = jnp.ones((1, n))
+    fit = relm.FitData(jnp.asarray(X), jnp.asarray(T), ones, ones)
+    pop = jnp.asarray(rng.uniform(-1, 1, (4, relm.n_params(hidden))))
+    rows = relm.train_rows(fit, n)
+    got = relm.train_fitness(pop, rows, 1e-3, hidden, chunk=2)
+    np.testing.assert_allclose(np.asarray(got), np.asarray(relm.fitness(pop, fit, 1e-3, hidden)), rtol=1e-9)
+    pops = jnp.stack([pop, pop * 0.5])
+    batched = jax.vmap(lambda p: relm.train_fitness(p, rows, 1e-3, hidden, chunk=2))(pops)
+    np.testing.assert_array_equal(np.asarray(batched[0]), np.asarray(got))
+
+
+@pytest.mark.parametrize("mode", relm.FITNESS_MODES)
+def test_row_blocked_library_fitness_matches_unblocked(mode):
+    """relm.fitness above row_block rows: the fold fits and scores summed over row blocks, one theta at a time."""
+    X, T, mask, pop, _ = relm_train_data(n=200)
+    fw, sw = relm.fold_weights(jax.random.PRNGKey(0), jnp.asarray(mask), mode)
+    fit = relm.FitData(jnp.asarray(X), jnp.asarray(T), fw, sw)
+    ref = np.asarray(relm.fitness(pop, fit, 1e-3, 5))
+    np.testing.assert_allclose(np.asarray(relm.fitness(pop, fit, 1e-3, 5, row_block=48)), ref, rtol=1e-10)
+    np.testing.assert_allclose(np.asarray(relm.fitness(pop, fit, 1e-3, 5, "float32", row_block=48)), ref, rtol=1e-3)
+    bad = np.asarray(relm.fitness(pop.at[0, 0].set(jnp.nan), fit, 1e-3, 5, row_block=48))
+    assert bad[0] == np.inf and np.isfinite(bad[1:]).all()
+
+
+def test_row_blocked_refit_and_prediction_match_the_whole_matrix():
+    X, err = sensor_data(300)
+    w = (np.arange(300) % 3 > 0).astype(float)
+    theta = relm.random_theta(jax.random.PRNGKey(4), L)
+    mean, std = relm.standardize_stats(jnp.asarray(X), jnp.asarray(w))
+    Xs = relm.standardize(jnp.asarray(X), mean, std)
+    H = relm.hidden_layer(theta, Xs, L)
+    ref = relm.ridge_solve(H, jnp.asarray(err), 1e-3, jnp.asarray(w))
+    np.testing.assert_array_equal(np.asarray(relm.ridge_beta(theta, Xs, err, 1e-3, L, w)), np.asarray(ref))
+    beta = relm.ridge_beta(theta, Xs, err, 1e-3, L, w, row_block=64)
+    np.testing.assert_allclose(np.asarray(beta), np.asarray(ref), rtol=1e-9, atol=1e-9 * np.abs(ref).max())
+    np.testing.assert_allclose(np.asarray(relm.predict_rows(theta, beta, Xs, L, row_block=64)),
+                               np.asarray(H @ beta), rtol=0, atol=1e-12)
+    blocks = relm.row_blocks(64, Xs, jnp.asarray(err))
+    assert blocks[0].shape == (5, 64, 6) and blocks[1].shape == (5, 64)
+    np.testing.assert_array_equal(np.asarray(blocks[2]).ravel(), np.arange(320) < 300)

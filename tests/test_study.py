@@ -238,3 +238,28 @@ def test_tuned_relm_picks_the_best_mean_validation_cell_from_training_rows_only(
 def test_tune_needs_plain_relm_and_a_validation_fitness(change, match):
     with pytest.raises(ValueError, match=match):
         study.StudyConfig(**{"optimizer": None, "tune": True, "fitness": "validation", **change})
+
+
+def _sigma_filter_by_masks(G, B, a, n_sigma=3.0):
+    """The 3-sigma rule with one boolean mask per azimuth group (the former O(N x groups) loop)."""
+    from icgo.qc import measured_dip_deg
+
+    keep = np.ones(len(a), bool)
+    for q in (np.linalg.norm(G, axis=1), np.linalg.norm(B, axis=1), measured_dip_deg(G, B)):
+        if q.std() > 0:
+            keep &= np.abs(q - q.mean()) <= n_sigma * q.std()
+    err = np.asarray(frames.angle_diff(np.asarray(frames.azimuth_from_gv(G, B)), a))
+    for az in np.unique(np.round(a, 6)):
+        g = np.round(a, 6) == az
+        s = err[g].std()
+        if g.sum() > 2 and s > 0:
+            keep[g] &= np.abs(err[g] - err[g].mean()) <= n_sigma * s
+    return keep
+
+
+def test_sigma_filter_groups_by_sorting_exactly_as_by_masks(frame):
+    G, B, a = study.frame_arrays(frame)
+    rng = np.random.default_rng(5)
+    B = B + np.where(rng.random((len(a), 1)) < 0.02, 3000.0, 0.0)  # some outliers to drop
+    for az in (a, np.where(rng.random(len(a)) < 0.5, a, rng.uniform(0, 360, len(a))), np.r_[-0.0, a[1:] * 0.0]):
+        np.testing.assert_array_equal(study.sigma_filter(G, B, az), _sigma_filter_by_masks(G, B, az))

@@ -15,36 +15,84 @@ import jax.numpy as jnp
 import numpy as np
 
 from icgo import effects as _fx
-from icgo.discrepancy.model import Data, Layout, physical_residuals, predict, remove_accel_effects, residuals
+from icgo.discrepancy.model import (Data, Layout, physical_residuals, predict, remove_accel_effects, residuals,
+                                   station_blocks)
 from icgo.discrepancy.noise import Noise, effective_sigma
 from icgo.frames import azimuth_from_gv, field_vector_ned, inclination_from_g, tool_to_earth, toolface_from_g
 from icgo.lsq import least_squares_fixed
 
+#: Stations per block (stations) of the row-blocked fits. Above this many stations a fit
+#: accumulates its normal equations ``JᵀJ``, ``Jᵀr`` over blocks of ``ROW_BLOCK`` stations
+#: (:func:`icgo.lsq.least_squares_fixed` ``blocks``), the Jacobian at the full fit is kept as
+#: its triangular factor (:func:`jacobian_r`, accumulated block by block) and the held-out
+#: residuals are summed fold by fold, so memory holds one block's Jacobian per vmapped fit
+#: (models x folds x 6 ROW_BLOCK x P float64: 40 x 6144 x 24 x 8 B = 47 MB) plus a few
+#: (models, n, 6) per-station arrays, and time grows linearly in stations. At or below it the
+#: unblocked code runs, unchanged.
+ROW_BLOCK = 1024
+
 
 # ============================================================ Levenberg-Marquardt
-def lm_fit(theta0, free, w, data: Data, layout: Layout, n_iter: int):
+def lm_fit(theta0, free, w, data: Data, layout: Layout, n_iter: int, row_block: int = ROW_BLOCK):
     """Weighted fit of the scaled parameters; only ``free`` parameters move.
 
     The station-weighted, noise-normalized residuals (non-finite components
     replaced by 1e6) minimized by :func:`icgo.lsq.least_squares_fixed`
     (Marquardt-damped LM, a fixed number of steps in ``lax.scan``, so the
-    vmapped models x folds all cost ``n_iter`` steps).
+    vmapped models x folds all cost ``n_iter`` steps). Above ``row_block``
+    stations the normal equations are accumulated over blocks of stations.
 
     Args:
         theta0: (P,) start (scaled parameters, see :class:`~icgo.discrepancy.model.Layout`).
         free: (P,) 0/1 or bool. w: (n,) station weights (0 = not used).
-        n_iter: LM iterations (static).
+        n_iter: LM iterations (static). row_block: stations per block (static).
     Returns:
         (theta (P,), cost = sum of weighted squared noise-normalized residuals ()).
     """
-    sw = jnp.sqrt(w)[:, None]
+    if data.G.shape[0] <= row_block:
+        sw = jnp.sqrt(w)[:, None]
 
-    def res(th, _):
-        r = residuals(th, data, layout) * sw
-        return jnp.where(jnp.isfinite(r), r, 1e6).ravel()
+        def res(th, _):
+            r = residuals(th, data, layout) * sw
+            return jnp.where(jnp.isfinite(r), r, 1e6).ravel()
 
-    out = least_squares_fixed(res, theta0, n_steps=n_iter, free=free)
+        out = least_squares_fixed(res, theta0, n_steps=n_iter, free=free)
+        return out.x, out.cost
+    fields, (wb,), real = station_blocks(data, layout, row_block, w)
+
+    def res_block(th, args_blk):
+        fb, w_b, real_b = args_blk[1]
+        r = residuals(th, data._replace(**fb), layout) * jnp.sqrt(w_b)[:, None]
+        return (jnp.where(jnp.isfinite(r), r, 1e6) * real_b[:, None]).ravel()  # pads (real 0) drop out
+
+    out = least_squares_fixed(res_block, theta0, n_steps=n_iter, free=free, blocks=(fields, wb, real))
     return out.x, out.cost
+
+
+def jacobian_r(theta, w, data: Data, layout: Layout, row_block: int = ROW_BLOCK):
+    """The noise-weighted Jacobian of the weighted residuals at ``theta``, as its triangular factor.
+
+    ``J = d (residuals * sqrt(w)) / d theta`` is (6n, P); what the identifiability analysis and the
+    standard errors need of it is its column geometry (column norms, angles, ``JᵀJ``), which the
+    (P, P) factor R of ``J = Q R`` has exactly, with ``RᵀR = JᵀJ`` (no squared condition number).
+    R is accumulated over blocks of ``row_block`` stations (``R <- qr([R; J_b])``), so J is never
+    held whole.
+
+    Args:
+        theta: (P,). w: (n,) station weights. row_block: stations per block (static).
+    Returns:
+        (P, P) upper-triangular R.
+    """
+    P = theta.shape[0]
+    fields, (wb,), real = station_blocks(data, layout, row_block, w)
+
+    def body(R, blk):
+        fb, w_b, real_b = blk
+        sw = (jnp.sqrt(w_b) * real_b)[:, None]
+        J = jax.jacfwd(lambda t: (residuals(t, data._replace(**fb), layout) * sw).ravel())(theta)
+        return jnp.linalg.qr(jnp.concatenate([R, J]), mode="r"), None
+
+    return jax.lax.scan(body, jnp.zeros((P, P), theta.dtype), (fields, wb, real))[0]
 
 
 # ============================================================ k-fold evaluation
@@ -57,7 +105,9 @@ class Evaluation(NamedTuple):
         theta_full: (M, P) fit on all valid stations.
         cost_full: (M,) its sum of squared noise-normalized residuals.
         J_full: (M, 6n, P) noise-weighted Jacobian of the residuals at theta_full
-            (all P columns, whatever the mask).
+            (all P columns, whatever the mask); above ``row_block`` stations its
+            (M, P, P) triangular factor (:func:`jacobian_r`, ``RᵀR = JᵀJ``), which
+            :func:`standard_errors` and the identifiability analysis take in its place.
         chi2_held: (M, n) held-out chi2 per station (each station scored by the
             fold that left it out).
         r_held: (M, n, 6) held-out residuals measured - predicted, g and nT.
@@ -72,9 +122,9 @@ class Evaluation(NamedTuple):
     az_held: jnp.ndarray
 
 
-@partial(jax.jit, static_argnames=("layout", "n_iter"))
+@partial(jax.jit, static_argnames=("layout", "n_iter", "row_block"))
 def evaluate_models(theta0, masks, train_w, test_w, valid_w, group_free, data: Data, layout: Layout,
-                    n_iter: int) -> Evaluation:
+                    n_iter: int, row_block: int = ROW_BLOCK) -> Evaluation:
     """Fit every model on every training fold and on all stations, in one jitted call.
 
     Args:
@@ -83,13 +133,15 @@ def evaluate_models(theta0, masks, train_w, test_w, valid_w, group_free, data: D
         group_free: (P,) the group-direction nuisances (re-fitted on all stations
             with the fold's global parameters fixed before held-out scoring).
         n_iter: LM iterations per fit (static).
+        row_block: stations per block above which the fits and the held-out residuals run
+            in row blocks (static, :data:`ROW_BLOCK`).
     Returns:
         :class:`Evaluation` (``vmap`` over models x folds).
     """
-    fit = lambda m, w: lm_fit(theta0, m, w, data, layout, n_iter)
+    fit = lambda m, w: lm_fit(theta0, m, w, data, layout, n_iter, row_block)
     th_fold, _ = jax.vmap(lambda m: jax.vmap(lambda w: fit(m, w))(train_w))(masks)  # (M, K, P)
     if layout.n_groups:
-        refit = lambda th: lm_fit(th, group_free, valid_w, data, layout, n_iter)[0]
+        refit = lambda th: lm_fit(th, group_free, valid_w, data, layout, n_iter, row_block)[0]
         th_fold = jax.vmap(jax.vmap(refit))(th_fold)
     th_full, cost_full = jax.vmap(lambda m: fit(m, valid_w))(masks)
 
@@ -97,16 +149,29 @@ def evaluate_models(theta0, masks, train_w, test_w, valid_w, group_free, data: D
         pred = predict(th, data, layout)
         return physical_residuals(pred, data), azimuth_from_gv(pred.G, pred.B)
 
-    r_fold, az_fold = jax.vmap(jax.vmap(heldout))(th_fold)  # (M, K, n, 6), (M, K, n)
-    sel = test_w[None, :, :, None]
-    r_held = jnp.sum(r_fold * sel, 1)
-    az_held = jnp.sum(az_fold * test_w[None], 1)  # each station is held out in exactly one fold
+    n = data.G.shape[0]
+    if n <= row_block:
+        r_fold, az_fold = jax.vmap(jax.vmap(heldout))(th_fold)  # (M, K, n, 6), (M, K, n)
+        sel = test_w[None, :, :, None]
+        r_held = jnp.sum(r_fold * sel, 1)
+        az_held = jnp.sum(az_fold * test_w[None], 1)  # each station is held out in exactly one fold
+    else:  # one model at a time, its folds summed one by one: (n, 6) at a time, never (M, K, n, 6)
+        def held_one(th_k):
+            def add_fold(acc, fold):
+                r, az = heldout(fold[0])
+                return (acc[0] + r * fold[1][:, None], acc[1] + az * fold[1]), None
+            return jax.lax.scan(add_fold, (jnp.zeros((n, 6), data.G.dtype), jnp.zeros(n, data.G.dtype)),
+                                (th_k, test_w))[0]
+
+        r_held, az_held = jax.lax.map(held_one, th_fold)
     chi2_held = jnp.sum((r_held / data.sig) ** 2, -1)
+    if n <= row_block:
+        def jac(th):
+            return jax.jacfwd(lambda t: (residuals(t, data, layout) * jnp.sqrt(valid_w)[:, None]).ravel())(th)
 
-    def jac(th):
-        return jax.jacfwd(lambda t: (residuals(t, data, layout) * jnp.sqrt(valid_w)[:, None]).ravel())(th)
-
-    J_full = jax.vmap(jac)(th_full)
+        J_full = jax.vmap(jac)(th_full)
+    else:
+        J_full = jax.vmap(lambda th: jacobian_r(th, valid_w, data, layout, row_block))(th_full)
     return Evaluation(th_full, cost_full, J_full, chi2_held, r_held, az_held)
 
 
@@ -143,7 +208,8 @@ def standard_errors(J, free, cost: float, n_res: int) -> np.ndarray:
     """Standard errors of the free scaled parameters from the Gauss-Newton covariance ``s² (JᵀJ)⁺``.
 
     Args:
-        J: (R, P) noise-weighted Jacobian at the fit. free: (P,) 0/1 mask.
+        J: (R, P) noise-weighted Jacobian at the fit, or its triangular factor
+            (:func:`jacobian_r`, same result). free: (P,) 0/1 mask.
         cost: sum of squared noise-normalized residuals at the fit.
         n_res: number of residual components used (6 per valid station).
     Returns:

@@ -135,7 +135,8 @@ def identifiability(J, layout: Layout, effect: str, context_free, threshold=0.02
     """Directions of ``effect`` that the context (model + nuisances) can mimic or that leave no trace.
 
     Args:
-        J: (R, P) noise-weighted Jacobian (all stations).
+        J: (R, P) noise-weighted Jacobian (all stations), or its (P, P) triangular factor
+            (:func:`icgo.discrepancy.fit.jacobian_r`; only the column geometry is used, which R keeps).
         effect: the candidate effect name.
         context_free: (P,) bool, the context's free parameters (the effect's own excluded).
         threshold: s below this counts as not separable (canonical correlation

@@ -168,6 +168,38 @@ def prepare(st: Stations, noise: Noise = NOISE) -> Prepared:
     return Prepared(layout, data, valid, free_nuis)
 
 
+def station_fields(layout: Layout) -> tuple:
+    """Names of the :class:`Data` fields with one entry per station (A0, I0 too in reference mode)."""
+    return ("G", "B", "group", "sig") + (() if layout.n_groups else ("A0", "I0"))
+
+
+def station_blocks(data: Data, layout: Layout, block: int, *extra):
+    """The per-station arrays of ``data`` (and of ``extra``) as row blocks of ``block`` stations.
+
+    The last block is padded by repeating the last station, so a pad's residuals are finite;
+    ``real`` marks the stations that are not pads (weight them 0/1).
+
+    Args:
+        data: the device data (n stations). layout: its layout. block: stations per block.
+        extra: further (n, ...) per-station arrays (e.g. station weights).
+    Returns:
+        (fields: name -> (nb, block, ...) for :func:`station_fields`, tuple of the extra arrays as
+        (nb, block, ...), real (nb, block) 0/1), nb = ceil(n / block). ``data._replace(**fields_b)``
+        with one block's fields is that block's Data for :func:`predict` and :func:`residuals`.
+    """
+    n = data.G.shape[0]
+    nb = -(-n // block)
+    pad = nb * block - n
+
+    def split(a):
+        a = jnp.asarray(a)
+        return jnp.pad(a, [(0, pad)] + [(0, 0)] * (a.ndim - 1), mode="edge").reshape((nb, block) + a.shape[1:])
+
+    fields = {k: split(getattr(data, k)) for k in station_fields(layout)}
+    real = (jnp.arange(nb * block) < n).reshape(nb, block).astype(data.G.dtype)
+    return fields, tuple(split(a) for a in extra), real
+
+
 def effect_params(theta, layout: Layout, scales) -> dict:
     """name -> physical parameters from the flat scaled vector theta (P,)."""
     phys = theta * scales

@@ -65,6 +65,10 @@ def check_stations(st: Stations) -> None:
         raise ValueError(f"stations: need at least {MIN_STATIONS} stations, got {G.shape[0]}")
     if not (np.all(np.isfinite(G)) and np.all(np.isfinite(B))):
         raise ValueError("stations: G or B contains NaN/inf")
+    distinct = len(np.unique(np.hstack([G, B]), axis=0))
+    if distinct < MIN_STATIONS:  # copies of one reading identify nothing (z-scores of 1e8 on a zero residual)
+        raise ValueError(f"stations: {G.shape[0]} stations but only {distinct} distinct (G, B) reading(s); need at "
+                         f"least {MIN_STATIONS} different readings (are the rows copies of one station?)")
     if not st.has_reference:
         if st.group is None:
             raise ValueError("stations: need a reference attitude (azimuth, inclination) or a group column")

@@ -311,11 +311,18 @@ def sigma_filter(G, B, azimuth_true, n_sigma: float = 3.0):
         if s > 0:
             keep &= np.abs(q - q.mean()) <= n_sigma * s
     err = np.asarray(angle_diff(np.asarray(azimuth_from_gv(G, B)), a))
-    for az in np.unique(np.round(a, 6)):
-        g = np.round(a, 6) == az
-        s = err[g].std()
-        if g.sum() > 2 and s > 0:
-            keep[g] &= np.abs(err[g] - err[g].mean()) <= n_sigma * s
+    # groups of equal azimuth by one stable sort (O(N log N) for any number of groups); each group's rows
+    # keep their order, so its mean and std are those of err[group mask]
+    az = np.round(a, 6)
+    order = np.argsort(az, kind="stable")
+    starts = np.flatnonzero(np.r_[True, az[order][1:] != az[order][:-1]])
+    ends = np.r_[starts[1:], len(a)]
+    for i0, i1 in zip(starts[ends - starts > 2], ends[ends - starts > 2]):
+        g = order[i0:i1]
+        e = err[g]
+        s = e.std()
+        if s > 0:
+            keep[g] &= np.abs(e - e.mean()) <= n_sigma * s
     return keep
 
 
@@ -390,10 +397,10 @@ class _Scored(NamedTuple):
 
 
 def _score(theta, prep: Prepared, a_true, lam, hidden):
-    """Refit beta on all training rows for one (strategy, repeat); predict; score."""
-    H = _relm.hidden_layer(theta, prep.data.X, hidden)
-    beta = _relm.ridge_solve(H, prep.target, lam, prep.train)
-    pred = H @ beta
+    """Refit beta on all training rows for one (strategy, repeat); predict; score (row blocks above
+    :data:`icgo.relm.ROW_BLOCK` rows, so memory does not grow with strategies x rows x hidden)."""
+    beta = _relm.ridge_beta(theta, prep.data.X, prep.target, lam, hidden, prep.train)
+    pred = _relm.predict_rows(theta, beta, prep.data.X, hidden)
     a_comp = wrap360(prep.a_msa - pred)
     test = azimuth_metrics(a_true, a_comp, prep.target, prep.test)
     train = azimuth_metrics(a_true, a_comp, prep.target, prep.train)
@@ -597,6 +604,7 @@ def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None)
     scored = _score_all(thetas, prep, jnp.asarray(a_true), cfg.lam, cfg.hidden)
     jax.block_until_ready(scored)
     wall = time.perf_counter() - t0
+    prep = prep._replace(data=None)  # the features (members x rows x 6) are done with: free them before the tables
     res = _collect(cfg, rows, kept, a_true, G, B, n_source, mem, prep, thetas, scored, curve, evals, wall)
     return res if tuning is None else res._replace(tuning=tuning)
 
@@ -726,20 +734,23 @@ def _collect(cfg, rows, kept, a_true, G, B, n_source, mem: _splits.Members, prep
 
     N = len(a_true)
     station = rows["station"].to_numpy() if "station" in rows.columns else np.arange(N)
-    split = np.where(train, "train", np.where(test, "test", "heldout"))
+    # S x M x N rows: the text columns are categoricals (one byte a row, not one string object a row)
+    split = np.where(train, 0, np.where(test, 1, 2)).astype(np.int8)
     predictions = pd.DataFrame({
-        "method": np.repeat(methods, M * N), "repeat": np.tile(np.repeat(mem.repeat, N), S),
+        "method": _categorical(np.repeat(np.arange(S, dtype=np.int8), M * N), methods),
+        "repeat": np.tile(np.repeat(mem.repeat, N), S),
         "fold": np.tile(np.repeat(mem.fold, N), S),
         "row": np.tile(np.asarray(rows.index), S * M), "station": np.tile(station, S * M),
-        "split": np.tile(split.ravel(), S),
+        "split": _categorical(np.tile(split.ravel(), S), ["train", "test", "heldout"]),
         "azimuth_true": np.tile(a_true, S * M), "azimuth_raw": np.tile(a_raw, S * M),
         "azimuth_msa": np.tile(a_msa.ravel(), S), "error_msa": np.tile(target.ravel(), S),
         "predicted_error": np.asarray(scored.pred).ravel(), "azimuth_compensated": a_comp.ravel(),
-        "error_compensated": np.asarray(angle_diff(a_comp, a_true[None, None])).ravel()})
+        "error_compensated": np.asarray(angle_diff(a_comp, a_true[None, None])).ravel()}, copy=False)
     if "toolface_deg" in rows.columns:
         predictions.insert(6, "toolface_deg", np.tile(rows["toolface_deg"].to_numpy(), S * M))
     if cfg.protocol == "transfer":
-        predictions["survey"] = np.tile(np.where(np.arange(N) < n_source, "source", "target"), S * M)
+        predictions["survey"] = _categorical(np.tile((np.arange(N) >= n_source).astype(np.int8), S * M),
+                                             ["source", "target"])
 
     names = _msa.MODELS[cfg.msa_model]
     m = prep.msa
@@ -757,6 +768,11 @@ def _collect(cfg, rows, kept, a_true, G, B, n_source, mem: _splits.Members, prep
     return StudyResult(metrics, summary, histories, predictions, msa_df, coverage,
                        {"best_fitness": curve, "evals": evals}, kept, cfg, wall, evals[..., -1],
                        *_fitted_models(cfg, G[:n_source], B[:n_source], a_true, mem, prep, thetas, scored))
+
+
+def _categorical(codes, categories) -> pd.Categorical:
+    """A text column as a pandas Categorical of ``categories[codes]`` (written to CSV as the text)."""
+    return pd.Categorical.from_codes(codes, categories=list(categories))
 
 
 def _fitted_models(cfg: StudyConfig, G, B, a_true, mem: _splits.Members, prep: Prepared, thetas, scored: _Scored):

@@ -1,0 +1,176 @@
+"""The benchmark of what a user runs (issue 20 item 3), used by :mod:`experiments.bench`.
+
+* :func:`front_door`: ``python -m experiments.run experiment=table3`` end to end in a
+  fresh process, with an empty (cold) and then a filled (warm) compilation cache; and
+  Table 3 as a five-job sweep (one strategy per job) through the default launcher on
+  1 and on 2 workers.
+* :func:`run_mealpy_parallel`: mealpy's own parallel mode (``mode="process"``,
+  ``n_workers``) on the same study as :func:`experiments.bench.run_mealpy`.
+* :func:`peer_comparison`: a JAX peer on the same fitness, evosax's PSO and
+  differential evolution beside icgo's PSO.
+
+Peer comparison: every search runs on the study's fast RELM fitness (:func:`icgo.relm.train_fitness`,
+Table 3's training rows, one repeat's rows per search), with the same population,
+the same number of fitness evaluations (``pop_size * (iterations + 1)``: one
+evaluated initial population, then one per iteration), jitted as one
+``lax.scan`` over iterations and ``vmap`` over the repeats, compiled before the
+clock starts. evosax runs with its own default hyperparameters (each library's
+algorithm as its authors set it: PSO inertia 0.75, cognitive 1.5, social 2.0;
+DE rand/1/bin with F 0.8, CR 0.9 and elitism); evosax does not keep a search in
+its box, so its candidates are clipped to the box before they are evaluated,
+as icgo's PSO clips its particles. Wall time is the best of ``reps`` runs.
+"""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+import time
+from functools import partial
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from icgo import relm
+from icgo.optim import run_batch
+
+
+#: Table 3's strategies, one sweep job each (the five of ``strategy=all``).
+TABLE3_STRATEGIES = ("original", "chaos", "gaussian", "wavelet", "three_stage")
+
+
+def front_door(workdir=None, extra=()) -> dict:
+    """Wall time and peak memory of Table 3 through ``python -m experiments.run``, each in a fresh process.
+
+    Measured, in order, all with one compilation cache that starts empty:
+    ``cold`` (the first run: compiles), ``warm`` (the same command again: the
+    cache holds its programs), then the five-job sweep ``strategy=<one each>``
+    on ``workers=1`` and ``workers=2`` (warm: the jobs load their programs from the cache).
+
+    Args:
+        workdir: where the run directories and the cache go (default: a temporary directory).
+        extra: further overrides for every command (e.g. a smaller budget in a test).
+    Returns:
+        {name: {"wall_s", "peak_rss_gb", "rc"}} for cold, warm, sweep_1_worker, sweep_2_workers.
+    """
+    from experiments.bench import measure
+
+    work = Path(workdir or tempfile.mkdtemp(prefix="icgo-frontdoor-"))
+    base = [sys.executable, "-m", "experiments.run", "experiment=table3", "figures=false", "progress=false",
+            f"jax_cache_dir={work / 'cache'}", *extra]
+    sweep = [sys.executable, "-m", "experiments.run", "-m", "experiment=table3",
+             f"strategy={','.join(TABLE3_STRATEGIES)}", "figures=false", "progress=false",
+             f"jax_cache_dir={work / 'cache'}", *extra]
+    cmds = {"cold": base + [f"hydra.run.dir={work / 'cold'}"], "warm": base + [f"hydra.run.dir={work / 'warm'}"],
+            "sweep_1_worker": sweep + ["hydra.launcher.workers=1", f"hydra.sweep.dir={work / 'sweep1'}"],
+            "sweep_2_workers": sweep + ["hydra.launcher.workers=2", f"hydra.sweep.dir={work / 'sweep2'}"]}
+    out = {}
+    for name, cmd in cmds.items():
+        m = measure(cmd)
+        if m["rc"] != 0:
+            raise RuntimeError(f"front door {name} failed (exit {m['rc']}): {m['tail'].strip().splitlines()[-1:]}")
+        out[name] = {k: m[k] for k in ("wall_s", "peak_rss_gb", "rc")}
+        print(f"  front door {name}: {m['wall_s']:.1f} s, {m['peak_rss_gb']:.2f} GB", file=sys.stderr, flush=True)
+    out["identical"] = _same_tables(work / "warm", [work / "sweep1", work / "sweep2"])
+    return out
+
+
+def _same_tables(single: Path, sweeps) -> bool:
+    """Whether every sweep's per-strategy test metrics equal the single run's, to the bit."""
+    import pandas as pd
+
+    ref = pd.read_csv(single / "metrics.csv")
+    ref = ref[ref.method.str.startswith("cgo-")].set_index(["method", "repeat", "split"]).sort_index()
+    for d in sweeps:
+        got = pd.concat([pd.read_csv(p) for p in sorted(Path(d).glob("*/metrics.csv"))])
+        got = got[got.method.str.startswith("cgo-")].set_index(["method", "repeat", "split"]).sort_index()
+        cols = ["mae", "rmse", "r2", "r2_error"]
+        if not (got.index.equals(ref.index) and (got[cols].to_numpy() == ref[cols].to_numpy()).all()):
+            return False
+    return True
+
+
+def run_mealpy_parallel(sd, n_runs: int, pop_size: int = 30, iterations: int = 100, workers: int = 2) -> dict:
+    """:func:`experiments.bench.run_mealpy` in mealpy's own parallel mode (each population's fitness on ``workers``
+    processes, ``mode="process"``)."""
+    from experiments.bench import run_mealpy
+
+    return run_mealpy(sd, n_runs, pop_size, iterations, mode="process", n_workers=workers)
+
+
+def _clock(f, *args, reps: int) -> tuple[float, object]:
+    out = jax.block_until_ready(f(*args))
+    best = float("inf")
+    for _ in range(reps):
+        t = time.perf_counter()
+        out = jax.block_until_ready(f(*args))
+        best = min(best, time.perf_counter() - t)
+    return best, out
+
+
+def _evosax_search(algorithm_cls, fitness, lb, ub, pop_size: int, iterations: int):
+    """``(keys (R,2), rows (TrainRows, leading axis R)) -> best fitness (R,)`` for an evosax algorithm."""
+    D = lb.shape[0]
+    algo = algorithm_cls(population_size=pop_size, solution=jnp.zeros(D))
+    params = algo.default_params
+
+    def one(key, rows):
+        k0, k1, k_scan = jax.random.split(key, 3)
+        x0 = jax.random.uniform(k0, (pop_size, D), lb.dtype, lb, ub)
+        f0 = fitness(x0, rows)
+        state = algo.init(k1, x0, f0, params)
+
+        def step(state, key):
+            k_ask, k_tell = jax.random.split(key)
+            x, state = algo.ask(k_ask, state, params)
+            x = jnp.clip(x, lb, ub)
+            f = fitness(x, rows)
+            state, _ = algo.tell(k_tell, x, f, state, params)
+            return state, None
+
+        state, _ = jax.lax.scan(step, state, jax.random.split(k_scan, iterations))
+        return jnp.minimum(state.best_fitness, jnp.min(f0))
+
+    return jax.jit(jax.vmap(one))
+
+
+def peer_comparison(rows: relm.TrainRows, lam: float, hidden: int, pop_size: int = 30, iterations: int = 100,
+                    reps: int = 3) -> list[dict]:
+    """icgo PSO vs evosax PSO and DE on the same fitness at equal evaluations.
+
+    Args:
+        rows: the repeats' training rows (leading axis R: one search per repeat).
+        lam, hidden: the RELM's ridge lambda and hidden width (the fitness).
+        pop_size, iterations: the search budget (``pop_size * (iterations + 1)`` evaluations each).
+        reps: timed runs (best kept) after one compiling run.
+    Returns:
+        One dict per search: name, evals, compile_s, wall_s, best_f_mean, best_f_median (training RMSE, deg).
+    """
+    from evosax.algorithms import PSO as EvoPSO
+    from evosax.algorithms import DifferentialEvolution as EvoDE
+
+    fitness = relm.make_train_fitness(lam, hidden)
+    D = relm.n_params(hidden)
+    lb, ub = -jnp.ones(D), jnp.ones(D)
+    R = int(rows.T.shape[0])
+    keys = jax.random.split(jax.random.PRNGKey(0), R)
+
+    @partial(jax.jit)
+    def icgo_pso(keys, rows):
+        return run_batch("pso", fitness, (lb, ub), keys, pop_size, iterations, aux=rows).best_f
+
+    searches = {"icgo PSO": icgo_pso,
+                "evosax PSO": _evosax_search(EvoPSO, fitness, lb, ub, pop_size, iterations),
+                "evosax DE": _evosax_search(EvoDE, fitness, lb, ub, pop_size, iterations)}
+    out = []
+    for name, f in searches.items():
+        t = time.perf_counter()
+        compiled = f.lower(keys, rows).compile()
+        compile_s = time.perf_counter() - t
+        wall, best = _clock(compiled, keys, rows, reps=reps)
+        best = np.asarray(best)
+        out.append({"name": name, "evals": pop_size * (iterations + 1), "compile_s": compile_s, "wall_s": wall,
+                    "best_f_mean": float(best.mean()), "best_f_median": float(np.median(best))})
+    return out
