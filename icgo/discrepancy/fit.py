@@ -15,21 +15,30 @@ import jax.numpy as jnp
 import numpy as np
 
 from icgo import effects as _fx
-from icgo.discrepancy.model import (Data, Layout, physical_residuals, predict, remove_accel_effects, residuals,
-                                   station_blocks)
+from icgo.discrepancy.model import (Data, Layout, make_layout, physical_residuals, predict, remove_accel_effects,
+                                   residuals, station_blocks)
 from icgo.discrepancy.noise import Noise, effective_sigma
 from icgo.frames import azimuth_from_gv, field_vector_ned, inclination_from_g, tool_to_earth, toolface_from_g
 from icgo.lsq import least_squares_fixed
 
-#: Stations per block (stations) of the row-blocked fits. Above this many stations a fit
+#: Stations per block (stations) of the row-blocked fits, for the reference-attitude layout's
+#: parameters (:func:`block_stations` scales it for more). Above this many stations a fit
 #: accumulates its normal equations ``JᵀJ``, ``Jᵀr`` over blocks of ``ROW_BLOCK`` stations
 #: (:func:`icgo.lsq.least_squares_fixed` ``blocks``), the Jacobian at the full fit is kept as
 #: its triangular factor (:func:`jacobian_r`, accumulated block by block) and the held-out
 #: residuals are summed fold by fold, so memory holds one block's Jacobian per vmapped fit
-#: (models x folds x 6 ROW_BLOCK x P float64: 40 x 6144 x 24 x 8 B = 47 MB) plus a few
-#: (models, n, 6) per-station arrays, and time grows linearly in stations. At or below it the
-#: unblocked code runs, unchanged.
+#: (models x folds x 6 ROW_BLOCK x P float64: 40 x 6144 x 24 x 8 B = 47 MB, and its
+#: forward-mode intermediates) plus a few (models, n, 6) per-station arrays, and time grows
+#: linearly in stations. At or below it the unblocked code runs, unchanged.
 ROW_BLOCK = 1024
+
+
+def block_stations(layout: Layout) -> int:
+    """Stations per row block for ``layout``: :data:`ROW_BLOCK` for the reference-attitude layout's
+    parameters, proportionally fewer for a layout with more (2 per group), so a block's Jacobian
+    (6 x stations x parameters, per vmapped fit) keeps its size whatever the number of groups."""
+    ref = make_layout(0).n_params
+    return max(8, ROW_BLOCK * ref // max(layout.n_params, ref))
 
 
 # ============================================================ Levenberg-Marquardt
@@ -124,7 +133,7 @@ class Evaluation(NamedTuple):
 
 @partial(jax.jit, static_argnames=("layout", "n_iter", "row_block"))
 def evaluate_models(theta0, masks, train_w, test_w, valid_w, group_free, data: Data, layout: Layout,
-                    n_iter: int, row_block: int = ROW_BLOCK) -> Evaluation:
+                    n_iter: int, row_block: int | None = None) -> Evaluation:
     """Fit every model on every training fold and on all stations, in one jitted call.
 
     Args:
@@ -134,10 +143,11 @@ def evaluate_models(theta0, masks, train_w, test_w, valid_w, group_free, data: D
             with the fold's global parameters fixed before held-out scoring).
         n_iter: LM iterations per fit (static).
         row_block: stations per block above which the fits and the held-out residuals run
-            in row blocks (static, :data:`ROW_BLOCK`).
+            in row blocks (static; None: :func:`block_stations` of the layout).
     Returns:
         :class:`Evaluation` (``vmap`` over models x folds).
     """
+    row_block = block_stations(layout) if row_block is None else row_block
     fit = lambda m, w: lm_fit(theta0, m, w, data, layout, n_iter, row_block)
     th_fold, _ = jax.vmap(lambda m: jax.vmap(lambda w: fit(m, w))(train_w))(masks)  # (M, K, P)
     if layout.n_groups:
