@@ -70,7 +70,7 @@ def compare(seed: int = 0, distances=DISTANCES_M) -> pd.DataFrame:
     base = datasets.LAB_CASING
     rows = []
     for d in distances:
-        casing = base._replace(end_ned=(base.end_ned[0], float(d), base.end_ned[2]))
+        casing = ins.casing_at_distance(base, float(d))
         ref = magpylib_tube_field(pos, casing)
         size = np.linalg.norm(ref, axis=1)
         for model in ("pole_pair", "dipole_line"):

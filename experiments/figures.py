@@ -15,7 +15,9 @@
   honest baseline), the PSO and GA jobs of ``fig9``, ``fig9`` again at equal
   fitness evaluations (``budget=evaluations label=fig9_evals``: ``fig9_budgets``),
   the schedules sweep (``sweep_schedules``), the mutation readings
-  (``sweep_wavelet``, ``sweep_sigma``: ``sweep_mutations``) and ``table4``.
+  (``sweep_wavelet``, ``sweep_sigma``, ``paper_literal``: ``sweep_mutations``), the noise and
+  casing sweeps (``sweep_noise``, ``sweep_casing``, ``sweep_casing_strength``:
+  :mod:`experiments.sweep_conditions`) and ``table4``.
 
 Outputs (``--out``, default ``results/``): ``tableN.csv`` + ``tableN.md`` with
 the paper's published numbers in adjacent columns, ``table3_stats.*``
@@ -36,6 +38,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from experiments import sweep_conditions
 from icgo.optim import STRATEGIES
 
 #: The five CGO 4th-seed strategies (:data:`icgo.optim.STRATEGIES`) and the four mutated ones.
@@ -74,8 +77,8 @@ SWEEP_PREFIX = "sweep_"
 SCHEDULES_LABEL = "sweep_schedules"
 
 
-#: Run labels of the mutation-readings sweeps (``experiment=sweep_wavelet`` and ``sweep_sigma``, issue 18).
-MUTATIONS_LABELS = ("sweep_wavelet", "sweep_sigma")
+#: Run labels of the mutation-readings sweeps (``experiment=sweep_wavelet``, ``sweep_sigma`` and ``paper_literal``, issue 18).
+MUTATIONS_LABELS = ("sweep_wavelet", "sweep_sigma", "sweep_paper_literal")
 
 
 #: The default plan: (sweep directory name, preset, extra overrides). See the module docstring.
@@ -84,12 +87,15 @@ PLAN = (("table3", "table3", []), ("table1", "table1", ["optimizer=none"]),
         ("fig9", "fig9", ["optimizer=pso,ga"]),
         ("fig9_evals", "fig9", ["budget=evaluations", f"label={EQUAL_EVALS_LABEL}"]),
         ("sweep_schedules", "sweep_schedules", []), ("sweep_wavelet", "sweep_wavelet", []),
-        ("sweep_sigma", "sweep_sigma", []), ("table4", "table4", []))
+        ("sweep_sigma", "sweep_sigma", []), ("paper_literal", "paper_literal", []),
+        ("sweep_noise", "sweep_noise", []), ("sweep_casing", "sweep_casing", []),
+        ("sweep_casing_strength", "sweep_casing_strength", []), ("table4", "table4", []))
 
 #: The plan entries whose runs each output is made from (named in its "missing runs" line).
 SOURCES = {"table1": ("table1", "table3"), "fig9": ("fig9", "table3"), "table2": ("table3",), "fig10": ("table3",),
            "fig11": ("table3",), "table3": ("table3",), "fig12": ("table3",), "fig13": ("table3",),
-           "table4": ("table4",), "sweep_mutations": ("sweep_wavelet", "sweep_sigma", "table3"),
+           "table4": ("table4",), "sweep_mutations": ("sweep_wavelet", "sweep_sigma", "paper_literal", "table3"),
+           "sweep_noise": ("sweep_noise",), "sweep_casing": ("sweep_casing", "sweep_casing_strength"),
            "fig9_budgets": ("fig9_evals", "fig9"), "sweep_schedules": ("sweep_schedules", "table3")}
 
 
@@ -517,11 +523,20 @@ def sweep_mutations(pooled: Runs, sweep: Runs, out: Path) -> bool:
     for info in sweep.runs:
         t = R.read_table(info["dir"], "metrics")
         t = t[t.split == "test"]
-        single = next(s for s in info.get("strategies", []) if s != "three_stage")
-        mae = {**base, **{s: t[t.method == f"cgo-{s}"].set_index("repeat")["mae"] for s in (single, "three_stage")}}
+        strategies = info.get("strategies", [])
+        whole = set(STRATEGIES4) <= set(strategies)  # the paper_literal preset: every strategy from this run
+        single = "wavelet" if whole else next(s for s in strategies if s != "three_stage")
+        own = STRATEGIES4 if whole else (single, "three_stage")
+        mae = {**base, **{s: t[t.method == f"cgo-{s}"].set_index("repeat")["mae"] for s in own}}
         order = sorted(STRATEGIES4, key=lambda s: mae[s].mean())
         w = pd.DataFrame({"three": mae["three_stage"], "single": mae[single]}).dropna()
-        rows.append({"reading": _reading(info.get("optimizer_params") or {}),
+        params = info.get("optimizer_params") or {}
+        reading = _reading(params)
+        if whole:
+            no_sigma = {k: v for k, v in params.items() if k != "sigma"}
+            reading = (f"the paper's literal readings (experiment=paper_literal): {_reading(no_sigma)}, "
+                       f"{_reading({'sigma': params.get('sigma', CGOConfig().sigma)})}")
+        rows.append({"reading": reading,
                      "single strategy alone (deg)": _fmt(*_ms(mae[single])), "three-stage (deg)": _fmt(*_ms(mae["three_stage"])),
                      "p three-stage vs single": wilcoxon_paired(w["three"], w["single"]).p_value,
                      "order by MAE": " < ".join(LABEL[s] for s in order), "paper's order": order == paper})
@@ -531,7 +546,10 @@ def sweep_mutations(pooled: Runs, sweep: Runs, out: Path) -> bool:
     hits = df[df["paper's order"]]["reading"].tolist()
     notes = ["Commands: `python -m experiments.run -m experiment=sweep_wavelet` (6 jobs) and `... experiment=sweep_sigma` "
              "(3 jobs), with Table 3's runs for the strategies a reading does not touch (their defaults: "
-             f"{_reading({})}, Gaussian sigma {CGOConfig().sigma:g}). 10 paired repeats per column.",
+             f"{_reading({})}, Gaussian sigma {CGOConfig().sigma:g}). 10 paired repeats per column. "
+             "`python -m experiments.run experiment=paper_literal` (1 job) runs all four strategies under the "
+             "paper's literal readings (eq. 18's wavelet without Ling's amplitude factor, N(0, 1), thirds on the "
+             "global clock); its row takes every column from that run.",
              f"The paper's order: {' < '.join(LABEL[s] for s in paper)}. Readings that reproduce it: "
              f"{', '.join(hits) if hits else 'none'}.", _floor_note()]
     _write(df, out, "sweep_mutations", "Sweep: mutation readings (test MAE)", notes)
@@ -849,6 +867,7 @@ def build(dirs, out: Path) -> dict:
                                       if str(r.get("label") or "").startswith(SWEEP_PREFIX)})
     sched, mutations = sweeps.split_label(SCHEDULES_LABEL)[0], sweeps.split_label(*MUTATIONS_LABELS)[0]
     calls = {name: (lambda fn=fn: fn(runs, out)) for name, fn in BUILDERS.items()}
+    calls |= {name: (lambda name=name: sweep_conditions.build(sweeps, out, name)) for name in sweep_conditions.OUTPUTS}
     calls |= {"sweep_mutations": lambda: sweep_mutations(runs, mutations, out),
               "fig9_budgets": lambda: fig9_budgets(runs, evals, out),
               "sweep_schedules": lambda: sweep_schedules(runs, sched, out)}

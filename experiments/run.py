@@ -90,6 +90,8 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
 
     info = {"label": cfg.label, "dataset": cfg.dataset.name,
             "condition": cfg.dataset.get("condition", None), "description": desc,
+            "dataset_kwargs": OmegaConf.to_container(cfg.dataset.kwargs, resolve=True) if "kwargs" in cfg.dataset
+            else None,
             "optimizer": cfg.optimizer.name, "strategies": list(cfg.strategy.names),
             "schedule": OmegaConf.to_container(cfg.schedule, resolve=True),
             "optimizer_params": OmegaConf.to_container(cfg.optimizer.params, resolve=True) if cfg.optimizer.name

@@ -174,6 +174,9 @@ def lab_casing(
     spike_prob: float = 1.5e-4,
     spike_nT: float = 100_000.0,
     outlier_sigma: float | None = 3.0,
+    noise_scale: float = 1.0,
+    casing_distance_m: float | None = None,
+    casing_magnetization_A_m: float | None = None,
 ) -> Dataset:
     """ICGO paper section 3.1: horizontal inclinometer turned about its axis near a magnetized casing.
 
@@ -209,6 +212,12 @@ def lab_casing(
         accel_noise_g, mag_noise_nT: white noise per raw sample.
         spike_prob, spike_nT: spike rate per raw magnetometer sample-axis and spike size.
         outlier_sigma: 3-sigma threshold; ``None`` keeps all rows (raw data).
+        noise_scale: factor on both ``accel_noise_g`` and ``mag_noise_nT`` (the noise sweep, issue 18).
+        casing_distance_m: the casing moved sideways so its axis passes this far from the
+            turntable's vertical axis (m, :func:`icgo.instruments.casing_at_distance`); ``None``
+            keeps ``casing`` as given (the lab's 1 m).
+        casing_magnetization_A_m: the casing's axial magnetization (A/m); ``None`` keeps
+            ``casing``'s (8000 A/m by default). Both casing options are ignored without a casing.
     Returns:
         Dataset; ``truth`` has the effects, casing, geometry, noise, the rows
         that had spikes and the rows the filter dropped, and the casing field
@@ -221,6 +230,12 @@ def lab_casing(
         raise ValueError(f"lab_casing: toolface_step_deg {toolface_step_deg} must be in (0, 360]")
     if not 0.0 <= inclination_deg <= 180.0:
         raise ValueError(f"lab_casing: inclination_deg {inclination_deg} must be in [0, 180]")
+    if not noise_scale >= 0.0:
+        raise ValueError(f"lab_casing: noise_scale {noise_scale} must be >= 0")
+    if casing is not None and casing_distance_m is not None:
+        casing = ins.casing_at_distance(casing, float(casing_distance_m))
+    if casing is not None and casing_magnetization_A_m is not None:
+        casing = casing._replace(magnetization_A_m=float(casing_magnetization_A_m))
     eff = _effects_dict(effects)
     tf = _toolfaces(toolface_step_deg, toolface_end_inclusive)
     A = np.repeat(az, tf.size)
@@ -229,8 +244,8 @@ def lab_casing(
     return _station_survey(
         "lab_casing", seed, A, I, T, total_field_nT, dip_deg, gravity_g, casing,
         pivot_ned=(0.0, 0.0, 0.0), lever_tool=(sensor_offset_m, 0.0, sensor_lever_m),
-        effects=eff, n_samples=n_samples, accel_noise_g=accel_noise_g, mag_noise_nT=mag_noise_nT,
-        spike_prob=spike_prob, spike_nT=spike_nT, outlier_sigma=outlier_sigma,
+        effects=eff, n_samples=n_samples, accel_noise_g=noise_scale * accel_noise_g,
+        mag_noise_nT=noise_scale * mag_noise_nT, spike_prob=spike_prob, spike_nT=spike_nT, outlier_sigma=outlier_sigma,
         extra_truth={"toolface_end_inclusive": toolface_end_inclusive},
     )
 

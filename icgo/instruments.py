@@ -77,6 +77,33 @@ class Casing(NamedTuple):
     profile: tuple | None = None
 
 
+def casing_at_distance(casing: Casing, distance_m: float) -> Casing:
+    """``casing`` moved sideways so that its axis line passes ``distance_m`` (m) from the lab's vertical axis.
+
+    The distance is the shortest one between the casing's axis line and the vertical line
+    through the origin (the turntable's axis). The casing moves along their common
+    perpendicular, a horizontal direction, so its axis direction, its height and its position
+    along its own axis are kept (the lab casing, lying north-south 1 m east of the turntable,
+    moves east or west). A vertical casing moves straight away from the origin.
+
+    Raises:
+        ValueError: a distance that is not positive, or a casing whose axis line meets the
+            vertical axis (no sideways direction to move it along).
+    """
+    if not distance_m > 0.0:
+        raise ValueError(f"casing distance {distance_m} m: must be > 0")
+    a = np.asarray(casing.axis_ned, float)
+    end = np.asarray(casing.end_ned, float)
+    u = np.array([-a[1], a[0], 0.0])                    # a x down: horizontal, normal to both lines
+    if np.linalg.norm(u) < 1e-12 * np.linalg.norm(a):  # a vertical casing: away from the origin
+        u = end * np.array([1.0, 1.0, 0.0])
+    now = float(end @ u) / max(float(np.linalg.norm(u)), 1e-300)
+    if abs(now) < 1e-12:
+        raise ValueError("casing_at_distance: the casing's axis meets the vertical axis; move it by end_ned instead")
+    u = u / np.linalg.norm(u)
+    return casing._replace(end_ned=tuple(float(x) for x in end + (np.sign(now) * distance_m - now) * u))
+
+
 def casing_cross_section_m2(diameter_m, wall_m):
     """Steel cross-section of a tube (m^2): ``pi/4 (D^2 - (D - 2 w)^2)``."""
     if not 0.0 < 2.0 * wall_m <= diameter_m:

@@ -225,3 +225,27 @@ def test_noise_floor_is_the_noise_only_azimuth_error():
     wc = D.noise_floor("well_conditions", 0)
     assert list(wc.condition) == list(range(6))
     assert wc.mae.iloc[0] > 10 * wc.mae.iloc[3]  # near vertical the azimuth is ill-conditioned
+
+
+def test_lab_casing_sweep_options_scale_noise_and_move_or_strengthen_the_casing():
+    """Issue 18 sweep 5: noise_scale, casing_distance_m and casing_magnetization_A_m of lab_casing."""
+    base = D.lab_casing(0)
+    raw = {"spike_prob": 0.0, "outlier_sigma": None}  # every row kept, so rows line up across draws
+    noisy, one, quiet = (D.lab_casing(0, noise_scale=k, **raw) for k in (2.0, 1.0, 0.0))
+    assert noisy.truth["accel_noise_g"] == 2 * base.truth["accel_noise_g"]
+    assert noisy.truth["mag_noise_nT"] == 2 * base.truth["mag_noise_nT"]
+    # the same noise draws scaled: noisy - quiet = 2 x (x1 - quiet), row by row
+    cols = ["gx", "gy", "gz", "bx", "by", "bz"]
+    x2, x1, x0 = (d.frame[cols].to_numpy() for d in (noisy, one, quiet))
+    assert len(x0) == 584 and np.abs(x1 - x0).max() > 0
+    np.testing.assert_allclose(x2 - x0, 2 * (x1 - x0), rtol=1e-9, atol=1e-9)
+    near = D.lab_casing(0, casing_distance_m=0.5)
+    strong = D.lab_casing(0, casing_magnetization_A_m=16_000.0)
+    b = lambda d: np.linalg.norm(d.truth["casing_field_ned_nT"], axis=1)  # noqa: E731
+    assert near.truth["casing"]["end_ned"][1] == pytest.approx(0.5)
+    np.testing.assert_allclose(b(strong), 2 * b(base), rtol=1e-12)  # the field is linear in the magnetization
+    assert np.median(b(near)) > np.median(b(base))
+    nocase = D.lab_casing(0, casing=None, casing_distance_m=0.5, casing_magnetization_A_m=1.0)
+    assert nocase.truth["casing"] is None
+    with pytest.raises(ValueError, match="noise_scale"):
+        D.lab_casing(0, noise_scale=-1.0)

@@ -92,7 +92,8 @@ def test_tables_match_direct_computation(runs_dir, tmp_path):
     assert done["fig9_budgets"].startswith("no runs of pso, ga, cgo-original; made by "
                                            "`python -m experiments.run -m experiment=fig9 budget=evaluations")
     missing = (out / "tables_missing.txt").read_text().splitlines()
-    assert [ln.split(":")[0] for ln in missing] == ["table4", "sweep_mutations", "fig9_budgets", "sweep_schedules"]
+    assert [ln.split(":")[0] for ln in missing] == ["table4", "sweep_noise", "sweep_casing", "sweep_mutations",
+                                                    "fig9_budgets", "sweep_schedules"]
     assert missing[0] == f"table4: {done['table4']}"
     m = pd.concat([pd.read_csv(p) for p in sorted((runs_dir / "m").rglob("metrics.csv"))])
     m = m[m.split == "test"]
@@ -308,3 +309,71 @@ def test_an_unknown_sweep_never_replaces_the_paper_runs(runs_dir, tmp_path):
     F.build([runs_dir / "m"], out1)
     for name in ("table1.csv", "table3.csv", "table3_stats.csv"):
         assert (out1 / name).read_text() == (out0 / name).read_text(), name
+
+
+def test_paper_literal_run_is_one_reading_with_every_strategy_from_it(runs_dir, tmp_path):
+    """Issue 18 sweep 2: the paper_literal preset's row takes all four strategies from its own run."""
+    rng = np.random.default_rng(7)
+    scale = {"cgo-chaos": 0.001, "cgo-gaussian": 0.002, "cgo-wavelet": 0.003, "cgo-three_stage": 0.004,
+             "cgo-original": 0.005}
+    _run_dir(runs_dir / "m" / "lit", _metrics([f"cgo-{s}" for s in S5], rng, scale), label="sweep_paper_literal",
+             extra={"strategies": list(S5), "optimizer_params": {"variant": "paper", "wavelet_amplitude": "none",
+                                                                   "sigma": 1.0}})
+    out = tmp_path / "results"
+    assert F.build([runs_dir / "m"], out)["sweep_mutations"]
+    t = pd.read_csv(out / "sweep_mutations.csv")
+    row = t[t.reading.str.startswith("the paper's literal readings")].iloc[0]
+    assert "amplitude none" in row["reading"]
+    assert row["order by MAE"] == "chaotic < Gaussian < wavelet < three-stage"  # from this run, not Table 3
+    assert not row["paper's order"]
+
+
+def _condition_runs(root: Path, label: str, key: str, levels, rng, best_at):
+    """Runs of a noise/casing sweep: 4 jobs per level (CGO's five strategies, RELM, PSO, GA) with known MAEs."""
+    cgo = [f"cgo-{s}" for s in S5]
+    for lv in levels:
+        for job, methods in (("cgo", cgo), ("none", ["relm"]), ("pso", ["pso"]), ("ga", ["ga"])):
+            scale = {m: 0.05 + 0.01 * i for i, m in enumerate(["relm", "pso", "ga", *cgo])}
+            scale[best_at(lv)] = 0.001
+            m = _metrics([*methods, "raw", "msa"], rng, {**scale, "raw": 2.0, "msa": 0.8})
+            _run_dir(root / f"{label}-{lv}-{job}", m, label=label,
+                     extra={"strategies": list(S5), "dataset_kwargs": {key: lv}})
+
+
+def test_noise_and_casing_sweeps_report_every_method_against_the_floor(runs_dir, tmp_path):
+    """Issue 18 sweep 5: one row per level, every method, the level's noise floor, ranking statistics."""
+    from experiments import sweep_conditions as SC
+    from icgo.datasets import noise_floor
+
+    rng = np.random.default_rng(8)
+    _condition_runs(runs_dir / "m", "sweep_noise", "noise_scale", (0.5, 1.0, 2.0), rng,
+                    lambda lv: "pso" if lv < 2 else "cgo-wavelet")
+    _condition_runs(runs_dir / "m", "sweep_casing", "casing_distance_m", (0.5, 1.0), rng, lambda lv: "ga")
+    out = tmp_path / "results"
+    done = F.build([runs_dir / "m"], out)
+    assert done["sweep_noise"] is True and done["sweep_casing"] is True
+    t = pd.read_csv(out / "sweep_noise.csv")
+    assert list(t["noise x"]) == [0.5, 1.0, 2.0]
+    assert set(SC.METHODS.values()) <= set(t.columns)
+    for _, row in t.iterrows():  # the floor is the level's own noise-only draw
+        assert row["floor MAE (deg)"] == pytest.approx(noise_floor("lab_casing", 0, noise_scale=row["noise x"]).mae[0])
+    assert t["floor MAE (deg)"].is_monotonic_increasing
+    assert [o.split(" < ")[0] for o in t["order by MAE"]] == ["PSO-RELM", "PSO-RELM", "ICGO wavelet"]
+    tau = t.set_index("noise x")["Kendall tau vs default order"]
+    assert tau[1.0] == 1.0 and tau[2.0] < 1.0
+    # Friedman over the 8 methods, recomputed from the runs of level 2
+    wide = pd.concat([pd.read_csv(p) for p in (runs_dir / "m").glob("sweep_noise-2.0-*/metrics.csv")])
+    wide = wide[wide.split == "test"].pivot_table(index="repeat", columns="method", values="mae")[list(SC.METHODS)]
+    assert t.iloc[2]["Friedman p"] == pytest.approx(st.friedmanchisquare(*wide.to_numpy().T).pvalue)
+    c = pd.read_csv(out / "sweep_casing.csv")
+    assert set(c["sweep"]) == {"sweep_casing"} and list(c["casing distance (m)"]) == [0.5, 1.0]
+    near, far = (float(x.split()[0]) for x in c["casing field at sensor (nT)"])
+    assert near > 1.2 * far  # poles 1.5 m along the casing: 1.58 m away at 0.5 m against 1.80 m at 1 m
+    assert (out / "sweep_noise.png").stat().st_size > 0 and "Noise floor" in (out / "sweep_noise.md").read_text()
+
+
+def test_conditions_builders_say_which_runs_are_missing(runs_dir, tmp_path):
+    out = tmp_path / "results"
+    done = F.build([runs_dir / "m"], out)
+    assert "experiment=sweep_noise" in done["sweep_noise"]
+    assert "experiment=sweep_casing_strength" in done["sweep_casing"]

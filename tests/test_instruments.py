@@ -116,3 +116,30 @@ def test_bad_casing_inputs():
         ins.casing_pole_strength(ins.Casing(wall_m=0.2))
     with pytest.raises(ValueError, match="profile"):
         ins.casing_field_ned(np.ones((1, 3)), ins.Casing(model="dipole_line", n_segments=4, profile=(1.0, 1.0)))
+
+
+def test_casing_at_distance_moves_the_axis_line_sideways_only():
+    lab = ins.Casing(end_ned=(-1.5, 1.0, 0.0), axis_ned=(1.0, 0.0, 0.0))
+    assert ins.casing_at_distance(lab, 1.0).end_ned == pytest.approx(lab.end_ned)
+    assert ins.casing_at_distance(lab, 0.5).end_ned == pytest.approx((-1.5, 0.5, 0.0))
+    # a tilted, skew casing: the shortest distance between its axis line and the vertical axis becomes 2 m
+    # (checked by minimising over both lines' parameters), moving horizontally; everything else is kept
+    from scipy.optimize import minimize
+
+    skew = ins.Casing(end_ned=(0.3, -0.8, 0.4), axis_ned=(1.0, 1.0, 0.5), magnetization_A_m=5000.0)
+    moved = ins.casing_at_distance(skew, 2.0)
+
+    def gap(c):
+        e, a = np.asarray(c.end_ned), np.asarray(c.axis_ned)
+        return minimize(lambda st: np.linalg.norm(e + st[0] * a - np.array([0.0, 0.0, st[1]])), [0.0, 0.0],
+                        method="Nelder-Mead", options={"xatol": 1e-10, "fatol": 1e-12}).fun
+
+    assert gap(moved) == pytest.approx(2.0, abs=1e-6) and gap(skew) != pytest.approx(2.0, abs=1e-2)
+    assert moved.end_ned[2] == skew.end_ned[2]
+    assert moved._replace(end_ned=skew.end_ned) == skew
+    vertical = ins.Casing(end_ned=(3.0, 4.0, -1.0), axis_ned=(0.0, 0.0, 1.0))
+    assert ins.casing_at_distance(vertical, 10.0).end_ned == pytest.approx((6.0, 8.0, -1.0))
+    with pytest.raises(ValueError, match="must be > 0"):
+        ins.casing_at_distance(lab, 0.0)
+    with pytest.raises(ValueError, match="meets the vertical axis"):
+        ins.casing_at_distance(ins.Casing(end_ned=(0.0, 0.0, 1.0), axis_ned=(0.0, 0.0, 1.0)), 1.0)

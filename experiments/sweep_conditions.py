@@ -1,0 +1,167 @@
+"""Noise and interference sweeps (issue 18, sweep 5): every method against the noise floor, per level.
+
+Built by :func:`experiments.figures.build` from the runs of three presets (labels below):
+
+* ``sweep_noise``: the accelerometer and magnetometer white noise both x {0.25, 0.5, 1, 2, 4}
+  (``lab_casing``'s ``noise_scale``; x1 = 5e-4 g and 30 nT per raw sample);
+* ``sweep_casing``: the casing's axis {0.5, 0.75, 1, 1.5, 2} m from the turntable's vertical
+  axis (``casing_distance_m``; the paper's lab: 1 m);
+* ``sweep_casing_strength``: the casing's magnetization {2, 4, 8, 16, 32} kA/m at 1 m
+  (``casing_magnetization_A_m``; default 8 kA/m).
+
+Each level runs every method on Table 3's splits and keys (10 paired repeats): plain RELM,
+PSO-RELM, GA-RELM and CGO-RELM's five 4th-seed strategies. Per level the table gives each
+method's test MAE, the noise floor of that level's data (:func:`icgo.datasets.noise_floor`: the
+same draw without casing, sensor effects and spikes), the casing's field at the sensor, the order
+of the methods by mean MAE, the Friedman test over the methods, the best method against the
+second (paired Wilcoxon, Holm over the levels), and Kendall's tau between the level's order and
+the default level's. Outputs: ``results/sweep_noise.{md,csv,png}`` and ``results/sweep_casing.{md,csv,png}``
+(distance and strength).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+#: Run label of each sweep -> (dataset keyword swept, its readable name, its default value).
+SWEEPS = {"sweep_noise": ("noise_scale", "noise x", 1.0),
+          "sweep_casing": ("casing_distance_m", "casing distance (m)", 1.0),
+          "sweep_casing_strength": ("casing_magnetization_A_m", "casing magnetization (A/m)", 8000.0)}
+#: Output name -> the sweeps it reports.
+OUTPUTS = {"sweep_noise": ("sweep_noise",), "sweep_casing": ("sweep_casing", "sweep_casing_strength")}
+#: Method column -> its name in the tables (the compensators; raw and MSA-only are reported beside them).
+METHODS = {"relm": "RELM", "pso": "PSO-RELM", "ga": "GA-RELM", "cgo-original": "CGO-RELM",
+           "cgo-chaos": "ICGO chaotic", "cgo-gaussian": "ICGO Gaussian", "cgo-wavelet": "ICGO wavelet",
+           "cgo-three_stage": "ICGO three-stage"}
+
+
+def _level_data(kwargs: dict) -> dict:
+    """The noise floor (deg) and the casing field at the sensor (nT) of one level's ``lab_casing`` draw (seed 0)."""
+    from icgo.datasets import lab_casing, noise_floor
+
+    floor = noise_floor("lab_casing", 0, **kwargs).iloc[0]
+    b = np.linalg.norm(lab_casing(0, **kwargs).truth["casing_field_ned_nT"], axis=1)
+    return {"floor MAE (deg)": float(floor.mae), "casing field at sensor (nT)": f"{np.median(b):.0f} "
+            f"({b.min():.0f}-{b.max():.0f})"}
+
+
+def _levels(runs, label: str) -> dict:
+    """{level value: wide (repeat x method) test-MAE frame} of one sweep's runs; raises on a clash."""
+    from icgo import records as R
+
+    key = SWEEPS[label][0]
+    frames: dict = {}
+    for info in runs.runs:
+        if info.get("label") != label:
+            continue
+        kw = info.get("dataset_kwargs") or {}
+        level = float(kw.get(key, SWEEPS[label][2]))
+        t = R.read_table(info["dir"], "metrics")
+        t = t[t.split == "test"].pivot_table(index="repeat", columns="method", values="mae")
+        frames.setdefault(level, []).append((info["mtime"], t))
+    out = {}
+    for level, ts in frames.items():
+        ts.sort(key=lambda x: x[0])
+        wide = pd.concat([t for _, t in ts], axis=1)
+        out[level] = wide.loc[:, ~wide.columns.duplicated(keep="last")]
+    return dict(sorted(out.items()))
+
+
+def _table(label: str, levels: dict) -> tuple[pd.DataFrame, list[str]]:
+    """One sweep's rows (one per level) and the methods every level has."""
+    from scipy.stats import kendalltau
+
+    from icgo.stats import friedman, holm, wilcoxon_paired
+
+    key, name, default = SWEEPS[label]
+    methods = [m for m in METHODS if all(m in w.columns for w in levels.values())]
+    base_order = None
+    if default in levels:
+        base_order = sorted(methods, key=lambda m: levels[default][m].mean())
+    rows, p_best = [], []
+    for level, wide in levels.items():
+        w = wide[methods].dropna()
+        order = sorted(methods, key=lambda m: w[m].mean())
+        row = {name: level, **_level_data({key: level}),
+               "raw MAE (deg)": round(float(wide["raw"].mean()), 4) if "raw" in wide else np.nan,
+               "MSA MAE (deg)": round(float(wide["msa"].mean()), 4) if "msa" in wide else np.nan}
+        row |= {METHODS[m]: f"{w[m].mean():.4f} +/- {w[m].std(ddof=1):.4f}" for m in methods}
+        best = w[order[0]]
+        row["best / floor"] = round(float(best.mean()) / row["floor MAE (deg)"], 2)
+        row["order by MAE"] = " < ".join(METHODS[m] for m in order)
+        row["Kendall tau vs default order"] = (
+            round(float(kendalltau([base_order.index(m) for m in methods], [order.index(m) for m in methods])
+                        .statistic), 2) if base_order else np.nan)
+        row["first in repeats"] = f"{METHODS[order[0]]} {int((w.idxmin(axis=1) == order[0]).sum())}/{len(w)}"
+        fr = friedman({m: w[m].to_numpy() for m in methods}) if len(methods) >= 3 and len(w) >= 2 else None
+        row["Friedman p"] = float(fr.p_value) if fr else np.nan
+        p_best.append(wilcoxon_paired(w[order[0]], w[order[1]]).p_value if len(order) > 1 and len(w) > 1 else np.nan)
+        rows.append(row)
+    df = pd.DataFrame(rows)
+    df["p best vs second (Holm)"] = holm(np.nan_to_num(np.asarray(p_best, float), nan=1.0))
+    return df, methods
+
+
+def _plot(ax, label: str, df: pd.DataFrame, levels: dict, methods) -> None:
+    name = SWEEPS[label][1]
+    x = df[name].to_numpy(float)
+    for m in methods:
+        ax.plot(x, [levels[v][m].mean() for v in x], "o-", ms=3, lw=1, label=METHODS[m])
+    ax.plot(x, df["MSA MAE (deg)"], "s:", ms=3, color="grey", label="MSA only")
+    ax.plot(x, df["floor MAE (deg)"], "k--", lw=1.5, label="noise floor")
+    ax.set(xlabel=name, ylabel="test MAE (deg), mean of 10 repeats", yscale="log")
+    if label != "sweep_casing":
+        ax.set_xscale("log", base=2)
+    ax.grid(alpha=0.3, which="both")
+
+
+def build(runs, out: Path, name: str) -> bool:
+    """Write ``results/<name>.{md,csv,png}`` from the sweeps of :data:`OUTPUTS` ``[name]``; False if none ran.
+
+    Args:
+        runs: :class:`experiments.figures.Runs` holding the sweeps' runs (other labels are ignored).
+        out: output folder. name: ``sweep_noise`` or ``sweep_casing``.
+    """
+    from experiments.figures import _plt, _save
+
+    parts = [(label, _levels(runs, label)) for label in OUTPUTS[name]]
+    parts = [(label, lv) for label, lv in parts if lv]
+    if not parts:
+        return False
+    text, csv, plt = [], [], _plt()
+    fig, axes = plt.subplots(1, len(parts), figsize=(6.5 * len(parts), 4.2), squeeze=False)
+    for ax, (label, levels) in zip(axes[0], parts):
+        df, methods = _table(label, levels)
+        key, _, default = SWEEPS[label]
+        text += [f"## {label}: `python -m experiments.run -m experiment={label}`", "",
+                 df.to_markdown(index=False, floatfmt=".4g"), "",
+                 f"Levels of `dataset.kwargs.{key}` (default {default:g}); each row: {len(methods)} methods x "
+                 f"{min(len(w) for w in levels.values())} paired repeats (Table 3's splits and keys). "
+                 + _changes(df, SWEEPS[label][1], default), ""]
+        csv.append(df.assign(sweep=label))
+        _plot(ax, label, df, levels, methods)
+    axes[0][0].legend(fontsize=7)
+    title = {"sweep_noise": "Sweep: sensor noise", "sweep_casing": "Sweep: casing distance and strength"}[name]
+    pd.concat(csv, ignore_index=True).to_csv(out / f"{name}.csv", index=False)
+    notes = ["Noise floor: the level's own `lab_casing` draw (seed 0) with the casing, every systematic sensor "
+             "effect and the spikes removed, through the standard azimuth formula: the error the simulated "
+             "sensor noise alone leaves. `best / floor` = the best method's MAE over it. Casing field: median "
+             "(range) of |B_casing| at the sensor over the kept rows."]
+    (out / f"{name}.md").write_text("\n".join([f"# {title} (test MAE, lab_casing)", "", *text, *notes]) + "\n")
+    _save(fig, out / f"{name}.png", f"{title}: every method against the noise floor (lab_casing)")
+    return True
+
+
+def _changes(df: pd.DataFrame, name: str, default: float) -> str:
+    """One sentence: which method is first at each level and how far the order moves from the default level's."""
+    firsts = df["order by MAE"].str.split(" < ").str[0]
+    text = "First by mean MAE: " + ", ".join(f"{v:g}: {f}" for v, f in zip(df[name], firsts)) + "."
+    tau = df["Kendall tau vs default order"]
+    if tau.isna().all():
+        return text + f" The default level {default:g} did not run, so no order is compared."
+    lo = df.loc[tau.idxmin()]
+    return text + (f" The order of all {sum(c in df.columns for c in METHODS.values())} methods moves most from the default level's at {lo[name]:g} "
+                   f"(Kendall tau {lo['Kendall tau vs default order']:.2f}; 1 = the same order).")
