@@ -6,9 +6,17 @@ machine it runs on (CPU here; unchanged with ``JAX_PLATFORMS=cuda``):
 * ``fitness_evals_per_s``: batched RELM fitness throughput at the paper's
   scale (the study's own data, repeat 0: 407 training rows, 6 inputs,
   L = 30) for a batch of 120 (population 30 x 4 seeds) and 1200 (x 10
-  repeats), after compilation, for the fast kernel of this file
-  (:func:`icgo.relm.train_fitness`, the study's default); ``library_evals_per_s``
-  for the row-weighted float64 path ``icgo.relm.fitness``;
+  repeats), after compilation, for the study's default search kernel
+  (:func:`icgo.relm.train_fitness` with ``fitness_features`` = the feature dtype of
+  ``StudyConfig().dtype``); ``library_evals_per_s`` for the row-weighted float64 path
+  ``icgo.relm.fitness``;
+* ``fitness_by_features_evals_per_s``: that kernel with float64 features (``dtype=mixed``) and
+  with float32 features (``dtype=fast``: pre-activation, sigmoid and matrix-vector products in
+  float32, Gram centred in float32, Cholesky and refinement residuals in float64) at the same
+  batches, ``f32_features_speedup`` the ratio at batch 1200; ``max_rel_diff_vs_float64`` and
+  ``max_rel_diff_f32_vs_float64`` their largest relative differences from ``icgo.relm.fitness``;
+* ``roofline`` (``--skip-roofline``): :mod:`experiments.roofline` in a child process pinned to
+  one core: each stage of the kernel against its own ceiling at its own shape, both feature dtypes;
 * ``flop_fraction``: fast throughput x :func:`flops_per_eval` / the rate of a
   large dense float32 matrix product (the precision of the fast kernel's Gram
   product), measured in the same run;
@@ -49,8 +57,10 @@ fixed), the population processed in chunks that fit the cache (``lax.map``),
 the Gram product of the *column-centred* hidden outputs in float32 with the
 rank-one mean term added back in float64, a float64 Cholesky factor of that
 matrix, and ``refine`` steps of iterative refinement with float64 residuals,
-so the result is the float64 ridge solution (checked against
-``icgo.relm.fitness`` on the study's own data at every run: ``max_rel_diff``).
+so the result is the float64 ridge solution of its hidden outputs; with float32
+features (the default) those are rounded to float32, within 1e-6 relative of
+``icgo.relm.fitness`` (both checked on the study's own data at every run:
+``max_rel_diff_vs_float64``, ``max_rel_diff_f32_vs_float64``).
 """
 
 from __future__ import annotations
@@ -82,6 +92,8 @@ HIDDEN = 30
 LAM = 1e-3
 N_INPUTS = relm.N_INPUTS
 STRATEGIES = ("original", "chaos", "gaussian", "wavelet", "three_stage")
+#: Feature dtype of the study's default search kernel (``StudyConfig.dtype``): what the benchmark's study path runs.
+FEATURES = study.TRAIN_KERNEL_FEATURES[study.StudyConfig().dtype]
 
 
 # --------------------------------------------------------------------------- flops
@@ -181,6 +193,19 @@ def population(key, P: int, hidden: int = HIDDEN):
     return jax.random.uniform(key, (P, relm.n_params(hidden)), jnp.float64, -1.0, 1.0)
 
 
+def run_roofline(batch: int, chunk: int, refine: int, quick: bool) -> dict:
+    """:mod:`experiments.roofline` in a child process (there one core and one XLA thread are set before
+    JAX starts, which this process cannot do any more): its JSON object."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "roofline.json"
+        cmd = [sys.executable, "-m", "experiments.roofline", "--batch", str(batch), "--chunk", str(chunk),
+               "--refine", str(refine), "--out", str(path)] + (["--quick"] if quick else [])
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        if proc.returncode:
+            raise RuntimeError(f"experiments.roofline exited {proc.returncode}: {proc.stderr[-2000:]}")
+        return json.loads(path.read_text())
+
+
 # -------------------------------------------------------------------------- study
 @partial(jax.jit, static_argnames=("strategies", "pop_size", "iterations", "chunk", "refine"))
 def _study_core(keys, aux: relm.TrainRows, strategies, pop_size, iterations, chunk, refine):
@@ -199,7 +224,7 @@ def run_fast_study(sd: StudyData, strategies=STRATEGIES, pop_size=30, iterations
     Returns:
         dict: compile_s, run_s, total_s, evals per run, mean test RMSE per strategy.
     """
-    _FAST.setdefault((chunk, refine), relm.make_train_fitness(LAM, HIDDEN, chunk, refine))
+    _FAST.setdefault((chunk, refine), relm.make_train_fitness(LAM, HIDDEN, chunk, refine, feature_dtype=FEATURES))
     R = sd.compact.T.shape[0]
     keys = jnp.stack([jax.random.fold_in(jax.random.PRNGKey(0), i) for i in range(R)])
     t0 = time.perf_counter()
@@ -382,6 +407,7 @@ def main(argv=None) -> dict:
     p.add_argument("--skip-front-door", action="store_true",
                    help="skip the front-door runs (then table3_s is the benchmark's own path)")
     p.add_argument("--skip-peers", action="store_true", help="skip the evosax comparison")
+    p.add_argument("--skip-roofline", action="store_true", help="skip the per-stage roofline (experiments.roofline)")
     p.add_argument("--out", default=None, help="also write the JSON and the table to results/bench_<out>.{json,md}")
     p.add_argument("--rows", default=None,
                    help="comma list of row counts (e.g. 1e3,1e4,1e5,1e6): only measure time and peak memory of the "
@@ -433,14 +459,19 @@ def main(argv=None) -> dict:
     out.update(n_rows=sd.n_rows, n_train=n, flops_per_eval=fl)
 
     # accuracy of the fast kernel against the float64 library fitness, study data, every repeat
-    diffs = []
+    diffs = {"float64": [], "float32": []}
     for r in range(n_rep):
         pop = population(jax.random.PRNGKey(100 + r), 120)
         ref = relm.fitness(pop, _slice(sd.fit, r), LAM, HIDDEN)
-        got = relm.train_fitness(pop, _slice(sd.compact, r), LAM, HIDDEN, a.chunk, a.refine)
-        diffs.append(float(jnp.max(jnp.abs(got / ref - 1))))
-    out["max_rel_diff_vs_float64"] = max(diffs)
-    row("fast fitness vs float64 library, max relative difference", max(diffs), "", f"{n_rep} repeats x 120 thetas")
+        for fd, d in diffs.items():
+            got = relm.train_fitness(pop, _slice(sd.compact, r), LAM, HIDDEN, a.chunk, a.refine, feature_dtype=fd)
+            d.append(float(jnp.max(jnp.abs(got / ref - 1))))
+    out["max_rel_diff_vs_float64"] = max(diffs["float64"])
+    out["max_rel_diff_f32_vs_float64"] = max(diffs["float32"])
+    row("fast fitness vs float64 library, max relative difference", max(diffs["float64"]), "",
+        f"{n_rep} repeats x 120 thetas")
+    row("fast fitness, float32 features, vs float64 library, max relative difference", max(diffs["float32"]), "",
+        f"{n_rep} repeats x 120 thetas")
 
     # machine limit
     reps = 3 if quick else 5
@@ -450,20 +481,36 @@ def main(argv=None) -> dict:
     row("dense 2048^2 matmul float64", g64, "GFLOP/s")
 
     # fitness throughput
-    fast = relm.make_train_fitness(LAM, HIDDEN, a.chunk, a.refine)
+    kernels = {fd: relm.make_train_fitness(LAM, HIDDEN, a.chunk, a.refine, feature_dtype=fd)
+               for fd in ("float64", "float32")}
     lib = relm.make_fitness(LAM, HIDDEN)
+    out["fitness_features"] = FEATURES
     out["fitness_evals_per_s"], out["library_evals_per_s"], out["flop_fraction_by_batch"] = {}, {}, {}
+    out["fitness_by_features_evals_per_s"] = {fd: {} for fd in kernels}
     for P in (120, 1200):
         pop = population(jax.random.PRNGKey(P), P)
-        t_fast = _best_time(fast, pop, c0, reps=reps)
-        t_lib = _best_time(lib, pop, d0, reps=1 if (quick or P > 120) else 3)
-        out["fitness_evals_per_s"][str(P)] = P / t_fast
-        out["library_evals_per_s"][str(P)] = P / t_lib
-        out["flop_fraction_by_batch"][str(P)] = P / t_fast * fl / (g32 * 1e9)
-        row(f"fast fitness, batch {P}", P / t_fast, "evals/s", f"{P / t_fast * fl / 1e9:.2f} GFLOP/s")
-        row(f"library relm.fitness (float64), batch {P}", P / t_lib, "evals/s")
+        for fd, k in kernels.items():
+            out["fitness_by_features_evals_per_s"][fd][str(P)] = P / _best_time(k, pop, c0, reps=reps)
+            row(f"train-mode kernel, {fd} features, batch {P}", out["fitness_by_features_evals_per_s"][fd][str(P)],
+                "evals/s", "(the study's default)" if fd == FEATURES else "")
+        rate = out["fitness_evals_per_s"][str(P)] = out["fitness_by_features_evals_per_s"][FEATURES][str(P)]
+        out["library_evals_per_s"][str(P)] = P / _best_time(lib, pop, d0, reps=1 if (quick or P > 120) else 3)
+        out["flop_fraction_by_batch"][str(P)] = rate * fl / (g32 * 1e9)
+        row(f"library relm.fitness (float64), batch {P}", out["library_evals_per_s"][str(P)], "evals/s")
+    by = out["fitness_by_features_evals_per_s"]
     out["flop_fraction"] = out["flop_fraction_by_batch"]["1200"]
+    out["f32_features_speedup"] = by["float32"]["1200"] / by["float64"]["1200"]
+    row("float32 / float64 features, batch 1200", out["f32_features_speedup"], "x")
     row("flop_fraction (batch 1200, vs float32 matmul)", out["flop_fraction"], "")
+
+    # per-stage roofline, in its own process: one core, one XLA thread
+    if not a.skip_roofline:
+        rl = run_roofline(120 if quick else 1200, a.chunk, a.refine, quick)
+        out["roofline"] = rl
+        for fd in ("float64", "float32"):
+            row(f"roofline, {fd} features: sum of stage ceilings / kernel time (one core, batch {rl['batch']})",
+                rl[fd]["kernel_fraction"], "", f"{rl[fd]['kernel_evals_per_s']:,.0f} evals/s; furthest stage "
+                + min(rl[fd]["stages"].items(), key=lambda kv: kv[1]["fraction"])[0])
 
     # numpy reference
     X0, T0 = np.asarray(c0.Xa)[:, :N_INPUTS], np.asarray(c0.T)

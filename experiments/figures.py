@@ -15,7 +15,7 @@
   honest baseline), the PSO and GA jobs of ``fig9``, ``fig9`` again at equal
   fitness evaluations (``budget=evaluations label=fig9_evals``: ``fig9_budgets``),
   the schedules sweep (``sweep_schedules``), the mutation readings
-  (``sweep_wavelet``, ``sweep_sigma``, ``paper_literal``: ``sweep_mutations``), the noise and
+  (``sweep_wavelet``, ``sweep_sigma``, ``sweep_paper_literal``: ``sweep_mutations``), the noise and
   casing sweeps (``sweep_noise``, ``sweep_casing``, ``sweep_casing_strength``:
   :mod:`experiments.sweep_conditions`) and ``table4``.
 
@@ -77,7 +77,7 @@ SWEEP_PREFIX = "sweep_"
 SCHEDULES_LABEL = "sweep_schedules"
 
 
-#: Run labels of the mutation-readings sweeps (``experiment=sweep_wavelet``, ``sweep_sigma`` and ``paper_literal``, issue 18).
+#: Run labels of the mutation-readings sweeps (``experiment=sweep_wavelet``, ``sweep_sigma`` and ``sweep_paper_literal``, issue 18).
 MUTATIONS_LABELS = ("sweep_wavelet", "sweep_sigma", "sweep_paper_literal")
 
 
@@ -87,14 +87,14 @@ PLAN = (("table3", "table3", []), ("table1", "table1", ["optimizer=none"]),
         ("fig9", "fig9", ["optimizer=pso,ga"]),
         ("fig9_evals", "fig9", ["budget=evaluations", f"label={EQUAL_EVALS_LABEL}"]),
         ("sweep_schedules", "sweep_schedules", []), ("sweep_wavelet", "sweep_wavelet", []),
-        ("sweep_sigma", "sweep_sigma", []), ("paper_literal", "paper_literal", []),
+        ("sweep_sigma", "sweep_sigma", []), ("sweep_paper_literal", "sweep_paper_literal", []),
         ("sweep_noise", "sweep_noise", []), ("sweep_casing", "sweep_casing", []),
         ("sweep_casing_strength", "sweep_casing_strength", []), ("table4", "table4", []))
 
 #: The plan entries whose runs each output is made from (named in its "missing runs" line).
 SOURCES = {"table1": ("table1", "table3"), "fig9": ("fig9", "table3"), "table2": ("table3",), "fig10": ("table3",),
            "fig11": ("table3",), "table3": ("table3",), "fig12": ("table3",), "fig13": ("table3",),
-           "table4": ("table4",), "sweep_mutations": ("sweep_wavelet", "sweep_sigma", "paper_literal", "table3"),
+           "table4": ("table4",), "sweep_mutations": ("sweep_wavelet", "sweep_sigma", "sweep_paper_literal", "table3"),
            "sweep_noise": ("sweep_noise",), "sweep_casing": ("sweep_casing", "sweep_casing_strength"),
            "fig9_budgets": ("fig9_evals", "fig9"), "sweep_schedules": ("sweep_schedules", "table3")}
 
@@ -524,7 +524,7 @@ def sweep_mutations(pooled: Runs, sweep: Runs, out: Path) -> bool:
         t = R.read_table(info["dir"], "metrics")
         t = t[t.split == "test"]
         strategies = info.get("strategies", [])
-        whole = set(STRATEGIES4) <= set(strategies)  # the paper_literal preset: every strategy from this run
+        whole = set(STRATEGIES4) <= set(strategies)  # the sweep_paper_literal preset: every strategy from this run
         single = "wavelet" if whole else next(s for s in strategies if s != "three_stage")
         own = STRATEGIES4 if whole else (single, "three_stage")
         mae = {**base, **{s: t[t.method == f"cgo-{s}"].set_index("repeat")["mae"] for s in own}}
@@ -534,7 +534,7 @@ def sweep_mutations(pooled: Runs, sweep: Runs, out: Path) -> bool:
         reading = _reading(params)
         if whole:
             no_sigma = {k: v for k, v in params.items() if k != "sigma"}
-            reading = (f"the paper's literal readings (experiment=paper_literal): {_reading(no_sigma)}, "
+            reading = (f"the paper's literal readings (experiment=sweep_paper_literal): {_reading(no_sigma)}, "
                        f"{_reading({'sigma': params.get('sigma', CGOConfig().sigma)})}")
         rows.append({"reading": reading,
                      "single strategy alone (deg)": _fmt(*_ms(mae[single])), "three-stage (deg)": _fmt(*_ms(mae["three_stage"])),
@@ -547,7 +547,7 @@ def sweep_mutations(pooled: Runs, sweep: Runs, out: Path) -> bool:
     notes = ["Commands: `python -m experiments.run -m experiment=sweep_wavelet` (6 jobs) and `... experiment=sweep_sigma` "
              "(3 jobs), with Table 3's runs for the strategies a reading does not touch (their defaults: "
              f"{_reading({})}, Gaussian sigma {CGOConfig().sigma:g}). 10 paired repeats per column. "
-             "`python -m experiments.run experiment=paper_literal` (1 job) runs all four strategies under the "
+             "`python -m experiments.run experiment=sweep_paper_literal` (1 job) runs all four strategies under the "
              "paper's literal readings (eq. 18's wavelet without Ling's amplitude factor, N(0, 1), thirds on the "
              "global clock); its row takes every column from that run.",
              f"The paper's order: {' < '.join(LABEL[s] for s in paper)}. Readings that reproduce it: "

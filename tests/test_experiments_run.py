@@ -279,7 +279,7 @@ def test_progress_ticks_once_per_iteration_inside_the_scan():
 
 # ------------------------------------------------------------ one source of defaults
 def test_composed_default_equals_the_study_dataclass_defaults():
-    """`python -m experiments.run` with no override is icgo.studies.icgo_relm.StudyConfig() field by field (dtype=mixed)."""
+    """`python -m experiments.run` with no override is icgo.studies.icgo_relm.StudyConfig() field by field (dtype=fast)."""
     import dataclasses
 
     from icgo.studies.icgo_relm import StudyConfig
@@ -290,7 +290,7 @@ def test_composed_default_equals_the_study_dataclass_defaults():
         if f.name == "optimizer_config":
             continue
         assert getattr(cfg, f.name) == getattr(default, f.name), f.name
-    assert cfg.dtype == "mixed"
+    assert cfg.dtype == "fast"
     opt = cfg.optimizer_config
     assert opt == type(opt)(), "the composed optimizer config must equal its dataclass defaults"
 

@@ -312,7 +312,7 @@ def test_an_unknown_sweep_never_replaces_the_paper_runs(runs_dir, tmp_path):
 
 
 def test_paper_literal_run_is_one_reading_with_every_strategy_from_it(runs_dir, tmp_path):
-    """Issue 18 sweep 2: the paper_literal preset's row takes all four strategies from its own run."""
+    """Issue 18 sweep 2: the sweep_paper_literal preset's row takes all four strategies from its own run."""
     rng = np.random.default_rng(7)
     scale = {"cgo-chaos": 0.001, "cgo-gaussian": 0.002, "cgo-wavelet": 0.003, "cgo-three_stage": 0.004,
              "cgo-original": 0.005}

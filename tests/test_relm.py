@@ -228,6 +228,59 @@ def test_row_blocked_train_fitness_at_scale_and_under_vmap():
     np.testing.assert_array_equal(np.asarray(batched[0]), np.asarray(got))
 
 
+# ------------------------------------------------ float32 features (issue: per-stage roofline, item 4)
+@pytest.mark.parametrize("scale", [1.0, 0.05])
+@pytest.mark.parametrize("padded", [False, True])
+@pytest.mark.parametrize("row_block", [relm.ROW_BLOCK, 16])
+def test_float32_features_match_the_float64_library(scale, padded, row_block):
+    """feature_dtype="float32" (pre-activation, sigmoid, matrix-vector products in float32): within 5e-6
+    of the float64 library fitness, unweighted and padded, unblocked and row-blocked (last block padded)."""
+    _, _, mask, pop, fit = relm_train_data(n=200, scale=scale, seed=2)
+    n = int(mask.sum()) + (5 if padded else 0)
+    rows = relm.train_rows(fit, n, padded=padded)
+    ref = np.asarray(relm.fitness(pop, fit, 1e-3, 5))
+    got = relm.train_fitness(pop, rows, 1e-3, 5, chunk=3, row_block=row_block, feature_dtype="float32")
+    assert got.dtype == jnp.float64
+    np.testing.assert_allclose(np.asarray(got), ref, rtol=5e-6)
+
+
+@pytest.mark.parametrize("padded", [False, True])
+def test_default_features_are_float64_bitwise(padded):
+    """The default is feature_dtype="float64", bitwise, unblocked and blocked; float32 features differ."""
+    _, _, mask, pop, fit = relm_train_data(n=200, seed=2)
+    rows = relm.train_rows(fit, int(mask.sum()) + (5 if padded else 0), padded=padded)
+    for rb in (relm.ROW_BLOCK, 16):
+        default = np.asarray(relm.train_fitness(pop, rows, 1e-3, 5, chunk=3, row_block=rb))
+        f64 = np.asarray(relm.train_fitness(pop, rows, 1e-3, 5, chunk=3, row_block=rb, feature_dtype="float64"))
+        np.testing.assert_array_equal(default, f64)
+        f32 = np.asarray(relm.make_train_fitness(1e-3, 5, 3, row_block=rb, feature_dtype="float32")(pop, rows))
+        assert not np.array_equal(f32, default)
+
+
+@pytest.mark.parametrize("row_block", [relm.ROW_BLOCK, 16])
+def test_float32_features_nonfinite_is_inf_never_nan(row_block):
+    """A NaN theta gives +inf; thetas beyond float32's range (1e39) give +inf or a finite value, never NaN."""
+    _, _, mask, pop, fit = relm_train_data(n=200, seed=2)
+    rows = relm.train_rows(fit, int(mask.sum()))
+    bad = pop.at[0, 0].set(jnp.nan).at[1].set(1e39).at[2, 3].set(-1e39)
+    f = np.asarray(relm.train_fitness(bad, rows, 1e-3, 5, chunk=3, row_block=row_block, feature_dtype="float32"))
+    assert f[0] == np.inf and not np.isnan(f).any() and (np.isfinite(f) | (f == np.inf)).all()
+    assert np.isfinite(f[3:]).all()
+
+
+@pytest.mark.parametrize("row_block", [relm.ROW_BLOCK, 16])
+def test_float32_features_vmapped_equal_calls_alone(row_block):
+    """Under vmap the float32-feature kernel runs batch members one by one too: bitwise the calls alone."""
+    _, _, mask, pop, fit = relm_train_data(n=200, seed=2)
+    rows = relm.train_rows(fit, int(mask.sum()))
+    pops = jnp.stack([pop, pop[::-1] * 0.5, pop * 0.9])
+    kw = dict(chunk=3, row_block=row_block, feature_dtype="float32")
+    batched = jax.vmap(lambda p: relm.train_fitness(p, rows, 1e-3, 5, **kw))(pops)
+    for k in range(3):
+        alone = relm.train_fitness(pops[k], rows, 1e-3, 5, **kw)
+        np.testing.assert_array_equal(np.asarray(batched[k]), np.asarray(alone))
+
+
 @pytest.mark.parametrize("mode", relm.FITNESS_MODES)
 def test_row_blocked_library_fitness_matches_unblocked(mode):
     """relm.fitness above row_block rows: the fold fits and scores summed over row blocks, one theta at a time."""

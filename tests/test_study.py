@@ -161,26 +161,28 @@ def test_lab_casing_msa_and_plain_relm():
     assert s.loc[("relm", "test"), "mae_mean"] < s.loc[("msa", "test"), "mae_mean"]
 
 
-def test_tiny_cgo_study_mixed_precision_batched_equals_alone(frame):
-    """The default (mixed-precision) search: repeat k batched == alone, and its fitness is the float64 one."""
+@pytest.mark.parametrize("dtype, rtol", [("fast", 5e-6), ("mixed", 1e-9)])
+def test_tiny_cgo_study_train_kernel_batched_equals_alone(frame, dtype, rtol):
+    """The train-mode searches (fast = default, mixed): repeat k batched == alone, and the fitness they
+    search with is the row-weighted float64 one to the kernel's tolerance."""
     import jax
 
     from icgo import relm
 
     cfg = study.StudyConfig(optimizer="cgo", strategies=("original", "three_stage"), n_repeats=2,
-                            hidden=10, pop_size=6, iterations=3, seed=5)
-    assert cfg.dtype == "mixed"
+                            hidden=10, pop_size=6, iterations=3, seed=5, dtype=dtype)
+    assert study.StudyConfig().dtype == "fast"
     res = study.run_study(frame, cfg)
     alone = study.run_study(frame, dataclasses.replace(cfg, repeat_ids=(1,)))
     np.testing.assert_array_equal(alone.curves["best_fitness"][:, 0], res.curves["best_fitness"][:, 1])
-    # the fast fitness on this study's own prepared data equals the row-weighted float64 fitness
     G, B, a = study.frame_arrays(frame)
     prep, _ = study.prepare(None, G, B, a, dataclasses.replace(cfg, n_repeats=1), jax.random.PRNGKey(0))
     data = jax.tree_util.tree_map(lambda x: x[0], prep.data)
     rows = jax.tree_util.tree_map(lambda x: x[0], study.train_rows(prep))
     pop = relm.random_theta(jax.random.PRNGKey(1), 10, (12,))
-    np.testing.assert_allclose(np.asarray(relm.train_fitness(pop, rows, 1e-3, 10)),
-                               np.asarray(relm.fitness(pop, data, 1e-3, 10)), rtol=1e-9)
+    search = study._fitness_fn(1e-3, 10, dtype)
+    np.testing.assert_allclose(np.asarray(search(pop, rows)), np.asarray(relm.fitness(pop, data, 1e-3, 10)),
+                               rtol=rtol)
 
 
 def test_wrap_fitness_sees_every_search_call(frame):

@@ -59,6 +59,11 @@ REQUIRED_COLUMNS = ("gx", "gy", "gz", "bx", "by", "bz", "azimuth_deg")
 
 log = logging.getLogger(__name__)
 
+#: Search-fitness precisions served by the train-mode kernel :func:`icgo.relm.train_fitness`
+#: -> its ``feature_dtype`` (``mixed``: float64 features; ``fast``: float32 features).
+TRAIN_KERNEL_FEATURES = {"mixed": "float64", "fast": "float32"}
+
+
 @dataclasses.dataclass(frozen=True)
 class StudyConfig:
     """Settings of an ICGO-RELM study (defaults: the paper's protocol where it gives one).
@@ -103,11 +108,16 @@ class StudyConfig:
         iterations: optimizer iterations (paper: 100); exclusive with max_evals.
         max_evals: fitness-evaluation budget instead of iterations.
         optimizer_config: the optimizer's config object (None = its defaults).
-        dtype: precision of the search's fitness. ``"mixed"`` (default): the
-            fast train-mode kernel :func:`icgo.relm.train_fitness` (float32 Gram
-            of centred features, float64 Cholesky and iterative refinement: the
-            float64 solution, tested), used when ``fitness="train"``; other
-            fitness modes then use the float64 path. ``"float64"``: the
+        dtype: precision of the search's fitness. ``"fast"`` (default): the
+            train-mode kernel :func:`icgo.relm.train_fitness` with float32
+            features (pre-activation, sigmoid, matrix-vector products), a float32
+            Gram of centred features, float64 Cholesky and iterative refinement:
+            within 1e-6 relative of the float64 fitness (tested), which is all a
+            search needs to rank candidates; the reported numbers come from the
+            float64 refit. ``"mixed"``: the same kernel with float64 features,
+            the float64 solution to 1e-9 (about 1.6x slower). Both are used when
+            ``fitness="train"``; other fitness modes then use the float64 path
+            (measured on Table 3: ``results/performance.md``). ``"float64"``: the
             row-weighted float64 path of :func:`icgo.relm.fitness`; ``"float32"``
             that path in float32. The final refit and scoring are float64 always.
     """
@@ -135,7 +145,7 @@ class StudyConfig:
     iterations: int | None = 100
     max_evals: int | None = None
     optimizer_config: Any = None
-    dtype: str = "mixed"
+    dtype: str = "fast"
 
     def __post_init__(self):
         """Validate every setting that does not depend on the data (one-line SettingError naming the field)."""
@@ -178,8 +188,8 @@ class StudyConfig:
         tb = self.theta_bounds
         need(isinstance(tb, tuple) and len(tb) == 2 and all(is_real(x) for x in tb) and tb[0] < tb[1],
              "theta_bounds", f"must be [low, high] with low < high, got {tb!r}")
-        need(self.dtype in ("mixed", "float64", "float32"), "dtype",
-             f"must be mixed, float64 or float32, got {self.dtype!r}")
+        need(self.dtype in (*TRAIN_KERNEL_FEATURES, "float64", "float32"), "dtype",
+             f"must be one of {[*TRAIN_KERNEL_FEATURES, 'float64', 'float32']}, got {self.dtype!r}")
         need(isinstance(self.tune, bool), "tune", f"must be true or false, got {self.tune!r}")
         if self.tune:
             need(self.optimizer is None, "tune", f"tunes plain RELM only: set optimizer none (got {self.optimizer!r})")
@@ -373,8 +383,8 @@ def _prepare(keys, train, test, G, B, a_true, reference, *, msa_model, msa_iter,
 @functools.lru_cache(maxsize=None)
 def _fitness_fn(lam: float, hidden: int, dtype: str | None):
     # Cached so that the optimizer runner (fitness is a static argument) compiles once per setting.
-    if dtype == "mixed":
-        return _relm.make_train_fitness(lam, hidden)
+    if dtype in TRAIN_KERNEL_FEATURES:
+        return _relm.make_train_fitness(lam, hidden, feature_dtype=TRAIN_KERNEL_FEATURES[dtype])
     return _relm.make_fitness(lam, hidden, None if dtype == "float64" else dtype)
 
 
@@ -384,8 +394,8 @@ def _plain_dtype(cfg: StudyConfig) -> str | None:
 
 
 def _search_dtype(cfg: StudyConfig) -> str:
-    """The fitness precision actually used: ``mixed`` only exists for fitness="train"."""
-    return "float64" if cfg.dtype == "mixed" and cfg.fitness != "train" else cfg.dtype
+    """The fitness precision actually used: the train-mode kernels exist for fitness="train" only."""
+    return "float64" if cfg.dtype in TRAIN_KERNEL_FEATURES and cfg.fitness != "train" else cfg.dtype
 
 
 class _Scored(NamedTuple):
@@ -445,7 +455,7 @@ def _search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None):
     configs = alg.axis_configs(cfg.optimizer_config, cfg.strategies) if alg.axis else None
     dtype = _search_dtype(cfg)
     aux = prep.data
-    if dtype == "mixed":
+    if dtype in TRAIN_KERNEL_FEATURES:
         aux = train_rows(prep)
     fitness = _fitness_fn(float(cfg.lam), int(cfg.hidden), dtype)
     if wrap_fitness is not None:
