@@ -202,10 +202,10 @@ def _is_int(x) -> bool:
 STUDY_NODES = ("split", "msa", "model", "fitness", "budget")
 #: The keys whose field name follows neither rule.
 STUDY_ALIASES = {"fitness.mode": "fitness", "optimizer.name": "optimizer", "strategy.names": "strategies",
-                 "dtype": "dtype"}
+                 "dtype": "dtype", "workers": "workers"}
 #: Keys read by the entry point itself (not StudyConfig fields), per node; "" = top level.
 ENTRY_KEYS = {"": ("dataset", "optimizer", "strategy", "schedule", "progress", "figures", "label", "jax_cache_dir",
-                   "overwrite", *STUDY_NODES, "dtype"),
+                   "overwrite", *STUDY_NODES, "dtype", "workers"),
               "optimizer": ("name", "params"), "strategy": ("names",), "schedule": ("bounds", "order", "clock")}
 #: Keys of the study nodes that the entry point reads itself (not StudyConfig fields): the transfer target.
 STUDY_NODE_ENTRY_KEYS = ("split.target",)
@@ -496,7 +496,11 @@ def run_with_progress(frame, scfg, meta, enable: bool, desc: str, target=None):
     """
     from icgo.studies import icgo_relm as study
 
-    if not enable or scfg.optimizer is None:
+    n_workers = scfg.search_workers(len(frame))
+    if n_workers > 1:
+        print(f"search: {n_workers} worker processes, one per core (workers={scfg.workers}); "
+              f"{'no progress bar (workers=1 for one)' if enable else 'progress off'}", file=sys.stderr)
+    if not enable or scfg.optimizer is None or n_workers > 1:
         return study.run_study(frame, scfg, meta, target=target)
     from icgo.optim import iterations_for_budget
 

@@ -46,14 +46,17 @@ def front_door(workdir=None, extra=()) -> dict:
 
     Measured, in order, all with one compilation cache that starts empty:
     ``cold`` (the first run: compiles), ``warm`` (the same command again: the
-    cache holds its programs), then the five-job sweep ``strategy=<one each>``
+    cache holds its programs; its search on one worker process per core, the
+    default ``workers=null``), ``warm_1_worker`` (``workers=1``: one process),
+    then the five-job sweep ``strategy=<one each>``
     on ``workers=1`` and ``workers=2`` (warm: the jobs load their programs from the cache).
 
     Args:
         workdir: where the run directories and the cache go (default: a temporary directory).
         extra: further overrides for every command (e.g. a smaller budget in a test).
     Returns:
-        {name: {"wall_s", "peak_rss_gb", "rc"}} for cold, warm, sweep_1_worker, sweep_2_workers.
+        {name: {"wall_s", "peak_rss_gb", "rc"}} for cold, warm, warm_1_worker, sweep_1_worker, sweep_2_workers,
+        and ``identical``: every run's tables bitwise those of ``warm``.
     """
     from experiments.bench import measure
 
@@ -64,6 +67,7 @@ def front_door(workdir=None, extra=()) -> dict:
              f"strategy={','.join(TABLE3_STRATEGIES)}", "figures=false", "progress=false",
              f"jax_cache_dir={work / 'cache'}", *extra]
     cmds = {"cold": base + [f"hydra.run.dir={work / 'cold'}"], "warm": base + [f"hydra.run.dir={work / 'warm'}"],
+            "warm_1_worker": base + ["workers=1", f"hydra.run.dir={work / 'warm1'}"],
             "sweep_1_worker": sweep + ["hydra.launcher.workers=1", f"hydra.sweep.dir={work / 'sweep1'}"],
             "sweep_2_workers": sweep + ["hydra.launcher.workers=2", f"hydra.sweep.dir={work / 'sweep2'}"]}
     out = {}
@@ -73,18 +77,18 @@ def front_door(workdir=None, extra=()) -> dict:
             raise RuntimeError(f"front door {name} failed (exit {m['rc']}): {m['tail'].strip().splitlines()[-1:]}")
         out[name] = {k: m[k] for k in ("wall_s", "peak_rss_gb", "rc")}
         print(f"  front door {name}: {m['wall_s']:.1f} s, {m['peak_rss_gb']:.2f} GB", file=sys.stderr, flush=True)
-    out["identical"] = _same_tables(work / "warm", [work / "sweep1", work / "sweep2"])
+    out["identical"] = _same_tables(work / "warm", [work / "warm1", work / "sweep1", work / "sweep2"])
     return out
 
 
 def _same_tables(single: Path, sweeps) -> bool:
-    """Whether every sweep's per-strategy test metrics equal the single run's, to the bit."""
+    """Whether every other run's (a sweep's jobs, or one run directory) CGO metrics equal the single run's, to the bit."""
     import pandas as pd
 
     ref = pd.read_csv(single / "metrics.csv")
     ref = ref[ref.method.str.startswith("cgo-")].set_index(["method", "repeat", "split"]).sort_index()
     for d in sweeps:
-        got = pd.concat([pd.read_csv(p) for p in sorted(Path(d).glob("*/metrics.csv"))])
+        got = pd.concat([pd.read_csv(p) for p in sorted(Path(d).glob("*/metrics.csv")) or [Path(d) / "metrics.csv"]])
         got = got[got.method.str.startswith("cgo-")].set_index(["method", "repeat", "split"]).sort_index()
         cols = ["mae", "rmse", "r2", "r2_error"]
         if not (got.index.equals(ref.index) and (got[cols].to_numpy() == ref[cols].to_numpy()).all()):

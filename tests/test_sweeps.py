@@ -16,7 +16,8 @@ import time
 from pathlib import Path
 
 import pytest
-from hydra_plugins.icgo_launcher._core import resolve_workers, xla_flags
+from hydra_plugins.icgo_launcher._core import resolve_workers
+from icgo.parallel import xla_flags
 
 ROOT = Path(__file__).resolve().parents[1]
 APP = ROOT / "tests" / "sweep_app" / "app.py"

@@ -37,21 +37,12 @@ from hydra.core.singleton import Singleton
 from hydra.core.utils import JobReturn, JobStatus, configure_log, filter_overrides, run_job, setup_globals
 from omegaconf import OmegaConf, open_dict
 
+from icgo.parallel import xla_flags
+
 log = logging.getLogger(__name__)
 
 EXIT_CONFIG = 2
 EXIT_INTERRUPTED = 130
-
-
-def xla_flags(threads: int | None, inherited: str = "") -> str:
-    """``XLA_FLAGS`` for a job on ``threads`` CPU threads (None: ``inherited`` unchanged)."""
-    if threads is None:
-        return inherited
-    ours = (f"--xla_cpu_multi_thread_eigen={'false' if threads == 1 else 'true'} "
-            f"intra_op_parallelism_threads={threads}")
-    kept = " ".join(f for f in inherited.split()
-                    if not f.startswith(("--xla_cpu_multi_thread_eigen", "intra_op_parallelism_threads")))
-    return f"{kept} {ours}".strip()
 
 
 def resolve_workers(workers: Any, n_jobs: int, cpus: int) -> int:

@@ -73,6 +73,11 @@ class StudyConfig:
         seed: base seed; repeat k uses key ``fold_in(PRNGKey(seed), k)``.
         repeat_ids: run only these repeat ids (e.g. ``(3,)`` to rerun repeat 3
             alone); None = ``range(n_repeats)``.
+        workers: processes the search is split over by repeats (:mod:`icgo.parallel`:
+            one per core, XLA on one thread each, bitwise the one-process result);
+            None (default) = one per available core when the search is large
+            (:data:`icgo.parallel.AUTO_MIN_WORK`) and no fitness wrapper (progress
+            bar) is given, else 1. Only the random protocol's searches split.
         protocol: the split (:data:`icgo.splits.PROTOCOLS`): ``random`` (paper),
             ``leave_azimuth_out``, ``leave_condition_out`` or ``transfer`` (needs
             ``SurveyData.target``, the second instrument's survey).
@@ -124,6 +129,7 @@ class StudyConfig:
 
     n_repeats: int = 10
     seed: int = 0
+    workers: int | None = None
     repeat_ids: tuple | None = None
     protocol: str = "random"
     train_fraction: float = 0.7
@@ -159,6 +165,11 @@ class StudyConfig:
         need(is_int(self.n_repeats) and self.n_repeats >= 1, "n_repeats",
              f"must be an integer >= 1, got {self.n_repeats!r} (repeats)")
         need(is_int(self.seed) and self.seed >= 0, "seed", f"must be an integer >= 0, got {self.seed!r}")
+        need(self.workers is None or (is_int(self.workers) and self.workers >= 1), "workers",
+             f"must be None (one per core for a large search) or an integer >= 1, got {self.workers!r}")
+        need(self.workers in (None, 1) or (self.protocol == "random" and self.optimizer is not None), "workers",
+             f"{self.workers} splits a search over processes, which only the random protocol's searches do "
+             f"(protocol {self.protocol!r}, optimizer {self.optimizer!r}); use workers=1 or null")
         need(self.repeat_ids is None or (len(self.repeat_ids) >= 1 and all(is_int(i) and i >= 0 for i in self.repeat_ids)),
              "repeat_ids", f"must be None or a non-empty tuple of integers >= 0, got {self.repeat_ids!r}")
         need(self.protocol in _splits.PROTOCOLS, "protocol",
@@ -221,6 +232,19 @@ class StudyConfig:
         else:
             need(is_int(self.max_evals) and self.max_evals >= 1, "max_evals",
                  f"must be an integer >= 1, got {self.max_evals!r}")
+
+    def search_workers(self, n_rows: int) -> int:
+        """Processes the search runs in for a survey of ``n_rows`` rows (:func:`icgo.parallel.plan_workers`).
+
+        One unless the random protocol with an optimizer: then ``workers``, or for None one per
+        available core when the search is large enough to pay for starting them.
+        """
+        from icgo import parallel
+
+        if self.optimizer is None or self.protocol != "random":
+            return 1
+        n_train = int(round(self.train_fraction * n_rows))
+        return parallel.plan_workers(self.workers, len(self.ids()), parallel.search_work(self, n_train))
 
     def ids(self) -> tuple:
         """The repeat ids this config runs."""
@@ -607,7 +631,17 @@ def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None)
     tuning = None
     if cfg.tune:
         cfg, tuning = _tune(cfg, prep, rows_per_fit(cfg, mem))
-    thetas, curve, evals = _search(cfg, prep, wrap_fitness)
+    n_workers = 1 if wrap_fitness is not None and cfg.workers is None else cfg.search_workers(len(frame))
+    if n_workers > 1:
+        if wrap_fitness is not None:
+            raise ValueError(f"study: workers={cfg.workers} runs the search in other processes, which a fitness "
+                             "wrapper (progress bar) cannot follow; use workers=1 (or null) with it")
+        from icgo import parallel
+
+        thetas, curve, evals = parallel.search_in_workers(rows, G, B, a_true, cfg, base_key, reference, n_source,
+                                                          n_workers)
+    else:
+        thetas, curve, evals = _search(cfg, prep, wrap_fitness)
     check_search(np.asarray(curve), cfg.method_names(), [f"{r}" if cfg.protocol not in _splits.FOLD_PROTOCOLS
                                                           else f"{r}, {mem.fold_label[f]}"
                                                           for r, f in zip(mem.repeat, mem.fold)])
