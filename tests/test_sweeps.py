@@ -16,8 +16,7 @@ import time
 from pathlib import Path
 
 import pytest
-from hydra_plugins.icgo_launcher._core import resolve_workers
-from icgo.parallel import xla_flags
+from hydra_plugins.icgo_launcher._core import resolve_workers, xla_flags
 
 ROOT = Path(__file__).resolve().parents[1]
 APP = ROOT / "tests" / "sweep_app" / "app.py"
@@ -125,6 +124,10 @@ def test_xla_flags_replace_only_the_thread_flags():
     assert xla_flags(1, "--a=1 --xla_cpu_multi_thread_eigen=true intra_op_parallelism_threads=8") == \
         "--a=1 --xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
     assert xla_flags(2, "") == "--xla_cpu_multi_thread_eigen=true intra_op_parallelism_threads=2"
+    from icgo import parallel  # the study's workers apply the same rule (the launcher keeps a JAX-free copy)
+
+    for threads, inherited in ((None, "--a=1"), (1, "--a=1 intra_op_parallelism_threads=8"), (2, "")):
+        assert parallel.xla_flags(threads, inherited) == xla_flags(threads, inherited)
 
 
 def test_the_study_app_defaults_to_the_icgo_local_launcher():

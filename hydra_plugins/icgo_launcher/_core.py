@@ -37,12 +37,26 @@ from hydra.core.singleton import Singleton
 from hydra.core.utils import JobReturn, JobStatus, configure_log, filter_overrides, run_job, setup_globals
 from omegaconf import OmegaConf, open_dict
 
-from icgo.parallel import xla_flags
-
 log = logging.getLogger(__name__)
 
 EXIT_CONFIG = 2
 EXIT_INTERRUPTED = 130
+
+
+def xla_flags(threads: int | None, inherited: str = "") -> str:
+    """``XLA_FLAGS`` for a job on ``threads`` CPU threads (None: ``inherited`` unchanged).
+
+    The same rule as :func:`icgo.parallel.xla_flags`, kept here so that the launcher's own
+    process and its jobs' processes import nothing of icgo (hence no JAX) before a job runs
+    (tested equal to it).
+    """
+    if threads is None:
+        return inherited
+    ours = (f"--xla_cpu_multi_thread_eigen={'false' if threads == 1 else 'true'} "
+            f"intra_op_parallelism_threads={threads}")
+    kept = " ".join(f for f in inherited.split()
+                    if not f.startswith(("--xla_cpu_multi_thread_eigen", "intra_op_parallelism_threads")))
+    return f"{kept} {ours}".strip()
 
 
 def resolve_workers(workers: Any, n_jobs: int, cpus: int) -> int:
@@ -198,7 +212,10 @@ def launch(launcher, job_overrides: Sequence[Sequence[str]], initial_job_idx: in
         for job in running.values():
             job["proc"].terminate()
         for job in running.values():
-            job["proc"].join()
+            job["proc"].join(timeout=10)
+            if job["proc"].is_alive():  # a job that does not stop on SIGTERM
+                job["proc"].kill()
+                job["proc"].join()
             _mark_dead(job["dir"], job["proc"].exitcode if job["proc"].exitcode is not None else -signal.SIGTERM)
         from experiments import _sweep
 
