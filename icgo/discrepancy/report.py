@@ -37,6 +37,8 @@ def step_notes(s: Step) -> list[str]:
     notes = [f"given the model: {degeneracy_sentence(d)} (s = {d.s:.1e})" for d in s.degeneracies]
     notes += [f"{degeneracy_sentence(d)} (canonical correlation {d.canonical_correlation:.4f})"
               for d in s.equivalences]
+    notes += [f"component not identifiable with these attitudes: {degeneracy_sentence(d)} of an effect not named "
+              f"(canonical correlation {d.canonical_correlation:.4f}); the named value may hold it" for d in s.aliases]
     return notes
 
 

@@ -101,6 +101,9 @@ class Step(NamedTuple):
         equivalences: for each equivalent candidate, the directions it mimics
             (s < ``equivalence_threshold``).
         candidates: every candidate of the step, best first.
+        aliases: components of the effect that a component of a vocabulary effect the search
+            did not name can mimic with these attitudes (:func:`component_aliases`): the effect
+            may win as a whole while those components stay ambiguous.
     """
 
     name: str
@@ -119,6 +122,7 @@ class Step(NamedTuple):
     degeneracies: tuple
     equivalences: tuple
     candidates: tuple
+    aliases: tuple = ()
 
     @property
     def separable(self) -> bool:
@@ -237,8 +241,15 @@ def _gap_of(ctx: SearchContext, ev: Evaluation, m: int) -> Gap:
     return gap(ev.r_held[m], az_err, ctx.valid, ctx.az_ok, np.asarray(ctx.data.sig), ctx.floor)
 
 
-def _evaluated(ctx: SearchContext, model: tuple, theta, steps: tuple, gaps: tuple, before) -> SearchState:
-    """Evaluate the current model and every candidate from ``theta``; score and rank the candidates."""
+def _evaluated(ctx: SearchContext, model: tuple, theta, steps: tuple, gaps: tuple, before,
+               own: Evaluation | None = None) -> SearchState:
+    """Evaluate the current model and every candidate from ``theta``; score and rank the candidates.
+
+    ``own``: the current model's evaluation when it was a candidate of the step before (one row of
+    each field, the model axis dropped). It replaces the model's refit here, so that one model has one
+    score: the fixed-budget fold fits, started from another point, need not land on the same minimum
+    (on a real device the same model scored 8528 as a candidate and 2134 refitted).
+    """
     cfg, layout, valid = ctx.config, ctx.layout, ctx.valid
     # a fixed number of models (current + every candidate) so that shapes, hence the
     # compiled function, stay the same across steps; effects already in the model are
@@ -248,6 +259,8 @@ def _evaluated(ctx: SearchContext, model: tuple, theta, steps: tuple, gaps: tupl
     ev = evaluate_models(jnp.asarray(theta), jnp.asarray(masks), jnp.asarray(ctx.train), jnp.asarray(ctx.test),
                          jnp.asarray(ctx.valid_w), jnp.asarray(ctx.group_free), ctx.data, layout, cfg.n_iter)
     ev = Evaluation(*(np.asarray(x) for x in ev))
+    if own is not None:
+        ev = Evaluation(*(np.concatenate([np.asarray(o)[None], x[1:]]) for o, x in zip(own, ev)))
     g0 = _gap_of(ctx, ev, 0)
     if before is None:
         before = compare(ctx.stations, predict(jnp.asarray(ev.theta_full[0]), ctx.data, layout), valid)
@@ -331,6 +344,8 @@ def step(state: SearchState) -> SearchState:
         ctx2[layout.slice(e)] = True
         equivalences += [d for d in identifiability(J, layout, best.name, ctx2, cfg.equivalence_threshold)
                          if e in d.sources]
+    aliases = component_aliases(J, layout, best.name, context, state.model + equivalent, ctx.names,
+                                cfg.separability_threshold, degeneracies)
     sl = layout.slice(best.name)
     se = standard_errors(J, state.masks[best.index], ev.cost_full[best.index], ctx.n_res)[sl] * layout.scales()[sl]
     gap_after = best.gap
@@ -340,9 +355,40 @@ def step(state: SearchState) -> SearchState:
         heldout_before=float(state.heldout[0]), heldout_after=best.heldout, z_improvement=best.z,
         runner_up=runner.name if runner else None, margin_z=margin_z, delta_bic=dbic,
         equivalent=equivalent, degeneracies=degeneracies, equivalences=tuple(equivalences),
-        candidates=state.candidates)
+        candidates=state.candidates, aliases=aliases)
+    own = Evaluation(*(np.asarray(x)[best.index] for x in ev))
     return _evaluated(ctx, state.model + (best.name,), ev.theta_full[best.index], state.steps + (new,),
-                      state.gaps + (gap_after,), state.before)
+                      state.gaps + (gap_after,), state.before, own)
+
+
+def component_aliases(J, layout, effect: str, context, exclude, names, threshold, known=()) -> tuple:
+    """Components of ``effect`` that a component of an effect *not* named can mimic, for this station design.
+
+    The effect as a whole may win clearly while one of its components (e.g. ``hard_iron[z]`` when the
+    tool only rotates in place) is indistinguishable from a component of another vocabulary effect
+    that the search did not name (``mag_scale[z]``): the named value then holds that other component
+    too. For each vocabulary effect outside the model (and not ``exclude``d: the model and the
+    candidates already reported as equivalent), the effect's directions that the context plus that
+    effect can mimic (s < ``threshold``) and the context alone cannot (not in ``known``).
+
+    Args:
+        J: the noise-weighted Jacobian (all columns) or its triangular factor. layout: the model layout.
+        effect: the named effect. context: (P,) bool free parameters of the model and nuisances.
+        exclude: effect names not to test. names: the vocabulary searched. threshold: s limit.
+        known: the effect's degeneracies against the context alone (:func:`identifiability`).
+    Returns:
+        tuple of :class:`~icgo.discrepancy.identifiability.Degeneracy` whose ``sources`` name the unnamed effect.
+    """
+    seen = {d.direction for d in known}
+    out = []
+    for e in names:
+        if e == effect or e in exclude:
+            continue
+        ctx2 = np.asarray(context, bool).copy()
+        ctx2[layout.slice(e)] = True
+        out += [d for d in identifiability(J, layout, effect, ctx2, threshold)
+                if e in d.sources and d.chi2_typical is None and d.direction not in seen]
+    return tuple(out)
 
 
 def finish(state: SearchState, seconds: float = float("nan")) -> Result:
