@@ -37,26 +37,12 @@ from hydra.core.singleton import Singleton
 from hydra.core.utils import JobReturn, JobStatus, configure_log, filter_overrides, run_job, setup_globals
 from omegaconf import OmegaConf, open_dict
 
+from icgo.parallel import xla_flags
+
 log = logging.getLogger(__name__)
 
 EXIT_CONFIG = 2
 EXIT_INTERRUPTED = 130
-
-
-def xla_flags(threads: int | None, inherited: str = "") -> str:
-    """``XLA_FLAGS`` for a job on ``threads`` CPU threads (None: ``inherited`` unchanged).
-
-    The same rule as :func:`icgo.parallel.xla_flags`, kept here so that the launcher's own
-    process and its jobs' processes import nothing of icgo (hence no JAX) before a job runs
-    (tested equal to it).
-    """
-    if threads is None:
-        return inherited
-    ours = (f"--xla_cpu_multi_thread_eigen={'false' if threads == 1 else 'true'} "
-            f"intra_op_parallelism_threads={threads}")
-    kept = " ".join(f for f in inherited.split()
-                    if not f.startswith(("--xla_cpu_multi_thread_eigen", "intra_op_parallelism_threads")))
-    return f"{kept} {ours}".strip()
 
 
 def resolve_workers(workers: Any, n_jobs: int, cpus: int) -> int:
@@ -77,7 +63,7 @@ def _check_threads(threads: Any) -> None:
 def _child(payload: bytes, conn, threads: int | None, core: int | None) -> None:
     """Entry point of a job's process: run one Hydra job and send back its JobReturn."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the launcher decides what Ctrl-C stops
-    os.environ["XLA_FLAGS"] = xla_flags(threads, os.environ.get("XLA_FLAGS", ""))  # before JAX is imported
+    os.environ["XLA_FLAGS"] = xla_flags(threads, os.environ.get("XLA_FLAGS", ""))  # before JAX starts its backend
     if core is not None:
         try:
             os.sched_setaffinity(0, {core})
