@@ -24,7 +24,7 @@ test-all: $(STAMP)
 	$(BIN)/python -m pytest -q -n 2 -m ''
 
 test-slurm: $(STAMP)
-	ICGO_REQUIRE_SLURM=1 $(BIN)/python -m pytest -q -m slurm tests/test_slurm.py
+	$(BIN)/python -m pytest -q -m slurm tests/test_slurm.py
 
 figures: $(STAMP)
 	$(BIN)/python -m experiments.figures

@@ -624,12 +624,12 @@ def main(argv=None) -> dict:
     table += [f"| {w} | {v:.4g} | {u} | {nt} |" for w, v, u, nt in rows]
     md = "\n".join(table)
     line = json.dumps(out, default=float)
-    if a.out:
+    if a.out:  # both files or neither
+        from icgo.io import atomic_write_texts
+
         os.makedirs("results", exist_ok=True)
-        with open(f"results/bench_{a.out}.md", "w") as fh:
-            fh.write(md + "\n")
-        with open(f"results/bench_{a.out}.json", "w") as fh:
-            fh.write(line + "\n")
+        atomic_write_texts([(Path(f"results/bench_{a.out}.md"), md + "\n"),
+                            (Path(f"results/bench_{a.out}.json"), line + "\n")])
     print(md)
     print(line)
     return out

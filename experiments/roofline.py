@@ -71,6 +71,7 @@ if __name__ == "__main__":  # one XLA thread on one core, set before JAX is impo
 import argparse  # noqa: E402
 import json  # noqa: E402
 import time  # noqa: E402
+from pathlib import Path  # noqa: E402
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
@@ -301,8 +302,9 @@ def main(argv=None) -> dict:
                loadavg_end=list(os.getloadavg()), jax=jax.__version__)
     line = json.dumps(res)
     if a.out:
-        with open(a.out, "w") as fh:
-            fh.write(line + "\n")
+        from icgo.io import atomic_write_texts
+
+        atomic_write_texts([(Path(a.out), line + "\n")])
     print(table(res))
     print(line)
     return res

@@ -358,6 +358,13 @@ def test_noise_and_casing_sweeps_report_every_method_against_the_floor(runs_dir,
     for _, row in t.iterrows():  # the floor is the level's own noise-only draw
         assert row["floor MAE (deg)"] == pytest.approx(noise_floor("lab_casing", 0, noise_scale=row["noise x"]).mae[0])
     assert t["floor MAE (deg)"].is_monotonic_increasing
+    # the physics of each level's raw readings, recomputed from the draw: |G| against gravity, in mg
+    from icgo.datasets import lab_casing
+
+    f = lab_casing(0, noise_scale=2.0).frame
+    g = np.linalg.norm(f[["gx", "gy", "gz"]].to_numpy(), axis=1)
+    assert t.iloc[2]["raw |G| dev RMS (mg)"] == pytest.approx(1e3 * np.sqrt(np.mean((g - 1.0) ** 2)), abs=1e-3)
+    assert t["raw |G| dev RMS (mg)"].is_monotonic_increasing
     assert [o.split(" < ")[0] for o in t["order by MAE"]] == ["PSO-RELM", "PSO-RELM", "ICGO wavelet"]
     tau = t.set_index("noise x")["Kendall tau vs default order"]
     assert tau[1.0] == 1.0 and tau[2.0] < 1.0
@@ -368,6 +375,7 @@ def test_noise_and_casing_sweeps_report_every_method_against_the_floor(runs_dir,
     c = pd.read_csv(out / "sweep_casing.csv")
     assert set(c["sweep"]) == {"sweep_casing"} and list(c["casing distance (m)"]) == [0.5, 1.0]
     near, far = (float(x.split()[0]) for x in c["casing field at sensor (nT)"])
+    assert c["raw |B| dev RMS (nT)"].iloc[0] != c["raw |B| dev RMS (nT)"].iloc[1]
     assert near > 1.2 * far  # poles 1.5 m along the casing: 1.58 m away at 0.5 m against 1.80 m at 1 m
     assert (out / "sweep_noise.png").stat().st_size > 0 and "Noise floor" in (out / "sweep_noise.md").read_text()
 
