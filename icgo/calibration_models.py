@@ -31,6 +31,7 @@ import numpy as np
 import pandas as pd
 
 from icgo import calibration as cal
+from icgo import mag_relm
 from icgo.frames import azimuth_from_gv, inclination_from_g, toolface_from_g
 from icgo.models import CORRECTED_B, FittedModel, ModelError, data_hash, frame_values, register_model, sensor_domain
 
@@ -63,6 +64,8 @@ class MagCalibration(FittedModel):
         alignment: (3, 3) rotation Q or None.
         nl_hidden, nl_out: the non-linear residual correction (:mod:`icgo.mag_relm`), applied after
             the alignment: (4, L) hidden and (L, 3) output weights, or None (a linear calibration).
+        nl_activation: the correction's hidden activation (:data:`icgo.mag_relm.ACTIVATIONS`); None with a
+            correction means ``tanh``, the only one files of the first build used.
     """
 
     KIND = "mag_calibration"
@@ -77,6 +80,7 @@ class MagCalibration(FittedModel):
     alignment: np.ndarray | None = None
     nl_hidden: np.ndarray | None = None
     nl_out: np.ndarray | None = None
+    nl_activation: str | None = None
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -98,6 +102,9 @@ class MagCalibration(FittedModel):
                                                                                   and np.all(np.isfinite(o))):
                 raise ModelError(f"mag_calibration: nl_hidden (4, L) and nl_out (L, 3) must be finite, got "
                                  f"{h.shape} and {o.shape}")
+        if self.nl_activation is not None and (self.nl_hidden is None or self.nl_activation not in mag_relm.ACTIVATIONS):
+            raise ModelError(f"mag_calibration: nl_activation must be one of {mag_relm.ACTIVATIONS} and comes with nl_hidden, "
+                             f"got {self.nl_activation!r}")
 
     def corrected_field(self, B) -> np.ndarray:
         """Corrected field in fit units (before alignment): eq. (4), (N, 3) -> (N, 3)."""
@@ -117,9 +124,7 @@ class MagCalibration(FittedModel):
             Bc = Bc @ Q.T
             Gc = None if Gc is None else Gc @ Q.T
         if self.nl_hidden is not None:
-            from icgo.mag_relm import apply as relm_apply
-
-            Bc = relm_apply(self.nl_hidden, self.nl_out, Bc)
+            Bc = mag_relm.apply(self.nl_hidden, self.nl_out, Bc, self.nl_activation or "tanh")
         return Gc, Bc
 
     def apply(self, frame: pd.DataFrame) -> pd.DataFrame:

@@ -196,8 +196,9 @@ def fit_recording(G, B, groups, config: CalibrationConfig, key, header: dict) ->
     Gc_lin, Bc_lin = lin.corrected(G, B)
     nl = mag_relm.fit(Gc_lin, Bc_lin, groups)
     out["twelve+axis+relm"] = dataclasses.replace(
-        lin, method="twelve_relm", nl_hidden=nl.hidden, nl_out=nl.out,
-        config={**lin.config, "relm_lambda": nl.lam, "relm_hidden": int(nl.hidden.shape[1])})
+        lin, method="twelve_relm", nl_hidden=nl.hidden, nl_out=nl.out, nl_activation=nl.activation,
+        config={**lin.config, "relm_lambda_deg2": nl.lam, "relm_hidden": int(nl.hidden.shape[1]),
+                "relm_cv_deg2": nl.cv.tolist()})
     return out
 
 
