@@ -102,9 +102,10 @@ class MagCalibration(FittedModel):
                                                                                   and np.all(np.isfinite(o))):
                 raise ModelError(f"mag_calibration: nl_hidden (4, L) and nl_out (L, 3) must be finite, got "
                                  f"{h.shape} and {o.shape}")
-        if self.nl_activation is not None and (self.nl_hidden is None or self.nl_activation not in mag_relm.ACTIVATIONS):
-            raise ModelError(f"mag_calibration: nl_activation must be one of {mag_relm.ACTIVATIONS} and comes with nl_hidden, "
-                             f"got {self.nl_activation!r}")
+        act = self.nl_activation
+        if act is not None and (self.nl_hidden is None or act not in mag_relm.ACTIVATIONS):
+            raise ModelError(f"mag_calibration: nl_activation must be one of {mag_relm.ACTIVATIONS} and comes with "
+                             f"nl_hidden, got {act!r}")
 
     def corrected_field(self, B) -> np.ndarray:
         """Corrected field in fit units (before alignment): eq. (4), (N, 3) -> (N, 3)."""
