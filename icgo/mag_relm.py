@@ -42,14 +42,14 @@ unregularized (0.30 deg); ``docs/calibrate.md`` has the measurements.
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import partial
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from icgo.calibration import MIN_ROLLED_SHOTS, _pointing_jnp
+from icgo.calibration import MIN_ROLLED_SHOTS, _pointing_jnp, normalized_dot
 from icgo.lsq import least_squares_fixed
 
 #: Candidate ridge parameters, deg^2 per unit weight^2 (leave-one-group-out picks one). The largest leaves
@@ -126,8 +126,7 @@ def residuals(W, H, G, b, member, fit_w):
     count = member.sum(1, keepdims=True)
     mean = (member @ d) / jnp.maximum(count, 1.0)
     dev = (d - member.T @ mean) * member.sum(0)[:, None]  # 0 for single shots (in no rolled group)
-    s = jnp.sum(G * bn, 1) / (jnp.linalg.norm(G, axis=1) * jnp.linalg.norm(bn, axis=1))
-    dip = jnp.arcsin(jnp.clip(s, -1.0, 1.0))
+    dip = jnp.arcsin(jnp.clip(normalized_dot(G, bn), -1.0, 1.0))
     mod = jnp.linalg.norm(bn, axis=1)
     nw = jnp.sum(fit_w)
     dip_dev = dip - jnp.sum(fit_w * dip) / nw
@@ -135,7 +134,7 @@ def residuals(W, H, G, b, member, fit_w):
     return jnp.degrees(jnp.concatenate([dev, dip_dev[:, None], mod_dev[:, None]], 1))
 
 
-def _fit_one(lam, fit_w, H, G, b, member):
+def _fit_one(lam, fit_w, H, G, b, member, n_steps):
     """W (L, 3) minimising the fit shots' squared residuals + lam |W|^2, and the left-out shots' sum of squares."""
     L = H.shape[1]
 
@@ -143,16 +142,17 @@ def _fit_one(lam, fit_w, H, G, b, member):
         r = residuals(x.reshape(L, 3), H, G, b, member, fit_w) * fit_w[:, None]
         return jnp.concatenate([r.ravel(), jnp.sqrt(lam) * x])
 
-    x = least_squares_fixed(res, jnp.zeros(3 * L, b.dtype), n_steps=N_STEPS).x
+    x = least_squares_fixed(res, jnp.zeros(3 * L, b.dtype), n_steps=n_steps).x
     held = residuals(x.reshape(L, 3), H, G, b, member, fit_w) * (1.0 - fit_w)[:, None]
     return x.reshape(L, 3), jnp.sum(held ** 2)
 
 
-@lru_cache(maxsize=None)
-def _batched(n_steps: int):
-    del n_steps  # the cache key: N_STEPS is read at trace time
-    over_folds = jax.vmap(_fit_one, in_axes=(None, 0, None, None, None, None))
-    return jax.jit(jax.vmap(over_folds, in_axes=(0, None, None, None, None, None)))
+@partial(jax.jit, static_argnames="n_steps")
+def _fit_batch(lambdas, fit_w, H, G, b, member, n_steps):
+    """:func:`_fit_one` for every ridge (lambdas (R,)) x fold (fit_w (F, N)): W (R, F, L, 3), held (R, F)."""
+    one = partial(_fit_one, n_steps=n_steps)
+    over_folds = jax.vmap(one, in_axes=(None, 0, None, None, None, None))
+    return jax.vmap(over_folds, in_axes=(0, None, None, None, None, None))(lambdas, fit_w, H, G, b, member)
 
 
 def fit(G, b, groups, hidden=None, lambdas=LAMBDAS) -> MagRELM:
@@ -179,7 +179,7 @@ def fit(G, b, groups, hidden=None, lambdas=LAMBDAS) -> MagRELM:
     member = jnp.asarray(np.array([(groups == g) for g in rolled], np.float64).reshape(len(rolled), len(groups)))
     # fold 0 fits every shot (the final model); fold k >= 1 leaves group ids[k-1] out
     fit_w = jnp.asarray(np.array([np.ones(len(groups))] + [(groups != g) for g in ids], np.float64))
-    W, held = _batched(N_STEPS)(jnp.asarray(lambdas, jnp.float64), fit_w, H, G, b, member)
+    W, held = _fit_batch(jnp.asarray(lambdas, jnp.float64), fit_w, H, G, b, member, n_steps=N_STEPS)
     cv = np.asarray(held[:, 1:].sum(1)) / len(groups)
     if not np.all(np.isfinite(cv)):
         raise ValueError("mag_relm.fit: a leave-one-group-out fit is not finite (shots with gravity along the field?)")
