@@ -13,7 +13,7 @@ directory:
 * ``not run``: no directory.
 
 The report is printed (stderr) and written to ``sweep_report.json`` in the
-sweep directory (atomically). Like :mod:`experiments._common`, nothing here
+sweep directory (atomically). Like :mod:`experiments._entry`, nothing here
 imports JAX.
 """
 
@@ -23,7 +23,9 @@ import json
 import os
 import sys
 from pathlib import Path
+from typing import Any
 
+from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
 REPORT_FILE = "sweep_report.json"
@@ -43,7 +45,7 @@ def job_overrides(config: DictConfig) -> list[list[str]]:
 
 def job_status(job_dir: Path) -> tuple[str, str]:
     """(status, reason) of one job's directory; see the module docstring."""
-    from experiments import _common as C
+    from experiments import _entry as C
 
     if not job_dir.is_dir():
         return "not run", ""
@@ -77,8 +79,10 @@ def _subdir(config: DictConfig, overrides, num: int) -> str:
     return str(OmegaConf.select(c, "hydra.sweep.subdir"))
 
 
-def report(config: DictConfig, file=sys.stderr) -> list[dict]:
-    """Print the report, write ``sweep_report.json``; return the jobs (see :func:`statuses`)."""
+def report(config: DictConfig, file=None) -> list[dict]:
+    """Print the report (to ``file``, default the current ``sys.stderr``), write ``sweep_report.json``; return the jobs
+    (see :func:`statuses`)."""
+    file = sys.stderr if file is None else file
     sweep = Path(str(config.hydra.sweep.dir))
     jobs = statuses(config)
     counts = {s: sum(j["status"] == s for j in jobs) for s in STATUSES}
@@ -92,3 +96,16 @@ def report(config: DictConfig, file=sys.stderr) -> list[dict]:
         tmp.write_text(json.dumps({"sweep_dir": str(sweep), "counts": counts, "jobs": jobs}, indent=1) + "\n")
         os.replace(tmp, sweep / REPORT_FILE)
     return jobs
+
+
+class FailureReport(Callback):
+    """Hydra callback: after a multirun, report every job's status (:mod:`experiments._sweep`);
+    exit with status 1 unless every job is ok."""
+
+    def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
+        jobs = report(config)
+        bad = [j for j in jobs if j["status"] != "ok"]
+        if bad:
+            print(f"{len(bad)} of {len(jobs)} job(s) did not finish; the others' results are in "
+                  f"{config.hydra.sweep.dir} (re-running the sweep into it resumes it)", file=sys.stderr)
+            raise SystemExit(1)

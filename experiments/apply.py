@@ -1,9 +1,9 @@
 """Apply a fitted model to a new survey: ``python -m experiments.apply model=<run dir or model> data=<survey.csv>``.
 
-Loads any saved model (:func:`icgo.models.load_model`; a run directory of
+Loads any saved model (:func:`icgo.models.registry.load_model`; a run directory of
 ``experiments.run`` gives its main model, ``relm_compensation``), reads the
-survey (:func:`icgo.io.read_recording`), corrects it with
-:func:`icgo.survey.correct_survey` and writes ``<survey>_corrected.csv`` and
+survey (:func:`icgo.io.recording.read_recording`), corrects it with
+:func:`icgo.survey.apply.correct_survey` and writes ``<survey>_corrected.csv`` and
 ``<survey>_corrected.meta.json`` (the model, the QC counts before/after, the
 metrics where the survey has a reference azimuth, the notices) into the run
 directory (``outputs/apply/<date>/<time>/`` or ``out=``). Prints the MAE (or
@@ -20,14 +20,14 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from experiments._common import CONF_DIR, EXIT_CONFIG, one_line
+from experiments._entry import CONF_DIR, EXIT_CONFIG, one_line
 
 KEYS = ("model", "data", "method", "require_meta", "out", "qc")
 
 
 def model_path(path: Path) -> Path:
     """The model file a ``model=`` setting names: a header, or a run directory's main model."""
-    from icgo import records
+    from icgo.reporting import records
 
     if path.is_dir() and (path / records.RUN_FILE).is_file():
         run = records.read_run(path)
@@ -42,11 +42,11 @@ def run_apply(cfg: DictConfig, out_dir: Path) -> dict:
     Raises:
         ValueError (ModelError, DataError, RecordError, SettingError): one line.
     """
-    from icgo.io import atomic_write_texts, read_recording
-    from icgo.models import load_model
-    from icgo.qc import QCBands
-    from icgo.studies import config_from_mapping
-    from icgo.survey import correct_survey
+    from icgo.core.settings import config_from_mapping
+    from icgo.io.recording import atomic_write_texts, read_recording
+    from icgo.models.registry import load_model
+    from icgo.physics.qc import QCBands
+    from icgo.survey.apply import correct_survey
 
     unknown = sorted(set(cfg.keys()) - set(KEYS))
     if unknown:
@@ -107,7 +107,7 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
-    from experiments._common import preflight
+    from experiments._entry import preflight
 
     preflight("apply", conf_dir=CONF_DIR / "apply")
     main()

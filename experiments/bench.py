@@ -7,14 +7,14 @@ machine it runs on (CPU here; unchanged with ``JAX_PLATFORMS=cuda``):
   scale (the study's own data, repeat 0: 407 training rows, 6 inputs,
   L = 30) for a batch of 120 (population 30 x 4 seeds) and 1200 (x 10
   repeats), after compilation, for the study's default search kernel
-  (:func:`icgo.relm.train_fitness` with ``fitness_features`` = the feature dtype of
+  (:func:`icgo.methods.relm.train_fitness` with ``fitness_features`` = the feature dtype of
   ``StudyConfig().dtype``); ``library_evals_per_s`` for the row-weighted float64 path
-  ``icgo.relm.fitness``;
+  ``icgo.methods.relm.fitness``;
 * ``fitness_by_features_evals_per_s``: that kernel with float64 features (``dtype=mixed``) and
   with float32 features (``dtype=fast``: pre-activation, sigmoid and matrix-vector products in
   float32, Gram centred in float32, Cholesky and refinement residuals in float64) at the same
   batches, ``f32_features_speedup`` the ratio at batch 1200; ``max_rel_diff_vs_float64`` and
-  ``max_rel_diff_f32_vs_float64`` their largest relative differences from ``icgo.relm.fitness``;
+  ``max_rel_diff_f32_vs_float64`` their largest relative differences from ``icgo.methods.relm.fitness``;
 * ``roofline`` (``--skip-roofline``): :mod:`experiments.roofline` in a child process pinned to
   one core: each stage of the kernel against its own ceiling at its own shape, both feature dtypes;
 * ``flop_fraction``: fast throughput x :func:`flops_per_eval` / the rate of a
@@ -29,7 +29,7 @@ machine it runs on (CPU here; unchanged with ``JAX_PLATFORMS=cuda``):
   table as a five-job sweep on 1 and 2 workers (``front_door``,
   ``sweep_workers_speedup``; the sweep's tables are checked bitwise against the
   one-job run); ``table3_1_worker_s`` the one-job run with its search in one process
-  (``workers=1``; the default splits it over one process per core, :mod:`icgo.parallel`)
+  (``workers=1``; the default splits it over one process per core, :mod:`icgo.studies.workers`)
   and ``study_workers_speedup`` the ratio; ``--skip-front-door``: ``table3_s`` is ``table3_kernel_s``;
 * ``mealpy_table3_s`` and ``speedup_vs_mealpy`` (vs ``table3_s``): the same study with mealpy 3.x
   ``OriginalCGO`` on the same data and the same RELM fitness in numpy
@@ -49,7 +49,7 @@ It prints a Markdown table and, as its last line, one JSON object.
 large contract CSV (:func:`rows_scaling`): a recording of that many rows is
 written (:func:`write_large_recording`), then each command runs in its own
 process and its wall time and peak resident memory (``os.wait4``) are
-printed: the reader (``icgo.io.read_recording``), the ICGO-RELM study
+printed: the reader (``icgo.io.recording.read_recording``), the ICGO-RELM study
 (``experiments.run dataset=csv``, ``--rows-budget`` and ``--rows-repeats``)
 and the discrepancy workflow (``experiments.discrepancy data=FILE``).
 
@@ -61,7 +61,7 @@ rank-one mean term added back in float64, a float64 Cholesky factor of that
 matrix, and ``refine`` steps of iterative refinement with float64 residuals,
 so the result is the float64 ridge solution of its hidden outputs; with float32
 features (the default) those are rounded to float32, within 1e-6 relative of
-``icgo.relm.fitness`` (both checked on the study's own data at every run:
+``icgo.methods.relm.fitness`` (both checked on the study's own data at every run:
 ``max_rel_diff_vs_float64``, ``max_rel_diff_f32_vs_float64``).
 """
 
@@ -75,8 +75,8 @@ import subprocess
 import sys
 import tempfile
 import time
-from pathlib import Path
 from functools import partial
+from pathlib import Path
 from typing import NamedTuple
 
 import jax
@@ -84,11 +84,12 @@ import jax.numpy as jnp
 import numpy as np
 
 import icgo  # noqa: F401  (enables float64)
-from experiments.bench_user import front_door, peer_comparison, run_mealpy_parallel
-from icgo import datasets, relm
-from icgo.studies import icgo_relm as study
+from experiments.bench_user import front_door, measure, peer_comparison
+from icgo.datasets import protocols as datasets
+from icgo.methods import relm
 from icgo.optim import run_batch
 from icgo.optim.cgo import CGO
+from icgo.studies import icgo_relm as study
 
 HIDDEN = 30
 LAM = 1e-3
@@ -169,12 +170,12 @@ def study_data(n_repeats: int, seed: int = 0, dataset_seed: int = 0, tile: int =
     return StudyData(prep.data, rows, int(rows.T.shape[1]), len(a), prep, a)
 
 
-def _slice(tree, i):
+def slice_tree(tree, i):
     return jax.tree_util.tree_map(lambda x: x[i], tree)
 
 
 # ------------------------------------------------------------------------- timing
-def _best_time(f, *args, reps: int = 5) -> float:
+def best_time(f, *args, reps: int = 5) -> float:
     jax.block_until_ready(f(*args))
     best = float("inf")
     for _ in range(reps):
@@ -188,7 +189,7 @@ def matmul_gflops(dtype, n: int = 2048, reps: int = 5) -> float:
     """Rate of a large dense n x n matrix product in ``dtype`` (GFLOP/s, best of reps)."""
     a = jax.random.uniform(jax.random.PRNGKey(0), (n, n), jnp.dtype(dtype))
     f = jax.jit(lambda x: x @ x)
-    return 2 * n**3 / _best_time(f, a, reps=reps) / 1e9
+    return 2 * n**3 / best_time(f, a, reps=reps) / 1e9
 
 
 def population(key, P: int, hidden: int = HIDDEN):
@@ -212,7 +213,7 @@ def run_roofline(batch: int, chunk: int, refine: int, quick: bool) -> dict:
 @partial(jax.jit, static_argnames=("strategies", "pop_size", "iterations", "chunk", "refine"))
 def _study_core(keys, aux: relm.TrainRows, strategies, pop_size, iterations, chunk, refine):
     D = relm.n_params(HIDDEN)
-    res = run_batch(CGO.name, _FAST[(chunk, refine)], (np.full(D, -1.0), np.full(D, 1.0)), keys, pop_size, iterations,
+    res = run_batch(CGO, _FAST[(chunk, refine)], (np.full(D, -1.0), np.full(D, 1.0)), keys, pop_size, iterations,
                     configs=CGO.axis_configs(None, strategies), aux=aux)
     return res.best_x, res.best_f, res.n_evals
 
@@ -239,7 +240,7 @@ def run_fast_study(sd: StudyData, strategies=STRATEGIES, pop_size=30, iterations
     compiled = _study_core.lower(*args).compile()
     thetas = jax.ShapeDtypeStruct((len(strategies), R, relm.n_params(HIDDEN)), jnp.float64)
     a_true = jnp.asarray(sd.a_true)
-    score = study._score_all.lower(thetas, sd.prep, a_true, LAM, HIDDEN).compile()
+    score = study.score_all.lower(thetas, sd.prep, a_true, LAM, HIDDEN).compile()
     t1 = time.perf_counter()
     best_x, best_f, n_evals = compiled(keys, sd.compact)
     scored = score(best_x, sd.prep, a_true, LAM)
@@ -304,9 +305,9 @@ def write_large_recording(path, n_rows: int, seed: int = 0):
     Args:
         path: CSV path (its directory must exist). n_rows: rows (>= 1). seed: noise seed.
     Returns:
-        The written :class:`icgo.io.Recording`.
+        The written :class:`icgo.io.recording.Recording`.
     """
-    from icgo.io import write_recording
+    from icgo.io.recording import write_recording
 
     ds = datasets.lab_casing(0)
     base = ds.frame
@@ -320,44 +321,6 @@ def write_large_recording(path, n_rows: int, seed: int = 0):
                                                       "gravity_g")}
     meta["name"] = f"lab_casing tiled to {n_rows} rows"
     return write_recording(path, frame, meta)
-
-
-#: Runs argv[2:] as its child and writes that child's peak resident memory (kB) to the file argv[1]. The
-#: command must be started by a small process: a child's ru_maxrss includes the memory of the process it
-#: was forked from (Linux carries the pre-exec high-water mark over exec), so forking it straight from a
-#: benchmark that holds a large data set would report that data set as the command's own.
-_SHIM = """import os, sys
-pid = os.fork()
-if pid == 0:
-    os.execvp(sys.argv[2], sys.argv[2:])
-_, status, ru = os.wait4(pid, 0)
-open(sys.argv[1], "w").write(str(ru.ru_maxrss))
-sys.exit(os.waitstatus_to_exitcode(status))
-"""
-
-
-def measure(cmd: list[str], timeout: float | None = None) -> dict:
-    """Run ``cmd`` in a child process: wall time (s), peak resident memory (GB), exit status, output tail.
-
-    Peak memory is the command's own ``ru_maxrss`` (``os.wait4`` in a small launcher process, see
-    :data:`_SHIM`), whatever the size of this process.
-    """
-    with tempfile.TemporaryDirectory() as tmp:
-        log_path, rss_path = Path(tmp) / "log", Path(tmp) / "rss"
-        with open(log_path, "w") as log:
-            t = time.perf_counter()
-            proc = subprocess.Popen([sys.executable, "-c", _SHIM, str(rss_path), *cmd], stdout=log,
-                                    stderr=subprocess.STDOUT, start_new_session=True)
-            try:
-                rc = proc.wait(timeout)
-            except subprocess.TimeoutExpired:  # the launcher and the command are one process group
-                os.killpg(proc.pid, 9)
-                proc.wait()
-                rc = None
-            wall = time.perf_counter() - t
-        rss_kb = float(rss_path.read_text()) if rss_path.exists() else float("nan")
-        tail = log_path.read_text()[-2000:]
-    return {"wall_s": wall, "peak_rss_gb": rss_kb * 1024 / 1e9, "rc": rc, "tail": tail}
 
 
 def rows_scaling(sizes, budget: str = "smoke", repeats: int | None = None, workdir=None,
@@ -381,7 +344,7 @@ def rows_scaling(sizes, budget: str = "smoke", repeats: int | None = None, workd
         if not csv.exists():
             write_large_recording(csv, n)
         cmds = {
-            "reader": [py, "-c", f"import icgo.io; icgo.io.read_recording({str(csv)!r})"],
+            "reader": [py, "-c", f"import icgo.io.recording; icgo.io.recording.read_recording({str(csv)!r})"],
             "study": [py, "-m", "experiments.run", "dataset=csv", f"dataset.path={csv}", f"budget={budget}",
                       "figures=false", "progress=false", "overwrite=true", f"hydra.run.dir={work / f'run_{n}'}"]
             + ([f"split.n_repeats={repeats}"] if repeats else []),
@@ -460,7 +423,7 @@ def main(argv=None) -> dict:
         print(f"  {what}: {value:.4g} {unit} {note}", file=sys.stderr, flush=True)
 
     sd = study_data(n_rep)
-    d0, c0 = _slice(sd.fit, 0), _slice(sd.compact, 0)
+    d0, c0 = slice_tree(sd.fit, 0), slice_tree(sd.compact, 0)
     n = sd.n_train
     fl = flops_per_eval(n)
     out.update(n_rows=sd.n_rows, n_train=n, flops_per_eval=fl)
@@ -469,9 +432,9 @@ def main(argv=None) -> dict:
     diffs = {"float64": [], "float32": []}
     for r in range(n_rep):
         pop = population(jax.random.PRNGKey(100 + r), 120)
-        ref = relm.fitness(pop, _slice(sd.fit, r), LAM, HIDDEN)
+        ref = relm.fitness(pop, slice_tree(sd.fit, r), LAM, HIDDEN)
         for fd, d in diffs.items():
-            got = relm.train_fitness(pop, _slice(sd.compact, r), LAM, HIDDEN, a.chunk, a.refine, feature_dtype=fd)
+            got = relm.train_fitness(pop, slice_tree(sd.compact, r), LAM, HIDDEN, a.chunk, a.refine, feature_dtype=fd)
             d.append(float(jnp.max(jnp.abs(got / ref - 1))))
     out["max_rel_diff_vs_float64"] = max(diffs["float64"])
     out["max_rel_diff_f32_vs_float64"] = max(diffs["float32"])
@@ -497,11 +460,11 @@ def main(argv=None) -> dict:
     for P in (120, 1200):
         pop = population(jax.random.PRNGKey(P), P)
         for fd, k in kernels.items():
-            out["fitness_by_features_evals_per_s"][fd][str(P)] = P / _best_time(k, pop, c0, reps=reps)
+            out["fitness_by_features_evals_per_s"][fd][str(P)] = P / best_time(k, pop, c0, reps=reps)
             row(f"train-mode kernel, {fd} features, batch {P}", out["fitness_by_features_evals_per_s"][fd][str(P)],
                 "evals/s", "(the study's default)" if fd == FEATURES else "")
         rate = out["fitness_evals_per_s"][str(P)] = out["fitness_by_features_evals_per_s"][FEATURES][str(P)]
-        out["library_evals_per_s"][str(P)] = P / _best_time(lib, pop, d0, reps=1 if (quick or P > 120) else 3)
+        out["library_evals_per_s"][str(P)] = P / best_time(lib, pop, d0, reps=1 if (quick or P > 120) else 3)
         out["flop_fraction_by_batch"][str(P)] = rate * fl / (g32 * 1e9)
         row(f"library relm.fitness (float64), batch {P}", out["library_evals_per_s"][str(P)], "evals/s")
     by = out["fitness_by_features_evals_per_s"]
@@ -577,7 +540,7 @@ def main(argv=None) -> dict:
         if not a.skip_front_door:
             out["speedup_vs_mealpy_cold"] = out["mealpy_table3_s"] / out["table3_cold_s"]
             row("speedup vs mealpy, front door with a cold cache", out["speedup_vs_mealpy_cold"], "x")
-        mp = run_mealpy_parallel(sd, mealpy_runs, 30, iters, workers=2)
+        mp = run_mealpy(sd, mealpy_runs, 30, iters, mode="process", n_workers=2)
         out["mealpy_parallel_table3_s"] = mp["per_run_s"] * n_all
         out["speedup_vs_mealpy_parallel"] = out["mealpy_parallel_table3_s"] / out["table3_s"]
         row("mealpy OriginalCGO, its parallel mode (process, 2 workers), same study", out["mealpy_parallel_table3_s"],
@@ -613,7 +576,7 @@ def main(argv=None) -> dict:
             sdt = study_data(1, tile=tile)
             P = 120
             pop = population(jax.random.PRNGKey(3), P)
-            tt = _best_time(kernels[FEATURES], pop, _slice(sdt.compact, 0), reps=2 if tile > 1 else reps)
+            tt = best_time(kernels[FEATURES], pop, slice_tree(sdt.compact, 0), reps=2 if tile > 1 else reps)
             out["scaling_rows_batch120_s"][str(sdt.n_rows)] = tt
             row(f"fast fitness batch 120, {sdt.n_rows} data rows ({sdt.n_train} training)", tt, "s")
 
@@ -625,7 +588,7 @@ def main(argv=None) -> dict:
     md = "\n".join(table)
     line = json.dumps(out, default=float)
     if a.out:  # both files or neither
-        from icgo.io import atomic_write_texts
+        from icgo.io.recording import atomic_write_texts
 
         os.makedirs("results", exist_ok=True)
         atomic_write_texts([(Path(f"results/bench_{a.out}.md"), md + "\n"),

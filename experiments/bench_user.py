@@ -1,15 +1,14 @@
-"""The benchmark of what a user runs (issue 20 item 3), used by :mod:`experiments.bench`.
+"""The benchmark of what a user runs, used by :mod:`experiments.bench`.
 
 * :func:`front_door`: ``python -m experiments.run experiment=table3`` end to end in a
   fresh process, with an empty (cold) and then a filled (warm) compilation cache; and
   Table 3 as a five-job sweep (one strategy per job) through the default launcher on
   1 and on 2 workers.
-* :func:`run_mealpy_parallel`: mealpy's own parallel mode (``mode="process"``,
-  ``n_workers``) on the same study as :func:`experiments.bench.run_mealpy`.
+* :func:`measure`: any command in a child process, its wall time and peak memory.
 * :func:`peer_comparison`: a JAX peer on the same fitness, evosax's PSO and
   differential evolution beside icgo's PSO.
 
-Peer comparison: every search runs on the study's fast RELM fitness (:func:`icgo.relm.train_fitness`,
+Peer comparison: every search runs on the study's fast RELM fitness (:func:`icgo.methods.relm.train_fitness`,
 Table 3's training rows, one repeat's rows per search), with the same population,
 the same number of fitness evaluations (``pop_size * (iterations + 1)``: one
 evaluated initial population, then one per iteration), jitted as one
@@ -23,6 +22,8 @@ as icgo's PSO clips its particles. Wall time is the best of ``reps`` runs.
 
 from __future__ import annotations
 
+import os
+import subprocess
 import sys
 import tempfile
 import time
@@ -33,8 +34,46 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from icgo import relm
+from icgo.methods import relm
 from icgo.optim import run_batch
+from icgo.optim.registry import get
+
+#: Runs argv[2:] as its child and writes that child's peak resident memory (kB) to the file argv[1]. The
+#: command must be started by a small process: a child's ru_maxrss includes the memory of the process it
+#: was forked from (Linux carries the pre-exec high-water mark over exec), so forking it straight from a
+#: benchmark that holds a large data set would report that data set as the command's own.
+_SHIM = """import os, sys
+pid = os.fork()
+if pid == 0:
+    os.execvp(sys.argv[2], sys.argv[2:])
+_, status, ru = os.wait4(pid, 0)
+open(sys.argv[1], "w").write(str(ru.ru_maxrss))
+sys.exit(os.waitstatus_to_exitcode(status))
+"""
+
+
+def measure(cmd: list[str], timeout: float | None = None) -> dict:
+    """Run ``cmd`` in a child process: wall time (s), peak resident memory (GB), exit status, output tail.
+
+    Peak memory is the command's own ``ru_maxrss`` (``os.wait4`` in a small launcher process, see
+    :data:`_SHIM`), whatever the size of this process.
+    """
+    with tempfile.TemporaryDirectory() as tmp:
+        log_path, rss_path = Path(tmp) / "log", Path(tmp) / "rss"
+        with open(log_path, "w") as log:
+            t = time.perf_counter()
+            proc = subprocess.Popen([sys.executable, "-c", _SHIM, str(rss_path), *cmd], stdout=log,
+                                    stderr=subprocess.STDOUT, start_new_session=True)
+            try:
+                rc = proc.wait(timeout)
+            except subprocess.TimeoutExpired:  # the launcher and the command are one process group
+                os.killpg(proc.pid, 9)
+                proc.wait()
+                rc = None
+            wall = time.perf_counter() - t
+        rss_kb = float(rss_path.read_text()) if rss_path.exists() else float("nan")
+        tail = log_path.read_text()[-2000:]
+    return {"wall_s": wall, "peak_rss_gb": rss_kb * 1024 / 1e9, "rc": rc, "tail": tail}
 
 
 #: Table 3's strategies, one sweep job each (the five of ``strategy=all``).
@@ -59,8 +98,6 @@ def front_door(workdir=None, extra=()) -> dict:
         and ``max_abs_diff``: per other run, the largest difference of its CGO metrics (test and train
         MAE, RMSE, R^2 as written) from ``warm``'s; 0 = bitwise.
     """
-    from experiments.bench import measure
-
     work = Path(workdir or tempfile.mkdtemp(prefix="icgo-frontdoor-"))
     base = [sys.executable, "-m", "experiments.run", "experiment=table3", "figures=false", "progress=false",
             f"jax_cache_dir={work / 'cache'}", *extra]
@@ -96,14 +133,6 @@ def _table_diff(single: Path, other: Path) -> float:
         return float("inf")
     cols = ["mae", "rmse", "r2", "r2_error"]
     return float((got[cols] - ref[cols]).abs().to_numpy().max())
-
-
-def run_mealpy_parallel(sd, n_runs: int, pop_size: int = 30, iterations: int = 100, workers: int = 2) -> dict:
-    """:func:`experiments.bench.run_mealpy` in mealpy's own parallel mode (each population's fitness on ``workers``
-    processes, ``mode="process"``)."""
-    from experiments.bench import run_mealpy
-
-    return run_mealpy(sd, n_runs, pop_size, iterations, mode="process", n_workers=workers)
 
 
 def _clock(f, *args, reps: int) -> tuple[float, object]:
@@ -165,7 +194,7 @@ def peer_comparison(rows: relm.TrainRows, lam: float, hidden: int, pop_size: int
 
     @partial(jax.jit)
     def icgo_pso(keys, rows):
-        return run_batch("pso", fitness, (lb, ub), keys, pop_size, iterations, aux=rows).best_f
+        return run_batch(get("pso"), fitness, (lb, ub), keys, pop_size, iterations, aux=rows).best_f
 
     searches = {"icgo PSO": icgo_pso,
                 "evosax PSO": _evosax_search(EvoPSO, fitness, lb, ub, pop_size, iterations),

@@ -27,20 +27,17 @@ import hydra
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from experiments._common import EXIT_CONFIG, one_line
+from experiments._entry import EXIT_CONFIG, one_line
+from icgo.core.errors import SettingError
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Settings of the entry point, not of the study (excluded from CalibrationConfig).
 ENTRY_KEYS = ("data", "mag_axes", "grav_axes", "results_dir")
 
 
-class SettingProblem(ValueError):
-    """A bad entry-point setting (exit status 2); a ValueError from the data exits 1."""
-
-
 def study_config(cfg: DictConfig):
     """:class:`icgo.studies.calibration.CalibrationConfig` of a composed config (unknown keys refused)."""
-    from icgo.studies import config_from_mapping
+    from icgo.core.settings import config_from_mapping
     from icgo.studies.calibration import CalibrationConfig
 
     values = {k: v for k, v in OmegaConf.to_container(cfg, resolve=True).items() if k not in ENTRY_KEYS}
@@ -48,34 +45,34 @@ def study_config(cfg: DictConfig):
 
 
 def load(cfg: DictConfig) -> dict:
-    """name -> Recording with a ``group`` column, from ``data=`` (raises icgo.io.DataError / ValueError)."""
-    from icgo import io
-    from icgo.calibration import MIN_ROLLED_SHOTS
+    """name -> Recording with a ``group`` column, from ``data=`` (raises icgo.io.recording.DataError / ValueError)."""
+    from icgo.io import recording as io
+    from icgo.methods.calibration import MIN_ROLLED_SHOTS
 
     data = cfg.data
     if data is None or str(data) == "":
-        raise SettingProblem("data= is required: a contract CSV with a group column, a circuitpython-mag-cal JSON, "
+        raise SettingError("data= is required: a contract CSV with a group column, a circuitpython-mag-cal JSON, "
                          "or 'bundled'")
     data = str(data)
     axes = {"mag_axes": cfg.mag_axes, "grav_axes": cfg.grav_axes}
     if data == "bundled":
         if any(v is not None for v in axes.values()):
-            raise SettingProblem("mag_axes / grav_axes apply to a raw-layout JSON file, not to data=bundled")
+            raise SettingError("mag_axes / grav_axes apply to a raw-layout JSON file, not to data=bundled")
         return {name: io.load_mag_cal_device(name) for name in io.mag_cal_devices()}
     if data.lower().endswith(".json"):
-        from icgo.mag_cal_json import AxesNotApplicable, read_mag_cal_json
+        from icgo.io.mag_cal_json import AxesNotApplicable, read_mag_cal_json
 
         try:
             rec = read_mag_cal_json(data, **{k: (None if v is None else str(v)) for k, v in axes.items()})
         except AxesNotApplicable as e:  # a bad setting, as for a CSV
-            raise SettingProblem(str(e)) from None
+            raise SettingError(str(e)) from None
     else:
         if any(v is not None for v in axes.values()):
-            raise SettingProblem("mag_axes / grav_axes apply to a raw-layout JSON file; a contract CSV is in the tool "
+            raise SettingError("mag_axes / grav_axes apply to a raw-layout JSON file; a contract CSV is in the tool "
                              "frame already")
         rec = io.read_recording(data, require_meta=False, require_reference=False)
         if "group" not in rec.frame.columns:
-            io._fail(data, "no 'group' column: calibration needs shots grouped by true direction "
+            io.fail(data, "no 'group' column: calibration needs shots grouped by true direction "
                            f"(rolled groups of {MIN_ROLLED_SHOTS} or more shots about one pointing direction)")
     return {Path(data).stem: rec}
 
@@ -87,8 +84,8 @@ def figure(rec, models: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from icgo.calibration import pointing_directions
-    from icgo.qc import measured_dip_deg
+    from icgo.methods.calibration import pointing_directions
+    from icgo.physics.qc import measured_dip_deg
     from icgo.studies.calibration import model_sanity
 
     G, B = rec.G, rec.B
@@ -122,7 +119,7 @@ def figure(rec, models: dict, path: Path) -> None:
 
 def report(df, summ, recordings: dict, label: str) -> str:
     """The Markdown report: the scores (degenerate marked), the per-method summary, the sanity limits."""
-    from icgo.cal_sanity import limits_sentence
+    from icgo.methods.cal_sanity import limits_sentence
     from icgo.studies.calibration import wide
 
     lines = [f"# Magnetometer calibration: {label}", "",
@@ -169,7 +166,7 @@ def run(cfg: DictConfig, out: Path, config=None) -> None:
     finally:
         shutil.rmtree(stage, ignore_errors=True)
     if str(cfg.data) == "bundled":
-        from icgo.io import atomic_write_texts
+        from icgo.io.recording import atomic_write_texts
 
         res = Path(str(cfg.results_dir))
         res = res if res.is_absolute() else ROOT / res
@@ -188,7 +185,7 @@ def main(cfg: DictConfig) -> None:
     """Hydra entry point; a bad setting exits 2, bad data exits 1, each with one line."""
     from hydra.core.hydra_config import HydraConfig
 
-    from icgo.io import DataError
+    from icgo.core.errors import DataError, SettingError
 
     try:
         config = study_config(cfg)
@@ -197,13 +194,13 @@ def main(cfg: DictConfig) -> None:
         raise SystemExit(EXIT_CONFIG) from None
     try:
         run(cfg, Path(HydraConfig.get().runtime.output_dir), config)
-    except (DataError, ValueError) as e:  # DataError and SettingProblem are ValueErrors
+    except (DataError, ValueError) as e:  # DataError and SettingError are ValueErrors (icgo.core.errors)
         print(f"error: {one_line(e)}", file=sys.stderr)
-        raise SystemExit(EXIT_CONFIG if isinstance(e, SettingProblem) else 1) from None
+        raise SystemExit(EXIT_CONFIG if isinstance(e, SettingError) else 1) from None
 
 
 if __name__ == "__main__":
-    from experiments._common import preflight
+    from experiments._entry import preflight
 
     preflight("calibrate")
     main()

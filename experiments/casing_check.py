@@ -4,7 +4,7 @@
 
 icgo models the lab casing (ICGO 3.1: a 3 m steel tube, 150 mm outer diameter,
 axially magnetised, 1 m from the instrument) as a pair of magnetic poles at its
-ends (:func:`icgo.instruments.casing_field_ned`, ``model="pole_pair"``) or as a
+ends (:func:`icgo.datasets.instruments.casing_field_ned`, ``model="pole_pair"``) or as a
 line of point dipoles (``"dipole_line"``). magpylib computes the field of the
 tube itself in closed form (``magpylib.magnet.CylinderSegment`` over 360 deg,
 uniform axial polarisation J = mu0 M). For a uniformly magnetised tube the
@@ -34,7 +34,7 @@ def magpylib_tube_field(points_ned, casing) -> np.ndarray:
     """Field of the casing as a magnetised tube by magpylib, NED (nT).
 
     Args:
-        points_ned: (N, 3) positions (m). casing: :class:`icgo.instruments.Casing`.
+        points_ned: (N, 3) positions (m). casing: :class:`icgo.datasets.instruments.Casing`.
     Returns:
         (N, 3) field (nT). magpylib works in any right-handed Cartesian frame, so NED in, NED out.
     """
@@ -59,8 +59,8 @@ def compare(seed: int = 0, distances=DISTANCES_M) -> pd.DataFrame:
         One row per (distance, model): the largest and median relative difference of
         the field vector, the largest difference (nT) and the casing field's median size (nT).
     """
-    from icgo import datasets
-    from icgo import instruments as ins
+    from icgo.datasets import instruments as ins
+    from icgo.datasets import protocols as datasets
 
     ds = datasets.lab_casing(seed)
     t, f = ds.truth, ds.frame
@@ -86,11 +86,11 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent.parent / "results"))
     a = ap.parse_args(argv)
-    from icgo import datasets
+    from icgo.datasets import protocols as datasets
 
     df = compare()
     noise = float(datasets.lab_casing(0).truth["mag_noise_nT"])
-    from experiments._common import staged_results
+    from experiments._entry import staged_results
 
     at_lab = df[(df.distance_m == 1.0) & (df.model == "pole_pair")].iloc[0]
     md = ["# Casing model cross-check: icgo's pole pair vs magpylib's magnetised tube", "",
@@ -102,7 +102,7 @@ def main(argv=None) -> int:
           f"At the paper's 1 m the pole pair differs from the tube by at most {at_lab.max_rel_diff:.2%} of the "
           f"casing field ({at_lab.max_diff_nT:.1f} nT, against a per-sample magnetometer noise of {noise:g} nT), "
           "because a uniformly magnetised tube's exterior field is that of its two end annuli and the annuli are "
-          "small beside the distance. The pole pair stays the default (`icgo.instruments.Casing.model`); the "
+          "small beside the distance. The pole pair stays the default (`icgo.datasets.instruments.Casing.model`); the "
           "difference grows as the casing comes closer (see the 0.5 m rows)."]
     with staged_results(Path(a.out)) as stage:  # both files, or neither
         df.to_csv(stage / "casing_model_check.csv", index=False)

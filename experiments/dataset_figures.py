@@ -10,7 +10,7 @@ Writes into ``--out``:
   std per condition next to the paper's Table 4 "original" columns.
 The multi-station analysis here is a plain least-squares version of the ICGO
 paper's eqs. (2)-(7) (constant tool-frame bias minimising the spread of Bh and
-Bv), used only to draw the comparison; the project's MSA lives in icgo.msa.
+Bv), used only to draw the comparison; the project's MSA lives in icgo.methods.msa.
 """
 
 from __future__ import annotations
@@ -23,9 +23,9 @@ import pandas as pd
 from scipy.optimize import least_squares
 
 import icgo  # noqa: F401
-from icgo import datasets as D
-from icgo import frames as F
-from icgo import plots
+from icgo.datasets import protocols as D
+from icgo.physics import frames as F
+from icgo.reporting import plots
 
 
 def _hv(G, B):

@@ -8,7 +8,7 @@
 
 Prints the search and the verdict; writes report.md, discrepancy.json, the
 figures and the fitted physics model (``discrepancy_model.json`` + ``.npz``,
-:class:`icgo.discrepancy.artifact.PhysicsModel`) into the run directory. A bad
+:class:`icgo.models.discrepancy.PhysicsModel`) into the run directory. A bad
 setting (a workflow option, an unknown key, ``study=`` or ``design=``): one line
 per problem on stderr (``error: ...``), exit status 2 like the other entry
 points; bad input data (a bad file, an unknown effect in ``data=sim:...``):
@@ -25,13 +25,15 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 import icgo  # noqa: F401  (float64)
-from experiments._common import EXIT_CONFIG, one_line, staged_results
+from experiments._entry import EXIT_CONFIG, one_line, staged_results
 from icgo import discrepancy as D
-from icgo import io as icgo_io
+from icgo.core.errors import SettingsError
+from icgo.core.settings import config_from_mapping
 from icgo.discrepancy import report
-from icgo.discrepancy.artifact import PhysicsModel, station_qc
-from icgo.qc import qc_sentence
-from icgo.studies import config_from_mapping
+from icgo.io import recording as icgo_io
+from icgo.models.discrepancy import PhysicsModel, station_qc
+from icgo.physics.qc import qc_sentence
+from icgo.studies import discrepancy_results
 
 #: Settings of the entry point, not of the workflow (excluded from :class:`icgo.discrepancy.WorkflowConfig`).
 ENTRY_KEYS = ("data", "study", "seed", "n_stations", "design", "results_dir", "hydra")
@@ -43,7 +45,7 @@ STUDIES = ("none", "hidden", "devices", "lab_casing")
 def load_stations(spec: str, seed: int = 0, n: int = 240, design: str = "random", noise: D.Noise = D.NOISE):
     """Stations and a description from a ``data=`` value (see conf/discrepancy.yaml).
 
-    Returns (Stations, label, truth or None). Raises icgo.io.DataError / ValueError.
+    Returns (Stations, label, truth or None). Raises icgo.io.recording.DataError / ValueError.
     """
     spec = str(spec)
     if spec.startswith("sim:"):
@@ -54,11 +56,11 @@ def load_stations(spec: str, seed: int = 0, n: int = 240, design: str = "random"
         rec = icgo_io.load_mag_cal_device(spec[8:])
         return D.stations_from_recording(rec), f"circuitpython-mag-cal device {spec[8:]}", None
     if spec == "lab_casing":
-        from icgo.datasets import lab_casing
+        from icgo.datasets.protocols import lab_casing
 
         ds = lab_casing(seed)
         rec = icgo_io.validate(ds.frame, ds.meta, source="lab_casing")
-        return D.stations_from_recording(rec), f"icgo.datasets.lab_casing(seed={seed})", ds.truth
+        return D.stations_from_recording(rec), f"icgo.datasets.protocols.lab_casing(seed={seed})", ds.truth
     rec = icgo_io.read_recording(spec)
     for nt in rec.notices:
         print("notice:", nt)
@@ -69,7 +71,7 @@ def workflow_config(cfg: DictConfig) -> D.WorkflowConfig:
     """The :class:`icgo.discrepancy.WorkflowConfig` of a composed config, and the entry settings checked.
 
     Raises:
-        icgo.discrepancy.ConfigError: one line per bad workflow option.
+        icgo.core.errors.SettingsError: one line per bad workflow option.
         ValueError: an unknown key, or a bad ``study=`` / ``design=`` (one line).
     """
     values = {k: v for k, v in OmegaConf.to_container(cfg, resolve=True).items() if k not in ENTRY_KEYS}
@@ -87,11 +89,11 @@ def workflow_config(cfg: DictConfig) -> D.WorkflowConfig:
 def run_study(name: str, config: D.WorkflowConfig, cfg: DictConfig) -> str:
     """Run ``study=name`` and return its Markdown (the lab_casing study also writes its full report)."""
     if name == "hidden":
-        return report.hidden_study_markdown(D.hidden_study(config, int(cfg.seed), int(cfg.n_stations)))
+        return report.hidden_study_markdown(discrepancy_results.hidden_study(config, int(cfg.seed), int(cfg.n_stations)))
     if name == "devices":
-        return report.devices_study_markdown(D.devices_study(config), config)
+        return report.devices_study_markdown(discrepancy_results.devices_study(config), config)
     if name == "lab_casing":
-        study = D.lab_casing_study(config, int(cfg.seed))
+        study = discrepancy_results.lab_casing_study(config, int(cfg.seed))
         D.write_report(study.result, "lab_casing (training split; QC on the test split)",
                        Path(cfg.results_dir) / "discrepancy_lab_casing_report", qc=study.qc)
         return report.lab_casing_study_markdown(study)
@@ -102,7 +104,7 @@ def main_body(cfg: DictConfig, out_dir: Path) -> int:
     """Run one composed config; 0, :data:`EXIT_CONFIG` (2) for a bad setting, 1 for bad input data."""
     try:
         config = workflow_config(cfg)
-    except D.ConfigError as err:
+    except SettingsError as err:
         for line in err.problems:
             print(f"error: {line}", file=sys.stderr)
         return EXIT_CONFIG
@@ -146,7 +148,7 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
-    from experiments._common import preflight
+    from experiments._entry import preflight
 
     preflight("discrepancy")
     main()

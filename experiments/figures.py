@@ -40,6 +40,7 @@ import pandas as pd
 
 from experiments import sweep_conditions
 from icgo.optim import STRATEGIES
+from icgo.reporting.plots import plt_agg, save_figure
 
 #: The five CGO 4th-seed strategies (:data:`icgo.optim.STRATEGIES`) and the four mutated ones.
 STRATEGIES5 = STRATEGIES
@@ -108,7 +109,7 @@ def plan_command(name: str) -> str:
 # ------------------------------------------------------------------ collect
 def _check_repeats(df: pd.DataFrame, run: dict, name: str) -> None:
     """RecordError unless every method of a run's table has exactly the repeats its run record names."""
-    from icgo import records as R
+    from icgo.reporting import records as R
 
     expected = set(run.get("repeat_ids") or range(int(run["n_repeats"])))
     for method, g in df.groupby("method"):
@@ -121,7 +122,7 @@ def _check_repeats(df: pd.DataFrame, run: dict, name: str) -> None:
 class Runs:
     """Pooled outputs of many run directories (newest wins on duplicates).
 
-    Every run record and table is read through :mod:`icgo.records` (schema
+    Every run record and table is read through :mod:`icgo.reporting.records` (schema
     checked); a directory that fails the check is skipped with one line on
     stderr naming it and why.
     """
@@ -129,7 +130,7 @@ class Runs:
     KEY = ["dataset", "condition", "seed", "method", "repeat"]
 
     def __init__(self, dirs, runs=None):
-        from icgo import records as R
+        from icgo.reporting import records as R
 
         self._cache: dict = {}
         if runs is not None:  # a subset of another collection (see split_label)
@@ -163,7 +164,7 @@ class Runs:
                 Runs(None, [r for r in self.runs if r.get("label") not in labels]))
 
     def _table(self, name: str) -> pd.DataFrame:
-        from icgo import records as R
+        from icgo.reporting import records as R
 
         if name not in self._cache:
             frames = []
@@ -228,25 +229,6 @@ def _write(df: pd.DataFrame, out: Path, name: str, title: str, notes=()) -> None
     (out / f"{name}.md").write_text("\n".join(text).rstrip() + "\n")
 
 
-def _save(fig, path: Path, title: str, dpi: int = 120) -> None:
-    """Title, lay out, write and close a figure."""
-    import matplotlib.pyplot as plt
-
-    fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=dpi)
-    plt.close(fig)
-
-
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 # ------------------------------------------------------------------- tables
 def table1(runs: Runs, out: Path) -> bool:
     """Table 1: plain RELM vs CGO-RELM (original 4th seed), test split, mean +/- std over repeats."""
@@ -279,7 +261,7 @@ def table1(runs: Runs, out: Path) -> bool:
 
 def _tuned_note(runs: Runs, m: pd.DataFrame, others) -> str:
     """The tuned plain-RELM baseline (issue 18): its chosen cell and the CGO rows measured against it."""
-    from icgo import stats
+    from icgo.maths import stats
 
     info = [r for r in runs.runs if "relm-tuned" in r.get("methods", []) and r.get("tuning")]
     cell = info[-1]["tuning"] if info else {}
@@ -290,7 +272,7 @@ def _tuned_note(runs: Runs, m: pd.DataFrame, others) -> str:
         if list(x["repeat"]) == list(t["repeat"]):
             p = stats.wilcoxon_paired(x["mae"], t["mae"]).p_value
             parts.append(f"{o}: MAE {100 * (x['mae'].mean() / t['mae'].mean() - 1):+.1f} % (paired Wilcoxon p = {p:.3g})")
-    from icgo.relm import TUNE_HIDDEN, TUNE_LAMBDA
+    from icgo.methods.relm import TUNE_HIDDEN, TUNE_LAMBDA
     from icgo.studies.icgo_relm import StudyConfig
 
     d = StudyConfig()
@@ -321,8 +303,8 @@ def _paper_consistency_note() -> str:
 
 
 def _floor_note(dataset: str = "lab_casing") -> str:
-    """The noise floor of the data set beside every table (:func:`icgo.datasets.noise_floor`, data seed 0)."""
-    from icgo.datasets import noise_floor
+    """The noise floor of the data set beside every table (:func:`icgo.datasets.protocols.noise_floor`, data seed 0)."""
+    from icgo.datasets.protocols import noise_floor
 
     f = noise_floor(dataset, 0).iloc[0]
     return (f"Noise floor: the same `{dataset}` draw (seed 0, as the presets) with the casing, every systematic "
@@ -358,7 +340,7 @@ def fig9(runs: Runs, out: Path) -> bool:
     df = pd.DataFrame(rows)
     _write(df, out, "fig9", "Fig. 9: RELM tuned by PSO, GA and CGO (test split, mean +/- std over repeats)",
            _fig9_notes(m, runs.convergence(), methods, df) + [_floor_note()])
-    plt = _plt()
+    plt = plt_agg()
     fig, axes = plt.subplots(1, 3, figsize=(11, 3.4))
     for ax, k in zip(axes, METRICS):
         ax.bar(df["method"], df[f"{k}_mean"], yerr=df[f"{k}_std"], capsize=4, color=["#8da0cb", "#fc8d62", "#66c2a5"],
@@ -368,13 +350,13 @@ def fig9(runs: Runs, out: Path) -> bool:
         if k == "r2":
             ax.set_ylim(max(0.0, float(np.nanmin(df[f"{k}_mean"] - df[f"{k}_std"])) - 0.01), 1.0005)
     axes[0].legend(fontsize=8)
-    _save(fig, out / "fig9.png", "Fig. 9: RELM tuned by three optimizers (test split, lab_casing)")
+    save_figure(fig, out / "fig9.png", "Fig. 9: RELM tuned by three optimizers (test split, lab_casing)")
     return True
 
 
 def _fig9_notes(m, conv, methods, df) -> list[str]:
     """Order of the three optimizers by MAE, paired Wilcoxon tests of CGO against each, evaluation counts."""
-    from icgo.stats import wilcoxon_paired
+    from icgo.maths.stats import wilcoxon_paired
 
     order = df.sort_values("mae_mean")["method"].tolist()
     w = m.pivot_table(index="repeat", columns="method", values="mae")
@@ -398,7 +380,7 @@ def _fig9_notes(m, conv, methods, df) -> list[str]:
 
 def fig9_budgets(iters: Runs, evals: Runs, out: Path) -> bool:
     """Fig. 9 at equal iterations and at equal fitness evaluations, side by side (issue 18, item 3)."""
-    from icgo.stats import holm, wilcoxon_paired
+    from icgo.maths.stats import holm, wilcoxon_paired
 
     mi, me = iters.metrics(), evals.metrics()
     methods = list(FIG9_NAMES)
@@ -444,8 +426,8 @@ def sweep_schedules(pooled: Runs, sched: Runs, out: Path) -> bool:
     comparison is paired: Friedman over all columns, Wilcoxon of each schedule
     against the best single strategy (Holm), and per-repeat winners.
     """
-    from icgo import records as R
-    from icgo.stats import friedman, holm, wilcoxon_paired
+    from icgo.maths.stats import friedman, holm, wilcoxon_paired
+    from icgo.reporting import records as R
 
     m = pooled.metrics()
     singles = [s for s in STRATEGIES4 if s != "three_stage" and f"cgo-{s}" in set(m.method)]
@@ -477,20 +459,19 @@ def sweep_schedules(pooled: Runs, sched: Runs, out: Path) -> bool:
              f"schedule against the best single strategy ({best_single}), Holm over the schedules, in the table.",
              _floor_note()]
     _write(df, out, "sweep_schedules", "Sweep: three-stage schedules vs the single strategies (test MAE)", notes)
-    plt = _plt()
+    plt = plt_agg()
     fig, ax = plt.subplots(figsize=(10, 4))
     order = [r["column"] for r in rows]
     ax.boxplot([wide[c] for c in order], orientation="horizontal", tick_labels=order)
     ax.set(xlabel="test MAE (deg), 10 paired repeats")
     ax.tick_params(axis="y", labelsize=7)
-    _save(fig, out / "sweep_schedules.png", "Three-stage schedules and single strategies (lab_casing)")
+    save_figure(fig, out / "sweep_schedules.png", "Three-stage schedules and single strategies (lab_casing)")
     return True
 
 
 def _reading(params: dict) -> str:
     """The mutation reading a sweep run used, from its optimizer params (the rest at CGOConfig's defaults)."""
     from icgo.optim.cgo import CGOConfig
-
     from icgo.studies.icgo_relm import StudyConfig
 
     d = CGOConfig()
@@ -510,9 +491,9 @@ def sweep_mutations(pooled: Runs, sweep: Runs, out: Path) -> bool:
     of three-stage vs the single strategy (Holm over the readings), and the
     order of the four strategies by mean MAE against the paper's.
     """
-    from icgo import records as R
+    from icgo.maths.stats import holm, wilcoxon_paired
     from icgo.optim.cgo import CGOConfig
-    from icgo.stats import holm, wilcoxon_paired
+    from icgo.reporting import records as R
 
     m = pooled.metrics()
     base = {s: m[m.method == f"cgo-{s}"].set_index("repeat")["mae"] for s in STRATEGIES4 if f"cgo-{s}" in set(m.method)}
@@ -602,7 +583,7 @@ def fig10(runs: Runs, out: Path) -> bool:
         rows.append(row)
     df = pd.DataFrame(rows)
     df.to_csv(out / "fig10.csv", index=False)
-    plt = _plt()
+    plt = plt_agg()
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
     x = np.arange(len(STRATEGIES5))
     for ax, k in zip(axes, ("mae", "rmse")):
@@ -612,7 +593,7 @@ def fig10(runs: Runs, out: Path) -> bool:
         ax.set_xticks(x, [LABEL[s] for s in STRATEGIES5], rotation=15)
         ax.set_title(MNAME[k])
     axes[0].legend(fontsize=8)
-    _save(fig, out / "fig10.png", "Fig. 10: error of the five 4th-seed strategies (test split, lab_casing)")
+    save_figure(fig, out / "fig10.png", "Fig. 10: error of the five 4th-seed strategies (test split, lab_casing)")
     return True
 
 
@@ -628,7 +609,7 @@ def fig11(runs: Runs, out: Path) -> bool:
     r0 = c[c.repeat == 0][["method", "iteration", "best_fitness"]].rename(columns={"best_fitness": "repeat0"})
     agg = agg.merge(r0, on=["method", "iteration"], how="left")
     agg.to_csv(out / "fig11.csv", index=False)
-    plt = _plt()
+    plt = plt_agg()
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
     for s in STRATEGIES5:
         g = agg[agg.method == f"cgo-{s}"]
@@ -641,13 +622,13 @@ def fig11(runs: Runs, out: Path) -> bool:
         ax.set_ylabel("best training RMSE (deg)")
         ax.set_yscale("log")
     axes[1].legend(fontsize=8)
-    _save(fig, out / "fig11.png", "Fig. 11: convergence of the five 4th-seed strategies (lab_casing)")
+    save_figure(fig, out / "fig11.png", "Fig. 11: convergence of the five 4th-seed strategies (lab_casing)")
     return True
 
 
 def table3(runs: Runs, out: Path) -> bool:
     """Table 3: 10 repeats, mean +/- std, with Wilcoxon signed-rank and Friedman tests."""
-    from icgo.stats import friedman, wilcoxon_paired
+    from icgo.maths.stats import friedman, wilcoxon_paired
 
     m = runs.metrics()
     methods = [f"cgo-{s}" for s in STRATEGIES4]
@@ -721,7 +702,7 @@ def fig12(runs: Runs, out: Path) -> bool:
     wide = p.pivot_table(index=["row", "station", "azimuth_true", "error_msa"], columns="method",
                          values="predicted_error").reset_index().sort_values("station")
     wide.to_csv(out / "fig12.csv", index=False)
-    plt = _plt()
+    plt = plt_agg()
     fig, axes = plt.subplots(2, 1, figsize=(11, 6), sharex=True)
     x = np.arange(len(wide))
     axes[0].plot(x, wide["error_msa"], "k-", lw=2, label="MSA residual (target)")
@@ -732,7 +713,7 @@ def fig12(runs: Runs, out: Path) -> bool:
     axes[1].set_ylabel("model residual (deg)")
     axes[1].set_xlabel("test sample (sorted by station: azimuth, then toolface)")
     axes[0].legend(fontsize=8, ncol=5)
-    _save(fig, out / "fig12.png", "Fig. 12: error modelling of the MSA residual (repeat 0, test rows, lab_casing)")
+    save_figure(fig, out / "fig12.png", "Fig. 12: error modelling of the MSA residual (repeat 0, test rows, lab_casing)")
     return True
 
 
@@ -746,7 +727,7 @@ def fig13(runs: Runs, out: Path) -> bool:
     raw = ((p0["azimuth_raw"] - p0["azimuth_true"] + 180) % 360) - 180
     per = m[m.method.isin(methods)].pivot_table(index="repeat", columns="method", values="mae")
     per.to_csv(out / "fig13.csv")
-    plt = _plt()
+    plt = plt_agg()
     fig, axes = plt.subplots(1, 2, figsize=(12, 3.8))
     x = np.arange(len(p0))
     axes[0].plot(x, raw, lw=0.8, label="raw (eq. 1)")
@@ -762,7 +743,7 @@ def fig13(runs: Runs, out: Path) -> bool:
     axes[1].set_ylabel("test MAE (deg)")
     axes[1].set_title("(b) MAE per repeat")
     axes[1].legend(fontsize=8)
-    _save(fig, out / "fig13.png", "Fig. 13: azimuth error compensation (lab_casing)")
+    save_figure(fig, out / "fig13.png", "Fig. 13: azimuth error compensation (lab_casing)")
     return True
 
 
@@ -792,7 +773,7 @@ def table4(runs: Runs, out: Path) -> bool:
         p["cond"] = _condition_of(p)
     p = p[p.cond >= 0]
     raw_err = lambda d: np.abs(((d["azimuth_raw"] - d["azimuth_true"] + 180) % 360) - 180)  # noqa: E731
-    from icgo.datasets import noise_floor
+    from icgo.datasets.protocols import noise_floor
 
     floor = noise_floor("well_conditions", 0).set_index("condition")
     rows = []
@@ -831,7 +812,7 @@ def table4(runs: Runs, out: Path) -> bool:
                 f15.append({"condition": k, "method": mth, "mae": np.abs(e).mean(), "rmse": np.sqrt((e * e).mean())})
     f15 = pd.DataFrame(f15)
     f15.to_csv(out / "fig15.csv", index=False)
-    plt = _plt()
+    plt = plt_agg()
     fig, axes = plt.subplots(2, 3, figsize=(13, 6.5))
     for k, ax in enumerate(axes.ravel()):
         for mth in methods:
@@ -845,7 +826,7 @@ def table4(runs: Runs, out: Path) -> bool:
         ax.legend(fontsize=6)
     fig.supxlabel("test sample (sorted by station)")
     fig.supylabel("compensated azimuth error (deg)")
-    _save(fig, out / "fig15.png", "Fig. 15: five 4th-seed strategies under six well conditions")
+    save_figure(fig, out / "fig15.png", "Fig. 15: five 4th-seed strategies under six well conditions")
     return True
 
 
@@ -899,9 +880,9 @@ def plot_study(result, path: Path, title: str = "") -> None:
         path: PNG path.
         title: figure title.
     """
-    from icgo.frames import angle_diff
+    from icgo.physics.frames import angle_diff
 
-    plt = _plt()
+    plt = plt_agg()
     methods = result.config.method_names()
     fig, axes = plt.subplots(1, 3, figsize=(15, 3.8))
     h = result.histories
@@ -932,7 +913,7 @@ def plot_study(result, path: Path, title: str = "") -> None:
     axes[2].set_xlabel("repeat")
     axes[2].set_ylabel("test MAE (deg)")
     axes[2].legend(fontsize=7)
-    _save(fig, path, title, dpi=110)
+    save_figure(fig, path, title, dpi=110)
 
 
 # --------------------------------------------------------------------- main
@@ -966,7 +947,7 @@ def main(argv=None) -> int:
     if not dirs:
         stamp = time.strftime("%Y-%m-%d_%H-%M-%S")
         dirs = run_plan(Path("multirun") / f"figures-{stamp}", a.jobs, a.override)
-    from experiments._common import staged_results
+    from experiments._entry import staged_results
 
     out = Path(a.out)
     with staged_results(out) as stage:  # all tables and figures move in together, or none (Ctrl-C, full disk)

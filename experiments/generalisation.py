@@ -46,7 +46,7 @@ def _cell(name, protocol) -> str:
 
 
 def _bands() -> str:
-    from icgo.qc import QCBands
+    from icgo.physics.qc import QCBands
 
     b = QCBands()
     return f"|G| {1000 * b.g_tol_g:g} mg, |B| {b.b_tol_nT:g} nT, dip {b.dip_tol_deg:g} deg"
@@ -88,12 +88,12 @@ def markdown(rec: dict, config, seconds: dict) -> str:
         fl.append(f"{float(f['mae'].iloc[0]):.4f}")
     lines.append("| " + " | ".join(fl) + " |")
     lines += ["", "The noise floor is the MAE of the standard formula on a draw with the same plan and noise but "
-              "no casing and no sensor errors (`icgo.datasets.noise_floor`): what no compensation can beat on "
+              "no casing and no sensor errors (`icgo.datasets.protocols.noise_floor`): what no compensation can beat on "
               "average.", "",
               "## Coverage of the 90 % conformal interval", "",
               "Fraction of test rows whose azimuth error lies within the member's interval, mean over repeats "
               "(mean half-width in deg in brackets). Each fitted model's half-width is calibrated on rows of its "
-              "own training data predicted by the other members that held them out (`icgo.conformal`); its test "
+              "own training data predicted by the other members that held them out (`icgo.maths.conformal`); its test "
               "rows never calibrate it. For transfer, only the source instrument's rows calibrate.", ""]
     cov_methods = [k for k in methods if k in set(cov["method"])]
     lines += ["| method | " + " | ".join(_cell(*c) for c in cells) + " |", "|" + "---|" * (len(cells) + 1)]
@@ -167,15 +167,15 @@ def main(argv=None) -> int:
 
     import jax
 
-    from icgo.io import atomic_write_texts
-    from icgo.studies import SettingError
+    from icgo.core.errors import SettingError
+    from icgo.io.recording import atomic_write_texts
     from icgo.studies.generalisation import GeneralisationConfig, build_data, run
 
     try:
         config = dataclasses.replace(GeneralisationConfig(), n_repeats=args.n_repeats, iterations=args.iterations,
                                      pop_size=args.pop_size, seed=args.seed)
     except SettingError as e:
-        print(f"error: --{e.field.replace('_', '-')} {e.problem}", file=sys.stderr)
+        print(f"error: --{e.field.replace('_', '-')} {e.problem}" if e.field else f"error: {e}", file=sys.stderr)
         return 2
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

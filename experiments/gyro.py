@@ -25,7 +25,7 @@ import numpy as np
 import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
-from experiments._common import enable_jax_cache, staged_results, study_main
+from experiments._entry import enable_jax_cache, staged_results, study_main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -41,7 +41,7 @@ POINT_COLUMNS = ["method", "test", "azimuth_step_deg", "toolface_step_deg", "n_p
 
 def study_config(cfg: DictConfig):
     """:class:`icgo.studies.gyro.GyroConfig` from a composed config (unknown keys refused, one line)."""
-    from icgo.studies import config_from_mapping
+    from icgo.core.settings import config_from_mapping
     from icgo.studies.gyro import GyroConfig
 
     values = {k: v for k, v in OmegaConf.to_container(cfg, resolve=True).items() if k not in ENTRY_KEYS}
@@ -68,7 +68,7 @@ def _plt():
 
 def fig_seam(preds: dict, f: pd.DataFrame, band, path: Path) -> None:
     """|error| vs true azimuth (10-deg bins, RMS over points and seeds) per method."""
-    from icgo.metrics import rmse
+    from icgo.maths.metrics import rmse
 
     plt = _plt()
     a = np.mod(f["azimuth_deg"].to_numpy(), 360.0)
@@ -150,7 +150,7 @@ def fig_toolface(train: pd.DataFrame, path: Path, inclination=25.0) -> None:
 # ------------------------------------------------------------------ outputs
 def rate_qc_sentence(qc: dict) -> str:
     """The earth-rate QC counts of the raw gyro (:func:`icgo.studies.gyro.rate_qc`) as one sentence."""
-    from icgo.qc import EARTH_RATE_TOL_DEG_H
+    from icgo.physics.qc import EARTH_RATE_TOL_DEG_H
 
     return (f"Survey QC of the raw gyro (|total rate - earth rate| <= {EARTH_RATE_TOL_DEG_H:g} deg/h; docs/qc.md): "
             + ("; ".join(f"{k}: {c['any']} of {c['n']} stations flagged" for k, c in qc.items())
@@ -225,7 +225,7 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
-    from experiments._common import preflight
+    from experiments._entry import preflight
 
     preflight("gyro")
     main()

@@ -20,7 +20,7 @@ import hydra
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from experiments._common import staged_results, study_main
+from experiments._entry import staged_results, study_main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -30,7 +30,7 @@ ENTRY_KEYS = ("out_dir",)
 
 def study_config(cfg: DictConfig):
     """:class:`icgo.studies.misma.MismaConfig` from a composed config (unknown keys refused, one line)."""
-    from icgo.studies import config_from_mapping
+    from icgo.core.settings import config_from_mapping
     from icgo.studies.misma import MismaConfig
 
     values = {k: v for k, v in OmegaConf.to_container(cfg, resolve=True).items() if k not in ENTRY_KEYS}
@@ -88,7 +88,7 @@ def _sweep_plot(sweep, out: Path) -> None:
 
 def summary_lines(result) -> list[str]:
     """The Markdown summary ``misma_summary.md``."""
-    from icgo.qc import qc_sentence
+    from icgo.physics.qc import qc_sentence
 
     lines = ["# MISMA study (issue #8)", "", "Command: `python -m experiments.misma` (config `conf/misma.yaml`).", ""]
     if "simulated" in result.summary:
@@ -120,7 +120,7 @@ def summary_lines(result) -> list[str]:
                   "between the truly corrected field and M_omega at the window samples.", "",
                   result.records["gyro_sweep"].to_markdown(index=False, floatfmt=".4g"), ""]
     if "real" in result.summary:
-        from icgo.cal_sanity import limits_sentence
+        from icgo.methods.cal_sanity import limits_sentence
         from icgo.studies.calibration import wide
 
         lines += ["## 9 real devices: peer metric (deg), ours vs circuitpython-mag-cal", "",
@@ -188,7 +188,7 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
-    from experiments._common import preflight
+    from experiments._entry import preflight
 
     preflight("misma")
     main()

@@ -4,7 +4,7 @@
     .venv/bin/python -m experiments.optimizers --runs 5 --dims 10 --out /tmp/x   # quick look
     .venv/bin/python -m experiments.optimizers --functions sphere --dims 10 --runs 120 --out DIR  # one cell, more runs
 
-8 shifted/rotated CEC 2017 functions (icgo.benchmarks.STUDY) x dims x runs. Every
+8 shifted/rotated CEC 2017 functions (icgo.optim.benchmarks.STUDY) x dims x runs. Every
 run of every algorithm gets the same number of fitness evaluations (measured with
 a call counter on the mealpy side, ``n_evals`` on ours). Pairs compared with the
 Wilcoxon rank-sum test (two-sided, alpha 0.05): ``+`` ours significantly lower
@@ -61,7 +61,8 @@ def main(argv=None):
     import jax
 
     import icgo  # noqa: F401
-    from icgo.studies import SettingError, config_from_mapping
+    from icgo.core.errors import SettingError
+    from icgo.core.settings import config_from_mapping
     from icgo.studies import optimizers as study
 
     try:
@@ -69,7 +70,7 @@ def main(argv=None):
                                   "experiments.optimizers")
         study.study_functions(None, cfg)
     except SettingError as e:
-        ap.error(f"--{e.field.replace('_', '-')}: {e.problem}")
+        ap.error(f"--{e.field.replace('_', '-')}: {e.problem}" if e.field else str(e))
     os.makedirs(args.out, exist_ok=True)
     log = logging.getLogger(study.__name__)  # progress lines of the study, not every library's INFO
     if not log.handlers:
@@ -94,13 +95,13 @@ def markdown(res, argv) -> list[str]:
     from icgo.studies import optimizers as study
 
     cfg, names, df, summary = res.config, res.functions, res.records["cells"], res.records["summary"]
-    n_cgo, n_pso = (iterations_for_budget(a.name, cfg.pop_size, cfg.budget) for a in (CGO, PSO))
+    n_cgo, n_pso = (iterations_for_budget(a, cfg.pop_size, cfg.budget) for a in (CGO, PSO))
     fmt = lambda v: f"{v:.3g}"  # noqa: E731
     n_cells = len(names) * len(cfg.dims)
     lines = ["# Optimizer study: icgo.optim vs mealpy 3.x at equal evaluation budget", "",
              f"Command: `.venv/bin/python -m experiments.optimizers {' '.join(argv) if argv else ''}`".rstrip() + "",
              "",
-             f"Functions: {', '.join(names)} (shifted + rotated with the CEC 2017 data, `icgo.benchmarks`), "
+             f"Functions: {', '.join(names)} (shifted + rotated with the CEC 2017 data, `icgo.optim.benchmarks`), "
              f"box [-100, 100]^D, D in {list(cfg.dims)}; {cfg.runs} runs per cell; population {cfg.pop_size}; "
              f"budget {cfg.budget} fitness evaluations per run for every algorithm (CGO: "
              f"{n_cgo} iterations x 4 evaluations per seed; "
@@ -122,7 +123,7 @@ def markdown(res, argv) -> list[str]:
     lines += ["## Compilation", "",
               "Each (algorithm, dimension) is one jitted call over all functions x runs; the CGO call also vmaps "
               "over the strategies (original, three_stage). New compiled programs per call "
-              "(`_batch_jit._cache_size()` difference) and wall time:", ""]
+              "(`icgo.optim.compiled_runners()` difference) and wall time:", ""]
     comp = res.compilation
     for dim in cfg.dims:
         c = comp[comp.dim == dim]

@@ -1,15 +1,15 @@
-"""Per-stage roofline of the fast RELM fitness (:func:`icgo.relm.train_fitness`) on this CPU.
+"""Per-stage roofline of the fast RELM fitness (:func:`icgo.methods.relm.train_fitness`) on this CPU.
 
 ``python -m experiments.roofline [--batch 1200] [--quick] [--out FILE.json]`` prints a Markdown
 table and, as its last line, one JSON object (also written to ``--out``). Run as a module it pins
-itself to one core with one XLA thread (:func:`icgo.parallel.xla_flags`, as the launcher's jobs,
+itself to one core with one XLA thread (:func:`icgo.studies.workers.xla_flags`, as the launcher's jobs,
 set before JAX is imported); :mod:`experiments.bench` runs it in a child process for the same reason.
 
 Shape: the Table 3 study's repeat 0 (:func:`experiments.bench.study_data`): n = 407 training
 rows, d1 = 7 augmented inputs (6 standardised sensors and a column of ones for the bias),
 L = 30 hidden units, chunks of C = 10 thetas, ``refine`` = 2, a batch of P = 1200 thetas.
 
-Stages (the kernel's own functions, ``icgo.relm._train_rmse_chunk``), each jitted alone at the
+Stages (the kernel's own functions, ``icgo.methods.relm.train_rmse_chunk``), each jitted alone at the
 kernel's chunk shape: a ``lax.fori_loop`` of max(ceil(P / C), 100) iterations (enough to amortise
 the call's fixed cost) runs the stage on one real chunk's inputs (computed from the study's data
 by the stages before it), the first input nudged in place by a runtime 0.0 each iteration (behind
@@ -60,7 +60,7 @@ from __future__ import annotations
 import os
 
 if __name__ == "__main__":  # one XLA thread on one core, set before JAX is imported
-    from icgo.parallel import xla_flags
+    from icgo.studies.workers import xla_flags
 
     os.environ["XLA_FLAGS"] = xla_flags(1, os.environ.get("XLA_FLAGS", ""))
     try:
@@ -77,8 +77,8 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from experiments.bench import HIDDEN, LAM, _best_time, _slice, population, study_data  # noqa: E402
-from icgo import relm  # noqa: E402
+from experiments.bench import HIDDEN, LAM, best_time, population, slice_tree, study_data  # noqa: E402
+from icgo.methods import relm  # noqa: E402
 
 #: Fewest loop iterations of a timed stage or ceiling (a call costs ~20 us before its first iteration).
 MIN_ITERATIONS = 100
@@ -125,7 +125,7 @@ def loop_time(stage, inputs, iterations: int, reps: int) -> float:
 
         return jax.lax.fori_loop(0, iterations, body, (x, out0))[1]
 
-    return _best_time(run, inputs[0], tuple(inputs[1:]), jnp.zeros((), jnp.float64), reps=reps)
+    return best_time(run, inputs[0], tuple(inputs[1:]), jnp.zeros((), jnp.float64), reps=reps)
 
 
 def _uniform(shape, dtype, seed: int = 0):
@@ -203,34 +203,34 @@ def stage_times(rows: relm.TrainRows, pop, hidden: int, lam: float, chunk: int, 
     Xa, T = rows.Xa, rows.T
     d1 = Xa.shape[1]
     p0 = pop[:chunk]
-    Z = relm._pre_activation(Xa, relm._input_weights(p0, d1, hidden, feature_dtype))
+    Z = relm.pre_activation(Xa, relm.input_weights(p0, d1, hidden, feature_dtype))
     H = jax.nn.sigmoid(Z)
-    A, HtT, n = relm._normal_equations(H, T, None, dt, gd)
-    C = relm._cholesky(A, lam)
-    beta0 = relm._cho_solve(C, HtT)
+    A, HtT, n = relm.normal_equations(H, T, None, dt, gd)
+    C = relm.cholesky(A, lam)
+    beta0 = relm.cho_solve(C, HtT)
 
     def refinement(H):
         beta = beta0
         for _ in range(refine):
-            beta = relm._refine_step(H, T, None, beta, C, lam)
+            beta = relm.refine_step(H, T, None, beta, C, lam)
         return beta
 
     beta = refinement(H)
 
     stages = {
-        "pre-activation": (lambda p: relm._pre_activation(Xa, relm._input_weights(p, d1, hidden, feature_dtype)), p0),
+        "pre-activation": (lambda p: relm.pre_activation(Xa, relm.input_weights(p, d1, hidden, feature_dtype)), p0),
         "sigmoid": (jax.nn.sigmoid, Z),
-        "centring + Gram": (lambda H: relm._normal_equations(H, T, None, dt, gd)[:2], H),
-        "Cholesky + solve": (lambda A: relm._cho_solve(relm._cholesky(A, lam), HtT), A),
+        "centring + Gram": (lambda H: relm.normal_equations(H, T, None, dt, gd)[:2], H),
+        "Cholesky + solve": (lambda A: relm.cho_solve(relm.cholesky(A, lam), HtT), A),
         "refinement": (refinement, H),
-        "final RMSE": (lambda H: relm._rmse(H, T, None, n, beta), H),
+        "final RMSE": (lambda H: relm.rmse(H, T, None, n, beta), H),
     }
     return {name: loop_time(f, (x,), iterations, reps) / iterations for name, (f, x) in stages.items()}
 
 
 def measure(rows: relm.TrainRows, hidden: int = HIDDEN, lam: float = LAM, batch: int = 1200, chunk: int = 10,
             refine: int = 2, reps: int = 7) -> dict:
-    """The per-stage roofline of :func:`icgo.relm.train_fitness` on ``rows`` (one repeat, unweighted).
+    """The per-stage roofline of :func:`icgo.methods.relm.train_fitness` on ``rows`` (one repeat, unweighted).
 
     Args:
         rows: TrainRows (n, d1) of one repeat. hidden: L. lam: ridge lambda. batch: thetas P of the
@@ -253,7 +253,7 @@ def measure(rows: relm.TrainRows, hidden: int = HIDDEN, lam: float = LAM, batch:
         ceil = stage_ceilings(counts, rates, fd)
         times = stage_times(rows, pop, hidden, lam, chunk, refine, fd, iterations, reps)
         kernel = relm.make_train_fitness(lam, hidden, chunk, refine, feature_dtype=fd)
-        t_kernel = _best_time(kernel, pop, rows, reps=reps) / batch
+        t_kernel = best_time(kernel, pop, rows, reps=reps) / batch
         stages = {}
         for s in STAGES:
             t, (flops, nbytes), (tc, bound) = times[s] / chunk, counts[s], ceil[s]
@@ -296,13 +296,13 @@ def main(argv=None) -> dict:
     if batch < 1 or a.chunk < 1 or a.refine < 0 or reps < 1:
         p.error("--batch, --chunk and --reps must be >= 1 and --refine >= 0")
     res = {"loadavg_start": list(os.getloadavg())}
-    res.update(measure(_slice(study_data(1).compact, 0), HIDDEN, LAM, batch, a.chunk, a.refine, reps))
+    res.update(measure(slice_tree(study_data(1).compact, 0), HIDDEN, LAM, batch, a.chunk, a.refine, reps))
     res.update(quick=a.quick, reps=reps, xla_flags=os.environ.get("XLA_FLAGS", ""),
                cpus=sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
                loadavg_end=list(os.getloadavg()), jax=jax.__version__)
     line = json.dumps(res)
     if a.out:
-        from icgo.io import atomic_write_texts
+        from icgo.io.recording import atomic_write_texts
 
         atomic_write_texts([(Path(a.out), line + "\n")])
     print(table(res))

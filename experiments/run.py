@@ -6,8 +6,8 @@ and writes into the run directory (``HydraConfig.get().runtime.output_dir``):
 ``config.yaml`` (resolved), ``metrics.csv`` (per method, repeat, split),
 ``convergence.csv``, ``predictions.csv``, ``msa.csv``, ``summary.csv``,
 ``summary.md``, the fitted models ``relm_compensation.json/.npz`` and
-``msa.json/.npz`` (:mod:`icgo.models`), ``study.png`` and, last, ``run.json``
-(file and column names: :mod:`icgo.records`); prints the summary table and a
+``msa.json/.npz`` (:mod:`icgo.models.format`), ``study.png`` and, last, ``run.json``
+(file and column names: :mod:`icgo.reporting.records`); prints the summary table and a
 final line with the wall time.
 
 Examples::
@@ -32,7 +32,7 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from experiments._common import CONF_DIR, EXIT_CONFIG, check_overrides, preflight
+from experiments._entry import CONF_DIR, EXIT_CONFIG, check_overrides, preflight
 
 log = logging.getLogger(__name__)
 
@@ -50,16 +50,17 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
     Raises:
         SystemExit(2): a bad setting or data file outside a sweep (one line on stderr).
     """
-    from experiments import _common as C
+    from experiments import _entry as E
+    from experiments import _relm_job as C
 
     # JAX's backend probe ("Unable to initialize backend 'tpu'") is noise in Hydra's INFO log.
     logging.getLogger("jax._src.xla_bridge").setLevel(logging.WARNING)
     t0 = time.perf_counter()
-    previous = C.previous_run(outdir)
+    previous = E.previous_run(outdir)
     if previous is not None and not cfg.overwrite:
         if multirun:  # re-running a sweep into its directory resumes it: a finished job is kept
             log.info("kept the finished job in %s (overwrite=true reruns it)", outdir)
-            (outdir / C.FAILED).unlink(missing_ok=True)
+            (outdir / E.FAILED).unlink(missing_ok=True)
             return previous
         print(f"error: {outdir} already holds a complete run; choose another hydra.run.dir or pass overwrite=true "
               f"(the old run is then replaced whole)", file=sys.stderr)
@@ -67,25 +68,25 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
     try:
         scfg = C.study_config(cfg)  # every check before any computation
         bar = C.progress_enabled(cfg.progress)
-        C.enable_jax_cache(cfg.jax_cache_dir)
+        E.enable_jax_cache(cfg.jax_cache_dir)
         frame, meta, desc = C.load_data(cfg)
         target = C.load_target(cfg)
         result = C.run_with_progress(frame, scfg, meta, bar, desc=f"{desc} {'/'.join(scfg.method_names())}",
                                      target=target)
-    except ValueError as e:  # ConfigError, icgo.io.DataError, study/optimizer checks: one line each
+    except ValueError as e:  # SettingError, DataError (icgo.core.errors), study/optimizer checks: one line each
         if multirun:
-            C.write_failure(outdir, C.one_line(e), C.format_traceback(e))
-            log.error("job failed: %s", C.one_line(e))
+            E.write_failure(outdir, E.one_line(e), E.format_traceback(e))
+            log.error("job failed: %s", E.one_line(e))
             return None
         outdir.mkdir(parents=True, exist_ok=True)
-        (outdir / "error.txt").write_text(C.format_traceback(e))
-        print(f"error: {C.one_line(e)}", file=sys.stderr)
+        (outdir / "error.txt").write_text(E.format_traceback(e))
+        print(f"error: {E.one_line(e)}", file=sys.stderr)
         raise SystemExit(EXIT_CONFIG) from None
     except Exception as e:
         if not multirun:
             raise
-        C.write_failure(outdir, f"{type(e).__name__}: {C.one_line(e)}", C.format_traceback(e))
-        log.error("job failed: %s: %s", type(e).__name__, C.one_line(e))
+        E.write_failure(outdir, f"{type(e).__name__}: {E.one_line(e)}", E.format_traceback(e))
+        log.error("job failed: %s: %s", type(e).__name__, E.one_line(e))
         return None
 
     info = {"label": cfg.label, "dataset": cfg.dataset.name,
@@ -96,7 +97,7 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
             "schedule": OmegaConf.to_container(cfg.schedule, resolve=True),
             "optimizer_params": OmegaConf.to_container(cfg.optimizer.params, resolve=True) if cfg.optimizer.name
             else None,
-            "total_time_s": time.perf_counter() - t0, **C.env_info()}
+            "total_time_s": time.perf_counter() - t0, **E.env_info()}
     plot = None
     if cfg.figures:
         from experiments.figures import plot_study

@@ -11,7 +11,7 @@ Built by :func:`experiments.figures.build` from the runs of three presets (label
 
 Each level runs every method on Table 3's splits and keys (10 paired repeats): plain RELM,
 PSO-RELM, GA-RELM and CGO-RELM's five 4th-seed strategies. Per level the table gives each
-method's test MAE, the noise floor of that level's data (:func:`icgo.datasets.noise_floor`: the
+method's test MAE, the noise floor of that level's data (:func:`icgo.datasets.protocols.noise_floor`: the
 same draw without casing, sensor effects and spikes), the casing's field at the sensor, the order
 of the methods by mean MAE, the Friedman test over the methods, the best method against the
 second (paired Wilcoxon, Holm over the levels), and Kendall's tau between the level's order and
@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+
+from icgo.reporting.plots import plt_agg, save_figure
 
 #: Run label of each sweep -> (dataset keyword swept, its readable name, its default value).
 SWEEPS = {"sweep_noise": ("noise_scale", "noise x", 1.0),
@@ -40,10 +42,10 @@ METHODS = {"relm": "RELM", "pso": "PSO-RELM", "ga": "GA-RELM", "cgo-original": "
 
 def _level_data(kwargs: dict) -> dict:
     """One level's ``lab_casing`` draw (seed 0): its noise floor (deg), the casing field at the sensor (nT)
-    and the physics of its raw readings against the site's reference (:func:`icgo.qc.survey_qc`): RMS
+    and the physics of its raw readings against the site's reference (:func:`icgo.physics.qc.survey_qc`): RMS
     deviation of |G| (mg), |B| (nT) and dip (deg), which noise and casing disturb before any compensation."""
-    from icgo.datasets import lab_casing, noise_floor
-    from icgo.qc import survey_qc
+    from icgo.datasets.protocols import lab_casing, noise_floor
+    from icgo.physics.qc import survey_qc
 
     floor = noise_floor("lab_casing", 0, **kwargs).iloc[0]
     ds = lab_casing(0, **kwargs)
@@ -60,7 +62,7 @@ def _level_data(kwargs: dict) -> dict:
 
 def _levels(runs, label: str) -> dict:
     """{level value: wide (repeat x method) test-MAE frame} of one sweep's runs; raises on a clash."""
-    from icgo import records as R
+    from icgo.reporting import records as R
 
     key = SWEEPS[label][0]
     frames: dict = {}
@@ -80,11 +82,11 @@ def _levels(runs, label: str) -> dict:
     return dict(sorted(out.items()))
 
 
-def _table(label: str, levels: dict) -> tuple[pd.DataFrame, list[str]]:
+def table(label: str, levels: dict) -> tuple[pd.DataFrame, list[str]]:
     """One sweep's rows (one per level) and the methods every level has."""
     from scipy.stats import kendalltau
 
-    from icgo.stats import friedman, holm, wilcoxon_paired
+    from icgo.maths.stats import friedman, holm, wilcoxon_paired
 
     key, name, default = SWEEPS[label]
     methods = [m for m in METHODS if all(m in w.columns for w in levels.values())]
@@ -135,16 +137,14 @@ def build(runs, out: Path, name: str) -> bool:
         runs: :class:`experiments.figures.Runs` holding the sweeps' runs (other labels are ignored).
         out: output folder. name: ``sweep_noise`` or ``sweep_casing``.
     """
-    from experiments.figures import _plt, _save
-
     parts = [(label, _levels(runs, label)) for label in OUTPUTS[name]]
     parts = [(label, lv) for label, lv in parts if lv]
     if not parts:
         return False
-    text, csv, plt = [], [], _plt()
+    text, csv, plt = [], [], plt_agg()
     fig, axes = plt.subplots(1, len(parts), figsize=(6.5 * len(parts), 4.2), squeeze=False)
     for ax, (label, levels) in zip(axes[0], parts):
-        df, methods = _table(label, levels)
+        df, methods = table(label, levels)
         key, _, default = SWEEPS[label]
         text += [f"## {label}: `python -m experiments.run -m experiment={label}`", "",
                  df.to_markdown(index=False, floatfmt=".4g"), "",
@@ -160,11 +160,11 @@ def build(runs, out: Path, name: str) -> bool:
              "effect and the spikes removed, through the standard azimuth formula: the error the simulated "
              "sensor noise alone leaves. `best / floor` = the best method's MAE over it. Casing field: median "
              "(range) of |B_casing| at the sensor over the kept rows. Raw |G|, |B|, dip: RMS deviation of the "
-             "level's raw readings from the site's reference field and gravity (the data set's metadata; `icgo.qc.survey_qc`), "
+             "level's raw readings from the site's reference field and gravity (the data set's metadata; `icgo.physics.qc.survey_qc`), "
              "the physics the noise and the casing disturb. The methods output an azimuth correction only (no "
              "corrected G or B), so these columns describe each level's data, not a method's output."]
     (out / f"{name}.md").write_text("\n".join([f"# {title} (test MAE, lab_casing)", "", *text, *notes]) + "\n")
-    _save(fig, out / f"{name}.png", f"{title}: every method against the noise floor (lab_casing)")
+    save_figure(fig, out / f"{name}.png", f"{title}: every method against the noise floor (lab_casing)")
     return True
 
 

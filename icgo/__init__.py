@@ -1,13 +1,18 @@
 """icgo: JAX framework for inclinometer / MWD azimuth error compensation.
 
-Importing the package enables JAX float64 (``jax_enable_x64``): the RELM ridge
-solve and the least-squares fits need it (see ENGINEERING-NOTES: float32 ridge
-solves fail on ill-conditioned sigmoid features). float32 paths are still
-available by passing float32 arrays explicitly.
+Importing the package turns on JAX float64 (``jax_enable_x64``): the RELM ridge solve and the
+least-squares fits need it (float32 ridge solves fail on ill-conditioned sigmoid features).
+float32 paths are still available by passing float32 arrays explicitly. The switch is made
+without importing JAX when JAX is not loaded yet (``JAX_ENABLE_X64``, read when JAX starts),
+so the ground floor (:mod:`icgo.core`) stays light for the entry points' early checks.
 """
 
-import jax
+import os
+import sys
 
-jax.config.update("jax_enable_x64", True)
+if "jax" in sys.modules:
+    sys.modules["jax"].config.update("jax_enable_x64", True)
+else:
+    os.environ["JAX_ENABLE_X64"] = "1"
 
 __version__ = "0.1.0"

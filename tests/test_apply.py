@@ -1,4 +1,4 @@
-"""experiments.apply / icgo.survey: a saved model corrects a new survey; QC, metrics, one-line errors."""
+"""experiments.apply / icgo.survey.apply: a saved model corrects a new survey; QC, metrics, one-line errors."""
 
 from __future__ import annotations
 
@@ -14,12 +14,13 @@ import pytest
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 
-from experiments import _common as C
+from experiments import _entry as C
 from experiments.apply import run_apply
-from icgo import datasets
-from icgo.io import read_recording, write_recording
-from icgo.models import SCHEMA_VERSION, ModelError
-from icgo.qc import QCBands
+from icgo.core.errors import ModelError
+from icgo.datasets import protocols as datasets
+from icgo.io.recording import read_recording, write_recording
+from icgo.models.format import SCHEMA_VERSION
+from icgo.physics.qc import QCBands
 from icgo.studies import icgo_relm
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -1,10 +1,11 @@
 """Building blocks of experiments/bench.py at tiny sizes (no timing is tested)."""
 
 import numpy as np
-
 from conftest import relm_train_data as _data
-from experiments import bench
-from icgo import relm
+
+from experiments import bench, bench_user
+from icgo.methods import relm
+from icgo.optim.registry import get
 
 
 def test_flop_count_matches_hand_count():
@@ -27,13 +28,13 @@ def test_large_recording_and_measure(tmp_path):
     """--rows building blocks: a tiled contract CSV that reads back, and a child's time and peak memory."""
     import sys
 
-    from icgo import io
+    from icgo.io import recording as io
 
     rec = bench.write_large_recording(tmp_path / "big.csv", 1500)
     back = io.read_recording(tmp_path / "big.csv")
     assert len(back.frame) == 1500 and back.frame["station"].is_unique and back.field is not None
     np.testing.assert_array_equal(back.frame["azimuth_deg"], rec.frame["azimuth_deg"])
-    m = bench.measure([sys.executable, "-c", "print('ok')"])
+    m = bench_user.measure([sys.executable, "-c", "print('ok')"])
     assert m["rc"] == 0 and "ok" in m["tail"] and 0 < m["peak_rss_gb"] < 1 and m["wall_s"] > 0
 
 
@@ -50,7 +51,7 @@ def test_evosax_peers_spend_the_same_evaluations_and_icgo_pso_is_run_batch():
     assert [r["name"] for r in res] == ["icgo PSO", "evosax PSO", "evosax DE"]
     assert all(r["evals"] == 8 * 4 and np.isfinite(r["best_f_mean"]) and r["best_f_mean"] > 0 for r in res)
     D = relm.n_params(bench.HIDDEN)
-    ref = run_batch("pso", relm.make_train_fitness(bench.LAM, bench.HIDDEN), (-jnp.ones(D), jnp.ones(D)),
+    ref = run_batch(get("pso"), relm.make_train_fitness(bench.LAM, bench.HIDDEN), (-jnp.ones(D), jnp.ones(D)),
                     jax.random.split(jax.random.PRNGKey(0), 2), 8, 3, aux=sd.compact).best_f
     assert res[0]["best_f_mean"] == float(np.mean(np.asarray(ref)))
 

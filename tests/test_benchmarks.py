@@ -1,13 +1,12 @@
 """Benchmark functions vs opfunu's CEC 2017 implementations (same shift/rotation data)."""
 
 import numpy as np
+import opfunu.cec_based.cec2017 as opfunu_cec
 import pytest
+from opfunu.utils import operator
 
 import icgo  # noqa: F401  (float64)
-from icgo import benchmarks as bm
-
-import opfunu.cec_based.cec2017 as opfunu_cec
-from opfunu.utils import operator
+from icgo.optim import benchmarks as bm
 
 # functions with a CEC 2017 class in opfunu: compare with class.evaluate(x) - bias
 CLASSES = {"bent_cigar": "F12017", "zakharov": "F22017", "rosenbrock": "F32017", "rastrigin": "F42017",

@@ -1,4 +1,4 @@
-"""Calibration of grouped shots (icgo.studies.calibration, icgo.cal_sanity) and its front door experiments.calibrate."""
+"""Calibration of grouped shots (icgo.studies.calibration, icgo.methods.cal_sanity) and its front door experiments.calibrate."""
 
 from __future__ import annotations
 
@@ -15,13 +15,14 @@ from omegaconf import OmegaConf
 
 import icgo  # noqa: F401
 from experiments import calibrate as entry
-from experiments._common import CONF_DIR
-from icgo import calibration as cal
-from icgo import io
-from icgo.cal_sanity import LIMITS, sanity
-from icgo.frames import sensors_from_attitude
-from icgo.models import load_model
-from icgo.studies import SettingError, config_to_mapping
+from experiments._entry import CONF_DIR
+from icgo.core.errors import SettingError
+from icgo.core.settings import config_to_mapping
+from icgo.io import recording as io
+from icgo.methods import calibration as cal
+from icgo.methods.cal_sanity import LIMITS, sanity
+from icgo.models.registry import load_model
+from icgo.physics.frames import sensors_from_attitude
 from icgo.studies import calibration as C
 
 ROOT = CONF_DIR.parent
@@ -174,9 +175,9 @@ def _rolled_recording(seed=1, n_single=10, n_roll=8, rolls=((40.0, 100.0), (-20.
 
 
 def _relm_residuals_numpy(W, G, b, groups, fit_rows):
-    """The residuals of icgo.mag_relm written again from their definitions (numpy, deg), for the fitting shots."""
-    from icgo import mag_relm
-    from icgo.qc import measured_dip_deg
+    """The residuals of icgo.methods.mag_relm written again from their definitions (numpy, deg), for the fitting shots."""
+    from icgo.methods import mag_relm
+    from icgo.physics.qc import measured_dip_deg
 
     bn = b + mag_relm.features(b, mag_relm.axis_rbf_hidden()) @ W
     d = cal.pointing_directions(G, bn)
@@ -191,7 +192,7 @@ def _relm_residuals_numpy(W, G, b, groups, fit_rows):
 
 
 def test_relm_residuals_vanish_for_exact_shots():
-    from icgo import mag_relm
+    from icgo.methods import mag_relm
 
     G, B, groups = _rolled_recording()
     b = B  # unit sphere already
@@ -218,7 +219,7 @@ def test_relm_fit_matches_scipy_and_leave_one_group_out_equals_refitting_without
     # masked fit against a fit on the shots with that group removed
     from scipy.optimize import least_squares
 
-    from icgo import mag_relm
+    from icgo.methods import mag_relm
 
     G, b, groups = _axis_distorted()
     lam = 100.0
@@ -240,8 +241,8 @@ def test_relm_fit_matches_scipy_and_leave_one_group_out_equals_refitting_without
 
 
 def test_relm_learns_a_per_axis_non_linearity_and_chooses_its_ridge_by_groups():
-    from icgo import mag_relm
-    from icgo.qc import measured_dip_deg
+    from icgo.methods import mag_relm
+    from icgo.physics.qc import measured_dip_deg
 
     G, b, groups = _axis_distorted()
     model = mag_relm.fit(G, b, groups)
@@ -257,7 +258,7 @@ def test_relm_learns_a_per_axis_non_linearity_and_chooses_its_ridge_by_groups():
 
 
 def test_relm_on_exact_shots_stays_the_identity():
-    from icgo import mag_relm
+    from icgo.methods import mag_relm
 
     G, B, groups = _rolled_recording()
     b = B  # unit sphere already
@@ -266,9 +267,9 @@ def test_relm_on_exact_shots_stays_the_identity():
 
 
 def test_a_first_build_relm_file_reads_as_tanh_and_a_bad_activation_is_refused():
-    from icgo import mag_relm
-    from icgo.calibration_models import MagCalibration
-    from icgo.models import ModelError
+    from icgo.core.errors import ModelError
+    from icgo.methods import mag_relm
+    from icgo.models.calibration import MagCalibration
 
     h, o = np.random.default_rng(0).normal(size=(4, 5)), np.zeros((5, 3))
     kw = dict(config={}, data_hash="-", domain={}, method="twelve_relm", axis_aligned=False, field_scale_nT=1.0,

@@ -1,12 +1,13 @@
-"""Tests for icgo.calibration: closed forms, the peer metric, bad input."""
+"""Tests for icgo.methods.calibration: closed forms, the peer metric, bad input."""
 
-import numpy as np
 import jax.numpy as jnp
+import numpy as np
 import pytest
 
 import icgo  # noqa: F401
-from icgo import calibration as cal
-from icgo.frames import sensors_from_attitude
+from icgo.methods import calibration as cal
+from icgo.methods.misma_objective import MismaObjective
+from icgo.physics.frames import sensors_from_attitude
 
 
 def _stations(n=60, seed=0, F=50_000.0, dip=60.0):
@@ -86,7 +87,7 @@ def test_fit_twelve_recovers_general_R():
 
 def test_fitness_is_inf_not_nan_for_degenerate_candidates():
     G, Bt, _ = _stations(20)
-    obj = cal.MismaObjective(cal.make_caldata(G, Bt, 50_000.0))
+    obj = MismaObjective(cal.make_caldata(G, Bt, 50_000.0))
     pop = jnp.stack([jnp.zeros(12), cal.identity_params(), jnp.full(12, jnp.nan)])
     f = np.asarray(obj(pop))
     assert np.isinf(f[0]) and np.isinf(f[2]) and f[1] < 1e-20
@@ -124,7 +125,7 @@ def test_make_caldata_bad_input():
 def test_group_spread_matches_peer_package_on_a_real_device():
     from mag_cal import Calibration
 
-    from icgo.io import MAG_CAL_DEVICE_TO_TOOL, load_mag_cal_device
+    from icgo.io.recording import MAG_CAL_DEVICE_TO_TOOL, load_mag_cal_device
 
     rec = load_mag_cal_device("ab")
     G, B, groups = rec.G, rec.B, rec.frame["group"].to_numpy()
@@ -146,7 +147,7 @@ def test_group_spread_matches_peer_package_on_a_real_device():
 
 def test_align_to_axis_removes_a_known_mounting_rotation():
     # groups rolled about the tool axis, sensors mounted with a 3 deg tilt: alignment restores zero spread
-    from icgo.effects import rotation_from_vector
+    from icgo.physics.effects import rotation_from_vector
 
     T = np.linspace(0, 315, 8)
     rows = [sensors_from_attitude(np.full(8, a), np.full(8, i), T, 50_000.0, 60.0) for a, i in ((40, 30), (200, 70))]
@@ -160,7 +161,7 @@ def test_align_to_axis_removes_a_known_mounting_rotation():
     assert cal.group_spread_deg(Gm @ Q.T, Bm @ Q.T, groups)[0] < 1e-6
 
 
-# ------------------------------------------- the least-squares fits (icgo.lsq)
+# ------------------------------------------- the least-squares fits (icgo.maths.lsq)
 def _scipy_peer(fn, u0, args, x_scale):
     """The same residuals solved by scipy's trust-region reflective least squares (independent solver)."""
     import jax

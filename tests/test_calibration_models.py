@@ -1,4 +1,4 @@
-"""icgo.calibration_models: the 12-parameter calibration artifact (apply, save/load round trip, errors)."""
+"""icgo.models.calibration: the 12-parameter calibration artifact (apply, save/load round trip, errors)."""
 
 from __future__ import annotations
 
@@ -7,10 +7,11 @@ import pandas as pd
 import pytest
 
 import icgo  # noqa: F401
-from icgo import calibration as cal
-from icgo.calibration_models import MagCalibration, mag_calibration
-from icgo.frames import angle_diff, sensors_from_attitude
-from icgo.models import ModelError, load_model
+from icgo.core.errors import ModelError
+from icgo.methods import calibration as cal
+from icgo.models.calibration import MagCalibration, mag_calibration
+from icgo.models.registry import load_model
+from icgo.physics.frames import angle_diff, sensors_from_attitude
 
 R_TRUE = np.array([[1.04, 0.02, -0.01], [-0.02, 0.97, 0.03], [0.01, -0.02, 1.02]])
 B_TRUE = np.array([1500.0, -900.0, 600.0])

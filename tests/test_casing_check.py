@@ -3,8 +3,8 @@
 import numpy as np
 
 from experiments.casing_check import compare, magpylib_tube_field
-from icgo import datasets
-from icgo import instruments as ins
+from icgo.datasets import instruments as ins
+from icgo.datasets import protocols as datasets
 
 
 def test_pole_pair_matches_the_magnetised_tube_at_every_lab_station_and_distance():

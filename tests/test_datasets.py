@@ -1,4 +1,4 @@
-"""Tests for icgo.datasets: the papers' experiments, their must-show properties, CSV round trips."""
+"""Tests for icgo.datasets.protocols: the papers' experiments, their must-show properties, CSV round trips."""
 
 import numpy as np
 import pandas as pd
@@ -6,9 +6,10 @@ import pytest
 from scipy.optimize import least_squares
 
 import icgo  # noqa: F401  (float64)
-from icgo import datasets as D
-from icgo import frames as F
-from icgo import io
+from icgo.datasets import __main__ as datasets_cli
+from icgo.datasets import protocols as D
+from icgo.io import recording as io
+from icgo.physics import frames as F
 
 
 def _gb(frame):
@@ -141,7 +142,7 @@ def test_turntable_steps_and_between_grid():
 
 
 def test_turntable_ideal_instrument_is_exact():
-    from icgo.instruments import GyroErrors
+    from icgo.datasets.instruments import GyroErrors
 
     f = D.turntable(0, gyro=GyroErrors(), accel=D.AccelErrors((0, 0, 0), (0, 0, 0)), mount_misalignment_deg=(0, 0, 0),
                     gyro_noise_deg_h=0.0, accel_noise_g=0.0).frame
@@ -211,7 +212,7 @@ def test_seed_determinism_and_bad_seed():
 
 
 def test_cli_writes_files(tmp_path, capsys):
-    assert D.main(["well_conditions", "--out", str(tmp_path), "--seed", "1"]) == 0
+    assert datasets_cli.main(["well_conditions", "--out", str(tmp_path), "--seed", "1"]) == 0
     assert (tmp_path / "well_conditions.csv").exists() and (tmp_path / "well_conditions.meta.json").exists()
 
 

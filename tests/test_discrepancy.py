@@ -17,14 +17,15 @@ import pytest
 from omegaconf import OmegaConf
 
 import icgo  # noqa: F401
-from experiments._common import EXIT_CONFIG
+from experiments._entry import EXIT_CONFIG
 from icgo import discrepancy as D
-from icgo import effects as fx
-from icgo import io as icgo_io
-from icgo.frames import angle_diff, azimuth_from_gv
-from icgo.models import load_model
-from icgo.qc import measured_dip_deg
-from icgo.studies import config_from_mapping, config_to_mapping
+from icgo.core.errors import SettingsError
+from icgo.core.settings import config_from_mapping, config_to_mapping
+from icgo.io import recording as icgo_io
+from icgo.models.registry import load_model
+from icgo.physics import effects as fx
+from icgo.physics.frames import angle_diff, azimuth_from_gv
+from icgo.physics.qc import measured_dip_deg
 
 DATA = Path(__file__).parent / "data"
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
@@ -355,7 +356,7 @@ def test_hydra_config_equals_workflow_config_defaults():
 
 
 def test_workflow_config_validates_every_field():
-    with pytest.raises(D.ConfigError) as err:
+    with pytest.raises(SettingsError) as err:
         D.WorkflowConfig(k_folds=1, max_effects=-1, min_z=float("nan"), sigma_g=0.0, candidates=["hard_iron", "nope"])
     lines = err.value.problems
     assert [ln.split("=")[0].split(": ")[1] for ln in lines] == ["k_folds", "max_effects", "min_z", "sigma_g", "candidates"]

@@ -5,8 +5,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from icgo import effects as E
-from icgo import frames as F
+from icgo.physics import effects as E
+from icgo.physics import frames as F
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,7 @@ import sys
 
 import pytest
 
-from experiments._common import CONF_DIR
+from experiments._entry import CONF_DIR
 
 ROOT = CONF_DIR.parent
 
@@ -56,9 +56,9 @@ def test_a_run_dir_that_cannot_be_a_directory_is_one_line(tmp_path, key, value, 
 
 def test_multirun_flag_after_the_overrides_is_accepted():
     """``-m`` after an override is moved in front (Hydra's parser refuses it there), so the checks still run."""
-    from experiments._common import preflight
-
     import sys as _sys
+
+    from experiments._entry import preflight
 
     argv = _sys.argv[:]
     try:

@@ -20,15 +20,18 @@ from hydra.core.global_hydra import GlobalHydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import open_dict
 
-from experiments import _common as C
+from experiments import _entry as E
+from experiments import _relm_job as C
+from experiments import _sweep
 from experiments.run import run_job
+from icgo.optim.registry import get
 
 ROOT = Path(__file__).resolve().parent.parent
 
 
 def _compose(overrides, hydra=False):
     GlobalHydra.instance().clear()
-    with initialize_config_dir(config_dir=str(C.CONF_DIR), version_base="1.3"):
+    with initialize_config_dir(config_dir=str(E.CONF_DIR), version_base="1.3"):
         cfg = compose(config_name="config", overrides=list(overrides), return_hydra_config=hydra)
     return cfg
 
@@ -45,8 +48,8 @@ def _job_cfg(overrides):
 @pytest.fixture(scope="module")
 def small_csv(tmp_path_factory):
     """lab_casing with a 30 deg toolface step (8 x 13 rows) as a contract CSV + meta."""
-    from icgo import datasets
-    from icgo.io import write_recording
+    from icgo.datasets import protocols as datasets
+    from icgo.io.recording import write_recording
 
     ds = datasets.lab_casing(0, toolface_step_deg=30.0)
     path = tmp_path_factory.mktemp("data") / "lab_small.csv"
@@ -105,7 +108,7 @@ def test_presets_compose(preset, check):
 
 
 def test_every_preset_file_composes():
-    for name in C.group_options("experiment"):
+    for name in E.group_options("experiment"):
         assert _compose([f"experiment={name}"]).label == name
 
 
@@ -128,7 +131,7 @@ def test_run_writes_outputs_and_prints_table(small_csv, tmp_path, capsys):
     rec = json.loads((tmp_path / "run.json").read_text())
     assert rec["status"] == "ok" and rec["models"] == ["relm_compensation.json", "msa.json"]
     # survey QC of the raw stations, recomputed with numpy against the recording's reference field
-    from icgo.io import read_recording
+    from icgo.io.recording import read_recording
 
     r = read_recording(small_csv)
     keep = pd.read_csv(tmp_path / "predictions.csv").query("method == 'cgo-chaos' and repeat == 0").row.to_numpy()
@@ -162,10 +165,10 @@ def test_repeat_zero_of_a_batch_equals_the_single_split(small_csv, tmp_path):
 
 # ---------------------------------------------------------------- bad input
 def test_unknown_strategy_is_one_line():
-    err = C.check_overrides(["strategy=bogus"])
+    err = E.check_overrides(["strategy=bogus"])
     assert "unknown strategy 'bogus'" in err and "three_stage" in err and "\n" not in err
-    assert "unknown strategy 'nope'" in C.check_overrides(["-m", "strategy=chaos,nope"])
-    assert C.check_overrides(["strategy=chaos", "split.n_repeats=3", "+experiment=table3"]) is None
+    assert "unknown strategy 'nope'" in E.check_overrides(["-m", "strategy=chaos,nope"])
+    assert E.check_overrides(["strategy=chaos", "split.n_repeats=3", "+experiment=table3"]) is None
 
 
 def test_cli_unknown_strategy_fails_in_one_line_from_any_directory(tmp_path):
@@ -203,10 +206,10 @@ def _fail_if_called(*a, **k):
      "model.hidden=50 has no effect with model.tune=true"),
 ])
 def test_bad_settings_fail_in_one_line_before_computation(override, expect, monkeypatch, capsys, tmp_path):
-    import icgo.datasets
+    import icgo.datasets.protocols
     import icgo.studies.icgo_relm
 
-    monkeypatch.setattr(icgo.datasets, "lab_casing", _fail_if_called)
+    monkeypatch.setattr(icgo.datasets.protocols, "lab_casing", _fail_if_called)
     monkeypatch.setattr(icgo.studies.icgo_relm, "_run", _fail_if_called)
     overrides = TINY + override.split()
     if override.startswith("+dataset.path"):
@@ -214,7 +217,7 @@ def test_bad_settings_fail_in_one_line_before_computation(override, expect, monk
         expect = "dataset.path '/no/such/file.csv': file not found"
     with pytest.raises(SystemExit) as e:
         run_job(_job_cfg(overrides), tmp_path)
-    assert e.value.code == C.EXIT_CONFIG
+    assert e.value.code == E.EXIT_CONFIG
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: ") and expect in err[0]
 
@@ -232,20 +235,20 @@ def test_failed_multirun_job_leaves_marker_and_others_intact(tmp_path, capsys):
 
     from omegaconf import open_dict
 
-    from icgo import records as R
+    from icgo.reporting import records as R
 
     ok = tmp_path / "0"
     ok.mkdir()
     record = json.dumps({k: None for k in R.RUN_KEYS} | {"status": "ok"})
     (ok / "run.json").write_text(record)
     assert run_job(_job_cfg(TINY + ["split.n_repeats=-3"]), tmp_path / "1", multirun=True) is None
-    assert (tmp_path / "1" / C.FAILED).read_text().startswith("split.n_repeats must be")
+    assert (tmp_path / "1" / E.FAILED).read_text().startswith("split.n_repeats must be")
     assert (ok / "run.json").read_text() == record
     cfg = _compose([f"hydra.sweep.dir={tmp_path}"], hydra=True)
     with open_dict(cfg):
         cfg.hydra.overrides.task = ["split.n_repeats=2,-3,4"]   # the sweep as typed: jobs 0, 1, 2
     with pytest.raises(SystemExit) as e:
-        C.FailureReport().on_multirun_end(cfg)
+        _sweep.FailureReport().on_multirun_end(cfg)
     assert e.value.code == 1
     err = capsys.readouterr().err
     assert "3 job(s): 1 ok, 1 failed, 1 not run" in err
@@ -269,7 +272,7 @@ def test_progress_ticks_once_per_iteration_inside_the_scan():
 
     keys = jax.random.split(jax.random.PRNGKey(0), 3)
     aux = jnp.zeros((3, 4))
-    res = run_batch("cgo", bar.wrap(sphere), (-np.ones(4), np.ones(4)), keys, 6, 7,
+    res = run_batch(get("cgo"), bar.wrap(sphere), (-np.ones(4), np.ones(4)), keys, 6, 7,
                     configs=CGO.axis_configs(None, ["chaos", "three_stage"]), aux=aux)
     jax.block_until_ready(res)
     jax.effects_barrier()
@@ -311,16 +314,16 @@ def test_every_study_field_has_a_config_key():
 def test_unknown_settings_are_errors(override, capsys, tmp_path):
     with pytest.raises(SystemExit) as e:
         run_job(_job_cfg(TINY + [override]), tmp_path)
-    assert e.value.code == C.EXIT_CONFIG
+    assert e.value.code == E.EXIT_CONFIG
     err = capsys.readouterr().err.strip().splitlines()
     key = override.lstrip("+").split("=")[0]
     assert len(err) == 1 and "unknown setting" in err[0] and key in err[0], err
 
 
 def test_failed_marker_name_is_the_records_schema_name():
-    from icgo import records
+    from icgo.reporting import records
 
-    assert C.FAILED == records.FAILED_FILE
+    assert E.FAILED == records.FAILED_FILE
 
 
 # ------------------------------------------------------ atomic run directories
@@ -332,7 +335,7 @@ def test_a_finished_run_directory_is_refused_then_replaced_whole(small_csv, tmp_
     capsys.readouterr()
     with pytest.raises(SystemExit) as e:
         run_job(_job_cfg(base), tmp_path)
-    assert e.value.code == C.EXIT_CONFIG
+    assert e.value.code == E.EXIT_CONFIG
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "already holds a complete run" in err[0] and "overwrite=true" in err[0]
     assert (tmp_path / "run.json").read_text() == first
@@ -369,11 +372,11 @@ def test_a_writer_failing_midway_leaves_the_previous_run_intact(small_csv, tmp_p
 def test_rerunning_a_sweep_keeps_finished_jobs(small_csv, tmp_path):
     base = TINY + ["dataset=csv", f"dataset.path={small_csv}", "strategy=chaos", "split.n_repeats=1"]
     first = run_job(_job_cfg(base), tmp_path / "0", multirun=True)
-    (tmp_path / "0" / C.FAILED).write_text("stale\n")
+    (tmp_path / "0" / E.FAILED).write_text("stale\n")
     stamp = (tmp_path / "0" / "run.json").stat().st_mtime_ns
     again = run_job(_job_cfg(base), tmp_path / "0", multirun=True)
     assert again["seed"] == first["seed"] and (tmp_path / "0" / "run.json").stat().st_mtime_ns == stamp
-    assert not (tmp_path / "0" / C.FAILED).exists()
+    assert not (tmp_path / "0" / E.FAILED).exists()
 
 
 def test_jax_cache_dir_that_cannot_be_created_is_one_line(tmp_path, capsys):
@@ -383,14 +386,14 @@ def test_jax_cache_dir_that_cannot_be_created_is_one_line(tmp_path, capsys):
         run_job(_job_cfg(["budget=smoke", "progress=false", "figures=false", f"jax_cache_dir={blocker}/cache"]),
                 tmp_path / "out")
     err = capsys.readouterr().err.strip().splitlines()
-    assert e.value.code == C.EXIT_CONFIG and len(err) == 1 and "jax_cache_dir" in err[0] and "null" in err[0]
+    assert e.value.code == E.EXIT_CONFIG and len(err) == 1 and "jax_cache_dir" in err[0] and "null" in err[0]
 
 
 def test_split_options_compose_their_protocol_and_the_transfer_draw_defaults():
-    """Each conf/split option sets its protocol; split=transfer's target equals icgo.splits.TransferDraw()."""
+    """Each conf/split option sets its protocol; split=transfer's target equals icgo.studies.splits.TransferDraw()."""
     import dataclasses
 
-    from icgo.splits import PROTOCOLS, TransferDraw
+    from icgo.studies.splits import PROTOCOLS, TransferDraw
 
     for option, protocol in (("paper", "random"), ("single", "random"), ("leave_azimuth_out", "leave_azimuth_out"),
                              ("leave_condition_out", "leave_condition_out"), ("transfer", "transfer")):

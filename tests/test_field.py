@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from icgo import field
+from icgo.physics import field
 
 # NOAA WMM2020 test values (WMM2020testvalues.pdf): year, alt km, lat, lon, F nT, I deg, D deg.
 # Published to 0.1 nT and 0.01 deg.

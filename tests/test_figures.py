@@ -17,7 +17,7 @@ import pytest
 from scipy import stats as st
 
 from experiments import figures as F
-from icgo import records as REC
+from icgo.reporting import records as REC
 
 S5 = F.STRATEGIES5
 R = 10
@@ -25,7 +25,7 @@ R = 10
 
 def _run_dir(path: Path, metrics: pd.DataFrame, *, dataset="lab_casing", seed=0, conv=None, pred=None,
              failed=False, label="t", extra=None):
-    """A run directory in the icgo.records schema, written by hand with known numbers."""
+    """A run directory in the icgo.reporting.records schema, written by hand with known numbers."""
     path.mkdir(parents=True)
     tag = {"label": label, "dataset": dataset, "condition": None, "seed": seed}
     for name, df in (("metrics", metrics), ("convergence", conv), ("predictions", pred)):
@@ -343,7 +343,7 @@ def _condition_runs(root: Path, label: str, key: str, levels, rng, best_at):
 def test_noise_and_casing_sweeps_report_every_method_against_the_floor(runs_dir, tmp_path):
     """Issue 18 sweep 5: one row per level, every method, the level's noise floor, ranking statistics."""
     from experiments import sweep_conditions as SC
-    from icgo.datasets import noise_floor
+    from icgo.datasets.protocols import noise_floor
 
     rng = np.random.default_rng(8)
     _condition_runs(runs_dir / "m", "sweep_noise", "noise_scale", (0.5, 1.0, 2.0), rng,
@@ -359,7 +359,7 @@ def test_noise_and_casing_sweeps_report_every_method_against_the_floor(runs_dir,
         assert row["floor MAE (deg)"] == pytest.approx(noise_floor("lab_casing", 0, noise_scale=row["noise x"]).mae[0])
     assert t["floor MAE (deg)"].is_monotonic_increasing
     # the physics of each level's raw readings, recomputed from the draw: |G| against gravity, in mg
-    from icgo.datasets import lab_casing
+    from icgo.datasets.protocols import lab_casing
 
     f = lab_casing(0, noise_scale=2.0).frame
     g = np.linalg.norm(f[["gx", "gy", "gz"]].to_numpy(), axis=1)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import icgo  # noqa: F401  (enables float64)
-from icgo import frames as F
+from icgo.physics import frames as F
 
 
 def _random_attitudes(n, seed=0, inc=(0.0, 180.0)):

@@ -2,7 +2,7 @@
 
 * Valid recordings, generated, round-trip through ``write_recording`` / ``read_recording`` exactly.
 * Malformed CSVs (valid ones with bytes cut, replaced or inserted) and arbitrary JSON metadata end
-  in :class:`icgo.io.DataError` with one line, or read; never another exception.
+  in :class:`icgo.io.recording.DataError` with one line, or read; never another exception.
 * Arbitrary values for the study settings end in a one-line ``SettingError`` or a valid config.
 
 The fast suite runs a bounded number of examples (``FAST``); ``make test-all`` runs the
@@ -21,8 +21,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import icgo  # noqa: F401
-from icgo import io
-from icgo.studies import SettingError
+from icgo.core.errors import SettingError
+from icgo.io import recording as io
 from icgo.studies.icgo_relm import StudyConfig
 
 # The fast suite is derandomized (the same examples every run: CI stays deterministic); the long

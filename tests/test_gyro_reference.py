@@ -1,4 +1,4 @@
-"""The gyro-derived reference M_omega (icgo.strapdown, icgo.gyro_reference) and MISMA's comparison rows (issue 17)."""
+"""The gyro-derived reference M_omega (icgo.physics.strapdown, icgo.methods.gyro_reference) and MISMA's comparison rows (issue 17)."""
 
 from __future__ import annotations
 
@@ -7,13 +7,14 @@ import numpy as np
 import pytest
 
 import icgo  # noqa: F401  (float64)
-from icgo import calibration as cal
-from icgo import datasets
-from icgo import frames as F
-from icgo import instruments as ins
-from icgo.gyro_reference import fit_to_reference, gyro_reference, gyro_term, reference_at
-from icgo.strapdown import gyro_rates_from_attitude, relative_rotations, rot_exp, rot_log
-from icgo.studies import SettingError, misma
+from icgo.core.errors import SettingError
+from icgo.datasets import instruments as ins
+from icgo.datasets import protocols as datasets
+from icgo.methods import calibration as cal
+from icgo.methods.gyro_reference import fit_to_reference, gyro_reference, gyro_term, reference_at
+from icgo.physics import frames as F
+from icgo.physics.strapdown import gyro_rates_from_attitude, relative_rotations, rot_exp, rot_log
+from icgo.studies import misma
 from icgo.studies import misma_compare as compare
 
 STRAIGHT = {"inclination_start_deg": 88.0, "inclination_end_deg": 86.5, "azimuth_start_deg": 120.0,
@@ -57,7 +58,7 @@ def test_gyro_rates_integrate_back_to_the_attitude_history():
     np.testing.assert_allclose(W[1:, 2] / 3600.0, rate[1:], atol=0.5)  # ~ the string's rate about z (deg/s)
     Q = relative_rotations(W, dt, 10, 0, n - 1)
     C = np.asarray(F.tool_to_earth(A, I, T))
-    from icgo.strapdown import earth_rotation
+    from icgo.physics.strapdown import earth_rotation
 
     # C^i_b(k) = C^i_b(a) Q_k with C^i_b = exp([w_ie x] t) C^n_b
     E = earth_rotation(lat, np.arange(n) * dt)
@@ -75,7 +76,7 @@ def test_perfect_gyro_reproduces_the_true_field_direction_history():
     assert np.max(np.abs(np.asarray(m) - true)) < 1e-6  # nT, of a 52 650 nT field
     # the heading the gyro cannot see comes out as the true azimuth at each anchor
     fr = ds.frame
-    from icgo.gyro_reference import stop_runs
+    from icgo.methods.gyro_reference import stop_runs
 
     anchors = [(a + b) // 2 for a, b in stop_runs(fr["static"].to_numpy())]
     np.testing.assert_allclose(np.asarray(F.angle_diff(np.degrees(np.asarray(psi)), fr["azimuth_deg"].to_numpy()[anchors])),

@@ -1,11 +1,11 @@
-"""Tests for icgo.instruments: closed-form fields, casing physics, gyro model, noise, patent frame."""
+"""Tests for icgo.datasets.instruments: closed-form fields, casing physics, gyro model, noise, patent frame."""
 
 import numpy as np
 import pytest
 
 import icgo  # noqa: F401  (float64)
-from icgo import frames as F
-from icgo import instruments as ins
+from icgo.datasets import instruments as ins
+from icgo.physics import frames as F
 
 
 def test_monopole_inverse_square_closed_form():

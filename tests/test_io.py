@@ -1,4 +1,4 @@
-"""Tests for icgo.io: the data contract reader/writer, its one-line errors, and the mag_cal converter."""
+"""Tests for icgo.io.recording: the data contract reader/writer, its one-line errors, and the mag_cal converter."""
 
 from __future__ import annotations
 
@@ -11,8 +11,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from icgo import io
-from icgo.frames import angle_diff, attitude_from_sensors
+from icgo.io import __main__ as io_cli
+from icgo.io import recording as io
+from icgo.physics.frames import angle_diff, attitude_from_sensors
 
 DATA = Path(__file__).parent / "data"
 
@@ -51,7 +52,7 @@ def test_survey_reads_with_types_field_and_consistent_attitude():
 
 
 def test_groups_without_reference_get_field_from_site():
-    from icgo.field import reference_field
+    from icgo.physics.field import reference_field
 
     rec = io.read_recording(DATA / "groups.csv")
     assert not rec.has_reference and rec.frame["group"].tolist() == [1] * 6 + [2] * 6
@@ -107,10 +108,10 @@ def test_bad_csv_gives_one_line(name, expected):
 
 
 def test_cli_prints_only_the_line(capsys):
-    assert io.main(["check", str(DATA / "bad_nan.csv")]) == 1
+    assert io_cli.main(["check", str(DATA / "bad_nan.csv")]) == 1
     out, err = capsys.readouterr()
     assert out == "" and err.count("\n") == 1 and "row 3 (line 4), column 'bx'" in err
-    assert io.main(["check", str(DATA / "extras.csv")]) == 0
+    assert io_cli.main(["check", str(DATA / "extras.csv")]) == 0
     out, _ = capsys.readouterr()
     assert "ok, 6 rows" in out and "notice: " in out
 
@@ -292,7 +293,7 @@ def test_mag_cal_converter_matches_the_package_side_by_side():
 
     perm = list(io.MAG_CAL_DEVICE_TO_TOOL)
     for name in io.mag_cal_devices():
-        text = (Path(io.__file__).parent / "data" / "mag_cal" / f"{name}.json").read_text()
+        text = (Path(io.__file__).parents[1] / "data" / "mag_cal" / f"{name}.json").read_text()
         aligned, grav, mag = read_fixture(text)
         rec = io.load_mag_cal_device(name)
         assert np.array_equal(rec.G, grav[:, perm]) and np.array_equal(rec.B, 1000.0 * mag[:, perm])
@@ -309,7 +310,7 @@ def test_mag_cal_converter_matches_the_package_side_by_side():
 
 def test_mag_cal_unknown_device_and_export(tmp_path, capsys):
     assert "unknown device 'zz'" in _one_line_error(io.load_mag_cal_device, "zz")
-    assert io.main(["export-mag-cal", str(tmp_path)]) == 0
+    assert io_cli.main(["export-mag-cal", str(tmp_path)]) == 0
     files = sorted(p.name for p in tmp_path.glob("*.csv"))
     assert files == [f"mag_cal_{n}.csv" for n in io.mag_cal_devices()]
     back = io.read_recording(tmp_path / "mag_cal_hj2.csv")

@@ -1,13 +1,13 @@
-"""icgo.lsq.least_squares and least_squares_fixed against closed-form references (numpy lstsq,
+"""icgo.maths.lsq.least_squares and least_squares_fixed against closed-form references (numpy lstsq,
 Rosenbrock's optimum, a numpy transcription of the documented damping rule)."""
 
-import numpy as np
 import jax
 import jax.numpy as jnp
+import numpy as np
 import pytest
 
 import icgo  # noqa: F401  (float64)
-from icgo.lsq import LSQResult, least_squares, least_squares_fixed
+from icgo.maths.lsq import LSQResult, least_squares, least_squares_fixed
 
 
 def _linear(x, args):

@@ -1,4 +1,4 @@
-"""circuitpython-mag-cal JSON layouts (icgo.mag_cal_json) against the peer's own reader and axes."""
+"""circuitpython-mag-cal JSON layouts (icgo.io.mag_cal_json) against the peer's own reader and axes."""
 
 from __future__ import annotations
 
@@ -9,8 +9,9 @@ import pytest
 from mag_cal.axes import Axes
 from mag_cal.utils import read_fixture
 
-from icgo import io
-from icgo.mag_cal_json import parse_axes, read_mag_cal_json, roll_groups
+from icgo.io import __main__ as io_cli
+from icgo.io import recording as io
+from icgo.io.mag_cal_json import parse_axes, read_mag_cal_json, roll_groups
 
 FIXTURE = io._mag_cal_dir().joinpath("ab.json")
 INV = np.argsort(io.MAG_CAL_DEVICE_TO_TOOL)  # tool -> device columns
@@ -79,8 +80,8 @@ def test_bad_files_are_one_line(tmp_path, doc, kw, match):
 def test_fixture_layout_refuses_axes_and_check_reads_json(tmp_path, capsys):
     with pytest.raises(io.DataError, match="device frame already"):
         read_mag_cal_json(FIXTURE, mag_axes="+x+y+z")
-    assert io.main(["check", str(FIXTURE)]) == 0
+    assert io_cli.main(["check", str(FIXTURE)]) == 0
     assert "24 shots, 10 groups" in capsys.readouterr().out
     (tmp_path / "x.json").write_text("{}")
-    assert io.main(["check", str(tmp_path / "x.json")]) == 1
+    assert io_cli.main(["check", str(tmp_path / "x.json")]) == 1
     assert "expected a circuitpython-mag-cal JSON" in capsys.readouterr().err

@@ -5,7 +5,7 @@ import pandas as pd
 import pytest
 
 import icgo  # noqa: F401
-from icgo import metrics
+from icgo.maths import metrics
 
 
 def test_wrapping():

@@ -1,15 +1,16 @@
 """Tests for icgo.optim.misma: interface, determinism, batching, bounds, and a small calibration."""
 
-import numpy as np
 import jax
 import jax.numpy as jnp
+import numpy as np
 import pytest
 
 import icgo  # noqa: F401
-from icgo import calibration as cal
-from icgo.frames import sensors_from_attitude
-from icgo.optim import base
-from icgo.optim import misma
+from icgo.methods import calibration as cal
+from icgo.methods.misma_objective import MismaObjective
+from icgo.optim import base, misma
+from icgo.optim.registry import get
+from icgo.physics.frames import sensors_from_attitude
 
 
 def _problem(n=40, seed=0):
@@ -19,7 +20,7 @@ def _problem(n=40, seed=0):
     R = np.array([[1.04, 0.02, -0.01], [-0.02, 0.97, 0.03], [0.01, -0.02, 1.02]])
     b = np.array([1500.0, -900.0, 600.0])
     G, B = np.asarray(s.G), np.asarray(cal.distort(R, b, s.B))
-    obj = cal.MismaObjective(cal.make_caldata(G, B, 50_000.0))
+    obj = MismaObjective(cal.make_caldata(G, B, 50_000.0))
     return obj, np.asarray(cal.params_from_error_model(R, b)), G, B
 
 
@@ -29,7 +30,7 @@ BOUNDS = misma.misma_bounds(U, 50_000.0)
 
 
 def test_registered_with_the_common_interface():
-    alg = base.get("misma")
+    alg = get("misma")
     assert alg.config_cls is misma.MISMAConfig
     st = alg.init(jax.random.PRNGKey(0), OBJ, BOUNDS, 8)
     assert st.pop.shape == (8, 12) and st.fit.shape == (8,) and int(st.n_evals) == 8
@@ -41,9 +42,9 @@ def test_registered_with_the_common_interface():
 
 def test_deterministic_and_batch_equals_single():
     keys = jax.random.split(jax.random.PRNGKey(3), 3)
-    rb = base.run_batch("misma", OBJ, BOUNDS, keys, 8, 15)
-    r1 = base.run("misma", OBJ, BOUNDS, keys[1], 8, 15)
-    r1b = base.run("misma", OBJ, BOUNDS, keys[1], 8, 15)
+    rb = base.run_batch(get("misma"), OBJ, BOUNDS, keys, 8, 15)
+    r1 = base.run(get("misma"), OBJ, BOUNDS, keys[1], 8, 15)
+    r1b = base.run(get("misma"), OBJ, BOUNDS, keys[1], 8, 15)
     np.testing.assert_array_equal(np.asarray(r1.best_x), np.asarray(r1b.best_x))
     np.testing.assert_allclose(np.asarray(rb.best_x[1]), np.asarray(r1.best_x), rtol=1e-12, atol=1e-9)
     np.testing.assert_allclose(np.asarray(rb.curve[1]), np.asarray(r1.curve), rtol=1e-10)
@@ -54,14 +55,14 @@ def test_deterministic_and_batch_equals_single():
 def test_plain_fitness_fallback_runs_and_improves():
     shift = jnp.linspace(-1.0, 1.0, 5)
     sphere = lambda p: jnp.sum((p - shift) ** 2, axis=1)  # noqa: E731
-    r = base.run("misma", sphere, (-5 * np.ones(5), 5 * np.ones(5)), jax.random.PRNGKey(0), 12, 150)
+    r = base.run(get("misma"), sphere, (-5 * np.ones(5), 5 * np.ones(5)), jax.random.PRNGKey(0), 12, 150)
     assert float(r.best_f) < 1e-3 < float(r.curve[0])
 
 
 @pytest.mark.slow
 def test_misma_calibrates_better_than_its_starting_box():
     keys = jax.random.split(jax.random.PRNGKey(0), 2)
-    r = base.run_batch("misma", OBJ, BOUNDS, keys, 30, 200)
+    r = base.run_batch(get("misma"), OBJ, BOUNDS, keys, 30, 200)
     f_u = float(OBJ(jnp.asarray(U)[None])[0])
     assert np.all(np.asarray(r.best_f) < f_u)
     err = np.abs(np.asarray(r.best_x) - X_TRUE)

@@ -1,4 +1,4 @@
-"""Fitted models as artifacts (icgo.models, icgo.compensation): apply, save/load round trips, errors."""
+"""Fitted models as artifacts (icgo.models.format, icgo.models.relm): apply, save/load round trips, errors."""
 
 from __future__ import annotations
 
@@ -10,10 +10,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from icgo import datasets
+from icgo.core.errors import ModelError
+from icgo.datasets import protocols as datasets
+from icgo.models.format import SCHEMA_VERSION
+from icgo.models.registry import load_model
+from icgo.models.relm import MSAModel, RELMCompensation, circular_mean_spread
 from icgo.studies import icgo_relm as study
-from icgo.compensation import MSAModel, RELMCompensation, circular_mean_spread
-from icgo.models import ModelError, SCHEMA_VERSION, load_model
 
 CFG = dict(n_repeats=3, hidden=10, seed=3, pop_size=6, iterations=3)
 
@@ -76,7 +78,7 @@ def test_fresh_process_reproduces_prediction_bitwise(fitted, tmp_path):
     new.to_csv(tmp_path / "new.csv", index=False)
     res.model.save(tmp_path / "model")
     here = res.model.apply(new)
-    code = ("import pandas as pd, icgo; from icgo.models import load_model; "
+    code = ("import pandas as pd, icgo; from icgo.models.registry import load_model; "
             f"m = load_model(r'{tmp_path / 'model.json'}'); "
             f"m.apply(pd.read_csv(r'{tmp_path / 'new.csv'}')).to_csv(r'{tmp_path / 'out.csv'}', index=False, float_format='%.17g')")
     subprocess.run([sys.executable, "-c", code], check=True, timeout=300)
@@ -114,7 +116,7 @@ def test_circular_mean_across_north():
 
 
 def test_out_of_bag_halfwidth_is_the_conformal_quantile():
-    from icgo.compensation import out_of_bag_halfwidth
+    from icgo.models.relm import out_of_bag_halfwidth
 
     a_true = np.array([10.0, 20.0, 30.0, 359.0, 0.5])
     # member 0 held out rows 0, 1, 3; member 1 held out rows 1, 2, 3; row 4 is never held out

@@ -1,12 +1,13 @@
 """Multi-station analysis: recovery of injected biases, eq. (7) by hand, observability errors."""
 
-import numpy as np
 import jax
 import jax.numpy as jnp
+import numpy as np
 import pytest
 
 import icgo  # noqa: F401  (float64)
-from icgo import effects, frames, msa
+from icgo.methods import msa
+from icgo.physics import effects, frames
 
 F, DIP, NOISE = 50_000.0, 60.0, 15.0
 BIAS = np.array([300.0, -200.0, 500.0])

@@ -1,4 +1,4 @@
-"""icgo.net_models: the gyro network, RELM and lookup-table artifacts (apply, save/load round trip, errors)."""
+"""icgo.models.network: the gyro network, RELM and lookup-table artifacts (apply, save/load round trip, errors)."""
 
 from __future__ import annotations
 
@@ -8,9 +8,10 @@ import pandas as pd
 import pytest
 
 import icgo  # noqa: F401
-from icgo import nets
-from icgo.models import ModelError, load_model
-from icgo.net_models import GyroNetwork, GyroRELM, LookupTableModel
+from icgo.core.errors import ModelError
+from icgo.methods import nets
+from icgo.models.network import GyroNetwork, GyroRELM, LookupTableModel
+from icgo.models.registry import load_model
 from icgo.studies import gyro
 
 

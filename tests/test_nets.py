@@ -1,4 +1,4 @@
-"""Tests for icgo.nets: the patent's BP network and the lookup-table baseline."""
+"""Tests for icgo.methods.nets: the patent's BP network and the lookup-table baseline."""
 
 import jax
 import jax.numpy as jnp
@@ -7,8 +7,8 @@ import pytest
 from scipy.interpolate import RegularGridInterpolator
 
 import icgo  # noqa: F401  (float64)
-from icgo import nets
-from icgo.frames import angle_diff
+from icgo.methods import nets
+from icgo.physics.frames import angle_diff
 
 
 def _np_forward_backward(p, x, t):

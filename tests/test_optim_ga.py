@@ -9,6 +9,7 @@ import pytest
 import icgo  # noqa: F401  (float64)
 from icgo.optim import bind, run_batch
 from icgo.optim.ga import GAConfig, sbx
+from icgo.optim.registry import get
 
 N, D = 4000, 5
 
@@ -51,7 +52,7 @@ def _sphere(pop):
 @pytest.mark.parametrize("survivors", ["plus", "generational"])
 def test_survivor_rules(survivors):
     P = 12
-    opt = bind("ga", _sphere, (-100.0 * np.ones(D), 100.0 * np.ones(D)), P, GAConfig(survivors=survivors))
+    opt = bind(get("ga"), _sphere, (-100.0 * np.ones(D), 100.0 * np.ones(D)), P, GAConfig(survivors=survivors))
     s0 = jax.jit(opt.init)(jax.random.key(5))
     s1 = jax.jit(opt.step, static_argnums=3)(s0, jax.random.key(6), 0, 10)
     f0, f1 = np.sort(np.asarray(s0.fit)), np.sort(np.asarray(s1.fit))
@@ -68,7 +69,7 @@ def test_exchange_fixes_ga_on_shifted_sphere():
     bounds = (-100.0 * np.ones(30), 100.0 * np.ones(30))
     med = {}
     for swap in (0.0, 0.5):
-        r = run_batch("ga", _sphere, bounds, keys, 20, 60, config=GAConfig(survivors="generational", sbx_swap=swap))
+        r = run_batch(get("ga"), _sphere, bounds, keys, 20, 60, config=GAConfig(survivors="generational", sbx_swap=swap))
         med[swap] = float(np.median(np.asarray(r.best_f)))
     print(med)
     assert med[0.5] < 0.2 * med[0.0], med

@@ -8,6 +8,7 @@ import pytest
 import icgo  # noqa: F401
 from icgo.optim import mutation as mut
 from icgo.optim.cgo import CGOConfig, mean_groups
+from icgo.optim.registry import get
 
 
 def _period(seq):
@@ -177,8 +178,8 @@ def test_cgo_stage_clock_reaches_the_three_stage_search():
     keys = jax.random.split(jax.random.PRNGKey(0), 4)
     # (for a single strategy the clock is the run's, tested above; the compiled programs differ, so
     # its results may differ in the last bits and are not compared here)
-    a = [run("cgo", rastrigin, box, k, 10, 60, config=CGOConfig.paper(strategy="three_stage")) for k in keys]
-    b = [run("cgo", rastrigin, box, k, 10, 60, config=CGOConfig.paper(strategy="three_stage", wavelet_stage_clock=True))
+    a = [run(get("cgo"), rastrigin, box, k, 10, 60, config=CGOConfig.paper(strategy="three_stage")) for k in keys]
+    b = [run(get("cgo"), rastrigin, box, k, 10, 60, config=CGOConfig.paper(strategy="three_stage", wavelet_stage_clock=True))
          for k in keys]
     assert not all(np.array_equal(np.asarray(x.best_x), np.asarray(y.best_x)) for x, y in zip(a, b))
     with pytest.raises(ValueError, match="wavelet_stage_clock must be True or False"):

@@ -19,12 +19,14 @@ from scipy.stats import ranksums
 
 import icgo  # noqa: F401  (float64)
 from experiments import optimizers as entry
-from icgo import benchmarks as bm
+from icgo.core.errors import SettingError
+from icgo.core.settings import config_from_mapping, config_to_mapping
 from icgo.optim import OPTIMIZERS, get, run_batch
+from icgo.optim import benchmarks as bm
 from icgo.optim.cgo import CGO
-from icgo.studies import STUDIES, _STUDY_MODULES, SettingError, config_from_mapping, config_to_mapping
 from icgo.studies import optimizers as study
 from icgo.studies.optimizers import OptimizerStudyConfig
+from icgo.studies.registry import STUDIES
 
 #: The method labels of results/optimizers.md (unchanged by the move into the library).
 LABELS = ["cgo (paper, original)", "icgo (paper, three_stage)", "cgo (mealpy, original)",
@@ -44,7 +46,6 @@ def test_registered():
     s = STUDIES["optimizers"]
     assert s is study.STUDY and s.config_cls is OptimizerStudyConfig and s.run is study.run
     assert s.fits_models is False  # a benchmark fits no model: result.models == {}
-    assert "icgo.studies.optimizers" in _STUDY_MODULES
 
 
 def test_defaults_are_the_former_cli_defaults_and_the_cli_takes_them_from_the_config():
@@ -159,7 +160,7 @@ def test_keys_follow_the_documented_rule(example_runs):
     dim, F, R = cfg.dims[0], len(names), cfg.runs
     keys = jax.random.split(jax.random.fold_in(jax.random.key(0), 1000 * dim + j), F * R)
     aux = jax.tree_util.tree_map(lambda x: np.repeat(np.asarray(x), R, axis=0), bm.suite(names, dim))
-    r = run_batch("pso", bm.suite_fitness, (-100.0 * np.ones(dim), 100.0 * np.ones(dim)), keys, cfg.pop_size,
+    r = run_batch(get("pso"), bm.suite_fitness, (-100.0 * np.ones(dim), 100.0 * np.ones(dim)), keys, cfg.pop_size,
                   max_evals=cfg.budget, aux=aux)
     runs = a.records["runs"]
     got = runs[runs.algorithm == "pso"].error.to_numpy()
@@ -168,7 +169,7 @@ def test_keys_follow_the_documented_rule(example_runs):
 
 # --------------------------------------------------------------------- decisions
 def _holm(p):
-    """Holm's step-down adjustment written out (independent of icgo.stats.holm)."""
+    """Holm's step-down adjustment written out (independent of icgo.maths.stats.holm)."""
     p = np.asarray(p, float)
     m, out, running = len(p), np.empty(len(p)), 0.0
     for rank, i in enumerate(np.argsort(p, kind="stable")):
@@ -275,7 +276,7 @@ def test_mealpy_variant_matches_mealpy_original_cgo(name):
     mp = study.mealpy_runs(name, dim, CGO.name, runs, 20, 3220)[3]
     s = bm.suite((name,), dim)
     aux = jax.tree_util.tree_map(lambda a: np.repeat(np.asarray(a), runs, axis=0), s)
-    r = run_batch(CGO.name, bm.suite_fitness, (-100 * np.ones(dim), 100 * np.ones(dim)),
+    r = run_batch(CGO, bm.suite_fitness, (-100 * np.ones(dim), 100 * np.ones(dim)),
                   jax.random.split(jax.random.key(0), runs), 20, max_evals=3220,
                   config=CGOConfig.mealpy(), aux=aux)
     ours = np.asarray(r.best_f)

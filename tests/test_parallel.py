@@ -1,4 +1,4 @@
-"""icgo.parallel: a study's search split over worker processes is bitwise the one-process search."""
+"""icgo.studies.workers: a study's search split over worker processes is bitwise the one-process search."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import pandas as pd
 import pytest
 
 import icgo  # noqa: F401  (float64)
-from icgo import parallel
 from icgo.studies import icgo_relm as study
+from icgo.studies import workers as parallel
 from tests.test_study import sim_frame
 
 TINY = study.StudyConfig(optimizer="cgo", strategies=("original", "wavelet"), n_repeats=3, hidden=10, pop_size=6,
@@ -42,7 +42,7 @@ def test_search_workers_only_for_the_random_protocols_searches():
     from icgo.optim import STRATEGIES
 
     table3 = study.StudyConfig(strategies=STRATEGIES)  # 5 strategies x 10 repeats x 12 030 evaluations x ~400 rows
-    assert parallel.search_work(table3, 407) == pytest.approx(5 * 10 * 30 * (1 + 4 * 100) * 407)
+    assert study.search_work(table3, 407) == pytest.approx(5 * 10 * 30 * (1 + 4 * 100) * 407)
     assert table3.search_workers(581) == min(len(parallel.available_cores()), 10)
     assert dataclasses.replace(table3, optimizer=None).search_workers(581) == 1
     assert dataclasses.replace(table3, n_repeats=1).search_workers(581) == 1

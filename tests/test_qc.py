@@ -1,13 +1,13 @@
-"""Survey QC (icgo.qc) against a hand computation, and its bands' validation."""
+"""Survey QC (icgo.physics.qc) against a hand computation, and its bands' validation."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from icgo.frames import field_vector_ned, sensors_from_attitude
-from icgo.qc import QCBands, survey_qc
-from icgo.studies import SettingError
+from icgo.core.errors import SettingError
+from icgo.physics.frames import field_vector_ned, sensors_from_attitude
+from icgo.physics.qc import QCBands, survey_qc
 
 
 def test_flags_match_a_hand_computation():
@@ -39,8 +39,8 @@ def test_dip_flag_and_band_settings():
 
 
 def test_earth_rate_check_and_the_summary_sentence():
-    from icgo.frames import EARTH_RATE_DEG_H
-    from icgo.qc import earth_rate_qc, qc_sentence
+    from icgo.physics.frames import EARTH_RATE_DEG_H
+    from icgo.physics.qc import earth_rate_qc, qc_sentence
 
     rate = float(EARTH_RATE_DEG_H)
     np.testing.assert_allclose(rate, 15.041, atol=1e-3)  # 7.2921150e-5 rad/s in deg/h

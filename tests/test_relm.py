@@ -1,12 +1,13 @@
 """RELM: ridge solve against lstsq / scikit-learn, fitness against numpy, folds, float32 path, errors."""
 
-import numpy as np
 import jax
 import jax.numpy as jnp
+import numpy as np
 import pytest
 
 import icgo  # noqa: F401  (float64)
-from icgo import effects, frames, relm
+from icgo.methods import relm
+from icgo.physics import effects, frames
 
 L = 12
 

@@ -3,10 +3,10 @@
 import json
 
 import pytest
-
 from conftest import relm_train_data
+
 from experiments import roofline
-from icgo import relm
+from icgo.methods import relm
 
 
 def test_stage_counts_match_hand_count():

@@ -1,4 +1,4 @@
-"""Split protocols (icgo.splits), the padded fast fitness, split-conformal coverage (icgo.conformal),
+"""Split protocols (icgo.studies.splits), the padded fast fitness, split-conformal coverage (icgo.maths.conformal),
 the protocols through the ICGO-RELM study and the physics baseline of the generalisation table."""
 
 from __future__ import annotations
@@ -10,9 +10,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from icgo import datasets, relm, splits
-from icgo.conformal import conformal_quantile, member_coverage
-from icgo.studies import SettingError
+from icgo.core.errors import SettingError
+from icgo.datasets import protocols as datasets
+from icgo.maths.conformal import conformal_quantile, member_coverage
+from icgo.methods import relm
+from icgo.studies import splits
 from icgo.studies.icgo_relm import StudyConfig, run_study
 
 
@@ -151,10 +153,10 @@ def test_transfer_study_refuses_a_missing_target_and_fold_protocols_refuse_train
 def test_physics_baseline_recovers_the_twelve_parameters_and_an_earth_fixed_field():
     """Independent reference: data simulated with exactly the baseline's effects and no casing; the fit must
     recover them and leave an azimuth error at the noise level."""
-    from icgo import io as icgo_io
-    from icgo.discrepancy.artifact import TWELVE_PLUS_FIELD, fit_members
     from icgo.discrepancy.stations import stations_from_recording
-    from icgo.frames import angle_diff
+    from icgo.io import recording as icgo_io
+    from icgo.models.discrepancy import TWELVE_PLUS_FIELD, fit_members
+    from icgo.physics.frames import angle_diff
 
     truth = {"hard_iron": (400.0, -300.0, 250.0), "mag_scale": (0.004, -0.003, 0.002),
              "mag_cross_coupling": (0.003, -0.002, 0.001), "mag_misalignment": (0.2, -0.1, 0.15),

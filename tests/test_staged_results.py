@@ -1,4 +1,4 @@
-"""experiments._common.staged_results: a study's files land in a shared results folder all at once or not at all."""
+"""experiments._relm_job.staged_results: a study's files land in a shared results folder all at once or not at all."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import errno
 
 import pytest
 
-from experiments._common import staged_results
+from experiments._entry import staged_results
 
 
 def _previous(out):

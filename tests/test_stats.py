@@ -4,7 +4,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from icgo import stats
+from icgo.maths import stats
 
 
 def test_mean_std():

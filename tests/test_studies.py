@@ -2,7 +2,7 @@
 
 For each study of :func:`icgo.studies.all_studies`: its tiny example runs, two
 runs with the same key give identical records, its records are DataFrames
-(the ICGO-RELM tables checked against :mod:`icgo.records`), its fitted models
+(the ICGO-RELM tables checked against :mod:`icgo.reporting.records`), its fitted models
 save/load/apply bitwise, and its default config round-trips through a plain
 mapping (the form a Hydra config takes).
 """
@@ -16,9 +16,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from icgo import records as REC
-from icgo.models import FittedModel, load_model
-from icgo.studies import all_studies, config_from_mapping, config_to_mapping, get_study
+from icgo.core.settings import config_from_mapping, config_to_mapping
+from icgo.models.format import FittedModel
+from icgo.models.registry import load_model
+from icgo.reporting import records as REC
+from icgo.studies.registry import all_studies, get_study
 
 NAMES = sorted(all_studies())
 
@@ -79,7 +81,7 @@ def test_example_runs_deterministically_with_records_and_models(name, runs, tmp_
 
 
 def test_generalisation_qc_counts_are_the_survey_qc_of_the_tested_stations(runs):
-    from icgo.qc import survey_qc
+    from icgo.physics.qc import survey_qc
     from icgo.studies.generalisation import _qc_stations
     from icgo.studies.icgo_relm import StudyConfig
 

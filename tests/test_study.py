@@ -7,7 +7,8 @@ import pandas as pd
 import pytest
 
 import icgo  # noqa: F401
-from icgo import effects, frames, metrics
+from icgo.maths import metrics
+from icgo.physics import effects, frames
 from icgo.studies import icgo_relm as study
 
 
@@ -138,7 +139,8 @@ def test_cgo_strategies_batched_equals_alone_and_beats_plain(frame):
 
 @pytest.mark.slow
 def test_lab_casing_msa_and_plain_relm():
-    from icgo import datasets, msa
+    from icgo.datasets import protocols as datasets
+    from icgo.methods import msa
 
     clean = datasets.lab_casing(0, casing=None, effects={"hard_iron": [900.0, -700.0, 1500.0]})
     G, B, A = study.frame_arrays(clean.frame)
@@ -167,7 +169,7 @@ def test_tiny_cgo_study_train_kernel_batched_equals_alone(frame, dtype, rtol):
     search with is the row-weighted float64 one to the kernel's tolerance."""
     import jax
 
-    from icgo import relm
+    from icgo.methods import relm
 
     cfg = study.StudyConfig(optimizer="cgo", strategies=("original", "three_stage"), n_repeats=2,
                             hidden=10, pop_size=6, iterations=3, seed=5, dtype=dtype)
@@ -213,7 +215,7 @@ def test_a_search_that_never_found_a_finite_fitness_is_a_failed_run():
 
 def test_tuned_relm_picks_the_best_mean_validation_cell_from_training_rows_only(frame):
     """Issue 18's honest baseline: (L, lambda) chosen on the grid by validation on the training rows."""
-    from icgo import relm
+    from icgo.methods import relm
 
     cfg = dataclasses.replace(PLAIN, hidden=30, tune=True, fitness="validation", sigma_filter=None)
     res = study.run_study(frame, cfg)
@@ -244,7 +246,7 @@ def test_tune_needs_plain_relm_and_a_validation_fitness(change, match):
 
 def _sigma_filter_by_masks(G, B, a, n_sigma=3.0):
     """The 3-sigma rule with one boolean mask per azimuth group (the former O(N x groups) loop)."""
-    from icgo.qc import measured_dip_deg
+    from icgo.physics.qc import measured_dip_deg
 
     keep = np.ones(len(a), bool)
     for q in (np.linalg.norm(G, axis=1), np.linalg.norm(B, axis=1), measured_dip_deg(G, B)):

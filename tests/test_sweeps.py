@@ -16,8 +16,9 @@ import time
 from pathlib import Path
 
 import pytest
+
 from hydra_plugins.icgo_launcher._core import resolve_workers
-from icgo.parallel import xla_flags
+from icgo.studies.workers import xla_flags
 
 ROOT = Path(__file__).resolve().parents[1]
 APP = ROOT / "tests" / "sweep_app" / "app.py"
@@ -138,7 +139,7 @@ def test_the_study_app_defaults_to_the_icgo_local_launcher():
     from hydra import compose, initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
 
-    from experiments._common import CONF_DIR
+    from experiments._entry import CONF_DIR
 
     GlobalHydra.instance().clear()
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):

@@ -7,7 +7,7 @@ Here each job is its own ``spawn`` process (never forked: JAX is initialised
 inside the job), so a dead process costs only its job: the launcher leaves the
 ``FAILED`` marker ("killed by signal SIGKILL ...") in the job's directory and
 starts the next one. The end-of-sweep report
-(:class:`experiments._common.FailureReport`) then lists every job.
+(:class:`experiments._sweep.FailureReport`) then lists every job.
 
 Each job's XLA runs on ``xla_threads`` threads; with one thread the job's
 process is also pinned to one core of its worker slot, so two workers on two
@@ -37,7 +37,7 @@ from hydra.core.singleton import Singleton
 from hydra.core.utils import JobReturn, JobStatus, configure_log, filter_overrides, run_job, setup_globals
 from omegaconf import OmegaConf, open_dict
 
-from icgo.parallel import xla_flags
+from icgo.studies.workers import xla_flags
 
 log = logging.getLogger(__name__)
 
@@ -101,7 +101,7 @@ def _signal_name(code: int) -> str:
 
 def _mark_dead(job_dir: Path, exitcode: int) -> str:
     """FAILED marker for a job whose process ended without a result (unless it left a complete run)."""
-    from experiments import _common as C
+    from experiments import _entry as C
 
     if C.previous_run(job_dir) is not None:
         return "ok"
@@ -124,7 +124,7 @@ def _placeholder(config, overrides, job_dir: Path) -> JobReturn:
 
 def _settle(ret: JobReturn | None, config, overrides, job_dir: Path, exitcode: int) -> JobReturn:
     """The JobReturn the sweeper receives for a finished job process."""
-    from experiments import _common as C
+    from experiments import _entry as C
 
     if ret is None or exitcode != 0:
         status = _mark_dead(job_dir, exitcode)

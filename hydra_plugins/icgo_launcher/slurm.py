@@ -22,9 +22,10 @@ from typing import Sequence
 
 from hydra.core.singleton import Singleton
 from hydra.core.utils import JobReturn, JobStatus, filter_overrides
+from omegaconf import OmegaConf
+
 from hydra_plugins.hydra_submitit_launcher.config import BaseQueueConf
 from hydra_plugins.hydra_submitit_launcher.submitit_launcher import SlurmLauncher
-from omegaconf import OmegaConf
 
 log = logging.getLogger(__name__)
 
@@ -58,7 +59,7 @@ class IcgoSlurmLauncher(SlurmLauncher):
         return executor
 
     def launch(self, job_overrides: Sequence[Sequence[str]], initial_job_idx: int) -> Sequence[JobReturn]:
-        from experiments import _common as C
+        from experiments import _entry as C
 
         self._check_request()
         sweep_dir = Path(str(self.config.hydra.sweep.dir))

@@ -4,7 +4,7 @@ missing physical effect, add it to the model and show the gap shrink.
 Five verbs (issue #7), all usable from a notebook with plain arguments::
 
     from icgo import discrepancy as D
-    st = D.stations_from_recording(icgo.io.read_recording(path))   # or D.simulate(...)
+    st = D.stations_from_recording(icgo.io.recording.read_recording(path))   # or D.simulate(...)
     res = D.run_workflow(st, D.WorkflowConfig(max_effects=4))
     print(D.verdict(res)); D.write_report(res, "my data", out_dir)
 
@@ -27,8 +27,8 @@ checks, simulation, designs), ``model`` (layout, prepare, predict, residuals),
 (:class:`WorkflowConfig`, every option's one default), ``search``, ``report``,
 ``plots``, ``result_studies`` (the ``results/discrepancy_*`` studies as data;
 the workflow as a registered study is :mod:`icgo.studies.discrepancy`),
-``artifact`` (:class:`~icgo.discrepancy.artifact.PhysicsModel`, the fitted
-physics model saved and applied through :mod:`icgo.models`).
+``artifact`` (:class:`~icgo.models.discrepancy.PhysicsModel`, the fitted
+physics model saved and applied through :mod:`icgo.models.format`).
 Sign convention everywhere: residual = measured - predicted.
 Units: G in g, B in nT, angles in degrees at every public boundary.
 """
@@ -44,9 +44,18 @@ from icgo.discrepancy.compare import (
     find_pattern,
     gap,
 )
-from icgo.discrepancy.config import ConfigError, WorkflowConfig
-from icgo.discrepancy.fit import (Evaluation, Inversion, correct, correct_with, evaluate_models, folds, lm_fit, model_params,
-                                  standard_errors)
+from icgo.discrepancy.config import WorkflowConfig
+from icgo.discrepancy.fit import (
+    Evaluation,
+    Inversion,
+    correct,
+    correct_with,
+    evaluate_models,
+    folds,
+    lm_fit,
+    model_params,
+    standard_errors,
+)
 from icgo.discrepancy.identifiability import (
     Degeneracy,
     Pair,
@@ -75,7 +84,6 @@ from icgo.discrepancy.noise import NOISE, Noise, effective_sigma, noise_floor
 from icgo.discrepancy.plots import plot_gap_per_step, plot_residual_vs_toolface
 from icgo.discrepancy.report import (
     degeneracy_sentence,
-    gap_table,
     pattern_sentences,
     report_markdown,
     result_to_json,
@@ -85,7 +93,18 @@ from icgo.discrepancy.report import (
     verdict,
     write_report,
 )
-from icgo.discrepancy.search import KINDS, Candidate, Result, SearchState, Step, finish, init, run_workflow, step
+from icgo.discrepancy.search import (
+    KINDS,
+    Candidate,
+    Result,
+    SearchState,
+    Step,
+    finish,
+    gap_table,
+    init,
+    run_workflow,
+    step,
+)
 from icgo.discrepancy.stations import (
     DESIGNS,
     MIN_STATIONS,
@@ -100,4 +119,3 @@ from icgo.discrepancy.stations import (
     stations_from_recording,
 )
 from icgo.discrepancy.stats import paired_z
-from icgo.discrepancy.result_studies import HIDDEN_CASES, devices_study, hidden_study, lab_casing_study

@@ -18,7 +18,7 @@ import numpy as np
 from icgo.discrepancy.model import Prediction
 from icgo.discrepancy.noise import NOISE, Noise
 from icgo.discrepancy.stations import Stations
-from icgo.frames import angle_diff, azimuth_from_gv, inclination_from_g
+from icgo.physics.frames import angle_diff, azimuth_from_gv, inclination_from_g
 
 #: Residual component names, in the order of the (n, 6) residual arrays.
 COMPONENTS = ("gx", "gy", "gz", "bx", "by", "bz")

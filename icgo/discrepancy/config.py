@@ -4,8 +4,8 @@
 ``tests/test_discrepancy.py`` checks that the composed Hydra config equals
 ``WorkflowConfig()`` field by field, so the two cannot drift apart. Like every
 study config, it is built from a plain mapping by
-:func:`icgo.studies.config_from_mapping` (unknown keys refused) and written back
-by :func:`icgo.studies.config_to_mapping` (tuples as lists).
+:func:`icgo.core.settings.config_from_mapping` (unknown keys refused) and written back
+by :func:`icgo.core.settings.config_to_mapping` (tuples as lists).
 """
 
 from __future__ import annotations
@@ -14,26 +14,15 @@ import dataclasses
 import math
 from collections.abc import Sequence
 
-from icgo import effects as _fx
+from icgo.core.errors import SettingsError
 from icgo.discrepancy.noise import NOISE, Noise
-
-
-class ConfigError(ValueError):
-    """Bad workflow options; ``problems`` holds one line per bad value, each naming its field.
-
-    Unlike :class:`icgo.studies.SettingError` (the first bad field only) it reports
-    every bad value at once, one line each (``WorkflowConfig: <field>=<value>: <problem>``).
-    """
-
-    def __init__(self, problems):
-        self.problems = tuple(problems)
-        super().__init__("\n".join(self.problems))
+from icgo.physics import effects as _fx
 
 
 @dataclasses.dataclass(frozen=True)
 class WorkflowConfig:
     """Options of :func:`~icgo.discrepancy.search.run_workflow` (validated on construction:
-    :class:`ConfigError`, one line per bad value).
+    :class:`~icgo.core.errors.SettingsError`, one line per bad value).
 
     Attributes:
         k_folds: folds of the held-out score (each station held out once).
@@ -116,7 +105,7 @@ class WorkflowConfig:
                 else:
                     object.__setattr__(self, "candidates", tuple(c))
         if bad:
-            raise ConfigError(f"WorkflowConfig: {b}" for b in bad)
+            raise SettingsError(f"WorkflowConfig: {b}" for b in bad)
 
     @property
     def noise(self) -> Noise:

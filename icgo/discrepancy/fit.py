@@ -1,4 +1,4 @@
-"""The fits: Levenberg-Marquardt over a free-parameter mask (:func:`icgo.lsq.least_squares_fixed`), the
+"""The fits: Levenberg-Marquardt over a free-parameter mask (:func:`icgo.maths.lsq.least_squares_fixed`), the
 batched k-fold evaluation of candidate models, standard errors, and the inverse model
 (:func:`correct`).
 
@@ -14,17 +14,25 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from icgo import effects as _fx
-from icgo.discrepancy.model import (Data, Layout, make_layout, physical_residuals, predict, remove_accel_effects,
-                                   residuals, station_blocks)
+from icgo.discrepancy.model import (
+    Data,
+    Layout,
+    make_layout,
+    physical_residuals,
+    predict,
+    remove_accel_effects,
+    residuals,
+    station_blocks,
+)
 from icgo.discrepancy.noise import Noise, effective_sigma
-from icgo.frames import azimuth_from_gv, field_vector_ned, inclination_from_g, tool_to_earth, toolface_from_g
-from icgo.lsq import least_squares_fixed
+from icgo.maths.lsq import least_squares_fixed
+from icgo.physics import effects as _fx
+from icgo.physics.frames import azimuth_from_gv, field_vector_ned, inclination_from_g, tool_to_earth, toolface_from_g
 
 #: Stations per block (stations) of the row-blocked fits, for the reference-attitude layout's
 #: parameters (:func:`block_stations` scales it for more). Above this many stations a fit
 #: accumulates its normal equations ``JᵀJ``, ``Jᵀr`` over blocks of ``ROW_BLOCK`` stations
-#: (:func:`icgo.lsq.least_squares_fixed` ``blocks``), the Jacobian at the full fit is kept as
+#: (:func:`icgo.maths.lsq.least_squares_fixed` ``blocks``), the Jacobian at the full fit is kept as
 #: its triangular factor (:func:`jacobian_r`, accumulated block by block) and the held-out
 #: residuals are summed fold by fold, so memory holds one block's Jacobian per vmapped fit
 #: (models x folds x 6 ROW_BLOCK x P float64: 40 x 6144 x 24 x 8 B = 47 MB, and its
@@ -46,7 +54,7 @@ def lm_fit(theta0, free, w, data: Data, layout: Layout, n_iter: int, row_block: 
     """Weighted fit of the scaled parameters; only ``free`` parameters move.
 
     The station-weighted, noise-normalized residuals (non-finite components
-    replaced by 1e6) minimized by :func:`icgo.lsq.least_squares_fixed`
+    replaced by 1e6) minimized by :func:`icgo.maths.lsq.least_squares_fixed`
     (Marquardt-damped LM, a fixed number of steps in ``lax.scan``, so the
     vmapped models x folds all cost ``n_iter`` steps). Above ``row_block``
     stations the normal equations are accumulated over blocks of stations.
@@ -264,7 +272,7 @@ def correct(res, G, B, noise: Noise | None = None, n_iter: int = 10) -> Inversio
     Per station, (A, I) (toolface from G with the model's accelerometer
     effects removed) minimizing the noise-weighted residual of the fitted
     forward model, started from the raw attitude, by
-    :func:`icgo.lsq.least_squares_fixed` (Marquardt-damped LM, ``n_iter``
+    :func:`icgo.maths.lsq.least_squares_fixed` (Marquardt-damped LM, ``n_iter``
     steps, vmapped over stations). Used to score an augmented physics model's
     azimuth against a reference (e.g. against ICGO-RELM on the same test split).
 

@@ -14,10 +14,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from icgo import effects as _fx
 from icgo.discrepancy.noise import NOISE, Noise, effective_sigma
 from icgo.discrepancy.stations import Stations, check_stations
-from icgo.frames import (
+from icgo.physics import effects as _fx
+from icgo.physics.frames import (
     azimuth_from_gv,
     field_vector_ned,
     inclination_from_g,

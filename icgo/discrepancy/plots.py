@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from icgo.discrepancy.report import gap_table
-from icgo.discrepancy.search import Result
+from icgo.discrepancy.search import Result, gap_table
 
 
 def plot_residual_vs_toolface(res: Result, path):

@@ -12,12 +12,12 @@ from pathlib import Path
 
 import numpy as np
 
-from icgo import effects as _fx
+from icgo.core.settings import config_to_mapping
 from icgo.discrepancy.compare import Pattern
 from icgo.discrepancy.identifiability import Degeneracy, Separability
-from icgo.discrepancy.search import Result, Step
-from icgo.qc import qc_sentence
-from icgo.studies import config_to_mapping
+from icgo.discrepancy.search import Result, Step, gap_table
+from icgo.physics import effects as _fx
+from icgo.physics.qc import qc_sentence
 
 
 # ============================================================ sentences
@@ -132,17 +132,6 @@ def step_summary(res: Result) -> list[str]:
 
 
 # ============================================================ tables, JSON, Markdown
-def gap_table(res: Result):
-    """The gap after each step as a pandas DataFrame (held-out stations)."""
-    import pandas as pd
-
-    rows = [dict(step=0, model="reference", **res.gaps[0]._asdict())]
-    for i, s in enumerate(res.steps):
-        rows.append(dict(step=i + 1, model="+ " + s.name + ("" if s.separable else f" (or {', '.join(s.equivalent)})"),
-                         **s.gap_after._asdict()))
-    return pd.DataFrame(rows)
-
-
 def result_to_json(res: Result) -> dict:
     """Machine-readable result: {"effects": [{name, params, stderr, gap_before, gap_after, ...}], "verdict", ...}."""
     return {
@@ -165,7 +154,7 @@ def report_markdown(res: Result, label: str, truth=None, qc=None) -> str:
     """The workflow report (steps, gap table, remaining pattern, residual by toolface bin, QC, figures).
 
     ``qc``: survey-QC counts before and after the fitted model
-    (:func:`icgo.discrepancy.artifact.station_qc`), or None without a reference field.
+    (:func:`icgo.models.discrepancy.station_qc`), or None without a reference field.
     """
     lines = [f"# Discrepancy report: {label}", "", f"**Verdict:** {verdict(res)}", "",
              "## Where the reference model disagrees (before)", ""]
@@ -231,7 +220,7 @@ def _noise_words(config) -> str:
 
 
 def hidden_study_markdown(study) -> str:
-    """``results/discrepancy_hidden.md`` from :func:`~icgo.discrepancy.result_studies.hidden_study`."""
+    """``results/discrepancy_hidden.md`` from :func:`~icgo.studies.discrepancy_results.hidden_study`."""
     rows = ["| hidden | named (in order) | verdict | mag gap nT before -> after | azimuth gap deg before -> after | excess over noise before -> after | s |",
             "|---|---|---|---|---|---|---|"]
     for run in study.runs:
@@ -251,7 +240,7 @@ def hidden_study_markdown(study) -> str:
 
 
 def devices_study_markdown(runs, config) -> str:
-    """``results/discrepancy_devices.md`` from :func:`~icgo.discrepancy.result_studies.devices_study`."""
+    """``results/discrepancy_devices.md`` from :func:`~icgo.studies.discrepancy_results.devices_study`."""
     rows = ["| device | named (in order) | verdict kind | mag residual nT before -> after | azimuth spread deg before -> after |",
             "|---|---|---|---|---|"]
     for run in runs:
@@ -267,7 +256,7 @@ def devices_study_markdown(runs, config) -> str:
 
 
 def lab_casing_study_markdown(study) -> str:
-    """``results/discrepancy_lab_casing.md`` from :func:`~icgo.discrepancy.result_studies.lab_casing_study`."""
+    """``results/discrepancy_lab_casing.md`` from :func:`~icgo.studies.discrepancy_results.lab_casing_study`."""
     res = study.result
     table = [("raw (eq. 1 on raw data)", study.error_raw),
              (f"physics model + {', '.join(res.model)} (discrepancy workflow)", study.error_model)]

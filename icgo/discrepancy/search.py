@@ -37,7 +37,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from icgo import effects as _fx
 from icgo.discrepancy.compare import Comparison, Gap, Pattern, azimuth_scored, compare, find_pattern, gap
 from icgo.discrepancy.config import WorkflowConfig
 from icgo.discrepancy.fit import Evaluation, evaluate_models, folds, standard_errors
@@ -46,7 +45,8 @@ from icgo.discrepancy.model import Data, Layout, fitted_field, predict, prepare
 from icgo.discrepancy.noise import noise_floor
 from icgo.discrepancy.stations import Stations, check_stations, pad_stations
 from icgo.discrepancy.stats import paired_z
-from icgo.frames import angle_diff, azimuth_from_gv
+from icgo.physics import effects as _fx
+from icgo.physics.frames import angle_diff, azimuth_from_gv
 
 #: The result kinds, in the order they are decided.
 KINDS = ("not_separable", "unexplained", "no_missing_effect", "explained")
@@ -429,3 +429,14 @@ def run_workflow(st: Stations, config: WorkflowConfig = WorkflowConfig(), key=No
     while not state.done:
         state = step(state)
     return finish(state, time.perf_counter() - t0)
+
+
+def gap_table(res: Result):
+    """The gap after each step as a pandas DataFrame (held-out stations)."""
+    import pandas as pd
+
+    rows = [dict(step=0, model="reference", **res.gaps[0]._asdict())]
+    for i, s in enumerate(res.steps):
+        rows.append(dict(step=i + 1, model="+ " + s.name + ("" if s.separable else f" (or {', '.join(s.equivalent)})"),
+                         **s.gap_after._asdict()))
+    return pd.DataFrame(rows)

@@ -15,9 +15,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from icgo import effects as _fx
 from icgo.discrepancy.noise import NOISE, Noise
-from icgo.frames import sensors_from_attitude, tool_to_earth
+from icgo.physics import effects as _fx
+from icgo.physics.frames import sensors_from_attitude, tool_to_earth
 
 
 class Stations(NamedTuple):
@@ -84,7 +84,7 @@ def check_stations(st: Stations) -> None:
 
 
 def stations_from_recording(rec) -> Stations:
-    """Convert an ``icgo.io.Recording`` (data contract) into :class:`Stations`.
+    """Convert an ``icgo.io.recording.Recording`` (data contract) into :class:`Stations`.
 
     Uses the reference attitude when present, else the ``group`` column; the
     field from the metadata (or the field model) when present, else None.

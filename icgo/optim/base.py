@@ -1,23 +1,23 @@
 """Shared interface of the population optimizers and the lax.scan runner.
 
-Every optimizer in :mod:`icgo.optim` is an :class:`Algorithm` registered in
-:data:`OPTIMIZERS` under a short name (``cgo``, ``pso``, ``ga``, ``sma``,
-``misma``). An algorithm is a pair of pure functions over a :class:`State`
-NamedTuple::
+Every optimizer in :mod:`icgo.optim` is an :class:`Algorithm` (a NamedTuple of
+pure functions), listed under a short name (``cgo``, ``pso``, ``ga``, ``sma``,
+``misma``) in the literal mapping :data:`icgo.optim.registry.OPTIMIZERS`. An
+algorithm is a pair of pure functions over a :class:`State` NamedTuple::
 
     state = alg.init(key, fitness, bounds, pop_size, config, aux=None)
     state = alg.step(state, key, t, T, fitness)
 
 or, with the fitness closed over::
 
-    opt = bind("pso", fitness, bounds, pop_size, config)
+    opt = bind(PSO, fitness, bounds, pop_size, config)
     state = opt.init(key, aux)            # aux: per-repeat data or None
     state = opt.step(state, key, t, T)    # t = 0 .. T-1 (int), T static int
 
 and the runners::
 
-    run(name, fitness, bounds, key, pop_size, n_iter=None, *, max_evals=None, config=None, aux=None)
-    run_batch(name, fitness, bounds, keys, pop_size, n_iter=None, *, max_evals=None,
+    run(alg, fitness, bounds, key, pop_size, n_iter=None, *, max_evals=None, config=None, aux=None)
+    run_batch(alg, fitness, bounds, keys, pop_size, n_iter=None, *, max_evals=None,
               config=None, configs=None, aux=None)       # axes (R,) or, with configs, (S, R)
 
 Design choices (read before building on this):
@@ -63,8 +63,8 @@ Design choices (read before building on this):
 Adding an optimizer: write ``init_fn(key, fitness, lb, ub, pop_size, config,
 aux) -> State`` and ``step_fn(state, key, t, T, fitness) -> State`` using the
 helpers here (:func:`evaluate`, :func:`uniform_population`,
-:func:`update_best`), then ``register(Algorithm(...))`` at import time and
-import the module in ``icgo/optim/__init__.py``. The registry-wide tests in
+:func:`update_best`), define ``NAME = Algorithm(...)`` in its module, and add one
+line to :data:`icgo.optim.registry.OPTIMIZERS`. The registry-wide tests in
 ``tests/test_optim.py`` then run on it.
 """
 
@@ -228,31 +228,12 @@ class Bound(NamedTuple):
     algorithm: Algorithm
 
 
-OPTIMIZERS: dict[str, Algorithm] = {}
-
-
-def register(alg: Algorithm) -> Algorithm:
-    """Add ``alg`` to :data:`OPTIMIZERS` (called by each module at import)."""
-    OPTIMIZERS[alg.name] = alg
-    return alg
-
-
-def get(name: str) -> Algorithm:
-    """Look up an optimizer by name; ValueError naming the choices if unknown."""
-    import icgo.optim  # noqa: F401  (populates the registry)
-
-    if not isinstance(name, str) or name not in OPTIMIZERS:
-        raise ValueError(f"unknown optimizer {name!r}; choose one of {sorted(OPTIMIZERS)}")
-    return OPTIMIZERS[name]
-
-
-def bind(name: str, fitness: Fitness, bounds, pop_size: int, config=None) -> Bound:
+def bind(alg: Algorithm, fitness: Fitness, bounds, pop_size: int, config=None) -> Bound:
     """Close an optimizer over its fitness, bounds, population size and config.
 
     Returns:
         :class:`Bound` with ``init(key, aux=None)`` and ``step(state, key, t, T)``.
     """
-    alg = get(name)
     lb, ub = check_bounds(bounds)
     check_pop_size(pop_size)
     config = alg.config_cls() if config is None else config
@@ -368,30 +349,29 @@ def check_pop_size(pop_size) -> None:
         raise ValueError(f"pop_size must be an integer >= 4, got {pop_size!r}")
 
 
-def iterations_for_budget(name: str, pop_size: int, max_evals: int, config=None) -> int:
+def iterations_for_budget(alg: Algorithm, pop_size: int, max_evals: int, config=None) -> int:
     """Static iteration count that spends at most ``max_evals`` evaluations.
 
     Raises:
         ValueError: if the budget does not cover the initial population plus
             one iteration.
     """
-    alg = get(name)
     config = alg.config_cls() if config is None else config
     first, per = alg.evals(int(pop_size), config)
     n = (int(max_evals) - first) // per
     if n < 1:
         raise ValueError(
-            f"evaluation budget {max_evals} is smaller than one iteration of {name} "
+            f"evaluation budget {max_evals} is smaller than one iteration of {alg.name} "
             f"with pop_size {pop_size} (needs {first} + {per})"
         )
     return n
 
 
-def _resolve_iters(name, pop_size, n_iter, max_evals, config) -> int:
+def _resolve_iters(alg, pop_size, n_iter, max_evals, config) -> int:
     if (n_iter is None) == (max_evals is None):
         raise ValueError("give exactly one stop criterion: n_iter or max_evals")
     if max_evals is not None:
-        return iterations_for_budget(name, pop_size, max_evals, config)
+        return iterations_for_budget(alg, pop_size, max_evals, config)
     if isinstance(n_iter, bool) or not isinstance(n_iter, (int, np.integer)) or n_iter < 1:
         raise ValueError(f"n_iter must be an integer >= 1, got {n_iter!r}")
     return int(n_iter)
@@ -476,12 +456,12 @@ def _batch_jit(alg, fitness, pop_size, n_iter, by_config, keys, lb, ub, config, 
     return jax.vmap(over_repeats, in_axes=(None, None, None, 0, None))(keys, lb, ub, config, aux)
 
 
-def run(name: str, fitness: Fitness, bounds, key, pop_size: int, n_iter: int | None = None, *,
+def run(alg: Algorithm, fitness: Fitness, bounds, key, pop_size: int, n_iter: int | None = None, *,
         max_evals: int | None = None, config=None, aux=None) -> RunResult:
     """Run one optimizer for ``n_iter`` iterations (or an evaluation budget).
 
     Args:
-        name: registry name (``cgo``, ``pso``, ``ga``, ``sma``, ``misma``).
+        alg: the :class:`Algorithm` (``icgo.optim.get("cgo")``, or its module constant ``CGO``).
         fitness: batched fitness (see module docstring); static for jit.
         bounds: ``(lb, ub)`` or (D, 2) array.
         key: PRNG key.
@@ -494,15 +474,14 @@ def run(name: str, fitness: Fitness, bounds, key, pop_size: int, n_iter: int | N
     Returns:
         :class:`RunResult` (curves of length n_iter).
     """
-    alg = get(name)
     lb, ub = check_bounds(bounds)
     check_pop_size(pop_size)
     config = alg.config_cls() if config is None else config
-    n_iter = _resolve_iters(name, pop_size, n_iter, max_evals, config)
+    n_iter = _resolve_iters(alg, pop_size, n_iter, max_evals, config)
     return _run_jit(alg, fitness, int(pop_size), n_iter, key, lb, ub, config, aux)
 
 
-def run_batch(name: str, fitness: Fitness, bounds, keys, pop_size: int, n_iter: int | None = None, *,
+def run_batch(alg: Algorithm, fitness: Fitness, bounds, keys, pop_size: int, n_iter: int | None = None, *,
               max_evals: int | None = None, config=None, configs: Sequence | None = None,
               aux=None) -> RunResult:
     """Run R repeats (of S configs) in one jitted, vmapped call.
@@ -523,20 +502,19 @@ def run_batch(name: str, fitness: Fitness, bounds, keys, pop_size: int, n_iter: 
     Returns:
         :class:`RunResult` with leading axes (R,) or (S, R).
     """
-    alg = get(name)
     lb, ub = check_bounds(bounds)
     check_pop_size(pop_size)
     if configs is not None:
         if config is not None:
             raise ValueError("give config (one setting) or configs (S settings side by side), not both")
         stacked = stack_configs(alg, configs)
-        n_iters = {_resolve_iters(name, pop_size, n_iter, max_evals, c) for c in configs}
+        n_iters = {_resolve_iters(alg, pop_size, n_iter, max_evals, c) for c in configs}
         if len(n_iters) != 1:
             raise ValueError(f"configs spend different evaluations per iteration ({sorted(n_iters)} iterations)")
         n_iter, config = n_iters.pop(), stacked
     else:
         config = alg.config_cls() if config is None else config
-        n_iter = _resolve_iters(name, pop_size, n_iter, max_evals, config)
+        n_iter = _resolve_iters(alg, pop_size, n_iter, max_evals, config)
     keys = jnp.asarray(keys) if not isinstance(keys, jax.Array) else keys
     n_rep = keys.shape[0]
     if aux is not None:
@@ -544,6 +522,11 @@ def run_batch(name: str, fitness: Fitness, bounds, keys, pop_size: int, n_iter: 
             if jnp.ndim(leaf) < 1 or jnp.shape(leaf)[0] != n_rep:
                 raise ValueError(f"aux leaves need leading axis {n_rep} (one slice per key), got shape {jnp.shape(leaf)}")
     return _batch_jit(alg, fitness, int(pop_size), n_iter, configs is not None, keys, lb, ub, config, aux)
+
+
+def compiled_runners() -> int:
+    """How many programs the batched runner has compiled in this process (one per static signature)."""
+    return _batch_jit._cache_size()
 
 
 def best_at_evals(result: RunResult, budgets) -> Array:

@@ -51,7 +51,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from icgo.optim import mutation as mut
-from icgo.optim.base import Algorithm, State, evaluate, first_state, register, uniform_population, update_best
+from icgo.optim.base import Algorithm, State, evaluate, first_state, uniform_population, update_best
 
 VARIANTS = ("paper", "matlab", "mealpy")
 SELECTIONS = ("greedy", "truncation")
@@ -387,4 +387,4 @@ def _evals(pop_size: int, config) -> tuple[int, int]:
     return pop_size, 4 * pop_size
 
 
-CGO = register(Algorithm("cgo", CGOConfig, _init, _step, _evals, axis="strategy", config_factory=CGOConfig.build))
+CGO = Algorithm("cgo", CGOConfig, _init, _step, _evals, axis="strategy", config_factory=CGOConfig.build)

@@ -18,7 +18,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from icgo.optim.base import Algorithm, State, evaluate, first_state, register, uniform_population, update_best
+from icgo.optim.base import Algorithm, State, evaluate, first_state, uniform_population, update_best
 
 CROSSOVERS = ("sbx", "blend")
 SURVIVORS = ("plus", "generational")
@@ -158,4 +158,4 @@ def _evals(pop_size: int, config) -> tuple[int, int]:
     return pop_size, pop_size
 
 
-GA = register(Algorithm("ga", GAConfig, _init, _step, _evals))
+GA = Algorithm("ga", GAConfig, _init, _step, _evals)

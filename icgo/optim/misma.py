@@ -1,7 +1,7 @@
 """MISMA: the magneto-inertial slime mould algorithm (Yang & Cai; seeds/002).
 
 Built on the standard SMA (Li et al. 2020; :mod:`icgo.optim.sma`) and
-registered as ``misma`` in :data:`icgo.optim.base.OPTIMIZERS`, with the same
+listed as ``misma`` in :data:`icgo.optim.registry.OPTIMIZERS`, with the same
 ``init/step`` interface, so :func:`icgo.optim.run_batch` runs it.
 
 The paper's formulas did not survive its text extraction; each update below is
@@ -19,7 +19,7 @@ paper. ``docs/misma.md`` lists every reconstruction with the reasons.
   iteration): poor members restart (global search), the best never does.
 * **Restart (eq. 12).** ``X_i = VLB + r (VUB - VLB)`` with probability ``z_i``.
 * **GMR and random step (eqs. 14-16).** ``GMR`` of the best-so-far solution
-  (:func:`icgo.calibration.magnitude_ratio`) picks the random step of the
+  (:func:`icgo.methods.calibration.magnitude_ratio`) picks the random step of the
   approach move ``X = B + RS (W X_A - X_B)`` (eq. 14): a large
   ``RS2 ~ U(-a, a)`` (SMA's ``vb``) while ``GMR < gmr_threshold`` (poor best,
   jump out), a small ``RS1 ~ U(-b, b)`` (``b = 1 - t/T``) once the best is good.
@@ -35,7 +35,7 @@ paper. ``docs/misma.md`` lists every reconstruction with the reasons.
   ``tanh|F_i - B_f|``.
 
 The GMR needs the magnetometer data: the fitness object supplies it as
-``fitness.gmr(x, aux)`` (:class:`icgo.calibration.MismaObjective` does). For a
+``fitness.gmr(x, aux)`` (:class:`icgo.methods.misma_objective.MismaObjective` does). For a
 plain fitness (benchmarks) GMR falls back to ``t / T`` (large steps early,
 small late), documented in ``docs/misma.md``.
 """
@@ -49,8 +49,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from icgo.optim.base import (Algorithm, State, evaluate, finite_fitness, first_state, register, uniform_population,
-                             update_best)
+from icgo.optim.base import Algorithm, State, evaluate, finite_fitness, first_state, uniform_population, update_best
 
 _TINY = 1e-300
 
@@ -162,7 +161,7 @@ def _evals(pop_size, config):
     return pop_size, pop_size
 
 
-MISMA = register(Algorithm("misma", MISMAConfig, _init, _step, _evals))
+MISMA = Algorithm("misma", MISMAConfig, _init, _step, _evals)
 
 
 # ------------------------------------------------------------------ bounds
@@ -171,7 +170,7 @@ def misma_bounds(u, ref_nT, matrix_halfwidth=0.05, bias_halfwidth=0.02):
 
     ``U`` is the 12-vector that makes the corrected modulus equal the
     gyro-derived ``|M_omega|`` (least squares, i.e. the ellipsoid fit of
-    :func:`icgo.calibration.ellipsoid_fit`). The paper argues the wanted
+    :func:`icgo.methods.calibration.ellipsoid_fit`). The paper argues the wanted
     solution lies "near U" and redefines the bounds around it; we take
     ``U_j -/+ h_j`` with ``h = matrix_halfwidth * max_j |U_matrix|`` for the nine
     ``R^-1`` entries and ``h = bias_halfwidth * |M_omega|`` for the three biases.

@@ -14,7 +14,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from icgo.optim.base import Algorithm, State, evaluate, first_state, register, uniform_population, update_best
+from icgo.optim.base import Algorithm, State, evaluate, first_state, uniform_population, update_best
 
 
 @partial(jax.tree_util.register_dataclass,
@@ -76,4 +76,4 @@ def _evals(pop_size: int, config) -> tuple[int, int]:
     return pop_size, pop_size
 
 
-PSO = register(Algorithm("pso", PSOConfig, _init, _step, _evals))
+PSO = Algorithm("pso", PSOConfig, _init, _step, _evals)

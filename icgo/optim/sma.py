@@ -22,8 +22,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from icgo.optim.base import (Algorithm, State, evaluate, finite_fitness, first_state, register, uniform_population,
-                             update_best)
+from icgo.optim.base import Algorithm, State, evaluate, finite_fitness, first_state, uniform_population, update_best
 
 
 @partial(jax.tree_util.register_dataclass, data_fields=["z"], meta_fields=[])
@@ -82,4 +81,4 @@ def _evals(pop_size: int, config) -> tuple[int, int]:
     return pop_size, pop_size
 
 
-SMA = register(Algorithm("sma", SMAConfig, _init, _step, _evals))
+SMA = Algorithm("sma", SMAConfig, _init, _step, _evals)

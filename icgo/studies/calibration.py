@@ -1,7 +1,7 @@
 """Magnetometer calibration from grouped static shots: every method, in-sample and held out, with sanity (issue 16).
 
 A recording is static shots (``G`` g, ``B`` nT) with a ``group`` column: shots of
-one group share one true direction. Groups of at least :data:`icgo.calibration.MIN_ROLLED_SHOTS` shots are
+one group share one true direction. Groups of at least :data:`icgo.methods.calibration.MIN_ROLLED_SHOTS` shots are
 *rolled groups* (turned about the pointing axis); the others are single shots. No
 reference attitude is needed.
 
@@ -13,15 +13,15 @@ Methods (unit-sphere fits; :func:`fit_recording`):
 * ``misma+axis``: MISMA on the same objective, in a box in the data's units that
   contains the least-squares solution (:func:`misma_box`), then the axis rotation;
 * ``joint``: accelerometer and magnetometer (24 parameters) fitted together on the
-  rolled groups' directions, with one common dip over all shots (:func:`icgo.calibration.fit_joint`);
+  rolled groups' directions, with one common dip over all shots (:func:`icgo.methods.calibration.fit_joint`);
 * ``twelve+axis+relm``: ``twelve+axis`` plus a RELM on its field residual, trained by group
-  consistency with its ridge chosen by leave-one-group-out on the training shots (:mod:`icgo.mag_relm`);
+  consistency with its ridge chosen by leave-one-group-out on the training shots (:mod:`icgo.methods.mag_relm`);
 * the peer package circuitpython-mag-cal side by side (``peer_*``), when installed.
 
 Splits (:func:`splits`): in-sample (fit and score on every shot) and one held-out
 split per rolled group (fit without it, score on it). Score: the peer's metric
-(:func:`icgo.calibration.group_spread_deg`, deg) on the scored rolled groups. Every
-fit also gets its physical sanity on all shots (:func:`icgo.cal_sanity.sanity`);
+(:func:`icgo.methods.calibration.group_spread_deg`, deg) on the scored rolled groups. Every
+fit also gets its physical sanity on all shots (:func:`icgo.methods.cal_sanity.sanity`);
 a degenerate fit's score is withheld (NaN) and it is never counted as a win.
 """
 
@@ -37,15 +37,19 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
-from icgo import calibration as cal
-from icgo import mag_relm
-from icgo.cal_sanity import sanity
-from icgo.calibration import MIN_ROLLED_SHOTS
-from icgo.calibration_models import MagCalibration, mag_calibration
-from icgo.io import MAG_CAL_DEVICE_TO_TOOL, UT_TO_NT
+from icgo.core.errors import DataError
+from icgo.core.settings import is_int, need
+from icgo.io.recording import MAG_CAL_DEVICE_TO_TOOL, UT_TO_NT
+from icgo.methods import calibration as cal
+from icgo.methods import mag_relm
+from icgo.methods.cal_sanity import sanity
+from icgo.methods.calibration import MIN_ROLLED_SHOTS
+from icgo.methods.misma_objective import MismaObjective
+from icgo.models.calibration import MagCalibration, mag_calibration
 from icgo.optim import base
 from icgo.optim import misma as misma_opt
-from icgo.studies import Study, is_int, need, register_study
+from icgo.optim.registry import get
+from icgo.studies.protocol import Study
 
 log = logging.getLogger(__name__)
 
@@ -93,7 +97,7 @@ def model_label(recording: str, method: str) -> str:
 
 
 def rolled_ids(groups) -> list:
-    """Ids of the rolled groups (at least :data:`icgo.calibration.MIN_ROLLED_SHOTS` shots), sorted."""
+    """Ids of the rolled groups (at least :data:`icgo.methods.calibration.MIN_ROLLED_SHOTS` shots), sorted."""
     groups = np.asarray(groups)
     return [g for g in np.unique(groups) if (groups == g).sum() >= MIN_ROLLED_SHOTS]
 
@@ -140,7 +144,7 @@ def misma_box(x_centre, x_lsq, field_scale_nT: float, matrix_halfwidth: float = 
 @lru_cache(maxsize=None)
 def _objective(n: int):
     """One MismaObjective per recording size (the data travel as aux, so it compiles once per size)."""
-    return cal.MismaObjective(cal.make_caldata(np.ones((n, 3)), np.ones((n, 3)), 1.0))
+    return MismaObjective(cal.make_caldata(np.ones((n, 3)), np.ones((n, 3)), 1.0))
 
 
 def misma_on_shots(G_cal, B, config: CalibrationConfig, box, key) -> np.ndarray:
@@ -148,12 +152,12 @@ def misma_on_shots(G_cal, B, config: CalibrationConfig, box, key) -> np.ndarray:
     R = int(config.misma_repeats)
     data = cal.make_caldata(G_cal, B, 1.0)
     aux = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (R,) + jnp.shape(a)), data)
-    r = base.run_batch("misma", _objective(len(B)), box, jax.random.split(key, R), int(config.misma_pop),
+    r = base.run_batch(get("misma"), _objective(len(B)), box, jax.random.split(key, R), int(config.misma_pop),
                        int(config.misma_iter), aux=aux)
     return np.asarray(r.best_x[int(np.argmin(np.asarray(r.best_f)))])
 
 
-class GeometryError(ValueError):
+class GeometryError(DataError):
     """The shots do not span the orientations the linear fits need (one line)."""
 
 
@@ -203,7 +207,7 @@ def fit_recording(G, B, groups, config: CalibrationConfig, key, header: dict) ->
 
 
 def _device_frame(G, B):
-    """Tool frame -> mag_cal device frame (inverse of icgo.io's permutation); mag in uT."""
+    """Tool frame -> mag_cal device frame (inverse of icgo.io.recording's permutation); mag in uT."""
     perm = list(MAG_CAL_DEVICE_TO_TOOL)
     gd, md = np.empty_like(G), np.empty_like(B)
     gd[:, perm], md[:, perm] = G, B / UT_TO_NT
@@ -250,7 +254,7 @@ def group_score(model: MagCalibration, G, B, groups, score_mask) -> float:
 
 
 def model_sanity(model: MagCalibration, G, B):
-    """:func:`icgo.cal_sanity.sanity` of a calibration on all the shots."""
+    """:func:`icgo.methods.cal_sanity.sanity` of a calibration on all the shots."""
     Gc, Bc = model.corrected(G, B)
     return sanity(Gc, Bc, np.asarray(model.x_mag[:9]).reshape(3, 3))
 
@@ -259,7 +263,7 @@ def evaluate(recordings: dict, config: CalibrationConfig, key) -> tuple[pd.DataF
     """Every recording x split x method: score (NaN when degenerate) and sanity, long format.
 
     Args:
-        recordings: name -> :class:`icgo.io.Recording` with a ``group`` column.
+        recordings: name -> :class:`icgo.io.recording.Recording` with a ``group`` column.
         config: :class:`CalibrationConfig`. key: PRNG key (split once per fit).
     Returns:
         (table with columns recording, split, method, score_deg, dip_spread_deg, b_spread_pct,
@@ -336,11 +340,11 @@ def run(data: dict, config: CalibrationConfig, key) -> CalibrationResult:
 
 def example() -> tuple[dict, CalibrationConfig]:
     """A tiny real instance: one bundled device, MISMA 3 iterations x 2 repeats, no peer."""
-    from icgo.io import load_mag_cal_device
+    from icgo.io.recording import load_mag_cal_device
 
     return {"ab": load_mag_cal_device("ab")}, CalibrationConfig(peer=False, misma_iter=3, misma_repeats=2, misma_pop=6)
 
 
-register_study(Study("calibration", CalibrationConfig, run, "magnetometer calibration of grouped static shots: "
-                     "ellipsoid, 12-parameter LSQ + axis, MISMA + axis, joint, LSQ + axis + RELM, the peer; "
-                     "in-sample and held out, with physical sanity", example))
+STUDY = Study("calibration", CalibrationConfig, run, "magnetometer calibration of grouped static shots: "
+              "ellipsoid, 12-parameter LSQ + axis, MISMA + axis, joint, LSQ + axis + RELM, the peer; "
+              "in-sample and held out, with physical sanity", example)

@@ -3,7 +3,7 @@
 ``run(stations, WorkflowConfig, key)``: the greedy search of
 :func:`icgo.discrepancy.run_workflow` (fold assignment from ``key``); records:
 the gap after each step and one row per step; model: the final physics model
-(:class:`icgo.discrepancy.artifact.PhysicsModel`), which ``apply`` inverts on
+(:class:`icgo.models.discrepancy.PhysicsModel`), which ``apply`` inverts on
 new surveys.
 """
 
@@ -16,8 +16,8 @@ import numpy as np
 import pandas as pd
 
 from icgo import discrepancy as D
-from icgo.discrepancy.artifact import PhysicsModel
-from icgo.studies import Study, register_study
+from icgo.models.discrepancy import PhysicsModel
+from icgo.studies.protocol import Study
 
 
 class DiscrepancyResult(NamedTuple):
@@ -56,5 +56,5 @@ def example() -> tuple:
     return st, D.WorkflowConfig(max_effects=2, k_folds=3)
 
 
-register_study(Study("discrepancy", D.WorkflowConfig, run, "find, name and add the missing physical effect "
-                     "(greedy held-out search over the effect vocabulary)", example))
+STUDY = Study("discrepancy", D.WorkflowConfig, run, "find, name and add the missing physical effect "
+              "(greedy held-out search over the effect vocabulary)", example)

@@ -1,4 +1,4 @@
-"""Generalisation study: every method under every protocol of :mod:`icgo.splits` (issue 15).
+"""Generalisation study: every method under every protocol of :mod:`icgo.studies.splits` (issue 15).
 
 A *cell* is a (data set, protocol) pair. In each cell every method is fitted on
 the same members (the split depends only on the key, the repeat and the fold, so
@@ -10,16 +10,16 @@ the methods are paired repeat by repeat) and scored on the members' test rows:
   wavelet and the three-stage ICGO), all through :mod:`icgo.studies.icgo_relm`;
 * ``physics``: the 12-parameter magnetometer model with an earth-fixed external
   field, fitted by the discrepancy engine on the member's training rows
-  (:func:`icgo.discrepancy.artifact.fit_members`) and inverted per station on
+  (:func:`icgo.models.discrepancy.fit_members`) and inverted per station on
   its test rows.
 
 Per (cell, method, repeat): MAE / RMSE / R^2 over the repeat's test rows (fold
 protocols pool the folds: every row is predicted by the fold that held it out)
-and the coverage of the member's 90 % conformal interval (:mod:`icgo.conformal`;
+and the coverage of the member's 90 % conformal interval (:mod:`icgo.maths.conformal`;
 not for raw, msa and physics, which carry no interval). Per cell: a two-sided
 Wilcoxon signed-rank test of every method against the best (lowest mean MAE) on
 the paired repeats, Holm-adjusted over the cell's comparisons. Per cell, survey-QC
-counts (:mod:`icgo.qc`): raw and after MSA (the first method's MSA ensemble) on all
+counts (:mod:`icgo.physics.qc`): raw and after MSA (the first method's MSA ensemble) on all
 the cell's stations (the target instrument's under transfer); after the physics
 baseline (the field with its fitted disturbance removed) on the stations repeat 0
 tests, each corrected by the member that tested it (all of them for fold protocols
@@ -34,12 +34,12 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 
-from icgo import splits as _splits
-from icgo.frames import angle_diff
-from icgo.models import CORRECTED_B
-from icgo.stats import holm, wilcoxon_paired
-from icgo.studies import Study, register_study
+from icgo.maths.stats import holm, wilcoxon_paired
+from icgo.models.format import CORRECTED_B
+from icgo.physics.frames import angle_diff
+from icgo.studies import splits as _splits
 from icgo.studies.icgo_relm import StudyConfig
+from icgo.studies.protocol import Study
 
 _RELM = StudyConfig()  # the budget and model size default to the ICGO-RELM study's own (one source)
 
@@ -58,7 +58,7 @@ class GeneralisationConfig:
     """Settings of the generalisation study.
 
     Attributes:
-        cells: (data set, protocol) pairs (:data:`DATASETS` x :data:`icgo.splits.PROTOCOLS`).
+        cells: (data set, protocol) pairs (:data:`DATASETS` x :data:`icgo.studies.splits.PROTOCOLS`).
         n_repeats: repeats per cell (each a full pass over the folds for fold protocols).
         seed: the study key's seed (every method of a cell shares it: paired repeats).
         data_seed: noise seed of the simulated data sets (the transfer target's is ``transfer.seed``).
@@ -66,7 +66,7 @@ class GeneralisationConfig:
         strategies: the CGO strategies run side by side.
         pop_size, iterations: every optimizer's budget (default: the ICGO-RELM study's, the paper's 30, 100).
         hidden: RELM hidden units (default: the ICGO-RELM study's). physics: include the physics baseline.
-        transfer: how the transfer target differs (:class:`icgo.splits.TransferDraw`).
+        transfer: how the transfer target differs (:class:`icgo.studies.splits.TransferDraw`).
     """
 
     cells: tuple = CELLS
@@ -82,7 +82,7 @@ class GeneralisationConfig:
     transfer: _splits.TransferDraw = _splits.TransferDraw()
 
     def __post_init__(self):
-        from icgo.studies import is_int, need
+        from icgo.core.settings import is_int, need
 
         cells = tuple(tuple(c) for c in self.cells)
         object.__setattr__(self, "cells", cells)
@@ -111,7 +111,7 @@ class GeneralisationConfig:
 
 def build_data(config: GeneralisationConfig) -> dict:
     """(data set, protocol) -> :class:`icgo.studies.icgo_relm.SurveyData` for every cell, simulated."""
-    from icgo import datasets
+    from icgo.datasets import protocols as datasets
     from icgo.studies.icgo_relm import SurveyData
 
     out = {}
@@ -126,7 +126,7 @@ def build_data(config: GeneralisationConfig) -> dict:
 
 def noise_floors(config: GeneralisationConfig) -> pd.DataFrame:
     """Per cell: the azimuth error the simulator's noise alone implies on the rows the cell tests (deg)."""
-    from icgo.datasets import noise_floor
+    from icgo.datasets.protocols import noise_floor
 
     rows = []
     for name, protocol in config.cells:
@@ -156,8 +156,8 @@ def _qc_stations(data, cfg) -> pd.DataFrame:
 
 
 def _qc_row(stage: str, frame: pd.DataFrame, B_after, meta: dict) -> dict:
-    """One QC record: counts of :func:`icgo.qc.survey_qc` of ``frame``'s G with ``B_after`` (nT)."""
-    from icgo.qc import survey_qc
+    """One QC record: counts of :func:`icgo.physics.qc.survey_qc` of ``frame``'s G with ``B_after`` (nT)."""
+    from icgo.physics.qc import survey_qc
 
     ref = (float(meta["total_field_nT"]), float(meta["dip_deg"]), float(meta.get("gravity_g", 1.0)))
     return {"stage": stage, **survey_qc(frame[["gx", "gy", "gz"]].to_numpy(float), B_after, *ref).counts}
@@ -167,11 +167,11 @@ def _physics(data, config: GeneralisationConfig, protocol: str, key) -> tuple[li
     """Metric rows of the physics baseline in one cell (members as the ICGO-RELM study builds them), and its
     QC record on the cell's QC stations (:func:`_qc_stations`) that repeat 0 tests, corrected by the member
     that tested each."""
-    from icgo import io as icgo_io
-    from icgo.discrepancy.artifact import fit_members
     from icgo.discrepancy.stations import stations_from_recording
-    from icgo.frames import azimuth_from_gv
-    from icgo.metrics import azimuth_metrics
+    from icgo.io import recording as icgo_io
+    from icgo.maths.metrics import azimuth_metrics
+    from icgo.models.discrepancy import fit_members
+    from icgo.physics.frames import azimuth_from_gv
     from icgo.studies.icgo_relm import filtered
 
     cfg = config.study_config(protocol, None)
@@ -275,7 +275,7 @@ def run(data: dict, config: GeneralisationConfig, key, progress=None) -> General
 
 def example() -> tuple:
     """A tiny instance: leave-azimuth-out and transfer on lab_casing at a 45 deg toolface step, RELM and CGO."""
-    from icgo import datasets
+    from icgo.datasets import protocols as datasets
     from icgo.studies.icgo_relm import SurveyData
 
     cfg = GeneralisationConfig(cells=(("lab_casing", "leave_azimuth_out"), ("lab_casing", "transfer")), n_repeats=2,
@@ -288,6 +288,6 @@ def example() -> tuple:
     return data, cfg
 
 
-register_study(Study("generalisation", GeneralisationConfig, run, "every method under the random, "
-                     "leave-azimuth-out, leave-condition-out and transfer protocols (paired repeats, Holm-adjusted "
-                     "tests, conformal coverage)", example, fits_models=False))
+STUDY = Study("generalisation", GeneralisationConfig, run, "every method under the random, "
+              "leave-azimuth-out, leave-condition-out and transfer protocols (paired repeats, Holm-adjusted "
+              "tests, conformal coverage)", example, fits_models=False)

@@ -1,26 +1,26 @@
 """The gyro inclinometer study (issue #9, patent CN1888384): BP network vs lookup table (+ RELM, ICGO-RELM).
 
-Training data: the patent's turntable plan (:func:`icgo.datasets.turntable`:
+Training data: the patent's turntable plan (:func:`icgo.datasets.protocols.turntable`:
 inclination 3, 5, 10, 15, 25, 35, 45, 55, 65, 75 deg x azimuth and toolface
 every 30 deg = 1440 points) from a 2-axis gyro + 2-accelerometer instrument
 with repeatable systematic errors. Test data: a dense random set of attitudes
-in the same ranges (:func:`icgo.datasets.turntable_random`) and a set half-way
-between the grid points in I, A and T (:func:`icgo.datasets.turntable_between`).
+in the same ranges (:func:`icgo.datasets.protocols.turntable_random`) and a set half-way
+between the grid points in I, A and T (:func:`icgo.datasets.protocols.turntable_between`).
 
 Methods, each scored by the azimuth RMSE (deg) on both test sets, ``n_seeds``
 seeds per trained method (mean +/- sample std over seeds, ddof 1):
 
 * ``raw``: the instrument's computed azimuth (patent eq. 7);
 * ``table``: the prior-art error table over (I, A), toolface ignored, bilinear
-  (:class:`icgo.net_models.LookupTableModel`);
-* the network variants of ``variants`` (patent eqs. 8-12, :mod:`icgo.nets`; all
+  (:class:`icgo.models.network.LookupTableModel`);
+* the network variants of ``variants`` (patent eqs. 8-12, :mod:`icgo.methods.nets`; all
   seeds of one variant train in one jitted, vmapped call;
-  :class:`icgo.net_models.GyroNetwork`);
-* ``relm`` / ``icgo_relm``: RELM (ICGO paper eqs. 8-9, :mod:`icgo.relm`) on the
+  :class:`icgo.models.network.GyroNetwork`);
+* ``relm`` / ``icgo_relm``: RELM (ICGO paper eqs. 8-9, :mod:`icgo.methods.relm`) on the
   encoded (I, T, computed A) with random hidden weights, or with hidden
   weights searched by ``relm.optimizer`` (CGO with the three-stage 4th-seed
   mutation by default) on the training-only RELM fitness
-  (:class:`icgo.net_models.GyroRELM`).
+  (:class:`icgo.models.network.GyroRELM`).
 
 Also: error vs number of turntable points (:func:`points_sweep`) and the
 ``target=azimuth`` seam at north (:func:`seam_rows`).
@@ -42,18 +42,23 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
-from icgo import datasets, metrics, nets, relm, stats
-from icgo.frames import angle_diff
+from icgo.core.errors import SettingError
+from icgo.core.settings import is_int, is_real, need
+from icgo.datasets import protocols as datasets
+from icgo.maths import metrics, stats
+from icgo.methods import nets, relm
+from icgo.models.network import GyroNetwork, GyroRELM, LookupTableModel, turntable_domain, turntable_hash
 from icgo.optim.cgo import CGO
-from icgo.net_models import GyroNetwork, GyroRELM, LookupTableModel, turntable_domain, turntable_hash
-from icgo.qc import earth_rate_qc
-from icgo.studies import SettingError, Study, is_int, is_real, need, register_study
+from icgo.optim.registry import get
+from icgo.physics.frames import angle_diff
+from icgo.physics.qc import earth_rate_qc
+from icgo.studies.protocol import Study
 
 log = logging.getLogger(__name__)
 
 
 # ===================================================================== config
-# Every check raises icgo.studies.SettingError(<dotted key>, <problem>): one line, "<key> <problem>".
+# Every check raises icgo.core.errors.SettingError(<dotted key>, <problem>): one line, "<key> <problem>".
 def _integer(where, v, minimum=1):
     """SettingError unless ``v`` is an integer >= minimum."""
     need(is_int(v) and v >= minimum, where, f"must be an integer >= {minimum}, got {v!r}")
@@ -75,7 +80,7 @@ def _steps(where, values):
 
 @dataclasses.dataclass(frozen=True)
 class DataConfig:
-    """The turntable plan (:func:`icgo.datasets.turntable`).
+    """The turntable plan (:func:`icgo.datasets.protocols.turntable`).
 
     Attributes:
         inclinations_deg: test inclinations, deg, each in (0, 90) (patent's 10 points).
@@ -109,7 +114,7 @@ _NET = nets.NetConfig()  # the one source of the network defaults
 
 @dataclasses.dataclass(frozen=True)
 class NetSection:
-    """:class:`icgo.nets.NetConfig` defaults of every network variant (same fields, same meaning, same defaults)."""
+    """:class:`icgo.methods.nets.NetConfig` defaults of every network variant (same fields, same meaning, same defaults)."""
 
     hidden: tuple = _NET.hidden
     encoding: str = _NET.encoding
@@ -128,7 +133,7 @@ class NetSection:
         self.netconfig({}, "net")
 
     def netconfig(self, overrides: dict, where: str) -> nets.NetConfig:
-        """The checked :class:`icgo.nets.NetConfig` of these defaults updated by ``overrides``.
+        """The checked :class:`icgo.methods.nets.NetConfig` of these defaults updated by ``overrides``.
 
         Raises:
             SettingError: ``<where> ...`` for an unknown key or a bad value.
@@ -138,7 +143,7 @@ class NetSection:
         need(not unknown, where, f"unknown key(s) {unknown}; known: {list(nets.NetConfig._fields)}")
         try:
             d["hidden"] = tuple(int(h) for h in d["hidden"])
-            return nets._check_config(nets.NetConfig(**d))  # the one validation of NetConfig
+            return nets.check_config(nets.NetConfig(**d))  # the one validation of NetConfig
         except (TypeError, ValueError) as e:
             raise SettingError(where, str(e).splitlines()[0]) from None
 
@@ -270,7 +275,7 @@ class GyroConfig:
              f"{self.sweep.variant!r} is not one of variants {list(self.variants)}")
 
     def netconfig(self, variant: str) -> nets.NetConfig:
-        """The :class:`icgo.nets.NetConfig` of one variant."""
+        """The :class:`icgo.methods.nets.NetConfig` of one variant."""
         return self.net.netconfig(self.variants[variant], f"variants.{variant}")
 
 
@@ -318,18 +323,18 @@ def azimuth_errors(a_true, a_pred):
 
 
 def rmse_per_seed(a_true, a_pred) -> np.ndarray:
-    """(S,) azimuth RMSE (deg, :func:`icgo.metrics.rmse`, wrapped) per seed; ``a_pred`` (S, N) or (N,)."""
+    """(S,) azimuth RMSE (deg, :func:`icgo.maths.metrics.rmse`, wrapped) per seed; ``a_pred`` (S, N) or (N,)."""
     return np.asarray(metrics.rmse(np.asarray(a_true), np.atleast_2d(np.asarray(a_pred))))
 
 
 def seed_mean_std(x) -> tuple[float, float]:
-    """(mean, sample std) over seeds (:func:`icgo.stats.mean_std`, ddof 1); std 0 for a single value."""
+    """(mean, sample std) over seeds (:func:`icgo.maths.stats.mean_std`, ddof 1); std 0 for a single value."""
     x = np.atleast_1d(np.asarray(x, float))
     return stats.mean_std(x) if x.size > 1 else (float(x[0]), 0.0)
 
 
 def pm(x, digits=3) -> str:
-    """``"mean +/- std"`` over seeds (sample std, :func:`icgo.stats.format_mean_std`), or the single value."""
+    """``"mean +/- std"`` over seeds (sample std, :func:`icgo.maths.stats.format_mean_std`), or the single value."""
     x = np.atleast_1d(np.asarray(x, float))
     return stats.format_mean_std(*seed_mean_std(x), digits=digits) if x.size > 1 else f"{x[0]:.{digits}f}"
 
@@ -393,9 +398,9 @@ def fit_network(variant: str, ncfg: nets.NetConfig, keys, train: pd.DataFrame, c
 
 
 def relm_fit_data(rc: RelmConfig, keys, X, T):
-    """Per-seed RELM fitness data (:class:`icgo.relm.FitData`) on all training points.
+    """Per-seed RELM fitness data (:class:`icgo.methods.relm.FitData`) on all training points.
 
-    Inputs are standardised with the training statistics (:func:`icgo.relm.standardize_stats`);
+    Inputs are standardised with the training statistics (:func:`icgo.methods.relm.standardize_stats`);
     the folds of ``rc.fitness`` are drawn from each seed's key.
 
     Returns:
@@ -422,7 +427,7 @@ def search_theta(rc: RelmConfig, keys, data: relm.FitData, n_in: int):
     L, lo, hi = int(rc.hidden), *(float(x) for x in rc.theta_bounds)
     D = relm.n_params(L, n_in)
     configs = rc.search_configs()
-    res = run_batch(rc.optimizer, relm.make_fitness(float(rc.lam), L), (np.full(D, lo), np.full(D, hi)), keys,
+    res = run_batch(get(rc.optimizer), relm.make_fitness(float(rc.lam), L), (np.full(D, lo), np.full(D, hi)), keys,
                     int(rc.pop_size), int(rc.iterations), configs=configs, aux=data)
     if configs is not None:  # one value on the side-by-side axis: drop that axis
         res = jax.tree_util.tree_map(lambda x: x[0], res)
@@ -442,7 +447,7 @@ def fit_relm(rc: RelmConfig, keys, train: pd.DataFrame, optimized: bool, config:
 
     Hidden weights per seed are random (``optimized=False``) or searched
     (:func:`search_theta`); the output weights are the ridge solution (eq. 9) on
-    all training points (:func:`icgo.relm.fit_unchecked`).
+    all training points (:func:`icgo.methods.relm.fit_unchecked`).
 
     Returns:
         (GyroRELM, seconds incl. compilation).
@@ -519,7 +524,7 @@ def _model_config(config: GyroConfig, method: str) -> dict:
 
 
 def rate_qc(train: pd.DataFrame, tests: dict) -> dict:
-    """Earth-rate QC counts (:func:`icgo.qc.earth_rate_qc`) of the raw gyro, per data set.
+    """Earth-rate QC counts (:func:`icgo.physics.qc.earth_rate_qc`) of the raw gyro, per data set.
 
     The instrument has no magnetometer and its gz is implied by |g|, so the |G| / |B| / dip
     checks cannot fail here; the total-rate check is the gyro survey's. The methods correct the
@@ -580,6 +585,6 @@ def example() -> tuple[GyroData, GyroConfig]:
     return load_data(cfg), cfg
 
 
-STUDY = register_study(Study("gyro", GyroConfig, run,
-                             "gyro inclinometer: the patent's BP network vs its lookup table, plus RELM and ICGO-RELM",
-                             example))
+STUDY = Study("gyro", GyroConfig, run,
+              "gyro inclinometer: the patent's BP network vs its lookup table, plus RELM and ICGO-RELM",
+              example)

@@ -3,24 +3,24 @@
 Pipeline, per repeat (one PRNG key each, ``fold_in(PRNGKey(seed), repeat_id)``):
 
 1. 3-sigma filter (host-side, once for the data set; :func:`sigma_filter`);
-2. the split (``protocol``, :mod:`icgo.splits`): the paper's random 7:3 split
+2. the split (``protocol``, :mod:`icgo.studies.splits`): the paper's random 7:3 split
    (a permutation of the rows, the first ``round(0.7 N)`` are training rows)
    or a generalisation protocol (whole azimuths or well conditions held out,
    or a second instrument build as the test set). Each fitted model is a
    *member* with 0/1 row masks, so shapes stay fixed across members;
-3. multi-station analysis on the training rows only (:mod:`icgo.msa`);
+3. multi-station analysis on the training rows only (:mod:`icgo.methods.msa`);
 4. target = azimuth error left after MSA, ``wrap(A_msa - A_true)`` (deg);
 5. model: RELM on the six raw sensor values standardised with training
    statistics; hidden parameters drawn at random (plain RELM) or searched by an
-   optimizer of :mod:`icgo.optim` on a training-only fitness (:mod:`icgo.relm`);
+   optimizer of :mod:`icgo.optim` on a training-only fitness (:mod:`icgo.methods.relm`);
 6. output weights refit on all training rows; compensated azimuth
-   ``A_msa - predicted error`` scored on the test rows (:mod:`icgo.metrics`).
+   ``A_msa - predicted error`` scored on the test rows (:mod:`icgo.maths.metrics`).
 
 Test rows never steer anything: MSA, standardisation, fitness and output
 weights see them only with zero weight. Stages 2-6 run as three jitted calls:
 ``_prepare`` (mapped over repeats: split, MSA, features), a host-side MSA
 observability check, the optimizer's runner (:func:`icgo.optim.run_batch`,
-one call vmapped over repeats and CGO strategies), then ``_score_all`` (refit
+one call vmapped over repeats and CGO strategies), then ``score_all`` (refit
 and metrics, vmapped over strategies, mapped over repeats).
 Repeat k of a batched run equals the same repeat run alone (``repeat_ids``).
 
@@ -44,22 +44,23 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
-from icgo import msa as _msa
-from icgo import relm as _relm
-from icgo import splits as _splits
-from icgo.frames import angle_diff, azimuth_from_gv, wrap360
-from icgo.metrics import azimuth_metrics
+from icgo.maths.metrics import azimuth_metrics
+from icgo.maths.stats import mean_std_table
+from icgo.methods import msa as _msa
+from icgo.methods import relm as _relm
 from icgo.optim.cgo import CGO
-from icgo.qc import measured_dip_deg
-from icgo.stats import mean_std_table
-from icgo.studies import Study, register_study
+from icgo.physics.frames import angle_diff, azimuth_from_gv, wrap360
+from icgo.physics.qc import measured_dip_deg
+from icgo.studies import splits as _splits
+from icgo.studies import workers
+from icgo.studies.protocol import Study
 
 REQUIRED_COLUMNS = ("gx", "gy", "gz", "bx", "by", "bz", "azimuth_deg")
 
 
 log = logging.getLogger(__name__)
 
-#: Search-fitness precisions served by the train-mode kernel :func:`icgo.relm.train_fitness`
+#: Search-fitness precisions served by the train-mode kernel :func:`icgo.methods.relm.train_fitness`
 #: -> its ``feature_dtype`` (``mixed``: float64 features; ``fast``: float32 features).
 TRAIN_KERNEL_FEATURES = {"mixed": "float64", "fast": "float32"}
 
@@ -73,12 +74,12 @@ class StudyConfig:
         seed: base seed; repeat k uses key ``fold_in(PRNGKey(seed), k)``.
         repeat_ids: run only these repeat ids (e.g. ``(3,)`` to rerun repeat 3
             alone); None = ``range(n_repeats)``.
-        workers: processes the search is split over by repeats (:mod:`icgo.parallel`:
+        workers: processes the search is split over by repeats (:mod:`icgo.studies.workers`:
             one per core, XLA on one thread each, bitwise the one-process result);
             None (default) = one per available core when the search is large
-            (:data:`icgo.parallel.AUTO_MIN_WORK`) and no fitness wrapper (progress
+            (:data:`icgo.studies.workers.AUTO_MIN_WORK`) and no fitness wrapper (progress
             bar) is given, else 1. Only the random protocol's searches split.
-        protocol: the split (:data:`icgo.splits.PROTOCOLS`): ``random`` (paper),
+        protocol: the split (:data:`icgo.studies.splits.PROTOCOLS`): ``random`` (paper),
             ``leave_azimuth_out``, ``leave_condition_out`` or ``transfer`` (needs
             ``SurveyData.target``, the second instrument's survey).
         train_fraction: training share of each split (paper 7:3 -> 0.7; random
@@ -89,7 +90,7 @@ class StudyConfig:
         msa_reference: ``"station_mean"`` (paper eqs. 3-4) or ``"known"``
             (reference field from the metadata's total_field_nT and dip_deg).
         msa_iterations: largest number of Levenberg-Marquardt steps of the MSA
-            solve (:func:`icgo.lsq.least_squares` ``max_steps``; it stops earlier
+            solve (:func:`icgo.maths.lsq.least_squares` ``max_steps``; it stops earlier
             once converged, typically after 10-45 steps on lab_casing).
         features: ``"raw"`` (paper: the six raw sensor values) or ``"msa"``
             (G and the MSA-corrected B).
@@ -104,7 +105,7 @@ class StudyConfig:
         optimizer: registry name in :mod:`icgo.optim` (``cgo``, ``pso``, ``ga``,
             ``sma``) or None for plain RELM (one random theta per repeat).
         tune: plain RELM only (``optimizer=None``): choose ``hidden`` and ``lam`` on the grid
-            :data:`icgo.relm.TUNE_HIDDEN` x :data:`icgo.relm.TUNE_LAMBDA` by the mean over repeats of
+            :data:`icgo.methods.relm.TUNE_HIDDEN` x :data:`icgo.methods.relm.TUNE_LAMBDA` by the mean over repeats of
             the validation fitness on the training rows (``fitness`` ``validation`` or ``kfold``;
             the test rows are never seen), then fit at the chosen cell (method ``relm-tuned``).
         strategies: CGO 4th-seed strategies run side by side (vmapped); ignored
@@ -114,7 +115,7 @@ class StudyConfig:
         max_evals: fitness-evaluation budget instead of iterations.
         optimizer_config: the optimizer's config object (None = its defaults).
         dtype: precision of the search's fitness. ``"fast"`` (default): the
-            train-mode kernel :func:`icgo.relm.train_fitness` with float32
+            train-mode kernel :func:`icgo.methods.relm.train_fitness` with float32
             features (pre-activation, sigmoid, matrix-vector products), a float32
             Gram of centred features, float64 Cholesky and iterative refinement:
             within 1e-6 relative of the float64 fitness (tested), which is all a
@@ -123,7 +124,7 @@ class StudyConfig:
             the float64 solution to 1e-9 (about 1.6x slower). Both are used when
             ``fitness="train"``; other fitness modes then use the float64 path
             (measured on Table 3: ``results/performance.md``). ``"float64"``: the
-            row-weighted float64 path of :func:`icgo.relm.fitness`; ``"float32"``
+            row-weighted float64 path of :func:`icgo.methods.relm.fitness`; ``"float32"``
             that path in float32. The final refit and scoring are float64 always.
     """
 
@@ -155,8 +156,9 @@ class StudyConfig:
 
     def __post_init__(self):
         """Validate every setting that does not depend on the data (one-line SettingError naming the field)."""
+        from icgo.core.errors import SettingError
+        from icgo.core.settings import is_int, is_real, need
         from icgo.optim import OPTIMIZERS  # importing the package registers every optimizer
-        from icgo.studies import SettingError, is_int, is_real, need
 
         for name in ("strategies", "theta_bounds", "repeat_ids"):  # Hydra/JSON give lists
             v = getattr(self, name)
@@ -234,17 +236,15 @@ class StudyConfig:
                  f"must be an integer >= 1, got {self.max_evals!r}")
 
     def search_workers(self, n_rows: int) -> int:
-        """Processes the search runs in for a survey of ``n_rows`` rows (:func:`icgo.parallel.plan_workers`).
+        """Processes the search runs in for a survey of ``n_rows`` rows (:func:`icgo.studies.workers.plan_workers`).
 
         One unless the random protocol with an optimizer: then ``workers``, or for None one per
         available core when the search is large enough to pay for starting them.
         """
-        from icgo import parallel
-
         if self.optimizer is None or self.protocol != "random":
             return 1
         n_train = int(round(self.train_fraction * n_rows))
-        return parallel.plan_workers(self.workers, len(self.ids()), parallel.search_work(self, n_train))
+        return workers.plan_workers(self.workers, len(self.ids()), search_work(self, n_train))
 
     def ids(self) -> tuple:
         """The repeat ids this config runs."""
@@ -273,8 +273,8 @@ class StudyResult(NamedTuple):
             (``train``, ``test``, or ``heldout``: transfer's unused source rows).
         msa: per member (repeat, fold): biases (nT), standard errors, condition number, V.
         coverage: per (method, repeat, fold): the member's conformal half-width
-            (deg, :func:`icgo.conformal.member_coverage`), its coverage of the test
-            rows at :data:`icgo.compensation.INTERVAL_LEVEL`, the test and calibration row counts.
+            (deg, :func:`icgo.maths.conformal.member_coverage`), its coverage of the test
+            rows at :data:`icgo.models.relm.INTERVAL_LEVEL`, the test and calibration row counts.
         curves: dict of arrays: ``best_fitness`` and ``evals`` (S, M, T) over members.
         kept: (N_in,) bool, rows of the input frame surviving the sigma filter
             (for transfer: of the source; the target's kept rows are the
@@ -282,10 +282,10 @@ class StudyResult(NamedTuple):
         config: the StudyConfig.
         wall_time_s: wall time of the jitted stages (incl. compile), s.
         n_evals: fitness evaluations per method and member (S, M).
-        model: the fitted compensation (:class:`icgo.compensation.RELMCompensation`):
+        model: the fitted compensation (:class:`icgo.models.relm.RELMCompensation`):
             MSA biases, input statistics, hidden and output weights per method
             and repeat; ``model.apply(frame)`` corrects a new survey.
-        msa_model: the MSA-only fit (:class:`icgo.compensation.MSAModel`).
+        msa_model: the MSA-only fit (:class:`icgo.models.relm.MSAModel`).
         tuning: with ``config.tune``: ``{"hidden", "lam", "grid": [{hidden, lam, val_mean, val_std}, ...]}``
             (the chosen cell is ``config.hidden`` / ``config.lam``); else None.
     """
@@ -307,7 +307,7 @@ class StudyResult(NamedTuple):
 
     @property
     def records(self) -> dict:
-        """The tables a run directory holds (names and columns: :mod:`icgo.records`)."""
+        """The tables a run directory holds (names and columns: :mod:`icgo.reporting.records`)."""
         return {"metrics": self.metrics, "convergence": self.histories, "predictions": self.predictions,
                 "msa": self.msa.rename(columns={"condition": "condition_number"}), "coverage": self.coverage}
 
@@ -381,7 +381,7 @@ def _prepare(keys, train, test, G, B, a_true, reference, *, msa_model, msa_iter,
              val_fraction, k_folds) -> Prepared:
     """Per member (lax.map): MSA on its training rows, targets, standardised features, fold weights.
 
-    keys: (M, 2); train, test: (M, N) 0/1 masks (:func:`icgo.splits.members`).
+    keys: (M, 2); train, test: (M, N) 0/1 masks (:func:`icgo.studies.splits.members`).
     """
     def one(args):
         key, train, test = args
@@ -432,7 +432,7 @@ class _Scored(NamedTuple):
 
 def _score(theta, prep: Prepared, a_true, lam, hidden):
     """Refit beta on all training rows for one (strategy, repeat); predict; score (row blocks above
-    :data:`icgo.relm.ROW_BLOCK` rows, so memory does not grow with strategies x rows x hidden)."""
+    :data:`icgo.methods.relm.ROW_BLOCK` rows, so memory does not grow with strategies x rows x hidden)."""
     beta = _relm.ridge_beta(theta, prep.data.X, prep.target, lam, hidden, prep.train)
     pred = _relm.predict_rows(theta, beta, prep.data.X, hidden)
     a_comp = wrap360(prep.a_msa - pred)
@@ -442,7 +442,7 @@ def _score(theta, prep: Prepared, a_true, lam, hidden):
 
 
 @functools.partial(jax.jit, static_argnames=("hidden",))
-def _score_all(thetas, prep: Prepared, a_true, lam, hidden):
+def score_all(thetas, prep: Prepared, a_true, lam, hidden):
     over_s = jax.vmap(_score, in_axes=(0, None, None, None, None))
     # lax.map over repeats for bitwise batch-size independence (see _prepare).
     out = jax.lax.map(lambda tp: over_s(tp[0], tp[1], a_true, lam, hidden), (jnp.swapaxes(thetas, 0, 1), prep))
@@ -464,7 +464,38 @@ def _train_rows(data, n_train, padded):
     return jax.vmap(lambda d: _relm.train_rows(d, n_train, padded))(data)
 
 
-def _search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None):
+def search_work(cfg: StudyConfig, n_train_rows: int) -> float:
+    """Row-evaluations of the search (fitness evaluations x training rows x methods x repeats), roughly."""
+    from icgo.optim import get, iterations_for_budget
+
+    alg = get(cfg.optimizer)
+    config = alg.config_cls() if cfg.optimizer_config is None else cfg.optimizer_config
+    first, per = alg.evals(cfg.pop_size, config)
+    iters = cfg.iterations if cfg.max_evals is None else iterations_for_budget(alg, cfg.pop_size, cfg.max_evals, config)
+    methods = len(cfg.method_names())
+    return float(first + per * iters) * n_train_rows * methods * len(cfg.ids())
+
+
+def search_block(rows, G, B, a_true, cfg: StudyConfig, key, reference, n_source) -> tuple:
+    """:func:`search` of one block of repeats (``cfg.repeat_ids``) from scratch: a worker process's job."""
+    prep, _ = prepare(rows, G, B, a_true, cfg, jnp.asarray(key), reference, n_source)
+    return search(cfg, prep)
+
+
+def search_in_workers(rows, G, B, a_true, cfg: StudyConfig, base_key, reference, n_source, n_workers: int) -> tuple:
+    """:func:`search` split by repeats over ``n_workers`` processes (:func:`icgo.studies.workers.run_in_workers`).
+
+    Returns:
+        (thetas (S, R, D), curves (S, R, T), evals (S, R, T)) as numpy arrays, repeats in ``cfg.ids()`` order.
+    """
+    blocks = [b for b in np.array_split(np.asarray(cfg.ids()), n_workers) if b.size]
+    payloads = [(rows, G, B, a_true, dataclasses.replace(cfg, repeat_ids=tuple(int(i) for i in b), workers=1),
+                 np.asarray(base_key), reference, n_source) for b in blocks]
+    results = workers.run_in_workers(search_block, payloads, [f"repeats {b[0]}-{b[-1]}" for b in blocks])
+    return tuple(np.concatenate([r[i] for r in results], axis=1) for i in range(3))
+
+
+def search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None):
     """Hidden parameters per (method, repeat): (S, R, D), curves (S, R, T), evals (S, R, T)."""
     D = _relm.n_params(cfg.hidden)
     R = prep.key.shape[0]
@@ -484,7 +515,7 @@ def _search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None):
     fitness = _fitness_fn(float(cfg.lam), int(cfg.hidden), dtype)
     if wrap_fitness is not None:
         fitness = wrap_fitness(fitness)
-    res = run_batch(cfg.optimizer, fitness, bounds, prep.key,
+    res = run_batch(get(cfg.optimizer), fitness, bounds, prep.key,
                     cfg.pop_size, cfg.iterations, max_evals=cfg.max_evals,
                     config=None if configs else cfg.optimizer_config, configs=configs, aux=aux)
     if configs is None:
@@ -558,7 +589,7 @@ class SurveyData(NamedTuple):
             ``condition`` for ``protocol="leave_condition_out"``.
         meta: metadata dict (``total_field_nT``, ``dip_deg`` for msa_reference="known") or None.
         target: ``protocol="transfer"`` only: the second instrument's survey (same
-            columns; :func:`icgo.splits.transfer_survey` simulates one), every row a test row.
+            columns; :func:`icgo.studies.splits.transfer_survey` simulates one), every row a test row.
     """
 
     frame: pd.DataFrame
@@ -589,7 +620,7 @@ def run_study(frame: pd.DataFrame, config: StudyConfig | None = None, metadata: 
         metadata: the data set's metadata (needed for msa_reference="known").
         wrap_fitness: optional ``f -> f'`` applied to the search's fitness
             ``f(pop, aux)``, e.g. to report progress from inside the scan
-            (``experiments._common.Progress.wrap``). A wrapped fitness is a new
+            (``experiments._relm_job.Progress.wrap``). A wrapped fitness is a new
             static argument of the runner, so that run compiles afresh.
         target: the second instrument's survey (``protocol="transfer"`` only).
     Returns:
@@ -636,16 +667,13 @@ def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None)
         if wrap_fitness is not None:
             raise ValueError(f"study: workers={cfg.workers} runs the search in other processes, which a fitness "
                              "wrapper (progress bar) cannot follow; use workers=1 (or null) with it")
-        from icgo import parallel
-
-        thetas, curve, evals = parallel.search_in_workers(rows, G, B, a_true, cfg, base_key, reference, n_source,
-                                                          n_workers)
+        thetas, curve, evals = search_in_workers(rows, G, B, a_true, cfg, base_key, reference, n_source, n_workers)
     else:
-        thetas, curve, evals = _search(cfg, prep, wrap_fitness)
+        thetas, curve, evals = search(cfg, prep, wrap_fitness)
     check_search(np.asarray(curve), cfg.method_names(), [f"{r}" if cfg.protocol not in _splits.FOLD_PROTOCOLS
                                                           else f"{r}, {mem.fold_label[f]}"
                                                           for r, f in zip(mem.repeat, mem.fold)])
-    scored = _score_all(thetas, prep, jnp.asarray(a_true), cfg.lam, cfg.hidden)
+    scored = score_all(thetas, prep, jnp.asarray(a_true), cfg.lam, cfg.hidden)
     jax.block_until_ready(scored)
     wall = time.perf_counter() - t0
     prep = prep._replace(data=None)  # the features (members x rows x 6) are done with: free them before the tables
@@ -690,7 +718,7 @@ def prepare(rows: pd.DataFrame, G, B, a_true, cfg: StudyConfig, base_key, refere
         reference: (3,) known reference field or None (station mean).
         n_source: transfer only: the source's row count (the target's rows follow).
     Returns:
-        (:class:`Prepared` with a leading member axis, :class:`icgo.splits.Members`).
+        (:class:`Prepared` with a leading member axis, :class:`icgo.studies.splits.Members`).
     """
     if rows is None:  # arrays only: enough for the random protocol
         rows = pd.DataFrame(index=pd.RangeIndex(len(a_true)))
@@ -704,7 +732,7 @@ def prepare(rows: pd.DataFrame, G, B, a_true, cfg: StudyConfig, base_key, refere
 
 
 def train_rows(prep: Prepared):
-    """The fast fitness's data (:class:`icgo.relm.TrainRows`, leading member axis): each member's training
+    """The fast fitness's data (:class:`icgo.methods.relm.TrainRows`, leading member axis): each member's training
     rows gathered, padded with weight-0 rows where members have different numbers of them."""
     n_train = np.asarray(prep.train).sum(axis=1).astype(int)
     return _train_rows(prep.data, int(n_train.max()), bool(n_train.min() != n_train.max()))
@@ -738,8 +766,8 @@ def _pooled_metrics(a_true, a_est, err_before, w) -> dict:
 
 def _collect(cfg, rows, kept, a_true, G, B, n_source, mem: _splits.Members, prep, thetas, scored, curve, evals,
              wall) -> StudyResult:
-    from icgo.compensation import INTERVAL_LEVEL
-    from icgo.conformal import member_coverage
+    from icgo.maths.conformal import member_coverage
+    from icgo.models.relm import INTERVAL_LEVEL
 
     methods = cfg.method_names()
     ids = cfg.ids()
@@ -826,8 +854,8 @@ def _fitted_models(cfg: StudyConfig, G, B, a_true, mem: _splits.Members, prep: P
     (for transfer: the source instrument's), which set the data hash and domain; the
     conformal half-width uses the rows each member held out of that survey only.
     """
-    from icgo.compensation import MSAModel, RELMCompensation, out_of_bag_halfwidth
-    from icgo.models import data_hash, sensor_domain
+    from icgo.models.format import data_hash, sensor_domain
+    from icgo.models.relm import MSAModel, RELMCompensation, out_of_bag_halfwidth
 
     methods = cfg.method_names()
     ids = [int(r) for r in mem.repeat]
@@ -854,11 +882,11 @@ def _fitted_models(cfg: StudyConfig, G, B, a_true, mem: _splits.Members, prep: P
 
 def example() -> tuple:
     """A tiny ICGO-RELM study (seconds): lab_casing at a 45 deg toolface step, PSO, 2 repeats."""
-    from icgo import datasets
+    from icgo.datasets import protocols as datasets
 
     frame = datasets.lab_casing(0, toolface_step_deg=45.0).frame
     return SurveyData(frame), StudyConfig(optimizer="pso", n_repeats=2, hidden=8, pop_size=6, iterations=3)
 
 
-register_study(Study("icgo_relm", StudyConfig, run, "MSA + RELM whose hidden weights an optimizer searches "
-                     "(ICGO paper sections 3.1-3.4)", example))
+STUDY = Study("icgo_relm", StudyConfig, run, "MSA + RELM whose hidden weights an optimizer searches "
+              "(ICGO paper sections 3.1-3.4)", example)

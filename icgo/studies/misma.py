@@ -2,10 +2,10 @@
 
 Simulated part (per ``rotating_drill`` variant, :func:`simulated_variant`):
 MISMA and the standard SMA minimise the penalised MISMA fitness
-(:class:`icgo.calibration.MismaObjective`: dot invariance eq. 5, Pearson
+(:class:`icgo.methods.misma_objective.MismaObjective`: dot invariance eq. 5, Pearson
 constraint eqs. 6-7, field modulus eq. 8 and, in the paper's magneto-inertial
 reading, the gyro term J_gyro on the reference field M_omega of
-:mod:`icgo.gyro_reference`) over the 12 parameters ``[R^-1, b]`` (eqs. 2-4),
+:mod:`icgo.methods.gyro_reference`) over the 12 parameters ``[R^-1, b]`` (eqs. 2-4),
 ``repeats`` vmapped repeats each, population ``pop_size``. The comparison runs
 one contribution at a time (:mod:`icgo.studies.misma_compare`: boxes,
 coordinates, operators, objective; same repeat keys, paired tests), and
@@ -45,17 +45,21 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
-from icgo import calibration as cal
-from icgo import datasets, stats
-from icgo import instruments as ins
-from icgo.calibration_models import mag_calibration
-from icgo.gyro_reference import BIAS_MODES, fit_to_reference, gyro_reference, reference_at
-from icgo.io import load_mag_cal_device, mag_cal_devices
+from icgo.core.settings import is_int, is_real, need
+from icgo.datasets import instruments as ins
+from icgo.datasets import protocols as datasets
+from icgo.io.recording import load_mag_cal_device, mag_cal_devices
+from icgo.maths import stats
+from icgo.methods import calibration as cal
+from icgo.methods.cal_sanity import sanity
+from icgo.methods.gyro_reference import BIAS_MODES, fit_to_reference, gyro_reference, reference_at
+from icgo.methods.misma_objective import MismaObjective
+from icgo.models.calibration import mag_calibration
 from icgo.optim import misma as misma_opt
-from icgo.cal_sanity import sanity
-from icgo.qc import survey_qc
-from icgo.studies import Study, calibration, is_int, is_real, need, register_study
+from icgo.physics.qc import survey_qc
+from icgo.studies import calibration
 from icgo.studies import misma_compare as compare
+from icgo.studies.protocol import Study
 
 log = logging.getLogger(__name__)
 
@@ -63,7 +67,7 @@ log = logging.getLogger(__name__)
 PARAM_NAMES = tuple(f"Rinv_{i}{j}" for i in range(1, 4) for j in range(1, 4)) + ("b_x_nT", "b_y_nT", "b_z_nT")
 
 # ===================================================================== config
-# Every check raises icgo.studies.SettingError(<dotted key>, <problem>): one line, "<key> <problem>".
+# Every check raises icgo.core.errors.SettingError(<dotted key>, <problem>): one line, "<key> <problem>".
 def _unit(where, v, lo=0.0, hi=1.0):
     """SettingError unless ``v`` is a finite number in [lo, hi]."""
     need(is_real(v) and lo <= v <= hi, where, f"must be a number in [{lo}, {hi}], got {v!r}")
@@ -144,7 +148,7 @@ class SMASearchConfig:
 
 @dataclasses.dataclass(frozen=True)
 class GyroConfig:
-    """The gyro-derived reference M_omega (:mod:`icgo.gyro_reference`) and its objective term.
+    """The gyro-derived reference M_omega (:mod:`icgo.methods.gyro_reference`) and its objective term.
 
     Attributes:
         term: ``vector`` (the paper's magneto-inertial reading: J_gyro in the objective, the box
@@ -209,7 +213,7 @@ class SimulatedConfig:
 
     Attributes:
         enabled: run it.
-        variants: name -> keyword overrides of :func:`icgo.datasets.rotating_drill`
+        variants: name -> keyword overrides of :func:`icgo.datasets.protocols.rotating_drill`
             (``curving`` = its defaults, identifiable; ``straight`` = a near-straight hole).
         subsample: keep every k-th rotating sample (all static samples kept).
         dot_samples: ``static`` (dot invariance on zero-velocity samples) or ``all``.
@@ -291,8 +295,8 @@ class MismaData(NamedTuple):
     """What the study runs on.
 
     Attributes:
-        simulated: variant name -> :class:`icgo.datasets.Dataset` (rotating_drill).
-        devices: device name -> :class:`icgo.io.Recording` (24 shots, ``group`` column).
+        simulated: variant name -> :class:`icgo.datasets.protocols.Dataset` (rotating_drill).
+        devices: device name -> :class:`icgo.io.recording.Recording` (24 shots, ``group`` column).
     """
 
     simulated: dict
@@ -325,11 +329,11 @@ class Problem(NamedTuple):
         G, B: (N, 3) all samples, g and nT. static: (N,) bool zero-velocity samples.
         t: (N,) time, s. sel: (N,) bool samples the fitness uses.
         ref_nT: |M_omega|, the modulus of the gyro-rotated reference field (nT).
-        objective: the study's penalised fitness (:class:`icgo.calibration.MismaObjective`; with
+        objective: the study's penalised fitness (:class:`icgo.methods.misma_objective.MismaObjective`; with
             J_gyro when the gyro term is on). objective_mag: the same without J_gyro.
         x_true: (12,) true parameters. f_true, f_true_mag: their fitness under the two objectives.
         az_ref: (n_static,) true magnetic azimuth at the static samples, deg.
-        gyro: the :class:`icgo.gyro_reference.GyroReference` (None with the term off).
+        gyro: the :class:`icgo.methods.gyro_reference.GyroReference` (None with the term off).
     """
 
     G: np.ndarray
@@ -352,7 +356,7 @@ def prepare_problem(ds: datasets.Dataset, scfg: SimulatedConfig) -> Problem:
 
     Segments (for the Pearson constraint, eqs. 6-7) are the intervals between
     stops; the dot-invariance term (eq. 5) sees the static samples (or all);
-    the gyro term (:mod:`icgo.gyro_reference`) every sample of its windows.
+    the gyro term (:mod:`icgo.methods.gyro_reference`) every sample of its windows.
     """
     fr, meta, truth = ds.frame, ds.meta, ds.truth
     G, B = fr[["gx", "gy", "gz"]].to_numpy(float), fr[["bx", "by", "bz"]].to_numpy(float)
@@ -365,12 +369,12 @@ def prepare_problem(ds: datasets.Dataset, scfg: SimulatedConfig) -> Problem:
     data = cal.make_caldata(G[sel], B[sel], ref, seg[sel], ~static[sel], dot_weights=dotw)
     ob = scfg.objective
     args = (data, ob.pearson_threshold, ob.pearson_mode, ob.mu_magnitude, ob.mu_pearson)
-    obj_mag = cal.MismaObjective(*args)
+    obj_mag = MismaObjective(*args)
     gref, obj = None, obj_mag
     if scfg.gyro.on:
         gref = gyro_reference(G, fr[["wx", "wy", "wz"]].to_numpy(float), t, static, float(meta["latitude"]), ref,
                               float(meta["dip_deg"]), scfg.gyro.window_s, scfg.gyro.bias)
-        obj = cal.MismaObjective(*args, gyro=(gref, B[gref.index]), mu_gyro=scfg.gyro.mu)
+        obj = MismaObjective(*args, gyro=(gref, B[gref.index]), mu_gyro=scfg.gyro.mu)
     x_true = np.asarray(cal.params_from_error_model(np.asarray(truth["R"]), np.asarray(truth["b_nT"])))
     f_true, f_true_mag = (float(o(x_true[None])[0]) for o in (obj, obj_mag))
     return Problem(G, B, static, t, sel, ref, obj, obj_mag, x_true, f_true, f_true_mag,
@@ -452,7 +456,7 @@ def baselines(p: Problem, U, name: str) -> tuple[dict, Any]:
 
 
 def static_qc(p: Problem, meta: dict, fits: dict) -> dict:
-    """Survey-QC counts (:func:`icgo.qc.survey_qc`) at the static samples, raw and after each fit.
+    """Survey-QC counts (:func:`icgo.physics.qc.survey_qc`) at the static samples, raw and after each fit.
 
     Args:
         meta: the run's metadata (reference ``total_field_nT``, ``dip_deg``, ``gravity_g``).
@@ -563,7 +567,7 @@ def median_repeat(run) -> np.ndarray:
 
 class Scores(NamedTuple):
     """A row's scores: per repeat ``err`` (mean static |azimuth error|, deg) and ``within`` (parameters in
-    tolerance, of 12); ``physics``: the median repeat's invariants at the stops (:func:`icgo.cal_sanity.sanity`:
+    tolerance, of 12); ``physics``: the median repeat's invariants at the stops (:func:`icgo.methods.cal_sanity.sanity`:
     dip spread, |B| spread, cond(R^-1), degenerate)."""
 
     err: np.ndarray
@@ -791,6 +795,6 @@ def example() -> tuple[MismaData, MismaConfig]:
     return load_data(cfg), cfg
 
 
-STUDY = register_study(Study("misma", MismaConfig, run,
-                             "MISMA vs SMA 12-parameter magnetometer calibration: rotating_drill and 9 real devices",
-                             example))
+STUDY = Study("misma", MismaConfig, run,
+              "MISMA vs SMA 12-parameter magnetometer calibration: rotating_drill and 9 real devices",
+              example)

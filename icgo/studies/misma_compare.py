@@ -6,7 +6,7 @@ U instead of a prior box around ``R^-1 = I, b = 0``), its coordinates
 reading, its objective (the gyro term J_gyro). Each row below changes one of
 them; every row runs the same ``repeats`` keys (common random numbers), so
 rows are compared repeat by repeat with the paired Wilcoxon test
-(:func:`icgo.stats.wilcoxon_paired`, Holm-adjusted within a variant).
+(:func:`icgo.maths.stats.wilcoxon_paired`, Holm-adjusted within a variant).
 
 Boxes (all (12,) in parameter units: ``R^-1`` dimensionless, ``b`` in nT):
 ``prior`` (SMA's prior knowledge), ``U`` (MISMA's box around the modulus fit),
@@ -24,8 +24,9 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
-from icgo import stats
+from icgo.maths import stats
 from icgo.optim import base
+from icgo.optim.registry import get
 from icgo.optim.sma import SMAConfig
 
 OBJECTIVES = {"mag": "magnetometer + accelerometer (eqs. 5-8)", "mag+gyro": "eqs. 5-8 + J_gyro (M_omega)"}
@@ -119,7 +120,7 @@ def run_row(row: Row, objective, box, keys, pop_size: int, n_iter: int, misma_cf
         fit, bounds = UnitBoxFitness(objective, lb, ub), (np.zeros(12), np.ones(12))
     name, cfg = ("misma", misma_cfg) if row.algorithm == "MISMA" else ("sma", SMAConfig(z=sma_z))
     t0 = time.time()
-    r = base.run_batch(name, fit, bounds, keys, pop_size, n_iter, config=cfg)
+    r = base.run_batch(get(name), fit, bounds, keys, pop_size, n_iter, config=cfg)
     jax.block_until_ready(r.best_f)
     bx = np.asarray(fit.to_x(r.best_x)) if isinstance(fit, UnitBoxFitness) else np.asarray(r.best_x)
     return RowRun(bx, np.asarray(r.best_f), np.asarray(r.curve), time.time() - t0)
@@ -150,7 +151,7 @@ def convergence(fast: RowRun, slow: RowRun) -> dict:
 def fair_table(runs: dict, scores: dict, boxes_used: dict) -> pd.DataFrame:
     """One row per search: its settings, static-point |azimuth error| (deg) over repeats, parameters recovered,
     and the physics its median repeat must respect at the stops (dip spread, |B| spread, cond(R^-1),
-    ``degenerate`` by :data:`icgo.cal_sanity.LIMITS`): an error that looks small on a degenerate fit is no win.
+    ``degenerate`` by :data:`icgo.methods.cal_sanity.LIMITS`): an error that looks small on a degenerate fit is no win.
 
     (Wall times are in the study summary's ``runtime_s``, not here: records are deterministic.)
 

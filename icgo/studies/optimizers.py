@@ -1,7 +1,7 @@
 """The optimizer benchmark: our JAX optimizers vs mealpy 3.x side by side at an equal evaluation budget.
 
-Shifted and rotated CEC 2017 functions (:mod:`icgo.benchmarks`; the suite is
-``data``, default :data:`icgo.benchmarks.STUDY`) x dimensions x runs. Every run
+Shifted and rotated CEC 2017 functions (:mod:`icgo.optim.benchmarks`; the suite is
+``data``, default :data:`icgo.optim.benchmarks.STUDY`) x dimensions x runs. Every run
 of every algorithm gets the same number of fitness evaluations (``n_evals`` on
 our side, a call counter on mealpy's). Each of our methods is compared with its
 mealpy peer cell by cell (one function, one dimension) with the Wilcoxon
@@ -50,14 +50,16 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 
-from icgo import benchmarks as bm
+from icgo.core.settings import is_int, is_real, need
+from icgo.optim import benchmarks as bm
 from icgo.optim import iterations_for_budget
 from icgo.optim.cgo import CGO, CGOConfig
 from icgo.optim.ga import GA
 from icgo.optim.mutation import STRATEGIES
 from icgo.optim.pso import PSO
+from icgo.optim.registry import get
 from icgo.optim.sma import SMA
-from icgo.studies import Study, is_int, is_real, need, register_study
+from icgo.studies.protocol import Study
 
 log = logging.getLogger(__name__)
 
@@ -107,7 +109,7 @@ class OptimizerStudyConfig:
     methods: tuple | None = None
 
     def __post_init__(self):
-        """Validate every setting (one-line :class:`icgo.studies.SettingError` naming the field)."""
+        """Validate every setting (one-line :class:`icgo.core.errors.SettingError` naming the field)."""
         for name in ("functions", "dims", "methods"):  # Hydra/JSON/argparse give lists
             v = getattr(self, name)
             if isinstance(v, list):
@@ -263,10 +265,10 @@ def ours(dim: int, runs: int, pop_size: int, budget: int, key, functions_: tuple
         if labels is not None and not set(job.labels) & set(labels):
             continue
         keys = jax.random.split(jax.random.fold_in(key, 1000 * dim + j), F * runs)
-        before = base._batch_jit._cache_size()
+        before = base.compiled_runners()
         t0 = time.time()
         configs = None if job.configs is None else list(job.configs)
-        r = run_batch(job.algorithm, bm.suite_fitness, bounds, keys, pop_size, max_evals=budget, config=job.config,
+        r = run_batch(get(job.algorithm), bm.suite_fitness, bounds, keys, pop_size, max_evals=budget, config=job.config,
                       configs=configs, aux=aux)
         jax.block_until_ready(r.best_f)
         if configs is None:
@@ -275,7 +277,7 @@ def ours(dim: int, runs: int, pop_size: int, budget: int, key, functions_: tuple
             if labels is not None and label not in labels:
                 continue
             res[label] = (np.asarray(r.best_f[i]).reshape(F, runs), np.asarray(r.n_evals[i]).reshape(F, runs))
-        info.append((job.name, base._batch_jit._cache_size() - before, time.time() - t0))
+        info.append((job.name, base.compiled_runners() - before, time.time() - t0))
     return res, info
 
 
@@ -325,7 +327,7 @@ def mealpy_runs(name: str, dim: int, algo: str, runs: int, pop_size: int, budget
         return f(x)
 
     # same name in both registries; mealpy's initial population also costs pop_size evaluations
-    epochs = iterations_for_budget(algo, pop_size, budget)
+    epochs = iterations_for_budget(get(algo), pop_size, budget)
     module, cls = PEERS[algo]
     make = getattr(getattr(mealpy, module), cls)
     problem = {"obj_func": obj, "bounds": mealpy.FloatVar(lb=(-bm.BOX,) * dim, ub=(bm.BOX,) * dim),
@@ -362,7 +364,7 @@ def cell_table(runs: pd.DataFrame, dims, functions_, alpha: float = 0.05, method
 
     A method whose peer has no runs in ``runs`` gets NaN peer columns, NaN p-values and empty decisions.
     """
-    from icgo.stats import holm
+    from icgo.maths.stats import holm
 
     groups = {k: g for k, g in runs.groupby(["dim", "algorithm", "function"], sort=False)}
     q = lambda v: np.percentile(v, [25, 50, 75])  # noqa: E731
@@ -444,8 +446,8 @@ def run(data, config: OptimizerStudyConfig, key) -> OptimizerStudyResult:
     """Run the benchmark.
 
     Args:
-        data: the suite, a tuple of names from :data:`icgo.benchmarks.SPECS`, or None for
-            :data:`icgo.benchmarks.STUDY`; ``config.functions`` picks a subset.
+        data: the suite, a tuple of names from :data:`icgo.optim.benchmarks.SPECS`, or None for
+            :data:`icgo.optim.benchmarks.STUDY`; ``config.functions`` picks a subset.
         config: :class:`OptimizerStudyConfig`.
         key: JAX PRNG key (typed or raw); ``PRNGKey(config.seed)`` reproduces the former script.
     Returns:
@@ -507,6 +509,6 @@ def example() -> tuple:
                                                          methods=labels)
 
 
-STUDY = register_study(Study("optimizers", OptimizerStudyConfig, run,
-                             "our optimizers vs mealpy 3.x on shifted/rotated CEC 2017 functions at an equal "
-                             "evaluation budget (rank-sum +/=/-, Holm)", example, fits_models=False))
+STUDY = Study("optimizers", OptimizerStudyConfig, run,
+              "our optimizers vs mealpy 3.x on shifted/rotated CEC 2017 functions at an equal "
+              "evaluation budget (rank-sum +/=/-, Holm)", example, fits_models=False)

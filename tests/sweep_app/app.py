@@ -15,7 +15,7 @@ from hydra.core.hydra_config import HydraConfig
 
 @hydra.main(version_base="1.3", config_path=".", config_name="config")
 def app(cfg) -> None:
-    from icgo import records as R
+    from icgo.reporting import records as R
 
     hc = HydraConfig.get()
     out = Path(hc.runtime.output_dir)

@@ -1,0 +1,274 @@
+"""What every Hydra entry point shares: the command line checked before Hydra starts, one-line errors
+and exit statuses, JAX's compilation cache, results written all at once, failure markers.
+
+Nothing here imports JAX at module import (``icgo.core`` does not): the launchers may start worker
+processes after this module is imported, and JAX must be initialised inside the job, never forked.
+
+Errors the user can fix (a bad override, a missing data file) are raised as
+:class:`icgo.core.errors.SettingError` (or :class:`icgo.core.errors.DataError`), both one line; the entry
+point prints ``error: <line>`` and exits with :data:`EXIT_CONFIG` (2), before any computation.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+import traceback
+from pathlib import Path
+
+from omegaconf import DictConfig
+
+from icgo.core.errors import SettingError
+
+#: Hydra config directory (absolute, so runs work from any working directory).
+CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
+#: Config groups of the study app whose options are checked before Hydra composes.
+STUDY_GROUPS = ("dataset", "model", "optimizer", "strategy", "schedule", "budget", "split", "fitness",
+                "experiment")
+#: Marker a failed multirun job leaves in its directory (one line: the error).
+FAILED = "FAILED"  # == icgo.reporting.records.FAILED_FILE (tests/test_experiments_run.py; no icgo import at module import)
+EXIT_CONFIG = 2
+
+
+def group_options(group: str, conf_dir: Path = CONF_DIR) -> list[str]:
+    """Names of the options of a config group (its ``*.yaml`` files)."""
+    return sorted(p.stem for p in (conf_dir / group).glob("*.yaml"))
+
+
+def check_overrides(args: list[str], groups=STUDY_GROUPS, conf_dir: Path = CONF_DIR) -> str | None:
+    """One-line error for an override that names an unknown group option, else None.
+
+    Handles ``group=a``, ``+group=a``, ``~group`` (ignored) and sweeps
+    ``group=a,b,c``; anything else is left to Hydra.
+
+    Args:
+        args: command-line arguments (without the program name).
+        groups: config groups to check.
+        conf_dir: the config directory.
+    Returns:
+        The error line, or None when every group override names an existing option.
+    """
+    for arg in args:
+        if arg.startswith("-") or "=" not in arg:
+            continue
+        key, value = arg.split("=", 1)
+        key = key.lstrip("+")
+        if key not in groups:
+            continue
+        options = group_options(key, conf_dir)
+        for v in value.split(","):
+            v = v.strip()
+            if v in ("null", "") and key == "experiment":
+                continue
+            if v not in options:
+                return f"unknown {key} {v!r} in override {arg!r}; choose one of: {', '.join(options)}"
+    return None
+
+
+#: Hydra's run-mode flags that take no value (moved in front of the overrides by :func:`preflight`).
+MULTIRUN_FLAGS = ("-m", "--multirun")
+#: Overrides naming a directory Hydra creates before the task function runs.
+HYDRA_DIR_KEYS = ("hydra.run.dir", "hydra.sweep.dir")
+
+
+def check_hydra_dirs(args: list[str]) -> str | None:
+    """One-line error for a ``hydra.run.dir`` / ``hydra.sweep.dir`` that cannot be a directory, else None.
+
+    Hydra creates these before any entry-point code runs, and a failure there is
+    a traceback; so the directory is created here first (a value with an
+    interpolation, e.g. ``${now:...}``, is left to Hydra).
+    """
+    for arg in args:
+        key, sep, value = arg.lstrip("+").partition("=")
+        if not sep or key not in HYDRA_DIR_KEYS or "${" in value:
+            continue
+        p = Path(value).expanduser()
+        if p.exists() and not p.is_dir():
+            return f"{key} {value!r} is a file, not a directory; give a directory"
+        try:
+            p.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            return f"{key} {value!r}: cannot create the directory ({e.strerror or type(e).__name__})"
+    return None
+
+
+def check_plain_overrides(args: list[str], config_name: str, conf_dir: Path = CONF_DIR) -> str | None:
+    """One-line error for an override ``key=value`` (no ``+``) whose key is not in the composed config.
+
+    Hydra refuses such an override itself, but with a six-line block and exit
+    status 1; this composes the config the way the entry point will (with the
+    command line's group choices, a sweep's first value) and names the key.
+    """
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.core.override_parser.types import OverrideType
+
+    try:
+        overrides = OverridesParser.create().parse_overrides([a for a in args if not a.startswith("-")])
+    except Exception:  # Hydra's grammar: let Hydra print its own message for a malformed override
+        return None
+    groups, plain = [], []
+    for ov in overrides:
+        key = ov.key_or_group
+        if key.startswith("hydra") or (ov.type != OverrideType.CHANGE and not (conf_dir / key).is_dir()):
+            continue  # Hydra's own settings; an added or deleted key (the entry points refuse unknown ones)
+        if (conf_dir / key).is_dir():
+            value = next(iter(ov.sweep_string_iterator())) if ov.is_sweep_override() else ov.get_value_element_as_str()
+            prefix = {OverrideType.ADD: "+", OverrideType.FORCE_ADD: "++"}.get(ov.type, "")
+            groups.append(f"{prefix}{key}={value}")
+        else:
+            plain.append(ov)
+    if not plain:
+        return None
+    GlobalHydra.instance().clear()
+    try:
+        with initialize_config_dir(config_dir=str(conf_dir), version_base="1.3"):
+            cfg = compose(config_name=config_name, overrides=groups)
+    except Exception:  # a bad group choice: the entry point's own checks name it
+        return None
+    finally:
+        GlobalHydra.instance().clear()
+    for ov in plain:
+        if not _has_key(cfg, ov.key_or_group):
+            where = (conf_dir / f"{config_name}.yaml").relative_to(CONF_DIR.parent)
+            return (f"unknown setting {ov.key_or_group!r} in override {ov.input_line!r}: {where} (with the chosen "
+                    f"groups) has no such key")
+    return None
+
+
+def _has_key(cfg, dotted: str) -> bool:
+    """Whether the composed config has the key ``a.b.c`` (a mandatory ``???`` value counts as present)."""
+    from omegaconf import ListConfig
+
+    node = cfg
+    for part in dotted.split("."):
+        if isinstance(node, DictConfig) and part in node.keys():
+            node = node._get_node(part)
+        elif isinstance(node, ListConfig) and part.isdigit() and int(part) < len(node):
+            node = node._get_node(int(part))
+        else:
+            return False
+    return True
+
+
+def preflight(config_name: str, args: list[str] | None = None, conf_dir: Path = CONF_DIR) -> None:
+    """Checks of a Hydra entry point's command line before Hydra starts; one line and exit 2 on a bad one.
+
+    Moves ``-m``/``--multirun`` in front of the overrides (Hydra's parser refuses
+    them after one), then :func:`check_hydra_dirs` and :func:`check_plain_overrides`.
+    Rewrites ``sys.argv`` when ``args`` is None.
+    """
+    argv = sys.argv[1:] if args is None else args
+    flags = [a for a in argv if a in MULTIRUN_FLAGS]
+    rest = [a for a in argv if a not in MULTIRUN_FLAGS]
+    if args is None:
+        sys.argv[1:] = flags + rest
+    err = check_hydra_dirs(rest) or check_plain_overrides(rest, config_name, conf_dir)
+    if err:
+        print(f"error: {err}", file=sys.stderr)
+        raise SystemExit(EXIT_CONFIG)
+
+
+def enable_jax_cache(path: str | None) -> None:
+    """Turn on JAX's persistent compilation cache in ``path`` (None: leave it off).
+
+    Programs with host callbacks (the progress bar) are never cached by JAX;
+    multirun jobs run without a bar, so their compiled study is reused.
+    """
+    if not path:
+        return
+    import jax
+
+    p = Path(path).expanduser()
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as e:  # a read-only file system, a file in the way
+        raise SettingError(f"jax_cache_dir {str(p)!r}: cannot create the cache directory ({e.strerror}); "
+                          f"set jax_cache_dir=null to run without the cache") from None
+    jax.config.update("jax_compilation_cache_dir", str(Path(path).expanduser()))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+
+
+@contextlib.contextmanager
+def staged_results(out: Path, last: str | None = None):
+    """Write a study's files into a shared results folder all at once, or not at all.
+
+    Yields a fresh staging directory inside ``out`` (same file system). When the
+    block ends normally every staged file is moved into ``out`` with
+    ``os.replace`` (``last``, the study's summary record, moved last); when it
+    raises (Ctrl-C, a full disk, a bug) the staging directory is removed and
+    ``out`` holds exactly what it held before, and a line says so on stderr.
+    Sub-directories are not supported (the studies write flat files).
+    """
+    import shutil
+    import tempfile
+
+    out.mkdir(parents=True, exist_ok=True)
+    stage = Path(tempfile.mkdtemp(prefix=".staging-", dir=out))
+    try:
+        try:
+            yield stage
+        except BaseException:
+            print(f"[results] stopped before the files were complete: nothing in {out} was changed", file=sys.stderr)
+            raise
+        for f in sorted(stage.iterdir(), key=lambda f: f.name == last):
+            os.replace(f, out / f.name)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+
+
+def study_main(cfg: DictConfig, build_config, run) -> None:
+    """Body of a study entry point's Hydra main: settings checked first (one line, exit 2), then ``run``.
+
+    Args:
+        cfg: the composed config. build_config: ``cfg -> the study's config dataclass``
+            (raises ValueError on a bad setting). run: ``(cfg, models_dir, config) -> None``.
+    """
+    import logging
+
+    from hydra.core.hydra_config import HydraConfig
+
+    try:
+        config = build_config(cfg)
+    except ValueError as e:
+        print(f"error: {one_line(e)}", file=sys.stderr)
+        raise SystemExit(EXIT_CONFIG) from None
+    logging.getLogger("icgo").setLevel(logging.INFO)
+    run(cfg, Path(HydraConfig.get().runtime.output_dir) / "models", config)
+
+
+def previous_run(outdir: Path) -> dict | None:
+    """The run record of a complete previous run in ``outdir``, or None (no run, or an unreadable record)."""
+    from icgo.reporting import records as R
+
+    if not (outdir / R.RUN_FILE).is_file():
+        return None
+    try:
+        return R.read_run(outdir)
+    except R.RecordError:
+        return None
+
+
+def write_failure(outdir: Path, message: str, tb: str | None = None) -> None:
+    """Leave the FAILED marker (one line) and, for unexpected errors, the traceback."""
+    outdir.mkdir(parents=True, exist_ok=True)
+    (outdir / FAILED).write_text(message.strip().splitlines()[0] + "\n")
+    if tb:
+        (outdir / "error.txt").write_text(tb)
+
+
+def one_line(e: BaseException) -> str:
+    """First line of an exception message."""
+    text = str(e).strip()
+    return text.splitlines()[0] if text else type(e).__name__
+
+
+def format_traceback(e: BaseException) -> str:
+    return "".join(traceback.format_exception(type(e), e, e.__traceback__))
+
+
+def env_info() -> dict:
+    """Host facts recorded in run.json."""
+    return {"pid": os.getpid(), "cpu_count": os.cpu_count()}

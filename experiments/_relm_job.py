@@ -1,0 +1,458 @@
+"""The ICGO-RELM job behind ``python -m experiments.run``: the composed config checked and mapped onto
+:class:`icgo.studies.icgo_relm.StudyConfig`, the data loaded, the progress bar, and the run directory written.
+
+Like :mod:`experiments._entry`, nothing here imports JAX at module import; functions that need the
+library import it inside.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+from omegaconf import DictConfig, OmegaConf
+
+from experiments._entry import FAILED
+from icgo.core.errors import SettingError
+
+
+def _need(cond: bool, msg: str) -> None:
+    if not cond:
+        raise SettingError(msg)
+
+
+def _need_file(p: Path, key: str) -> None:
+    _need(p.exists(), f"{key} {str(p)!r}: file not found")
+    _need(p.is_file(), f"{key} {str(p)!r}: not a regular file (a directory, pipe or device); give a CSV file")
+
+
+def _is_int(x) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
+#: Config nodes whose keys are :class:`icgo.studies.icgo_relm.StudyConfig` fields: key ``k`` of node ``g`` is the
+#: field ``g_k`` if there is one (``msa.iterations`` -> ``msa_iterations``), else ``k``; except the aliases below.
+STUDY_NODES = ("split", "msa", "model", "fitness", "budget")
+#: The keys whose field name follows neither rule.
+STUDY_ALIASES = {"fitness.mode": "fitness", "optimizer.name": "optimizer", "strategy.names": "strategies",
+                 "dtype": "dtype", "workers": "workers"}
+#: Keys read by the entry point itself (not StudyConfig fields), per node; "" = top level.
+ENTRY_KEYS = {"": ("dataset", "optimizer", "strategy", "schedule", "progress", "figures", "label", "jax_cache_dir",
+                   "overwrite", *STUDY_NODES, "dtype", "workers"),
+              "optimizer": ("name", "params"), "strategy": ("names",), "schedule": ("bounds", "order", "clock")}
+#: Keys of the study nodes that the entry point reads itself (not StudyConfig fields): the transfer target.
+STUDY_NODE_ENTRY_KEYS = ("split.target",)
+#: Keys of ``split.target`` (:class:`icgo.studies.splits.TransferDraw` fields, plus a recording's path).
+TARGET_KEYS = ("seed", "casing_distance_scale", "casing_strength_scale", "misalignment_deg", "path")
+#: Keys of each data set option (``dataset.name``).
+DATASET_KEYS = {"lab_casing": ("name", "seed", "kwargs"), "well_conditions": ("name", "seed", "condition", "kwargs"),
+                "csv": ("name", "path", "require_meta")}
+
+
+def _unknown(keys, allowed, where: str) -> None:
+    bad = sorted(set(keys) - set(allowed))
+    _need(not bad, f"unknown setting(s) {[f'{where}{k}' for k in bad]}; {where or 'the config'} "
+                   f"takes {sorted(allowed)}")
+
+
+def check_config(cfg: DictConfig) -> None:
+    """Entry-point checks: no unknown key anywhere, and the data set settings.
+
+    The study's own settings are validated by :class:`icgo.studies.icgo_relm.StudyConfig`
+    (one place); this checks what only the entry point reads.
+
+    Raises:
+        SettingError: one line naming the setting, its value and what is allowed.
+    """
+    _unknown(cfg.keys(), ENTRY_KEYS[""], "")
+    for node in ("optimizer", "strategy", "schedule"):
+        _unknown(cfg[node].keys(), ENTRY_KEYS[node], f"{node}.")
+    ds = cfg.dataset
+    _need(ds.get("name") in DATASET_KEYS,
+          f"dataset.name must be one of {sorted(DATASET_KEYS)}, got {ds.get('name')!r}")
+    _unknown(ds.keys(), DATASET_KEYS[ds.name], "dataset.")
+    if ds.name == "csv":
+        _need(OmegaConf.select(ds, "path", throw_on_missing=False) not in (None, "???"),
+              "dataset.path is required with dataset=csv (dataset.path=/path/to/file.csv)")
+        _need_file(Path(str(ds.path)).expanduser(), "dataset.path")
+    elif ds.name == "well_conditions":
+        c = ds.condition
+        _need(c is None or (_is_int(c) and 0 <= c <= 5),
+              f"dataset.condition must be null or an integer 0-5 (Table 4 row), got {c!r}")
+    target = OmegaConf.select(cfg, "split.target")
+    protocol = OmegaConf.select(cfg, "split.protocol")
+    if target is not None:
+        _need(protocol == "transfer", f"split.target is read only by split.protocol=transfer (split=transfer); "
+                                      f"here split.protocol={protocol!r}, so it would do nothing")
+        _unknown(target.keys(), TARGET_KEYS, "split.target.")
+        if target.get("path") is not None:
+            _need_file(Path(str(target.path)).expanduser(), "split.target.path")
+    elif protocol == "transfer":
+        _need(False, "split.protocol=transfer needs split.target (use split=transfer, which defines it)")
+    b = list(cfg.schedule.bounds)
+    _need(len(b) == 2 and all(isinstance(x, (int, float)) for x in b) and 0.0 < b[0] < b[1] < 1.0,
+          f"schedule.bounds must be two fractions 0 < b1 < b2 < 1, got {b}")
+    _need(cfg.schedule.get("clock", "global") in ("global", "stage"),
+          f"schedule.clock must be global or stage, got {cfg.schedule.get('clock')!r}")
+    if OmegaConf.select(cfg, "model.tune") is True:
+        from icgo.studies.icgo_relm import StudyConfig
+
+        for k in ("hidden", "lam"):
+            default = StudyConfig.__dataclass_fields__[k].default
+            _need(cfg.model[k] == default, f"model.{k}={cfg.model[k]} has no effect with model.tune=true (the tuning "
+                                           f"grid chooses it); leave it at {default}")
+
+
+def study_settings(cfg: DictConfig) -> tuple[dict, dict]:
+    """(StudyConfig field -> value, field -> config key) from a composed config; unknown keys refused.
+
+    Every key of the study nodes maps to a field by the rule of :data:`STUDY_NODES`
+    (no hand-written field list): a new StudyConfig field is a new key in its
+    node's yaml, nothing else.
+    """
+    import dataclasses
+
+    from icgo.studies.icgo_relm import StudyConfig
+
+    fields = {f.name for f in dataclasses.fields(StudyConfig)}
+    values, where = {}, {}
+    for node in STUDY_NODES:
+        for k, v in OmegaConf.to_container(cfg[node], resolve=True).items():
+            key = f"{node}.{k}"
+            if key in STUDY_NODE_ENTRY_KEYS:
+                continue
+            field = STUDY_ALIASES.get(key) or (f"{node}_{k}" if f"{node}_{k}" in fields else k)
+            _need(field not in where, f"settings {where.get(field)!r} and {key!r} both map to the study field "
+                                      f"{field!r}")
+            _need(field in fields, f"unknown setting {key!r}: not a setting of the study "
+                                   f"(icgo.studies.icgo_relm.StudyConfig has {sorted(fields)})")
+            values[field], where[field] = v, key
+    for key, field in STUDY_ALIASES.items():
+        if key not in where.values():
+            v = OmegaConf.select(cfg, key)
+            values[field] = OmegaConf.to_container(v, resolve=True) if OmegaConf.is_config(v) else v
+            where[field] = key
+    return values, where
+
+
+def study_config(cfg: DictConfig):
+    """:class:`icgo.studies.icgo_relm.StudyConfig` from a composed config (entry-point checks first).
+
+    Raises:
+        SettingError: one line naming the config key (``split.n_repeats``), not the field.
+    """
+    from icgo.studies.icgo_relm import StudyConfig
+
+    check_config(cfg)
+    values, where = study_settings(cfg)
+    try:
+        return StudyConfig(**values, optimizer_config=optimizer_config(cfg))
+    except SettingError as e:
+        if e.field is None:
+            raise
+        raise SettingError(where.get(e.field, e.field), e.problem) from None
+
+
+def optimizer_config(cfg: DictConfig):
+    """The optimizer's config object from ``optimizer.params`` (+ the schedule where the config has one), or None."""
+    name = cfg.optimizer.name
+    if name is None:
+        return None
+    import dataclasses
+
+    from icgo.optim import get
+
+    alg = get(name)
+    params = dict(OmegaConf.to_container(cfg.optimizer.params, resolve=True) or {})
+    fields = {f.name for f in dataclasses.fields(alg.config_cls)}
+    if {"stage_bounds", "stage_order"} <= fields:
+        params.setdefault("stage_bounds", tuple(float(x) for x in cfg.schedule.bounds))
+        params.setdefault("stage_order", tuple(cfg.schedule.order))
+        params.setdefault("wavelet_stage_clock", cfg.schedule.get("clock", "global") == "stage")
+    try:
+        return alg.make_config(**params)
+    except (TypeError, ValueError) as e:
+        raise SettingError(f"optimizer.params for {name}: {str(e).splitlines()[0]}") from None
+
+
+def load_data(cfg: DictConfig):
+    """(frame, metadata, description) of the configured data set.
+
+    Raises:
+        SettingError / icgo.io.recording.DataError: one line (missing file, bad CSV, unknown data set).
+    """
+    ds = cfg.dataset
+    if ds.name == "csv":
+        from icgo.io.recording import read_recording
+
+        rec = read_recording(Path(str(ds.path)).expanduser(), require_meta=bool(ds.require_meta))
+        for line in rec.notices:  # what the reader noticed but accepted (icgo.io.recording check prints the same)
+            print(f"notice: {line}", file=sys.stderr)
+        return rec.frame, dict(rec.meta), f"csv:{ds.path}"
+    from icgo.datasets import protocols as datasets
+
+    fn = getattr(datasets, ds.name, None)
+    if fn is None:
+        raise SettingError(f"dataset {ds.name!r}: icgo.datasets.protocols has no such protocol")
+    kwargs = dict(OmegaConf.to_container(ds.kwargs, resolve=True) or {})
+    try:
+        data = fn(int(ds.seed), **kwargs)
+    except TypeError as e:
+        raise SettingError(f"dataset.kwargs for {ds.name}: {str(e).splitlines()[0]}") from None
+    frame, meta = data.frame, dict(data.meta)
+    desc = ds.name
+    cond = OmegaConf.select(ds, "condition")
+    if cond is not None:
+        frame, desc = select_condition(frame, int(cond)), f"{ds.name}[{cond}]"
+    return frame, meta, desc
+
+
+def load_target(cfg: DictConfig):
+    """The second instrument's survey of ``split=transfer`` (a DataFrame), or None for other protocols.
+
+    ``split.target.path`` reads a recording; otherwise the data set's simulator draws
+    the target with the changes of ``split.target`` (:func:`icgo.studies.splits.transfer_survey`).
+
+    Raises:
+        SettingError / icgo.io.recording.DataError: one line.
+    """
+    if OmegaConf.select(cfg, "split.protocol") != "transfer":
+        return None
+    t = OmegaConf.to_container(cfg.split.target, resolve=True)
+    path = t.pop("path", None)
+    if path is not None:
+        from icgo.io.recording import read_recording
+
+        return read_recording(Path(str(path)).expanduser(), require_meta=False).frame
+    from icgo.core.errors import SettingError
+    from icgo.studies.splits import TransferDraw, transfer_survey
+
+    ds = cfg.dataset
+    if ds.name == "csv":
+        raise SettingError("split=transfer on dataset=csv needs split.target.path (a recording of the second "
+                          "instrument); only the simulated data sets can draw one")
+    try:
+        draw = TransferDraw(**t)
+        return transfer_survey(ds.name, int(ds.seed), dict(OmegaConf.to_container(ds.kwargs, resolve=True) or {}),
+                               draw).frame
+    except SettingError as e:
+        raise (SettingError(f"split.target.{e.field}", e.problem) if e.field else e) from None
+
+
+def select_condition(frame, condition: int):
+    """Rows of one Table 4 condition of a well_conditions frame (column ``condition``)."""
+    if "condition" not in frame.columns:
+        raise SettingError("dataset.condition is set but the data set has no 'condition' column")
+    sub = frame[frame["condition"] == condition].reset_index(drop=True)
+    if len(sub) == 0:
+        raise SettingError(f"dataset.condition {condition}: no rows with that condition")
+    return sub
+
+
+class Progress:
+    """A tqdm bar over optimizer iterations, advanced by a host callback from inside the scan.
+
+    :meth:`wrap` returns a fitness that calls ``jax.debug.callback(self.tick)``
+    with no operands: under the runner's vmap over repeats and strategies the
+    callback is not batched, so it fires once per fitness call of the whole
+    batch, i.e. once per iteration (plus once for the initial population).
+    tqdm redraws at most every 0.2 s.
+    """
+
+    def __init__(self, total: int, desc: str, enable: bool):
+        self.total, self.count, self.bar, self.t0 = total, 0, None, time.perf_counter()
+        if enable:
+            from tqdm.auto import tqdm
+
+            self.bar = tqdm(total=total, desc=desc, unit="it", mininterval=0.2, dynamic_ncols=True,
+                            file=sys.stderr)
+
+    def tick(self) -> None:
+        """Host side: one more iteration done."""
+        if self.count < self.total:
+            self.count += 1
+            if self.bar is not None:
+                self.bar.update(1)
+
+    def wrap(self, fitness):
+        """A fitness that reports each call to :meth:`tick`."""
+        import jax
+
+        def f(pop, aux):
+            jax.debug.callback(self.tick)
+            return fitness(pop, aux)
+
+        return f
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def progress_enabled(setting) -> bool:
+    """``progress`` option: ``auto`` (a bar when stderr is a terminal), true or false."""
+    if isinstance(setting, bool):
+        return setting
+    if setting in (None, "auto"):
+        return sys.stderr.isatty()
+    raise SettingError(f"progress must be auto, true or false, got {setting!r}")
+
+
+def run_with_progress(frame, scfg, meta, enable: bool, desc: str, target=None):
+    """``icgo.studies.icgo_relm.run_study`` with a progress bar over the optimizer's iterations.
+
+    The bar wraps the search's fitness (``run_study(wrap_fitness=...)``), so it
+    advances from inside the scan; without an optimizer (plain RELM) there is no
+    scan and no bar.
+    """
+    from icgo.studies import icgo_relm as study
+
+    n_workers = scfg.search_workers(len(frame))
+    if n_workers > 1:
+        print(f"search: {n_workers} worker processes, one per core (workers={scfg.workers}); "
+              f"{'no progress bar (workers=1 for one)' if enable else 'progress off'}", file=sys.stderr)
+    if not enable or scfg.optimizer is None or n_workers > 1:
+        return study.run_study(frame, scfg, meta, target=target)
+    from icgo.optim import get, iterations_for_budget
+
+    n_iter = scfg.iterations if scfg.max_evals is None else iterations_for_budget(
+        get(scfg.optimizer), scfg.pop_size, scfg.max_evals, scfg.optimizer_config)
+    bar = Progress(int(n_iter) + 1, desc, True)
+    try:
+        return study.run_study(frame, scfg, meta, wrap_fitness=bar.wrap, target=target)
+    finally:
+        bar.close()
+
+
+#: The paper's names for method labels (everything else is named by the rule in :func:`method_label`).
+PAPER_NAMES = {"raw": "raw (eq. 1)", "msa": "MSA only", "relm": "RELM", "cgo-original": "CGO-RELM",
+               "cgo-three_stage": "ICGO-RELM (three-stage)"}
+
+
+def method_label(method: str) -> str:
+    """Paper-style label: the paper's name if it has one, else ``<alg>-<value>`` -> ``ALG-RELM (value)``."""
+    if method in PAPER_NAMES:
+        return PAPER_NAMES[method]
+    name, _, value = method.partition("-")
+    return f"{name.upper()}-RELM" + (f" ({value})" if value else "")
+
+
+def summary_table(result, split: str = "test"):
+    """Printed/Markdown summary: per method MAE, RMSE, R^2 (mean +/- std over repeats) and evaluations."""
+    import numpy as np
+    import pandas as pd
+
+    from icgo.reporting.records import SUMMARY_COLUMNS
+
+    s = result.summary.xs(split, level="split")
+    evals = dict(zip(result.config.method_names(), np.asarray(result.n_evals).mean(axis=1)))
+    rows = []
+    for m in s.index:
+        rows.append({"method": m, "label": method_label(m), "n": int(s.loc[m, "n"]),
+                     "MAE (deg)": s.loc[m, "mae"], "RMSE (deg)": s.loc[m, "rmse"], "R^2": s.loc[m, "r2"],
+                     "R^2 of error": s.loc[m, "r2_error"],
+                     "evaluations": int(evals[m]) if m in evals else 0})
+    return pd.DataFrame(rows, columns=list(SUMMARY_COLUMNS))
+
+
+#: Files of a run directory that a new run replaces or removes (besides the tables and models it writes).
+RUN_EXTRAS = ("study.png", "error.txt", FAILED)
+
+
+def write_outputs(outdir: Path, cfg: DictConfig, result, info: dict, frame=None, meta=None, plot=None) -> dict:
+    """Write the run directory atomically: config, tables, summary, fitted models, figure, then run.json.
+
+    Everything is written into a staging directory first (``outdir/.staging``);
+    only when every file is complete is the previous run record removed, the
+    files moved into place (``os.replace``) and the new ``run.json`` moved last.
+    An interruption or a full disk before that leaves the previous run as it was
+    (and no staging directory); during the moves it leaves no ``run.json``, so no
+    reader takes the directory for a complete run. File and column names come
+    from :mod:`icgo.reporting.records`; the fitted models are saved with
+    :meth:`icgo.models.format.FittedModel.save`.
+
+    Args:
+        frame, meta: the study's data and metadata; with a reference field in
+            ``meta``, the survey-QC counts before and after MSA (:func:`icgo.survey.apply.study_qc`)
+            go into the summary and the run record.
+        plot: optional ``path -> None`` writing the study figure (``study.png``).
+    Returns:
+        The run.json dictionary.
+    """
+    import shutil
+
+    stage = outdir / ".staging"
+    shutil.rmtree(stage, ignore_errors=True)
+    stage.mkdir(parents=True)
+    try:
+        run = _write_run_files(stage, cfg, result, info, frame, meta, plot)
+        _commit_run(stage, outdir)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+    return run
+
+
+def _commit_run(stage: Path, outdir: Path) -> None:
+    """Move a complete staged run into ``outdir``: old record out, files in, new run.json last."""
+    from icgo.reporting import records as R
+
+    (outdir / R.RUN_FILE).unlink(missing_ok=True)
+    for name in RUN_EXTRAS:
+        if not (stage / name).exists():
+            (outdir / name).unlink(missing_ok=True)
+    for f in sorted(stage.iterdir()):
+        if f.name != R.RUN_FILE:
+            os.replace(f, outdir / f.name)
+    os.replace(stage / R.RUN_FILE, outdir / R.RUN_FILE)
+
+
+def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, meta, plot) -> dict:
+    """Every file of a run into ``outdir`` (the staging directory), run.json last."""
+    import numpy as np
+
+    from icgo.physics.qc import qc_sentence
+    from icgo.reporting import records as R
+    from icgo.survey.apply import study_qc
+
+    qc = None if frame is None else study_qc(frame[result.kept].reset_index(drop=True), meta, result.msa_model)
+
+    outdir.mkdir(parents=True, exist_ok=True)
+    (outdir / R.CONFIG_FILE).write_text(OmegaConf.to_yaml(cfg, resolve=True))
+    tags = {"label": info["label"], "dataset": info["dataset"], "condition": info["condition"],
+            "seed": result.config.seed}
+    for name, df in result.records.items():
+        R.check_table(name, R.tag_table(df, tags), name).to_csv(outdir / f"{name}.csv", index=False,
+                                                                 float_format="%.10g")
+    table = summary_table(result)
+    table.to_csv(outdir / "summary.csv", index=False)
+    md = [f"# ICGO-RELM study: {info['dataset']}", "",
+          f"Test split (30 %), {result.config.n_repeats} repeats, mean +/- std (sample std). "
+          f"Optimizer {cfg.optimizer.name or 'none (plain RELM)'}, strategies {list(cfg.strategy.names)}, "
+          f"population {cfg.budget.pop_size}, iterations {cfg.budget.iterations}, "
+          f"max_evals {cfg.budget.max_evals}.", "",
+          table.drop(columns=["method"]).to_markdown(index=False), "",
+          f"Wall time of the study: {result.wall_time_s:.1f} s (compile included); "
+          f"whole job {info['total_time_s']:.1f} s.", "",
+          f"Fitted models: `{result.model.KIND}` (method used by default: {result.model.selected}) and "
+          f"`{result.msa_model.KIND}`; apply them to a new survey with `icgo.models.format.load_model`."]
+    if qc:
+        md += ["", qc_sentence(qc)]
+    (outdir / "summary.md").write_text("\n".join(md) + "\n")
+    if plot is not None:
+        plot(outdir / "study.png")
+    models = [result.model.save(outdir / result.model.KIND).name, result.msa_model.save(outdir / result.msa_model.KIND).name]
+    methods = result.config.method_names()
+    run = {**info, "records_version": R.RECORDS_VERSION, "status": "ok", "seed": result.config.seed,
+           "wall_time_s": result.wall_time_s, "methods": methods,
+           "n_evals": {m: int(v) for m, v in zip(methods, np.asarray(result.n_evals)[:, 0])},
+           "n_rows": int(result.kept.sum()), "n_repeats": result.config.n_repeats,
+           "repeat_ids": list(result.config.ids()), "models": models, "qc": qc}
+    if result.tuning is not None:
+        run["tuning"] = result.tuning
+    missing = [k for k in R.RUN_KEYS if k not in run]
+    assert not missing, f"run record lacks {missing}"  # a writer bug, not a user error
+    (outdir / R.RUN_FILE).write_text(json.dumps(run, indent=2, default=str) + "\n")
+    return run

@@ -1,0 +1,212 @@
+"""Fitted azimuth compensations of the ICGO-RELM study: MSA alone and MSA + RELM.
+
+Both are :class:`icgo.models.format.FittedModel` artifacts (saved as ``.npz`` + JSON
+header) and hold one member per repeat of the study (each repeat fitted its own
+MSA biases, input standardisation and RELM on its own training rows). ``apply``
+runs every member on a new survey and returns the ensemble: the circular mean
+of the members' compensated azimuths and their spread (sample std, deg), the
+per-station uncertainty of the compensation.
+
+Pipeline per member (ICGO paper section 3; :mod:`icgo.methods.msa`, :mod:`icgo.methods.relm`):
+``B_corr = (B - eps) / (1 + s)`` (eq. 2), ``A_msa = A(G, B_corr)``, features
+``X = (G, B)`` (``features="raw"``, the paper) or ``(G, B_corr)``, standardised
+with the member's training statistics, ``H = sigmoid(Xs W + b)`` (eq. 8),
+predicted error ``H beta`` (deg), compensated azimuth ``A_msa - H beta``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+
+from icgo.core.errors import ModelError
+from icgo.maths.conformal import conformal_quantile
+from icgo.methods import msa as _msa
+from icgo.methods import relm as _relm
+from icgo.models.format import CORRECTED_B, FittedModel, frame_values
+from icgo.physics.frames import angle_diff, azimuth_from_gv, inclination_from_g, toolface_from_g, wrap360
+
+SENSORS = ("gx", "gy", "gz", "bx", "by", "bz")
+
+
+def circular_mean_spread(a_deg):
+    """Circular mean (deg, [0, 360)) and spread (sample std of wrapped deviations, deg) over axis 0.
+
+    Args:
+        a_deg: (R, N) azimuths of R members.
+    Returns:
+        (mean (N,), spread (N,)); spread is 0 for R = 1.
+    """
+    a = np.asarray(a_deg, float)
+    ref = a[0]
+    dev = np.asarray(angle_diff(a, ref[None]))
+    mean_dev = dev.mean(axis=0)
+    spread = dev.std(axis=0, ddof=1) if a.shape[0] > 1 else np.zeros(a.shape[1])
+    return np.asarray(wrap360(ref + mean_dev)), spread
+
+
+#: Nominal coverage of the conformal azimuth interval the models carry.
+INTERVAL_LEVEL = 0.9
+
+
+def out_of_bag_halfwidth(a_comp, a_true, train, level: float = INTERVAL_LEVEL):
+    """Split-conformal half-width of the azimuth interval from out-of-bag errors (deg).
+
+    Each repeat of a study is fitted on its own training rows; a row is out of bag
+    for the repeats that did not train on it. The out-of-bag error of a row is the
+    mean of those repeats' compensated-azimuth errors (wrapped); the half-width is
+    the ``ceil((n + 1) level) / n`` empirical quantile of their absolute values over
+    the ``n`` rows that are out of bag at least once (the split-conformal rule, with
+    every repeat's held-out rows as calibration rows). Rows no repeat held out are
+    not used.
+
+    Args:
+        a_comp: (S, R, N) compensated azimuths (deg) of S methods and R repeats.
+        a_true: (N,) reference azimuth (deg). train: (R, N) bool, training rows of each repeat.
+        level: nominal coverage.
+    Returns:
+        (S,) half-widths (deg); NaN for a method with no out-of-bag row.
+    """
+    err = np.asarray(angle_diff(np.asarray(a_comp, float), np.asarray(a_true, float)[None, None]))  # (S, R, N)
+    oob = ~np.asarray(train, bool)                                                                   # (R, N)
+    k = oob.sum(axis=0)
+    used = k > 0
+    mean_err = np.where(oob[None], err, 0.0).sum(axis=1)[:, used] / k[used]                           # (S, n)
+    return np.array([conformal_quantile(np.abs(e), level) for e in mean_err])
+
+
+def _attitude_columns(frame: pd.DataFrame, G) -> dict:
+    out = {}
+    if "station" in frame.columns:
+        out["station"] = frame["station"].to_numpy()
+    out["inclination_compensated"] = np.asarray(inclination_from_g(G))  # G is not corrected by these models
+    out["toolface_compensated"] = np.asarray(toolface_from_g(G))
+    return out
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class MSAModel(FittedModel):
+    """Multi-station analysis alone: constant magnetometer biases (and scales) per repeat.
+
+    Attributes:
+        bias: (R, 3) biases eps, nT. scale: (R, 3) scale errors s.
+        repeat_ids: the repeat id of each of the R members (a fold protocol has one member per repeat and fold).
+    """
+
+    KIND = "msa"
+    UNITS = {"bias": "nT", "scale": "1", "gx,gy,gz": "g", "bx,by,bz": "nT", "angles": "deg"}
+
+    bias: np.ndarray
+    scale: np.ndarray
+    repeat_ids: list
+
+    def apply(self, frame: pd.DataFrame) -> pd.DataFrame:
+        """Per row: corrected field (ensemble mean, nT), MSA azimuth (ensemble) and its spread (deg)."""
+        v = frame_values(frame, SENSORS, "MSA model")
+        G, B = v[:, :3], v[:, 3:]
+        B_corr = np.asarray(_msa_members(jnp.asarray(B), jnp.asarray(self.bias), jnp.asarray(self.scale)))
+        a = np.asarray(azimuth_from_gv(G[None], B_corr))
+        a_mean, spread = circular_mean_spread(a)
+        Bm = B_corr.mean(axis=0)
+        return pd.DataFrame({**_attitude_columns(frame, G), "azimuth_raw": np.asarray(azimuth_from_gv(G, B)),
+                             **dict(zip(CORRECTED_B, Bm.T)), "azimuth_compensated": a_mean,
+                             "azimuth_spread_deg": spread})
+
+
+@jax.jit
+def _msa_members(B, bias, scale):
+    return jax.vmap(lambda b, s: _msa.correct_field(B, b, s))(bias, scale)
+
+
+@partial(jax.jit, static_argnames=("hidden", "raw_features"))
+def _relm_members(G, B, bias, scale, mean, std, theta, beta, hidden, raw_features):
+    """(a_msa (R, N), predicted error (R, N)) of R members on one survey."""
+    def one(b, s, m, sd, th, be):
+        B_corr = _msa.correct_field(B, b, s)
+        X = jnp.concatenate([G, B if raw_features else B_corr], axis=1)
+        return azimuth_from_gv(G, B_corr), _relm.predict_rows(th, be, _relm.standardize(X, m, sd), hidden)
+
+    return jax.vmap(one)(bias, scale, mean, std, theta, beta)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class RELMCompensation(FittedModel):
+    """MSA + RELM azimuth compensation (plain RELM or optimizer-searched, one model per method and repeat).
+
+    Attributes:
+        methods: the S method labels (e.g. ``["cgo-three_stage"]``, ``["relm"]``).
+        selected: the method :meth:`apply` uses by default: the one with the
+            lowest mean training RMSE over repeats (training rows only).
+        repeat_ids: the repeat id of each of the R members (a fold protocol has one member per repeat and fold).
+        hidden: RELM hidden units L. lam: ridge lambda. features: ``raw`` or ``msa``.
+        msa_bias, msa_scale: (R, 3) MSA biases (nT) and scale errors per repeat.
+        x_mean, x_std: (R, 6) input standardisation per repeat (g, nT).
+        theta: (S, R, 7 L) hidden weights and biases. beta: (S, R, L) output weights (deg).
+        train_rmse: (S, R) training RMSE of the refit (deg).
+        interval_halfwidth: (S,) half-width (deg) of the conformal azimuth interval at
+            :attr:`interval_level` (:func:`out_of_bag_halfwidth`).
+        interval_level: its nominal coverage.
+    """
+
+    KIND = "relm_compensation"
+    UNITS = {"msa_bias": "nT", "x_mean": "g,g,g,nT,nT,nT", "x_std": "g,g,g,nT,nT,nT", "beta": "deg",
+             "train_rmse": "deg", "angles": "deg"}
+
+    methods: list
+    selected: str
+    repeat_ids: list
+    hidden: int
+    lam: float
+    features: str
+    msa_bias: np.ndarray
+    msa_scale: np.ndarray
+    x_mean: np.ndarray
+    x_std: np.ndarray
+    theta: np.ndarray
+    beta: np.ndarray
+    train_rmse: np.ndarray
+    interval_halfwidth: np.ndarray
+    interval_level: float = INTERVAL_LEVEL
+
+    def members(self, frame: pd.DataFrame, method: str | None = None):
+        """Every repeat's (A_msa, predicted error) for one method: two (R, N) arrays, deg."""
+        method = self.selected if method is None else method
+        if method not in self.methods:
+            raise ModelError(f"method {method!r} is not in this model; it holds {self.methods}")
+        s = self.methods.index(method)
+        v = frame_values(frame, SENSORS, f"{self.KIND} model")
+        a_msa, pred = _relm_members(jnp.asarray(v[:, :3]), jnp.asarray(v[:, 3:]), jnp.asarray(self.msa_bias),
+                                    jnp.asarray(self.msa_scale), jnp.asarray(self.x_mean), jnp.asarray(self.x_std),
+                                    jnp.asarray(self.theta[s]), jnp.asarray(self.beta[s]), int(self.hidden),
+                                    self.features == "raw")
+        return np.asarray(a_msa), np.asarray(pred)
+
+    def apply(self, frame: pd.DataFrame, method: str | None = None) -> pd.DataFrame:
+        """Compensated azimuth per row: ensemble over repeats of ``method`` (default :attr:`selected`).
+
+        Returns:
+            DataFrame with ``station`` (if given), ``inclination_compensated``,
+            ``toolface_compensated`` (from G, which these models do not correct),
+            ``azimuth_raw``, ``azimuth_msa``, ``predicted_error``,
+            ``azimuth_compensated`` (circular mean over repeats) and
+            ``azimuth_spread_deg`` (sample std over repeats), ``azimuth_interval_deg``
+            (half-width of the conformal interval at ``interval_level``), all deg; the
+            MSA-corrected field ``bx_corrected, by_corrected, bz_corrected`` (ensemble mean, nT).
+        """
+        a_msa, pred = self.members(frame, method)
+        v = frame_values(frame, SENSORS, f"{self.KIND} model")
+        G, B = v[:, :3], v[:, 3:]
+        a_comp, spread = circular_mean_spread(np.asarray(wrap360(a_msa - pred)))
+        a_msa_mean, _ = circular_mean_spread(a_msa)
+        Bm = np.asarray(_msa_members(jnp.asarray(B), jnp.asarray(self.msa_bias), jnp.asarray(self.msa_scale))).mean(0)
+        return pd.DataFrame({**_attitude_columns(frame, G), "azimuth_raw": np.asarray(azimuth_from_gv(G, B)),
+                             "azimuth_msa": a_msa_mean, "predicted_error": pred.mean(axis=0),
+                             "azimuth_compensated": a_comp, "azimuth_spread_deg": spread,
+                             "azimuth_interval_deg": np.full(len(a_comp), float(
+                                 self.interval_halfwidth[self.methods.index(method or self.selected)])),
+                             **dict(zip(CORRECTED_B, Bm.T))})

@@ -1,0 +1,153 @@
+"""The import graph of the library: packages in layers, no circle, nothing imports upward.
+
+Read from the source (every ``import`` statement, function-level ones included), so a lazy import
+inside a function cannot hide an upward arrow. The order is the README's "Layers" section.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+#: Bottom to top: a module may import its own package and any package listed before it.
+LAYERS = ("icgo.core", "icgo.physics", "icgo.maths", "icgo.reporting", "icgo.optim", "icgo.methods", "icgo.io",
+          "icgo.datasets", "icgo.discrepancy", "icgo.models", "icgo.survey", "icgo.studies")
+
+
+def _module_name(path: Path) -> str:
+    parts = path.relative_to(ROOT).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _modules(top: str) -> dict[str, Path]:
+    return {_module_name(p): p for p in sorted((ROOT / top).rglob("*.py"))}
+
+
+def _imports(name: str, path: Path, known) -> set[str]:
+    """The project modules ``name`` imports (``from pkg import sub`` counts as ``pkg.sub`` when that is a module)."""
+    tree = ast.parse(path.read_text())
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    out = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                stem = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join(stem + ([base] if base else []))
+            for a in node.names:
+                full = f"{base}.{a.name}"
+                out.add(full if full in known else base)
+    return {m for m in out if m.split(".")[0] in ("icgo", "experiments", "hydra", "omegaconf") and m != name}
+
+
+def _graph(top: str = "icgo") -> dict[str, set[str]]:
+    mods = _modules(top)
+    known = set(mods) | set(_modules("experiments"))
+    return {name: _imports(name, path, known) for name, path in mods.items()}
+
+
+def _layer(module: str) -> int | None:
+    for i, pkg in enumerate(LAYERS):
+        if module == pkg or module.startswith(pkg + "."):
+            return i
+    return None
+
+
+def test_every_module_is_in_a_layer():
+    loose = [m for m in _modules("icgo") if m != "icgo" and _layer(m) is None]
+    assert not loose, f"modules outside every layer (add them to a package): {loose}"
+
+
+def test_nothing_imports_upward_or_outside_the_library():
+    bad = []
+    for mod, deps in _graph().items():
+        for dep in deps:
+            if dep.split(".")[0] != "icgo":
+                bad.append(f"{mod} -> {dep} (the library never imports experiments/Hydra)")
+            elif dep != "icgo" and mod != "icgo" and _layer(dep) > _layer(mod):
+                bad.append(f"{mod} -> {dep} (upward: {LAYERS[_layer(mod)]} is below {LAYERS[_layer(dep)]})")
+    assert not bad, "\n".join(sorted(bad))
+
+
+def _circles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components of more than one module (Tarjan)."""
+    index, low, stack, on, out, counter = {}, {}, [], set(), [], [0]
+
+    def visit(v):
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on.add(v)
+        for w in graph.get(v, ()):
+            if w not in graph:
+                continue
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in graph:
+        if v not in index:
+            visit(v)
+    return out
+
+
+@pytest.mark.parametrize("top", ["icgo", "experiments"])
+def test_no_import_circle(top):
+    graph = _graph(top) if top == "icgo" else {
+        name: _imports(name, path, set(_modules("experiments")) | set(_modules("icgo")))
+        for name, path in _modules("experiments").items()}
+    assert _circles(graph) == []
+
+
+def test_the_checks_find_a_circle_and_an_upward_import():
+    assert _circles({"a": {"b"}, "b": {"a"}, "c": {"a"}}) == [["a", "b"]]
+    assert _layer("icgo.physics.frames") < _layer("icgo.studies.splits")
+    assert _layer("icgo.bogus") is None
+
+
+def _private_uses(path: Path, known) -> list[str]:
+    """``alias._name`` where ``alias`` is a project module, and ``from <project module> import _name``."""
+    tree = ast.parse(path.read_text())
+    aliases, out = {}, []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                if a.name in known and a.asname:
+                    aliases[a.asname] = a.name
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            for a in node.names:
+                full = f"{node.module}.{a.name}"
+                if full in known:
+                    aliases[a.asname or a.name] = full
+                elif node.module in known and a.name.startswith("_") and not a.name.startswith("__"):
+                    out.append(f"from {node.module} import {a.name}")
+    for node in ast.walk(tree):
+        if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id in aliases
+                and node.attr.startswith("_") and not node.attr.startswith("__")):
+            out.append(f"{aliases[node.value.id]}.{node.attr}")
+    return out
+
+
+@pytest.mark.parametrize("top", ["icgo", "experiments"])
+def test_no_module_calls_another_modules_private_name(top):
+    known = set(_modules("icgo")) | set(_modules("experiments"))
+    bad = {f"{name}: {u}" for name, path in _modules(top).items() for u in _private_uses(path, known)}
+    assert not bad, "\n".join(sorted(bad))
