@@ -174,7 +174,7 @@ def test_fixed_vmapped_batch_equals_one_by_one_bitwise():
         assert np.asarray(batched.x[k]).tobytes() == np.asarray(one.x).tobytes(), (batched.x[k], one.x)
         assert np.asarray(batched.cost[k]).tobytes() == np.asarray(one.cost).tobytes()
         assert bool(one.ok) and bool(batched.ok[k])
-    # the fully free fits reach the minimum that optimistix's LM finds
+    # the fully free fits reach the minimum that the converging LM finds
     for k in (0, 1, 3):
         ref = least_squares(_exp_decay, jnp.array([1.0, 1.0]), (t, ys[k]))
         assert bool(ref.ok)

@@ -15,13 +15,15 @@ factors) is only solved by the ``biases_scales`` model; the paper solves the
 three biases. Row weights ``w`` (0/1 masks) select the training stations of a
 repeat, so shapes stay fixed and :func:`msa_solve` vmaps over repeats.
 
-The minimisation is :func:`icgo.maths.lsq.least_squares`, the optimistix entry point
+The minimisation is :func:`icgo.maths.lsq.least_squares`, the converging entry point
 of :mod:`icgo.maths.lsq` (Levenberg-Marquardt, exact forward-mode Jacobian of the
-residual vector, trust-region damping, stops on convergence or after
-``max_steps`` steps; the module's other entry point, the in-house fixed-step
-:func:`icgo.maths.lsq.least_squares_fixed`, serves the discrepancy package). Biases are solved in units of the
-mean measured field magnitude so that the variables are of order one (the
-solver's damping is the identity).
+residual vector, Marquardt damping; it stops when the Gauss-Newton step is below
+the float64 resolution of V, typically after 2-5 steps here, or after
+``max_steps`` steps). No MSA model is linear in its parameters (Bh is a square
+root of a quadratic in the biases), so there is no exact linear solve. Biases
+are solved in units of the mean measured field magnitude so that the variables
+are of order one (the solver's absolute step tolerance is in those units).
+:func:`msa_failures` gives each member of a batched solution its verdict.
 
 Observability is checked on the host (:func:`check_observability`): a
 parameter the stations cannot determine (e.g. the axial bias when every station

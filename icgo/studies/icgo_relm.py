@@ -91,7 +91,7 @@ class StudyConfig:
             (reference field from the metadata's total_field_nT and dip_deg).
         msa_iterations: largest number of Levenberg-Marquardt steps of the MSA
             solve (:func:`icgo.maths.lsq.least_squares` ``max_steps``; it stops earlier
-            once converged, typically after 10-45 steps on lab_casing).
+            once converged, typically after 2-5 steps on lab_casing).
         features: ``"raw"`` (paper: the six raw sensor values) or ``"msa"``
             (G and the MSA-corrected B).
         hidden: RELM hidden units L (paper: not stated; 30 as in the reference
