@@ -358,6 +358,13 @@ def summary_table(result, split: str = "test"):
     return pd.DataFrame(rows, columns=list(SUMMARY_COLUMNS))
 
 
+def excluded_line(result) -> str | None:
+    """The sentence naming the repeats a study left out (:func:`icgo.studies.icgo_relm.excluded_sentence`), or None."""
+    from icgo.studies.icgo_relm import excluded_sentence
+
+    return excluded_sentence(result.excluded, len(result.config.ids()) + len(result.excluded))
+
+
 #: Files of a run directory that a new run replaces or removes (besides the tables and models it writes).
 RUN_EXTRAS = ("study.png", "error.txt", FAILED)
 
@@ -428,12 +435,14 @@ def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, m
                                                                  float_format="%.10g")
     table = summary_table(result)
     table.to_csv(outdir / "summary.csv", index=False)
+    excluded = excluded_line(result)
     md = [f"# ICGO-RELM study: {info['dataset']}", "",
-          f"Test split (30 %), {result.config.n_repeats} repeats, mean +/- std (sample std). "
+          f"Test split (30 %), {len(result.config.ids())} repeats, mean +/- std (sample std). "
           f"Optimizer {cfg.optimizer.name or 'none (plain RELM)'}, strategies {list(cfg.strategy.names)}, "
           f"population {cfg.budget.pop_size}, iterations {cfg.budget.iterations}, "
           f"max_evals {cfg.budget.max_evals}.", "",
           table.drop(columns=["method"]).to_markdown(index=False), "",
+          *([f"**{excluded}**", ""] if excluded else []),
           f"Wall time of the study: {result.wall_time_s:.1f} s (compile included); "
           f"whole job {info['total_time_s']:.1f} s.", "",
           f"Fitted models: `{result.model.KIND}` (method used by default: {result.model.selected}) and "
@@ -449,7 +458,8 @@ def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, m
            "wall_time_s": result.wall_time_s, "methods": methods,
            "n_evals": {m: int(v) for m, v in zip(methods, np.asarray(result.n_evals)[:, 0])},
            "n_rows": int(result.kept.sum()), "n_repeats": result.config.n_repeats,
-           "repeat_ids": list(result.config.ids()), "models": models, "qc": qc}
+           "repeat_ids": list(result.config.ids()), "models": models, "qc": qc,
+           "excluded_repeats": [{"repeat": int(r), "reason": why} for r, why in result.excluded]}
     if result.tuning is not None:
         run["tuning"] = result.tuning
     missing = [k for k in R.RUN_KEYS if k not in run]

@@ -868,7 +868,22 @@ def build(dirs, out: Path) -> dict:
         miss.write_text("".join(f"{n}: {why}\n" for n, why in missing.items()))
     elif miss.exists():
         miss.unlink()
+    _write_excluded(Runs(None, evals.runs + sweeps.runs + runs.runs), out / EXCLUDED_FILE)
     return done
+
+
+#: Lists the repeats that runs left out (their MSA failed): the tables hold only the others.
+EXCLUDED_FILE = "excluded_repeats.txt"
+
+
+def _write_excluded(runs: Runs, path: Path) -> None:
+    """One line per repeat a collected run left out (run.json ``excluded_repeats``); no file when none did."""
+    lines = [f"{r['dir']} ({r.get('label')}): repeat {e['repeat']}: {e['reason']}\n"
+             for r in runs.runs for e in r.get("excluded_repeats") or ()]
+    if lines:
+        path.write_text("".join(lines))
+    elif path.exists():
+        path.unlink()
 
 
 # ------------------------------------------------------------ per-run figure

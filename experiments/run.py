@@ -114,8 +114,11 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
               file=sys.stderr)
         raise SystemExit(EXIT_CONFIG) from None
     table = C.summary_table(result).drop(columns=["method"])
-    print(f"\nICGO-RELM study on {desc}: test split, {scfg.n_repeats} repeats (mean +/- std)")
+    print(f"\nICGO-RELM study on {desc}: test split, {len(result.config.ids())} repeats (mean +/- std)")
     print(table.to_markdown(index=False))
+    excluded = C.excluded_line(result)
+    if excluded:
+        print(excluded)
     print(f"outputs: {outdir}")
     print(f"wall time: {time.perf_counter() - t0:.1f} s (study {result.wall_time_s:.1f} s incl. compile)")
     return run

@@ -32,7 +32,7 @@ SMA minimise (``(P, 12) -> (P,)``, +inf for non-finite values) and exposes the
 GMR for :mod:`icgo.optim.misma`.
 
 Closed-form / deterministic baselines (host side, numpy; the nonlinear least
-squares by :func:`icgo.maths.lsq.least_squares`, the optimistix entry point of :mod:`icgo.maths.lsq`):
+squares by :func:`icgo.maths.lsq.least_squares`, the converging entry point of :mod:`icgo.maths.lsq`):
 :func:`ellipsoid_fit` (the classical quadric fit, symmetric ``R^-1``),
 :func:`fit_twelve` (all 12 parameters by least squares on the dot-invariance
 and magnitude residuals), :func:`align_to_axis` (a common rotation that puts

@@ -43,7 +43,9 @@ TABLES = {
     "coverage": ("method", "repeat", "fold", "level", "halfwidth_deg", "coverage", "n_test"),
 }
 
-#: Keys every run record has.
+#: Keys every run record has. A study's record also names the repeats it left out
+#: (``excluded_repeats``: ``[{"repeat", "reason"}, ...]``, empty when none; older records lack it) and
+#: ``repeat_ids`` the repeats its tables hold.
 RUN_KEYS = ("records_version", "status", "label", "dataset", "condition", "description", "optimizer", "strategies",
             "seed", "n_repeats", "methods", "n_evals", "n_rows", "wall_time_s", "total_time_s", "models", "qc")
 
