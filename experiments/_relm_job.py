@@ -49,7 +49,7 @@ STUDY_NODE_ENTRY_KEYS = ("split.target",)
 TARGET_KEYS = ("seed", "casing_distance_scale", "casing_strength_scale", "misalignment_deg", "path")
 #: Keys of each data set option (``dataset.name``).
 DATASET_KEYS = {"lab_casing": ("name", "seed", "kwargs"), "well_conditions": ("name", "seed", "condition", "kwargs"),
-                "csv": ("name", "path", "require_meta")}
+                "csv": ("name", "path", "require_meta", "columns", "columns_file")}
 
 
 def _unknown(keys, allowed, where: str) -> None:
@@ -186,9 +186,12 @@ def load_data(cfg: DictConfig):
     """
     ds = cfg.dataset
     if ds.name == "csv":
-        from icgo.io.recording import read_recording
+        from icgo.io.recording import column_map, read_recording
 
-        rec = read_recording(Path(str(ds.path)).expanduser(), require_meta=bool(ds.require_meta))
+        cmap = column_map(OmegaConf.to_container(ds.columns) if ds.get("columns") else None, ds.get("columns_file"),
+                          "dataset.columns")
+        rec = read_recording(Path(str(ds.path)).expanduser(), require_meta=bool(ds.require_meta), columns=cmap,
+                             column_setting="dataset.columns")
         for line in rec.notices:  # what the reader noticed but accepted (icgo.io.recording check prints the same)
             print(f"notice: {line}", file=sys.stderr)
         return rec.frame, dict(rec.meta), f"csv:{ds.path}"

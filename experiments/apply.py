@@ -22,7 +22,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from experiments._entry import CONF_DIR, EXIT_CONFIG, one_line
 
-KEYS = ("model", "data", "method", "require_meta", "out", "qc")
+KEYS = ("model", "data", "method", "require_meta", "out", "qc", "columns", "columns_file")
 
 
 def model_path(path: Path) -> Path:
@@ -43,7 +43,7 @@ def run_apply(cfg: DictConfig, out_dir: Path) -> dict:
         ValueError (ModelError, DataError, RecordError, SettingError): one line.
     """
     from icgo.core.settings import config_from_mapping
-    from icgo.io.recording import atomic_write_texts, read_recording
+    from icgo.io.recording import atomic_write_texts, column_map, read_recording
     from icgo.models.registry import load_model
     from icgo.physics.qc import QCBands
     from icgo.survey.apply import correct_survey
@@ -58,7 +58,9 @@ def run_apply(cfg: DictConfig, out_dir: Path) -> dict:
     bands = config_from_mapping(QCBands, OmegaConf.to_container(cfg.qc, resolve=True), "qc")
     mpath = model_path(Path(str(cfg.model)).expanduser())
     model = load_model(mpath)
-    rec = read_recording(Path(str(cfg.data)).expanduser(), require_meta=bool(cfg.require_meta), require_reference=False)
+    cmap = column_map(OmegaConf.to_container(cfg.columns) if cfg.get("columns") else None, cfg.get("columns_file"))
+    rec = read_recording(Path(str(cfg.data)).expanduser(), require_meta=bool(cfg.require_meta), require_reference=False,
+                         columns=cmap)
     res = correct_survey(model, rec.frame, rec.field, method=cfg.method, bands=bands)
     stem = Path(str(cfg.data)).stem
     meta = {"source": rec.source, "model": str(mpath), "model_kind": model.KIND,
