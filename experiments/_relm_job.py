@@ -391,7 +391,7 @@ def write_outputs(outdir: Path, cfg: DictConfig, result, info: dict, frame=None,
     shutil.rmtree(stage, ignore_errors=True)
     stage.mkdir(parents=True)
     try:
-        run = _write_run_files(stage, cfg, result, info, frame, meta, plot)
+        run = _write_run_files(stage, cfg, result, info, frame, meta, plot, run_dir=outdir)
         _commit_run(stage, outdir)
     finally:
         shutil.rmtree(stage, ignore_errors=True)
@@ -412,13 +412,14 @@ def _commit_run(stage: Path, outdir: Path) -> None:
     os.replace(stage / R.RUN_FILE, outdir / R.RUN_FILE)
 
 
-def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, meta, plot) -> dict:
-    """Every file of a run into ``outdir`` (the staging directory), run.json last."""
+def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, meta, plot, run_dir=None) -> dict:
+    """Every file of a run into ``outdir`` (the staging directory), run.json last; ``run_dir``: where they go."""
     import numpy as np
 
     from icgo.physics.qc import qc_sentence
     from icgo.reporting import records as R
     from icgo.survey.apply import study_qc
+    from icgo.survey.verdict import study_verdict
 
     qc = None if frame is None else study_qc(frame[result.kept].reset_index(drop=True), meta, result.msa_model)
 
@@ -440,9 +441,13 @@ def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, m
           f"Wall time of the study: {result.wall_time_s:.1f} s (compile included); "
           f"whole job {info['total_time_s']:.1f} s.", "",
           f"Fitted models: `{result.model.KIND}` (method used by default: {result.model.selected}) and "
-          f"`{result.msa_model.KIND}`; apply them to a new survey with `icgo.models.format.load_model`."]
+          f"`{result.msa_model.KIND}`."]
     if qc:
         md += ["", qc_sentence(qc)]
+    verdict = study_verdict(result.metrics, result.coverage, selected=result.model.selected,
+                            n_repeats=result.config.n_repeats, protocol=result.config.protocol, qc=qc,
+                            trained=result.model.domain, run_dir=str(run_dir or outdir))
+    md += ["", *verdict.markdown()]
     (outdir / "summary.md").write_text("\n".join(md) + "\n")
     if plot is not None:
         plot(outdir / "study.png")
@@ -452,7 +457,7 @@ def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, m
            "wall_time_s": result.wall_time_s, "methods": methods,
            "n_evals": {m: int(v) for m, v in zip(methods, np.asarray(result.n_evals)[:, 0])},
            "n_rows": int(result.kept.sum()), "n_repeats": result.config.n_repeats,
-           "repeat_ids": list(result.config.ids()), "models": models, "qc": qc}
+           "repeat_ids": list(result.config.ids()), "models": models, "qc": qc, "verdict": verdict.as_dict()}
     if result.tuning is not None:
         run["tuning"] = result.tuning
     missing = [k for k in R.RUN_KEYS if k not in run]

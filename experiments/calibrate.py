@@ -176,8 +176,16 @@ def run(cfg: DictConfig, out: Path, config=None) -> None:
                                 "calibrate data=bundled`):")),
                             (res / "calibration_devices.csv", df.to_csv(index=False, float_format="%.6g"))])
         print(f"wrote {res / 'calibration_devices.md'}")
+    from icgo.io.recording import atomic_write_texts
+    from icgo.survey.verdict import calibrate_verdict, recommendation_in
+
+    verdict = calibrate_verdict(recommendation=recommendation_in(out), n_models=len(models), run_dir=str(out),
+                                n_degenerate=int(df["degenerate"].sum()), n_fits=len(df),
+                                held_out=df[df["split"] != "in-sample"].groupby("method")["score_deg"].mean().to_dict())
+    atomic_write_texts([(out / "report.md", text + "\n" + "\n".join(verdict.markdown()) + "\n")])
     print(text)
     print(f"run directory: {out} ({len(models)} calibrations in models/)")
+    print(verdict.text())
 
 
 @hydra.main(config_path="../conf", config_name="calibrate", version_base="1.3")

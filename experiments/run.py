@@ -53,8 +53,6 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
     from experiments import _entry as E
     from experiments import _relm_job as C
 
-    # JAX's backend probe ("Unable to initialize backend 'tpu'") is noise in Hydra's INFO log.
-    logging.getLogger("jax._src.xla_bridge").setLevel(logging.WARNING)
     t0 = time.perf_counter()
     previous = E.previous_run(outdir)
     if previous is not None and not cfg.overwrite:
@@ -116,6 +114,9 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
     table = C.summary_table(result).drop(columns=["method"])
     print(f"\nICGO-RELM study on {desc}: test split, {scfg.n_repeats} repeats (mean +/- std)")
     print(table.to_markdown(index=False))
+    from icgo.survey.verdict import from_dict
+
+    print(from_dict(run["verdict"]).text())
     print(f"outputs: {outdir}")
     print(f"wall time: {time.perf_counter() - t0:.1f} s (study {result.wall_time_s:.1f} s incl. compile)")
     return run
