@@ -71,7 +71,7 @@ def run_apply(cfg: DictConfig, out_dir: Path) -> dict:
             "model_data_hash": model.data_hash, "rows": int(len(res.table)), "metrics": res.metrics, "qc": res.qc,
             "qc_bands": OmegaConf.to_container(cfg.qc, resolve=True),
             "notices": list(rec.notices) + res.notices, "units": {"angles": "deg", "B": "nT", "G": "g"},
-            "verdict": verdict.as_dict()}
+            "trajectory": res.trajectory, "verdict": verdict.as_dict()}
     if rec.field is not None:
         meta.update({k: getattr(rec.field, k) for k in ("total_field_nT", "dip_deg", "declination_deg", "gravity_g")})
     out_dir.mkdir(parents=True, exist_ok=True)

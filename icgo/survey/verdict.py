@@ -171,7 +171,7 @@ def qc_line(qc: dict | None, corrects_field: bool, *, after: str = "corrected", 
 def apply_verdict(*, model_kind: str, method: str | None, interval_deg: float | None, interval_level: float | None,
                   metrics: dict | None, covered: float | None, qc: dict | None, db_nT=None, ddip_deg=None,
                   bands=None, trained: dict | None, survey: dict | None, out_csv: str, model_path: str,
-                  survey_path: str) -> Verdict:
+                  survey_path: str, trajectory: dict | None = None) -> Verdict:
     """The verdict of ``experiments.apply`` on one survey.
 
     Args:
@@ -180,7 +180,8 @@ def apply_verdict(*, model_kind: str, method: str | None, interval_deg: float | 
             where the survey has a reference azimuth, else None. covered: fraction of stations whose
             compensated error lies inside the interval (None without a reference). qc, db_nT, ddip_deg,
             bands: see :func:`qc_line`. trained, survey: domains (:func:`domain_status`). out_csv: the
-            corrected file. model_path, survey_path: for the next command.
+            corrected file. model_path, survey_path: for the next command. trajectory: the bottom-hole
+            summary of :func:`icgo.survey.trajectory.position_change` where the survey has measured depth.
     """
     status, phrases, over = domain_status(trained, survey)
     if interval_deg is not None and math.isfinite(interval_deg):
@@ -198,6 +199,10 @@ def apply_verdict(*, model_kind: str, method: str | None, interval_deg: float | 
             acc += "; the correction made it WORSE than the raw azimuth"
     else:
         acc += "; no reference azimuth in the survey, so not measured"
+    if trajectory:
+        from icgo.survey.trajectory import trajectory_sentence
+
+        acc += "; " + trajectory_sentence(trajectory)
     corrects = model_kind in FIELD_CORRECTING_KINDS
     qline = qc_line(qc, corrects, after="corrected", db_nT=db_nT, ddip_deg=ddip_deg, bands=bands)
     mline = f"{method or 'its only method'} of the {model_kind} model {model_path}" + (
@@ -213,7 +218,7 @@ def apply_verdict(*, model_kind: str, method: str | None, interval_deg: float | 
     numbers = {"interval_deg": interval_deg, "interval_level": interval_level, "covered": covered,
                "mae": metrics["compensated"]["mae"] if metrics else None,
                "raw_mae": (metrics.get("raw") or {}).get("mae") if metrics else None,
-               "overshoot": over, "qc": qc}
+               "overshoot": over, "qc": qc, "trajectory": trajectory}
     return Verdict(acc, domain_line(status, phrases, trained), qline, mline, nxt, status,
                    EXIT_OUT_OF_DOMAIN if status == "far outside" else 0, numbers)
 
@@ -332,7 +337,7 @@ def survey_verdict(res, model, frame, bands, *, out_csv: str, model_path: str, s
                          interval_deg=interval, interval_level=getattr(model, "interval_level", None),
                          metrics=res.metrics, covered=covered, qc=res.qc, db_nT=db, ddip_deg=dd, bands=bands,
                          trained=getattr(model, "domain", None), survey=survey, out_csv=out_csv,
-                         model_path=model_path, survey_path=survey_path)
+                         model_path=model_path, survey_path=survey_path, trajectory=res.trajectory)
 
 
 def from_dict(d: dict) -> Verdict:
