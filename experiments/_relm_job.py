@@ -330,17 +330,11 @@ def run_with_progress(frame, scfg, meta, enable: bool, desc: str, target=None):
         bar.close()
 
 
-#: The paper's names for method labels (everything else is named by the rule in :func:`method_label`).
-PAPER_NAMES = {"raw": "raw (eq. 1)", "msa": "MSA only", "relm": "RELM", "cgo-original": "CGO-RELM",
-               "cgo-three_stage": "ICGO-RELM (three-stage)"}
-
-
 def method_label(method: str) -> str:
-    """Paper-style label: the paper's name if it has one, else ``<alg>-<value>`` -> ``ALG-RELM (value)``."""
-    if method in PAPER_NAMES:
-        return PAPER_NAMES[method]
-    name, _, value = method.partition("-")
-    return f"{name.upper()}-RELM" + (f" ({value})" if value else "")
+    """The method's name in every output (:func:`icgo.reporting.names.method_name`)."""
+    from icgo.reporting.names import method_name
+
+    return method_name(method)
 
 
 def summary_table(result, split: str = "test"):
@@ -464,3 +458,31 @@ def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, m
     assert not missing, f"run record lacks {missing}"  # a writer bug, not a user error
     (outdir / R.RUN_FILE).write_text(json.dumps(run, indent=2, default=str) + "\n")
     return run
+
+
+def run_help() -> str:
+    """``python -m experiments.run --help``: usage, the config groups with their options and defaults, the main
+    keys, and where to read more (read from ``conf/``, so it never lists an option that does not exist)."""
+    import yaml
+
+    from experiments._entry import CONF_DIR, STUDY_GROUPS, group_options
+
+    cfg = yaml.safe_load((CONF_DIR / "config.yaml").read_text())
+    defaults = {k: v for d in cfg.get("defaults", []) if isinstance(d, dict) for k, v in d.items()}
+    lines = ["ICGO-RELM study: MSA, then a RELM whose hidden layer an optimizer searches; writes a run directory",
+             "(metrics, models, figures, summary.md with the verdict) and prints the summary and the verdict.", "",
+             "usage: python -m experiments.run [-m] [GROUP=OPTION ...] [KEY=VALUE ...]", "",
+             "config groups (GROUP=OPTION; default in brackets):"]
+    for g in STUDY_GROUPS:
+        lines.append(f"  {g:<11} {', '.join(group_options(g))}  [{defaults.get(g) or 'none'}]")
+    lines += ["", "other settings (KEY=VALUE): " + ", ".join(k for k in cfg if k not in ("defaults", "hydra")),
+              "  e.g. split.n_repeats=3 budget.iterations=50 dtype=... workers=2 progress=false overwrite=true",
+              "  your own recording: dataset=csv dataset.path=FILE.csv [dataset.columns.gx=Gx ...] (docs/data.md)", "",
+              "examples:",
+              "  python -m experiments.run strategy=three_stage           # make run",
+              "  python -m experiments.run experiment=table3              # a paper preset",
+              "  python -m experiments.run -m strategy=chaos,wavelet      # a sweep (one process per job)",
+              "  python -m experiments.apply model=outputs/<date>/<time> data=survey.csv   # then apply the model", "",
+              "docs: docs/experiments.md (groups, presets, launchers), README.md; Hydra's own flags: --hydra-help"]
+    return "\n".join(lines)
+

@@ -106,7 +106,8 @@ def figure(rec, models: dict, path: Path) -> None:
         ax[1].plot(shots, measured_dip_deg(Gc, Bc), ls, marker=".", color=f"C{i}", label=m)
         bn = np.linalg.norm(Bc, axis=1)
         ax[2].plot(shots, bn / bn.mean(), ls, marker=".", color=f"C{i}", label=m)
-    ax[0].set(xlabel="azimuth of the pointing axis (deg, magnetic)", ylabel="inclination (deg)",
+    ax[0].set(xlabel="azimuth of the pointing axis (deg, magnetic)",
+              ylabel="elevation of the pointing axis (deg, up +; inclination = 90 - elevation)",
               title="per-shot direction, raw and calibrated")
     ax[1].set(xlabel="shot", ylabel="dip (deg)", title="dip per shot (one field: flat)")
     ax[2].set(xlabel="shot", ylabel="|B| / mean", title="|B| per shot (one field: flat)")

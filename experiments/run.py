@@ -133,7 +133,12 @@ def app(cfg: DictConfig) -> None:
 
 
 def main() -> None:
-    """Entry point: reject unknown group options in one line, then hand over to Hydra."""
+    """Entry point: ``--help``, then reject unknown group options in one line, then hand over to Hydra."""
+    if any(a in ("--help", "-h") for a in sys.argv[1:]):
+        from experiments._relm_job import run_help
+
+        print(run_help())
+        return
     preflight("config")
     err = check_overrides(sys.argv[1:])
     if err:
