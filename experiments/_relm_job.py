@@ -256,39 +256,26 @@ def select_condition(frame, condition: int):
 
 
 class Progress:
-    """A tqdm bar over optimizer iterations, advanced by a host callback from inside the scan.
+    """A tqdm bar over the search's iterations, fed by ``run_study(progress=...)`` between chunks of iterations.
 
-    :meth:`wrap` returns a fitness that calls ``jax.debug.callback(self.tick)``
-    with no operands: under the runner's vmap over repeats and strategies the
-    callback is not batched, so it fires once per fitness call of the whole
-    batch, i.e. once per iteration (plus once for the initial population).
-    tqdm redraws at most every 0.2 s.
+    The study runs its search in a few jitted chunks and calls this on the host after each
+    (:func:`icgo.optim.base.run_batch`), also summed over worker processes; nothing enters the compiled
+    programs, so the compilation cache keeps them. The bar starts after the first chunk, i.e. after
+    compiling (or loading) the program, so its rate and ETA measure the search alone.
     """
 
-    def __init__(self, total: int, desc: str, enable: bool):
-        self.total, self.count, self.bar, self.t0 = total, 0, None, time.perf_counter()
-        if enable:
+    def __init__(self, desc: str):
+        self.desc, self.bar = desc, None
+        print(f"{desc}: compiling or loading the search program, then the bar starts", file=sys.stderr)
+
+    def __call__(self, done: int, total: int) -> None:
+        if self.bar is None:
             from tqdm.auto import tqdm
 
-            self.bar = tqdm(total=total, desc=desc, unit="it", mininterval=0.2, dynamic_ncols=True,
-                            file=sys.stderr)
-
-    def tick(self) -> None:
-        """Host side: one more iteration done."""
-        if self.count < self.total:
-            self.count += 1
-            if self.bar is not None:
-                self.bar.update(1)
-
-    def wrap(self, fitness):
-        """A fitness that reports each call to :meth:`tick`."""
-        import jax
-
-        def f(pop, aux):
-            jax.debug.callback(self.tick)
-            return fitness(pop, aux)
-
-        return f
+            self.bar = tqdm(total=total, initial=done, desc=self.desc, unit="it", mininterval=0.2,
+                            dynamic_ncols=True, file=sys.stderr)
+            return
+        self.bar.update(done - self.bar.n)
 
     def close(self) -> None:
         if self.bar is not None:
@@ -305,27 +292,18 @@ def progress_enabled(setting) -> bool:
 
 
 def run_with_progress(frame, scfg, meta, enable: bool, desc: str, target=None):
-    """``icgo.studies.icgo_relm.run_study`` with a progress bar over the optimizer's iterations.
-
-    The bar wraps the search's fitness (``run_study(wrap_fitness=...)``), so it
-    advances from inside the scan; without an optimizer (plain RELM) there is no
-    scan and no bar.
-    """
+    """``icgo.studies.icgo_relm.run_study`` with a progress bar over the optimizer's iterations (:class:`Progress`);
+    without an optimizer (plain RELM) there is no search and no bar."""
     from icgo.studies import icgo_relm as study
 
     n_workers = scfg.search_workers(len(frame))
     if n_workers > 1:
-        print(f"search: {n_workers} worker processes, one per core (workers={scfg.workers}); "
-              f"{'no progress bar (workers=1 for one)' if enable else 'progress off'}", file=sys.stderr)
-    if not enable or scfg.optimizer is None or n_workers > 1:
+        print(f"search: {n_workers} worker processes, one per core (workers={scfg.workers})", file=sys.stderr)
+    if not enable or scfg.optimizer is None:
         return study.run_study(frame, scfg, meta, target=target)
-    from icgo.optim import get, iterations_for_budget
-
-    n_iter = scfg.iterations if scfg.max_evals is None else iterations_for_budget(
-        get(scfg.optimizer), scfg.pop_size, scfg.max_evals, scfg.optimizer_config)
-    bar = Progress(int(n_iter) + 1, desc, True)
+    bar = Progress(desc)
     try:
-        return study.run_study(frame, scfg, meta, wrap_fitness=bar.wrap, target=target)
+        return study.run_study(frame, scfg, meta, target=target, progress=bar)
     finally:
         bar.close()
 

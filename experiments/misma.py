@@ -95,7 +95,7 @@ def summary_lines(result) -> list[str]:
     """The Markdown summary ``misma_summary.md``."""
     from icgo.physics.qc import qc_sentence
 
-    lines = ["# MISMA study (issue #8)", "", "Command: `python -m experiments.misma` (config `conf/misma.yaml`).", ""]
+    lines = ["# MISMA study", "", "Command: `python -m experiments.misma` (config `conf/misma.yaml`).", ""]
     if "simulated" in result.summary:
         lines += ["## rotating_drill: MISMA vs SMA (same run)", "",
                   result.records["simulated"].to_markdown(floatfmt=".4g"), ""]
