@@ -429,9 +429,10 @@ def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, m
            "wall_time_s": result.wall_time_s, "methods": methods,
            "n_evals": {m: int(v) for m, v in zip(methods, np.asarray(result.n_evals)[:, 0])},
            "n_rows": int(result.kept.sum()), "n_repeats": result.config.n_repeats,
-           "repeat_ids": list(result.config.ids()), "models": models, "qc": qc, "verdict": verdict.as_dict()}
+           "repeat_ids": list(result.config.ids()), "models": models, "qc": qc}
     if result.tuning is not None:
         run["tuning"] = result.tuning
+    run["verdict"] = verdict.as_dict()
     missing = [k for k in R.RUN_KEYS if k not in run]
     assert not missing, f"run record lacks {missing}"  # a writer bug, not a user error
     (outdir / R.RUN_FILE).write_text(json.dumps(run, indent=2, default=str) + "\n")

@@ -869,6 +869,32 @@ BUILDERS = {"table1": table1, "fig9": fig9, "table2": table2, "fig10": fig10, "f
             "fig12": fig12, "fig13": fig13, "table4": table4}
 
 
+def missing_jobs(dirs, failed) -> list[str]:
+    """Every job below ``dirs`` that left no result: a sweep report's failed, killed or not-run jobs (with their
+    overrides) and any other directory with a ``FAILED`` marker."""
+    import json
+
+    from experiments._sweep import REPORT_FILE
+
+    lines, named = [], set()
+    for d in dirs:
+        for rep in sorted(Path(d).rglob(REPORT_FILE)):
+            try:
+                jobs = json.loads(rep.read_text()).get("jobs", [])
+            except (OSError, ValueError):
+                continue
+            for j in jobs:
+                if j.get("status") != "ok":
+                    where = rep.parent / str(j.get("dir", j.get("num")))
+                    named.add(str(where))
+                    lines.append(f"{where} ({' '.join(j.get('overrides', [])) or 'no overrides'}): {j.get('status')}"
+                                 + (f", {j['reason']}" if j.get("reason") else ""))
+    for where, why in failed:
+        if str(where) not in named:
+            lines.append(f"{where}: failed ({why})")
+    return lines
+
+
 def build(dirs, out: Path) -> dict:
     """Collect runs below ``dirs`` and write every table and figure they support into ``out``.
 
@@ -918,31 +944,6 @@ def build(dirs, out: Path) -> dict:
         miss.unlink()
     return done
 
-
-def missing_jobs(dirs, failed) -> list[str]:
-    """Every job below ``dirs`` that left no result: a sweep report's failed, killed or not-run jobs (with their
-    overrides) and any other directory with a ``FAILED`` marker."""
-    import json
-
-    from experiments._sweep import REPORT_FILE
-
-    lines, named = [], set()
-    for d in dirs:
-        for rep in sorted(Path(d).rglob(REPORT_FILE)):
-            try:
-                jobs = json.loads(rep.read_text()).get("jobs", [])
-            except (OSError, ValueError):
-                continue
-            for j in jobs:
-                if j.get("status") != "ok":
-                    where = rep.parent / str(j.get("dir", j.get("num")))
-                    named.add(str(where))
-                    lines.append(f"{where} ({' '.join(j.get('overrides', [])) or 'no overrides'}): {j.get('status')}"
-                                 + (f", {j['reason']}" if j.get("reason") else ""))
-    for where, why in failed:
-        if str(where) not in named:
-            lines.append(f"{where}: failed ({why})")
-    return lines
 
 
 # ------------------------------------------------------------ per-run figure

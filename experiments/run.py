@@ -114,11 +114,11 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
     table = C.summary_table(result).drop(columns=["method"])
     print(f"\nICGO-RELM study on {desc}: test split, {scfg.n_repeats} repeats (mean +/- std)")
     print(table.to_markdown(index=False))
+    print(f"outputs: {outdir}")
+    print(f"wall time: {time.perf_counter() - t0:.1f} s (study {result.wall_time_s:.1f} s incl. compile)")
     from icgo.survey.verdict import from_dict
 
     print(from_dict(run["verdict"]).text())
-    print(f"outputs: {outdir}")
-    print(f"wall time: {time.perf_counter() - t0:.1f} s (study {result.wall_time_s:.1f} s incl. compile)")
     return run
 
 

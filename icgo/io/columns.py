@@ -280,7 +280,7 @@ def read_units_row(cells: list[str], names: list[str], bracketed: dict, source: 
         return None
     units = {}
     for n, t in tokens.items():
-        unit, kind, table = UNITS[n]
+        _, kind, table = UNITS[n]
         if t and t not in table:
             _fail(source, f"line {line} looks like a units row, but {cells[names.index(n)].strip()!r} is not a unit "
                           f"of {kind} (column '{n}'; accepted: {ACCEPTED[kind]})")
@@ -309,7 +309,7 @@ def bracket_units(units: dict, source: str) -> dict:
     out = {}
     for n, u in units.items():
         t = unit_token(u)
-        unit, kind, table = UNITS[n]
+        _, kind, table = UNITS[n]
         if t not in table:
             _fail(source, f"column '{n}': {u!r} in its header name is not a unit of {kind} (accepted: {ACCEPTED[kind]})")
         out[n] = t

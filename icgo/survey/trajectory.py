@@ -80,7 +80,7 @@ def position_change(md, inc_raw, azi_raw, inc_corrected, azi_corrected, inc_ref=
     raw = positions(md, inc_raw, azi_raw)
     cor = positions(md, inc_corrected, azi_corrected)
     table = pd.concat([raw.add_suffix("_raw").rename(columns=lambda c: c.replace("_m_raw", "_raw_m")), cor], axis=1)
-    summary = {"md_m": float(np.asarray(md, float)[-1]), "stations": int(len(raw)),
+    summary = {"md_m": float(np.asarray(md, float)[-1]), "stations": len(raw),
                "bottom_hole_raw": {k: float(v) for k, v in raw.iloc[-1].items()},
                "bottom_hole_corrected": {k: float(v) for k, v in cor.iloc[-1].items()},
                "correction": _shift(raw, cor)}

@@ -56,7 +56,7 @@ class Verdict(NamedTuple):
     next: str
     status: str = "n/a"
     exit_code: int = 0
-    numbers: dict = {}
+    numbers: dict | None = None
 
     def lines(self) -> list[str]:
         """The block as printed: a heading and the five labelled lines."""
