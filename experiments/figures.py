@@ -945,7 +945,6 @@ def build(dirs, out: Path) -> dict:
     return done
 
 
-
 # ------------------------------------------------------------ per-run figure
 def plot_study(result, path: Path, title: str = "") -> None:
     """The run directory's figure: convergence, test error before/after, per-repeat MAE.
