@@ -624,9 +624,9 @@ def run_study(frame: pd.DataFrame, config: StudyConfig | None = None, metadata: 
         config: StudyConfig (defaults if None).
         metadata: the data set's metadata (needed for msa_reference="known").
         wrap_fitness: optional ``f -> f'`` applied to the search's fitness
-            ``f(pop, aux)``, e.g. to report progress from inside the scan
-            (``experiments._relm_job.Progress.wrap``). A wrapped fitness is a new
-            static argument of the runner, so that run compiles afresh.
+            ``f(pop, aux)`` (e.g. to instrument it). A wrapped fitness is a new
+            static argument of the runner, so that run compiles afresh; for progress
+            use ``progress``, which keeps the compiled programs cacheable.
         target: the second instrument's survey (``protocol="transfer"`` only).
         progress: optional ``progress(done, total)`` called on the host as the search's iterations complete,
             in this process or summed over its worker processes (:func:`icgo.optim.base.run_batch`); it never
