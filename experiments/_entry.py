@@ -259,6 +259,24 @@ def write_failure(outdir: Path, message: str, tb: str | None = None) -> None:
         (outdir / "error.txt").write_text(tb)
 
 
+def write_hydra_record(out: Path, cfg: DictConfig) -> None:
+    """Hydra's ``.hydra/`` record (``config.yaml``, ``overrides.yaml``, ``hydra.yaml``) into ``out``.
+
+    For an entry point whose config sets ``hydra.output_subdir: null`` because its files may go into a
+    directory of the user's choosing (``out=``) that must stay untouched when the run fails: called once
+    the run's files are written.
+    """
+    from hydra.core.hydra_config import HydraConfig
+    from omegaconf import OmegaConf
+
+    hc = HydraConfig.get()
+    rec = out / ".hydra"
+    rec.mkdir(parents=True, exist_ok=True)
+    (rec / "config.yaml").write_text(OmegaConf.to_yaml(cfg))
+    (rec / "overrides.yaml").write_text(OmegaConf.to_yaml(OmegaConf.create(list(hc.overrides.task))))
+    (rec / "hydra.yaml").write_text(OmegaConf.to_yaml(OmegaConf.create({"hydra": OmegaConf.to_container(hc)})))
+
+
 def one_line(e: BaseException) -> str:
     """First line of an exception message."""
     text = str(e).strip()

@@ -49,7 +49,7 @@ STUDY_NODE_ENTRY_KEYS = ("split.target",)
 TARGET_KEYS = ("seed", "casing_distance_scale", "casing_strength_scale", "misalignment_deg", "path")
 #: Keys of each data set option (``dataset.name``).
 DATASET_KEYS = {"lab_casing": ("name", "seed", "kwargs"), "well_conditions": ("name", "seed", "condition", "kwargs"),
-                "csv": ("name", "path", "require_meta")}
+                "csv": ("name", "path", "require_meta", "columns", "columns_file")}
 
 
 def _unknown(keys, allowed, where: str) -> None:
@@ -186,9 +186,12 @@ def load_data(cfg: DictConfig):
     """
     ds = cfg.dataset
     if ds.name == "csv":
-        from icgo.io.recording import read_recording
+        from icgo.io.recording import column_map, read_recording
 
-        rec = read_recording(Path(str(ds.path)).expanduser(), require_meta=bool(ds.require_meta))
+        cmap = column_map(OmegaConf.to_container(ds.columns) if ds.get("columns") else None, ds.get("columns_file"),
+                          "dataset.columns")
+        rec = read_recording(Path(str(ds.path)).expanduser(), require_meta=bool(ds.require_meta), columns=cmap,
+                             column_setting="dataset.columns")
         for line in rec.notices:  # what the reader noticed but accepted (icgo.io.recording check prints the same)
             print(f"notice: {line}", file=sys.stderr)
         return rec.frame, dict(rec.meta), f"csv:{ds.path}"
@@ -253,39 +256,26 @@ def select_condition(frame, condition: int):
 
 
 class Progress:
-    """A tqdm bar over optimizer iterations, advanced by a host callback from inside the scan.
+    """A tqdm bar over the search's iterations, fed by ``run_study(progress=...)`` between chunks of iterations.
 
-    :meth:`wrap` returns a fitness that calls ``jax.debug.callback(self.tick)``
-    with no operands: under the runner's vmap over repeats and strategies the
-    callback is not batched, so it fires once per fitness call of the whole
-    batch, i.e. once per iteration (plus once for the initial population).
-    tqdm redraws at most every 0.2 s.
+    The study runs its search in a few jitted chunks and calls this on the host after each
+    (:func:`icgo.optim.base.run_batch`), also summed over worker processes; nothing enters the compiled
+    programs, so the compilation cache keeps them. The bar starts after the first chunk, i.e. after
+    compiling (or loading) the program, so its rate and ETA measure the search alone.
     """
 
-    def __init__(self, total: int, desc: str, enable: bool):
-        self.total, self.count, self.bar, self.t0 = total, 0, None, time.perf_counter()
-        if enable:
+    def __init__(self, desc: str):
+        self.desc, self.bar = desc, None
+        print(f"{desc}: compiling or loading the search program, then the bar starts", file=sys.stderr)
+
+    def __call__(self, done: int, total: int) -> None:
+        if self.bar is None:
             from tqdm.auto import tqdm
 
-            self.bar = tqdm(total=total, desc=desc, unit="it", mininterval=0.2, dynamic_ncols=True,
-                            file=sys.stderr)
-
-    def tick(self) -> None:
-        """Host side: one more iteration done."""
-        if self.count < self.total:
-            self.count += 1
-            if self.bar is not None:
-                self.bar.update(1)
-
-    def wrap(self, fitness):
-        """A fitness that reports each call to :meth:`tick`."""
-        import jax
-
-        def f(pop, aux):
-            jax.debug.callback(self.tick)
-            return fitness(pop, aux)
-
-        return f
+            self.bar = tqdm(total=total, initial=done, desc=self.desc, unit="it", mininterval=0.2,
+                            dynamic_ncols=True, file=sys.stderr)
+            return
+        self.bar.update(done - self.bar.n)
 
     def close(self) -> None:
         if self.bar is not None:
@@ -302,42 +292,27 @@ def progress_enabled(setting) -> bool:
 
 
 def run_with_progress(frame, scfg, meta, enable: bool, desc: str, target=None):
-    """``icgo.studies.icgo_relm.run_study`` with a progress bar over the optimizer's iterations.
-
-    The bar wraps the search's fitness (``run_study(wrap_fitness=...)``), so it
-    advances from inside the scan; without an optimizer (plain RELM) there is no
-    scan and no bar.
-    """
+    """``icgo.studies.icgo_relm.run_study`` with a progress bar over the optimizer's iterations (:class:`Progress`);
+    without an optimizer (plain RELM) there is no search and no bar."""
     from icgo.studies import icgo_relm as study
 
     n_workers = scfg.search_workers(len(frame))
     if n_workers > 1:
-        print(f"search: {n_workers} worker processes, one per core (workers={scfg.workers}); "
-              f"{'no progress bar (workers=1 for one)' if enable else 'progress off'}", file=sys.stderr)
-    if not enable or scfg.optimizer is None or n_workers > 1:
+        print(f"search: {n_workers} worker processes, one per core (workers={scfg.workers})", file=sys.stderr)
+    if not enable or scfg.optimizer is None:
         return study.run_study(frame, scfg, meta, target=target)
-    from icgo.optim import get, iterations_for_budget
-
-    n_iter = scfg.iterations if scfg.max_evals is None else iterations_for_budget(
-        get(scfg.optimizer), scfg.pop_size, scfg.max_evals, scfg.optimizer_config)
-    bar = Progress(int(n_iter) + 1, desc, True)
+    bar = Progress(desc)
     try:
-        return study.run_study(frame, scfg, meta, wrap_fitness=bar.wrap, target=target)
+        return study.run_study(frame, scfg, meta, target=target, progress=bar)
     finally:
         bar.close()
 
 
-#: The paper's names for method labels (everything else is named by the rule in :func:`method_label`).
-PAPER_NAMES = {"raw": "raw (eq. 1)", "msa": "MSA only", "relm": "RELM", "cgo-original": "CGO-RELM",
-               "cgo-three_stage": "ICGO-RELM (three-stage)"}
-
-
 def method_label(method: str) -> str:
-    """Paper-style label: the paper's name if it has one, else ``<alg>-<value>`` -> ``ALG-RELM (value)``."""
-    if method in PAPER_NAMES:
-        return PAPER_NAMES[method]
-    name, _, value = method.partition("-")
-    return f"{name.upper()}-RELM" + (f" ({value})" if value else "")
+    """The method's name in every output (:func:`icgo.reporting.names.method_name`)."""
+    from icgo.reporting.names import method_name
+
+    return method_name(method)
 
 
 def summary_table(result, split: str = "test"):
@@ -395,7 +370,7 @@ def write_outputs(outdir: Path, cfg: DictConfig, result, info: dict, frame=None,
     shutil.rmtree(stage, ignore_errors=True)
     stage.mkdir(parents=True)
     try:
-        run = _write_run_files(stage, cfg, result, info, frame, meta, plot)
+        run = _write_run_files(stage, cfg, result, info, frame, meta, plot, run_dir=outdir)
         _commit_run(stage, outdir)
     finally:
         shutil.rmtree(stage, ignore_errors=True)
@@ -416,13 +391,14 @@ def _commit_run(stage: Path, outdir: Path) -> None:
     os.replace(stage / R.RUN_FILE, outdir / R.RUN_FILE)
 
 
-def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, meta, plot) -> dict:
-    """Every file of a run into ``outdir`` (the staging directory), run.json last."""
+def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, meta, plot, run_dir=None) -> dict:
+    """Every file of a run into ``outdir`` (the staging directory), run.json last; ``run_dir``: where they go."""
     import numpy as np
 
     from icgo.physics.qc import qc_sentence
     from icgo.reporting import records as R
     from icgo.survey.apply import study_qc
+    from icgo.survey.verdict import study_verdict
 
     qc = None if frame is None else study_qc(frame[result.kept].reset_index(drop=True), meta, result.msa_model)
 
@@ -446,9 +422,13 @@ def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, m
           f"Wall time of the study: {result.wall_time_s:.1f} s (compile included); "
           f"whole job {info['total_time_s']:.1f} s.", "",
           f"Fitted models: `{result.model.KIND}` (method used by default: {result.model.selected}) and "
-          f"`{result.msa_model.KIND}`; apply them to a new survey with `icgo.models.format.load_model`."]
+          f"`{result.msa_model.KIND}`."]
     if qc:
         md += ["", qc_sentence(qc)]
+    verdict = study_verdict(result.metrics, result.coverage, selected=result.model.selected,
+                            n_repeats=result.config.n_repeats, protocol=result.config.protocol, qc=qc,
+                            trained=result.model.domain, run_dir=str(run_dir or outdir))
+    md += ["", *verdict.markdown()]
     (outdir / "summary.md").write_text("\n".join(md) + "\n")
     if plot is not None:
         plot(outdir / "study.png")
@@ -462,7 +442,36 @@ def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, m
            "excluded_repeats": [{"repeat": int(r), "reason": why} for r, why in result.excluded]}
     if result.tuning is not None:
         run["tuning"] = result.tuning
+    run["verdict"] = verdict.as_dict()
     missing = [k for k in R.RUN_KEYS if k not in run]
     assert not missing, f"run record lacks {missing}"  # a writer bug, not a user error
     (outdir / R.RUN_FILE).write_text(json.dumps(run, indent=2, default=str) + "\n")
     return run
+
+
+def run_help() -> str:
+    """``python -m experiments.run --help``: usage, the config groups with their options and defaults, the main
+    keys, and where to read more (read from ``conf/``, so it never lists an option that does not exist)."""
+    import yaml
+
+    from experiments._entry import CONF_DIR, STUDY_GROUPS, group_options
+
+    cfg = yaml.safe_load((CONF_DIR / "config.yaml").read_text())
+    defaults = {k: v for d in cfg.get("defaults", []) if isinstance(d, dict) for k, v in d.items()}
+    lines = ["ICGO-RELM study: MSA, then a RELM whose hidden layer an optimizer searches; writes a run directory",
+             "(metrics, models, figures, summary.md with the verdict) and prints the summary and the verdict.", "",
+             "usage: python -m experiments.run [-m] [GROUP=OPTION ...] [KEY=VALUE ...]", "",
+             "config groups (GROUP=OPTION; default in brackets):"]
+    for g in STUDY_GROUPS:
+        lines.append(f"  {g:<11} {', '.join(group_options(g))}  [{defaults.get(g) or 'none'}]")
+    lines += ["", "other settings (KEY=VALUE): " + ", ".join(k for k in cfg if k not in ("defaults", "hydra")),
+              "  e.g. split.n_repeats=3 budget.iterations=50 dtype=... workers=2 progress=false overwrite=true",
+              "  your own recording: dataset=csv dataset.path=FILE.csv [dataset.columns.gx=Gx ...] (docs/data.md)", "",
+              "examples:",
+              "  python -m experiments.run strategy=three_stage           # make run",
+              "  python -m experiments.run experiment=table3              # a paper preset",
+              "  python -m experiments.run -m strategy=chaos,wavelet      # a sweep (one process per job)",
+              "  python -m experiments.apply model=outputs/<date>/<time> data=survey.csv   # then apply the model", "",
+              "docs: docs/experiments.md (groups, presets, launchers), README.md; Hydra's own flags: --hydra-help"]
+    return "\n".join(lines)
+

@@ -13,8 +13,10 @@ directory:
 * ``not run``: no directory.
 
 The report is printed (stderr) and written to ``sweep_report.json`` in the
-sweep directory (atomically). Like :mod:`experiments._entry`, nothing here
-imports JAX.
+sweep directory (atomically), beside the cross-job results table
+``sweep_results.csv`` / ``.md``: one row per finished job and method, with the job's
+swept overrides and its test MAE / RMSE / R^2 (mean +/- std over repeats, from the
+job's ``summary.csv``). Like :mod:`experiments._entry`, nothing here imports JAX.
 """
 
 from __future__ import annotations
@@ -29,6 +31,8 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
 REPORT_FILE = "sweep_report.json"
+#: The cross-job results table (``.csv`` and ``.md``) beside the report.
+RESULTS_FILE = "sweep_results"
 STATUSES = ("ok", "failed", "killed", "not run")
 
 
@@ -95,7 +99,37 @@ def report(config: DictConfig, file=None) -> list[dict]:
         tmp = sweep / f".{REPORT_FILE}.{os.getpid()}"
         tmp.write_text(json.dumps({"sweep_dir": str(sweep), "counts": counts, "jobs": jobs}, indent=1) + "\n")
         os.replace(tmp, sweep / REPORT_FILE)
+        table = results_table(sweep, jobs)
+        if table is not None:
+            for ext, text in (("csv", table.to_csv(index=False)), ("md", table.to_markdown(index=False) + "\n")):
+                tmp = sweep / f".{RESULTS_FILE}.{ext}.{os.getpid()}"
+                tmp.write_text(text)
+                os.replace(tmp, sweep / f"{RESULTS_FILE}.{ext}")
+            print(f"results of the {sum(j['status'] == 'ok' for j in jobs)} finished job(s) (test split; "
+                  f"{sweep / RESULTS_FILE}.csv):", file=file)
+            print(table.to_markdown(index=False), file=file)
     return jobs
+
+
+def results_table(sweep: Path, jobs: list[dict]):
+    """One row per finished job and method: the job, its overrides, and its summary (test MAE, RMSE, R^2); None
+    when no finished job has a ``summary.csv``."""
+    import pandas as pd
+
+    rows = []
+    for j in jobs:
+        f = sweep / j["dir"] / "summary.csv"
+        if j["status"] != "ok" or not f.is_file():
+            continue
+        try:
+            s = pd.read_csv(f)
+        except (OSError, ValueError):
+            continue
+        for _, r in s.iterrows():
+            rows.append({"job": j["num"], "overrides": " ".join(j["overrides"]) or "(none)", "method": r.get("label"),
+                         "repeats": r.get("n"), "MAE (deg)": r.get("MAE (deg)"), "RMSE (deg)": r.get("RMSE (deg)"),
+                         "R^2": r.get("R^2")})
+    return pd.DataFrame(rows) if rows else None
 
 
 class FailureReport(Callback):

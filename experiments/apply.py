@@ -20,9 +20,9 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from experiments._entry import CONF_DIR, EXIT_CONFIG, one_line
+from experiments._entry import CONF_DIR, EXIT_CONFIG, one_line, write_hydra_record
 
-KEYS = ("model", "data", "method", "require_meta", "out", "qc")
+KEYS = ("model", "data", "method", "require_meta", "out", "qc", "columns", "columns_file")
 
 
 def model_path(path: Path) -> Path:
@@ -43,10 +43,11 @@ def run_apply(cfg: DictConfig, out_dir: Path) -> dict:
         ValueError (ModelError, DataError, RecordError, SettingError): one line.
     """
     from icgo.core.settings import config_from_mapping
-    from icgo.io.recording import atomic_write_texts, read_recording
+    from icgo.io.recording import atomic_write_texts, column_map, read_recording
     from icgo.models.registry import load_model
     from icgo.physics.qc import QCBands
     from icgo.survey.apply import correct_survey
+    from icgo.survey.verdict import survey_verdict
 
     unknown = sorted(set(cfg.keys()) - set(KEYS))
     if unknown:
@@ -58,14 +59,19 @@ def run_apply(cfg: DictConfig, out_dir: Path) -> dict:
     bands = config_from_mapping(QCBands, OmegaConf.to_container(cfg.qc, resolve=True), "qc")
     mpath = model_path(Path(str(cfg.model)).expanduser())
     model = load_model(mpath)
-    rec = read_recording(Path(str(cfg.data)).expanduser(), require_meta=bool(cfg.require_meta), require_reference=False)
+    cmap = column_map(OmegaConf.to_container(cfg.columns) if cfg.get("columns") else None, cfg.get("columns_file"))
+    rec = read_recording(Path(str(cfg.data)).expanduser(), require_meta=bool(cfg.require_meta), require_reference=False,
+                         columns=cmap)
     res = correct_survey(model, rec.frame, rec.field, method=cfg.method, bands=bands)
     stem = Path(str(cfg.data)).stem
+    verdict = survey_verdict(res, model, rec.frame, bands, out_csv=str(out_dir / f"{stem}_corrected.csv"),
+                             model_path=str(mpath), survey_path=str(cfg.data), method=cfg.method)
     meta = {"source": rec.source, "model": str(mpath), "model_kind": model.KIND,
             "method": cfg.method if cfg.method is not None else getattr(model, "selected", None),
             "model_data_hash": model.data_hash, "rows": int(len(res.table)), "metrics": res.metrics, "qc": res.qc,
             "qc_bands": OmegaConf.to_container(cfg.qc, resolve=True),
-            "notices": list(rec.notices) + res.notices, "units": {"angles": "deg", "B": "nT", "G": "g"}}
+            "notices": list(rec.notices) + res.notices, "units": {"angles": "deg", "B": "nT", "G": "g"},
+            "trajectory": res.trajectory, "verdict": verdict.as_dict()}
     if rec.field is not None:
         meta.update({k: getattr(rec.field, k) for k in ("total_field_nT", "dip_deg", "declination_deg", "gravity_g")})
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -90,6 +96,9 @@ def report(meta: dict, out_dir: Path, stem: str) -> None:
     for n in meta["notices"]:
         print(f"notice: {n}")
     print(f"wrote {out_dir / (stem + '_corrected.csv')} and {stem}_corrected.meta.json")
+    from icgo.survey.verdict import from_dict
+
+    print(from_dict(meta["verdict"]).text())
 
 
 @hydra.main(version_base="1.3", config_path=str(CONF_DIR / "apply"), config_name="apply")
@@ -103,7 +112,10 @@ def main(cfg: DictConfig) -> None:
     except ValueError as e:
         print(f"error: {one_line(e)}", file=sys.stderr)
         raise SystemExit(EXIT_CONFIG) from None
+    write_hydra_record(out, cfg)
     report(meta, out, Path(str(cfg.data)).stem)
+    if meta["verdict"]["exit_code"]:  # far outside the training domain (icgo.survey.verdict.EXIT_OUT_OF_DOMAIN)
+        raise SystemExit(meta["verdict"]["exit_code"])
 
 
 if __name__ == "__main__":

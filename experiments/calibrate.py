@@ -106,7 +106,8 @@ def figure(rec, models: dict, path: Path) -> None:
         ax[1].plot(shots, measured_dip_deg(Gc, Bc), ls, marker=".", color=f"C{i}", label=m)
         bn = np.linalg.norm(Bc, axis=1)
         ax[2].plot(shots, bn / bn.mean(), ls, marker=".", color=f"C{i}", label=m)
-    ax[0].set(xlabel="azimuth of the pointing axis (deg, magnetic)", ylabel="inclination (deg)",
+    ax[0].set(xlabel="azimuth of the pointing axis (deg, magnetic)",
+              ylabel="elevation of the pointing axis (deg, up +; inclination = 90 - elevation)",
               title="per-shot direction, raw and calibrated")
     ax[1].set(xlabel="shot", ylabel="dip (deg)", title="dip per shot (one field: flat)")
     ax[2].set(xlabel="shot", ylabel="|B| / mean", title="|B| per shot (one field: flat)")
@@ -176,8 +177,16 @@ def run(cfg: DictConfig, out: Path, config=None) -> None:
                                 "calibrate data=bundled`):")),
                             (res / "calibration_devices.csv", df.to_csv(index=False, float_format="%.6g"))])
         print(f"wrote {res / 'calibration_devices.md'}")
+    from icgo.io.recording import atomic_write_texts
+    from icgo.survey.verdict import calibrate_verdict, recommendation_in
+
+    verdict = calibrate_verdict(recommendation=recommendation_in(out), n_models=len(models), run_dir=str(out),
+                                n_degenerate=int(df["degenerate"].sum()), n_fits=len(df),
+                                held_out=df[df["split"] != "in-sample"].groupby("method")["score_deg"].mean().to_dict())
+    atomic_write_texts([(out / "report.md", text + "\n" + "\n".join(verdict.markdown()) + "\n")])
     print(text)
     print(f"run directory: {out} ({len(models)} calibrations in models/)")
+    print(verdict.text())
 
 
 @hydra.main(config_path="../conf", config_name="calibrate", version_base="1.3")

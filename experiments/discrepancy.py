@@ -36,14 +36,16 @@ from icgo.physics.qc import qc_sentence
 from icgo.studies import discrepancy_results
 
 #: Settings of the entry point, not of the workflow (excluded from :class:`icgo.discrepancy.WorkflowConfig`).
-ENTRY_KEYS = ("data", "study", "seed", "n_stations", "design", "results_dir", "hydra")
+ENTRY_KEYS = ("data", "study", "seed", "n_stations", "design", "results_dir", "hydra", "columns", "columns_file")
 
 #: ``study=`` values.
 STUDIES = ("none", "hidden", "devices", "lab_casing")
 
 
-def load_stations(spec: str, seed: int = 0, n: int = 240, design: str = "random", noise: D.Noise = D.NOISE):
-    """Stations and a description from a ``data=`` value (see conf/discrepancy.yaml).
+def load_stations(spec: str, seed: int = 0, n: int = 240, design: str = "random", noise: D.Noise = D.NOISE,
+                  columns: dict | None = None):
+    """Stations and a description from a ``data=`` value (see conf/discrepancy.yaml); ``columns``: the column map
+    of a field export (:func:`icgo.io.recording.column_map`).
 
     Returns (Stations, label, truth or None). Raises icgo.io.recording.DataError / ValueError.
     """
@@ -61,7 +63,7 @@ def load_stations(spec: str, seed: int = 0, n: int = 240, design: str = "random"
         ds = lab_casing(seed)
         rec = icgo_io.validate(ds.frame, ds.meta, source="lab_casing")
         return D.stations_from_recording(rec), f"icgo.datasets.protocols.lab_casing(seed={seed})", ds.truth
-    rec = icgo_io.read_recording(spec)
+    rec = icgo_io.read_recording(spec, columns=columns)
     for nt in rec.notices:
         print("notice:", nt)
     return D.stations_from_recording(rec), spec, None
@@ -104,6 +106,8 @@ def main_body(cfg: DictConfig, out_dir: Path) -> int:
     """Run one composed config; 0, :data:`EXIT_CONFIG` (2) for a bad setting, 1 for bad input data."""
     try:
         config = workflow_config(cfg)
+        cmap = icgo_io.column_map(OmegaConf.to_container(cfg.columns) if cfg.get("columns") else None,
+                                  cfg.get("columns_file"))
     except SettingsError as err:
         for line in err.problems:
             print(f"error: {line}", file=sys.stderr)
@@ -120,7 +124,8 @@ def main_body(cfg: DictConfig, out_dir: Path) -> int:
             icgo_io.atomic_write_texts([(path, text + "\n")])
             print("wrote", path)
             return 0
-        st, label, truth = load_stations(cfg.data, int(cfg.seed), int(cfg.n_stations), str(cfg.design), config.noise)
+        st, label, truth = load_stations(cfg.data, int(cfg.seed), int(cfg.n_stations), str(cfg.design), config.noise,
+                                         cmap)
         D.check_stations(st)  # too few stations, NaN: one line here, not a traceback from the workflow
     except (icgo_io.DataError, ValueError, FileNotFoundError) as err:
         print(f"error: {err}".splitlines()[0], file=sys.stderr)

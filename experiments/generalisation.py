@@ -20,9 +20,11 @@ import io as _io
 import sys
 from pathlib import Path
 
-NAMES = {"raw": "raw (eq. 1)", "msa": "MSA only", "relm": "RELM", "pso": "PSO-RELM", "ga": "GA-RELM",
-         "cgo-original": "CGO-RELM", "cgo-chaos": "ICGO-RELM (chaos)", "cgo-gaussian": "ICGO-RELM (Gaussian)",
-         "cgo-wavelet": "ICGO-RELM (wavelet)", "cgo-three_stage": "ICGO-RELM (three-stage)",
+from icgo.reporting.names import METHOD_NAMES  # noqa: E402  (light: no JAX)
+
+#: The methods of the report in table order, named as in every output (icgo.reporting.names), plus the physics baseline.
+NAMES = {**{m: METHOD_NAMES[m] for m in ("raw", "msa", "relm", "pso", "ga", "cgo-original", "cgo-chaos",
+                                         "cgo-gaussian", "cgo-wavelet", "cgo-three_stage")},
          "physics": "physics (12-par + field)"}
 PROTOCOL_NAMES = {"random": "random 7:3", "leave_azimuth_out": "leave-azimuth-out",
                   "leave_condition_out": "leave-condition-out", "transfer": "transfer"}
@@ -56,6 +58,8 @@ def markdown(rec: dict, config, seconds: dict) -> str:
     """The Markdown report: MAE table (mean +/- std), significance marks, coverage table, noise floors."""
     import pandas as pd
 
+    from icgo.maths.stats import format_mean_std, mean_std
+
     m, cov, tests, floor = rec["metrics"], rec["coverage"], rec["tests"], rec["noise_floor"]
     cells = list(dict.fromkeys(zip(m["dataset"], m["protocol"])))
     methods = [k for k in NAMES if k in set(m["method"])]
@@ -74,7 +78,7 @@ def markdown(rec: dict, config, seconds: dict) -> str:
             g = m[(m["dataset"] == c[0]) & (m["protocol"] == c[1])]
             means = g.groupby("method")["mae"].mean()
             x = g[g["method"] == meth]["mae"]
-            cell = f"{x.mean():.4f} +/- {x.std(ddof=1):.4f}"
+            cell = format_mean_std(*mean_std(x))
             if means.idxmin() == meth:
                 cell = f"**{cell}**"
             else:

@@ -53,8 +53,6 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
     from experiments import _entry as E
     from experiments import _relm_job as C
 
-    # JAX's backend probe ("Unable to initialize backend 'tpu'") is noise in Hydra's INFO log.
-    logging.getLogger("jax._src.xla_bridge").setLevel(logging.WARNING)
     t0 = time.perf_counter()
     previous = E.previous_run(outdir)
     if previous is not None and not cfg.overwrite:
@@ -121,6 +119,9 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
         print(excluded)
     print(f"outputs: {outdir}")
     print(f"wall time: {time.perf_counter() - t0:.1f} s (study {result.wall_time_s:.1f} s incl. compile)")
+    from icgo.survey.verdict import from_dict
+
+    print(from_dict(run["verdict"]).text())
     return run
 
 
@@ -135,7 +136,12 @@ def app(cfg: DictConfig) -> None:
 
 
 def main() -> None:
-    """Entry point: reject unknown group options in one line, then hand over to Hydra."""
+    """Entry point: ``--help``, then reject unknown group options in one line, then hand over to Hydra."""
+    if any(a in ("--help", "-h") for a in sys.argv[1:]):
+        from experiments._relm_job import run_help
+
+        print(run_help())
+        return
     preflight("config")
     err = check_overrides(sys.argv[1:])
     if err:

@@ -257,27 +257,50 @@ def test_failed_multirun_job_leaves_marker_and_others_intact(tmp_path, capsys):
 
 
 # ----------------------------------------------------------------- progress
-def test_progress_ticks_once_per_iteration_inside_the_scan():
-    """The callback fires once per iteration for the whole vmapped batch (not once per repeat/strategy)."""
+def test_progress_comes_between_chunks_with_the_same_result_and_a_cached_program(tmp_path):
+    """run_batch(progress=...) reports after each chunk, equals the run without it bitwise, and its compiled
+    programs hold no host callback, so a fresh process finds them in the persistent compilation cache."""
+    import subprocess
+    import sys
+
     import jax
     import jax.numpy as jnp
 
     from icgo.optim import run_batch
     from icgo.optim.cgo import CGO
 
-    bar = C.Progress(total=100, desc="t", enable=False)
-
     def sphere(pop, aux):
         return jnp.sum((pop - aux[None]) ** 2, axis=1)
 
     keys = jax.random.split(jax.random.PRNGKey(0), 3)
-    aux = jnp.zeros((3, 4))
-    res = run_batch(get("cgo"), bar.wrap(sphere), (-np.ones(4), np.ones(4)), keys, 6, 7,
-                    configs=CGO.axis_configs(None, ["chaos", "three_stage"]), aux=aux)
-    jax.block_until_ready(res)
-    jax.effects_barrier()
-    assert bar.count == 7 + 1  # initial population + 7 iterations
-    assert res.curve.shape == (2, 3, 7)
+    args = (get("cgo"), sphere, (-np.ones(4), np.ones(4)), keys, 6, 20)
+    kw = {"configs": CGO.axis_configs(None, ["chaos", "three_stage"]), "aux": jnp.zeros((3, 4))}
+    ticks = []
+    chunked = run_batch(*args, **kw, progress=lambda d, t: ticks.append((d, t)))
+    whole = run_batch(*args, **kw)
+    assert ticks == [(d, 20) for d in range(2, 21, 2)]
+    for a, b in zip(chunked, whole):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    script = (
+        "import sys, jax, jax.numpy as jnp, numpy as np\n"
+        "jax.config.update('jax_compilation_cache_dir', sys.argv[1])\n"
+        "jax.config.update('jax_persistent_cache_min_compile_time_secs', 0.0)\n"
+        "import icgo\nfrom icgo.optim import get, run_batch\n"
+        "f = lambda pop, aux: jnp.sum((pop - aux[None]) ** 2, axis=1)\n"
+        "run_batch(get('cgo'), f, (-np.ones(4), np.ones(4)), jax.random.split(jax.random.PRNGKey(0), 3), 6, 20,"
+        " aux=jnp.zeros((3, 4)), progress=lambda d, t: None)\n")
+    subprocess.run([sys.executable, "-c", script, str(tmp_path)], check=True, timeout=300)
+    assert any(p.name.startswith("jit__batch_steps_jit") for p in tmp_path.iterdir())
+
+
+def test_progress_bar_starts_after_the_first_chunk(capsys):
+    bar = C.Progress("t")
+    assert bar.bar is None and "compiling or loading" in capsys.readouterr().err
+    bar(2, 20)
+    assert bar.bar.n == 2 and bar.bar.total == 20
+    bar(8, 20)
+    assert bar.bar.n == 8
+    bar.close()
 
 
 # ------------------------------------------------------------ one source of defaults

@@ -18,9 +18,14 @@ TINY = study.StudyConfig(optimizer="cgo", strategies=("original", "wavelet"), n_
 
 
 def test_two_workers_give_the_one_process_study_bitwise():
+    """... and their progress reaches the parent, summed over the workers' repeats."""
     frame = sim_frame()
     one = study.run_study(frame, dataclasses.replace(TINY, workers=1))
-    two = study.run_study(frame, dataclasses.replace(TINY, workers=2))
+    ticks = []
+    two = study.run_study(frame, dataclasses.replace(TINY, workers=2), progress=lambda d, t: ticks.append((d, t)))
+    total = TINY.iterations * TINY.n_repeats
+    assert ticks and ticks[-1] == (total, total) and all(t == total for _, t in ticks)
+    assert [d for d, _ in ticks] == sorted(d for d, _ in ticks)
     for name in ("best_fitness", "evals"):
         np.testing.assert_array_equal(one.curves[name], two.curves[name])
     pd.testing.assert_frame_equal(one.metrics, two.metrics)

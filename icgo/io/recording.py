@@ -8,7 +8,10 @@ The contract (DESIGN.md, "Data contract"; details and error messages in
   ``azimuth_deg, inclination_deg`` (reference attitude, when known); optional
   ``toolface_deg``, ``group`` (int; rows of one group share the true direction,
   used when no reference attitude is known), ``time_s``, ``wx, wy, wz`` (gyro,
-  deg/h), ``temperature_c``.
+  deg/h), ``temperature_c``, ``md`` (measured depth along the hole, m; ``depth_m`` reads as ``md``).
+* Field exports (:mod:`icgo.io.columns`): names matched case-insensitively, a column map
+  (``columns={"gx": "Accel X"}`` or a mapping file), ``#`` comment lines, a units row under the
+  header (converted into these units).
 * Metadata JSON: ``total_field_nT``, ``dip_deg``, ``declination_deg``,
   ``gravity_g``; or ``latitude``, ``longitude``, ``altitude_km``, ``date`` from
   which :func:`icgo.physics.field.reference_field` computes the field; descriptive
@@ -43,13 +46,14 @@ import numpy as np
 import pandas as pd
 
 from icgo.core.errors import DataError
+from icgo.io import columns as export
 
 # ----------------------------------------------------------------- the schema
 SENSOR_COLUMNS = ("gx", "gy", "gz", "bx", "by", "bz")
 REQUIRED_COLUMNS = ("station",) + SENSOR_COLUMNS
 REFERENCE_COLUMNS = ("azimuth_deg", "inclination_deg")
 GYRO_COLUMNS = ("wx", "wy", "wz")
-OPTIONAL_COLUMNS = ("toolface_deg", "group", "time_s") + GYRO_COLUMNS + ("temperature_c",)
+OPTIONAL_COLUMNS = ("toolface_deg", "group", "time_s") + GYRO_COLUMNS + ("temperature_c", "md")
 #: Contract columns in the order they are written.
 KNOWN_COLUMNS = REQUIRED_COLUMNS + REFERENCE_COLUMNS + OPTIONAL_COLUMNS
 INTEGER_COLUMNS = ("station", "group")
@@ -219,30 +223,46 @@ def _coerce_frame(frame: pd.DataFrame, source: str, line_of) -> pd.DataFrame:
 
 
 # --------------------------------------------------------------- validation
-def _check_columns(cols: list, source: str, require_reference: bool = True) -> None:
-    """Header-level checks: required, paired and grouped columns (reference optional if not required)."""
+def _check_columns(cols: list, source: str, require_reference: bool = True, setting: str = "columns") -> None:
+    """Header-level checks: required, paired and grouped columns (reference optional if not required).
+
+    ``setting`` names the column map in the hint of a missing column (:func:`icgo.io.columns.missing_hint`).
+    """
     missing = [c for c in REQUIRED_COLUMNS if c not in cols]
     if missing:
-        fail(source, f"missing required column(s) {', '.join(missing)} (have: {', '.join(map(str, cols))})")
+        fail(source, f"missing required column(s) {', '.join(missing)} (have: {', '.join(map(str, cols))})"
+                     + export.missing_hint(missing, [str(c) for c in cols], KNOWN_COLUMNS, setting))
     ref = [c for c in REFERENCE_COLUMNS if c in cols]
     if len(ref) == 1:
         other = REFERENCE_COLUMNS[1 - REFERENCE_COLUMNS.index(ref[0])]
         fail(source, f"column '{ref[0]}' given without '{other}' (the reference attitude needs both)")
     if require_reference and not ref and "group" not in cols:
         fail(source, "missing required columns azimuth_deg, inclination_deg "
-                      "(reference attitude; they may be left out only when a 'group' column is present)")
+                      "(reference attitude; they may be left out only when a 'group' column is present)"
+                     + export.missing_hint(list(REFERENCE_COLUMNS), [str(c) for c in cols], KNOWN_COLUMNS,
+                                           setting).replace("; name the export", "; or name the export"))
     gyro = [c for c in GYRO_COLUMNS if c in cols]
     if gyro and len(gyro) != 3:
         fail(source, f"gyro columns must come as wx, wy, wz together (have only {', '.join(gyro)})")
 
 
 def _check_frame(frame: pd.DataFrame, source: str, line_of, notices: list,
-                 require_reference: bool = True) -> pd.DataFrame:
-    """Contract checks on a frame whose contract columns are float64; returns the typed frame."""
+                 require_reference: bool = True, convert: dict | None = None,
+                 setting: str = "columns") -> pd.DataFrame:
+    """Contract checks on a frame whose contract columns are float64; returns the typed frame.
+
+    ``convert``: column -> (scale, offset, unit) from a units row (:func:`icgo.io.columns.prepare`),
+    applied before any check.
+    """
     cols = list(frame.columns)
     if len(frame) == 0:
         fail(source, "no data rows (header only)")
-    _check_columns(cols, source, require_reference)
+    _check_columns(cols, source, require_reference, setting)
+    if convert:
+        frame = frame.copy()
+        for name, (scale, offset, _) in convert.items():
+            if name in cols:
+                frame[name] = frame[name].to_numpy(np.float64) * scale + offset
 
     for name in [c for c in KNOWN_COLUMNS if c in cols]:
         v = frame[name].to_numpy(np.float64)
@@ -315,7 +335,7 @@ def _check_units(frame: pd.DataFrame, source: str) -> None:
     lo, hi = G_MEDIAN_RANGE_G
     if not lo <= g <= hi:
         if lo * STANDARD_GRAVITY <= g <= hi * STANDARD_GRAVITY:
-            hint = f"looks like m/s^2: divide by {STANDARD_GRAVITY}"
+            hint = f"looks like m/s^2: divide by {STANDARD_GRAVITY}, or give m/s^2 in a units row under the header"
         elif lo * 1000 <= g <= hi * 1000:
             hint = "looks like milli-g: divide by 1000"
         else:
@@ -325,9 +345,9 @@ def _check_units(frame: pd.DataFrame, source: str) -> None:
     lo, hi = B_MEDIAN_RANGE_NT
     if not lo <= b <= hi:
         if b < lo and lo <= b * 1e3 <= hi:
-            hint = "looks like uT given as nT: multiply by 1000"
+            hint = "looks like uT given as nT: multiply by 1000; or give the unit in a units row under the header, docs/data.md"
         elif b < lo and lo <= b * 1e5 <= hi:
-            hint = "looks like Gauss given as nT: multiply by 100000"
+            hint = "looks like Gauss given as nT: multiply by 100000; or give the unit in a units row under the header, docs/data.md"
         else:
             hint = "the geomagnetic field is about 22,000-67,000 nT"
         fail(source, f"median |B| = {b:.6g} is not in nT ({hint})", "all rows", ("bx", "by", "bz"))
@@ -508,7 +528,20 @@ def meta_path_for(csv_path) -> Path:
     return p.with_name(stem + ".meta.json")
 
 
-def read_recording(csv_path, meta_path=None, *, require_meta: bool = True, require_reference: bool = True) -> Recording:
+def column_map(columns=None, columns_file=None, setting: str = "columns") -> dict[str, str]:
+    """One column map from a front door's settings: the entries of ``columns_file`` (JSON or YAML), then
+    ``columns`` over them (:mod:`icgo.io.columns`).
+
+    Raises:
+        SettingError: one line naming the setting (a key that is not a contract column, a bad file).
+    """
+    base = {} if columns_file in (None, "") else export.load_column_map(columns_file, KNOWN_COLUMNS,
+                                                                       f"{setting}_file")
+    return base | export.check_column_map(columns, KNOWN_COLUMNS, setting)
+
+
+def read_recording(csv_path, meta_path=None, *, require_meta: bool = True, require_reference: bool = True,
+                   columns=None, column_setting: str = "columns") -> Recording:
     """Read and validate a contract CSV and its ``<name>.meta.json``.
 
     Args:
@@ -518,10 +551,15 @@ def read_recording(csv_path, meta_path=None, *, require_meta: bool = True, requi
             (with a notice) instead of raising.
         require_reference: False accepts a survey without the reference attitude
             and without groups (see :func:`validate`).
+        columns: a column map ``{contract column: export column}`` for a field export
+            (:mod:`icgo.io.columns`; :func:`column_map` builds one from settings and a file).
+        column_setting: how the caller names the column map, for the hints in errors
+            (``columns``, ``dataset.columns``).
     Returns:
-        Recording.
+        Recording; ``notices`` say which export columns were mapped and which units converted.
     Raises:
         DataError: one line naming the file, row (and its line) and column.
+        SettingError: a column map whose key is not a contract column.
     """
     csv_path = Path(csv_path)
     src = str(csv_path)
@@ -537,11 +575,18 @@ def read_recording(csv_path, meta_path=None, *, require_meta: bool = True, requi
         fail(src, f"cannot read ({e.strerror})")
     if text.strip() == "":
         fail(src, "empty file (no header, no rows)")
+    cmap = export.check_column_map(columns, KNOWN_COLUMNS, column_setting)
+    prep = export.prepare(text, src, KNOWN_COLUMNS, cmap, column_setting)
+    text = prep.text
+    if text.strip() == "":
+        fail(src, "only comment lines (lines starting with #): no header, no rows")
+    opts = {"convert": prep.convert, "setting": column_setting}
     notices: list[str] = []
-    typed = _read_fast(text, src, notices, require_reference)
+    typed = _read_fast(text, src, notices, require_reference, **opts)
     if typed is None:
         notices = []
-        typed = _read_exact(text, src, notices, require_reference)
+        typed = _read_exact(text, src, notices, require_reference, **opts)
+    notices[:0] = prep.notices
     if not text.endswith(("\n", "\r")):  # a cut-off write leaves no newline: say so, naming the last row
         notices.append(f"{src}: the file does not end with a newline; check that its last row (row {len(typed)}) "
                        f"is complete")
@@ -582,7 +627,8 @@ _ROUND_TRIP = {"float_precision": "round_trip"} if tuple(
     int(v) for v in re.findall(r"\d+", pd.__version__)[:2]) < (3, 1) else {}
 
 
-def _read_fast(text: str, src: str, notices: list, require_reference: bool) -> pd.DataFrame | None:
+def _read_fast(text: str, src: str, notices: list, require_reference: bool, convert=None,
+               setting: str = "columns") -> pd.DataFrame | None:
     """The checked frame of a plain CSV text by pandas' C parser, or None to leave it to :func:`_read_exact`.
 
     Same result as :func:`_read_exact` whenever it returns a frame (tested side by side on mutated
@@ -602,7 +648,7 @@ def _read_fast(text: str, src: str, notices: list, require_reference: bool) -> p
     if "" in header or len(set(header)) != len(header):
         return None
     try:
-        _check_columns(header, src, require_reference)
+        _check_columns(header, src, require_reference, setting)
         parsed = pd.read_csv(_io.BytesIO(text.encode("utf-8")), encoding="utf-8", header=0, names=header, engine="c", na_filter=False,
                              skip_blank_lines=True, dtype={h: np.float64 if h in KNOWN_COLUMNS else object
                                                            for h in header}, **_ROUND_TRIP)
@@ -626,12 +672,13 @@ def _read_fast(text: str, src: str, notices: list, require_reference: bool) -> p
     del parsed
     frame = pd.DataFrame(data)
     try:
-        return _check_frame(frame, src, lambda i: i + 2, notices, require_reference)
+        return _check_frame(frame, src, lambda i: i + 2, notices, require_reference, convert, setting)
     except DataError:
         return None
 
 
-def _read_exact(text: str, src: str, notices: list, require_reference: bool) -> pd.DataFrame:
+def _read_exact(text: str, src: str, notices: list, require_reference: bool, convert=None,
+                setting: str = "columns") -> pd.DataFrame:
     """Every row through the csv module and ``float``: the reference reader, and the one that words errors."""
     reader = csv.reader(_io.StringIO(text))
     numbered = []  # (line number, fields), blank lines skipped
@@ -653,11 +700,11 @@ def _read_exact(text: str, src: str, notices: list, require_reference: bool) -> 
         if len(r) != len(header):
             fail(src, f"{len(r)} fields, the header has {len(header)}", k + 1, None, ln)
     if body:
-        _check_columns(header, src, require_reference)
+        _check_columns(header, src, require_reference, setting)
     rows = [r for _, r in body]
     line_of = lambda i: body[i][0]  # noqa: E731
     frame = _parse_columns(header, rows, src, line_of) if rows else pd.DataFrame(columns=header)
-    return _check_frame(frame, src, line_of, notices, require_reference)
+    return _check_frame(frame, src, line_of, notices, require_reference, convert, setting)
 
 
 # ------------------------------------------------------------------ writing

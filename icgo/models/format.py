@@ -277,6 +277,29 @@ DOMAIN_TOLERANCE = {"inclination_deg": 0.5, "azimuth_deg": 1.0, "dip_deg": 0.25,
                     "g_norm_g": 0.0025}
 
 
+def domain_overshoots(trained: dict, survey: dict, margin: float = 0.05) -> dict[str, dict]:
+    """Quantities whose survey range leaves the training range by more than noise, and by how much.
+
+    Args:
+        trained: the model's ``domain`` (name -> [low, high]). survey: the same quantities of the survey.
+        margin: overshoots up to this fraction of the training range's width, or up to
+            :data:`DOMAIN_TOLERANCE` of the quantity, are not counted (a new draw of the same stations
+            differs by noise alone).
+    Returns:
+        ``{name: {"below": ..., "above": ...}}`` (units of the quantity, >= 0); quantities missing from either
+        side are not compared.
+    """
+    out = {}
+    for name, (lo, hi) in survey.items():
+        if name not in trained:
+            continue
+        tlo, thi = (float(x) for x in trained[name])
+        below, above = max(tlo - lo, 0.0), max(hi - thi, 0.0)
+        if max(below, above) > max(margin * (thi - tlo), DOMAIN_TOLERANCE.get(name, 0.0)):
+            out[name] = {"below": below, "above": above}
+    return out
+
+
 def domain_notices(trained: dict, survey: dict, margin: float = 0.05) -> list[str]:
     """One line per quantity whose survey range leaves the training range, saying how far.
 
@@ -291,12 +314,8 @@ def domain_notices(trained: dict, survey: dict, margin: float = 0.05) -> list[st
         quantities missing from either side are not compared.
     """
     lines = []
-    for name, (lo, hi) in survey.items():
-        if name not in trained:
-            continue
-        tlo, thi = (float(x) for x in trained[name])
-        below, above = max(tlo - lo, 0.0), max(hi - thi, 0.0)
-        if max(below, above) > max(margin * (thi - tlo), DOMAIN_TOLERANCE.get(name, 0.0)):
-            lines.append(f"{name}: survey {lo:.6g} to {hi:.6g}, trained on {tlo:.6g} to {thi:.6g} "
-                         f"({below:.4g} below, {above:.4g} above the training range)")
+    for name, o in domain_overshoots(trained, survey, margin).items():
+        (lo, hi), (tlo, thi) = survey[name], (float(x) for x in trained[name])
+        lines.append(f"{name}: survey {lo:.6g} to {hi:.6g}, trained on {tlo:.6g} to {thi:.6g} "
+                     f"({o['below']:.4g} below, {o['above']:.4g} above the training range)")
     return lines

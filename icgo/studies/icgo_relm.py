@@ -481,13 +481,16 @@ def search_work(cfg: StudyConfig, n_train_rows: int) -> float:
 
 
 def search_block(rows, G, B, a_true, cfg: StudyConfig, key, reference, n_source) -> tuple:
-    """:func:`search` of one block of repeats (``cfg.repeat_ids``) from scratch: a worker process's job."""
+    """:func:`search` of one block of repeats (``cfg.repeat_ids``) from scratch: a worker process's job; its
+    progress goes to the parent (:func:`icgo.studies.workers.progress_sink`)."""
     prep, _ = prepare(rows, G, B, a_true, cfg, jnp.asarray(key), reference, n_source)
-    return search(cfg, prep)
+    return search(cfg, prep, progress=workers.progress_sink())
 
 
-def search_in_workers(rows, G, B, a_true, cfg: StudyConfig, base_key, reference, n_source, n_workers: int) -> tuple:
-    """:func:`search` split by repeats over ``n_workers`` processes (:func:`icgo.studies.workers.run_in_workers`).
+def search_in_workers(rows, G, B, a_true, cfg: StudyConfig, base_key, reference, n_source, n_workers: int,
+                      progress=None) -> tuple:
+    """:func:`search` split by repeats over ``n_workers`` processes (:func:`icgo.studies.workers.run_in_workers`);
+    ``progress(done, total)`` sums the workers' iterations (each worker's repeats weighted by their count).
 
     Returns:
         (thetas (S, R, D), curves (S, R, T), evals (S, R, T)) as numpy arrays, repeats in ``cfg.ids()`` order.
@@ -495,12 +498,14 @@ def search_in_workers(rows, G, B, a_true, cfg: StudyConfig, base_key, reference,
     blocks = [b for b in np.array_split(np.asarray(cfg.ids()), n_workers) if b.size]
     payloads = [(rows, G, B, a_true, dataclasses.replace(cfg, repeat_ids=tuple(int(i) for i in b), workers=1),
                  np.asarray(base_key), reference, n_source) for b in blocks]
-    results = workers.run_in_workers(search_block, payloads, [f"repeats {b[0]}-{b[-1]}" for b in blocks])
+    results = workers.run_in_workers(search_block, payloads, [f"repeats {b[0]}-{b[-1]}" for b in blocks],
+                                     progress=progress, weights=[b.size for b in blocks])
     return tuple(np.concatenate([r[i] for r in results], axis=1) for i in range(3))
 
 
-def search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None):
-    """Hidden parameters per (method, repeat): (S, R, D), curves (S, R, T), evals (S, R, T)."""
+def search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None, progress=None):
+    """Hidden parameters per (method, repeat): (S, R, D), curves (S, R, T), evals (S, R, T); ``progress``: see
+    :func:`icgo.optim.base.run_batch`."""
     D = _relm.n_params(cfg.hidden)
     R = prep.key.shape[0]
     low, high = cfg.theta_bounds
@@ -521,7 +526,7 @@ def search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None):
         fitness = wrap_fitness(fitness)
     res = run_batch(get(cfg.optimizer), fitness, bounds, prep.key,
                     cfg.pop_size, cfg.iterations, max_evals=cfg.max_evals,
-                    config=None if configs else cfg.optimizer_config, configs=configs, aux=aux)
+                    config=None if configs else cfg.optimizer_config, configs=configs, aux=aux, progress=progress)
     if configs is None:
         res = jax.tree_util.tree_map(lambda x: x[None], res)
     return res.best_x, res.curve, res.evals_curve
@@ -614,7 +619,7 @@ def run(data: SurveyData, config: StudyConfig, key, *, wrap_fitness=None) -> Stu
 
 
 def run_study(frame: pd.DataFrame, config: StudyConfig | None = None, metadata: dict | None = None, *,
-              wrap_fitness=None, target: pd.DataFrame | None = None) -> StudyResult:
+              wrap_fitness=None, target: pd.DataFrame | None = None, progress=None) -> StudyResult:
     """Run an ICGO-RELM study on a data-contract frame with the key ``PRNGKey(config.seed)``.
 
     Args:
@@ -623,10 +628,13 @@ def run_study(frame: pd.DataFrame, config: StudyConfig | None = None, metadata: 
         config: StudyConfig (defaults if None).
         metadata: the data set's metadata (needed for msa_reference="known").
         wrap_fitness: optional ``f -> f'`` applied to the search's fitness
-            ``f(pop, aux)``, e.g. to report progress from inside the scan
-            (``experiments._relm_job.Progress.wrap``). A wrapped fitness is a new
-            static argument of the runner, so that run compiles afresh.
+            ``f(pop, aux)`` (e.g. to instrument it). A wrapped fitness is a new
+            static argument of the runner, so that run compiles afresh; for progress
+            use ``progress``, which keeps the compiled programs cacheable.
         target: the second instrument's survey (``protocol="transfer"`` only).
+        progress: optional ``progress(done, total)`` called on the host as the search's iterations complete,
+            in this process or summed over its worker processes (:func:`icgo.optim.base.run_batch`); it never
+            enters the compiled programs, so they stay in the compilation cache.
     Returns:
         StudyResult.
     Raises:
@@ -635,7 +643,7 @@ def run_study(frame: pd.DataFrame, config: StudyConfig | None = None, metadata: 
             that cannot determine the MSA parameters.
     """
     cfg = StudyConfig() if config is None else config
-    return _run(frame, cfg, metadata, jax.random.PRNGKey(cfg.seed), wrap_fitness, target)
+    return _run(frame, cfg, metadata, jax.random.PRNGKey(cfg.seed), wrap_fitness, target, progress)
 
 
 def filtered(frame: pd.DataFrame, cfg: StudyConfig):
@@ -645,7 +653,7 @@ def filtered(frame: pd.DataFrame, cfg: StudyConfig):
     return frame[kept], G[kept], B[kept], a[kept], kept
 
 
-def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None) -> StudyResult:
+def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None, progress=None) -> StudyResult:
     if (cfg.protocol == "transfer") != (target is not None):
         raise ValueError("study: protocol 'transfer' needs the second instrument's survey (target) and no other "
                          f"protocol takes one; got protocol {cfg.protocol!r} with"
@@ -671,9 +679,10 @@ def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None)
         if wrap_fitness is not None:
             raise ValueError(f"study: workers={cfg.workers} runs the search in other processes, which a fitness "
                              "wrapper (progress bar) cannot follow; use workers=1 (or null) with it")
-        thetas, curve, evals = search_in_workers(rows, G, B, a_true, cfg, base_key, reference, n_source, n_workers)
+        thetas, curve, evals = search_in_workers(rows, G, B, a_true, cfg, base_key, reference, n_source, n_workers,
+                                                 progress)
     else:
-        thetas, curve, evals = search(cfg, prep, wrap_fitness)
+        thetas, curve, evals = search(cfg, prep, wrap_fitness, progress)
     check_search(np.asarray(curve), cfg.method_names(), [f"{r}" if cfg.protocol not in _splits.FOLD_PROTOCOLS
                                                           else f"{r}, {mem.fold_label[f]}"
                                                           for r, f in zip(mem.repeat, mem.fold)])

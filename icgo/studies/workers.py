@@ -22,6 +22,7 @@ from __future__ import annotations
 import multiprocessing as mp
 import os
 import pickle
+from multiprocessing.connection import wait
 from typing import Any
 
 import numpy as np
@@ -63,8 +64,22 @@ def plan_workers(workers: int | None, n_repeats: int, work: float, cores: int | 
     return max(1, min(n, n_repeats))
 
 
+#: The pipe to the parent inside a worker process (None in the parent): :func:`progress_sink` writes to it.
+_PARENT = None
+
+
+def progress_sink():
+    """Inside a worker: a ``progress(done, total)`` that reports to the parent's :func:`run_in_workers`; else None."""
+    if _PARENT is None:
+        return None
+    conn = _PARENT
+    return lambda done, total: conn.send(("progress", (int(done), int(total))))
+
+
 def _worker(conn, core: int | None, cache_dir: str | None, job, payload: bytes) -> None:
     """A worker's process: one XLA thread on one core, ``job(*payload)``, send the arrays back."""
+    global _PARENT
+    _PARENT = conn
     os.environ["XLA_FLAGS"] = xla_flags(1, os.environ.get("XLA_FLAGS", ""))  # before JAX starts its backend
     if core is not None:
         try:
@@ -84,13 +99,15 @@ def _worker(conn, core: int | None, cache_dir: str | None, job, payload: bytes) 
         conn.close()
 
 
-def run_in_workers(job, payloads: list[tuple], labels: list[str]) -> list[tuple]:
+def run_in_workers(job, payloads: list[tuple], labels: list[str], progress=None, weights=None) -> list[tuple]:
     """``job(*payload)`` for each payload, each in its own spawned process pinned to one core.
 
     Args:
         job: a module-level function (pickled by reference) returning a tuple of arrays.
         payloads: one tuple of arguments per worker (pickled).
         labels: one per worker, naming it in errors (e.g. ``"repeats 0-4"``).
+        progress: optional ``progress(done, total)``: the workers' reports (:func:`progress_sink`) summed,
+            each weighted by ``weights`` (e.g. its number of repeats), as they arrive.
     Returns:
         The jobs' tuples of numpy arrays, in payload order.
     Raises:
@@ -109,19 +126,32 @@ def run_in_workers(job, payloads: list[tuple], labels: list[str]) -> list[tuple]
         p.start()
         child.close()
         procs.append((p, parent, labels[k]))
-    results: list[Any] = []
+    results: list[Any] = [None] * len(procs)
+    weights = [1] * len(procs) if weights is None else list(weights)
+    done = [(0, 0)] * len(procs)
+    waiting = {conn: k for k, (_, conn, _) in enumerate(procs)}
     try:
-        for k, (p, conn, label) in enumerate(procs):
-            try:
-                status, value = conn.recv()
-            except EOFError:  # it died before answering (killed, out of memory)
+        while waiting:
+            for conn in wait(list(waiting)):
+                k = waiting[conn]
+                p, _, label = procs[k]
+                try:
+                    status, value = conn.recv()
+                except EOFError:  # it died before answering (killed, out of memory)
+                    p.join()
+                    raise RuntimeError(f"study worker {k} ({label}) died with exit code {p.exitcode} before "
+                                       f"returning its search") from None
+                if status == "progress":
+                    done[k] = value
+                    if progress is not None and all(t for _, t in done):
+                        progress(sum(d * w for (d, _), w in zip(done, weights)),
+                                 sum(t * w for (_, t), w in zip(done, weights)))
+                    continue
                 p.join()
-                raise RuntimeError(f"study worker {k} ({label}) died with exit code {p.exitcode} before "
-                                   f"returning its search") from None
-            p.join()
-            if status != "ok":
-                raise RuntimeError(f"study worker {k} ({label}): {value}")
-            results.append(value)
+                if status != "ok":
+                    raise RuntimeError(f"study worker {k} ({label}): {value}")
+                results[k] = value
+                del waiting[conn]
     finally:
         for p, conn, _ in procs:
             if p.is_alive():

@@ -16,11 +16,12 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 
-from icgo.core.errors import ModelError
+from icgo.core.errors import DataError, ModelError
 from icgo.maths.metrics import azimuth_metrics
 from icgo.models.format import CORRECTED_B, FittedModel, domain_notices, sensor_domain
 from icgo.physics.frames import angle_diff
 from icgo.physics.qc import QCBands, survey_qc
+from icgo.survey.trajectory import MD_COLUMN, position_change
 
 
 class CorrectedSurvey(NamedTuple):
@@ -34,12 +35,16 @@ class CorrectedSurvey(NamedTuple):
         qc: ``{"raw": counts, "corrected": counts}`` (see :class:`icgo.physics.qc.QCResult`), or None
             without a reference field.
         notices: one line each (training domain, what was not computed and why).
+        trajectory: where the survey has measured depth (``md``), the bottom-hole positions by minimum
+            curvature from the raw and the corrected attitude and the change the correction makes
+            (:func:`icgo.survey.trajectory.position_change`), else None.
     """
 
     table: pd.DataFrame
     metrics: dict | None
     qc: dict | None
     notices: list
+    trajectory: dict | None = None
 
 
 def correct_survey(model: FittedModel, frame: pd.DataFrame, field=None, *, method: str | None = None,
@@ -92,7 +97,28 @@ def correct_survey(model: FittedModel, frame: pd.DataFrame, field=None, *, metho
             metrics["raw"] = _metrics(a_true, out[raw_col].to_numpy(float), err_raw)
     else:
         notices.append("no reference azimuth (azimuth_deg) in the survey: no error metrics, QC only")
-    return CorrectedSurvey(table, metrics, qc, notices)
+    trajectory = None
+    if MD_COLUMN in frame.columns and have_gb and "azimuth_compensated" in out.columns:
+        try:
+            pos, trajectory = _positions(frame, out, G, B)
+            table = pd.concat([table, pos], axis=1)
+        except DataError as e:
+            notices.append(f"no positions: {e}")
+    return CorrectedSurvey(table, metrics, qc, notices, trajectory)
+
+
+def _positions(frame: pd.DataFrame, out: pd.DataFrame, G, B):
+    """:func:`icgo.survey.trajectory.position_change` of a survey: raw attitude from its sensors (or the model's
+    ``azimuth_raw``), corrected from the model's output, the reference where the survey has one."""
+    from icgo.physics.frames import azimuth_from_gv, inclination_from_g
+
+    inc_raw = np.asarray(inclination_from_g(G), float)
+    azi_raw = out["azimuth_raw"].to_numpy(float) if "azimuth_raw" in out.columns else np.asarray(azimuth_from_gv(G, B))
+    inc_cor = out["inclination_compensated"].to_numpy(float) if "inclination_compensated" in out.columns else inc_raw
+    ref = (frame["inclination_deg"].to_numpy(float), frame["azimuth_deg"].to_numpy(float)) if all(
+        c in frame.columns for c in ("inclination_deg", "azimuth_deg")) else (None, None)
+    return position_change(frame[MD_COLUMN].to_numpy(float), inc_raw, azi_raw, inc_cor,
+                           out["azimuth_compensated"].to_numpy(float), *ref)
 
 
 def _metrics(a_true, a_est, err_before) -> dict:
