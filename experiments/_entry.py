@@ -11,13 +11,13 @@ point prints ``error: <line>`` and exits with :data:`EXIT_CONFIG` (2), before an
 
 from __future__ import annotations
 
-import contextlib
 import os
 import sys
 import traceback
 from pathlib import Path
+from typing import NoReturn
 
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from icgo.core.errors import SettingError
 
@@ -191,32 +191,143 @@ def enable_jax_cache(path: str | None) -> None:
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 
-@contextlib.contextmanager
 def staged_results(out: Path, last: str | None = None):
-    """Write a study's files into a shared results folder all at once, or not at all.
+    """A study's files into a shared results folder all at once, or none (:func:`icgo.io.files.staged_results`)."""
+    from icgo.io.files import staged_results as staged
 
-    Yields a fresh staging directory inside ``out`` (same file system). When the
-    block ends normally every staged file is moved into ``out`` with
-    ``os.replace`` (``last``, the study's summary record, moved last); when it
-    raises (Ctrl-C, a full disk, a bug) the staging directory is removed and
-    ``out`` holds exactly what it held before, and a line says so on stderr.
-    Sub-directories are not supported (the studies write flat files).
+    return staged(out, last)
+
+
+EXIT_DATA = 1
+EXIT_INTERRUPTED = 130
+
+
+def exit_status(e: BaseException) -> int:
+    """2 for a bad setting (:class:`~icgo.core.errors.SettingError`, or a plain ``ValueError`` from a config check),
+    1 for any other :class:`~icgo.core.errors.IcgoError` (bad data, a bad model file, an output that cannot be
+    written)."""
+    from icgo.core.errors import IcgoError
+
+    return EXIT_CONFIG if isinstance(e, SettingError) or not isinstance(e, IcgoError) else EXIT_DATA
+
+
+def fail_line(e: BaseException) -> NoReturn:
+    """Print ``error: <line>`` (one per problem of a SettingsError) and exit with :func:`exit_status`."""
+    for line in getattr(e, "problems", None) or (one_line(e),):
+        print(f"error: {line}", file=sys.stderr)
+    raise SystemExit(exit_status(e))
+
+
+def one_line_errors(task):
+    """Decorator of a Hydra task function: a user's error becomes one line and an exit status, never a traceback.
+
+    ``ValueError`` (every :class:`~icgo.core.errors.IcgoError`) -> ``error: <line>``, exit 2 or 1
+    (:func:`exit_status`); an ``OSError`` of the disk (full, read-only, permissions) -> one line naming the
+    file, exit 1; ``MemoryError`` -> one line, exit 1. Hydra would print any of them with a traceback.
     """
-    import shutil
-    import tempfile
+    import functools
 
-    out.mkdir(parents=True, exist_ok=True)
-    stage = Path(tempfile.mkdtemp(prefix=".staging-", dir=out))
-    try:
+    @functools.wraps(task)
+    def wrapper(cfg):
+        import logging
+
+        # JAX's backend probe ("Unable to initialize backend 'tpu'") is noise on a terminal, not a second line.
+        logging.getLogger("jax._src.xla_bridge").setLevel(logging.WARNING)
         try:
-            yield stage
-        except BaseException:
-            print(f"[results] stopped before the files were complete: nothing in {out} was changed", file=sys.stderr)
-            raise
-        for f in sorted(stage.iterdir(), key=lambda f: f.name == last):
-            os.replace(f, out / f.name)
-    finally:
-        shutil.rmtree(stage, ignore_errors=True)
+            return task(cfg)
+        except ValueError as e:
+            fail_line(e)
+        except OSError as e:
+            where = f"{e.filename}: " if getattr(e, "filename", None) else ""
+            print(f"error: {where}{e.strerror or type(e).__name__} (nothing was left half-written: outputs are "
+                  f"staged)", file=sys.stderr)
+            raise SystemExit(EXIT_DATA) from None
+        except MemoryError:
+            print("error: out of memory; give a smaller input (docs/data.md lists the limits)", file=sys.stderr)
+            raise SystemExit(EXIT_DATA) from None
+
+    return wrapper
+
+
+def guarded(main) -> None:
+    """Run an entry point's ``__main__`` body: Ctrl-C or SIGTERM is one line and exit status 130.
+
+    Outputs are staged (:mod:`icgo.io.files`), so an interrupted command leaves every output
+    directory as it was; the line says so, naming the directory when the interruption came while
+    its files were being written.
+    """
+    import signal
+
+    def _terminate(signum, frame):
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, _terminate)
+    try:
+        main()
+    except KeyboardInterrupt as e:
+        where = getattr(e, "icgo_unchanged", None)
+        print("interrupted: " + (f"nothing in {where} was changed" if where else
+                                 "stopped; outputs are written all at once, so none was left half-written"),
+              file=sys.stderr)
+        raise SystemExit(EXIT_INTERRUPTED) from None
+
+
+def bool_setting(cfg: DictConfig, key: str) -> bool:
+    """The value of a true/false setting; anything else (``maybe``, ``'false'``, ``0``, null) is a SettingError."""
+    v = OmegaConf.select(cfg, key)
+    if not isinstance(v, bool):
+        raise SettingError(f"{key}={v!r}: must be true or false")
+    return v
+
+
+def hydra_keep() -> tuple[str, ...]:
+    """Names Hydra writes into the run directory of this job before the task runs (its job log), which an
+    output directory leaves alone."""
+    from hydra.core.hydra_config import HydraConfig
+
+    return (f"{HydraConfig.get().job.name}.log",)
+
+
+def hydra_files(cfg: DictConfig) -> dict[str, str]:
+    """Hydra's ``.hydra/`` record of this job (``config.yaml`` unresolved, ``hydra.yaml``, ``overrides.yaml``).
+
+    The configs set ``hydra.output_subdir: null``, so Hydra does not write it into the run directory
+    before the task runs (it would rewrite the record of the run a refused command was refused to
+    replace); the entry point stages it with its other files instead.
+    """
+    from hydra.core.hydra_config import HydraConfig
+
+    hc = HydraConfig.get()
+    return {"config.yaml": OmegaConf.to_yaml(cfg), "hydra.yaml": OmegaConf.to_yaml({"hydra": hc}),
+            "overrides.yaml": OmegaConf.to_yaml(hc.overrides.task)}
+
+
+def write_hydra_record(stage: Path, cfg: DictConfig) -> None:
+    """Write :func:`hydra_files` into ``stage/.hydra`` (nothing outside a Hydra job, e.g. a library call)."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if not HydraConfig.initialized():
+        return
+    d = stage / ".hydra"
+    d.mkdir(exist_ok=True)
+    for name, text in hydra_files(cfg).items():
+        (d / name).write_text(text)
+
+
+def run_output(cfg: DictConfig, out: Path | None = None, writer: str = "", **kw):
+    """The :class:`icgo.io.files.Output` of a Hydra entry point: ``out`` (default the Hydra run directory),
+    ``overwrite`` from the config, Hydra's job log left alone; checked (one SettingError line) before any
+    computation."""
+    from hydra.core.hydra_config import HydraConfig
+
+    from icgo.io.files import Output
+
+    if out is None:
+        out, setting = Path(HydraConfig.get().runtime.output_dir), "hydra.run.dir"
+    else:
+        setting = "out"
+    return Output(out, setting=setting, overwrite=bool_setting(cfg, "overwrite"), keep=hydra_keep(),
+                  writer=writer, **kw).check()
 
 
 def study_main(cfg: DictConfig, build_config, run) -> None:

@@ -16,11 +16,57 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 
-from icgo.core.errors import ModelError
+from icgo.core.errors import DataError, ModelError
 from icgo.maths.metrics import azimuth_metrics
 from icgo.models.format import CORRECTED_B, FittedModel, domain_notices, sensor_domain
 from icgo.physics.frames import angle_diff
 from icgo.physics.qc import QCBands, survey_qc
+
+
+#: Columns a model's ``apply`` writes (every kind), besides ``station`` and the gyro tools' own ``azimuth_raw_deg``,
+#: which are inputs too.
+MODEL_OUTPUT_COLUMNS = (
+    "inclination_compensated", "toolface_compensated", "azimuth_raw", "azimuth_msa", "predicted_error",
+    "azimuth_compensated", "azimuth_spread_deg", "azimuth_interval_deg", *CORRECTED_B, "b_total_nT", "gx_corrected",
+    "gy_corrected", "gz_corrected", "dip_compensated_deg", "inclination_raw", "toolface_raw")
+#: The QC columns :func:`icgo.physics.qc.survey_qc` writes (prefixed ``raw_`` and ``corrected_`` here).
+QC_COLUMNS = ("g_total_g", "dg_g", "b_total_nT", "db_nT", "dip_deg", "ddip_deg", "qc_g", "qc_b", "qc_dip", "qc_pass")
+#: Every column :func:`correct_survey` adds to a survey.
+OUTPUT_COLUMNS = frozenset(MODEL_OUTPUT_COLUMNS + tuple(p + c for p in ("raw_", "corrected_") for c in QC_COLUMNS)
+                           + ("error_compensated",))
+
+
+def output_columns_in(columns) -> list[str]:
+    """The columns of a survey that :func:`correct_survey` writes: a survey holding any is the output of an
+    earlier correction, and correcting it again would mix two models' columns (refused)."""
+    return [c for c in columns if c in OUTPUT_COLUMNS]
+
+
+#: A corrected field whose spread over the stations of one survey exceeds the raw field's by more than these
+#: (|B| relative, dip deg) is not one earth field: the model does not belong to this tool (another device's
+#: calibration, a tool whose magnetic state changed). The raw spread of a real survey includes the errors the
+#: model removes, so a model that fits makes the spread smaller, never larger by this much.
+SPREAD_MARGIN = {"b_rel": 0.02, "dip_deg": 1.0}
+
+
+def consistency_notice(G, B_raw, B_corr) -> str | None:
+    """One line when the corrected field varies more over the survey's stations than the raw one (see
+    :data:`SPREAD_MARGIN`), else None. G (N, 3) g, fields (N, 3) nT."""
+    from icgo.physics.qc import measured_dip_deg
+
+    if len(G) < 3:
+        return None
+
+    def spread(Bv):
+        bn = np.linalg.norm(Bv, axis=1)
+        return float(np.std(bn) / max(np.mean(bn), 1e-300)), float(np.std(measured_dip_deg(G, Bv)))
+
+    (b0, d0), (b1, d1) = spread(B_raw), spread(B_corr)
+    if b1 > b0 + SPREAD_MARGIN["b_rel"] or d1 > d0 + SPREAD_MARGIN["dip_deg"]:
+        return (f"the corrected field is less consistent than the raw one over the survey's stations (|B| spread "
+                f"{100 * b0:.2g} % -> {100 * b1:.2g} %, dip spread {d0:.3g} -> {d1:.3g} deg): the model may belong "
+                f"to another tool or device; check it before using the corrected azimuths")
+    return None
 
 
 class CorrectedSurvey(NamedTuple):
@@ -58,15 +104,27 @@ def correct_survey(model: FittedModel, frame: pd.DataFrame, field=None, *, metho
     """
     if method is not None and not hasattr(model, "methods"):
         raise ModelError(f"method={method!r}: a {model.KIND} model holds one method; drop the method setting")
+    held = output_columns_in(frame.columns)
+    if held:
+        raise DataError(f"the survey already holds the output columns of a correction ({', '.join(held[:4])}"
+                        f"{', ...' if len(held) > 4 else ''}); correct the original survey instead")
     out = model.apply(frame, method=method) if method is not None else model.apply(frame)
+    _check_output(out, model)
     table = pd.concat([frame.reset_index(drop=True),
                        out.drop(columns=[c for c in out.columns if c in frame.columns])], axis=1)
     notices = []
     have_gb = all(c in frame.columns for c in ("gx", "gy", "gz", "bx", "by", "bz"))
+    survey_domain = {k: [float(frame[k].min()), float(frame[k].max())] for k in model.domain
+                     if k in frame.columns and pd.api.types.is_numeric_dtype(frame[k]) and len(frame)}
     if have_gb:
         G = frame[["gx", "gy", "gz"]].to_numpy(float)
         B = frame[["bx", "by", "bz"]].to_numpy(float)
-        notices += [f"outside the training domain: {n}" for n in domain_notices(model.domain, sensor_domain(G, B))]
+        survey_domain.update(sensor_domain(G, B))
+        if all(c in out.columns for c in CORRECTED_B):
+            line = consistency_notice(G, B, out[list(CORRECTED_B)].to_numpy(float))
+            if line:
+                notices.append(line)
+    notices += [f"outside the training domain: {n}" for n in domain_notices(model.domain, survey_domain)]
     qc = None
     if field is None or not have_gb:
         notices.append("no reference field in the survey's metadata: no QC (give total_field_nT, dip_deg, "
@@ -93,6 +151,17 @@ def correct_survey(model: FittedModel, frame: pd.DataFrame, field=None, *, metho
     else:
         notices.append("no reference azimuth (azimuth_deg) in the survey: no error metrics, QC only")
     return CorrectedSurvey(table, metrics, qc, notices)
+
+
+def _check_output(out: pd.DataFrame, model: FittedModel) -> None:
+    """ModelError when a model gives NaN or inf for a survey with finite inputs (its parameters overflow)."""
+    # the conformal interval is NaN where no training row was out of bag: not a failure
+    num = out.select_dtypes(include=[np.number]).drop(columns=["azimuth_interval_deg"], errors="ignore")
+    bad = ~np.isfinite(num.to_numpy(float))
+    if bad.any():
+        r, c = np.argwhere(bad)[0]
+        raise ModelError(f"the {model.KIND} model gives NaN or inf for {int(bad.any(axis=1).sum())} of {len(out)} "
+                         f"stations (first: row {r}, {num.columns[c]}); its parameters do not fit this survey")
 
 
 def _metrics(a_true, a_est, err_before) -> dict:
