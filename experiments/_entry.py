@@ -202,74 +202,76 @@ EXIT_DATA = 1
 EXIT_INTERRUPTED = 130
 
 
-def exit_status(e: BaseException) -> int:
-    """2 for a bad setting (:class:`~icgo.core.errors.SettingError`, or a plain ``ValueError`` from a config check),
-    1 for any other :class:`~icgo.core.errors.IcgoError` (bad data, a bad model file, an output that cannot be
-    written)."""
-    from icgo.core.errors import IcgoError
-
-    return EXIT_CONFIG if isinstance(e, SettingError) or not isinstance(e, IcgoError) else EXIT_DATA
-
-
 def fail_line(e: BaseException) -> NoReturn:
-    """Print ``error: <line>`` (one per problem of a SettingsError) and exit with :func:`exit_status`."""
-    for line in getattr(e, "problems", None) or (one_line(e),):
-        print(f"error: {line}", file=sys.stderr)
-    raise SystemExit(exit_status(e))
+    """Print ``error: <line>`` (one per problem of a SettingsError) and exit 2 for a bad setting, 1 for other
+    user errors (:func:`icgo.core.settings.error_status`)."""
+    from icgo.core.settings import error_status
+
+    raise SystemExit(error_status(e) or EXIT_CONFIG)
 
 
 def one_line_errors(task):
     """Decorator of a Hydra task function: a user's error becomes one line and an exit status, never a traceback.
 
-    ``ValueError`` (every :class:`~icgo.core.errors.IcgoError`) -> ``error: <line>``, exit 2 or 1
-    (:func:`exit_status`); an ``OSError`` of the disk (full, read-only, permissions) -> one line naming the
-    file, exit 1; ``MemoryError`` -> one line, exit 1. Hydra would print any of them with a traceback.
+    ``ValueError`` (every :class:`~icgo.core.errors.IcgoError`), a disk's ``OSError`` and ``MemoryError``
+    are printed by :func:`icgo.core.settings.error_status` (exit 2 or 1); Hydra would print each with a
+    traceback. Numerical ``RuntimeWarning`` lines are not printed (a result that matters is checked and
+    raised as an error).
     """
     import functools
 
     @functools.wraps(task)
     def wrapper(cfg):
         import logging
+        import warnings
+
+        from icgo.core.settings import error_status
 
         # JAX's backend probe ("Unable to initialize backend 'tpu'") is noise on a terminal, not a second line.
         logging.getLogger("jax._src.xla_bridge").setLevel(logging.WARNING)
+        warnings.simplefilter("ignore", RuntimeWarning)
         try:
             return task(cfg)
-        except ValueError as e:
-            fail_line(e)
-        except OSError as e:
-            where = f"{e.filename}: " if getattr(e, "filename", None) else ""
-            print(f"error: {where}{e.strerror or type(e).__name__} (nothing was left half-written: outputs are "
-                  f"staged)", file=sys.stderr)
-            raise SystemExit(EXIT_DATA) from None
-        except MemoryError:
-            print("error: out of memory; give a smaller input (docs/data.md lists the limits)", file=sys.stderr)
-            raise SystemExit(EXIT_DATA) from None
+        except (ValueError, OSError, MemoryError) as e:
+            rc = error_status(e)
+            if rc is None:
+                raise
+            raise SystemExit(rc) from None
 
     return wrapper
 
 
 def guarded(main) -> None:
-    """Run an entry point's ``__main__`` body: Ctrl-C or SIGTERM is one line and exit status 130.
+    """Run an entry point's ``__main__`` body (:func:`icgo.core.settings.run_cli`): Ctrl-C or SIGTERM is one
+    line and exit status 130; outputs are staged (:mod:`icgo.io.files`), so an interrupted command leaves
+    every output directory as it was."""
+    from icgo.core.settings import run_cli
 
-    Outputs are staged (:mod:`icgo.io.files`), so an interrupted command leaves every output
-    directory as it was; the line says so, naming the directory when the interruption came while
-    its files were being written.
+    rc = run_cli(main)
+    if rc:
+        raise SystemExit(rc)
+
+
+#: The repository's shared results folder: commands regenerate their own files in it (and leave the others).
+RESULTS_DIR = CONF_DIR.parent / "results"
+
+
+def results_output(out, *, overwrite: bool = False, writer: str = ""):
+    """The :class:`icgo.io.files.Output` of an argparse command's ``--out``, checked (one SettingError line).
+
+    The repository's ``results/`` (:data:`RESULTS_DIR`) is a shared folder: the command's files replace their
+    namesakes, the others stay. Any other directory is the command's own: refused when it already holds
+    files, unless ``--overwrite``, which replaces its content whole.
     """
-    import signal
+    from icgo.io.files import Output
 
-    def _terminate(signum, frame):
-        raise KeyboardInterrupt
-
-    signal.signal(signal.SIGTERM, _terminate)
+    p = Path(out).expanduser()
     try:
-        main()
-    except KeyboardInterrupt as e:
-        where = getattr(e, "icgo_unchanged", None)
-        print("interrupted: " + (f"nothing in {where} was changed" if where else
-                                 "stopped; outputs are written all at once, so none was left half-written"),
-              file=sys.stderr)
-        raise SystemExit(EXIT_INTERRUPTED) from None
+        shared = p.resolve() == RESULTS_DIR.resolve()
+    except (OSError, RuntimeError):
+        shared = False
+    return Output(p, setting="--out", overwrite=overwrite, shared=shared, writer=writer,
+                  overwrite_hint="--overwrite").check()
 
 
 def bool_setting(cfg: DictConfig, key: str) -> bool:

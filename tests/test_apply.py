@@ -103,7 +103,7 @@ def test_bad_model_files_are_one_line_errors(setup, tmp_path):
 
 
 def test_cli_survey_lacking_sensor_columns_is_one_line(setup, tmp_path):
-    """A survey without bz: one line on stderr, exit 2, nothing written (run in a fresh process)."""
+    """A survey without bz: one line on stderr, exit 1 (bad data), nothing written (run in a fresh process)."""
     _, _, path, survey = setup
     frame = pd.read_csv(survey).drop(columns=["bz"])
     bad = tmp_path / "nobz.csv"
@@ -112,5 +112,5 @@ def test_cli_survey_lacking_sensor_columns_is_one_line(setup, tmp_path):
                         f"out={tmp_path / 'o'}"], capture_output=True, text=True, timeout=300,
                        env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"}, cwd=tmp_path)
     lines = [x for x in p.stderr.strip().splitlines() if "xla_bridge" not in x and "libtpu" not in x]
-    assert p.returncode == 2 and len(lines) == 1 and lines[0].startswith("error: ") and "bz" in lines[0], p.stderr
+    assert p.returncode == 1 and len(lines) == 1 and lines[0].startswith("error: ") and "bz" in lines[0], p.stderr
     assert not (tmp_path / "o").exists()

@@ -3,8 +3,11 @@ and the mapping <-> dataclass conversions every entry point uses."""
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
+import errno
 import math
+import sys
 
 import numpy as np
 
@@ -66,4 +69,88 @@ def config_to_mapping(config) -> dict:
     return plain(config)
 
 
-__all__ = ["need", "is_int", "is_real", "config_from_mapping", "config_to_mapping", "SettingError", "SettingsError"]
+__all__ = ["need", "is_int", "is_real", "config_from_mapping", "config_to_mapping", "SettingError", "SettingsError",
+           "ArgumentParser", "interrupted", "error_status", "run_cli"]
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """``argparse.ArgumentParser`` whose usage errors are one line (``error: ...; see --help``) and exit 2.
+
+    The standard parser prints its usage block before the error; a command-line front door of icgo
+    says what is wrong in one line, like its config errors.
+    """
+
+    def error(self, message: str):  # noqa: D401  (argparse's hook)
+        print(f"error: {self.prog}: {message}; see {self.prog} --help", file=sys.stderr)
+        raise SystemExit(2)
+
+
+#: Errors of the disk or the place written to (full, read-only, permissions): one line, not a traceback.
+DISK_ERRNOS = frozenset({errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM, errno.EDQUOT, errno.EFBIG, errno.EIO,
+                         errno.ENOTDIR, errno.EISDIR, errno.ENOENT, errno.EEXIST, errno.ENAMETOOLONG, errno.ELOOP})
+
+
+def error_status(e: BaseException) -> int | None:
+    """Print the one line of a user's error and return its exit status, or None for anything else (a bug).
+
+    A bad setting (:class:`~icgo.core.errors.SettingError`, or a ``ValueError`` a config check raised)
+    exits 2, one line per problem of a :class:`~icgo.core.errors.SettingsError`; any other
+    :class:`~icgo.core.errors.IcgoError` (bad data, a bad model file, an output that could not be
+    written) exits 1; an ``OSError`` of the disk (:data:`DISK_ERRNOS`) and ``MemoryError`` exit 1.
+    """
+    from icgo.core.errors import IcgoError
+
+    if isinstance(e, ValueError):
+        for line in getattr(e, "problems", None) or (_first_line(e),):
+            print(f"error: {line}", file=sys.stderr)
+        return 2 if isinstance(e, SettingError) or not isinstance(e, IcgoError) else 1
+    if isinstance(e, OSError) and e.errno in DISK_ERRNOS:
+        where = f"{e.filename}: " if getattr(e, "filename", None) else ""
+        print(f"error: {where}{e.strerror or type(e).__name__}", file=sys.stderr)
+        return 1
+    if isinstance(e, MemoryError):
+        print("error: out of memory; give a smaller input (docs/data.md lists the limits)", file=sys.stderr)
+        return 1
+    return None
+
+
+def _first_line(e: BaseException) -> str:
+    text = str(e).strip()
+    return text.splitlines()[0] if text else type(e).__name__
+
+
+def run_cli(main, *args) -> int:
+    """Run a command-line front door: its user errors one line each (:func:`error_status`), Ctrl-C or SIGTERM
+    one line and exit status 130 (:func:`interrupted`); returns the exit status (``main``'s, 0 for None)."""
+    import signal
+
+    def _terminate(signum, frame):
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, _terminate)
+    try:
+        rc = main(*args)
+    except KeyboardInterrupt as e:
+        return interrupted(getattr(e, "icgo_unchanged", None))
+    except BrokenPipeError:  # the reader of stdout stopped (``| head``): stop quietly, as a SIGPIPE would
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
+    except (ValueError, OSError, MemoryError) as e:
+        rc = error_status(e)
+        if rc is None:
+            raise
+    return int(rc or 0)
+
+
+def interrupted(where: str | None = None) -> int:
+    """Print the one line of a command stopped by Ctrl-C and return its exit status (130).
+
+    Args:
+        where: the output directory left unchanged, if the interruption came while writing into it.
+    """
+    print("interrupted: " + (f"nothing in {where} was changed" if where else
+                             "stopped; outputs are written all at once, so none was left half-written"),
+          file=sys.stderr)
+    return 130

@@ -62,7 +62,7 @@ def _kind(mode: int) -> str:
         return "a socket"
     if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
         return "a device"
-    return "not a regular file"
+    return "a special file"
 
 
 def read_bytes_bounded(path, limit: int, what: str) -> bytes:
@@ -83,13 +83,13 @@ def read_bytes_bounded(path, limit: int, what: str) -> bytes:
     except FileNotFoundError:
         raise DataError(f"{src}: file not found") from None
     except IsADirectoryError:
-        raise DataError(f"{src}: is a directory; give {what}") from None
+        raise DataError(f"{src}: is a directory, not a regular file; give {what}") from None
     except OSError as e:
         raise DataError(f"{src}: cannot open ({e.strerror or type(e).__name__})") from None
     try:
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
-            raise DataError(f"{src}: is {_kind(st.st_mode)}, not a file; give {what}")
+            raise DataError(f"{src}: is {_kind(st.st_mode)}, not a regular file; give {what}")
         if st.st_size > limit:
             raise DataError(f"{src}: {st.st_size / MiB:.1f} MiB, over the {limit / MiB:g} MiB limit for {what} "
                             f"(docs/data.md)")
@@ -116,7 +116,7 @@ def read_text_bounded(path, limit: int, what: str, encoding: str = "utf-8") -> s
     try:
         return data.decode("utf-8-sig" if encoding.lower().replace("_", "-") == "utf-8" else encoding)
     except UnicodeDecodeError as e:
-        raise DataError(f"{path}: not {encoding} text ({e.reason} at byte {e.start}); give {what}") from None
+        raise DataError(f"{path}: not {encoding.upper()} text ({e.reason} at byte {e.start}); give {what}") from None
 
 
 # ------------------------------------------------------------------ writing
@@ -181,9 +181,10 @@ class Output:
         return (self.path / MANIFEST).is_file() or (self.path / RUN_RECORD).is_file()
 
     def check(self) -> "Output":
-        """Refuse a place that cannot hold the output (one SettingError line) and create the directory.
+        """Refuse a place that cannot hold the output (one SettingError line); returns self.
 
-        Called before any computation, so a bad ``out=`` costs nothing.
+        Called before any computation, so a bad ``out=`` costs nothing. The directory is created by
+        :meth:`staged`, when the files are written.
         """
         p, name = self.path, f"{self.setting} {str(self.path)!r}"
         for parent in [p, *p.parents]:
@@ -201,13 +202,13 @@ class Output:
             if not self.is_icgo_output():
                 raise SettingError(f"{name} holds files that no icgo command wrote ({shown}; no {MANIFEST}); "
                                    f"{self.hint} replaces only an icgo output directory: choose a new directory")
-        try:
-            p.mkdir(parents=True, exist_ok=True)
-        except OSError as e:
-            raise SettingError(f"{name}: cannot create the directory ({_why(e)})") from None
-        if not os.access(p, os.W_OK | os.X_OK):
-            raise SettingError(f"{name}: the directory is not writable (permission denied or a read-only "
-                               f"file system)")
+        # created only when the files are written (a refused or failed command leaves no empty directory);
+        # here the nearest existing folder must let it be created and written
+        base = next(q for q in [p, *p.parents] if q.exists())
+        if not os.access(base, os.W_OK | os.X_OK):
+            raise SettingError(f"{name}: " + ("the directory is not writable" if base == p else
+                                              f"cannot create it ({str(base)!r} is not writable)")
+                               + " (permission denied or a read-only file system)")
         return self
 
     # -------------------------------------------------------------- writing
@@ -223,6 +224,7 @@ class Output:
         """
         self.check()
         try:
+            self.path.mkdir(parents=True, exist_ok=True)
             stage = Path(tempfile.mkdtemp(prefix=_STAGING, dir=self.path))
         except OSError as e:
             raise OutputError(f"{self.path}: cannot write ({_why(e)}); nothing was written") from None
@@ -283,6 +285,30 @@ class Output:
             for e in self.path.iterdir():
                 if _internal(e.name) and e.name != stage.name:
                     shutil.rmtree(e, ignore_errors=True) if e.is_dir() else e.unlink(missing_ok=True)
+
+
+def check_output_file(path, *, overwrite: bool = False, setting: str = "--out",
+                      overwrite_hint: str = "--overwrite") -> Path:
+    """Check, before any computation, that a single output file can be written: its directory exists and is
+    writable, the path is not a directory, and an existing file is replaced only with ``overwrite``.
+    The file itself is then written atomically (:func:`icgo.io.recording.atomic_write_texts`).
+
+    Raises:
+        SettingError: one line naming ``setting`` and what is wrong.
+    """
+    p = Path(path).expanduser()
+    name = f"{setting} {str(p)!r}"
+    if p.is_dir():
+        raise SettingError(f"{name} is a directory; give a file name")
+    if not p.parent.is_dir():
+        raise SettingError(f"{name}: the directory {str(p.parent)!r} does not exist (or is a file)")
+    if p.exists() and not overwrite:
+        raise SettingError(f"{name} already exists; choose another name, or pass {overwrite_hint} to replace it")
+    if p.exists() and not p.is_file():
+        raise SettingError(f"{name} is not a regular file (a pipe or device)")
+    if not os.access(p.parent, os.W_OK | os.X_OK):
+        raise SettingError(f"{name}: its directory is not writable")
+    return p
 
 
 def json_text(obj) -> str:

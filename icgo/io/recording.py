@@ -43,8 +43,14 @@ import numpy as np
 import pandas as pd
 
 from icgo.core.errors import DataError
+from icgo.io.files import read_text_bounded
 
 # ----------------------------------------------------------------- the schema
+#: Largest contract CSV read (bytes; docs/data.md): the reader's peak memory is about 13 times the file
+#: (1.5 GB for a 1 M-row, 120 MB CSV).
+MAX_CSV_BYTES = 256 << 20
+#: Largest metadata file read (bytes).
+MAX_META_BYTES = 1 << 20
 SENSOR_COLUMNS = ("gx", "gy", "gz", "bx", "by", "bz")
 REQUIRED_COLUMNS = ("station",) + SENSOR_COLUMNS
 REFERENCE_COLUMNS = ("azimuth_deg", "inclination_deg")
@@ -525,16 +531,7 @@ def read_recording(csv_path, meta_path=None, *, require_meta: bool = True, requi
     """
     csv_path = Path(csv_path)
     src = str(csv_path)
-    if csv_path.exists() and not csv_path.is_file():  # a FIFO would block, /dev/zero never ends
-        fail(src, "not a regular file (a directory, pipe or device); give a CSV file")
-    try:
-        text = csv_path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        fail(src, "file not found")
-    except UnicodeDecodeError as e:
-        fail(src, f"not UTF-8 text ({e.reason} at byte {e.start})")
-    except OSError as e:
-        fail(src, f"cannot read ({e.strerror})")
+    text = read_text_bounded(csv_path, MAX_CSV_BYTES, "a contract CSV")  # a FIFO, a device, a huge file: refused
     if text.strip() == "":
         fail(src, "empty file (no header, no rows)")
     notices: list[str] = []
@@ -558,10 +555,7 @@ def read_recording(csv_path, meta_path=None, *, require_meta: bool = True, requi
         notices.append(f"{msrc}: no metadata file; read as {{}}")
         meta = {}
     else:
-        try:
-            mtext = mpath.read_text(encoding="utf-8-sig")
-        except (OSError, UnicodeDecodeError) as e:
-            fail(msrc, f"cannot read metadata ({e})")
+        mtext = read_text_bounded(mpath, MAX_META_BYTES, "a metadata JSON")
         if mtext.strip() == "":
             fail(msrc, "empty metadata file (write {} if nothing is known)")
         try:
