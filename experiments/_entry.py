@@ -204,7 +204,7 @@ EXIT_INTERRUPTED = 130
 
 def fail_line(e: BaseException) -> NoReturn:
     """Print ``error: <line>`` (one per problem of a SettingsError) and exit 2 for a bad setting, 1 for other
-    user errors (:func:`icgo.core.settings.error_status`)."""
+    errors of the input (:func:`icgo.core.settings.error_status`)."""
     from icgo.core.settings import error_status
 
     raise SystemExit(error_status(e) or EXIT_CONFIG)

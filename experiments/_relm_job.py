@@ -25,8 +25,7 @@ def _need(cond: bool, msg: str) -> None:
 
 def _need_file(p: Path, key: str) -> None:
     _need(p.exists(), f"{key} {str(p)!r}: file not found")
-    _need(not p.is_dir(), f"{key} {str(p)!r}: is a directory; give a CSV file")
-    _need(p.is_file(), f"{key} {str(p)!r}: not a regular file (a pipe or device); give a CSV file")
+    _need(p.is_file(), f"{key} {str(p)!r}: not a regular file (a directory, pipe or device); give a CSV file")
 
 
 def _is_int(x) -> bool:

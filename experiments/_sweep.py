@@ -81,7 +81,7 @@ def job_status(job_dir: Path, expected: dict | None = None) -> tuple[str, str]:
         if expected is None or J.stored_hash(job_dir, run) == J.config_hash(expected):
             return "ok", ""
         old = J.stored_config(job_dir)
-        diff = J.config_difference(old, expected) if old else "its config.yaml is unreadable"
+        diff = J.config_difference(old, expected) if old else "it records no readable config"
         return "refused", (f"the directory holds a finished run of another configuration ({diff}); left as it was: "
                            f"overwrite=true redoes the job, or choose another hydra.sweep.dir")
     marker = job_dir / C.FAILED

@@ -66,10 +66,15 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
             (outdir / E.FAILED).unlink(missing_ok=True)
             return previous
         old = C.stored_config(outdir)
-        diff = C.config_difference(old, OmegaConf.to_container(cfg, resolve=True)) if old else "config.yaml unreadable"
+        diff = C.config_difference(old, OmegaConf.to_container(cfg, resolve=True)) if old else \
+            "it records no readable config"
         log.error("refused: %s holds a finished run of another configuration (%s); it is left as it was "
                   "(overwrite=true redoes the job, or choose another hydra.sweep.dir)", outdir, diff)
         return None
+    if previous is not None and not multirun and cfg.overwrite is not True:
+        print(f"error: {outdir} already holds a complete run; choose another hydra.run.dir or pass overwrite=true "
+              f"(the old run is then replaced whole)", file=sys.stderr)
+        raise SystemExit(EXIT_CONFIG)
     try:
         C.check_config(cfg)
         C.run_output(outdir, overwrite=E.bool_setting(cfg, "overwrite"))

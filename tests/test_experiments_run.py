@@ -364,7 +364,7 @@ def test_a_writer_failing_midway_leaves_the_previous_run_intact(small_csv, tmp_p
     with pytest.raises(SystemExit):
         run_job(_job_cfg(base + ["overwrite=true", "split.seed=5"]), tmp_path)
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "No space left" in err[0] and "previous run there is unchanged" in err[0]
+    assert len(err) == 1 and "No space left" in err[0] and "nothing in it was changed" in err[0]
     after = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()}
     assert after == before and not (tmp_path / ".staging").exists()
 

@@ -51,6 +51,8 @@ def config_from_mapping(cls, values: dict, where: str = "config"):
         default = names[k].default
         if dataclasses.is_dataclass(default) and isinstance(v, dict):
             v = config_from_mapping(type(default), v, f"{where}.{k}")
+        elif str(names[k].type) == "bool" and not isinstance(v, bool):  # "maybe", "false", 0: never read as a bool
+            raise SettingError(f"{where}: {k}={v!r}: must be true or false")
         kwargs[k] = v
     return cls(**kwargs)
 
@@ -93,17 +95,15 @@ DISK_ERRNOS = frozenset({errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM, e
 def error_status(e: BaseException) -> int | None:
     """Print the one line of a user's error and return its exit status, or None for anything else (a bug).
 
-    A bad setting (:class:`~icgo.core.errors.SettingError`, or a ``ValueError`` a config check raised)
-    exits 2, one line per problem of a :class:`~icgo.core.errors.SettingsError`; any other
-    :class:`~icgo.core.errors.IcgoError` (bad data, a bad model file, an output that could not be
-    written) exits 1; an ``OSError`` of the disk (:data:`DISK_ERRNOS`) and ``MemoryError`` exit 1.
+    A bad setting (:class:`~icgo.core.errors.SettingError`) exits 2, one line per problem of a
+    :class:`~icgo.core.errors.SettingsError`; any other ``ValueError`` (bad data, a bad model file, an
+    output that could not be written, a fit the data cannot support) exits 1; so do an ``OSError`` of
+    the disk (:data:`DISK_ERRNOS`) and ``MemoryError``.
     """
-    from icgo.core.errors import IcgoError
-
     if isinstance(e, ValueError):
         for line in getattr(e, "problems", None) or (_first_line(e),):
             print(f"error: {line}", file=sys.stderr)
-        return 2 if isinstance(e, SettingError) or not isinstance(e, IcgoError) else 1
+        return 2 if isinstance(e, SettingError) else 1
     if isinstance(e, OSError) and e.errno in DISK_ERRNOS:
         where = f"{e.filename}: " if getattr(e, "filename", None) else ""
         print(f"error: {where}{e.strerror or type(e).__name__}", file=sys.stderr)
