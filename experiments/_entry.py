@@ -68,6 +68,9 @@ def check_overrides(args: list[str], groups=STUDY_GROUPS, conf_dir: Path = CONF_
 
 #: Hydra's run-mode flags that take no value (moved in front of the overrides by :func:`preflight`).
 MULTIRUN_FLAGS = ("-m", "--multirun")
+#: Hydra's flags whose next argument is their value, not an override.
+VALUE_FLAGS = ("--config-path", "-cp", "--config-name", "-cn", "--config-dir", "-cd", "--experimental-rerun",
+               "--package", "-p", "--info", "-i")
 #: Overrides naming a directory Hydra creates before the task function runs.
 HYDRA_DIR_KEYS = ("hydra.run.dir", "hydra.sweep.dir")
 
@@ -105,10 +108,16 @@ def check_plain_overrides(args: list[str], config_name: str, conf_dir: Path = CO
     from hydra.core.override_parser.overrides_parser import OverridesParser
     from hydra.core.override_parser.types import OverrideType
 
-    try:
-        overrides = OverridesParser.create().parse_overrides([a for a in args if not a.startswith("-")])
-    except Exception:  # Hydra's grammar: let Hydra print its own message for a malformed override
-        return None
+    parser = OverridesParser.create()
+    candidates = [a for i, a in enumerate(args) if not a.startswith("-") and not (i and args[i - 1] in VALUE_FLAGS)]
+    for a in candidates:
+        try:
+            parser.parse_overrides([a])
+        except Exception as e:  # noqa: BLE001  (Hydra's grammar error: three lines and a URL otherwise)
+            why = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+            return (f"cannot read the override {a!r} ({why}); a value with special characters (=, ',', spaces, "
+                    f"brackets) goes in quotes: key='a=b'")
+    overrides = parser.parse_overrides(candidates)
     groups, plain = [], []
     for ov in overrides:
         key = ov.key_or_group

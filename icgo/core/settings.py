@@ -72,7 +72,8 @@ def config_to_mapping(config) -> dict:
 
 
 __all__ = ["need", "is_int", "is_real", "config_from_mapping", "config_to_mapping", "SettingError", "SettingsError",
-           "ArgumentParser", "interrupted", "error_status", "run_cli"]
+           "ArgumentParser", "interrupted", "error_status", "run_cli", "on_interrupt", "interrupts_raise",
+           "startup_interrupts"]
 
 
 class ArgumentParser(argparse.ArgumentParser):
@@ -119,18 +120,64 @@ def _first_line(e: BaseException) -> str:
     return text.splitlines()[0] if text else type(e).__name__
 
 
+#: What a command does on Ctrl-C or SIGTERM (:func:`on_interrupt`): the clean-ups of the outputs being staged
+#: (registered by :class:`icgo.io.files.Output`), and how many callers currently handle KeyboardInterrupt
+#: themselves (:func:`interrupts_raise`).
+INTERRUPT = {"cleanups": [], "raise": 0}
+
+
+def on_interrupt(signum=None, frame=None):
+    """Signal handler of a command: remove the outputs being staged, print one line, exit 130 at once.
+
+    Exiting from the handler (``os._exit``) instead of raising KeyboardInterrupt is deliberate: the
+    exception would surface wherever Python happens to be, inside JAX's import or a garbage-collection
+    callback, where it is printed as "Exception ignored" or crashes the interpreter. Outputs are
+    staged and committed with the signals blocked (:class:`icgo.io.files.Output`), so there is nothing
+    to finish: dropping the staging folders leaves every output directory as it was. Inside
+    :func:`interrupts_raise` (a sweep's launcher, which stops its jobs and reports) it raises instead.
+    """
+    import os
+
+    if INTERRUPT["raise"]:
+        raise KeyboardInterrupt
+    where = None
+    for cleanup in list(INTERRUPT["cleanups"]):
+        try:
+            where = cleanup() or where
+        except Exception:  # noqa: BLE001  (best effort: the exit below must happen)
+            pass
+    os._exit(interrupted(where))
+
+
+class interrupts_raise:
+    """Context: within it, Ctrl-C and SIGTERM raise KeyboardInterrupt (for code that stops and reports itself)."""
+
+    def __enter__(self):
+        INTERRUPT["raise"] += 1
+        return self
+
+    def __exit__(self, *exc):
+        INTERRUPT["raise"] -= 1
+        return False
+
+
+def startup_interrupts() -> None:
+    """Ctrl-C or SIGTERM while a command is still importing its modules ends it at once with the one line of
+    :func:`interrupted` (:func:`on_interrupt`; nothing has been written yet)."""
+    import signal
+
+    if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
+        signal.signal(signal.SIGINT, on_interrupt)
+    signal.signal(signal.SIGTERM, on_interrupt)
+
+
 def run_cli(main, *args) -> int:
     """Run a command-line front door: its user errors one line each (:func:`error_status`), Ctrl-C or SIGTERM
     one line and exit status 130 (:func:`interrupted`); returns the exit status (``main``'s, 0 for None)."""
-    import signal
-
-    def _terminate(signum, frame):
-        raise KeyboardInterrupt
-
-    signal.signal(signal.SIGTERM, _terminate)
+    startup_interrupts()
     try:
         rc = main(*args)
-    except KeyboardInterrupt as e:
+    except KeyboardInterrupt as e:  # raised by the code itself (a library call, interrupts_raise)
         return interrupted(getattr(e, "icgo_unchanged", None))
     except BrokenPipeError:  # the reader of stdout stopped (``| head``): stop quietly, as a SIGPIPE would
         import os

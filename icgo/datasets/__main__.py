@@ -7,11 +7,16 @@ replaces its content whole).
 
 from __future__ import annotations
 
-from pathlib import Path
+from icgo.core.settings import startup_interrupts
 
-from icgo.core.settings import ArgumentParser, run_cli
-from icgo.datasets.protocols import DATASETS, write_dataset
-from icgo.io.files import Output
+if __name__ == "__main__":
+    startup_interrupts()  # a Ctrl-C while the modules below load: one line (run_cli takes over in main)
+
+from pathlib import Path  # noqa: E402
+
+from icgo.core.settings import ArgumentParser, run_cli  # noqa: E402
+from icgo.datasets.protocols import DATASETS, write_dataset  # noqa: E402
+from icgo.io.files import Output  # noqa: E402
 
 
 def seed(text: str) -> int:

@@ -2,14 +2,19 @@
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
+from icgo.core.settings import startup_interrupts
 
-from icgo.core.errors import DataError
-from icgo.core.settings import ArgumentParser, run_cli
-from icgo.io.files import Output
-from icgo.io.mag_cal_json import read_mag_cal_json
-from icgo.io.recording import load_mag_cal_device, mag_cal_devices, read_recording, write_recording
+if __name__ == "__main__":
+    startup_interrupts()  # a Ctrl-C while the modules below load: one line (run_cli takes over in main)
+
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+from icgo.core.errors import DataError  # noqa: E402
+from icgo.core.settings import ArgumentParser, run_cli  # noqa: E402
+from icgo.io.files import Output  # noqa: E402
+from icgo.io.mag_cal_json import read_mag_cal_json  # noqa: E402
+from icgo.io.recording import load_mag_cal_device, mag_cal_devices, read_recording, write_recording  # noqa: E402
 
 
 def check(paths) -> int:

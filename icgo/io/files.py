@@ -38,6 +38,7 @@ import threading
 from pathlib import Path
 
 from icgo.core.errors import DataError, OutputError, SettingError
+from icgo.core.settings import INTERRUPT
 
 #: The list of files a command wrote into a directory of its own, written last.
 MANIFEST = ".icgo-output.json"
@@ -223,11 +224,21 @@ class Output:
             Whatever the block raised (Ctrl-C included), after removing the staging directory.
         """
         self.check()
+        created = not self.path.exists()
         try:
             self.path.mkdir(parents=True, exist_ok=True)
             stage = Path(tempfile.mkdtemp(prefix=_STAGING, dir=self.path))
         except OSError as e:
             raise OutputError(f"{self.path}: cannot write ({_why(e)}); nothing was written") from None
+
+        def drop() -> str:  # on Ctrl-C (icgo.core.settings.on_interrupt): as if the command had never started
+            shutil.rmtree(stage, ignore_errors=True)
+            if created:
+                with contextlib.suppress(OSError):
+                    self.path.rmdir()  # only if empty
+            return str(self.path)
+
+        INTERRUPT["cleanups"].append(drop)
         try:
             try:
                 yield stage
@@ -246,7 +257,10 @@ class Output:
                 raise OutputError(f"moving the new files into {self.path} failed ({_why(e)}); the previous "
                                   f"content is unchanged") from None
         finally:
+            INTERRUPT["cleanups"].remove(drop)
             shutil.rmtree(stage, ignore_errors=True)
+            if created and self.path.is_dir() and not any(self.path.iterdir()):
+                self.path.rmdir()  # a failed first write leaves no empty directory either
 
     def _commit(self, stage: Path, last: tuple) -> None:
         names = sorted((e.name for e in stage.iterdir()), key=lambda n: (n in last, last.index(n) if n in last else 0, n))
