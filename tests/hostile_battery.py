@@ -1141,16 +1141,21 @@ def _rss_mb(pgid: int) -> float:
 def _execute(case: Case, w: Path, a: Path, root: Path) -> _Ran:
     argv = [PY] + [str(x).replace("{w}", str(w)).replace("{a}", str(a)) for x in case.argv]
 
-    def limits():
-        if case.fsize is not None:
-            import resource
+    import threading
 
-            resource.setrlimit(resource.RLIMIT_FSIZE, (case.fsize, case.fsize))
-
-    out_f, err_f = open(w / ".stdout", "w+b"), open(w / ".stderr", "w+b")
     t0 = time.monotonic()
-    p = subprocess.Popen(argv, cwd=w, env=_env(root), stdout=out_f, stderr=err_f, stdin=subprocess.DEVNULL,
-                         start_new_session=True, preexec_fn=limits)
+    # pipes, not files: a full-disk case's file-size limit must not cut the command's own messages
+    p = subprocess.Popen(argv, cwd=w, env=_env(root), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         stdin=subprocess.DEVNULL, start_new_session=True)
+    got = {"out": [], "err": []}
+    readers = [threading.Thread(target=lambda f=f, k=k: got[k].append(f.read()), daemon=True)
+               for f, k in ((p.stdout, "out"), (p.stderr, "err"))]
+    for t in readers:
+        t.start()
+    if case.fsize is not None:  # set on the new process (no preexec_fn: no Python code between fork and exec)
+        import resource
+
+        resource.prlimit(p.pid, resource.RLIMIT_FSIZE, (case.fsize, case.fsize))
     peak, capped, timed_out, sent = 0.0, False, False, False
     while p.poll() is None:
         time.sleep(0.1)
@@ -1173,13 +1178,11 @@ def _execute(case: Case, w: Path, a: Path, root: Path) -> _Ran:
     p.wait()
     with _suppress():
         os.killpg(p.pid, signal.SIGKILL)  # anything the command left running
-    out_f.seek(0)
-    err_f.seek(0)
-    ran = _Ran(p.returncode, out_f.read().decode(errors="replace"), err_f.read().decode(errors="replace"), timed_out,
-               peak, capped, "killed" if case.signal_after and case.signal_after[0] == signal.SIGKILL else "")
-    out_f.close()
-    err_f.close()
-    return ran
+    for t in readers:
+        t.join(timeout=10)
+    text = {k: b"".join(v).decode(errors="replace") for k, v in got.items()}
+    return _Ran(p.returncode, text["out"], text["err"], timed_out, peak, capped,
+                "killed" if case.signal_after and case.signal_after[0] == signal.SIGKILL else "")
 
 
 class _suppress:
@@ -1263,10 +1266,12 @@ def _mount_read_only(p: Path) -> bool:
 
 
 def make_assets(base: Path) -> Path:
+    """The assets under ``base`` (built once, in a fresh interpreter: the runner itself never loads JAX, so
+    starting the cases' processes never forks a multithreaded runtime)."""
     a = base / "assets"
     if not (a / "ready").exists():
         shutil.rmtree(a, ignore_errors=True)
-        build_assets(a)
+        subprocess.run([PY, __file__, "--build-assets", str(a)], check=True, env=_env(ROOT), cwd=base)
     return a
 
 
@@ -1304,7 +1309,11 @@ def main(argv=None) -> int:
     ap.add_argument("--base", default=None, help="folder for assets and work (default: a new temporary folder)")
     ap.add_argument("--only", default=None, help="regular expression: run the matching cases")
     ap.add_argument("--json", default=None, help="write every result here")
+    ap.add_argument("--build-assets", default=None, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
+    if a.build_assets:
+        build_assets(Path(a.build_assets))
+        return 0
     cases = [c for c in all_cases() if (c.fast or not a.fast) and (a.only is None or re.search(a.only, c.name))]
     base = Path(a.base) if a.base else Path(tempfile.mkdtemp(prefix="icgo-hostile-"))
     print(f"{len(cases)} cases; work in {base}", flush=True)
