@@ -77,6 +77,8 @@ def check_config(cfg: DictConfig) -> None:
         _unknown(cfg[node].keys(), ENTRY_KEYS[node], f"{node}.")
     for key in ("figures", "overwrite"):
         bool_setting(cfg, key)
+    _need(cfg.get("label") is None or isinstance(cfg.get("label"), str),
+          f"label must be a name (a string) or null, got {cfg.get('label')!r}")
     lam = OmegaConf.select(cfg, "model.lam")
     _need(not isinstance(lam, (int, float)) or isinstance(lam, bool) or lam <= MAX_LAM,
           f"model.lam={lam!r}: at most {MAX_LAM:g}; the ridge lambda is absolute, and far above that the RELM's "
@@ -85,6 +87,9 @@ def check_config(cfg: DictConfig) -> None:
     _need(ds.get("name") in DATASET_KEYS,
           f"dataset.name must be one of {sorted(DATASET_KEYS)}, got {ds.get('name')!r}")
     _unknown(ds.keys(), DATASET_KEYS[ds.name], "dataset.")
+    if "seed" in DATASET_KEYS[ds.name]:
+        _need(_is_int(ds.get("seed")) and 0 <= ds.seed < 2**32, f"dataset.seed must be an integer 0 <= seed < 2**32, "
+                                                               f"got {ds.get('seed')!r}")
     if ds.name == "csv":
         _need(OmegaConf.select(ds, "path", throw_on_missing=False) not in (None, "???"),
               "dataset.path is required with dataset=csv (dataset.path=/path/to/file.csv)")

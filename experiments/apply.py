@@ -34,7 +34,7 @@ def model_path(path: Path) -> Path:
     from icgo.models.format import run_model_path
     from icgo.reporting import records
 
-    if path.is_dir() and (path / records.RUN_FILE).is_file():
+    if path.is_dir() and ((path / records.RUN_FILE).exists() or (path / records.RUN_FILE).is_symlink()):
         return run_model_path(path)
     return path
 
@@ -128,6 +128,7 @@ def main(cfg: DictConfig) -> None:
     """Hydra task: one survey, one model (a bad setting exits 2, a bad model or survey 1, one line each)."""
     from hydra.core.hydra_config import HydraConfig
 
+    check_settings(cfg)  # out= among them, before it is used
     out = Path(str(cfg.out)).expanduser() if cfg.get("out") else Path(HydraConfig.get().runtime.output_dir)
     meta = run_apply(cfg, out, keep=hydra_keep())
     report(meta, out, Path(str(cfg.data)).stem)

@@ -37,6 +37,12 @@ MAX_CAL_SHOTS = 400
 MAX_CAL_GROUPS = 50
 
 
+def results_path(cfg: DictConfig) -> Path:
+    """``results_dir`` (relative to the repository root)."""
+    res = Path(str(cfg.results_dir))
+    return res if res.is_absolute() else ROOT / res
+
+
 def check_size(rec, src: str) -> None:
     """DataError naming the file when a recording exceeds :data:`MAX_CAL_SHOTS` or :data:`MAX_CAL_GROUPS`."""
     from icgo.methods.calibration import MIN_ROLLED_SHOTS
@@ -44,6 +50,9 @@ def check_size(rec, src: str) -> None:
     n = len(rec.frame)
     groups = rec.frame["group"].value_counts() if "group" in rec.frame.columns else None
     rolled = 0 if groups is None else int((groups >= MIN_ROLLED_SHOTS).sum())
+    if rolled == 0:
+        raise DataError(f"{src}: no rolled group ({MIN_ROLLED_SHOTS} or more shots about one pointing direction, "
+                        f"turned about it); calibration needs at least one")
     if n > MAX_CAL_SHOTS or rolled > MAX_CAL_GROUPS:
         raise DataError(f"{src}: {n} shots in {rolled} rolled groups; calibrate takes at most {MAX_CAL_SHOTS} shots "
                         f"and {MAX_CAL_GROUPS} rolled groups (its memory grows with both; docs/data.md): split the "
@@ -65,9 +74,9 @@ def load(cfg: DictConfig) -> dict:
     from icgo.methods.calibration import MIN_ROLLED_SHOTS
 
     data = cfg.data
-    if data is None or str(data) == "":
-        raise SettingError("data= is required: a contract CSV with a group column, a circuitpython-mag-cal JSON, "
-                         "or 'bundled'")
+    if data is None or not isinstance(data, str) or data == "":
+        raise SettingError(f"data={data!r}: give a contract CSV with a group column, a circuitpython-mag-cal JSON, "
+                           f"or 'bundled'")
     data = str(data)
     axes = {"mag_axes": cfg.mag_axes, "grav_axes": cfg.grav_axes}
     if data == "bundled":
@@ -169,6 +178,8 @@ def run(cfg: DictConfig, out: Path, config=None, keep=()) -> None:
     config = study_config(cfg) if config is None else config
     output = Output(out, setting="hydra.run.dir", overwrite=bool_setting(cfg, "overwrite"), keep=keep,
                     writer="experiments.calibrate").check()
+    if str(cfg.data) == "bundled":  # results/ checked now, not after the fits
+        Output(results_path(cfg), setting="results_dir", shared=True).check()
     recordings = load(cfg)
     df, models = calibration.evaluate(recordings, config, jax.random.PRNGKey(0))
     summ = calibration.summary(df)
@@ -187,8 +198,7 @@ def run(cfg: DictConfig, out: Path, config=None, keep=()) -> None:
     if str(cfg.data) == "bundled":
         from icgo.io.recording import atomic_write_texts
 
-        res = Path(str(cfg.results_dir))
-        res = res if res.is_absolute() else ROOT / res
+        res = results_path(cfg)
         res.mkdir(parents=True, exist_ok=True)
         atomic_write_texts([(res / "calibration_devices.md", text.replace(
                                 "# Magnetometer calibration:", "# Magnetometer calibration (`python -m experiments."

@@ -298,8 +298,8 @@ def main(argv=None) -> dict:
         from icgo.io.files import check_output_file
 
         check_output_file(a.out, overwrite=a.overwrite, setting="--out", overwrite_hint="--overwrite")
-    batch = a.batch or (120 if a.quick else 1200)
-    reps = a.reps or (3 if a.quick else 7)
+    batch = a.batch if a.batch is not None else (120 if a.quick else 1200)
+    reps = a.reps if a.reps is not None else (3 if a.quick else 7)
     if batch < 1 or a.chunk < 1 or a.refine < 0 or reps < 1:
         p.error("--batch, --chunk and --reps must be >= 1 and --refine >= 0")
     res = {"loadavg_start": list(os.getloadavg())}

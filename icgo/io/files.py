@@ -203,13 +203,21 @@ class Output:
             if not self.is_icgo_output():
                 raise SettingError(f"{name} holds files that no icgo command wrote ({shown}; no {MANIFEST}); "
                                    f"{self.hint} replaces only an icgo output directory: choose a new directory")
-        # created only when the files are written (a refused or failed command leaves no empty directory);
-        # here the nearest existing folder must let it be created and written
-        base = next(q for q in [p, *p.parents] if q.exists())
-        if not os.access(base, os.W_OK | os.X_OK):
-            raise SettingError(f"{name}: " + ("the directory is not writable" if base == p else
-                                              f"cannot create it ({str(base)!r} is not writable)")
-                               + " (permission denied or a read-only file system)")
+        # created only when the files are written (a refused or failed command leaves no empty directory):
+        # here it is created and removed again, to learn now whether it can be
+        missing = [q for q in [p, *p.parents] if not q.exists()]
+        try:
+            p.mkdir(parents=True, exist_ok=True)
+            writable = os.access(p, os.W_OK | os.X_OK)
+        except OSError as e:
+            raise SettingError(f"{name}: cannot create the directory ({_why(e)})") from None
+        finally:
+            for q in missing:
+                with contextlib.suppress(OSError):
+                    q.rmdir()
+        if not writable:
+            raise SettingError(f"{name}: the directory is not writable (permission denied or a read-only file "
+                               f"system)")
         return self
 
     # -------------------------------------------------------------- writing
@@ -229,7 +237,8 @@ class Output:
             self.path.mkdir(parents=True, exist_ok=True)
             stage = Path(tempfile.mkdtemp(prefix=_STAGING, dir=self.path))
         except OSError as e:
-            raise OutputError(f"{self.path}: cannot write ({_why(e)}); nothing was written") from None
+            raise OutputError(f"{self.setting} {str(self.path)!r}: cannot write ({_why(e)}); nothing was "
+                              f"written") from None
 
         def drop() -> str:  # on Ctrl-C (icgo.core.settings.on_interrupt): as if the command had never started
             shutil.rmtree(stage, ignore_errors=True)

@@ -281,7 +281,7 @@ def _resolve(path) -> Path:
     """The header path of ``path`` (a header, an .npz, a stem, a run directory or a directory with one model)."""
     p = Path(path)
     if p.is_dir():
-        if (p / "run.json").is_file():
+        if (p / "run.json").exists() or (p / "run.json").is_symlink():  # a pipe or a directory there is refused
             return run_model_path(p)
         found = model_files(p)
         if not found:

@@ -108,8 +108,9 @@ class GyroNetwork(FittedModel):
         try:
             cfg = nets.check_config(self.netconfig())
             n = nets.n_inputs(cfg.encoding)
-        except (TypeError, ValueError) as e:
-            raise ModelError(f"net_config is not a network configuration ({str(e).splitlines()[0][:100]})") from None
+        except (TypeError, ValueError, KeyError) as e:
+            raise ModelError(f"net_config is not a network configuration ({type(e).__name__}: "
+                             f"{str(e).splitlines()[0][:100] if str(e) else ''})") from None
         need(isinstance(self.variant, str), "variant must be a name")
         m1, m2 = cfg.hidden
         S = np.shape(self.v)[0] if np.ndim(self.v) == 2 else -1
