@@ -200,17 +200,6 @@ def enable_jax_cache(path: str | None) -> None:
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 
-def staged_results(out: Path, last: str | None = None):
-    """A study's files into a shared results folder all at once, or none (:func:`icgo.io.files.staged_results`)."""
-    from icgo.io.files import staged_results as staged
-
-    return staged(out, last)
-
-
-EXIT_DATA = 1
-EXIT_INTERRUPTED = 130
-
-
 def fail_line(e: BaseException) -> NoReturn:
     """Print ``error: <line>`` (one per problem of a SettingsError) and exit 2 for a bad setting, 1 for other
     errors of the input (:func:`icgo.core.settings.error_status`)."""
@@ -323,22 +312,6 @@ def write_hydra_record(stage: Path, cfg: DictConfig) -> None:
     d.mkdir(exist_ok=True)
     for name, text in hydra_files(cfg).items():
         (d / name).write_text(text)
-
-
-def run_output(cfg: DictConfig, out: Path | None = None, writer: str = "", **kw):
-    """The :class:`icgo.io.files.Output` of a Hydra entry point: ``out`` (default the Hydra run directory),
-    ``overwrite`` from the config, Hydra's job log left alone; checked (one SettingError line) before any
-    computation."""
-    from hydra.core.hydra_config import HydraConfig
-
-    from icgo.io.files import Output
-
-    if out is None:
-        out, setting = Path(HydraConfig.get().runtime.output_dir), "hydra.run.dir"
-    else:
-        setting = "out"
-    return Output(out, setting=setting, overwrite=bool_setting(cfg, "overwrite"), keep=hydra_keep(),
-                  writer=writer, **kw).check()
 
 
 def study_main(cfg: DictConfig, build_config, run) -> None:

@@ -25,8 +25,8 @@ import numpy as np
 import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
-from experiments._entry import enable_jax_cache, one_line_errors, staged_results, study_main
-from icgo.io.files import Output
+from experiments._entry import enable_jax_cache, one_line_errors, study_main
+from icgo.io.files import Output, staged_results
 
 ROOT = Path(__file__).resolve().parents[1]
 

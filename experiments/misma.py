@@ -20,8 +20,8 @@ import hydra
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from experiments._entry import one_line_errors, staged_results, study_main
-from icgo.io.files import Output
+from experiments._entry import one_line_errors, study_main
+from icgo.io.files import Output, staged_results
 
 ROOT = Path(__file__).resolve().parents[1]
 

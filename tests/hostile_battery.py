@@ -1275,6 +1275,7 @@ def make_assets(base: Path) -> Path:
     a = base / "assets"
     if not (a / "ready").exists():
         shutil.rmtree(a, ignore_errors=True)
+        base.mkdir(parents=True, exist_ok=True)
         subprocess.run([PY, __file__, "--build-assets", str(a)], check=True, env=_env(ROOT), cwd=base)
     return a
 

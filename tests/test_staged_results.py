@@ -1,4 +1,4 @@
-"""experiments._entry.staged_results (icgo.io.files.Output, shared): a study's files land in a shared results folder
+"""icgo.io.files.staged_results (Output, shared): a study's files land in a shared results folder
 all at once or not at all."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import errno
 
 import pytest
 
-from experiments._entry import staged_results
+from icgo.io.files import staged_results
 from icgo.core.errors import OutputError
 
 
