@@ -160,3 +160,21 @@ def test_require_meta_takes_only_true_or_false(setup, tmp_path, value):
     _, _, path, survey = setup
     with pytest.raises(ValueError, match="require_meta=.*must be true or false"):
         run_apply(_cfg([f"model={path}", f"data={survey}", f"require_meta={value}"]), tmp_path / "o")
+
+
+def test_another_devices_calibration_is_said_in_a_notice():
+    """Device ab's ellipsoid calibration: its own shots give one earth field (no notice); device jd's do not."""
+    from icgo.io.recording import load_mag_cal_device
+    from icgo.methods.calibration import ellipsoid_fit
+    from icgo.models.calibration import mag_calibration
+    from icgo.survey.apply import correct_survey
+
+    ab = load_mag_cal_device("ab")
+    scale = float(np.median(np.linalg.norm(ab.B, axis=1)))
+    model = mag_calibration("ellipsoid", ellipsoid_fit(ab.B / scale, 1.0), ab.G, ab.B / scale, {},
+                            field_scale_nT=scale)
+    model = dataclasses.replace(model, x_mag=np.r_[model.x_mag[:9], model.x_mag[9:] * scale], field_scale_nT=1.0)
+    own = correct_survey(model, ab.frame).notices
+    other = correct_survey(model, load_mag_cal_device("jd").frame).notices
+    assert not any("one earth field" in n for n in own), own
+    assert any("one earth field" in n for n in other), other
