@@ -447,9 +447,10 @@ def check_array(a: np.ndarray, name: str, where: str, *, may_be_empty: bool = Fa
         finite = np.isfinite(a)
         if not nan_ok and not finite.all():
             raise ModelError(f"{where}: array {name!r} holds NaN or inf ({int((~finite).sum())} of {a.size} values)")
-        if np.any(np.abs(a[finite]) > MAX_PARAMETER):
+        mag = np.abs(a[finite].astype(np.float64))
+        if np.any(mag > MAX_PARAMETER):
             raise ModelError(f"{where}: array {name!r} holds values beyond +/-{MAX_PARAMETER:g} (largest "
-                             f"{np.abs(a[finite]).max():.3g}); not a fitted model")
+                             f"{mag.max():.3g}); not a fitted model")
     elif a.dtype.kind in "iu" and a.size and np.abs(a.astype(np.float64)).max() > MAX_PARAMETER:
         raise ModelError(f"{where}: array {name!r} holds integers beyond +/-{MAX_PARAMETER:g}")
 
