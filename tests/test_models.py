@@ -240,3 +240,19 @@ def test_every_kind_loads_back_checked(tmp_path):
     for kind, model in hostile_models.models().items():
         back = load_model(model.save(tmp_path / kind))
         pd.testing.assert_frame_equal(back.apply(survey), model.apply(survey))
+
+
+def test_apply_in_row_blocks_is_bitwise_the_whole(monkeypatch):
+    """RELMCompensation applies a long survey in row blocks (bounded memory); the result does not depend on them."""
+    import sys
+    from pathlib import Path
+
+    import icgo.models.relm as relm_models
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import hostile_models
+
+    model, survey = hostile_models.models()["relm_compensation"], hostile_models.survey(n=130)
+    whole = model.apply(survey)
+    monkeypatch.setattr(relm_models, "APPLY_BLOCK_ROWS", 50)
+    pd.testing.assert_frame_equal(model.apply(survey), whole, check_exact=True)

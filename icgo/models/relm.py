@@ -38,6 +38,9 @@ FEATURES = ("raw", "msa")
 #: docs/relm_study.md): at 1 the validation RMSE on lab_casing is already 1.5 x that at 1e-3, and far above
 #: 1e3 the output weights shrink to nothing and the RELM returns MSA's azimuth unchanged (docs/reliability.md).
 MAX_LAM = 1e3
+#: Survey rows per block of :meth:`RELMCompensation.members`: bounds its memory (members x rows x hidden units
+#: of float64: 10 x 50,000 x 30 is 120 MB) whatever the survey's length; results do not depend on it.
+APPLY_BLOCK_ROWS = 50_000
 #: Largest number of hidden units of a loaded model.
 MAX_HIDDEN = 100_000
 
@@ -220,11 +223,14 @@ class RELMCompensation(FittedModel):
             raise ModelError(f"method {method!r} is not in this model; it holds {self.methods}")
         s = self.methods.index(method)
         v = frame_values(frame, SENSORS, f"{self.KIND} model")
-        a_msa, pred = _relm_members(jnp.asarray(v[:, :3]), jnp.asarray(v[:, 3:]), jnp.asarray(self.msa_bias),
-                                    jnp.asarray(self.msa_scale), jnp.asarray(self.x_mean), jnp.asarray(self.x_std),
-                                    jnp.asarray(self.theta[s]), jnp.asarray(self.beta[s]), int(self.hidden),
-                                    self.features == "raw")
-        return np.asarray(a_msa), np.asarray(pred)
+        params = (jnp.asarray(self.msa_bias), jnp.asarray(self.msa_scale), jnp.asarray(self.x_mean),
+                  jnp.asarray(self.x_std), jnp.asarray(self.theta[s]), jnp.asarray(self.beta[s]))
+        # row blocks: the hidden layer of every member at once is (R, rows, L), unbounded for a long survey
+        blocks = [_relm_members(jnp.asarray(v[i:i + APPLY_BLOCK_ROWS, :3]), jnp.asarray(v[i:i + APPLY_BLOCK_ROWS, 3:]),
+                                *params, int(self.hidden), self.features == "raw")
+                  for i in range(0, max(len(v), 1), APPLY_BLOCK_ROWS)]
+        return (np.concatenate([np.asarray(b[0]) for b in blocks], axis=1),
+                np.concatenate([np.asarray(b[1]) for b in blocks], axis=1))
 
     def apply(self, frame: pd.DataFrame, method: str | None = None) -> pd.DataFrame:
         """Compensated azimuth per row: ensemble over repeats of ``method`` (default :attr:`selected`).
