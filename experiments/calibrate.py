@@ -74,9 +74,12 @@ def load(cfg: DictConfig) -> dict:
     from icgo.methods.calibration import MIN_ROLLED_SHOTS
 
     data = cfg.data
-    if data is None or not isinstance(data, str) or data == "":
-        raise SettingError(f"data={data!r}: give a contract CSV with a group column, a circuitpython-mag-cal JSON, "
-                           f"or 'bundled'")
+    if data is None or data == "":
+        raise SettingError("data= is required: a contract CSV with a group column, a circuitpython-mag-cal JSON, "
+                           "or 'bundled'")
+    if not isinstance(data, str):
+        raise SettingError(f"data={data!r}: must be a path (a contract CSV or a circuitpython-mag-cal JSON) or "
+                           f"'bundled'")
     data = str(data)
     axes = {"mag_axes": cfg.mag_axes, "grav_axes": cfg.grav_axes}
     if data == "bundled":

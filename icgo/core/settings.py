@@ -30,7 +30,7 @@ def is_real(x) -> bool:
     return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
 
 
-def config_from_mapping(cls, values: dict, where: str = "config"):
+def config_from_mapping(cls, values: dict, where: str = "config", _prefix: str = ""):
     """Build a config dataclass from a plain mapping, refusing unknown keys in one line.
 
     Args:
@@ -50,9 +50,9 @@ def config_from_mapping(cls, values: dict, where: str = "config"):
     for k, v in values.items():
         default = names[k].default
         if dataclasses.is_dataclass(default) and isinstance(v, dict):
-            v = config_from_mapping(type(default), v, f"{where}.{k}")
+            v = config_from_mapping(type(default), v, f"{where}.{k}", f"{_prefix}{k}.")
         elif str(names[k].type) == "bool" and not isinstance(v, bool):  # "maybe", "false", 0: never read as a bool
-            raise SettingError(f"{where}: {k}={v!r}: must be true or false")
+            raise SettingError(f"{_prefix}{k}", f"must be true or false, got {v!r}")
         kwargs[k] = v
     return cls(**kwargs)
 
