@@ -240,7 +240,11 @@ class Output:
             raise OutputError(f"{self.setting} {str(self.path)!r}: cannot write ({_why(e)}); nothing was "
                               f"written") from None
 
-        def drop() -> str:  # on Ctrl-C (icgo.core.settings.on_interrupt): as if the command had never started
+        done = {"committed": False}
+
+        def drop() -> str | None:  # on Ctrl-C (icgo.core.settings.on_interrupt): as if the command had not started
+            if done["committed"]:  # the signal waited for the commit to finish: the output is complete
+                return None
             shutil.rmtree(stage, ignore_errors=True)
             if created:
                 with contextlib.suppress(OSError):
@@ -261,7 +265,9 @@ class Output:
                 e.icgo_unchanged = str(self.path)
                 raise
             try:
-                self._commit(stage, tuple(last))
+                with _uninterrupted():  # a signal arriving during the commit is handled after it, then it's done
+                    self._commit(stage, tuple(last))
+                    done["committed"] = True
             except OSError as e:
                 raise OutputError(f"moving the new files into {self.path} failed ({_why(e)}); the previous "
                                   f"content is unchanged") from None
@@ -272,38 +278,39 @@ class Output:
                 self.path.rmdir()  # a failed first write leaves no empty directory either
 
     def _commit(self, stage: Path, last: tuple) -> None:
+        """Move the staged files in (``last`` last, the manifest after them); in a directory of its own, first
+        move the old content aside (deleted at the end, put back if a move fails). Called with the signals held."""
         names = sorted((e.name for e in stage.iterdir()), key=lambda n: (n in last, last.index(n) if n in last else 0, n))
-        aside = None
         if not self.shared:
             body = json.dumps({"writer": self.writer, "files": names}, indent=1) + "\n"
             (stage / MANIFEST).write_text(body)  # a full disk fails here, before anything moves
             names.append(MANIFEST)
-        with _uninterrupted():
-            moved_in: list[str] = []
-            old: list[str] = []
-            try:
-                if not self.shared:
-                    aside = Path(tempfile.mkdtemp(prefix=_REPLACED, dir=self.path))
-                    for e in list(self.path.iterdir()):
-                        if e.name not in self.keep and not _internal(e.name):
-                            os.replace(e, aside / e.name)
-                            old.append(e.name)
-                for n in names:
-                    os.replace(stage / n, self.path / n)
-                    moved_in.append(n)
-            except OSError:
-                for n in moved_in:  # put the previous content back
-                    with contextlib.suppress(OSError):
-                        os.replace(self.path / n, stage / n)
-                for n in old:
-                    with contextlib.suppress(OSError):
-                        os.replace(aside / n, self.path / n)
-                raise
-            finally:
-                if aside is not None and not old:
-                    shutil.rmtree(aside, ignore_errors=True)
-        if aside is not None:
-            shutil.rmtree(aside, ignore_errors=True)
+        aside = None if self.shared else Path(tempfile.mkdtemp(prefix=_REPLACED, dir=self.path))
+        moved_in: list[str] = []
+        old: list[str] = []
+        keep_aside = False
+        try:
+            if aside is not None:
+                for e in list(self.path.iterdir()):
+                    if e.name not in self.keep and not _internal(e.name):
+                        os.replace(e, aside / e.name)
+                        old.append(e.name)
+            for n in names:
+                os.replace(stage / n, self.path / n)
+                moved_in.append(n)
+        except OSError:
+            for n in moved_in:  # put the previous content back
+                with contextlib.suppress(OSError):
+                    os.replace(self.path / n, stage / n)
+            for n in old:
+                try:
+                    os.replace(aside / n, self.path / n)
+                except OSError:
+                    keep_aside = True  # never delete what could not be put back: it stays in .replaced-*
+            raise
+        finally:
+            if aside is not None and not keep_aside:
+                shutil.rmtree(aside, ignore_errors=True)  # the old content, or an empty folder after a put-back
         if not self.shared:  # working folders an interrupted writer left in this directory of its own
             for e in self.path.iterdir():
                 if _internal(e.name) and e.name != stage.name:
