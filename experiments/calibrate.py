@@ -18,21 +18,45 @@ exit 2; bad data: one line, exit 1.
 
 from __future__ import annotations
 
-import os
-import shutil
-import sys
 from pathlib import Path
 
 import hydra
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from experiments._entry import EXIT_CONFIG, one_line
-from icgo.core.errors import SettingError
+from experiments._entry import one_line, one_line_errors
+from icgo.core.errors import DataError, SettingError
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Settings of the entry point, not of the study (excluded from CalibrationConfig).
-ENTRY_KEYS = ("data", "mag_axes", "grav_axes", "results_dir")
+ENTRY_KEYS = ("data", "mag_axes", "grav_axes", "results_dir", "overwrite")
+#: Largest recording calibrated: its shots and its rolled groups (each group is one leave-one-group-out fold of
+#: every method, vmapped). Measured peak memory at both limits: 2.1 GB (docs/data.md); 2,000 shots in 250
+#: groups passed 24 GB.
+MAX_CAL_SHOTS = 400
+MAX_CAL_GROUPS = 50
+
+
+def results_path(cfg: DictConfig) -> Path:
+    """``results_dir`` (relative to the repository root)."""
+    res = Path(str(cfg.results_dir))
+    return res if res.is_absolute() else ROOT / res
+
+
+def check_size(rec, src: str) -> None:
+    """DataError naming the file when a recording exceeds :data:`MAX_CAL_SHOTS` or :data:`MAX_CAL_GROUPS`."""
+    from icgo.methods.calibration import MIN_ROLLED_SHOTS
+
+    n = len(rec.frame)
+    groups = rec.frame["group"].value_counts() if "group" in rec.frame.columns else None
+    rolled = 0 if groups is None else int((groups >= MIN_ROLLED_SHOTS).sum())
+    if rolled == 0:
+        raise DataError(f"{src}: no rolled group ({MIN_ROLLED_SHOTS} or more shots about one pointing direction, "
+                        f"turned about it); calibration needs at least one")
+    if n > MAX_CAL_SHOTS or rolled > MAX_CAL_GROUPS:
+        raise DataError(f"{src}: {n} shots in {rolled} rolled groups; calibrate takes at most {MAX_CAL_SHOTS} shots "
+                        f"and {MAX_CAL_GROUPS} rolled groups (its memory grows with both; docs/data.md): split the "
+                        f"recording")
 
 
 def study_config(cfg: DictConfig):
@@ -50,9 +74,12 @@ def load(cfg: DictConfig) -> dict:
     from icgo.methods.calibration import MIN_ROLLED_SHOTS
 
     data = cfg.data
-    if data is None or str(data) == "":
+    if data is None or data == "":
         raise SettingError("data= is required: a contract CSV with a group column, a circuitpython-mag-cal JSON, "
-                         "or 'bundled'")
+                           "or 'bundled'")
+    if not isinstance(data, str):
+        raise SettingError(f"data={data!r}: must be a path (a contract CSV or a circuitpython-mag-cal JSON) or "
+                           f"'bundled'")
     data = str(data)
     axes = {"mag_axes": cfg.mag_axes, "grav_axes": cfg.grav_axes}
     if data == "bundled":
@@ -60,8 +87,14 @@ def load(cfg: DictConfig) -> dict:
             raise SettingError("mag_axes / grav_axes apply to a raw-layout JSON file, not to data=bundled")
         return {name: io.load_mag_cal_device(name) for name in io.mag_cal_devices()}
     if data.lower().endswith(".json"):
-        from icgo.io.mag_cal_json import AxesNotApplicable, read_mag_cal_json
+        from icgo.io.mag_cal_json import AxesNotApplicable, parse_axes, read_mag_cal_json
 
+        for k, v in axes.items():  # each named by its own key (an unset grav_axes follows mag_axes)
+            if v is not None:
+                try:
+                    parse_axes(str(v), k)
+                except DataError as e:
+                    raise SettingError(str(e)) from None
         try:
             rec = read_mag_cal_json(data, **{k: (None if v is None else str(v)) for k, v in axes.items()})
         except AxesNotApplicable as e:  # a bad setting, as for a CSV
@@ -74,6 +107,7 @@ def load(cfg: DictConfig) -> dict:
         if "group" not in rec.frame.columns:
             io.fail(data, "no 'group' column: calibration needs shots grouped by true direction "
                            f"(rolled groups of {MIN_ROLLED_SHOTS} or more shots about one pointing direction)")
+    check_size(rec, data)
     return {Path(data).stem: rec}
 
 
@@ -135,42 +169,40 @@ def report(df, summ, recordings: dict, label: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def run(cfg: DictConfig, out: Path, config=None) -> None:
-    """Load, fit, score, check, and write the run directory (staged, then moved into place)."""
+def run(cfg: DictConfig, out: Path, config=None, keep=()) -> None:
+    """Load, fit, score, check, and write the run directory (all or nothing: :class:`icgo.io.files.Output`;
+    a used directory is refused before anything is computed, unless ``overwrite=true``)."""
     import jax
 
     import icgo  # noqa: F401  (float64)
+    from experiments._entry import bool_setting, write_hydra_record
+    from icgo.io.files import Output
     from icgo.studies import calibration
 
     config = study_config(cfg) if config is None else config
+    output = Output(out, setting="hydra.run.dir", overwrite=bool_setting(cfg, "overwrite"), keep=keep,
+                    writer="experiments.calibrate").check()
+    if str(cfg.data) == "bundled":  # results/ checked now, not after the fits
+        Output(results_path(cfg), setting="results_dir", shared=True).check()
     recordings = load(cfg)
     df, models = calibration.evaluate(recordings, config, jax.random.PRNGKey(0))
     summ = calibration.summary(df)
     label = "the 9 bundled circuitpython-mag-cal devices" if str(cfg.data) == "bundled" else str(cfg.data)
     text = report(df, summ, recordings, label)
-    stage = out / ".staging"
-    shutil.rmtree(stage, ignore_errors=True)
-    (stage / "models").mkdir(parents=True)
-    try:
+    with output.staged(last=("report.md",)) as stage:
+        (stage / "models").mkdir()
+        write_hydra_record(stage, cfg)
         (stage / "report.md").write_text(text)
         df.to_csv(stage / "calibration.csv", index=False, float_format="%.6g")
         for name, rec in recordings.items():
             figure(rec, {m: models[calibration.model_label(name, m)] for m in calibration.METHODS},
-                     stage / f"{name}.png")
+                   stage / f"{name}.png")
         for label_, model in models.items():
             model.save(stage / "models" / label_)
-        for f in sorted(stage.rglob("*")):
-            if f.is_file():
-                dest = out / f.relative_to(stage)
-                dest.parent.mkdir(parents=True, exist_ok=True)
-                os.replace(f, dest)
-    finally:
-        shutil.rmtree(stage, ignore_errors=True)
     if str(cfg.data) == "bundled":
         from icgo.io.recording import atomic_write_texts
 
-        res = Path(str(cfg.results_dir))
-        res = res if res.is_absolute() else ROOT / res
+        res = results_path(cfg)
         res.mkdir(parents=True, exist_ok=True)
         atomic_write_texts([(res / "calibration_devices.md", text.replace(
                                 "# Magnetometer calibration:", "# Magnetometer calibration (`python -m experiments."
@@ -190,26 +222,28 @@ def run(cfg: DictConfig, out: Path, config=None) -> None:
 
 
 @hydra.main(config_path="../conf", config_name="calibrate", version_base="1.3")
+@one_line_errors
 def main(cfg: DictConfig) -> None:
     """Hydra entry point; a bad setting exits 2, bad data exits 1, each with one line."""
     from hydra.core.hydra_config import HydraConfig
 
-    from icgo.core.errors import DataError, SettingError
+    from experiments._entry import hydra_keep
 
     try:
         config = study_config(cfg)
     except ValueError as e:
-        print(f"error: {one_line(e)}", file=sys.stderr)
-        raise SystemExit(EXIT_CONFIG) from None
-    try:
-        run(cfg, Path(HydraConfig.get().runtime.output_dir), config)
-    except (DataError, ValueError) as e:  # DataError and SettingError are ValueErrors (icgo.core.errors)
-        print(f"error: {one_line(e)}", file=sys.stderr)
-        raise SystemExit(EXIT_CONFIG if isinstance(e, SettingError) else 1) from None
+        raise SettingError(one_line(e)) from None
+    run(cfg, Path(HydraConfig.get().runtime.output_dir), config, keep=hydra_keep())
 
 
-if __name__ == "__main__":
+def cli() -> None:
     from experiments._entry import preflight
 
     preflight("calibrate")
     main()
+
+
+if __name__ == "__main__":
+    from experiments._entry import guarded
+
+    guarded(cli)

@@ -25,18 +25,23 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 import icgo  # noqa: F401  (float64)
-from experiments._entry import EXIT_CONFIG, one_line, staged_results
+from experiments._entry import EXIT_CONFIG, bool_setting, hydra_keep, one_line, one_line_errors, write_hydra_record
 from icgo import discrepancy as D
 from icgo.core.errors import SettingsError
 from icgo.core.settings import config_from_mapping
 from icgo.discrepancy import report
 from icgo.io import recording as icgo_io
+from icgo.io.files import Output
 from icgo.models.discrepancy import PhysicsModel, station_qc
 from icgo.physics.qc import qc_sentence
 from icgo.studies import discrepancy_results
 
 #: Settings of the entry point, not of the workflow (excluded from :class:`icgo.discrepancy.WorkflowConfig`).
-ENTRY_KEYS = ("data", "study", "seed", "n_stations", "design", "results_dir", "hydra", "columns", "columns_file")
+ENTRY_KEYS = ("data", "study", "seed", "n_stations", "design", "results_dir", "overwrite", "hydra", "columns", "columns_file")
+
+#: Largest ``n_stations`` of a simulated data set (the workflow's memory grows with it; a real recording is read
+#: whole).
+MAX_STATIONS = 100_000
 
 #: ``study=`` values.
 STUDIES = ("none", "hidden", "devices", "lab_casing")
@@ -83,8 +88,15 @@ def workflow_config(cfg: DictConfig) -> D.WorkflowConfig:
     if str(cfg.design) not in D.DESIGNS:
         raise ValueError(f"design={cfg.design!r}: choose one of {', '.join(D.DESIGNS)}")
     n = cfg.n_stations
-    if not (isinstance(n, int) and not isinstance(n, bool) and n >= D.MIN_STATIONS):
-        raise ValueError(f"n_stations={n!r}: must be an integer >= {D.MIN_STATIONS} (simulated stations)")
+    if not (isinstance(n, int) and not isinstance(n, bool) and D.MIN_STATIONS <= n <= MAX_STATIONS):
+        raise ValueError(f"n_stations={n!r}: must be an integer {D.MIN_STATIONS} to {MAX_STATIONS} (simulated "
+                         f"stations)")
+    s = cfg.seed
+    if not (isinstance(s, int) and not isinstance(s, bool) and 0 <= s < 2**32):
+        raise ValueError(f"seed={s!r}: must be an integer 0 <= seed < 2**32")
+    if not isinstance(cfg.data, str):
+        raise ValueError(f"data={cfg.data!r}: must be a path, lab_casing, sim:EFFECT[+EFFECT] or mag_cal:DEVICE")
+    bool_setting(cfg, "overwrite")
     return config
 
 
@@ -102,12 +114,18 @@ def run_study(name: str, config: D.WorkflowConfig, cfg: DictConfig) -> str:
     raise ValueError(f"study={name!r}: choose none, hidden, devices or lab_casing")
 
 
-def main_body(cfg: DictConfig, out_dir: Path) -> int:
-    """Run one composed config; 0, :data:`EXIT_CONFIG` (2) for a bad setting, 1 for bad input data."""
+def main_body(cfg: DictConfig, out_dir: Path, keep=()) -> int:
+    """Run one composed config; 0, :data:`EXIT_CONFIG` (2) for a bad setting, 1 for bad input data.
+
+    The run directory (``out_dir``) is written all at once (:class:`icgo.io.files.Output`): refused before
+    anything is computed when it already holds files, unless ``overwrite=true``.
+    """
     try:
         config = workflow_config(cfg)
         cmap = icgo_io.column_map(OmegaConf.to_container(cfg.columns) if cfg.get("columns") else None,
                                   cfg.get("columns_file"))
+        output = None if cfg.study != "none" else Output(out_dir, setting="hydra.run.dir", overwrite=cfg.overwrite,
+                                                         keep=keep, writer="experiments.discrepancy").check()
     except SettingsError as err:
         for line in err.problems:
             print(f"error: {line}", file=sys.stderr)
@@ -136,24 +154,33 @@ def main_body(cfg: DictConfig, out_dir: Path) -> int:
     model = PhysicsModel.from_result(res, st.G, st.B)
     qc = station_qc(model, st)
     print(qc_sentence(qc) if qc else "survey QC: no reference field given")
-    with staged_results(out_dir, last="report.md") as stage:
+    with output.staged(last=("report.md",)) as stage:
+        write_hydra_record(stage, cfg)
         D.write_report(res, label, stage, truth, qc)
+        model.save(stage / "discrepancy_model")
     print("report:", out_dir / "report.md")
-    print("model:", model.save(out_dir / "discrepancy_model"))
+    print("model:", out_dir / "discrepancy_model.json")
     return 0
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="discrepancy")
+@one_line_errors
 def main(cfg: DictConfig) -> None:
     from hydra.core.hydra_config import HydraConfig
 
-    rc = main_body(cfg, Path(HydraConfig.get().runtime.output_dir))
+    rc = main_body(cfg, Path(HydraConfig.get().runtime.output_dir), keep=hydra_keep())
     if rc:
         sys.exit(rc)
 
 
-if __name__ == "__main__":
+def cli() -> None:
     from experiments._entry import preflight
 
     preflight("discrepancy")
     main()
+
+
+if __name__ == "__main__":
+    from experiments._entry import guarded
+
+    guarded(cli)

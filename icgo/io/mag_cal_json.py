@@ -30,10 +30,13 @@ import numpy as np
 import pandas as pd
 
 from icgo.core.errors import DataError
+from icgo.io.files import read_text_bounded
 from icgo.io.recording import STANDARD_GRAVITY, UT_TO_NT, Recording, device_to_tool, fail, fixture_shots, validate
 from icgo.methods.calibration import MIN_ROLLED_SHOTS
 
 #: Median |G| bands that identify the gravity unit of a raw recording.
+#: Largest JSON recording read (bytes; docs/data.md): ten times the largest recording calibrate takes.
+MAX_JSON_BYTES = 4 << 20
 G_UNIT_BANDS = {"g": (0.5, 1.5), "m/s^2": (5.0, 15.0)}
 #: Median |B| band (uT) of a magnetometer reading the earth's field in uT.
 B_UT_BAND = (5.0, 500.0)
@@ -168,10 +171,10 @@ def read_mag_cal_json(path, mag_axes: str | None = None, grav_axes: str | None =
     """
     src = str(path)
     try:
-        d = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError) as e:
-        fail(src, f"cannot read: {e.__class__.__name__}: {e}".splitlines()[0])
+        d = json.loads(read_text_bounded(path, MAX_JSON_BYTES, "a circuitpython-mag-cal JSON file"))
     except (json.JSONDecodeError, RecursionError, ValueError) as e:
+        if isinstance(e, DataError):
+            raise
         fail(src, f"not valid JSON: {str(e).splitlines()[0][:120]}")
     try:
         layout = layout_of(d)
