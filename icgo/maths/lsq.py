@@ -108,6 +108,42 @@ def least_squares(residual_fn: Callable[[jax.Array, Any], jax.Array], x0, args=N
     return LSQResult(x, cost, jnp.asarray(sol.stats["num_steps"]), ok)
 
 
+def _normal_equations(residual_fn, args, f, blocks, P: int, dtype):
+    """``(cost(x), normal(x) -> (JᵀJ, Jᵀr))`` of ``residual_fn`` (fixed columns, ``f == 0``, zeroed), summed over
+    ``blocks`` when given (see :func:`least_squares_fixed`)."""
+    if blocks is None:
+        def res(x):
+            return jnp.ravel(residual_fn(x, args))
+
+        def cost(x):
+            return jnp.sum(res(x) ** 2)
+
+        def normal(x):
+            r = res(x)
+            J = jax.jacfwd(res)(x) * f
+            return J.T @ J, J.T @ r
+        return cost, normal
+
+    def res_b(x, blk):
+        return jnp.ravel(residual_fn(x, (args, blk)))
+
+    def over_blocks(fn, init):  # sum of fn(block) over the leading block axis
+        def body(acc, blk):
+            return jax.tree_util.tree_map(jnp.add, acc, fn(blk)), None
+        return jax.lax.scan(body, init, blocks)[0]
+
+    def cost_b(x):
+        return over_blocks(lambda blk: jnp.sum(res_b(x, blk) ** 2), jnp.zeros((), dtype))
+
+    def normal_b(x):
+        def one(blk):
+            r = res_b(x, blk)
+            J = jax.jacfwd(res_b)(x, blk) * f
+            return J.T @ J, J.T @ r
+        return over_blocks(one, (jnp.zeros((P, P), dtype), jnp.zeros((P,), dtype)))
+    return cost_b, normal_b
+
+
 def least_squares_fixed(residual_fn: Callable[[jax.Array, Any], jax.Array], x0, args=None, *, n_steps: int,
                         free=None, lam0: float = 1e-3, blocks=None) -> LSQResult:
     """Minimise ``sum(residual_fn(x, args)**2)`` by Levenberg-Marquardt with exactly ``n_steps`` steps.
@@ -162,36 +198,7 @@ def least_squares_fixed(residual_fn: Callable[[jax.Array, Any], jax.Array], x0, 
     dtype = x0.dtype
     P = x0.shape[0]
     f = jnp.ones((P,), dtype) if free is None else (jnp.asarray(free) != 0).astype(dtype)
-
-    if blocks is None:
-        def res(x):
-            return jnp.ravel(residual_fn(x, args))
-
-        def cost(x):
-            return jnp.sum(res(x) ** 2)
-
-        def normal(x):
-            r = res(x)
-            J = jax.jacfwd(res)(x) * f
-            return J.T @ J, J.T @ r
-    else:
-        def res_b(x, blk):
-            return jnp.ravel(residual_fn(x, (args, blk)))
-
-        def over_blocks(fn, init):  # sum of fn(block) over the leading block axis
-            def body(acc, blk):
-                return jax.tree_util.tree_map(jnp.add, acc, fn(blk)), None
-            return jax.lax.scan(body, init, blocks)[0]
-
-        def cost(x):
-            return over_blocks(lambda blk: jnp.sum(res_b(x, blk) ** 2), jnp.zeros((), dtype))
-
-        def normal(x):
-            def one(blk):
-                r = res_b(x, blk)
-                J = jax.jacfwd(res_b)(x, blk) * f
-                return J.T @ J, J.T @ r
-            return over_blocks(one, (jnp.zeros((P, P), dtype), jnp.zeros((P,), dtype)))
+    cost, normal = _normal_equations(residual_fn, args, f, blocks, P, dtype)
 
     eye = jnp.eye(P, dtype=dtype)
 
@@ -212,31 +219,31 @@ def least_squares_fixed(residual_fn: Callable[[jax.Array, Any], jax.Array], x0, 
     return LSQResult(x, c, jnp.asarray(n_steps), ok)
 
 
-def gauss_newton_gap(residual_fn: Callable[[jax.Array, Any], jax.Array], x, args=None, free=None) -> jax.Array:
+def gauss_newton_gap(residual_fn: Callable[[jax.Array, Any], jax.Array], x, args=None, free=None,
+                     blocks=None) -> jax.Array:
     """Fraction of the cost at ``x`` that one full Gauss-Newton step would still remove: a convergence measure.
 
     With ``r = r(x)`` and ``J`` its Jacobian (fixed columns dropped through ``free``), the linearised
-    problem's best step removes ``|P_J r|^2`` of the cost ``|r|^2`` (``P_J`` the projection onto ``J``'s
-    columns), so ``gap = |P_J r|^2 / |r|^2`` is in [0, 1]: 0 at a stationary point (``Jᵀr = 0``), near 1
-    far from one. A fixed-budget fit (:func:`least_squares_fixed`) that ended with a gap above a few 1e-3
-    had not converged. Pure, jittable, vmappable.
+    problem's best step removes ``|P_J r|^2 = gᵀ (JᵀJ)⁺ g`` (``g = Jᵀr``, ``P_J`` the projection onto
+    ``J``'s columns) of the cost ``|r|^2``, so ``gap`` is in [0, 1]: 0 at a stationary point (``g = 0``),
+    near 1 far from one. A fixed-budget fit (:func:`least_squares_fixed`) that ended with a gap above
+    1e-3 had not converged. The pseudo-inverse drops directions with eigenvalues below 1e-12 of the
+    largest (parameters the residuals do not see). Pure, jittable, vmappable.
 
     Args:
-        residual_fn, x, args: as :func:`least_squares_fixed`. free: (P,) mask or None (all).
+        residual_fn, x, args, blocks: as :func:`least_squares_fixed`. free: (P,) mask or None (all).
     Returns:
         () gap; 0 when the cost is 0, 1 when it is not finite.
     """
     x = jnp.asarray(x, dtype=jnp.result_type(float))
-
-    def res(v):
-        return jnp.ravel(residual_fn(v, args))
-
-    r = res(x)
-    J = jax.jacfwd(res)(x)
-    if free is not None:
-        J = J * (jnp.asarray(free) != 0).astype(J.dtype)
-    step = jnp.linalg.lstsq(J, r)[0]
-    removed = jnp.sum((J @ step) ** 2)
-    cost = jnp.sum(r ** 2)
+    P = x.shape[0]
+    f = jnp.ones((P,), x.dtype) if free is None else (jnp.asarray(free) != 0).astype(x.dtype)
+    cost_fn, normal = _normal_equations(residual_fn, args, f, blocks, P, x.dtype)
+    H, g = normal(x)
+    w, V = jnp.linalg.eigh(H)
+    keep = w > 1e-12 * jnp.max(w)
+    proj = V.T @ g
+    removed = jnp.sum(jnp.where(keep, proj ** 2 / jnp.where(keep, w, 1.0), 0.0))
+    cost = cost_fn(x)
     gap = jnp.where(cost > 0, removed / jnp.where(cost > 0, cost, 1.0), 0.0)
-    return jnp.where(jnp.isfinite(cost) & jnp.isfinite(gap), gap, 1.0)
+    return jnp.where(jnp.isfinite(cost) & jnp.isfinite(gap), jnp.clip(gap, 0.0, 1.0), 1.0)

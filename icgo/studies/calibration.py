@@ -209,7 +209,7 @@ def fit_recording(G, B, groups, config: CalibrationConfig, key, header: dict, tr
                                 {"misma_box_lb": lb.tolist(), "misma_box_ub": ub.tolist(), "misma_box": box})
     lin = out["twelve+axis"]
     Q = lin.alignment
-    rot = lambda x: np.concatenate([(Q @ np.asarray(x[:9]).reshape(3, 3)).ravel(), np.asarray(x[9:])])  # noqa: E731
+    rot = lambda x: np.concatenate([(Q @ np.asarray(x[:9]).reshape(3, 3)).ravel(), np.asarray(x[9:])])
     j = joint.fit(G, B, groups, train, rot(xg), rot(x12))
     out["joint"] = model("joint", j.xm, x_accel=j.xg, extra={"joint_lambda": j.lam, "joint_cv": j.cv.tolist(),
                                                              "joint_gauss_newton_gap": j.gap})
