@@ -122,8 +122,8 @@ def rolls_section(name: str, rec, model) -> list[str]:
                           "plane_g": "off plane G (g)", "plane_b": "off plane B (|B|)",
                           "axis_to_z_deg": "axis to tool z (deg)", "spread_deg": "spread (deg)"})
     n_single = int((rec.frame.groupby("group").size() < 2).sum())
-    lines = [f"- `{name}`: {len(rec.frame)} shots, {len(t)} roll(s) and {n_single} single shot(s); "
-             f"{rec.meta.get('description', '')}"]
+    lines = [(f"- `{name}`: {len(rec.frame)} shots, {len(t)} roll(s) and {n_single} single shot(s); "
+              f"{rec.meta.get('description', '')}")]
     lines += [f"  - notice: {n}" for n in rec.notices]
     lines += ["", f"Rolls of `{name}` (direction and spread after the recommended calibration, `{model.method}`):",
               "", t.to_markdown(index=False, floatfmt=".4g"), ""]
@@ -141,10 +141,10 @@ def report(df, summ, recordings: dict, label: str, recs: dict, models: dict) -> 
     lines += ["", "`python -m experiments.apply model=<this run directory> data=<survey.csv>` applies it"
               + (" (the run holds several recordings: name one model file instead)" if len(recs) > 1 else "") + ".",
               "", "## Shots and rolls", "",
-              f"A roll: consecutive shots whose raw gravity and field each stay within {PLANE_TOL_G:g} g and "
-              f"{PLANE_TOL_B:g} |B| of one plane (the pointing axis' components constant), turning about one axis "
-              f"within {AXIS_TO_Z_DEG:g} deg of tool z shared by all rolls, over at least {MIN_SPAN_DEG:g} deg "
-              "(`icgo.methods.rolls`, docs/calibrate.md).", ""]
+              (f"A roll: consecutive shots whose raw gravity and field each stay within {PLANE_TOL_G:g} g and "
+               f"{PLANE_TOL_B:g} |B| of one plane (the pointing axis' components constant), turning about one axis "
+               f"within {AXIS_TO_Z_DEG:g} deg of tool z shared by all rolls, over at least {MIN_SPAN_DEG:g} deg "
+               "(`icgo.methods.rolls`, docs/calibrate.md)."), ""]
     for name, rec in recordings.items():
         lines += rolls_section(name, rec, models[name])
     lines += ["## Scores", "",

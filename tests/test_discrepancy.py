@@ -281,6 +281,35 @@ def test_bad_input_one_line(capsys, tmp_path):
         assert err.startswith("error:") and "\n" not in err and msg in err, (key, err)
 
 
+def test_a_json_recording_is_read_with_the_shots_settings(capsys, tmp_path):
+    # a circuitpython-mag-cal JSON goes in directly, with the same mag_axes / grav_axes / groups as calibrate;
+    # a bad setting exits 2 naming itself, a missing mounting is data (exit 1) with its probable cause
+    from mag_cal_files import device_attitudes, synth, write_raw
+
+    from experiments.discrepancy import load_stations, main_body
+
+    G, B = synth("bh", *device_attitudes("bh"))
+    path = tmp_path / "raw.json"
+    write_raw(path, G, B, "-y+x+z", "+z-x-y", keys=False)
+    st, label, _ = load_stations(str(path), shots={"mag_axes": "-y+x+z", "grav_axes": "+z-x-y"})
+    assert not st.has_reference and list(np.unique(st.group, return_counts=True)[1]) == [1] * 8 + [8, 8]
+    assert "rolls found from the data" in capsys.readouterr().out and "2 roll(s)" in label
+    np.testing.assert_allclose(st.B, B, rtol=1e-12)
+    cfg = OmegaConf.load(Path(__file__).parents[1] / "conf" / "discrepancy.yaml")
+    cfg.pop("hydra")
+    cfg.data = str(path)
+    for extra, rc, msg in [({}, 1, "probable cause: the mounting is not given"),
+                           ({"mag_axes": "+x+y-q"}, EXIT_CONFIG, "error: mag_axes '+x+y-q'"),
+                           ({"mag_axes": "-y+x+z", "grav_axes": "+z-x-y", "groups": "8-15,12-20"}, EXIT_CONFIG,
+                            "groups ranges 8-15 and 12-20 overlap")]:
+        bad = cfg.copy()
+        for k, v in extra.items():
+            bad[k] = v
+        assert main_body(bad, tmp_path) == rc, extra
+        err = capsys.readouterr().err.strip()
+        assert "\n" not in err and msg in err, (extra, err)
+
+
 def test_entry_point_writes_report_and_json(tmp_path):
     from experiments.discrepancy import main_body
 

@@ -41,8 +41,8 @@ def _split_args(args: list[str]) -> tuple[list[str], dict]:
 
 
 def _describe_shots(p, rec) -> list[str]:
-    lines = [f"{p}: ok, {len(rec.frame)} shots, {rec.frame['group'].nunique()} groups; "
-             f"{rec.meta.get('description', '')}"]
+    lines = [(f"{p}: ok, {len(rec.frame)} shots, {rec.frame['group'].nunique()} groups; "
+              f"{rec.meta.get('description', '')}")]
     for r in roll_table(rec.frame).itertuples():
         lines.append(f"  roll: group {r.group}, shots {r.shots} ({r.n}), raw inclination {r.inclination_deg:.1f} deg, "
                      f"roll span {r.roll_span_deg:.0f} deg, off its plane {r.plane_g:.4f} g / {r.plane_b:.4f} |B|, "
