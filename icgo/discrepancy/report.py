@@ -99,9 +99,11 @@ def verdict(res: Result) -> str:
         text = "unexplained structure remains"
         if res.model:
             text += f" after adding {', '.join(res.model)}"
-        if res.noise_estimate is not None:
+        est = res.noise_estimate
+        if est is not None:
             text += (f" (held-out chi2/residual {res.heldout:.4g}, more than {res.config.noise_tolerance:g}x that of "
-                     f"{res.noise_estimate.model}, {res.noise_estimate.heldout:.4g})")
+                     f"{est.model}, {est.heldout:.4g}: the vocabulary predicts the held-out shots better than the "
+                     "effects the search could add one by one with significance)")
         else:
             text += f" (held-out chi2/residual {res.heldout:.2f})"
         return text + ": " + pattern

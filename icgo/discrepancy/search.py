@@ -22,10 +22,14 @@ not only the overall lowest); another qualifying
 candidate within paired z < ``ambiguity_z`` of it makes the step not separable
 (both are reported; the best is kept so that the search can go on). The search
 stops when the best does not qualify or ``max_effects`` are in the model.
+Every evaluation goes on from its last fits until every model's fits have converged
+(:data:`CONVERGED_GAP`, :data:`CONVERGED_FALL`, at most :data:`MAX_ROUNDS` evaluations); a candidate
+whose fits have not converged never qualifies.
 Result kinds (:data:`KINDS`): ``not_separable`` when a step was ambiguous,
 else ``unexplained`` when the final held-out chi2 per residual exceeds
-``noise_tolerance`` x the noise floor, else ``no_missing_effect`` (nothing
-added) or ``explained``.
+``noise_tolerance`` x the noise floor (in group mode with ``noise_from_data``: x the larger of the noise
+floor and the best held-out chi2 of any converged model evaluated, :mod:`icgo.discrepancy.scatter`), else
+``no_missing_effect`` (nothing added) or ``explained``.
 """
 
 from __future__ import annotations
@@ -335,7 +339,8 @@ def _evaluated(ctx: SearchContext, model: tuple, theta, steps: tuple, gaps: tupl
         rows = [m for m in range(len(trial)) if converged[m] and (m > 0 or own is None)]
         m = min(rows, key=lambda k: S[k]) if rows else None
         if m is not None and (best is None or S[m] < best[0]):
-            name = "+".join(model + ((trial[m],) if trial[m] else ())) or "reference"
+            name = ("every candidate effect together" if trial[m] == VOCABULARY
+                    else "+".join(model + ((trial[m],) if trial[m] else ())) or "reference")
             best = (float(S[m]), (ev.r_held[m] / np.asarray(ctx.data.sig)) ** 2, name)
     return SearchState(model, np.asarray(theta), ev, masks, S, tuple(cands), steps, gaps, before, bool(done), ctx,
                        converged, best)

@@ -17,7 +17,13 @@ in a plane: bias, scale, cross-axis and hard iron do not move them off it). A gr
   least :data:`MIN_RADIUS_B` x median |B|: a pointing axis away from vertical and from the field line),
   and the roll angles span at least :data:`MIN_SPAN_DEG` (the largest gap between consecutive roll
   angles is at most 360 - MIN_SPAN_DEG);
-* it has at least :data:`icgo.methods.calibration.MIN_ROLLED_SHOTS` shots.
+* it has at least :data:`icgo.methods.calibration.MIN_ROLLED_SHOTS` shots;
+* and, among the rolls of one recording (:func:`check_groups`), each turns about the same body axis as the
+  others within :data:`ROLLS_AXIS_AGREE_DEG` (a group whose shots point two ways fits a tilted plane).
+
+:func:`find_rolls` finds them from the data (runs of consecutive shots, then the same search with the
+rolls' common axes held fixed), after checking that the shots' scatter (:func:`scatter`) lets rolls be
+told apart at all.
 
 Tolerances (measured on the 9 bundled circuitpython-mag-cal devices, 18 rolls, with
 ``tests/test_rolls.py::test_bundled_rolls_are_plausible_and_merged_rolls_are_not``): within a roll the

@@ -12,17 +12,20 @@ Methods (unit-sphere fits; :func:`fit_recording`):
   one rotation putting the rolled groups' roll axis on tool z;
 * ``misma+axis``: MISMA on the same objective, in a box in the data's units that
   contains the least-squares solution (:func:`misma_box`), then the axis rotation;
-* ``joint``: accelerometer and magnetometer (24 parameters) fitted together on the
-  rolled groups' directions, with one common dip over all shots (:func:`icgo.methods.calibration.fit_joint`);
+* ``joint``: ``twelve+axis`` with the accelerometer's 12 parameters refitted on the rolls' directions, one
+  dip and unit spheres, regularised toward small accelerometer errors with its strength chosen by
+  leave-one-group-out (:mod:`icgo.methods.joint`);
 * ``twelve+axis+relm``: ``twelve+axis`` plus a RELM on its field residual, trained by group
   consistency with its ridge chosen by leave-one-group-out on the training shots (:mod:`icgo.methods.mag_relm`);
 * the peer package circuitpython-mag-cal side by side (``peer_*``), when installed.
 
 Splits (:func:`splits`): in-sample (fit and score on every shot) and one held-out
-split per rolled group (fit without it, score on it). Score: the peer's metric
+split per rolled group (fit without it, score on it; one roll: its two interleaved halves). Score: the peer's metric
 (:func:`icgo.methods.calibration.group_spread_deg`, deg) on the scored rolled groups. Every
 fit also gets its physical sanity on all shots (:func:`icgo.methods.cal_sanity.sanity`);
-a degenerate fit's score is withheld (NaN) and it is never counted as a win.
+a degenerate fit's score is withheld (NaN) and it is never counted as a win. Every group of a recording
+is checked to be a plausible roll first (:func:`icgo.methods.rolls.check_groups`); :func:`recommend`
+names the calibration to apply.
 """
 
 from __future__ import annotations
@@ -199,7 +202,10 @@ def fit_recording(G, B, groups, config: CalibrationConfig, key, header: dict, tr
         return model(method, x, cal.align_to_axis(G_c[train], np.asarray(cal.correct(jnp.asarray(x), Bt)), gt),
                      extra=extra)
 
-    x12 = cal.fit_twelve(G_c, B, 1.0, x0=xm, weights=train.astype(float), check=False)
+    try:
+        x12 = cal.fit_twelve(G_c, B, 1.0, x0=xm, weights=train.astype(float), check=False)
+    except ValueError as e:
+        raise GeometryError(str(e).splitlines()[0]) from None
     if config.misma_bounds == "paper":
         (lb, ub), box = misma_opt.paper_bounds(), "icgo.optim.misma.paper_bounds (128 / -68 uT)"
     else:
