@@ -58,8 +58,10 @@ LAMBDAS = tuple(float(v) for v in 10.0 ** np.arange(0.0, 7.01, 0.5))
 #: Basis centres on each axis' unit component and their width (Underwood's 3-parameter basis, mag_cal ``RBF``).
 CENTRES = (-1.0, 0.0, 1.0)
 WIDTH = 0.5
-#: Levenberg-Marquardt steps per fit: more change no chosen ridge or score of the bundled devices (tested).
-N_STEPS = 40
+#: Levenberg-Marquardt steps per fit. On the 9 bundled devices x 3 splits, 20, 40 (the first build) and 80
+#: steps choose the same ridges and give the same scores to 1e-15 deg (10 steps: 3e-9 deg); each step
+#: costs the batch of 15 ridges x (groups + 1) fits, the largest part of a calibration's time.
+N_STEPS = 20
 #: Hidden activations, by the name saved in a model file (``tanh``: the first build's files).
 ACTIVATIONS = ("gauss", "tanh")
 
