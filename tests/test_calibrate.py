@@ -37,6 +37,9 @@ def _compose(*overrides):
 def test_conf_yaml_equals_the_dataclass_defaults():
     composed = {k: v for k, v in OmegaConf.to_container(_compose(), resolve=True).items() if k not in entry.ENTRY_KEYS}
     assert composed == config_to_mapping(C.CalibrationConfig())
+    # the compilation cache is the study app's (conf/config.yaml), restated here and kept equal
+    app = OmegaConf.load(CONF_DIR / "config.yaml")
+    assert OmegaConf.load(CONF_DIR / "calibrate.yaml").jax_cache_dir == app.jax_cache_dir
 
 
 def _one_field(n=40, seed=0, F=50_000.0, dip=60.0):
