@@ -1,7 +1,8 @@
 """Apply a fitted model to a new survey: ``python -m experiments.apply model=<run dir or model> data=<survey.csv>``.
 
 Loads any saved model (:func:`icgo.models.registry.load_model`; a run directory of
-``experiments.run`` gives its main model, ``relm_compensation``), reads the
+``experiments.run`` gives its main model, ``relm_compensation``; one of ``experiments.calibrate`` the
+calibration its record recommends), reads the
 survey (:func:`icgo.io.recording.read_recording`), corrects it with
 :func:`icgo.survey.apply.correct_survey` and writes ``<survey>_corrected.csv`` and
 ``<survey>_corrected.meta.json`` (the model, the QC counts before/after, the
@@ -29,11 +30,14 @@ KEYS = ("model", "data", "method", "require_meta", "out", "qc", "columns", "colu
 
 
 def model_path(path: Path) -> Path:
-    """The model file a ``model=`` setting names: a header, or a run directory's main model (the first of its
-    ``run.json``'s ``models``, which must be a file in that directory)."""
+    """The model file a ``model=`` setting names: a header, a run directory's main model (the first of its
+    ``run.json``'s ``models``, which must be a file in that directory), or the calibration a calibrate run
+    directory recommends."""
     from icgo.models.format import run_model_path
     from icgo.reporting import records
 
+    if path.is_dir() and (path / records.CALIBRATION_FILE).is_file():
+        return records.recommended_model(path)
     if path.is_dir() and ((path / records.RUN_FILE).exists() or (path / records.RUN_FILE).is_symlink()):
         return run_model_path(path)
     return path

@@ -85,7 +85,7 @@ import numpy as np
 
 import icgo  # noqa: F401  (enables float64)
 from experiments._entry import RESULTS_DIR, results_output
-from experiments.bench_user import front_door, measure, peer_comparison
+from experiments.bench_user import calibrate_front_door, front_door, measure, peer_comparison
 from icgo.datasets import protocols as datasets
 from icgo.methods import relm
 from icgo.optim import run_batch
@@ -382,6 +382,9 @@ def main(argv=None) -> dict:
     p.add_argument("--skip-peers", action="store_true", help="skip the evosax comparison")
     p.add_argument("--skip-roofline", action="store_true", help="skip the per-stage roofline (experiments.roofline)")
     p.add_argument("--out", default=None, help="also write the JSON and the table to results/bench_<out>.{json,md}")
+    p.add_argument("--calibrate", action="store_true",
+                   help="only time python -m experiments.calibrate on one bundled 24-shot device, cold then warm")
+    p.add_argument("--calibrate-runs", type=int, default=3, help="--calibrate: warm runs after the cold one")
     p.add_argument("--rows", default=None,
                    help="comma list of row counts (e.g. 1e3,1e4,1e5,1e6): only measure time and peak memory of the "
                         "reader, the study and the discrepancy workflow on contract CSVs of that many rows")
@@ -392,6 +395,13 @@ def main(argv=None) -> dict:
     a = p.parse_args(argv)
     if a.out is not None and not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}", a.out):
         p.error(f"--out {a.out!r}: a tag of letters, digits, '.', '_', '-' (the files are results/bench_<tag>.*)")
+    if a.calibrate:
+        res = calibrate_front_door(warm_runs=a.calibrate_runs)
+        res.update(cpu_count=os.cpu_count(), loadavg_end=list(os.getloadavg()))
+        print(f"calibrate {res['data']}: cold {res['cold']['wall_s']:.1f} s, warm {res['warm_min_s']:.1f} s (min of "
+              f"{len(res['warm'])}), median {res['warm_median_s']:.1f} s")
+        print(json.dumps(res))
+        return res
     if a.rows:
         sizes = [int(float(x)) for x in a.rows.split(",")]
         if min(sizes) < 1:

@@ -1,6 +1,7 @@
 """Hydra entry of the discrepancy workflow (issue #7): load data, call the library, render.
 
     python -m experiments.discrepancy data=path/to/file.csv     # .meta.json next to it
+    python -m experiments.discrepancy data=device.json [mag_axes=.. grav_axes=..] [groups=..]   # circuitpython-mag-cal
     python -m experiments.discrepancy data=lab_casing
     python -m experiments.discrepancy data=sim:hard_iron+accel_bias design=single_inclination
     python -m experiments.discrepancy data=mag_cal:ab
@@ -27,17 +28,19 @@ from omegaconf import DictConfig, OmegaConf
 import icgo  # noqa: F401  (float64)
 from experiments._entry import EXIT_CONFIG, bool_setting, hydra_keep, one_line, one_line_errors, write_hydra_record
 from icgo import discrepancy as D
-from icgo.core.errors import SettingsError
+from icgo.core.errors import SettingError, SettingsError
 from icgo.core.settings import config_from_mapping
 from icgo.discrepancy import report
 from icgo.io import recording as icgo_io
 from icgo.io.files import Output
+from icgo.io.shots import is_json, read_shots
 from icgo.models.discrepancy import PhysicsModel, station_qc
 from icgo.physics.qc import qc_sentence
 from icgo.studies import discrepancy_results
 
 #: Settings of the entry point, not of the workflow (excluded from :class:`icgo.discrepancy.WorkflowConfig`).
-ENTRY_KEYS = ("data", "study", "seed", "n_stations", "design", "results_dir", "overwrite", "hydra", "columns", "columns_file")
+ENTRY_KEYS = ("data", "study", "seed", "n_stations", "design", "results_dir", "overwrite", "hydra", "columns",
+              "columns_file", "mag_axes", "grav_axes", "groups")
 
 #: Largest ``n_stations`` of a simulated data set (the workflow's memory grows with it; a real recording is read
 #: whole).
@@ -48,13 +51,15 @@ STUDIES = ("none", "hidden", "devices", "lab_casing")
 
 
 def load_stations(spec: str, seed: int = 0, n: int = 240, design: str = "random", noise: D.Noise = D.NOISE,
-                  columns: dict | None = None):
+                  columns: dict | None = None, shots: dict | None = None):
     """Stations and a description from a ``data=`` value (see conf/discrepancy.yaml); ``columns``: the column map
-    of a field export (:func:`icgo.io.recording.column_map`).
-
+    of a field export (:func:`icgo.io.recording.column_map`); ``shots``: the grouped-shot settings (``mag_axes``,
+    ``grav_axes``, ``groups``) for a file of grouped shots (a circuitpython-mag-cal JSON, or a contract CSV
+    with ``groups=``; :func:`icgo.io.shots.read_shots`).
     Returns (Stations, label, truth or None). Raises icgo.io.recording.DataError / ValueError.
     """
     spec = str(spec)
+    shots = {k: v for k, v in (shots or {}).items() if v is not None}
     if spec.startswith("sim:"):
         names = [] if spec[4:] in ("", "none") else spec[4:].split("+")
         st, truth = D.hidden_stations(seed, names, n, design, noise)
@@ -68,10 +73,14 @@ def load_stations(spec: str, seed: int = 0, n: int = 240, design: str = "random"
         ds = lab_casing(seed)
         rec = icgo_io.validate(ds.frame, ds.meta, source="lab_casing")
         return D.stations_from_recording(rec), f"icgo.datasets.protocols.lab_casing(seed={seed})", ds.truth
-    rec = icgo_io.read_recording(spec, columns=columns)
+    if is_json(spec) or shots:
+        rec = read_shots(spec, **shots)
+        label = f"{spec} ({rec.meta.get('description', '')})"
+    else:
+        rec, label = icgo_io.read_recording(spec, columns=columns), spec
     for nt in rec.notices:
         print("notice:", nt)
-    return D.stations_from_recording(rec), spec, None
+    return D.stations_from_recording(rec), label, None
 
 
 def workflow_config(cfg: DictConfig) -> D.WorkflowConfig:
@@ -142,9 +151,14 @@ def main_body(cfg: DictConfig, out_dir: Path, keep=()) -> int:
             icgo_io.atomic_write_texts([(path, text + "\n")])
             print("wrote", path)
             return 0
+        shots = {k: (OmegaConf.to_container(cfg[k]) if OmegaConf.is_list(cfg[k]) else cfg[k])
+                 for k in ("mag_axes", "grav_axes", "groups")}
         st, label, truth = load_stations(cfg.data, int(cfg.seed), int(cfg.n_stations), str(cfg.design), config.noise,
-                                         cmap)
+                                         cmap, shots)
         D.check_stations(st)  # too few stations, NaN: one line here, not a traceback from the workflow
+    except SettingError as err:
+        print(f"error: {one_line(err)}", file=sys.stderr)
+        return EXIT_CONFIG
     except (icgo_io.DataError, ValueError, FileNotFoundError) as err:
         print(f"error: {err}".splitlines()[0], file=sys.stderr)
         return 1

@@ -797,12 +797,13 @@ def device_to_tool(v) -> np.ndarray:
     return np.asarray(v, np.float64)[:, list(MAG_CAL_DEVICE_TO_TOOL)]
 
 
-def fixture_shots(d, src: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def fixture_shots(d, src: str) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """mag_cal's fixture layout (``{"shots": {"mag", "grav"}}``, device frame, g and uT) -> tool frame.
 
     Returns:
-        (G (24, 3) g, B (24, 3) nT, group (24,)): shot k < 8 is its own group k; shots
-        8-15 are group 8 and 16-23 group 9 (rolled about the pointing axis).
+        (G (n, 3) g, B (n, 3) nT, group): for the peer's 24 shots, shot k < 8 is its own group k and
+        shots 8-15 and 16-23 are groups 8 and 9 (rolled about the pointing axis, mag_cal ``read_fixture``);
+        for any other count None (the rolls are then found from the data, :mod:`icgo.io.mag_cal_json`).
     Raises:
         DataError: one line naming ``src``.
     """
@@ -811,11 +812,13 @@ def fixture_shots(d, src: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         fail(src, "no 'shots' with 'mag' and 'grav'")
     mag = _fixture_triples(shots["mag"], src, "mag")
     grav = _fixture_triples(shots["grav"], src, "grav")
-    if len(mag) != MAG_CAL_SHOTS or len(grav) != MAG_CAL_SHOTS:
-        fail(src, f"expected {MAG_CAL_SHOTS} shots, got {len(mag)} mag and {len(grav)} grav")
-    group = np.arange(MAG_CAL_SHOTS)
-    for gid, (a, b) in zip((8, 9), MAG_CAL_RUNS):
-        group[a:b] = gid
+    if len(mag) != len(grav) or not len(mag):
+        fail(src, f"'shots.mag' has {len(mag)} readings and 'shots.grav' {len(grav)}: one of each per shot")
+    group = None
+    if len(mag) == MAG_CAL_SHOTS:
+        group = np.arange(MAG_CAL_SHOTS)
+        for gid, (a, b) in zip((8, 9), MAG_CAL_RUNS):
+            group[a:b] = gid
     # fixtures are in g already (median |G| ~ 1.00), gravity pointing down; uT -> nT
     return device_to_tool(grav), device_to_tool(mag) * UT_TO_NT, group
 
