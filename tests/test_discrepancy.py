@@ -305,7 +305,7 @@ def test_a_json_recording_is_read_with_the_shots_settings(capsys, tmp_path):
         bad = cfg.copy()
         for k, v in extra.items():
             bad[k] = v
-        assert main_body(bad, tmp_path) == rc, extra
+        assert main_body(bad, tmp_path / "run") == rc, extra  # a run directory of its own (not the data's)
         err = capsys.readouterr().err.strip()
         assert "\n" not in err and msg in err, (extra, err)
 

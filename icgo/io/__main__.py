@@ -92,13 +92,13 @@ def check(words: list[str], columns: str | None = None) -> int:
     return 1 if bad else 0
 
 
-def convert(words: list[str], out: str, overwrite: bool) -> int:
+def convert(words: list[str], out: str | None, overwrite: bool) -> int:
     """``FILE.json --out FILE.csv [settings]``: the contract CSV + ``.meta.json`` with the checked groups."""
     from icgo.io.recording import meta_path_for
 
     paths, settings = split_words(words)
-    if len(paths) != 1:
-        raise SettingError("convert: give one FILE.json (and --out FILE.csv)")
+    if len(paths) != 1 or out is None:
+        raise SettingError("convert: give one FILE.json and --out FILE.csv")
     if not str(out).lower().endswith(".csv"):
         raise SettingError(f"convert: --out {out!r} must name a .csv file (its .meta.json is written beside it)")
     if Path(out).resolve() == Path(paths[0]).resolve():
@@ -137,17 +137,25 @@ def main(argv=None) -> int:
     c.add_argument("--columns", metavar="MAP", help="a JSON or YAML column map for field exports (docs/data.md)")
     v = sub.add_parser("convert", help="write a JSON recording as a contract CSV + meta.json with its groups")
     v.add_argument("words", nargs="+", metavar="FILE.json|key=value")
-    v.add_argument("--out", required=True, metavar="FILE.csv")
+    v.add_argument("--out", metavar="FILE.csv", help="the contract CSV to write (required)")
     v.add_argument("--overwrite", action="store_true", help="replace an existing FILE.csv and its meta.json")
     e = sub.add_parser("export-mag-cal", help="write the 9 bundled devices as contract CSV + meta.json")
     e.add_argument("outdir")
     e.add_argument("--overwrite", action="store_true", help="replace a used OUTDIR whole")
-    a = ap.parse_args(argv)
-    if a.command == "check":
-        return check(a.words, a.columns)
-    if a.command == "convert":
-        return convert(a.words, a.out, a.overwrite)
-    return export_mag_cal(Path(a.outdir), a.overwrite)
+    a, extra = ap.parse_known_args(argv)  # key=value settings may also follow an option (convert ... --out F k=v)
+    if extra and (a.command == "export-mag-cal" or any(w.startswith("-") or "=" not in w for w in extra)):
+        ap.error(f"unrecognized arguments: {' '.join(extra)}")
+    if extra:
+        a.words += extra
+    try:
+        if a.command == "check":
+            return check(a.words, a.columns)
+        if a.command == "convert":
+            return convert(a.words, a.out, a.overwrite)
+        return export_mag_cal(Path(a.outdir), a.overwrite)
+    except SettingError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":
