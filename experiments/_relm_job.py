@@ -292,37 +292,39 @@ class Progress:
             self.bar.close()
 
 
-def progress_enabled(setting) -> bool:
-    """``progress`` option: ``auto`` (a bar when stderr is a terminal), true or false."""
+def progress_enabled(setting, accelerator: bool = False) -> bool:
+    """``progress`` option: ``auto`` (a bar when stderr is a terminal and the search runs on a CPU: on an
+    accelerator the bar's host callback would be a round trip inside the iteration loop), true or false."""
     if isinstance(setting, bool):
         return setting
     if setting in (None, "auto"):
-        return sys.stderr.isatty()
+        return sys.stderr.isatty() and not accelerator
     raise SettingError(f"progress must be auto, true or false, got {setting!r}")
 
 
-def run_with_progress(frame, scfg, meta, enable: bool, desc: str, target=None):
+def run_with_progress(frame, scfg, meta, progress, desc: str, target=None, timings: dict | None = None):
     """``icgo.studies.icgo_relm.run_study`` with a progress bar over the optimizer's iterations.
 
     The bar wraps the search's fitness (``run_study(wrap_fitness=...)``), so it
-    advances from inside the scan; without an optimizer (plain RELM) there is no
-    scan and no bar.
+    advances from inside the scan; without an optimizer (plain RELM), with the search
+    split over processes, or on an accelerator under ``progress=auto`` there is no bar.
+    ``progress``: the ``progress`` setting (:func:`progress_enabled`). ``timings``: see ``run_study``.
     """
+    from icgo.core.execution import is_accelerator
     from icgo.studies import icgo_relm as study
 
-    n_workers = scfg.search_workers(len(frame))
-    if n_workers > 1:
-        print(f"search: {n_workers} worker processes, one per core (workers={scfg.workers}); "
-              f"{'no progress bar (workers=1 for one)' if enable else 'progress off'}", file=sys.stderr)
-    if not enable or scfg.optimizer is None or n_workers > 1:
-        return study.run_study(frame, scfg, meta, target=target)
+    plan = scfg.execution(len(frame))
+    enable = progress_enabled(progress, is_accelerator(plan.backend))
+    print(f"search: {plan.why}", file=sys.stderr)
+    if not enable or scfg.optimizer is None or plan.workers > 1:
+        return study.run_study(frame, scfg, meta, target=target, timings=timings)
     from icgo.optim import get, iterations_for_budget
 
     n_iter = scfg.iterations if scfg.max_evals is None else iterations_for_budget(
         get(scfg.optimizer), scfg.pop_size, scfg.max_evals, scfg.optimizer_config)
     bar = Progress(int(n_iter) + 1, desc, True)
     try:
-        return study.run_study(frame, scfg, meta, wrap_fitness=bar.wrap, target=target)
+        return study.run_study(frame, scfg, meta, wrap_fitness=bar.wrap, target=target, timings=timings)
     finally:
         bar.close()
 
@@ -417,6 +419,7 @@ def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, m
     from icgo.reporting import records as R
     from icgo.survey.apply import study_qc
 
+    t0 = time.perf_counter()
     qc = None if frame is None else study_qc(frame[result.kept].reset_index(drop=True), meta, result.msa_model)
 
     outdir.mkdir(parents=True, exist_ok=True)
@@ -445,6 +448,8 @@ def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, m
         plot(outdir / "study.png")
     models = [result.model.save(outdir / result.model.KIND).name, result.msa_model.save(outdir / result.msa_model.KIND).name]
     methods = result.config.method_names()
+    if "timings" in info:  # everything above, the run record's own few bytes aside
+        info = {**info, "timings": {**info["timings"], "write_s": time.perf_counter() - t0}}
     run = {**info, "records_version": R.RECORDS_VERSION, "status": "ok", "seed": result.config.seed,
            "wall_time_s": result.wall_time_s, "methods": methods,
            "n_evals": {m: int(v) for m, v in zip(methods, np.asarray(result.n_evals)[:, 0])},

@@ -96,7 +96,7 @@ LAM = 1e-3
 N_INPUTS = relm.N_INPUTS
 STRATEGIES = ("original", "chaos", "gaussian", "wavelet", "three_stage")
 #: Feature dtype of the study's default search kernel (``StudyConfig.dtype``): what the benchmark's study path runs.
-FEATURES = study.TRAIN_KERNEL_FEATURES[study.StudyConfig().dtype]
+FEATURES = study.PRECISIONS[study.StudyConfig().dtype][0]
 
 
 # --------------------------------------------------------------------------- flops
