@@ -1,7 +1,8 @@
 """Benchmark of the ICGO-RELM study against the machine's limit and against mealpy (issue #10).
 
 ``python -m experiments.bench`` (``make bench``) measures, in one run on the
-machine it runs on (CPU here; unchanged with ``JAX_PLATFORMS=cuda``):
+machine it runs on (the CPU kernels here; ``--gpu-check`` measures the backend it finds,
+:mod:`experiments.bench_backend`):
 
 * ``fitness_evals_per_s``: batched RELM fitness throughput at the paper's
   scale (the study's own data, repeat 0: 407 training rows, 6 inputs,
@@ -10,8 +11,8 @@ machine it runs on (CPU here; unchanged with ``JAX_PLATFORMS=cuda``):
   (:func:`icgo.methods.relm.train_fitness` with ``fitness_features`` = the feature dtype of
   ``StudyConfig().dtype``); ``library_evals_per_s`` for the row-weighted float64 path
   ``icgo.methods.relm.fitness``;
-* ``fitness_by_features_evals_per_s``: that kernel with float64 features (``dtype=mixed``) and
-  with float32 features (``dtype=fast``: pre-activation, sigmoid and matrix-vector products in
+* ``fitness_by_features_evals_per_s``: that kernel with float64 features (``dtype=float64``) and
+  with float32 features (``dtype=float32_features``: pre-activation, sigmoid and matrix-vector products in
   float32, Gram centred in float32, Cholesky and refinement residuals in float64) at the same
   batches, ``f32_features_speedup`` the ratio at batch 1200; ``max_rel_diff_vs_float64`` and
   ``max_rel_diff_f32_vs_float64`` their largest relative differences from ``icgo.methods.relm.fitness``;
@@ -31,6 +32,13 @@ machine it runs on (CPU here; unchanged with ``JAX_PLATFORMS=cuda``):
   one-job run); ``table3_1_worker_s`` the one-job run with its search in one process
   (``workers=1``; the default splits it over one process per core, :mod:`icgo.studies.workers`)
   and ``study_workers_speedup`` the ratio; ``--skip-front-door``: ``table3_s`` is ``table3_kernel_s``;
+  each single run's ``breakdown`` (:func:`experiments.bench_user.breakdown`: start, import, data, MSA,
+  search, scoring, write, and the compile or cache-load part); ``like_for_like_s``
+  (:func:`experiments.bench_user.like_for_like`): the front door run as mealpy's side is, 50 runs of
+  CGO's ``mealpy`` variant in float64, and ``speedup_vs_mealpy_like_for_like``;
+* ``cores`` (``--cores 1,2``, :func:`experiments.bench_user.core_curve`): Table 3's front door with the
+  job's CPU affinity cut to that many cores (one search worker per core), cold and warm, with the
+  breakdown at each point;
 * ``mealpy_table3_s`` and ``speedup_vs_mealpy`` (vs ``table3_s``): the same study with mealpy 3.x
   ``OriginalCGO`` on the same data and the same RELM fitness in numpy
   (:func:`numpy_fitness`), same population, iterations and runs; also in
@@ -84,7 +92,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import icgo  # noqa: F401  (enables float64)
-from experiments.bench_user import front_door, measure, peer_comparison
+from experiments.bench_user import core_curve, front_door, like_for_like, measure, peer_comparison
 from icgo.datasets import protocols as datasets
 from icgo.methods import relm
 from icgo.optim import run_batch
@@ -386,7 +394,38 @@ def main(argv=None) -> dict:
     p.add_argument("--rows-repeats", type=int, default=None, help="--rows: the study's split.n_repeats (default 10)")
     p.add_argument("--rows-commands", default="reader,study,discrepancy", help="--rows: which commands to run")
     p.add_argument("--rows-dir", default=None, help="--rows: directory for the CSVs and run directories")
+    p.add_argument("--gpu-check", action="store_true",
+                   help="only the backend check of experiments.bench_backend (kernels at batch 120 / 1,200 / 60,000, "
+                        "flop_fraction, Table 3's front door cold and warm, the study at 1 / 10 / 100 / 1,000 repeats, "
+                        "mealpy) in under 8 minutes; on a machine without a GPU it says so and measures what it finds")
+    p.add_argument("--cores", default=None,
+                   help="comma list of core counts (e.g. 1,2): Table 3's front door with its CPU affinity cut to that "
+                        "many cores, cold and warm, and where the time went at each (the 'cores' section)")
+    p.add_argument("--skip-like-for-like", action="store_true",
+                   help="skip the like-for-like front door (mealpy's CGO variant in float64, 50 runs)")
     a = p.parse_args(argv)
+    if a.gpu_check:
+        from experiments.bench_backend import backend_check, report
+
+        res = backend_check(mealpy_runs=5 if a.mealpy_runs is None else a.mealpy_runs)
+        md, line = report(res), json.dumps(res, default=float)
+        if a.out:
+            from icgo.io.recording import atomic_write_texts
+
+            os.makedirs("results", exist_ok=True)
+            atomic_write_texts([(Path(f"results/bench_{a.out}.md"), md + "\n"),
+                                (Path(f"results/bench_{a.out}.json"), line + "\n")])
+        print(md)
+        print(line)
+        return res
+    cores = None
+    if a.cores:
+        try:
+            cores = [int(x) for x in a.cores.split(",")]
+        except ValueError:
+            p.error(f"--cores must be a comma list of integers, got {a.cores!r}")
+        if min(cores) < 1 or max(cores) > len(os.sched_getaffinity(0)):
+            p.error(f"--cores must be between 1 and the {len(os.sched_getaffinity(0))} cores this process may use")
     if a.rows:
         sizes = [int(float(x)) for x in a.rows.split(",")]
         if min(sizes) < 1:
@@ -519,8 +558,27 @@ def main(argv=None) -> dict:
             row(f"Table 3 as a 5-job sweep (one strategy each), {w} worker(s)", fd[k]["wall_s"], "s",
                 _same_note(fd["max_abs_diff"][k]))
         row("sweep speed-up, 2 workers / 1", out["sweep_workers_speedup"], "x")
+        b = fd["warm"]["breakdown"]
+        row("  where the warm run's time went: start / import / data / MSA / search / scoring / write", fd["warm"]["wall_s"],
+            "s", f"{b['start']:.1f} / {b['import']:.1f} / {b['load_data']:.1f} / {b['msa']:.1f} / {b['search']:.1f} / "
+                 f"{b['scoring']:.1f} / {b['write']:.1f}; compile or cache load {b['compile']:.1f}")
+        if not a.skip_like_for_like:
+            ll = like_for_like(runs=len(STRATEGIES) * n_rep, extra=[f"budget.iterations={iters}"])
+            out["like_for_like"] = ll
+            out["like_for_like_s"] = ll["warm"]["wall_s"]
+            row("like-for-like front door (CGO variant=mealpy, original seed, dtype=float64, 50 runs), warm",
+                ll["warm"]["wall_s"], "s", f"cold {ll['cold']['wall_s']:.1f} s")
     else:
         out["table3_s"] = res["total_s"]
+
+    if cores:
+        out["cores"] = core_curve(cores, extra=[f"split.n_repeats={n_rep}", f"budget.iterations={iters}"])
+        for pt in out["cores"]:
+            b = pt["warm"]["breakdown"]
+            row(f"Table 3 front door on {pt['cores']} core(s) (affinity), warm", pt["warm"]["wall_s"], "s",
+                f"cold {pt['cold']['wall_s']:.1f} s; start {b['start']:.1f} / import {b['import']:.1f} / data "
+                f"{b['load_data']:.1f} / MSA {b['msa']:.1f} / search {b['search']:.1f} / scoring {b['scoring']:.1f} / "
+                f"write {b['write']:.1f}; compile or cache load {b['compile']:.1f}")
 
     # mealpy
     if mealpy_runs:
@@ -540,6 +598,10 @@ def main(argv=None) -> dict:
         if not a.skip_front_door:
             out["speedup_vs_mealpy_cold"] = out["mealpy_table3_s"] / out["table3_cold_s"]
             row("speedup vs mealpy, front door with a cold cache", out["speedup_vs_mealpy_cold"], "x")
+        if "like_for_like_s" in out:
+            out["speedup_vs_mealpy_like_for_like"] = out["mealpy_table3_s"] / out["like_for_like_s"]
+            row("speedup vs mealpy, like for like (same CGO rules, float64 both sides), warm",
+                out["speedup_vs_mealpy_like_for_like"], "x")
         mp = run_mealpy(sd, mealpy_runs, 30, iters, mode="process", n_workers=2)
         out["mealpy_parallel_table3_s"] = mp["per_run_s"] * n_all
         out["speedup_vs_mealpy_parallel"] = out["mealpy_parallel_table3_s"] / out["table3_s"]
