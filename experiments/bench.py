@@ -408,16 +408,7 @@ def main(argv=None) -> dict:
         from experiments.bench_backend import backend_check, report
 
         res = backend_check(mealpy_runs=5 if a.mealpy_runs is None else a.mealpy_runs)
-        md, line = report(res), json.dumps(res, default=float)
-        if a.out:
-            from icgo.io.recording import atomic_write_texts
-
-            os.makedirs("results", exist_ok=True)
-            atomic_write_texts([(Path(f"results/bench_{a.out}.md"), md + "\n"),
-                                (Path(f"results/bench_{a.out}.json"), line + "\n")])
-        print(md)
-        print(line)
-        return res
+        return _publish(res, report(res), a.out)
     cores = None
     if a.cores:
         try:
@@ -647,14 +638,19 @@ def main(argv=None) -> dict:
     out["jax"] = jax.__version__
     table = ["| measurement | value | unit | note |", "| --- | ---: | --- | --- |"]
     table += [f"| {w} | {v:.4g} | {u} | {nt} |" for w, v, u, nt in rows]
-    md = "\n".join(table)
+    return _publish(out, "\n".join(table), a.out)
+
+
+def _publish(out: dict, md: str, name: str | None) -> dict:
+    """Print the Markdown and, last, the JSON line; with ``name`` also write results/bench_<name>.{md,json}
+    (both files or neither)."""
     line = json.dumps(out, default=float)
-    if a.out:  # both files or neither
+    if name:
         from icgo.io.recording import atomic_write_texts
 
         os.makedirs("results", exist_ok=True)
-        atomic_write_texts([(Path(f"results/bench_{a.out}.md"), md + "\n"),
-                            (Path(f"results/bench_{a.out}.json"), line + "\n")])
+        atomic_write_texts([(Path(f"results/bench_{name}.md"), md + "\n"),
+                            (Path(f"results/bench_{name}.json"), line + "\n")])
     print(md)
     print(line)
     return out
