@@ -79,8 +79,8 @@ class StudyConfig:
         seed: base seed; repeat k uses key ``fold_in(PRNGKey(seed), k)``.
         repeat_ids: run only these repeat ids (e.g. ``(3,)`` to rerun repeat 3
             alone); None = ``range(n_repeats)``.
-        workers: processes the search is split over by repeats (:mod:`icgo.studies.workers`:
-            one per core, XLA on one thread each, bitwise the one-process result) on a CPU;
+        workers: processes the search is split over by strategies x repeats (:mod:`icgo.studies.workers`,
+            :func:`search_grid`: one per core, XLA on one thread each, bitwise the one-process result) on a CPU;
             None (default) = one per available core when the search is large
             (:data:`icgo.core.execution.AUTO_MIN_WORK`) and no fitness wrapper (progress
             bar) is given, else 1. Only the random protocol's searches split. On an
