@@ -45,8 +45,13 @@ from icgo.optim.registry import get
 #: Runs argv[2:] as its child and writes that child's peak resident memory (kB) to the file argv[1]. The
 #: command must be started by a small process: a child's ru_maxrss includes the memory of the process it
 #: was forked from (Linux carries the pre-exec high-water mark over exec), so forking it straight from a
-#: benchmark that holds a large data set would report that data set as the command's own.
+#: benchmark that holds a large data set would report that data set as the command's own. With
+#: ``ICGO_BENCH_CPUS`` (comma list) set, the launcher first cuts its affinity to those cores (the child
+#: inherits it); set here rather than in the benchmark, which must not fork once JAX runs threads.
 _SHIM = """import os, sys
+cpus = os.environ.pop("ICGO_BENCH_CPUS", "")
+if cpus:
+    os.sched_setaffinity(0, {int(c) for c in cpus.split(",")})
 pid = os.fork()
 if pid == 0:
     os.execvp(sys.argv[2], sys.argv[2:])
@@ -67,9 +72,9 @@ def measure(cmd: list[str], timeout: float | None = None, cpus: list[int] | None
         log_path, rss_path = Path(tmp) / "log", Path(tmp) / "rss"
         with open(log_path, "w") as log:
             t = time.perf_counter()
-            pin = None if cpus is None else (lambda: os.sched_setaffinity(0, set(cpus)))
+            env = None if cpus is None else {**os.environ, "ICGO_BENCH_CPUS": ",".join(str(c) for c in cpus)}
             proc = subprocess.Popen([sys.executable, "-c", _SHIM, str(rss_path), *cmd], stdout=log,
-                                    stderr=subprocess.STDOUT, start_new_session=True, preexec_fn=pin)
+                                    stderr=subprocess.STDOUT, start_new_session=True, env=env)
             try:
                 rc = proc.wait(timeout)
             except subprocess.TimeoutExpired:  # the launcher and the command are one process group

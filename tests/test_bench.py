@@ -27,6 +27,7 @@ def test_numpy_fitness_equals_jax_fitness():
 
 def test_large_recording_and_measure(tmp_path):
     """--rows building blocks: a tiled contract CSV that reads back, and a child's time and peak memory."""
+    import os
     import sys
 
     from icgo.io import recording as io
@@ -37,6 +38,9 @@ def test_large_recording_and_measure(tmp_path):
     np.testing.assert_array_equal(back.frame["azimuth_deg"], rec.frame["azimuth_deg"])
     m = bench_user.measure([sys.executable, "-c", "print('ok')"])
     assert m["rc"] == 0 and "ok" in m["tail"] and 0 < m["peak_rss_gb"] < 1 and m["wall_s"] > 0
+    core = max(os.sched_getaffinity(0))  # --cores: the command runs on the cores it is given
+    m = bench_user.measure([sys.executable, "-c", "import os; print(sorted(os.sched_getaffinity(0)))"], cpus=[core])
+    assert m["rc"] == 0 and m["tail"].strip() == f"[{core}]"
 
 
 def test_evosax_peers_spend_the_same_evaluations_and_icgo_pso_is_run_batch():
