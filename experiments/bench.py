@@ -36,6 +36,9 @@ machine it runs on (the CPU kernels here; ``--gpu-check`` measures the backend i
   search, scoring, write, and the compile or cache-load part); ``like_for_like_s``
   (:func:`experiments.bench_user.like_for_like`): the front door run as mealpy's side is, 50 runs of
   CGO's ``mealpy`` variant in float64, and ``speedup_vs_mealpy_like_for_like``;
+* ``alternating`` (``--alternate K``, :func:`interleaved_ratio`): mealpy's runs timed in K parts, each
+  after a warm front-door run (Table 3 and like-for-like), and the ratios over the medians: both sides
+  see the same stretch of a shared machine's load;
 * ``cores`` (``--cores 1,2``, :func:`experiments.bench_user.core_curve`): Table 3's front door with the
   job's CPU affinity cut to that many cores (one search worker per core), cold and warm, with the
   breakdown at each point;
@@ -92,7 +95,8 @@ import jax.numpy as jnp
 import numpy as np
 
 import icgo  # noqa: F401  (enables float64)
-from experiments.bench_user import core_curve, front_door, like_for_like, measure, peer_comparison
+from experiments.bench_user import (core_curve, front_door, like_for_like, like_for_like_command, measure,
+                                    peer_comparison, table3_command)
 from icgo.datasets import protocols as datasets
 from icgo.methods import relm
 from icgo.optim import run_batch
@@ -269,11 +273,12 @@ class _NumpyObjective:
 
 
 def run_mealpy(sd: StudyData, n_runs: int, pop_size=30, iterations=100, mode: str = "single",
-               n_workers: int | None = None):
+               n_workers: int | None = None, first: int = 0):
     """mealpy 3.x OriginalCGO on :func:`numpy_fitness`, one run per (strategy, repeat) slot.
 
-    Run j uses repeat ``j % R`` of the study's data and seed j. ``mode``/``n_workers``:
-    mealpy's own parallel modes (``"process"``: each population's fitness on ``n_workers`` processes).
+    Run j (``first`` <= j < ``first + n_runs``) uses repeat ``j % R`` of the study's data and seed j.
+    ``mode``/``n_workers``: mealpy's own parallel modes (``"process"``: each population's fitness on
+    ``n_workers`` processes).
 
     Returns:
         dict: total_s, per_run_s, evals_per_run (mealpy's counter), best_f (n_runs,).
@@ -284,7 +289,7 @@ def run_mealpy(sd: StudyData, n_runs: int, pop_size=30, iterations=100, mode: st
     D = relm.n_params(HIDDEN)
     best, evals = [], []
     t0 = time.perf_counter()
-    for j in range(n_runs):
+    for j in range(first, first + n_runs):
         obj = _NumpyObjective(np.asarray(sd.compact.Xa[j % R])[:, :N_INPUTS], np.asarray(sd.compact.T[j % R]))
         problem = {"obj_func": obj, "bounds": FloatVar(lb=[-1.0] * D, ub=[1.0] * D), "minmax": "min",
                    "log_to": None}
@@ -295,6 +300,44 @@ def run_mealpy(sd: StudyData, n_runs: int, pop_size=30, iterations=100, mode: st
     total = time.perf_counter() - t0
     return {"total_s": total, "per_run_s": total / n_runs, "evals_per_run": int(np.median(evals)),
             "best_f": np.asarray(best)}
+
+
+def interleaved_ratio(sd: StudyData, chunks: int, fd_work: Path, fd_extra, ll_work: Path | None, ll_runs: int,
+                      ll_extra, iterations: int) -> dict:
+    """The speed-up over mealpy measured in alternation, for a machine whose load changes while it runs.
+
+    mealpy's Table 3 runs (all of them) are timed in ``chunks`` parts; before each part the warm front
+    door runs once (Table 3, and the like-for-like job when ``ll_work`` is given), in the caches that
+    :func:`experiments.bench_user.front_door` and :func:`experiments.bench_user.like_for_like` filled.
+    The ratios are mealpy's total over the median of each front-door command: both sides then share
+    the same stretch of the machine's load.
+
+    Returns:
+        dict: ``table3_s`` and ``like_for_like_s`` (lists, one per part), ``mealpy_table3_s``, ``speedup``,
+        ``speedup_like_for_like`` (or None), ``loadavg`` per part.
+    """
+    n_all = len(STRATEGIES) * int(sd.compact.T.shape[0])
+    sizes = [len(c) for c in np.array_split(np.arange(n_all), chunks)]
+    fd_t, ll_t, load, mealpy_s, first = [], [], [], 0.0, 0
+    for k, n in enumerate(sizes):
+        load.append(list(os.getloadavg()))
+        cmds = [("table3", table3_command(fd_work, f"warm_alt{k}", fd_extra), fd_t)]
+        if ll_work is not None:
+            cmds.append(("like-for-like", like_for_like_command(ll_work, f"warm_alt{k}", ll_runs, ll_extra), ll_t))
+        for name, cmd, times in cmds:
+            m = measure(cmd)
+            if m["rc"] != 0:
+                raise RuntimeError(f"alternating {name} run {k} failed (exit {m['rc']}): "
+                                   f"{m['tail'].strip().splitlines()[-1:]}")
+            times.append(m["wall_s"])
+        mealpy_s += run_mealpy(sd, n, 30, iterations, first=first)["total_s"]
+        first += n
+        print(f"  alternating part {k + 1}/{chunks}: table3 {fd_t[-1]:.1f} s"
+              + (f", like-for-like {ll_t[-1]:.1f} s" if ll_t else "") + f", mealpy so far {mealpy_s:.1f} s "
+              f"({first} runs), load {load[-1][0]:.1f}", file=sys.stderr, flush=True)
+    return {"table3_s": fd_t, "like_for_like_s": ll_t, "mealpy_table3_s": mealpy_s,
+            "speedup": mealpy_s / float(np.median(fd_t)),
+            "speedup_like_for_like": mealpy_s / float(np.median(ll_t)) if ll_t else None, "loadavg": load}
 
 
 # -------------------------------------------------------------------- rows scaling
@@ -401,6 +444,10 @@ def main(argv=None) -> dict:
     p.add_argument("--cores", default=None,
                    help="comma list of core counts (e.g. 1,2): Table 3's front door with its CPU affinity cut to that "
                         "many cores, cold and warm, and where the time went at each (the 'cores' section)")
+    p.add_argument("--alternate", type=int, default=1,
+                   help="time mealpy's Table 3 runs in this many parts, each after a warm front-door run (Table 3 "
+                        "and like-for-like), for the ratios on a machine whose load changes (default 1: one block)")
+    p.add_argument("--skip-mealpy-parallel", action="store_true", help="skip mealpy's own parallel mode")
     p.add_argument("--skip-like-for-like", action="store_true",
                    help="skip the like-for-like front door (mealpy's CGO variant in float64, 50 runs)")
     a = p.parse_args(argv)
@@ -532,7 +579,9 @@ def main(argv=None) -> dict:
 
     # what a user runs: the front door in fresh processes (table3_s = warm cache), as one job and as a sweep
     if not a.skip_front_door:
-        fd = front_door(extra=[f"split.n_repeats={n_rep}", f"budget.iterations={iters}"])
+        fd_work, fd_extra = Path(tempfile.mkdtemp(prefix="icgo-frontdoor-")), [f"split.n_repeats={n_rep}",
+                                                                               f"budget.iterations={iters}"]
+        fd = front_door(fd_work, fd_extra)
         out["front_door"] = fd
         out["table3_s"], out["table3_cold_s"] = fd["warm"]["wall_s"], fd["cold"]["wall_s"]
         out["sweep_workers_speedup"] = fd["sweep_1_worker"]["wall_s"] / fd["sweep_2_workers"]["wall_s"]
@@ -554,7 +603,8 @@ def main(argv=None) -> dict:
             "s", f"{b['start']:.1f} / {b['import']:.1f} / {b['load_data']:.1f} / {b['msa']:.1f} / {b['search']:.1f} / "
                  f"{b['scoring']:.1f} / {b['write']:.1f}; compile or cache load {b['compile']:.1f}")
         if not a.skip_like_for_like:
-            ll = like_for_like(runs=len(STRATEGIES) * n_rep, extra=[f"budget.iterations={iters}"])
+            ll_work, ll_extra = Path(tempfile.mkdtemp(prefix="icgo-likeforlike-")), [f"budget.iterations={iters}"]
+            ll = like_for_like(ll_work, len(STRATEGIES) * n_rep, ll_extra)
             out["like_for_like"] = ll
             out["like_for_like_s"] = ll["warm"]["wall_s"]
             row("like-for-like front door (CGO variant=mealpy, original seed, dtype=float64, 50 runs), warm",
@@ -572,7 +622,24 @@ def main(argv=None) -> dict:
                 f"write {b['write']:.1f}; compile or cache load {b['compile']:.1f}")
 
     # mealpy
-    if mealpy_runs:
+    alternate = a.alternate > 1 and not a.skip_front_door
+    if mealpy_runs and alternate:  # every run timed, in parts between warm front-door runs
+        alt = interleaved_ratio(sd, a.alternate, fd_work, fd_extra, None if a.skip_like_for_like else ll_work,
+                                len(STRATEGIES) * n_rep, [] if a.skip_like_for_like else ll_extra, iters)
+        out["alternating"] = alt
+        out["mealpy_table3_s"], out["mealpy_runs_timed"], out["mealpy_extrapolated"] = (
+            alt["mealpy_table3_s"], len(STRATEGIES) * n_rep, False)
+        out["speedup_vs_mealpy"] = alt["speedup"]
+        row(f"mealpy OriginalCGO + numpy fitness, same study, all runs timed in {a.alternate} parts",
+            out["mealpy_table3_s"], "s", "each part after one warm front-door run of each command below")
+        row("speedup vs mealpy (front door, warm: the median of the alternating runs)", alt["speedup"], "x",
+            "Table 3 front door " + ", ".join(f"{t:.1f}" for t in alt["table3_s"]) + " s")
+        if alt["speedup_like_for_like"] is not None:
+            out["speedup_vs_mealpy_like_for_like"] = alt["speedup_like_for_like"]
+            row("speedup vs mealpy, like for like (same CGO rules, float64 both sides; median)",
+                alt["speedup_like_for_like"], "x", "like-for-like front door "
+                + ", ".join(f"{t:.1f}" for t in alt["like_for_like_s"]) + " s")
+    elif mealpy_runs:
         m = run_mealpy(sd, mealpy_runs, 30, iters)
         n_all = len(STRATEGIES) * n_rep
         out["mealpy_table3_s"] = m["per_run_s"] * n_all
@@ -586,18 +653,20 @@ def main(argv=None) -> dict:
             f"{note}; {m['evals_per_run']} evals/run")
         row("speedup vs mealpy", out["speedup_vs_mealpy"], "x",
             "front door, warm cache" if not a.skip_front_door else "the benchmark's own path")
-        if not a.skip_front_door:
-            out["speedup_vs_mealpy_cold"] = out["mealpy_table3_s"] / out["table3_cold_s"]
-            row("speedup vs mealpy, front door with a cold cache", out["speedup_vs_mealpy_cold"], "x")
         if "like_for_like_s" in out:
             out["speedup_vs_mealpy_like_for_like"] = out["mealpy_table3_s"] / out["like_for_like_s"]
             row("speedup vs mealpy, like for like (same CGO rules, float64 both sides), warm",
                 out["speedup_vs_mealpy_like_for_like"], "x")
+    if mealpy_runs and not a.skip_front_door:
+        out["speedup_vs_mealpy_cold"] = out["mealpy_table3_s"] / out["table3_cold_s"]
+        row("speedup vs mealpy, front door with a cold cache", out["speedup_vs_mealpy_cold"], "x")
+    if mealpy_runs and not a.skip_mealpy_parallel:
+        n_all = len(STRATEGIES) * n_rep
         mp = run_mealpy(sd, mealpy_runs, 30, iters, mode="process", n_workers=2)
         out["mealpy_parallel_table3_s"] = mp["per_run_s"] * n_all
         out["speedup_vs_mealpy_parallel"] = out["mealpy_parallel_table3_s"] / out["table3_s"]
         row("mealpy OriginalCGO, its parallel mode (process, 2 workers), same study", out["mealpy_parallel_table3_s"],
-            "s", note)
+            "s", f"{mealpy_runs} of {n_all} runs timed" + (", extrapolated" if mealpy_runs != n_all else ""))
         row("speedup vs mealpy's parallel mode", out["speedup_vs_mealpy_parallel"], "x")
 
     # a JAX peer on the same fitness: evosax PSO and DE vs icgo's PSO at equal evaluations

@@ -17,7 +17,8 @@ Measured, in order (:func:`backend_check`):
    cold (empty compilation cache) and warm, with each run's time breakdown;
 5. the Table 3 study (5 strategies, 12,030 evaluations a run) in this process at 1, 10, 100 and 1,000
    repeats (``run_study``: time with and without compilation, per stage); a point whose time, projected
-   linearly from the one before, would not fit in what is left of the budget is skipped and says so;
+   from the one before (its compile time, and its run time linear in repeats), would not fit in what is
+   left of the budget is skipped and says so;
 6. mealpy's OriginalCGO on the numpy fitness, ``--mealpy-runs`` of the 50 Table 3 runs timed and scaled
    to 50 (marked), and the ratio to the warm front door.
 """
@@ -74,14 +75,16 @@ def kernel_rates(sd, plan_kernel: str, batches=BATCHES, reps: int = 3) -> dict:
 
 
 def overrun(last: dict | None, repeats: int, left_s: float) -> str | None:
-    """Why a study point of ``repeats`` repeats is skipped, or None: its time projected linearly from the last
-    point run (``{"repeats", "wall_s"}``, or None for the first point, always run) exceeds ``left_s``."""
+    """Why a study point of ``repeats`` repeats is skipped, or None: its time projected from the last point
+    run (``{"repeats", "compile_s", "run_s"}``: the same compile time, the run time linear in repeats; None
+    for the first point, always run) exceeds ``left_s``."""
     if last is None:
         return None
-    projected = last["wall_s"] * repeats / last["repeats"]
+    projected = last["compile_s"] + last["run_s"] * repeats / last["repeats"]
     if projected <= left_s:
         return None
-    return f"projected {projected:.0f} s from {last['repeats']} repeats does not fit in the {left_s:.0f} s left"
+    return (f"projected {projected:.0f} s from {last['repeats']} repeats does not fit in the "
+            f"{max(left_s, 0.0):.0f} s left")
 
 
 def study_scaling(repeats=STUDY_REPEATS, deadline: float = float("inf"), **config) -> list[dict]:

@@ -87,10 +87,11 @@ def test_breakdown_splits_a_front_door_run_from_its_record(tmp_path):
 def test_backend_check_skips_a_study_point_that_would_overrun_the_budget():
     from experiments.bench_backend import overrun
 
-    assert overrun(None, 1000, 0.0) is None                          # the first point always runs
-    assert overrun({"repeats": 10, "wall_s": 3.0}, 100, 30.0) is None  # 30 s projected, 30 s left
-    why = overrun({"repeats": 10, "wall_s": 3.0}, 1000, 100.0)
-    assert why == "projected 300 s from 10 repeats does not fit in the 100 s left"
+    assert overrun(None, 1000, 0.0) is None                                          # the first point always runs
+    last = {"repeats": 10, "compile_s": 20.0, "run_s": 3.0}
+    assert overrun(last, 100, 50.0) is None                                          # 20 + 30 s projected, 50 left
+    assert overrun(last, 1000, 100.0) == "projected 320 s from 10 repeats does not fit in the 100 s left"
+    assert overrun(last, 1000, -5.0) == "projected 320 s from 10 repeats does not fit in the 0 s left"
 
 
 @pytest.mark.slow
