@@ -448,6 +448,8 @@ def main(argv=None) -> dict:
                    help="time mealpy's Table 3 runs in this many parts, each after a warm front-door run (Table 3 "
                         "and like-for-like), for the ratios on a machine whose load changes (default 1: one block)")
     p.add_argument("--skip-mealpy-parallel", action="store_true", help="skip mealpy's own parallel mode")
+    p.add_argument("--skip-sweeps", action="store_true",
+                   help="front door: only the cold and warm runs (no workers=1 run, no five-job sweeps)")
     p.add_argument("--skip-like-for-like", action="store_true",
                    help="skip the like-for-like front door (mealpy's CGO variant in float64, 50 runs)")
     a = p.parse_args(argv)
@@ -584,20 +586,21 @@ def main(argv=None) -> dict:
         fd = front_door(fd_work, fd_extra)
         out["front_door"] = fd
         out["table3_s"], out["table3_cold_s"] = fd["warm"]["wall_s"], fd["cold"]["wall_s"]
-        out["sweep_workers_speedup"] = fd["sweep_1_worker"]["wall_s"] / fd["sweep_2_workers"]["wall_s"]
-        out["table3_1_worker_s"] = fd["warm_1_worker"]["wall_s"]
-        out["study_workers_speedup"] = out["table3_1_worker_s"] / out["table3_s"]
         row("Table 3 through the front door, cold compilation cache", fd["cold"]["wall_s"], "s",
             f"python -m experiments.run experiment=table3, fresh process, peak {fd['cold']['peak_rss_gb']:.2f} GB")
         row("Table 3 through the front door, warm cache (table3_s)", fd["warm"]["wall_s"], "s",
             f"peak {fd['warm']['peak_rss_gb']:.2f} GB; workers=null (one search process per core)")
-        row("Table 3 through the front door, warm cache, workers=1", fd["warm_1_worker"]["wall_s"], "s",
-            _same_note(fd["max_abs_diff"]["warm_1_worker"]))
-        row("study speed-up, one search process per core / one", out["study_workers_speedup"], "x")
-        for k, w in (("sweep_1_worker", 1), ("sweep_2_workers", 2)):
-            row(f"Table 3 as a 5-job sweep (one strategy each), {w} worker(s)", fd[k]["wall_s"], "s",
-                _same_note(fd["max_abs_diff"][k]))
-        row("sweep speed-up, 2 workers / 1", out["sweep_workers_speedup"], "x")
+        if not a.skip_sweeps:
+            out["sweep_workers_speedup"] = fd["sweep_1_worker"]["wall_s"] / fd["sweep_2_workers"]["wall_s"]
+            out["table3_1_worker_s"] = fd["warm_1_worker"]["wall_s"]
+            out["study_workers_speedup"] = out["table3_1_worker_s"] / out["table3_s"]
+            row("Table 3 through the front door, warm cache, workers=1", fd["warm_1_worker"]["wall_s"], "s",
+                _same_note(fd["max_abs_diff"]["warm_1_worker"]))
+            row("study speed-up, one search process per core / one", out["study_workers_speedup"], "x")
+            for k, w in (("sweep_1_worker", 1), ("sweep_2_workers", 2)):
+                row(f"Table 3 as a 5-job sweep (one strategy each), {w} worker(s)", fd[k]["wall_s"], "s",
+                    _same_note(fd["max_abs_diff"][k]))
+            row("sweep speed-up, 2 workers / 1", out["sweep_workers_speedup"], "x")
         b = fd["warm"]["breakdown"]
         row("  where the warm run's time went: start / import / data / MSA / search / scoring / write", fd["warm"]["wall_s"],
             "s", f"{b['start']:.1f} / {b['import']:.1f} / {b['load_data']:.1f} / {b['msa']:.1f} / {b['search']:.1f} / "
