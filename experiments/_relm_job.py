@@ -8,12 +8,11 @@ library import it inside.
 from __future__ import annotations
 
 import json
-import os
 import sys
 import time
 from pathlib import Path
 
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from experiments._entry import FAILED
 from icgo.core.errors import SettingError
@@ -49,7 +48,7 @@ STUDY_NODE_ENTRY_KEYS = ("split.target",)
 TARGET_KEYS = ("seed", "casing_distance_scale", "casing_strength_scale", "misalignment_deg", "path")
 #: Keys of each data set option (``dataset.name``).
 DATASET_KEYS = {"lab_casing": ("name", "seed", "kwargs"), "well_conditions": ("name", "seed", "condition", "kwargs"),
-                "csv": ("name", "path", "require_meta")}
+                "csv": ("name", "path", "require_meta", "columns", "columns_file")}
 
 
 def _unknown(keys, allowed, where: str) -> None:
@@ -67,17 +66,35 @@ def check_config(cfg: DictConfig) -> None:
     Raises:
         SettingError: one line naming the setting, its value and what is allowed.
     """
+    from experiments._entry import bool_setting
+    from icgo.models.relm import MAX_LAM
+
     _unknown(cfg.keys(), ENTRY_KEYS[""], "")
+    for node in ("optimizer", "strategy", "schedule", "dataset", *STUDY_NODES):
+        _need(isinstance(cfg.get(node), DictConfig), f"{node} must be a group of settings (e.g. {node}.key=value), "
+                                                     f"got {cfg.get(node)!r}")
     for node in ("optimizer", "strategy", "schedule"):
         _unknown(cfg[node].keys(), ENTRY_KEYS[node], f"{node}.")
+    for key in ("figures", "overwrite"):
+        bool_setting(cfg, key)
+    _need(cfg.get("label") is None or isinstance(cfg.get("label"), str),
+          f"label must be a name (a string) or null, got {cfg.get('label')!r}")
+    lam = OmegaConf.select(cfg, "model.lam")
+    _need(not isinstance(lam, (int, float)) or isinstance(lam, bool) or lam <= MAX_LAM,
+          f"model.lam={lam!r}: at most {MAX_LAM:g}; the ridge lambda is absolute, and far above that the RELM's "
+          f"output weights vanish and it returns MSA's azimuth unchanged (docs/reliability.md)")
     ds = cfg.dataset
     _need(ds.get("name") in DATASET_KEYS,
           f"dataset.name must be one of {sorted(DATASET_KEYS)}, got {ds.get('name')!r}")
     _unknown(ds.keys(), DATASET_KEYS[ds.name], "dataset.")
+    if "seed" in DATASET_KEYS[ds.name]:
+        _need(_is_int(ds.get("seed")) and 0 <= ds.seed < 2**32, f"dataset.seed must be an integer 0 <= seed < 2**32, "
+                                                               f"got {ds.get('seed')!r}")
     if ds.name == "csv":
         _need(OmegaConf.select(ds, "path", throw_on_missing=False) not in (None, "???"),
               "dataset.path is required with dataset=csv (dataset.path=/path/to/file.csv)")
         _need_file(Path(str(ds.path)).expanduser(), "dataset.path")
+        bool_setting(cfg, "dataset.require_meta")
     elif ds.name == "well_conditions":
         c = ds.condition
         _need(c is None or (_is_int(c) and 0 <= c <= 5),
@@ -85,6 +102,8 @@ def check_config(cfg: DictConfig) -> None:
     target = OmegaConf.select(cfg, "split.target")
     protocol = OmegaConf.select(cfg, "split.protocol")
     if target is not None:
+        _need(isinstance(target, DictConfig), f"split.target must be a group of settings ({', '.join(TARGET_KEYS)}), "
+                                              f"got {target!r}")
         _need(protocol == "transfer", f"split.target is read only by split.protocol=transfer (split=transfer); "
                                       f"here split.protocol={protocol!r}, so it would do nothing")
         _unknown(target.keys(), TARGET_KEYS, "split.target.")
@@ -92,7 +111,8 @@ def check_config(cfg: DictConfig) -> None:
             _need_file(Path(str(target.path)).expanduser(), "split.target.path")
     elif protocol == "transfer":
         _need(False, "split.protocol=transfer needs split.target (use split=transfer, which defines it)")
-    b = list(cfg.schedule.bounds)
+    b = cfg.schedule.get("bounds")
+    b = list(b) if isinstance(b, ListConfig) else [b]
     _need(len(b) == 2 and all(isinstance(x, (int, float)) for x in b) and 0.0 < b[0] < b[1] < 1.0,
           f"schedule.bounds must be two fractions 0 < b1 < b2 < 1, got {b}")
     _need(cfg.schedule.get("clock", "global") in ("global", "stage"),
@@ -186,9 +206,12 @@ def load_data(cfg: DictConfig):
     """
     ds = cfg.dataset
     if ds.name == "csv":
-        from icgo.io.recording import read_recording
+        from icgo.io.recording import column_map, read_recording
 
-        rec = read_recording(Path(str(ds.path)).expanduser(), require_meta=bool(ds.require_meta))
+        cmap = column_map(OmegaConf.to_container(ds.columns) if ds.get("columns") else None, ds.get("columns_file"),
+                          "dataset.columns")
+        rec = read_recording(Path(str(ds.path)).expanduser(), require_meta=bool(ds.require_meta), columns=cmap,
+                             column_setting="dataset.columns")
         for line in rec.notices:  # what the reader noticed but accepted (icgo.io.recording check prints the same)
             print(f"notice: {line}", file=sys.stderr)
         return rec.frame, dict(rec.meta), f"csv:{ds.path}"
@@ -253,39 +276,26 @@ def select_condition(frame, condition: int):
 
 
 class Progress:
-    """A tqdm bar over optimizer iterations, advanced by a host callback from inside the scan.
+    """A tqdm bar over the search's iterations, fed by ``run_study(progress=...)`` between chunks of iterations.
 
-    :meth:`wrap` returns a fitness that calls ``jax.debug.callback(self.tick)``
-    with no operands: under the runner's vmap over repeats and strategies the
-    callback is not batched, so it fires once per fitness call of the whole
-    batch, i.e. once per iteration (plus once for the initial population).
-    tqdm redraws at most every 0.2 s.
+    The study runs its search in a few jitted chunks and calls this on the host after each
+    (:func:`icgo.optim.base.run_batch`), also summed over worker processes; nothing enters the compiled
+    programs, so the compilation cache keeps them. The bar starts after the first chunk, i.e. after
+    compiling (or loading) the program, so its rate and ETA measure the search alone.
     """
 
-    def __init__(self, total: int, desc: str, enable: bool):
-        self.total, self.count, self.bar, self.t0 = total, 0, None, time.perf_counter()
-        if enable:
+    def __init__(self, desc: str):
+        self.desc, self.bar = desc, None
+        print(f"{desc}: compiling or loading the search program, then the bar starts", file=sys.stderr)
+
+    def __call__(self, done: int, total: int) -> None:
+        if self.bar is None:
             from tqdm.auto import tqdm
 
-            self.bar = tqdm(total=total, desc=desc, unit="it", mininterval=0.2, dynamic_ncols=True,
-                            file=sys.stderr)
-
-    def tick(self) -> None:
-        """Host side: one more iteration done."""
-        if self.count < self.total:
-            self.count += 1
-            if self.bar is not None:
-                self.bar.update(1)
-
-    def wrap(self, fitness):
-        """A fitness that reports each call to :meth:`tick`."""
-        import jax
-
-        def f(pop, aux):
-            jax.debug.callback(self.tick)
-            return fitness(pop, aux)
-
-        return f
+            self.bar = tqdm(total=total, initial=done, desc=self.desc, unit="it", mininterval=0.2,
+                            dynamic_ncols=True, file=sys.stderr)
+            return
+        self.bar.update(done - self.bar.n)
 
     def close(self) -> None:
         if self.bar is not None:
@@ -303,12 +313,12 @@ def progress_enabled(setting, accelerator: bool = False) -> bool:
 
 
 def run_with_progress(frame, scfg, meta, progress, desc: str, target=None, timings: dict | None = None):
-    """``icgo.studies.icgo_relm.run_study`` with a progress bar over the optimizer's iterations.
+    """``icgo.studies.icgo_relm.run_study`` with a progress bar over the optimizer's iterations (:class:`Progress`).
 
-    The bar wraps the search's fitness (``run_study(wrap_fitness=...)``), so it
-    advances from inside the scan; without an optimizer (plain RELM), with the search
-    split over processes, or on an accelerator under ``progress=auto`` there is no bar.
-    ``progress``: the ``progress`` setting (:func:`progress_enabled`). ``timings``: see ``run_study``.
+    The bar follows the search's iterations on the host, in this process or summed over its worker processes
+    (``run_study(progress=...)``); without an optimizer (plain RELM), or on an accelerator under
+    ``progress=auto``, there is no bar. ``progress``: the ``progress`` setting (:func:`progress_enabled`).
+    ``timings``: see ``run_study``. Prints the execution plan (``search: ...``).
     """
     from icgo.core.execution import is_accelerator
     from icgo.studies import icgo_relm as study
@@ -316,30 +326,20 @@ def run_with_progress(frame, scfg, meta, progress, desc: str, target=None, timin
     plan = scfg.execution(len(frame))
     enable = progress_enabled(progress, is_accelerator(plan.backend))
     print(f"search: {plan.why}", file=sys.stderr)
-    if not enable or scfg.optimizer is None or plan.workers > 1:
+    if not enable or scfg.optimizer is None:
         return study.run_study(frame, scfg, meta, target=target, timings=timings)
-    from icgo.optim import get, iterations_for_budget
-
-    n_iter = scfg.iterations if scfg.max_evals is None else iterations_for_budget(
-        get(scfg.optimizer), scfg.pop_size, scfg.max_evals, scfg.optimizer_config)
-    bar = Progress(int(n_iter) + 1, desc, True)
+    bar = Progress(desc)
     try:
-        return study.run_study(frame, scfg, meta, wrap_fitness=bar.wrap, target=target, timings=timings)
+        return study.run_study(frame, scfg, meta, target=target, timings=timings, progress=bar)
     finally:
         bar.close()
 
 
-#: The paper's names for method labels (everything else is named by the rule in :func:`method_label`).
-PAPER_NAMES = {"raw": "raw (eq. 1)", "msa": "MSA only", "relm": "RELM", "cgo-original": "CGO-RELM",
-               "cgo-three_stage": "ICGO-RELM (three-stage)"}
-
-
 def method_label(method: str) -> str:
-    """Paper-style label: the paper's name if it has one, else ``<alg>-<value>`` -> ``ALG-RELM (value)``."""
-    if method in PAPER_NAMES:
-        return PAPER_NAMES[method]
-    name, _, value = method.partition("-")
-    return f"{name.upper()}-RELM" + (f" ({value})" if value else "")
+    """The method's name in every output (:func:`icgo.reporting.names.method_name`)."""
+    from icgo.reporting.names import method_name
+
+    return method_name(method)
 
 
 def summary_table(result, split: str = "test"):
@@ -360,21 +360,94 @@ def summary_table(result, split: str = "test"):
     return pd.DataFrame(rows, columns=list(SUMMARY_COLUMNS))
 
 
-#: Files of a run directory that a new run replaces or removes (besides the tables and models it writes).
-RUN_EXTRAS = ("study.png", "error.txt", FAILED)
+def excluded_line(result) -> str | None:
+    """The sentence naming the repeats a study left out (:func:`icgo.studies.icgo_relm.excluded_sentence`), or None."""
+    from icgo.studies.icgo_relm import excluded_sentence
+
+    return excluded_sentence(result.excluded, len(result.config.ids()) + len(result.excluded))
+
+
+#: Files a failed attempt leaves in a run directory (replaced by the next run; they do not make the directory used).
+FAILURE_FILES = ("error.txt", FAILED)
+#: Settings that change how a run is executed, not what it computes: left out of :func:`config_hash`.
+RUNTIME_KEYS = ("overwrite", "progress", "jax_cache_dir", "workers")
+
+
+def config_hash(container: dict) -> str:
+    """SHA-256 (hex) of a resolved config (a plain mapping, ``hydra`` node excluded) without :data:`RUNTIME_KEYS`:
+    the identity of what a run computes. A sweep re-run into its directory keeps a finished job only when the
+    hashes agree."""
+    import hashlib
+
+    core = {k: v for k, v in container.items() if k not in RUNTIME_KEYS and k != "hydra"}
+    return hashlib.sha256(json.dumps(core, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def cfg_hash(cfg: DictConfig) -> str:
+    """:func:`config_hash` of a composed config."""
+    return config_hash(OmegaConf.to_container(cfg, resolve=True))
+
+
+def stored_config(outdir: Path) -> dict | None:
+    """The resolved config a finished run recorded (its ``config.yaml``), or None if unreadable."""
+    from icgo.reporting import records as R
+
+    try:
+        c = OmegaConf.to_container(OmegaConf.load(outdir / R.CONFIG_FILE), resolve=False)
+    except Exception:  # noqa: BLE001  (absent, not YAML: the run cannot be matched, so it is not kept)
+        return None
+    return c if isinstance(c, dict) else None
+
+
+def stored_hash(outdir: Path, run: dict) -> str | None:
+    """The config hash of a finished run: the one its run.json records, else that of its ``config.yaml``."""
+    h = run.get("config_sha256")
+    if isinstance(h, str):
+        return h
+    c = stored_config(outdir)
+    return None if c is None else config_hash(c)
+
+
+def config_difference(a: dict, b: dict, limit: int = 4) -> str:
+    """``key: a-value vs b-value`` for the first keys (dotted) where two configs differ (runtime keys ignored)."""
+    def flat(d, prefix=""):
+        out = {}
+        for k, v in d.items():
+            if not prefix and k in RUNTIME_KEYS:
+                continue
+            if isinstance(v, dict):
+                out.update(flat(v, f"{prefix}{k}."))
+            else:
+                out[f"{prefix}{k}"] = v
+        return out
+
+    fa, fb = flat(a), flat(b)
+    keys = sorted(k for k in set(fa) | set(fb) if fa.get(k, "<absent>") != fb.get(k, "<absent>"))
+    shown = [f"{k}: {fa.get(k, '<absent>')!r} there, {fb.get(k, '<absent>')!r} here" for k in keys[:limit]]
+    return "; ".join(shown) + (f"; and {len(keys) - limit} more" if len(keys) > limit else "")
+
+
+def run_output(outdir: Path, overwrite: bool):
+    """The run directory as an :class:`icgo.io.files.Output`, checked (a used directory refused unless
+    ``overwrite``; a failed attempt's marker does not count); Hydra's job log left alone."""
+    from hydra.core.hydra_config import HydraConfig
+
+    from icgo.io.files import Output
+
+    keep = (f"{HydraConfig.get().job.name}.log",) if HydraConfig.initialized() else ()
+    return Output(outdir, setting="the run directory", overwrite=overwrite, keep=keep, ignore=FAILURE_FILES,
+                  writer="experiments.run").check()
 
 
 def write_outputs(outdir: Path, cfg: DictConfig, result, info: dict, frame=None, meta=None, plot=None) -> dict:
-    """Write the run directory atomically: config, tables, summary, fitted models, figure, then run.json.
+    """Write the run directory all at once: config, tables, summary, fitted models, figure, then run.json.
 
-    Everything is written into a staging directory first (``outdir/.staging``);
-    only when every file is complete is the previous run record removed, the
-    files moved into place (``os.replace``) and the new ``run.json`` moved last.
-    An interruption or a full disk before that leaves the previous run as it was
-    (and no staging directory); during the moves it leaves no ``run.json``, so no
-    reader takes the directory for a complete run. File and column names come
-    from :mod:`icgo.reporting.records`; the fitted models are saved with
-    :meth:`icgo.models.format.FittedModel.save`.
+    Everything is written into a staging directory inside ``outdir`` first; only when every file is complete
+    is the previous content moved aside, the new files moved in (``os.replace``), ``run.json`` last, and the
+    old content deleted (:class:`icgo.io.files.Output`). An interruption or a full disk before that leaves
+    the previous run as it was (and no staging directory). Hydra's record of the job (``.hydra/``) is staged
+    with the rest. File and column names come from :mod:`icgo.reporting.records`; the fitted models are saved
+    with :meth:`icgo.models.format.FittedModel.save`.
 
     Args:
         frame, meta: the study's data and metadata; with a reference field in
@@ -384,40 +457,23 @@ def write_outputs(outdir: Path, cfg: DictConfig, result, info: dict, frame=None,
     Returns:
         The run.json dictionary.
     """
-    import shutil
+    from experiments._entry import write_hydra_record
+    from icgo.reporting import records as R
 
-    stage = outdir / ".staging"
-    shutil.rmtree(stage, ignore_errors=True)
-    stage.mkdir(parents=True)
-    try:
-        run = _write_run_files(stage, cfg, result, info, frame, meta, plot)
-        _commit_run(stage, outdir)
-    finally:
-        shutil.rmtree(stage, ignore_errors=True)
+    with run_output(outdir, overwrite=True).staged(last=(R.RUN_FILE,)) as stage:
+        write_hydra_record(stage, cfg)
+        run = _write_run_files(stage, cfg, result, info, frame, meta, plot, run_dir=outdir)
     return run
 
 
-def _commit_run(stage: Path, outdir: Path) -> None:
-    """Move a complete staged run into ``outdir``: old record out, files in, new run.json last."""
-    from icgo.reporting import records as R
-
-    (outdir / R.RUN_FILE).unlink(missing_ok=True)
-    for name in RUN_EXTRAS:
-        if not (stage / name).exists():
-            (outdir / name).unlink(missing_ok=True)
-    for f in sorted(stage.iterdir()):
-        if f.name != R.RUN_FILE:
-            os.replace(f, outdir / f.name)
-    os.replace(stage / R.RUN_FILE, outdir / R.RUN_FILE)
-
-
-def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, meta, plot) -> dict:
-    """Every file of a run into ``outdir`` (the staging directory), run.json last."""
+def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, meta, plot, run_dir=None) -> dict:
+    """Every file of a run into ``outdir`` (the staging directory), run.json last; ``run_dir``: where they go."""
     import numpy as np
 
     from icgo.physics.qc import qc_sentence
     from icgo.reporting import records as R
     from icgo.survey.apply import study_qc
+    from icgo.survey.verdict import study_verdict
 
     t0 = time.perf_counter()
     qc = None if frame is None else study_qc(frame[result.kept].reset_index(drop=True), meta, result.msa_model)
@@ -431,18 +487,24 @@ def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, m
                                                                  float_format="%.10g")
     table = summary_table(result)
     table.to_csv(outdir / "summary.csv", index=False)
+    excluded = excluded_line(result)
     md = [f"# ICGO-RELM study: {info['dataset']}", "",
-          f"Test split (30 %), {result.config.n_repeats} repeats, mean +/- std (sample std). "
+          f"Test split (30 %), {len(result.config.ids())} repeats, mean +/- std (sample std). "
           f"Optimizer {cfg.optimizer.name or 'none (plain RELM)'}, strategies {list(cfg.strategy.names)}, "
           f"population {cfg.budget.pop_size}, iterations {cfg.budget.iterations}, "
           f"max_evals {cfg.budget.max_evals}.", "",
           table.drop(columns=["method"]).to_markdown(index=False), "",
+          *([f"**{excluded}**", ""] if excluded else []),
           f"Wall time of the study: {result.wall_time_s:.1f} s (compile included); "
           f"whole job {info['total_time_s']:.1f} s.", "",
           f"Fitted models: `{result.model.KIND}` (method used by default: {result.model.selected}) and "
-          f"`{result.msa_model.KIND}`; apply them to a new survey with `icgo.models.format.load_model`."]
+          f"`{result.msa_model.KIND}`."]
     if qc:
         md += ["", qc_sentence(qc)]
+    verdict = study_verdict(result.metrics, result.coverage, selected=result.model.selected,
+                            n_repeats=result.config.n_repeats, protocol=result.config.protocol, qc=qc,
+                            trained=result.model.domain, run_dir=str(run_dir or outdir))
+    md += ["", *verdict.markdown()]
     (outdir / "summary.md").write_text("\n".join(md) + "\n")
     if plot is not None:
         plot(outdir / "study.png")
@@ -454,10 +516,40 @@ def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, m
            "wall_time_s": result.wall_time_s, "methods": methods,
            "n_evals": {m: int(v) for m, v in zip(methods, np.asarray(result.n_evals)[:, 0])},
            "n_rows": int(result.kept.sum()), "n_repeats": result.config.n_repeats,
-           "repeat_ids": list(result.config.ids()), "models": models, "qc": qc}
+           "repeat_ids": list(result.config.ids()), "models": models, "qc": qc, "config_sha256": cfg_hash(cfg),
+           "excluded_repeats": [{"repeat": int(r), "reason": why} for r, why in result.excluded]}
     if result.tuning is not None:
         run["tuning"] = result.tuning
+    run["verdict"] = verdict.as_dict()
     missing = [k for k in R.RUN_KEYS if k not in run]
     assert not missing, f"run record lacks {missing}"  # a writer bug, not a user error
     (outdir / R.RUN_FILE).write_text(json.dumps(run, indent=2, default=str) + "\n")
     return run
+
+
+def run_help() -> str:
+    """``python -m experiments.run --help``: usage, the config groups with their options and defaults, the main
+    keys, and where to read more (read from ``conf/``, so it never lists an option that does not exist)."""
+    import yaml
+
+    from experiments._entry import CONF_DIR, STUDY_GROUPS, group_options
+
+    cfg = yaml.safe_load((CONF_DIR / "config.yaml").read_text())
+    defaults = {k: v for d in cfg.get("defaults", []) if isinstance(d, dict) for k, v in d.items()}
+    lines = ["ICGO-RELM study: MSA, then a RELM whose hidden layer an optimizer searches; writes a run directory",
+             "(metrics, models, figures, summary.md with the verdict) and prints the summary and the verdict.", "",
+             "usage: python -m experiments.run [-m] [GROUP=OPTION ...] [KEY=VALUE ...]", "",
+             "config groups (GROUP=OPTION; default in brackets):"]
+    for g in STUDY_GROUPS:
+        lines.append(f"  {g:<11} {', '.join(group_options(g))}  [{defaults.get(g) or 'none'}]")
+    lines += ["", "other settings (KEY=VALUE): " + ", ".join(k for k in cfg if k not in ("defaults", "hydra")),
+              "  e.g. split.n_repeats=3 budget.iterations=50 dtype=... workers=2 progress=false overwrite=true",
+              "  your own recording: dataset=csv dataset.path=FILE.csv [dataset.columns.gx=Gx ...] (docs/data.md)", "",
+              "examples:",
+              "  python -m experiments.run strategy=three_stage           # make run",
+              "  python -m experiments.run experiment=table3              # a paper preset",
+              "  python -m experiments.run -m strategy=chaos,wavelet      # a sweep (one process per job)",
+              "  python -m experiments.apply model=outputs/<date>/<time> data=survey.csv   # then apply the model", "",
+              "docs: docs/experiments.md (groups, presets, launchers), README.md; Hydra's own flags: --hydra-help"]
+    return "\n".join(lines)
+

@@ -31,7 +31,6 @@ import time
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 #: Wall seconds the check aims to stay under (the lent machine's 8 minutes, less a margin).
 BUDGET_S = 420.0

@@ -28,7 +28,6 @@ the paper's published numbers in adjacent columns, ``table3_stats.*``
 
 from __future__ import annotations
 
-import argparse
 import contextvars
 import subprocess
 import sys
@@ -38,15 +37,15 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from experiments import sweep_conditions
+from experiments import _stamp, sweep_conditions
 from icgo.optim import STRATEGIES
+from icgo.reporting.names import METHOD_NAMES, STRATEGY_NAMES, method_name
 from icgo.reporting.plots import plt_agg, save_figure
 
 #: The five CGO 4th-seed strategies (:data:`icgo.optim.STRATEGIES`) and the four mutated ones.
 STRATEGIES5 = STRATEGIES
 STRATEGIES4 = tuple(s for s in STRATEGIES5 if s != "original")
-LABEL = {"original": "original", "chaos": "chaotic", "gaussian": "Gaussian", "wavelet": "wavelet",
-         "three_stage": "three-stage"}
+LABEL = STRATEGY_NAMES
 METRICS = ("mae", "rmse", "r2")
 MNAME = {"mae": "MAE (deg)", "rmse": "RMSE (deg)", "r2": "R^2"}
 
@@ -69,7 +68,7 @@ PAPER = {
 
 #: Run label of Fig. 9 at equal fitness evaluations (``experiment=fig9 budget=evaluations label=fig9_evals``).
 EQUAL_EVALS_LABEL = "fig9_evals"
-FIG9_NAMES = {"pso": "PSO-RELM", "ga": "GA-RELM", "cgo-original": "CGO-RELM"}
+FIG9_NAMES = {m: METHOD_NAMES[m] for m in ("pso", "ga", "cgo-original")}
 
 
 #: Runs whose label starts with this are sweeps: kept out of the pooled paper tables.
@@ -133,6 +132,7 @@ class Runs:
         from icgo.reporting import records as R
 
         self._cache: dict = {}
+        self.failed = []  # (directory, why) of every job found that left no result
         if runs is not None:  # a subset of another collection (see split_label)
             self.runs = runs
             return
@@ -144,6 +144,7 @@ class Runs:
             for rj in sorted(d.rglob(R.RUN_FILE)):
                 if (rj.parent / R.FAILED_FILE).exists():
                     print(f"skipped {rj.parent}: the job failed ({R.FAILED_FILE} marker)", file=sys.stderr)
+                    self.failed.append((rj.parent, "FAILED marker"))
                     continue
                 try:
                     info = R.read_run(rj.parent)
@@ -157,6 +158,10 @@ class Runs:
                 info["mtime"] = rj.stat().st_mtime
                 self.runs.append(info)
         self.runs.sort(key=lambda r: r["mtime"])
+
+    def settings(self) -> list[dict]:
+        """Budget, repeats and dtype of every run (:func:`experiments._stamp.run_settings`)."""
+        return [_stamp.run_settings(r["dir"]) for r in self.runs]
 
     def split_label(self, *labels: str) -> tuple["Runs", "Runs"]:
         """(the runs with one of these run labels, the others): runs that must not replace the pooled ones."""
@@ -205,6 +210,16 @@ class Runs:
 _LACKING: contextvars.ContextVar[list] = contextvars.ContextVar("lacking")
 
 
+def _skip(reason: str) -> bool:
+    """Note why the builder now running writes nothing (named in ``tables_missing.txt``); returns False."""
+    _LACKING.get([]).append(f"skipped: {reason}")
+    return False
+
+
+def _n_repeats(m: pd.DataFrame) -> int:
+    return int(m["repeat"].nunique()) if len(m) else 0
+
+
 def _have(df: pd.DataFrame, methods) -> bool:
     """True if ``df`` has rows of every method; else the missing ones are noted for the builder's message."""
     missing = list(methods) if df.empty else [m for m in methods if m not in set(df["method"])]
@@ -224,7 +239,8 @@ def _fmt(m, s=None, d=4) -> str:
 
 def _write(df: pd.DataFrame, out: Path, name: str, title: str, notes=()) -> None:
     df.to_csv(out / f"{name}.csv", index=False)
-    text = [f"# {title}", "", df.to_markdown(index=False), ""]
+    stamp = _stamp.note()
+    text = [f"# {title}", "", *([stamp, ""] if stamp else []), df.to_markdown(index=False), ""]
     text += [n for n in notes]
     (out / f"{name}.md").write_text("\n".join(text).rstrip() + "\n")
 
@@ -269,7 +285,7 @@ def _tuned_note(runs: Runs, m: pd.DataFrame, others) -> str:
     parts = []
     for o in others:
         x = m[m.method == o].sort_values("repeat")
-        if list(x["repeat"]) == list(t["repeat"]):
+        if list(x["repeat"]) == list(t["repeat"]) and len(x) >= 2:
             p = stats.wilcoxon_paired(x["mae"], t["mae"]).p_value
             parts.append(f"{o}: MAE {100 * (x['mae'].mean() / t['mae'].mean() - 1):+.1f} % (paired Wilcoxon p = {p:.3g})")
     from icgo.methods.relm import TUNE_HIDDEN, TUNE_LAMBDA
@@ -339,29 +355,34 @@ def fig9(runs: Runs, out: Path) -> bool:
         rows.append(row)
     df = pd.DataFrame(rows)
     _write(df, out, "fig9", "Fig. 9: RELM tuned by PSO, GA and CGO (test split, mean +/- std over repeats)",
-           _fig9_notes(m, runs.convergence(), methods, df) + [_floor_note()])
+           _fig9_notes(m, runs.convergence(), methods, df, runs.settings()) + [_floor_note()])
     plt = plt_agg()
     fig, axes = plt.subplots(1, 3, figsize=(11, 3.4))
     for ax, k in zip(axes, METRICS):
-        ax.bar(df["method"], df[f"{k}_mean"], yerr=df[f"{k}_std"], capsize=4, color=["#8da0cb", "#fc8d62", "#66c2a5"],
-               label="ours (mean +/- std)")
-        ax.scatter(df["method"], df[f"{k}_paper"], color="k", marker="D", zorder=3, label="paper")
-        ax.set_title(MNAME[k])
+        # R^2 is drawn as 1 - R^2 on a log axis from zero-free bars: bars of R^2 near 1 need a cut axis,
+        # which makes small differences look large
+        f = (lambda v: 1.0 - v) if k == "r2" else (lambda v: v)
+        ax.bar(df["method"], f(df[f"{k}_mean"]), yerr=df[f"{k}_std"], capsize=4,
+               color=["#8da0cb", "#fc8d62", "#66c2a5"], label="ours (mean +/- std)")
+        ax.scatter(df["method"], f(df[f"{k}_paper"]), color="k", marker="D", zorder=3, label="paper")
+        ax.set_title("1 - R^2 (unexplained fraction, log)" if k == "r2" else MNAME[k])
         if k == "r2":
-            ax.set_ylim(max(0.0, float(np.nanmin(df[f"{k}_mean"] - df[f"{k}_std"])) - 0.01), 1.0005)
+            ax.set_yscale("log")
     axes[0].legend(fontsize=8)
-    save_figure(fig, out / "fig9.png", "Fig. 9: RELM tuned by three optimizers (test split, lab_casing)")
+    _stamp.save(fig, out / "fig9.png", "Fig. 9: RELM tuned by three optimizers (test split, lab_casing)")
     return True
 
 
-def _fig9_notes(m, conv, methods, df) -> list[str]:
+def _fig9_notes(m, conv, methods, df, settings=()) -> list[str]:
     """Order of the three optimizers by MAE, paired Wilcoxon tests of CGO against each, evaluation counts."""
     from icgo.maths.stats import wilcoxon_paired
 
     order = df.sort_values("mae_mean")["method"].tolist()
     w = m.pivot_table(index="repeat", columns="method", values="mae")
     notes = [f"Order by mean MAE, ours: {' < '.join(order)}; the paper reports CGO-RELM best (MAE 0.052)."]
-    for x in ("pso", "ga"):
+    if len(w) < 2:
+        notes.append(f"{len(w)} repeat: no paired test (Wilcoxon needs at least 2 repeats).")
+    for x in (("pso", "ga") if len(w) >= 2 else ()):
         label = FIG9_NAMES[x]
         t = wilcoxon_paired(w["cgo-original"], w[x])
         verdict = "no significant difference" if t.p_value >= 0.05 else (
@@ -372,7 +393,11 @@ def _fig9_notes(m, conv, methods, df) -> list[str]:
           if not conv.empty}
     if ev and all(np.isfinite(v) for v in ev.values()):
         ev = {k: int(v) for k, v in ev.items()}
-        notes.append("Equal iterations (the paper's 30 x 100), so unequal fitness evaluations per run: "
+        pops = {(s["pop_size"], s["iterations"]) for s in settings}
+        budget = ", ".join(f"{p} x {i}" for p, i in sorted(pops, key=str)) or "unknown"
+        paper = pops == {(_stamp.PAPER_POP, _stamp.PAPER_ITERATIONS)}
+        notes.append(f"Equal iterations (population x iterations {budget}{', the paper' + chr(39) + 's' if paper else ''}"
+                     "), so unequal fitness evaluations per run: "
                      + ", ".join(f"{k} {v}" for k, v in ev.items())
                      + "; `budget=evaluations` compares at equal evaluations.")
     return notes
@@ -386,6 +411,8 @@ def fig9_budgets(iters: Runs, evals: Runs, out: Path) -> bool:
     methods = list(FIG9_NAMES)
     if not (_have(mi, methods) and _have(me, methods)):
         return False
+    if min(_n_repeats(mi), _n_repeats(me)) < 2:
+        return _skip("one repeat: the paired Wilcoxon tests of fig9_budgets need at least 2 repeats")
     ci, ce = iters.convergence(), evals.convergence()
     rows, tests = [], []
     for budget, m, conv in (("equal iterations", mi, ci), ("equal evaluations", me, ce)):
@@ -439,6 +466,8 @@ def sweep_schedules(pooled: Runs, sched: Runs, out: Path) -> bool:
         t = t[(t.split == "test") & (t.method == "cgo-three_stage")]
         cols[_schedule_name(info)] = t.set_index("repeat")["mae"]
     wide = pd.DataFrame(cols).dropna()
+    if len(wide) < 2:
+        return _skip(f"{len(wide)} paired repeat(s): the Friedman and Wilcoxon tests need at least 2")
     names = list(wide.columns)
     fr = friedman({c: wide[c].to_numpy() for c in names})
     best_single = min((LABEL[s] for s in singles), key=lambda c: wide[c].mean())
@@ -465,7 +494,7 @@ def sweep_schedules(pooled: Runs, sched: Runs, out: Path) -> bool:
     ax.boxplot([wide[c] for c in order], orientation="horizontal", tick_labels=order)
     ax.set(xlabel="test MAE (deg), 10 paired repeats")
     ax.tick_params(axis="y", labelsize=7)
-    save_figure(fig, out / "sweep_schedules.png", "Three-stage schedules and single strategies (lab_casing)")
+    _stamp.save(fig, out / "sweep_schedules.png", "Three-stage schedules and single strategies (lab_casing)")
     return True
 
 
@@ -499,6 +528,8 @@ def sweep_mutations(pooled: Runs, sweep: Runs, out: Path) -> bool:
     base = {s: m[m.method == f"cgo-{s}"].set_index("repeat")["mae"] for s in STRATEGIES4 if f"cgo-{s}" in set(m.method)}
     if not sweep.runs or len(base) < len(STRATEGIES4):
         return False
+    if _n_repeats(m) < 2:
+        return _skip("one repeat: the paired Wilcoxon tests of the mutation readings need at least 2 repeats")
     paper = sorted(STRATEGIES4, key=lambda s: PAPER["table3"][s][0][0])
     rows = []
     for info in sweep.runs:
@@ -593,7 +624,7 @@ def fig10(runs: Runs, out: Path) -> bool:
         ax.set_xticks(x, [LABEL[s] for s in STRATEGIES5], rotation=15)
         ax.set_title(MNAME[k])
     axes[0].legend(fontsize=8)
-    save_figure(fig, out / "fig10.png", "Fig. 10: error of the five 4th-seed strategies (test split, lab_casing)")
+    _stamp.save(fig, out / "fig10.png", "Fig. 10: error of the five 4th-seed strategies (test split, lab_casing)")
     return True
 
 
@@ -622,7 +653,7 @@ def fig11(runs: Runs, out: Path) -> bool:
         ax.set_ylabel("best training RMSE (deg)")
         ax.set_yscale("log")
     axes[1].legend(fontsize=8)
-    save_figure(fig, out / "fig11.png", "Fig. 11: convergence of the five 4th-seed strategies (lab_casing)")
+    _stamp.save(fig, out / "fig11.png", "Fig. 11: convergence of the five 4th-seed strategies (lab_casing)")
     return True
 
 
@@ -634,6 +665,9 @@ def table3(runs: Runs, out: Path) -> bool:
     methods = [f"cgo-{s}" for s in STRATEGIES4]
     if not _have(m, methods):
         return False
+    if _n_repeats(m) < 2:
+        return _skip(f"{_n_repeats(m)} repeat: Table 3's mean +/- std and its Friedman and Wilcoxon tests need at "
+                     "least 2 paired repeats (run experiment=table3; Table 2 reports one split)")
     strategies = [s for s in STRATEGIES5 if f"cgo-{s}" in set(m.method)]
     rows = []
     for s in strategies:
@@ -687,7 +721,7 @@ def table3(runs: Runs, out: Path) -> bool:
               "The paper claims three-stage beats all three; our simulated study supports that only for the "
               "strategies listed as significantly better.",
               _paper_consistency_note(), _floor_note(), "", "## Statistics", "", stats_df.to_markdown(index=False)]
-    _write(df, out, "table3", "Table 3: 10 repeats, mean +/- std (test split)", notes)
+    _write(df, out, "table3", f"Table 3: {n_rep} repeats, mean +/- std (test split)", notes)
     _write(stats_df, out, "table3_stats", "Table 3 statistics: Friedman and Wilcoxon signed-rank")
     return True
 
@@ -713,7 +747,7 @@ def fig12(runs: Runs, out: Path) -> bool:
     axes[1].set_ylabel("model residual (deg)")
     axes[1].set_xlabel("test sample (sorted by station: azimuth, then toolface)")
     axes[0].legend(fontsize=8, ncol=5)
-    save_figure(fig, out / "fig12.png", "Fig. 12: error modelling of the MSA residual (repeat 0, test rows, lab_casing)")
+    _stamp.save(fig, out / "fig12.png", "Fig. 12: error modelling of the MSA residual (repeat 0, test rows, lab_casing)")
     return True
 
 
@@ -743,7 +777,7 @@ def fig13(runs: Runs, out: Path) -> bool:
     axes[1].set_ylabel("test MAE (deg)")
     axes[1].set_title("(b) MAE per repeat")
     axes[1].legend(fontsize=8)
-    save_figure(fig, out / "fig13.png", "Fig. 13: azimuth error compensation (lab_casing)")
+    _stamp.save(fig, out / "fig13.png", "Fig. 13: azimuth error compensation (lab_casing)")
     return True
 
 
@@ -826,12 +860,38 @@ def table4(runs: Runs, out: Path) -> bool:
         ax.legend(fontsize=6)
     fig.supxlabel("test sample (sorted by station)")
     fig.supylabel("compensated azimuth error (deg)")
-    save_figure(fig, out / "fig15.png", "Fig. 15: five 4th-seed strategies under six well conditions")
+    _stamp.save(fig, out / "fig15.png", "Fig. 15: five 4th-seed strategies under six well conditions")
     return True
 
 
 BUILDERS = {"table1": table1, "fig9": fig9, "table2": table2, "fig10": fig10, "fig11": fig11, "table3": table3,
             "fig12": fig12, "fig13": fig13, "table4": table4}
+
+
+def missing_jobs(dirs, failed) -> list[str]:
+    """Every job below ``dirs`` that left no result: a sweep report's failed, killed or not-run jobs (with their
+    overrides) and any other directory with a ``FAILED`` marker."""
+    import json
+
+    from experiments._sweep import REPORT_FILE
+
+    lines, named = [], set()
+    for d in dirs:
+        for rep in sorted(Path(d).rglob(REPORT_FILE)):
+            try:
+                jobs = json.loads(rep.read_text()).get("jobs", [])
+            except (OSError, ValueError):
+                continue
+            for j in jobs:
+                if j.get("status") != "ok":
+                    where = rep.parent / str(j.get("dir", j.get("num")))
+                    named.add(str(where))
+                    lines.append(f"{where} ({' '.join(j.get('overrides', [])) or 'no overrides'}): {j.get('status')}"
+                                 + (f", {j['reason']}" if j.get("reason") else ""))
+    for where, why in failed:
+        if str(where) not in named:
+            lines.append(f"{where}: failed ({why})")
+    return lines
 
 
 def build(dirs, out: Path) -> dict:
@@ -841,34 +901,62 @@ def build(dirs, out: Path) -> dict:
         {name: True if written, else a line naming the methods whose runs were missing}.
     """
     out.mkdir(parents=True, exist_ok=True)
-    evals, runs = Runs(dirs).split_label(EQUAL_EVALS_LABEL)
+    found = Runs(dirs)
+    evals, runs = found.split_label(EQUAL_EVALS_LABEL)
     # a sweep's runs (label "sweep_...") never replace the paper presets' runs in the pooled tables,
     # whether or not a builder reads them
     sweeps, runs = runs.split_label(*{str(r.get("label")) for r in runs.runs
                                       if str(r.get("label") or "").startswith(SWEEP_PREFIX)})
     sched, mutations = sweeps.split_label(SCHEDULES_LABEL)[0], sweeps.split_label(*MUTATIONS_LABELS)[0]
-    calls = {name: (lambda fn=fn: fn(runs, out)) for name, fn in BUILDERS.items()}
-    calls |= {name: (lambda name=name: sweep_conditions.build(sweeps, out, name)) for name in sweep_conditions.OUTPUTS}
-    calls |= {"sweep_mutations": lambda: sweep_mutations(runs, mutations, out),
-              "fig9_budgets": lambda: fig9_budgets(runs, evals, out),
-              "sweep_schedules": lambda: sweep_schedules(runs, sched, out)}
-    done = {}
-    for name, call in calls.items():
+    # each output: its builder and the runs it is made from (their budget, repeats and dtype stamp it)
+    calls = {name: (lambda fn=fn: fn(runs, out), runs) for name, fn in BUILDERS.items()}
+    calls |= {name: (lambda name=name: sweep_conditions.build(sweeps, out, name, _LACKING.get()),
+                     sweeps.split_label(*sweep_conditions.OUTPUTS[name])[0]) for name in sweep_conditions.OUTPUTS}
+    calls |= {"sweep_mutations": (lambda: sweep_mutations(runs, mutations, out), mutations),
+              "fig9_budgets": (lambda: fig9_budgets(runs, evals, out), evals),
+              "sweep_schedules": (lambda: sweep_schedules(runs, sched, out), sched)}
+    done, partial = {}, []
+    for name, (call, source) in calls.items():
         lacking = []
         token = _LACKING.set(lacking)
         try:
-            done[name] = True if call() else (
-                ("no runs of " + ", ".join(lacking) if lacking else "no runs") + "; made by "
-                + " and ".join(f"`{plan_command(src)}`" for src in SOURCES[name]))
+            with _stamp.stamping(source.settings()):
+                ok = call()
+        except (ValueError, KeyError) as e:  # one output that cannot be built never stops the others
+            ok, lacking[:] = False, [f"skipped: could not be built from these runs ({type(e).__name__}: "
+                                     f"{str(e).splitlines()[0] if str(e) else ''})"]
         finally:
             _LACKING.reset(token)
+        skipped = [x for x in lacking if x.startswith("skipped: ")]
+        partial += [f"{name}: written without {x[len('partial: '):]}" for x in lacking if x.startswith("partial: ")]
+        methods = [x for x in lacking if not x.startswith(("skipped: ", "partial: "))]
+        done[name] = True if ok else ("; ".join(skipped) if skipped else (
+            ("no runs of " + ", ".join(methods) if methods else "no runs") + "; made by "
+            + " and ".join(f"`{plan_command(src)}`" for src in SOURCES[name])))
     missing = {n: why for n, why in done.items() if why is not True}
+    jobs = missing_jobs(dirs, found.failed)
     miss = out / "tables_missing.txt"
-    if missing:
-        miss.write_text("".join(f"{n}: {why}\n" for n, why in missing.items()))
+    if missing or jobs or partial:
+        miss.write_text("".join(f"{n}: {why}\n" for n, why in missing.items()) + "".join(f"{p}\n" for p in partial)
+                        + "".join(f"job {j}\n" for j in jobs))
     elif miss.exists():
         miss.unlink()
+    _write_excluded(Runs(None, evals.runs + sweeps.runs + runs.runs), out / EXCLUDED_FILE)
     return done
+
+
+#: Lists the repeats that runs left out (their MSA failed): the tables hold only the others.
+EXCLUDED_FILE = "excluded_repeats.txt"
+
+
+def _write_excluded(runs: Runs, path: Path) -> None:
+    """One line per repeat a collected run left out (run.json ``excluded_repeats``); no file when none did."""
+    lines = [f"{r['dir']} ({r.get('label')}): repeat {e['repeat']}: {e['reason']}\n"
+             for r in runs.runs for e in r.get("excluded_repeats") or ()]
+    if lines:
+        path.write_text("".join(lines))
+    elif path.exists():
+        path.unlink()
 
 
 # ------------------------------------------------------------ per-run figure
@@ -888,7 +976,7 @@ def plot_study(result, path: Path, title: str = "") -> None:
     h = result.histories
     for mth in methods:
         g = h[h.method == mth].groupby("iteration")["best_fitness"].mean()
-        axes[0].plot(g.index, g.values, label=mth)
+        axes[0].plot(g.index, g.values, label=method_name(mth))
     axes[0].set_xlabel("iteration")
     axes[0].set_ylabel("best training RMSE (deg), mean over repeats")
     axes[0].set_yscale("log")
@@ -900,7 +988,7 @@ def plot_study(result, path: Path, title: str = "") -> None:
     raw = np.asarray(angle_diff(d["azimuth_raw"].to_numpy(), d["azimuth_true"].to_numpy()))
     axes[1].plot(x, raw, lw=0.8, label="raw")
     axes[1].plot(x, d["error_msa"], lw=0.8, label="after MSA")
-    axes[1].plot(x, d["error_compensated"], lw=1.0, label=f"after {methods[-1]}")
+    axes[1].plot(x, d["error_compensated"], lw=1.0, label=f"after {method_name(methods[-1])}")
     axes[1].set_xlabel(f"test sample, repeat {r0}")
     axes[1].set_ylabel("azimuth error (deg)")
     axes[1].legend(fontsize=7)
@@ -908,57 +996,128 @@ def plot_study(result, path: Path, title: str = "") -> None:
     m = m[m.split == "test"]
     for mth in ["raw", "msa"] + methods:
         g = m[m.method == mth]
-        axes[2].plot(g["repeat"], g["mae"], "o-", ms=3, label=mth)
+        axes[2].plot(g["repeat"], g["mae"], "o-", ms=3, label=method_name(mth))
     axes[2].set_yscale("log")
     axes[2].set_xlabel("repeat")
     axes[2].set_ylabel("test MAE (deg)")
     axes[2].legend(fontsize=7)
-    save_figure(fig, path, title, dpi=110)
+    save_figure(fig, path, title, dpi=110)  # a run's own figure: its run directory says what it ran
 
 
 # --------------------------------------------------------------------- main
-def run_plan(base: Path, jobs: int, extra=()) -> list[Path]:
-    """Run the preset plan (:data:`PLAN`) as multiruns under ``base``; return their sweep dirs."""
-    dirs = []
-    for name, preset, overrides in PLAN:
+def plan_jobs(preset: str, overrides=()) -> int:
+    """How many jobs a plan entry's sweep runs: the preset's ``hydra.sweeper.params`` with the entry's overrides
+    over them, the product of the number of values of each swept key."""
+    import yaml
+
+    from experiments._entry import CONF_DIR
+
+    cfg = yaml.safe_load((CONF_DIR / "experiment" / f"{preset}.yaml").read_text()) or {}
+    params = {str(k).lstrip("+"): str(v) for k, v in ((cfg.get("hydra") or {}).get("sweeper") or {}).get(
+        "params", {}).items()}
+    for o in overrides:
+        k, _, v = o.partition("=")
+        params[k.lstrip("+")] = v
+    n = 1
+    for v in params.values():
+        n *= len(v.split(","))
+    return n
+
+
+def _clock(seconds: float) -> str:
+    m, sec = divmod(int(round(seconds)), 60)
+    return f"{m // 60}:{m % 60:02d}:{sec:02d}" if m >= 60 else f"{m}:{sec:02d}"
+
+
+def run_plan(base: Path, jobs: int, extra=()) -> tuple[list[Path], list[str]]:
+    """Run the preset plan (:data:`PLAN`) as multiruns under ``base``; return their sweep dirs and the names
+    of the presets whose sweep did not finish (exit status not 0).
+
+    Before each entry a line ``[k/N] <entry>: J job(s), elapsed, ETA``; the ETA is the time per job of the
+    entries done so far times the jobs left (none before the first entry has finished).
+    """
+    dirs, failed = [], []
+    counts = [plan_jobs(preset, overrides) for _, preset, overrides in PLAN]
+    total, done, t0 = sum(counts), 0, time.perf_counter()
+    print(f"plan: {len(PLAN)} entries, {total} jobs, into {base}", flush=True)
+    for k, ((name, preset, overrides), n) in enumerate(zip(PLAN, counts), 1):
         d = base / name
         cmd = [sys.executable, "-m", "experiments.run", "-m", f"experiment={preset}", *overrides,
                f"hydra.sweep.dir={d}", "progress=false", *extra]
         if jobs is not None:  # else the launcher's default: one job per core
             cmd += [f"hydra.launcher.workers={jobs}"]
+        elapsed = time.perf_counter() - t0
+        eta = f"ETA {_clock(elapsed / done * (total - done))}" if done else "ETA after the first entry"
+        print(f"[{k}/{len(PLAN)}] {name}: {n} job(s); elapsed {_clock(elapsed)}, {eta}", flush=True)
         print("+", " ".join(cmd), flush=True)
         t = time.perf_counter()
         rc = subprocess.call(cmd, cwd=Path(__file__).resolve().parent.parent)
         print(f"  {name}: exit {rc}, {time.perf_counter() - t:.0f} s", flush=True)
+        done += n
         dirs.append(d)
-    return dirs
+        if rc:
+            failed.append(name)
+    return dirs, failed
+
+
+def check_plan_overrides(extra) -> None:
+    """SettingError (one line) for an ``--override`` the study would refuse, before any preset runs."""
+    from experiments._entry import check_overrides, check_plain_overrides
+    from icgo.core.errors import SettingError
+
+    for ov in extra:
+        if ov.startswith("-") or "=" not in ov.lstrip("+~"):
+            raise SettingError(f"--override {ov!r}: expected key=value (a Hydra override of experiments.run)")
+    err = check_overrides(list(extra)) or check_plain_overrides(list(extra), "config")
+    if err:
+        raise SettingError(f"--override: {err}")
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    from icgo.core.settings import ArgumentParser
+
+    ap = ArgumentParser(prog="python -m experiments.figures", description=__doc__.split("\n\n")[0])
     ap.add_argument("dirs", nargs="*", help="run/multirun directories to collect (default: run the presets)")
-    ap.add_argument("--out", default=str(Path(__file__).resolve().parent.parent / "results"))
+    ap.add_argument("--out", default=str(Path(__file__).resolve().parent.parent / "results"),
+                    help="results/ (default: its tables and figures are replaced) or a directory of its own")
+    ap.add_argument("--overwrite", action="store_true", help="replace a used --out directory (not results/) whole")
     ap.add_argument("--jobs", type=int, default=None,
                     help="jobs at once for the preset plan (icgo_local launcher; default one per core)")
     ap.add_argument("--override", action="append", default=[], help="extra Hydra override for the preset plan")
     a = ap.parse_args(argv)
+    from experiments._entry import results_output
+    from icgo.core.errors import SettingError
+
+    if a.jobs is not None and a.jobs < 1:
+        raise SettingError(f"--jobs {a.jobs}: must be >= 1")
+    if a.override and a.dirs:
+        raise SettingError("--override applies to the preset plan; it has no effect when run directories are given")
+    check_plan_overrides(a.override)
+    for d in a.dirs:
+        if not Path(d).is_dir():
+            raise SettingError(f"{d!r}: not a directory (give run or multirun directories to collect)")
+    output = results_output(a.out, overwrite=a.overwrite, writer="experiments.figures")
     t0 = time.perf_counter()
-    dirs = a.dirs
+    dirs, failed = a.dirs, []
     if not dirs:
         stamp = time.strftime("%Y-%m-%d_%H-%M-%S")
-        dirs = run_plan(Path("multirun") / f"figures-{stamp}", a.jobs, a.override)
-    from experiments._entry import staged_results
-
-    out = Path(a.out)
-    with staged_results(out) as stage:  # all tables and figures move in together, or none (Ctrl-C, full disk)
+        dirs, failed = run_plan(Path("multirun") / f"figures-{stamp}", a.jobs, a.override)
+    with output.staged() as stage:  # all tables and figures move in together, or none (Ctrl-C, full disk)
         done = build(dirs, stage)
-    if all(v is True for v in done.values()):
-        (out / "tables_missing.txt").unlink(missing_ok=True)
+        complete = not (stage / "tables_missing.txt").exists()
+    if complete:  # nothing missing now: an old list must not stay beside the new results
+        (output.path / "tables_missing.txt").unlink(missing_ok=True)
     for name, ok in done.items():
-        print(f"{name}: {'written' if ok is True else 'missing runs: ' + ok}")
+        print(f"{name}: {'written' if ok is True else ok}")
     print(f"figures: {time.perf_counter() - t0:.0f} s, output in {a.out}")
+    if failed:
+        print(f"error: {len(failed)} of {len(PLAN)} preset sweep(s) did not finish ({', '.join(failed)}); their "
+              f"tables are missing or incomplete", file=sys.stderr)
+        return 1
     return 0
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from icgo.core.settings import run_cli
+
+    raise SystemExit(run_cli(main))

@@ -26,7 +26,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from icgo.reporting.plots import plt_agg, save_figure
+from experiments import _stamp
+from icgo.reporting.names import METHOD_NAMES
+from icgo.reporting.plots import plt_agg
 
 #: Run label of each sweep -> (dataset keyword swept, its readable name, its default value).
 SWEEPS = {"sweep_noise": ("noise_scale", "noise x", 1.0),
@@ -35,9 +37,8 @@ SWEEPS = {"sweep_noise": ("noise_scale", "noise x", 1.0),
 #: Output name -> the sweeps it reports.
 OUTPUTS = {"sweep_noise": ("sweep_noise",), "sweep_casing": ("sweep_casing", "sweep_casing_strength")}
 #: Method column -> its name in the tables (the compensators; raw and MSA-only are reported beside them).
-METHODS = {"relm": "RELM", "pso": "PSO-RELM", "ga": "GA-RELM", "cgo-original": "CGO-RELM",
-           "cgo-chaos": "ICGO chaotic", "cgo-gaussian": "ICGO Gaussian", "cgo-wavelet": "ICGO wavelet",
-           "cgo-three_stage": "ICGO three-stage"}
+METHODS = {m: METHOD_NAMES[m] for m in ("relm", "pso", "ga", "cgo-original", "cgo-chaos", "cgo-gaussian",
+                                         "cgo-wavelet", "cgo-three_stage")}
 
 
 def _level_data(kwargs: dict) -> dict:
@@ -82,33 +83,49 @@ def _levels(runs, label: str) -> dict:
     return dict(sorted(out.items()))
 
 
+#: The optimizer override of each method's job (a sweep job runs one optimizer; CGO runs every strategy).
+OPTIMIZER_OF = {"relm": "none", "pso": "pso", "ga": "ga"}
+
+
+def missing_cells(label: str, levels: dict) -> list[str]:
+    """One line per (level, method) of a sweep that has no result, naming the job that makes it."""
+    key = SWEEPS[label][0]
+    methods = [m for m in METHODS if any(m in w.columns for w in levels.values())]
+    return [f"{label}: level {key}={level:g} has no {METHODS[m]} (`python -m experiments.run experiment={label} "
+            f"+dataset.kwargs.{key}={level:g} optimizer={OPTIMIZER_OF.get(m, 'cgo')}`)"
+            for level, w in levels.items() for m in methods if m not in w.columns]
+
+
 def table(label: str, levels: dict) -> tuple[pd.DataFrame, list[str]]:
-    """One sweep's rows (one per level) and the methods every level has."""
+    """One sweep's rows (one per level) and the methods any level has; a method a level lacks is marked
+    ``missing`` in its cell (never a dropped column), and that level's order and tests use the methods it has."""
     from scipy.stats import kendalltau
 
-    from icgo.maths.stats import friedman, holm, wilcoxon_paired
+    from icgo.maths.stats import format_mean_std, friedman, holm, mean_std, wilcoxon_paired
 
     key, name, default = SWEEPS[label]
-    methods = [m for m in METHODS if all(m in w.columns for w in levels.values())]
+    methods = [m for m in METHODS if any(m in w.columns for w in levels.values())]
     base_order = None
     if default in levels:
-        base_order = sorted(methods, key=lambda m: levels[default][m].mean())
+        base_order = sorted([m for m in methods if m in levels[default]], key=lambda m: levels[default][m].mean())
     rows, p_best = [], []
     for level, wide in levels.items():
-        w = wide[methods].dropna()
-        order = sorted(methods, key=lambda m: w[m].mean())
+        here = [m for m in methods if m in wide.columns]
+        w = wide[here].dropna()
+        order = sorted(here, key=lambda m: w[m].mean())
         row = {name: level, **_level_data({key: level}),
                "raw MAE (deg)": round(float(wide["raw"].mean()), 4) if "raw" in wide else np.nan,
                "MSA MAE (deg)": round(float(wide["msa"].mean()), 4) if "msa" in wide else np.nan}
-        row |= {METHODS[m]: f"{w[m].mean():.4f} +/- {w[m].std(ddof=1):.4f}" for m in methods}
+        row |= {METHODS[m]: format_mean_std(*mean_std(w[m])) if m in here else "missing" for m in methods}
         best = w[order[0]]
         row["best / floor"] = round(float(best.mean()) / row["floor MAE (deg)"], 2)
         row["order by MAE"] = " < ".join(METHODS[m] for m in order)
+        common = [m for m in here if base_order and m in base_order]
         row["Kendall tau vs default order"] = (
-            round(float(kendalltau([base_order.index(m) for m in methods], [order.index(m) for m in methods])
-                        .statistic), 2) if base_order else np.nan)
+            round(float(kendalltau([base_order.index(m) for m in common], [order.index(m) for m in common])
+                        .statistic), 2) if len(common) >= 2 else np.nan)
         row["first in repeats"] = f"{METHODS[order[0]]} {int((w.idxmin(axis=1) == order[0]).sum())}/{len(w)}"
-        fr = friedman({m: w[m].to_numpy() for m in methods}) if len(methods) >= 3 and len(w) >= 2 else None
+        fr = friedman({m: w[m].to_numpy() for m in here}) if len(here) >= 3 and len(w) >= 2 else None
         row["Friedman p"] = float(fr.p_value) if fr else np.nan
         p_best.append(wilcoxon_paired(w[order[0]], w[order[1]]).p_value if len(order) > 1 and len(w) > 1 else np.nan)
         rows.append(row)
@@ -121,21 +138,24 @@ def _plot(ax, label: str, df: pd.DataFrame, levels: dict, methods) -> None:
     name = SWEEPS[label][1]
     x = df[name].to_numpy(float)
     for m in methods:
-        ax.plot(x, [levels[v][m].mean() for v in x], "o-", ms=3, lw=1, label=METHODS[m])
+        ax.plot(x, [levels[v][m].mean() if m in levels[v] else np.nan for v in x], "o-", ms=3, lw=1,
+                label=METHODS[m])
     ax.plot(x, df["MSA MAE (deg)"], "s:", ms=3, color="grey", label="MSA only")
     ax.plot(x, df["floor MAE (deg)"], "k--", lw=1.5, label="noise floor")
-    ax.set(xlabel=name, ylabel="test MAE (deg), mean of 10 repeats", yscale="log")
+    n = min(len(w) for w in levels.values())
+    ax.set(xlabel=name, ylabel=f"test MAE (deg), mean of {n} repeat(s)", yscale="log")
     if label != "sweep_casing":
         ax.set_xscale("log", base=2)
     ax.grid(alpha=0.3, which="both")
 
 
-def build(runs, out: Path, name: str) -> bool:
+def build(runs, out: Path, name: str, lacking: list | None = None) -> bool:
     """Write ``results/<name>.{md,csv,png}`` from the sweeps of :data:`OUTPUTS` ``[name]``; False if none ran.
 
     Args:
         runs: :class:`experiments.figures.Runs` holding the sweeps' runs (other labels are ignored).
         out: output folder. name: ``sweep_noise`` or ``sweep_casing``.
+        lacking: gets a ``"partial: ..."`` line per missing job (:func:`missing_cells`).
     """
     parts = [(label, _levels(runs, label)) for label in OUTPUTS[name]]
     parts = [(label, lv) for label, lv in parts if lv]
@@ -145,6 +165,8 @@ def build(runs, out: Path, name: str) -> bool:
     fig, axes = plt.subplots(1, len(parts), figsize=(6.5 * len(parts), 4.2), squeeze=False)
     for ax, (label, levels) in zip(axes[0], parts):
         df, methods = table(label, levels)
+        if lacking is not None:
+            lacking.extend(f"partial: {x}" for x in missing_cells(label, levels))
         key, _, default = SWEEPS[label]
         text += [f"## {label}: `python -m experiments.run -m experiment={label}`", "",
                  df.to_markdown(index=False, floatfmt=".4g"), "",
@@ -163,8 +185,9 @@ def build(runs, out: Path, name: str) -> bool:
              "level's raw readings from the site's reference field and gravity (the data set's metadata; `icgo.physics.qc.survey_qc`), "
              "the physics the noise and the casing disturb. The methods output an azimuth correction only (no "
              "corrected G or B), so these columns describe each level's data, not a method's output."]
-    (out / f"{name}.md").write_text("\n".join([f"# {title} (test MAE, lab_casing)", "", *text, *notes]) + "\n")
-    save_figure(fig, out / f"{name}.png", f"{title}: every method against the noise floor (lab_casing)")
+    stamp = [_stamp.note(), ""] if _stamp.note() else []
+    (out / f"{name}.md").write_text("\n".join([f"# {title} (test MAE, lab_casing)", "", *stamp, *text, *notes]) + "\n")
+    _stamp.save(fig, out / f"{name}.png", f"{title}: every method against the noise floor (lab_casing)")
     return True
 
 

@@ -18,7 +18,7 @@ import pytest
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 from hydra.core.hydra_config import HydraConfig
-from omegaconf import open_dict
+from omegaconf import OmegaConf, open_dict
 
 from experiments import _entry as E
 from experiments import _relm_job as C
@@ -146,7 +146,7 @@ def test_run_writes_outputs_and_prints_table(small_csv, tmp_path, capsys):
 
     r = read_recording(small_csv)
     keep = pd.read_csv(tmp_path / "predictions.csv").query("method == 'cgo-chaos' and repeat == 0").row.to_numpy()
-    G, B = r.G[keep], r.B[keep]
+    B = r.B[keep]
     bad_b = np.abs(np.linalg.norm(B, axis=1) - r.meta["total_field_nT"]) > 300.0
     assert rec["qc"]["raw"]["n"] == len(keep) and rec["qc"]["raw"]["b"] == int(bad_b.sum())
     assert rec["qc"]["msa"]["n"] == len(keep) and "Survey QC" in (tmp_path / "summary.md").read_text()
@@ -268,27 +268,50 @@ def test_failed_multirun_job_leaves_marker_and_others_intact(tmp_path, capsys):
 
 
 # ----------------------------------------------------------------- progress
-def test_progress_ticks_once_per_iteration_inside_the_scan():
-    """The callback fires once per iteration for the whole vmapped batch (not once per repeat/strategy)."""
+def test_progress_comes_between_chunks_with_the_same_result_and_a_cached_program(tmp_path):
+    """run_batch(progress=...) reports after each chunk, equals the run without it bitwise, and its compiled
+    programs hold no host callback, so a fresh process finds them in the persistent compilation cache."""
+    import subprocess
+    import sys
+
     import jax
     import jax.numpy as jnp
 
     from icgo.optim import run_batch
     from icgo.optim.cgo import CGO
 
-    bar = C.Progress(total=100, desc="t", enable=False)
-
     def sphere(pop, aux):
         return jnp.sum((pop - aux[None]) ** 2, axis=1)
 
     keys = jax.random.split(jax.random.PRNGKey(0), 3)
-    aux = jnp.zeros((3, 4))
-    res = run_batch(get("cgo"), bar.wrap(sphere), (-np.ones(4), np.ones(4)), keys, 6, 7,
-                    configs=CGO.axis_configs(None, ["chaos", "three_stage"]), aux=aux)
-    jax.block_until_ready(res)
-    jax.effects_barrier()
-    assert bar.count == 7 + 1  # initial population + 7 iterations
-    assert res.curve.shape == (2, 3, 7)
+    args = (get("cgo"), sphere, (-np.ones(4), np.ones(4)), keys, 6, 20)
+    kw = {"configs": CGO.axis_configs(None, ["chaos", "three_stage"]), "aux": jnp.zeros((3, 4))}
+    ticks = []
+    chunked = run_batch(*args, **kw, progress=lambda d, t: ticks.append((d, t)))
+    whole = run_batch(*args, **kw)
+    assert ticks == [(d, 20) for d in range(2, 21, 2)]
+    for a, b in zip(chunked, whole):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    script = (
+        "import sys, jax, jax.numpy as jnp, numpy as np\n"
+        "jax.config.update('jax_compilation_cache_dir', sys.argv[1])\n"
+        "jax.config.update('jax_persistent_cache_min_compile_time_secs', 0.0)\n"
+        "import icgo\nfrom icgo.optim import get, run_batch\n"
+        "f = lambda pop, aux: jnp.sum((pop - aux[None]) ** 2, axis=1)\n"
+        "run_batch(get('cgo'), f, (-np.ones(4), np.ones(4)), jax.random.split(jax.random.PRNGKey(0), 3), 6, 20,"
+        " aux=jnp.zeros((3, 4)), progress=lambda d, t: None)\n")
+    subprocess.run([sys.executable, "-c", script, str(tmp_path)], check=True, timeout=300)
+    assert any(p.name.startswith("jit__batch_steps_jit") for p in tmp_path.iterdir())
+
+
+def test_progress_bar_starts_after_the_first_chunk(capsys):
+    bar = C.Progress("t")
+    assert bar.bar is None and "compiling or loading" in capsys.readouterr().err
+    bar(2, 20)
+    assert bar.bar.n == 2 and bar.bar.total == 20
+    bar(8, 20)
+    assert bar.bar.n == 8
+    bar.close()
 
 
 # ------------------------------------------------------------ one source of defaults
@@ -375,7 +398,7 @@ def test_a_writer_failing_midway_leaves_the_previous_run_intact(small_csv, tmp_p
     with pytest.raises(SystemExit):
         run_job(_job_cfg(base + ["overwrite=true", "split.seed=5"]), tmp_path)
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "No space left" in err[0] and "previous run there is unchanged" in err[0]
+    assert len(err) == 1 and "No space left" in err[0] and "nothing in it was changed" in err[0]
     after = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()}
     assert after == before and not (tmp_path / ".staging").exists()
 
@@ -388,6 +411,28 @@ def test_rerunning_a_sweep_keeps_finished_jobs(small_csv, tmp_path):
     again = run_job(_job_cfg(base), tmp_path / "0", multirun=True)
     assert again["seed"] == first["seed"] and (tmp_path / "0" / "run.json").stat().st_mtime_ns == stamp
     assert not (tmp_path / "0" / E.FAILED).exists()
+
+
+def test_a_sweep_rerun_with_another_config_is_refused_and_changes_nothing(small_csv, tmp_path):
+    """A kept job is matched by its config hash, never by its number: another strategy, or more repeats, in the
+    job's directory is refused, and the finished run (its .hydra record included) is left byte for byte."""
+    from experiments import _relm_job as J
+    from experiments._sweep import job_status
+
+    base = TINY + ["dataset=csv", f"dataset.path={small_csv}", "split.n_repeats=1"]
+    first = run_job(_job_cfg(base + ["strategy=chaos"]), tmp_path / "0", multirun=True)
+    assert first["config_sha256"] == J.cfg_hash(_job_cfg(base + ["strategy=chaos"]))
+    before = {p.name: p.read_bytes() for p in (tmp_path / "0").iterdir() if p.is_file()}
+    for other in (["strategy=wavelet"], ["strategy=chaos", "split.n_repeats=2"]):
+        cfg = _job_cfg(base + other)
+        assert run_job(cfg, tmp_path / "0", multirun=True) is None
+        assert {p.name: p.read_bytes() for p in (tmp_path / "0").iterdir() if p.is_file()} == before
+        status, reason = job_status(tmp_path / "0", OmegaConf.to_container(cfg, resolve=True))
+        assert status == "refused" and ("strategy.names" in reason or "split.n_repeats" in reason), reason
+    # settings that do not change the result do not make it another run
+    assert J.cfg_hash(_job_cfg(base + ["strategy=chaos", "progress=true", "overwrite=true"])) == first["config_sha256"]
+    redo = run_job(_job_cfg(base + ["strategy=wavelet", "overwrite=true"]), tmp_path / "0", multirun=True)
+    assert redo["strategies"] == ["wavelet"]
 
 
 def test_jax_cache_dir_that_cannot_be_created_is_one_line(tmp_path, capsys):

@@ -365,7 +365,7 @@ def test_noise_and_casing_sweeps_report_every_method_against_the_floor(runs_dir,
     g = np.linalg.norm(f[["gx", "gy", "gz"]].to_numpy(), axis=1)
     assert t.iloc[2]["raw |G| dev RMS (mg)"] == pytest.approx(1e3 * np.sqrt(np.mean((g - 1.0) ** 2)), abs=1e-3)
     assert t["raw |G| dev RMS (mg)"].is_monotonic_increasing
-    assert [o.split(" < ")[0] for o in t["order by MAE"]] == ["PSO-RELM", "PSO-RELM", "ICGO wavelet"]
+    assert [o.split(" < ")[0] for o in t["order by MAE"]] == ["PSO-RELM", "PSO-RELM", "ICGO-RELM (wavelet)"]
     tau = t.set_index("noise x")["Kendall tau vs default order"]
     assert tau[1.0] == 1.0 and tau[2.0] < 1.0
     # Friedman over the 8 methods, recomputed from the runs of level 2

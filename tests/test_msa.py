@@ -149,3 +149,22 @@ def test_step_budget_too_small_is_reported():
     assert not bool(r.converged) and int(r.n_steps) == 2
     with pytest.raises(ValueError, match="did not converge"):
         msa.check_observability(r)
+
+
+def test_msa_failures_gives_each_member_its_verdict():
+    # members: every station; only the 30 deg azimuth (one tool axis: eps_z undetermined); every station again
+    G, B, A, _ = stations()
+    one_axis = (A == 30.0).astype(float)
+    W = jnp.asarray(np.stack([np.ones(len(A)), one_axis, np.ones(len(A))]))
+    r = jax.lax.map(lambda w: msa.msa_solve(jnp.asarray(G), jnp.asarray(B), w, None, model="biases", max_steps=100), W)
+    verdicts = msa.msa_failures(r)
+    assert verdicts[0] is None and verdicts[2] is None
+    assert "cannot determine ['eps_z']" in verdicts[1]
+    with pytest.raises(ValueError, match=r"multi-station analysis \(repeat 1\): the stations cannot determine"):
+        msa.check_observability(r)
+    # a budget too small for every member: each is named, and a non-finite solution says so
+    r1 = jax.lax.map(lambda w: msa.msa_solve(jnp.asarray(G), jnp.asarray(B), w, None, model="biases", max_steps=1),
+                     W[jnp.array([0, 2])])
+    assert all(v.startswith("Levenberg-Marquardt did not converge in 1 steps") for v in msa.msa_failures(r1))
+    bad = r._replace(cost=r.cost.at[2].set(jnp.nan))
+    assert msa.msa_failures(bad)[2].startswith("the solution is not finite")

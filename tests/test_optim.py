@@ -427,7 +427,8 @@ def test_no_python_loop_over_population_in_optim():
                 for node in ast.walk(fn):
                     if isinstance(node, (ast.For, ast.While)):
                         offenders.append(f"{path.name}:{node.lineno} in {fn.name}")
-    allowed = {"base.py": {"check_bounds", "_tree_differences", "run_batch"}}
+    # _batch_chunked: the host loop over a run's chunks of iterations (progress between jitted calls)
+    allowed = {"base.py": {"check_bounds", "_tree_differences", "run_batch", "_batch_chunked"}}
     bad = [o for o in offenders if o.split(" in ")[1] not in allowed.get(o.split(":")[0], set())]
     assert not bad, bad
 

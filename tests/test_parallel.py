@@ -33,9 +33,16 @@ def test_workers_give_the_one_process_study_bitwise():
     frame = sim_frame()
     assert study.search_grid(2, 3, 2) == (2, 1) and study.search_grid(2, 3, 3) == (1, 3)
     one = study.run_study(frame, dataclasses.replace(TINY, workers=1))
-    timings = {}
-    _same(one, study.run_study(frame, dataclasses.replace(TINY, workers=2), timings=timings))
+    timings, ticks = {}, []
+    _same(one, study.run_study(frame, dataclasses.replace(TINY, workers=2), timings=timings,
+                               progress=lambda d, t: ticks.append((d, t))))
     assert len(timings["workers"]) == 2 and timings["execution"]["workers"] == 2
+    # the workers' progress reaches the parent, summed over their blocks (weighted by strategies x repeats)
+    members = len(TINY.strategies) * TINY.n_repeats
+    total = ticks[-1][1]
+    assert ticks[-1] == (total, total) and all(t == total for _, t in ticks) and total % members == 0
+    assert total // members in (TINY.iterations, TINY.iterations + 1)
+    assert [d for d, _ in ticks] == sorted(d for d, _ in ticks)
     assert all(w["run_s"] > 0 and w["import_s"] > 0 for w in timings["workers"])
     _same(one, study.run_study(frame, dataclasses.replace(TINY, workers=3)))
 

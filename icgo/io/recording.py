@@ -8,7 +8,10 @@ The contract (DESIGN.md, "Data contract"; details and error messages in
   ``azimuth_deg, inclination_deg`` (reference attitude, when known); optional
   ``toolface_deg``, ``group`` (int; rows of one group share the true direction,
   used when no reference attitude is known), ``time_s``, ``wx, wy, wz`` (gyro,
-  deg/h), ``temperature_c``.
+  deg/h), ``temperature_c``, ``md`` (measured depth along the hole, m; ``depth_m`` reads as ``md``).
+* Field exports (:mod:`icgo.io.columns`): names matched case-insensitively, a column map
+  (``columns={"gx": "Accel X"}`` or a mapping file), ``#`` comment lines, a units row under the
+  header (converted into these units).
 * Metadata JSON: ``total_field_nT``, ``dip_deg``, ``declination_deg``,
   ``gravity_g``; or ``latitude``, ``longitude``, ``altitude_km``, ``date`` from
   which :func:`icgo.physics.field.reference_field` computes the field; descriptive
@@ -33,7 +36,6 @@ import json
 import math
 import os
 import re
-import sys
 import tempfile
 from importlib import resources
 from pathlib import Path
@@ -43,13 +45,20 @@ import numpy as np
 import pandas as pd
 
 from icgo.core.errors import DataError
+from icgo.io import columns as export
+from icgo.io.files import read_text_bounded
 
 # ----------------------------------------------------------------- the schema
+#: Largest contract CSV read (bytes; docs/data.md): the reader's peak memory is 7 to 13 times the file
+#: (0.84 GB for 1 M rows x 10 columns on the fast path, 1.5 GB when the exact reader words an error).
+MAX_CSV_BYTES = 256 << 20
+#: Largest metadata file read (bytes).
+MAX_META_BYTES = 1 << 20
 SENSOR_COLUMNS = ("gx", "gy", "gz", "bx", "by", "bz")
 REQUIRED_COLUMNS = ("station",) + SENSOR_COLUMNS
 REFERENCE_COLUMNS = ("azimuth_deg", "inclination_deg")
 GYRO_COLUMNS = ("wx", "wy", "wz")
-OPTIONAL_COLUMNS = ("toolface_deg", "group", "time_s") + GYRO_COLUMNS + ("temperature_c",)
+OPTIONAL_COLUMNS = ("toolface_deg", "group", "time_s") + GYRO_COLUMNS + ("temperature_c", "md")
 #: Contract columns in the order they are written.
 KNOWN_COLUMNS = REQUIRED_COLUMNS + REFERENCE_COLUMNS + OPTIONAL_COLUMNS
 INTEGER_COLUMNS = ("station", "group")
@@ -219,30 +228,46 @@ def _coerce_frame(frame: pd.DataFrame, source: str, line_of) -> pd.DataFrame:
 
 
 # --------------------------------------------------------------- validation
-def _check_columns(cols: list, source: str, require_reference: bool = True) -> None:
-    """Header-level checks: required, paired and grouped columns (reference optional if not required)."""
+def _check_columns(cols: list, source: str, require_reference: bool = True, setting: str = "columns") -> None:
+    """Header-level checks: required, paired and grouped columns (reference optional if not required).
+
+    ``setting`` names the column map in the hint of a missing column (:func:`icgo.io.columns.missing_hint`).
+    """
     missing = [c for c in REQUIRED_COLUMNS if c not in cols]
     if missing:
-        fail(source, f"missing required column(s) {', '.join(missing)} (have: {', '.join(map(str, cols))})")
+        fail(source, f"missing required column(s) {', '.join(missing)} (have: {', '.join(map(str, cols))})"
+                     + export.missing_hint(missing, [str(c) for c in cols], KNOWN_COLUMNS, setting))
     ref = [c for c in REFERENCE_COLUMNS if c in cols]
     if len(ref) == 1:
         other = REFERENCE_COLUMNS[1 - REFERENCE_COLUMNS.index(ref[0])]
         fail(source, f"column '{ref[0]}' given without '{other}' (the reference attitude needs both)")
     if require_reference and not ref and "group" not in cols:
         fail(source, "missing required columns azimuth_deg, inclination_deg "
-                      "(reference attitude; they may be left out only when a 'group' column is present)")
+                      "(reference attitude; they may be left out only when a 'group' column is present)"
+                     + export.missing_hint(list(REFERENCE_COLUMNS), [str(c) for c in cols], KNOWN_COLUMNS,
+                                           setting).replace("; name the export", "; or name the export"))
     gyro = [c for c in GYRO_COLUMNS if c in cols]
     if gyro and len(gyro) != 3:
         fail(source, f"gyro columns must come as wx, wy, wz together (have only {', '.join(gyro)})")
 
 
 def _check_frame(frame: pd.DataFrame, source: str, line_of, notices: list,
-                 require_reference: bool = True) -> pd.DataFrame:
-    """Contract checks on a frame whose contract columns are float64; returns the typed frame."""
+                 require_reference: bool = True, convert: dict | None = None,
+                 setting: str = "columns") -> pd.DataFrame:
+    """Contract checks on a frame whose contract columns are float64; returns the typed frame.
+
+    ``convert``: column -> (scale, offset, unit) from a units row (:func:`icgo.io.columns.prepare`),
+    applied before any check.
+    """
     cols = list(frame.columns)
     if len(frame) == 0:
         fail(source, "no data rows (header only)")
-    _check_columns(cols, source, require_reference)
+    _check_columns(cols, source, require_reference, setting)
+    if convert:
+        frame = frame.copy()
+        for name, (scale, offset, _) in convert.items():
+            if name in cols:
+                frame[name] = frame[name].to_numpy(np.float64) * scale + offset
 
     for name in [c for c in KNOWN_COLUMNS if c in cols]:
         v = frame[name].to_numpy(np.float64)
@@ -315,7 +340,7 @@ def _check_units(frame: pd.DataFrame, source: str) -> None:
     lo, hi = G_MEDIAN_RANGE_G
     if not lo <= g <= hi:
         if lo * STANDARD_GRAVITY <= g <= hi * STANDARD_GRAVITY:
-            hint = f"looks like m/s^2: divide by {STANDARD_GRAVITY}"
+            hint = f"looks like m/s^2: divide by {STANDARD_GRAVITY}, or give m/s^2 in a units row under the header"
         elif lo * 1000 <= g <= hi * 1000:
             hint = "looks like milli-g: divide by 1000"
         else:
@@ -325,9 +350,9 @@ def _check_units(frame: pd.DataFrame, source: str) -> None:
     lo, hi = B_MEDIAN_RANGE_NT
     if not lo <= b <= hi:
         if b < lo and lo <= b * 1e3 <= hi:
-            hint = "looks like uT given as nT: multiply by 1000"
+            hint = "looks like uT given as nT: multiply by 1000; or give the unit in a units row under the header, docs/data.md"
         elif b < lo and lo <= b * 1e5 <= hi:
-            hint = "looks like Gauss given as nT: multiply by 100000"
+            hint = "looks like Gauss given as nT: multiply by 100000; or give the unit in a units row under the header, docs/data.md"
         else:
             hint = "the geomagnetic field is about 22,000-67,000 nT"
         fail(source, f"median |B| = {b:.6g} is not in nT ({hint})", "all rows", ("bx", "by", "bz"))
@@ -508,7 +533,20 @@ def meta_path_for(csv_path) -> Path:
     return p.with_name(stem + ".meta.json")
 
 
-def read_recording(csv_path, meta_path=None, *, require_meta: bool = True, require_reference: bool = True) -> Recording:
+def column_map(columns=None, columns_file=None, setting: str = "columns") -> dict[str, str]:
+    """One column map from a front door's settings: the entries of ``columns_file`` (JSON or YAML), then
+    ``columns`` over them (:mod:`icgo.io.columns`).
+
+    Raises:
+        SettingError: one line naming the setting (a key that is not a contract column, a bad file).
+    """
+    base = {} if columns_file in (None, "") else export.load_column_map(columns_file, KNOWN_COLUMNS,
+                                                                       f"{setting}_file")
+    return base | export.check_column_map(columns, KNOWN_COLUMNS, setting)
+
+
+def read_recording(csv_path, meta_path=None, *, require_meta: bool = True, require_reference: bool = True,
+                   columns=None, column_setting: str = "columns") -> Recording:
     """Read and validate a contract CSV and its ``<name>.meta.json``.
 
     Args:
@@ -518,30 +556,33 @@ def read_recording(csv_path, meta_path=None, *, require_meta: bool = True, requi
             (with a notice) instead of raising.
         require_reference: False accepts a survey without the reference attitude
             and without groups (see :func:`validate`).
+        columns: a column map ``{contract column: export column}`` for a field export
+            (:mod:`icgo.io.columns`; :func:`column_map` builds one from settings and a file).
+        column_setting: how the caller names the column map, for the hints in errors
+            (``columns``, ``dataset.columns``).
     Returns:
-        Recording.
+        Recording; ``notices`` say which export columns were mapped and which units converted.
     Raises:
         DataError: one line naming the file, row (and its line) and column.
+        SettingError: a column map whose key is not a contract column.
     """
     csv_path = Path(csv_path)
     src = str(csv_path)
-    if csv_path.exists() and not csv_path.is_file():  # a FIFO would block, /dev/zero never ends
-        fail(src, "not a regular file (a directory, pipe or device); give a CSV file")
-    try:
-        text = csv_path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        fail(src, "file not found")
-    except UnicodeDecodeError as e:
-        fail(src, f"not UTF-8 text ({e.reason} at byte {e.start})")
-    except OSError as e:
-        fail(src, f"cannot read ({e.strerror})")
+    text = read_text_bounded(csv_path, MAX_CSV_BYTES, "a contract CSV")  # a FIFO, a device, a huge file: refused
     if text.strip() == "":
         fail(src, "empty file (no header, no rows)")
+    cmap = export.check_column_map(columns, KNOWN_COLUMNS, column_setting)
+    prep = export.prepare(text, src, KNOWN_COLUMNS, cmap, column_setting)
+    text = prep.text
+    if text.strip() == "":
+        fail(src, "only comment lines (lines starting with #): no header, no rows")
+    opts = {"convert": prep.convert, "setting": column_setting}
     notices: list[str] = []
-    typed = _read_fast(text, src, notices, require_reference)
+    typed = _read_fast(text, src, notices, require_reference, **opts)
     if typed is None:
         notices = []
-        typed = _read_exact(text, src, notices, require_reference)
+        typed = _read_exact(text, src, notices, require_reference, **opts)
+    notices[:0] = prep.notices
     if not text.endswith(("\n", "\r")):  # a cut-off write leaves no newline: say so, naming the last row
         notices.append(f"{src}: the file does not end with a newline; check that its last row (row {len(typed)}) "
                        f"is complete")
@@ -558,10 +599,7 @@ def read_recording(csv_path, meta_path=None, *, require_meta: bool = True, requi
         notices.append(f"{msrc}: no metadata file; read as {{}}")
         meta = {}
     else:
-        try:
-            mtext = mpath.read_text(encoding="utf-8-sig")
-        except (OSError, UnicodeDecodeError) as e:
-            fail(msrc, f"cannot read metadata ({e})")
+        mtext = read_text_bounded(mpath, MAX_META_BYTES, "a metadata JSON")
         if mtext.strip() == "":
             fail(msrc, "empty metadata file (write {} if nothing is known)")
         try:
@@ -582,7 +620,8 @@ _ROUND_TRIP = {"float_precision": "round_trip"} if tuple(
     int(v) for v in re.findall(r"\d+", pd.__version__)[:2]) < (3, 1) else {}
 
 
-def _read_fast(text: str, src: str, notices: list, require_reference: bool) -> pd.DataFrame | None:
+def _read_fast(text: str, src: str, notices: list, require_reference: bool, convert=None,
+               setting: str = "columns") -> pd.DataFrame | None:
     """The checked frame of a plain CSV text by pandas' C parser, or None to leave it to :func:`_read_exact`.
 
     Same result as :func:`_read_exact` whenever it returns a frame (tested side by side on mutated
@@ -602,7 +641,7 @@ def _read_fast(text: str, src: str, notices: list, require_reference: bool) -> p
     if "" in header or len(set(header)) != len(header):
         return None
     try:
-        _check_columns(header, src, require_reference)
+        _check_columns(header, src, require_reference, setting)
         parsed = pd.read_csv(_io.BytesIO(text.encode("utf-8")), encoding="utf-8", header=0, names=header, engine="c", na_filter=False,
                              skip_blank_lines=True, dtype={h: np.float64 if h in KNOWN_COLUMNS else object
                                                            for h in header}, **_ROUND_TRIP)
@@ -626,12 +665,13 @@ def _read_fast(text: str, src: str, notices: list, require_reference: bool) -> p
     del parsed
     frame = pd.DataFrame(data)
     try:
-        return _check_frame(frame, src, lambda i: i + 2, notices, require_reference)
+        return _check_frame(frame, src, lambda i: i + 2, notices, require_reference, convert, setting)
     except DataError:
         return None
 
 
-def _read_exact(text: str, src: str, notices: list, require_reference: bool) -> pd.DataFrame:
+def _read_exact(text: str, src: str, notices: list, require_reference: bool, convert=None,
+                setting: str = "columns") -> pd.DataFrame:
     """Every row through the csv module and ``float``: the reference reader, and the one that words errors."""
     reader = csv.reader(_io.StringIO(text))
     numbered = []  # (line number, fields), blank lines skipped
@@ -653,11 +693,11 @@ def _read_exact(text: str, src: str, notices: list, require_reference: bool) -> 
         if len(r) != len(header):
             fail(src, f"{len(r)} fields, the header has {len(header)}", k + 1, None, ln)
     if body:
-        _check_columns(header, src, require_reference)
+        _check_columns(header, src, require_reference, setting)
     rows = [r for _, r in body]
     line_of = lambda i: body[i][0]  # noqa: E731
     frame = _parse_columns(header, rows, src, line_of) if rows else pd.DataFrame(columns=header)
-    return _check_frame(frame, src, line_of, notices, require_reference)
+    return _check_frame(frame, src, line_of, notices, require_reference, convert, setting)
 
 
 # ------------------------------------------------------------------ writing
@@ -757,12 +797,13 @@ def device_to_tool(v) -> np.ndarray:
     return np.asarray(v, np.float64)[:, list(MAG_CAL_DEVICE_TO_TOOL)]
 
 
-def fixture_shots(d, src: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def fixture_shots(d, src: str) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """mag_cal's fixture layout (``{"shots": {"mag", "grav"}}``, device frame, g and uT) -> tool frame.
 
     Returns:
-        (G (24, 3) g, B (24, 3) nT, group (24,)): shot k < 8 is its own group k; shots
-        8-15 are group 8 and 16-23 group 9 (rolled about the pointing axis).
+        (G (n, 3) g, B (n, 3) nT, group): for the peer's 24 shots, shot k < 8 is its own group k and
+        shots 8-15 and 16-23 are groups 8 and 9 (rolled about the pointing axis, mag_cal ``read_fixture``);
+        for any other count None (the rolls are then found from the data, :mod:`icgo.io.mag_cal_json`).
     Raises:
         DataError: one line naming ``src``.
     """
@@ -771,11 +812,13 @@ def fixture_shots(d, src: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         fail(src, "no 'shots' with 'mag' and 'grav'")
     mag = _fixture_triples(shots["mag"], src, "mag")
     grav = _fixture_triples(shots["grav"], src, "grav")
-    if len(mag) != MAG_CAL_SHOTS or len(grav) != MAG_CAL_SHOTS:
-        fail(src, f"expected {MAG_CAL_SHOTS} shots, got {len(mag)} mag and {len(grav)} grav")
-    group = np.arange(MAG_CAL_SHOTS)
-    for gid, (a, b) in zip((8, 9), MAG_CAL_RUNS):
-        group[a:b] = gid
+    if len(mag) != len(grav) or not len(mag):
+        fail(src, f"'shots.mag' has {len(mag)} readings and 'shots.grav' {len(grav)}: one of each per shot")
+    group = None
+    if len(mag) == MAG_CAL_SHOTS:
+        group = np.arange(MAG_CAL_SHOTS)
+        for gid, (a, b) in zip((8, 9), MAG_CAL_RUNS):
+            group[a:b] = gid
     # fixtures are in g already (median |G| ~ 1.00), gravity pointing down; uT -> nT
     return device_to_tool(grav), device_to_tool(mag) * UT_TO_NT, group
 

@@ -26,7 +26,9 @@ def mean_std(x, ddof: int = 1) -> tuple[float, float]:
 
 
 def format_mean_std(mean: float, std: float, digits: int = 4) -> str:
-    """``"0.0391 +/- 0.0100"``."""
+    """``"0.0391 +/- 0.0100"``; the mean alone when the std is undefined (one repeat), never ``"+/- nan"``."""
+    if not np.isfinite(std):
+        return f"{mean:.{digits}f}"
     return f"{mean:.{digits}f} +/- {std:.{digits}f}"
 
 

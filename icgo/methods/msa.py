@@ -15,13 +15,15 @@ factors) is only solved by the ``biases_scales`` model; the paper solves the
 three biases. Row weights ``w`` (0/1 masks) select the training stations of a
 repeat, so shapes stay fixed and :func:`msa_solve` vmaps over repeats.
 
-The minimisation is :func:`icgo.maths.lsq.least_squares`, the optimistix entry point
+The minimisation is :func:`icgo.maths.lsq.least_squares`, the converging entry point
 of :mod:`icgo.maths.lsq` (Levenberg-Marquardt, exact forward-mode Jacobian of the
-residual vector, trust-region damping, stops on convergence or after
-``max_steps`` steps; the module's other entry point, the in-house fixed-step
-:func:`icgo.maths.lsq.least_squares_fixed`, serves the discrepancy package). Biases are solved in units of the
-mean measured field magnitude so that the variables are of order one (the
-solver's damping is the identity).
+residual vector, Marquardt damping; it stops when the Gauss-Newton step is below
+the float64 resolution of V, typically after 2-5 steps here, or after
+``max_steps`` steps). No MSA model is linear in its parameters (Bh is a square
+root of a quadratic in the biases), so there is no exact linear solve. Biases
+are solved in units of the mean measured field magnitude so that the variables
+are of order one (the solver's absolute step tolerance is in those units).
+:func:`msa_failures` gives each member of a batched solution its verdict.
 
 Observability is checked on the host (:func:`check_observability`): a
 parameter the stations cannot determine (e.g. the axial bias when every station
@@ -237,53 +239,79 @@ def msa_solve(G, B, weights, reference=None, model: str = "biases", max_steps: i
     return MSAResult(bias, scale, p, cost, fit.n_steps, fit.ok, cond, sv, std, ref)
 
 
-def check_observability(result: MSAResult, model: str = "biases", reference=None,
-                        max_condition: float = MAX_CONDITION,
-                        max_rel_std: float = MAX_REL_STD) -> np.ndarray:
-    """Host-side check that the stations determined every parameter of a solution.
+def msa_failures(result: MSAResult, model: str = "biases", reference=None,
+                 max_condition: float = MAX_CONDITION, max_rel_std: float = MAX_REL_STD) -> list:
+    """Host-side verdict on each member of a (batched) solution: None where it is usable, else why not.
 
-    Raises ValueError naming the undetermined parameters (and the repeat, for a
-    batched result) when the condition number exceeds ``max_condition`` or a
-    parameter's standard error exceeds ``max_rel_std`` (times the field
-    magnitude for biases), and (after that check) when the solver did not
-    converge within its step budget.
+    A member fails when the stations could not determine a parameter (the
+    condition number exceeds ``max_condition`` or a standard error exceeds
+    ``max_rel_std``, times the field magnitude for biases), when its solution is
+    not finite, or when the solver did not meet its stopping rule within its
+    step budget.
 
     Args:
-        result: an MSAResult, unbatched or with one leading repeat axis.
+        result: an MSAResult, unbatched or with one leading member axis.
         model: the MSA model it was solved with.
         reference: the reference it was solved with (only used in the message).
         max_condition: largest acceptable condition number (solver units).
         max_rel_std: largest acceptable relative standard error.
     Returns:
-        the condition number(s), () or (R,) numpy.
+        One entry per member (one for an unbatched result): None, or a one-line reason
+        (e.g. ``"Levenberg-Marquardt did not converge in 100 steps; ..."``).
     """
     names = _check_model(model)
-    single = np.ndim(result.condition) == 0
     cond = np.atleast_1d(np.asarray(result.condition, dtype=float))
-    std = np.asarray(result.std_error, dtype=float).reshape(cond.shape[0], len(names))
-    ref = np.asarray(result.reference, dtype=float).reshape(cond.shape[0], 2)
+    R = cond.shape[0]
+    std = np.asarray(result.std_error, dtype=float).reshape(R, len(names))
+    ref = np.asarray(result.reference, dtype=float).reshape(R, 2)
+    cost = np.asarray(result.cost, dtype=float).reshape(R)
+    params = np.asarray(result.params, dtype=float).reshape(R, len(names))
+    converged = np.asarray(result.converged, dtype=bool).reshape(R)
+    n_steps = np.asarray(result.n_steps).reshape(R)
     n_bias = 1 if model == "axial" else 3
-    for k in range(cond.shape[0]):
+    hint = "" if reference is not None else "; a known reference field (reference=...) may fix it"
+    out = []
+    for k in range(R):
+        if not (np.isfinite(cost[k]) and np.isfinite(params[k]).all()):
+            out.append("the solution is not finite (NaN or inf in the biases or V)")
+            continue
         field = float(np.hypot(*ref[k]))
         limit = np.array([max_rel_std * field] * n_bias + [max_rel_std] * (len(names) - n_bias))
         weak = [n for n, s, lim in zip(names, std[k], limit) if not np.isfinite(s) or s > lim]
         if weak or not np.isfinite(cond[k]) or cond[k] > max_condition:
             if not weak:
                 weak = [n for n, s, lim in sorted(zip(names, std[k], limit), key=lambda t: -t[1] / t[2])][:1]
-            where = "" if single else f" (repeat {k})"
-            hint = "" if reference is not None else "; a known reference field (reference=...) may fix it"
             detail = ", ".join(f"{n} +/- {s:.3g}" for n, s in zip(names, std[k]))
-            raise ValueError(
-                f"multi-station analysis{where}: the stations cannot determine {weak} "
-                f"(condition number {cond[k]:.3g}; standard errors {detail}); add stations with "
-                f"other tool-axis directions{hint}")
-    converged = np.atleast_1d(np.asarray(result.converged, dtype=bool)).reshape(cond.shape[0])
-    if not converged.all():
-        k = int(np.argmin(converged))
-        where = "" if single else f" (repeat {k})"
-        raise ValueError(f"multi-station analysis{where}: Levenberg-Marquardt did not converge in "
-                         f"{int(np.atleast_1d(np.asarray(result.n_steps))[k])} steps; raise max_steps "
-                         "(msa.iterations)")
+            out.append(f"the stations cannot determine {weak} (condition number {cond[k]:.3g}; standard errors "
+                       f"{detail}); add stations with other tool-axis directions{hint}")
+        elif not converged[k]:
+            out.append(f"Levenberg-Marquardt did not converge in {int(n_steps[k])} steps; raise max_steps "
+                       "(msa.iterations)")
+        else:
+            out.append(None)
+    return out
+
+
+def check_observability(result: MSAResult, model: str = "biases", reference=None,
+                        max_condition: float = MAX_CONDITION,
+                        max_rel_std: float = MAX_REL_STD) -> np.ndarray:
+    """Host-side check that every member of a solution is usable (:func:`msa_failures`), else ValueError.
+
+    Raises ValueError naming the first failing member (``repeat k`` for a batched
+    result) and why: undetermined parameters, a non-finite solution, or no
+    convergence within the step budget.
+
+    Args:
+        result: an MSAResult, unbatched or with one leading repeat axis.
+        model, reference, max_condition, max_rel_std: as :func:`msa_failures`.
+    Returns:
+        the condition number(s), () or (R,) numpy.
+    """
+    single = np.ndim(result.condition) == 0
+    for k, why in enumerate(msa_failures(result, model, reference, max_condition, max_rel_std)):
+        if why is not None:
+            raise ValueError(f"multi-station analysis{'' if single else f' (repeat {k})'}: {why}")
+    cond = np.atleast_1d(np.asarray(result.condition, dtype=float))
     return cond[0] if single else cond
 
 

@@ -428,17 +428,26 @@ def _tree_differences(a, b) -> list[str]:
 # ----------------------------------------------------------------------------
 
 
-def _run_one(alg: Algorithm, fitness, pop_size: int, n_iter: int, key, lb, ub, config, aux) -> RunResult:
+def _init_one(alg: Algorithm, fitness, pop_size: int, n_iter: int, key, lb, ub, config, aux):
+    """The first state and the ``n_iter`` step keys of one run."""
     k_init, k_run = jax.random.split(key)
-    state = alg.init_fn(k_init, fitness, lb, ub, pop_size, config, aux)
-    keys = jax.random.split(k_run, n_iter)
+    return alg.init_fn(k_init, fitness, lb, ub, pop_size, config, aux), jax.random.split(k_run, n_iter)
+
+
+def _steps_one(alg: Algorithm, fitness, n_iter: int, state, ts, keys):
+    """Iterations ``ts`` (of ``n_iter``) of one run from ``state``: (state, (best_f, n_evals) per iteration)."""
 
     def body(s, xs):
         t, k = xs
         s = alg.step_fn(s, k, t, n_iter, fitness)
         return s, (s.best_f, s.n_evals)
 
-    state, (curve, evals) = lax.scan(body, state, (jnp.arange(n_iter), keys))
+    return lax.scan(body, state, (ts, keys))
+
+
+def _run_one(alg: Algorithm, fitness, pop_size: int, n_iter: int, key, lb, ub, config, aux) -> RunResult:
+    state, keys = _init_one(alg, fitness, pop_size, n_iter, key, lb, ub, config, aux)
+    state, (curve, evals) = _steps_one(alg, fitness, n_iter, state, jnp.arange(n_iter), keys)
     return RunResult(state.best_x, state.best_f, curve, evals, state.n_evals)
 
 
@@ -454,6 +463,42 @@ def _batch_jit(alg, fitness, pop_size, n_iter, by_config, keys, lb, ub, config, 
     if not by_config:
         return over_repeats(keys, lb, ub, config, aux)
     return jax.vmap(over_repeats, in_axes=(None, None, None, 0, None))(keys, lb, ub, config, aux)
+
+
+@partial(jax.jit, static_argnums=(0, 1, 2, 3, 4))
+def _batch_init_jit(alg, fitness, pop_size, n_iter, by_config, keys, lb, ub, config, aux):
+    one = jax.vmap(partial(_init_one, alg, fitness, pop_size, n_iter), in_axes=(0, None, None, None, 0))
+    return jax.vmap(one, in_axes=(None, None, None, 0, None))(keys, lb, ub, config, aux) if by_config else \
+        one(keys, lb, ub, config, aux)
+
+
+@partial(jax.jit, static_argnums=(0, 1, 2, 3))
+def _batch_steps_jit(alg, fitness, n_iter, by_config, state, ts, keys):
+    one = jax.vmap(partial(_steps_one, alg, fitness, n_iter), in_axes=(0, None, 0))
+    return jax.vmap(one, in_axes=(0, None, 0))(state, ts, keys) if by_config else one(state, ts, keys)
+
+
+def chunk_length(n_iter: int, chunks: int = 10) -> int:
+    """Iterations per chunk of a run with progress: the largest divisor of ``n_iter`` up to ``n_iter / chunks``
+    (one compiled chunk program, at most a few host round trips per run)."""
+    return max(d for d in range(1, max(1, n_iter // chunks) + 1) if n_iter % d == 0)
+
+
+def _batch_chunked(alg, fitness, pop_size, n_iter, by_config, keys, lb, ub, config, aux, progress) -> RunResult:
+    """:func:`_batch_jit` in chunks of :func:`chunk_length` iterations, calling ``progress(done, n_iter)`` after
+    each: no host callback inside the compiled programs, so they stay in the persistent compilation cache."""
+    state, step_keys = _batch_init_jit(alg, fitness, pop_size, n_iter, by_config, keys, lb, ub, config, aux)
+    step = chunk_length(n_iter)
+    curves, evals = [], []
+    for a in range(0, n_iter, step):
+        state, (c, e) = _batch_steps_jit(alg, fitness, n_iter, by_config, state, jnp.arange(a, a + step),
+                                         step_keys[..., a:a + step, :])
+        jax.block_until_ready(c)
+        curves.append(c)
+        evals.append(e)
+        progress(a + step, n_iter)
+    return RunResult(state.best_x, state.best_f, jnp.concatenate(curves, -1), jnp.concatenate(evals, -1),
+                     state.n_evals)
 
 
 def run(alg: Algorithm, fitness: Fitness, bounds, key, pop_size: int, n_iter: int | None = None, *,
@@ -483,7 +528,7 @@ def run(alg: Algorithm, fitness: Fitness, bounds, key, pop_size: int, n_iter: in
 
 def run_batch(alg: Algorithm, fitness: Fitness, bounds, keys, pop_size: int, n_iter: int | None = None, *,
               max_evals: int | None = None, config=None, configs: Sequence | None = None,
-              aux=None) -> RunResult:
+              aux=None, progress=None) -> RunResult:
     """Run R repeats (of S configs) in one jitted, vmapped call.
 
     Repeat r of config s uses ``keys[r]``, ``aux`` sliced at index r on every
@@ -497,6 +542,9 @@ def run_batch(alg: Algorithm, fitness: Fitness, bounds, keys, pop_size: int, n_i
             vmapped (e.g. ``alg.axis_configs(config, strategies)``); result
             axes (S, R). Give ``config`` or ``configs``, not both.
         aux: pytree whose leaves have leading axis R, or None.
+        progress: None, or ``progress(done, total)`` called on the host after each chunk of iterations
+            (:func:`chunk_length`); the run is then a few jitted calls of one chunk program each, with no
+            callback inside, so the compilation cache keeps it; results equal the unchunked run.
         (other arguments as in :func:`run`)
 
     Returns:
@@ -521,6 +569,9 @@ def run_batch(alg: Algorithm, fitness: Fitness, bounds, keys, pop_size: int, n_i
         for leaf in jax.tree_util.tree_leaves(aux):
             if jnp.ndim(leaf) < 1 or jnp.shape(leaf)[0] != n_rep:
                 raise ValueError(f"aux leaves need leading axis {n_rep} (one slice per key), got shape {jnp.shape(leaf)}")
+    if progress is not None:
+        return _batch_chunked(alg, fitness, int(pop_size), n_iter, configs is not None, keys, lb, ub, config, aux,
+                              progress)
     return _batch_jit(alg, fitness, int(pop_size), n_iter, configs is not None, keys, lb, ub, config, aux)
 
 

@@ -6,7 +6,7 @@ only compared on shifted and rotated functions. Each function is evaluated as
     z = M (s (x - o)),   error(x) = g(z)   (>= 0, 0 at x = o)
 
 with o the CEC 2017 shift vector and M the CEC 2017 rotation matrix of the
-given slot (the data files shipped with ``opfunu``), s a per-function scale
+given slot (:data:`CEC2017_DATA`, vendored from ``opfunu``), s a per-function scale
 and g the base function. The functions return the *error* f(x) - f*, i.e.
 opfunu's value minus its bias. Search box [-100, 100]^D.
 
@@ -34,7 +34,6 @@ uniform shift in [-80, 80]^D and a Haar-random rotation from a seed.
 
 from __future__ import annotations
 
-import os
 from functools import lru_cache
 from typing import Callable, NamedTuple
 
@@ -142,24 +141,30 @@ class Benchmark(NamedTuple):
     scale: float
 
 
-def cec2017_data_dir() -> str:
-    """Directory of opfunu's CEC 2017 data files; ValueError if opfunu is missing."""
-    try:
-        import opfunu
-    except ImportError:  # pragma: no cover - opfunu is a dev/bench dependency
-        raise ValueError("CEC 2017 benchmark data need opfunu (pip install opfunu) or use data='random'") from None
-    return os.path.join(os.path.dirname(opfunu.__file__), "cec_based", "data_2017")
+#: The CEC 2017 shift vectors and rotation matrices of slots 1-9 in 2, 10, 20, 30, 50 and 100 dimensions
+#: (where the suite ships them), vendored from opfunu 1.0.4's ``cec_based/data_2017`` text files
+#: (``shift_data_{slot}.txt``, ``M_{slot}_D{dim}.txt``; the CEC 2017 competition's data, Awad et al. 2016)
+#: as arrays ``shift_{slot}`` and ``rotation_{slot}_D{dim}``; ``tests/test_benchmarks.py`` checks them
+#: against opfunu's files where opfunu imports (it installs on Python < 3.12 only).
+CEC2017_DATA = "cec2017.npz"
+
+
+@lru_cache(maxsize=1)
+def _cec2017_arrays() -> dict:
+    from importlib import resources
+
+    with resources.files("icgo").joinpath("data").joinpath(CEC2017_DATA).open("rb") as f, np.load(f) as z:
+        return {k: z[k] for k in z.files}
 
 
 @lru_cache(maxsize=None)
 def cec2017_data(slot: int, dim: int) -> tuple[np.ndarray, np.ndarray]:
     """Shift vector (D,) and rotation matrix (D, D) of a CEC 2017 slot."""
-    d = cec2017_data_dir()
-    path = os.path.join(d, f"M_{slot}_D{dim}.txt")
-    if not os.path.exists(path):
+    arrays = _cec2017_arrays()
+    key = f"rotation_{slot}_D{dim}"
+    if key not in arrays:
         raise ValueError(f"CEC 2017 has no rotation data for slot {slot} in {dim} dimensions (use data='random')")
-    shift = np.loadtxt(os.path.join(d, f"shift_data_{slot}.txt")).reshape(-1)[:dim]
-    return shift, np.loadtxt(path)
+    return arrays[f"shift_{slot}"][:dim], arrays[key]
 
 
 def random_data(dim: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -175,7 +180,7 @@ def make(name: str, dim: int, data: str = "cec2017", seed: int = 0) -> Benchmark
     Args:
         name: one of :data:`SPECS`.
         dim: dimension D (CEC 2017 data: 2, 10, 20, 30, 50, 100 where shipped).
-        data: ``cec2017`` (opfunu's data files) or ``random``.
+        data: ``cec2017`` (:data:`CEC2017_DATA`) or ``random``.
         seed: seed of the ``random`` data.
 
     Returns:

@@ -97,7 +97,7 @@ class StudyConfig:
             (reference field from the metadata's total_field_nT and dip_deg).
         msa_iterations: largest number of Levenberg-Marquardt steps of the MSA
             solve (:func:`icgo.maths.lsq.least_squares` ``max_steps``; it stops earlier
-            once converged, typically after 10-45 steps on lab_casing).
+            once converged, typically after 2-5 steps on lab_casing).
         features: ``"raw"`` (paper: the six raw sensor values) or ``"msa"``
             (G and the MSA-corrected B).
         hidden: RELM hidden units L (paper: not stated; 30 as in the reference
@@ -312,6 +312,9 @@ class StudyResult(NamedTuple):
         msa_model: the MSA-only fit (:class:`icgo.models.relm.MSAModel`).
         tuning: with ``config.tune``: ``{"hidden", "lam", "grid": [{hidden, lam, val_mean, val_std}, ...]}``
             (the chosen cell is ``config.hidden`` / ``config.lam``); else None.
+        excluded: ``((repeat id, reason), ...)``: the repeats left out because their MSA failed
+            (:func:`exclude_failed_repeats`); every table, the summary and the models hold the others
+            only, and ``config.repeat_ids`` names those. Empty when every repeat was usable.
     """
 
     metrics: pd.DataFrame
@@ -328,6 +331,7 @@ class StudyResult(NamedTuple):
     model: Any
     msa_model: Any
     tuning: Any = None
+    excluded: tuple = ()
 
     @property
     def records(self) -> dict:
@@ -522,8 +526,9 @@ def search_work(cfg: StudyConfig, n_train_rows: int) -> float:
 
 def search_block(cfg: StudyConfig, prep: Prepared) -> tuple:
     """:func:`search` of one block (``cfg.strategies`` x the members of ``prep``) with the CPU kernel: a
-    worker process's job (:class:`icgo.studies.workers.Workers`)."""
-    return search(cfg, jax.tree_util.tree_map(jnp.asarray, prep), kernel=CPU_KERNEL)
+    worker process's job (:class:`icgo.studies.workers.Workers`); its progress goes to the parent
+    (:func:`icgo.studies.workers.progress_sink`)."""
+    return search(cfg, jax.tree_util.tree_map(jnp.asarray, prep), kernel=CPU_KERNEL, progress=workers.progress_sink())
 
 
 def search_grid(n_methods: int, n_repeats: int, n_workers: int) -> tuple[int, int]:
@@ -538,7 +543,7 @@ def search_grid(n_methods: int, n_repeats: int, n_workers: int) -> tuple[int, in
                key=key)
 
 
-def search_in_workers(pool: workers.Workers, cfg: StudyConfig, prep: Prepared) -> tuple:
+def search_in_workers(pool: workers.Workers, cfg: StudyConfig, prep: Prepared, progress=None) -> tuple:
     """:func:`search` split over the worker processes of ``pool`` (random protocol: one member per repeat).
 
     The methods x repeats grid is cut into blocks (:func:`search_grid`); block (strategies ``s``,
@@ -563,7 +568,7 @@ def search_in_workers(pool: workers.Workers, cfg: StudyConfig, prep: Prepared) -
         payloads.append((block_cfg, jax.tree_util.tree_map(lambda x, r=r: x[r], host)))
         labels.append(f"repeats {ids[r[0]]}-{ids[r[-1]]}" + (f", strategies {list(block_cfg.strategies)}" if a > 1
                                                              else ""))
-    results, timings = pool.run(payloads, labels)
+    results, timings = pool.run(payloads, labels, progress=progress, weights=[m.size * r.size for m, r in blocks])
     out = []
     for i in range(3):
         shape = (n_methods, len(ids)) + results[0][i].shape[2:]
@@ -574,11 +579,12 @@ def search_in_workers(pool: workers.Workers, cfg: StudyConfig, prep: Prepared) -
     return (*out, timings)
 
 
-def search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None, kernel: str = CPU_KERNEL):
+def search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None, kernel: str = CPU_KERNEL, progress=None):
     """Hidden parameters per (method, repeat): (S, R, D), curves (S, R, T), evals (S, R, T).
 
     One jitted call (:func:`icgo.optim.run_batch`: ``lax.scan`` over iterations, ``vmap`` over repeats
-    and strategies); ``kernel`` (:meth:`StudyConfig.execution`) chooses the fitness (:func:`search_fitness`).
+    and strategies); ``kernel`` (:meth:`StudyConfig.execution`) chooses the fitness (:func:`search_fitness`);
+    ``progress``: see :func:`icgo.optim.base.run_batch`.
     """
     D = _relm.n_params(cfg.hidden)
     R = prep.key.shape[0]
@@ -596,7 +602,7 @@ def search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None, kernel: str = CP
     fitness = sf.fitness if wrap_fitness is None else wrap_fitness(sf.fitness)
     res = run_batch(get(cfg.optimizer), fitness, bounds, prep.key,
                     cfg.pop_size, cfg.iterations, max_evals=cfg.max_evals,
-                    config=None if configs else cfg.optimizer_config, configs=configs, aux=aux)
+                    config=None if configs else cfg.optimizer_config, configs=configs, aux=aux, progress=progress)
     if configs is None:
         res = jax.tree_util.tree_map(lambda x: x[None], res)
     return res.best_x, res.curve, res.evals_curve
@@ -689,7 +695,8 @@ def run(data: SurveyData, config: StudyConfig, key, *, wrap_fitness=None) -> Stu
 
 
 def run_study(frame: pd.DataFrame, config: StudyConfig | None = None, metadata: dict | None = None, *,
-              wrap_fitness=None, target: pd.DataFrame | None = None, timings: dict | None = None) -> StudyResult:
+              wrap_fitness=None, target: pd.DataFrame | None = None, timings: dict | None = None,
+              progress=None) -> StudyResult:
     """Run an ICGO-RELM study on a data-contract frame with the key ``PRNGKey(config.seed)``.
 
     Args:
@@ -698,15 +705,18 @@ def run_study(frame: pd.DataFrame, config: StudyConfig | None = None, metadata: 
         config: StudyConfig (defaults if None).
         metadata: the data set's metadata (needed for msa_reference="known").
         wrap_fitness: optional ``f -> f'`` applied to the search's fitness
-            ``f(pop, aux)``, e.g. to report progress from inside the scan
-            (``experiments._relm_job.Progress.wrap``). A wrapped fitness is a new
-            static argument of the runner, so that run compiles afresh.
+            ``f(pop, aux)`` (e.g. to instrument it). A wrapped fitness is a new
+            static argument of the runner, so that run compiles afresh; for progress
+            use ``progress``, which keeps the compiled programs cacheable.
         target: the second instrument's survey (``protocol="transfer"`` only).
         timings: a dict to fill with where the time went: per stage (``prepare``: split and MSA;
             ``search``; ``score``: refit and metrics; ``tables``) its wall seconds ``<stage>_s`` and the
             part spent compiling or loading programs ``<stage>_compile_s`` (:mod:`icgo.studies.timing`);
             ``execution``: the plan run (:meth:`StudyConfig.execution`, with the fitness function's
             name and the dtype); ``workers``: per worker process its timings, or None.
+        progress: optional ``progress(done, total)`` called on the host as the search's iterations complete,
+            in this process or summed over its worker processes (:func:`icgo.optim.base.run_batch`); it never
+            enters the compiled programs, so they stay in the compilation cache.
     Returns:
         StudyResult.
     Raises:
@@ -715,7 +725,7 @@ def run_study(frame: pd.DataFrame, config: StudyConfig | None = None, metadata: 
             that cannot determine the MSA parameters.
     """
     cfg = StudyConfig() if config is None else config
-    return _run(frame, cfg, metadata, jax.random.PRNGKey(cfg.seed), wrap_fitness, target, timings)
+    return _run(frame, cfg, metadata, jax.random.PRNGKey(cfg.seed), wrap_fitness, target, timings, progress)
 
 
 def filtered(frame: pd.DataFrame, cfg: StudyConfig):
@@ -725,7 +735,7 @@ def filtered(frame: pd.DataFrame, cfg: StudyConfig):
     return frame[kept], G[kept], B[kept], a[kept], kept
 
 
-def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None, timings=None) -> StudyResult:
+def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None, timings=None, progress=None) -> StudyResult:
     if (cfg.protocol == "transfer") != (target is not None):
         raise ValueError("study: protocol 'transfer' needs the second instrument's survey (target) and no other "
                          f"protocol takes one; got protocol {cfg.protocol!r} with"
@@ -754,16 +764,16 @@ def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None,
     try:
         with stages("prepare"):
             prep, mem = prepare(rows, G, B, a_true, cfg, base_key, reference, n_source)
+            prep, mem, cfg, excluded = exclude_failed_repeats(prep, mem, cfg, reference)
             jax.block_until_ready(prep)
-            _msa.check_observability(prep.msa, cfg.msa_model, reference)
         tuning = None
         if cfg.tune:
             cfg, tuning = _tune(cfg, prep, rows_per_fit(cfg, mem))
         with stages("search"):
             if pool is not None:
-                thetas, curve, evals, worker_times = search_in_workers(pool, cfg, prep)
+                thetas, curve, evals, worker_times = search_in_workers(pool, cfg, prep, progress)
             else:
-                thetas, curve, evals = jax.block_until_ready(search(cfg, prep, wrap_fitness, plan.kernel))
+                thetas, curve, evals = jax.block_until_ready(search(cfg, prep, wrap_fitness, plan.kernel, progress))
     finally:
         if pool is not None:
             pool.close()
@@ -781,7 +791,7 @@ def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None,
             if cfg.optimizer is not None else "icgo.methods.relm.fitness (plain RELM, no search)"
         timings.update(stages.times, execution={**plan._asdict(), "fitness": kernel, "dtype": cfg.dtype},
                        workers=worker_times)
-    return res if tuning is None else res._replace(tuning=tuning)
+    return res._replace(tuning=tuning, excluded=excluded)
 
 
 def _tune(cfg: StudyConfig, prep: Prepared, n_fit: int):
@@ -841,6 +851,61 @@ def train_rows(prep: Prepared):
     return _train_rows(prep.data, int(n_train.max()), bool(n_train.min() != n_train.max()))
 
 
+def exclude_failed_repeats(prep: Prepared, mem: _splits.Members, cfg: StudyConfig, reference=None):
+    """Leave out the repeats whose multi-station analysis failed, so that the others go on.
+
+    A repeat is left out whole (all its folds) when the MSA of any of its members failed
+    (:func:`icgo.methods.msa.msa_failures`: parameters the training stations cannot determine, a
+    non-finite solution, or no convergence within ``msa_iterations`` steps). Its numbers would
+    rest on an unusable correction, so it is neither searched nor scored nor averaged in; the
+    result names it (``StudyResult.excluded``) and so do the printed summary, ``summary.md`` and
+    ``run.json``. Only when every repeat failed does the study stop (the same one-line
+    ValueError as :func:`icgo.methods.msa.check_observability`, naming the first).
+
+    Args:
+        prep, mem: the prepared members and their protocol (:func:`prepare`).
+        cfg: the StudyConfig. reference: the MSA reference field or None.
+    Returns:
+        (prep, mem, cfg, excluded): the kept members; ``cfg`` with ``repeat_ids`` the kept ids
+        (unchanged when none failed); ``excluded`` = ``((repeat id, reason), ...)``.
+    Raises:
+        ValueError: every repeat's MSA failed.
+    """
+    reasons = _msa.msa_failures(prep.msa, cfg.msa_model, reference)
+    failed: dict[int, tuple[str, str]] = {}  # repeat id -> (fold label or "", reason)
+    for k, why in enumerate(reasons):
+        rid = int(mem.repeat[k])
+        if why is not None and rid not in failed:
+            failed[rid] = (mem.fold_label[mem.fold[k]] if cfg.protocol in _splits.FOLD_PROTOCOLS else "", why)
+    if not failed:
+        return prep, mem, cfg, ()
+    kept_ids = tuple(r for r in cfg.ids() if r not in failed)
+    if not kept_ids:
+        rid, (fold, why) = next(iter(failed.items()))
+        raise ValueError(f"multi-station analysis (repeat {rid}{', ' + fold if fold else ''}): {why}")
+    sel = np.flatnonzero(np.isin(mem.repeat, kept_ids))
+    prep = jax.tree_util.tree_map(lambda a: a[sel], prep)
+    mem = mem._replace(keys=mem.keys[sel], repeat=mem.repeat[sel], fold=mem.fold[sel], train=mem.train[sel],
+                       test=mem.test[sel], heldout=mem.heldout[sel])
+    excluded = tuple((rid, f"MSA{f' ({fold})' if fold else ''}: {why}") for rid, (fold, why) in sorted(failed.items()))
+    log.warning("%s", excluded_sentence(excluded, len(cfg.ids())))
+    return prep, mem, dataclasses.replace(cfg, repeat_ids=kept_ids), excluded
+
+
+def excluded_sentence(excluded, n_repeats: int, limit: int = 10) -> str | None:
+    """One line naming the excluded repeats (the first ``limit``), or None when there are none.
+
+    E.g. ``"1 of 1000 repeats excluded (their MSA failed, so they are in no number): repeat 61: MSA:
+    Levenberg-Marquardt did not converge in 100 steps; raise max_steps (msa.iterations)"``.
+    """
+    if not excluded:
+        return None
+    named = "; ".join(f"repeat {rid}: {why}" for rid, why in list(excluded)[:limit])
+    more = f"; and {len(excluded) - limit} more (run.json)" if len(excluded) > limit else ""
+    return (f"{len(excluded)} of {n_repeats} repeats excluded (their MSA failed, so they are in no number): "
+            f"{named}{more}")
+
+
 def check_search(curve, methods, ids) -> None:
     """A search in which no candidate was ever finite is a failed run, not a result.
 
@@ -855,16 +920,6 @@ def check_search(curve, methods, ids) -> None:
         raise ValueError(f"study: the search of {methods[s]} (repeat {ids[r]}) never found a finite fitness "
                          f"({len(bad)} of {curve.shape[0] * curve.shape[1]} searches): every candidate's ridge "
                          f"solve failed; check the data (constant or non-finite features) and model.lam")
-
-
-def _pooled_metrics(a_true, a_est, err_before, w) -> dict:
-    """Metrics over every (member, row) pair of weight 1: a repeat's folds pooled.
-
-    a_est, w: (F, N); err_before: (N,) or (F, N). One member (F = 1) is the plain weighted metric.
-    """
-    F = a_est.shape[0]
-    m = azimuth_metrics(np.tile(a_true, F), a_est.ravel(), np.broadcast_to(err_before, a_est.shape).ravel(), w.ravel())
-    return {k: float(v) for k, v in m._asdict().items()}
 
 
 def _collect(cfg, rows, kept, a_true, G, B, n_source, mem: _splits.Members, prep, thetas, scored, curve, evals,
@@ -883,21 +938,32 @@ def _collect(cfg, rows, kept, a_true, G, B, n_source, mem: _splits.Members, prep
     a_raw = np.asarray(azimuth_from_gv(G, B))
     err_raw = np.asarray(angle_diff(a_raw, a_true))
     one_member = len(mem.fold_label) == 1  # random / transfer: the jitted per-member metrics are the repeat's
-    out = []
-    for rid in ids:
-        sel = np.flatnonzero(mem.repeat == rid)
-        for split, mask in (("test", test[sel]), ("train", train[sel])):
-            w = mask.astype(float)
-            for name, a_est in (("raw", np.broadcast_to(a_raw, mask.shape)), ("msa", a_msa[sel])):
-                out.append({"method": name, "repeat": rid, "split": split,
-                            **_pooled_metrics(a_true, a_est, err_raw, w)})
-            for s, name in enumerate(methods):
-                if one_member:
-                    m = scored.test if split == "test" else scored.train
-                    vals = {k: float(np.asarray(v)[s, sel[0]]) for k, v in m._asdict().items()}
-                else:
-                    vals = _pooled_metrics(a_true, a_comp[s, sel], target[sel], w)
-                out.append({"method": name, "repeat": rid, "split": split, **vals})
+    # a repeat's members side by side, repeats in ``ids`` order: (..., M, N) -> (..., R, F N), so that every
+    # repeat's metrics over its pooled folds come from one batched call (not one call per repeat)
+    position = {rid: i for i, rid in enumerate(ids)}
+    order = np.argsort([position[int(r)] for r in mem.repeat], kind="stable")
+    R, F = len(ids), len(order) // len(ids)
+
+    def pooled(x):
+        x = np.asarray(x)[..., order, :]
+        return x.reshape(*x.shape[:-2], R, F * x.shape[-1])
+
+    a_true_p, err_raw_p = np.tile(a_true, F), np.tile(err_raw, F)
+    per_split = {}
+    for split, mask in (("test", test), ("train", train)):
+        w = pooled(mask.astype(float))
+        per_method = {"raw": azimuth_metrics(a_true_p, np.broadcast_to(np.tile(a_raw, F), w.shape), err_raw_p, w),
+                      "msa": azimuth_metrics(a_true_p, pooled(a_msa), err_raw_p, w)}
+        if one_member:
+            m = scored.test if split == "test" else scored.train
+            per_method |= {name: type(m)(*(np.asarray(v)[s][order] for v in m)) for s, name in enumerate(methods)}
+        else:
+            m = azimuth_metrics(a_true_p, pooled(a_comp), pooled(target), w)
+            per_method |= {name: type(m)(*(np.asarray(v)[s] for v in m)) for s, name in enumerate(methods)}
+        per_split[split] = {name: {k: np.asarray(v, dtype=float) for k, v in m._asdict().items()}
+                            for name, m in per_method.items()}
+    out = [{"method": name, "repeat": rid, "split": split, **{k: float(v[i]) for k, v in vals.items()}}
+           for i, rid in enumerate(ids) for split, by_method in per_split.items() for name, vals in by_method.items()]
     metrics = pd.DataFrame(out)
     summary = mean_std_table(metrics, ["method", "split"], ["mae", "rmse", "r2", "r2_error"])
 

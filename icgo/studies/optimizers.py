@@ -286,9 +286,9 @@ def _need_peer():
     try:
         import mealpy  # noqa: F401
         import opfunu  # noqa: F401
-    except ImportError as e:  # pragma: no cover - both are installed with the dev extras
-        raise ValueError(f"peer=True needs mealpy and opfunu ({e.name} is missing: pip install mealpy opfunu), "
-                         "or run with peer=False") from None
+    except ImportError as e:  # opfunu installs on Python < 3.12 only (pyproject.toml)
+        raise ValueError(f"peer=True needs mealpy and opfunu, which does not import here ({e}; it installs on "
+                         "Python < 3.12 only: pip install mealpy 'opfunu>=1.0.4'), or run with peer=False") from None
 
 
 def numpy_fn(name: str, dim: int):

@@ -28,6 +28,7 @@ import multiprocessing as mp
 import os
 import pickle
 import time
+from multiprocessing.connection import wait
 
 import numpy as np
 
@@ -51,9 +52,24 @@ def available_cores() -> list[int]:
         return list(range(os.cpu_count() or 1))
 
 
+#: The pipe to the parent inside a worker process (None in the parent): :func:`progress_sink` writes to it.
+_PARENT = None
+
+
+def progress_sink():
+    """Inside a worker: a ``progress(done, total)`` that reports to the parent's :meth:`Workers.run`; else None."""
+    if _PARENT is None:
+        return None
+    conn = _PARENT
+    return lambda done, total: conn.send(("progress", (int(done), int(total)), None))
+
+
 def _worker(conn, core: int | None, cache_dir: str | None, job: bytes) -> None:
     """A worker's process: one XLA thread on one core; import the job (and JAX), say ready, wait for the
-    payload, run ``job(*payload)``, send the arrays back with the worker's own timings."""
+    payload, run ``job(*payload)`` (its progress reports go to the parent: :func:`progress_sink`), send the
+    arrays back with the worker's own timings."""
+    global _PARENT
+    _PARENT = conn
     t0 = time.perf_counter()
     os.environ["XLA_FLAGS"] = xla_flags(1, os.environ.get("XLA_FLAGS", ""))  # before JAX starts its backend
     if core is not None:
@@ -123,12 +139,16 @@ class Workers:
             p.join()
             raise RuntimeError(f"study worker {k} ({label}) died with exit code {p.exitcode} before "
                                f"returning its search") from None
-        if status != expect:
+        if status not in ((expect,) if isinstance(expect, str) else expect):
             raise RuntimeError(f"study worker {k} ({label}): {value}")
         return value, times
 
-    def run(self, payloads: list[tuple], labels: list[str]) -> tuple[list[tuple], list[dict]]:
+    def run(self, payloads: list[tuple], labels: list[str], progress=None,
+            weights=None) -> tuple[list[tuple], list[dict]]:
         """``job(*payload)`` in worker k for payload k (at most one payload per worker).
+
+        ``progress``: optional ``progress(done, total)``: the workers' reports (:func:`progress_sink`) summed,
+        each weighted by ``weights`` (e.g. its number of members), as they arrive.
 
         Returns:
             (the jobs' tuples of numpy arrays in payload order, one dict of timings per worker: ``ready_s``
@@ -139,16 +159,29 @@ class Workers:
         """
         if len(payloads) > len(self.procs):
             raise ValueError(f"{len(payloads)} payloads for {len(self.procs)} workers")
-        results, timings = [], []
+        timings = []
         for k, label in enumerate(labels):
             _, times = self._recv(k, label, "ready")
             timings.append({"ready_s": time.perf_counter() - self.t0, **times})
             self.procs[k][1].send(pickle.dumps(payloads[k]))
-        for k, label in enumerate(labels):
-            value, times = self._recv(k, label, "ok")
-            self.procs[k][0].join()
-            results.append(value)
-            timings[k].update(times)
+        results = [None] * len(labels)
+        weights = [1] * len(labels) if weights is None else list(weights)
+        done = [(0, 0)] * len(labels)
+        waiting = {self.procs[k][1]: k for k in range(len(labels))}
+        while waiting:
+            for conn in wait(list(waiting)):
+                k = waiting[conn]
+                value, times = self._recv(k, labels[k], ("ok", "progress"))
+                if times is None:  # a progress report
+                    done[k] = value
+                    if progress is not None and all(t for _, t in done):
+                        progress(sum(d * w for (d, _), w in zip(done, weights)),
+                                 sum(t * w for (_, t), w in zip(done, weights)))
+                    continue
+                self.procs[k][0].join()
+                results[k] = value
+                timings[k].update(times)
+                del waiting[conn]
         return results, timings
 
     def close(self) -> None:

@@ -1,0 +1,90 @@
+"""What a table or figure of ``results/`` was made from: budget, repeats, search dtype, and whether that is the paper's
+protocol, stamped on every Markdown table and every figure title by :mod:`experiments.figures`.
+
+The stamp of the output being built is held in a context variable set by :func:`stamping` around each builder, so
+the builders' ``_write`` and :func:`save` calls stamp without passing it along. A run's settings are read from the
+resolved ``config.yaml`` of its run directory (every run of ``experiments.run`` writes one).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import contextvars
+from pathlib import Path
+
+#: The ICGO paper's protocol: population 30, 100 iterations, repeats of a random 7:3 split.
+PAPER_POP, PAPER_ITERATIONS = 30, 100
+
+_CURRENT: contextvars.ContextVar[dict | None] = contextvars.ContextVar("stamp", default=None)
+
+
+def run_settings(run_dir: Path) -> dict:
+    """Budget, repeats, dtype and split of one run from its ``config.yaml`` (empty values when it has none)."""
+    import yaml
+
+    try:
+        cfg = yaml.safe_load((Path(run_dir) / "config.yaml").read_text()) or {}
+    except (OSError, ValueError, yaml.YAMLError):
+        cfg = {}
+    b, s = cfg.get("budget") or {}, cfg.get("split") or {}
+    return {"pop_size": b.get("pop_size"), "iterations": b.get("iterations"), "max_evals": b.get("max_evals"),
+            "dtype": cfg.get("dtype"), "n_repeats": s.get("n_repeats"), "protocol": s.get("protocol")}
+
+
+def describe(settings: list[dict]) -> dict:
+    """The stamp of an output made from runs with these settings: ``{"text", "short", "paper"}``.
+
+    ``paper`` is True when every run used the paper's population and iterations (or its equal-evaluation
+    variant) on the random 7:3 protocol; the text then says so, else it says which budget it was and
+    that the numbers are not the paper's protocol.
+    """
+    seen = []
+    for s in settings:
+        key = (s.get("pop_size"), s.get("iterations"), s.get("max_evals"), s.get("dtype"), s.get("n_repeats"))
+        if key not in seen:
+            seen.append(key)
+    if not seen:
+        return {"text": "", "short": "", "paper": False}
+    paper = all(p == PAPER_POP and (it == PAPER_ITERATIONS or ev is not None) for p, it, ev, _, _ in seen) and all(
+        s.get("protocol") in (None, "random") for s in settings)
+    parts = []
+    for p, it, ev, dt, n in seen:
+        budget = f"population {p} x {it} iterations" if ev is None else f"population {p}, {ev} fitness evaluations"
+        parts.append(f"{budget}, {n} repeat(s) per run, search dtype {dt}")
+    text = ("Run settings: " + "; ".join(parts) + ". "
+            + ("The paper's protocol (population 30 x 100 iterations)." if paper else
+               "NOT the paper's protocol (population 30 x 100 iterations): compare with the paper's numbers only "
+               "as a smoke check."))
+    p, it, ev, _, n = seen[0]
+    short = (f"{p} x {it if ev is None else str(ev) + ' evals'}, {n} repeat(s)" + ("" if len(seen) == 1 else ", mixed")
+             + ("" if paper else ": NOT the paper's protocol"))
+    return {"text": text, "short": short, "paper": paper}
+
+
+@contextlib.contextmanager
+def stamping(settings: list[dict]):
+    """Within the block, :func:`note` and :func:`title` give the stamp of runs with these settings."""
+    token = _CURRENT.set(describe(settings))
+    try:
+        yield
+    finally:
+        _CURRENT.reset(token)
+
+
+def note() -> str:
+    """The stamp line for a Markdown table (empty outside :func:`stamping`)."""
+    s = _CURRENT.get()
+    return s["text"] if s else ""
+
+
+def title(text: str) -> str:
+    """A figure title with the stamp's short form on a second line."""
+    s = _CURRENT.get()
+    return f"{text}\n[{s['short']}]" if s and s["short"] else text
+
+
+def save(fig, path, text: str, dpi: int = 120) -> None:
+    """:func:`icgo.reporting.plots.save_figure` with the stamped title."""
+    from icgo.reporting.plots import save_figure
+
+    save_figure(fig, path, title(text), dpi=dpi)
