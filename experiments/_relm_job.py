@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import sys
+import time
 from pathlib import Path
 
 from omegaconf import DictConfig, ListConfig, OmegaConf
@@ -301,28 +302,35 @@ class Progress:
             self.bar.close()
 
 
-def progress_enabled(setting) -> bool:
-    """``progress`` option: ``auto`` (a bar when stderr is a terminal), true or false."""
+def progress_enabled(setting, accelerator: bool = False) -> bool:
+    """``progress`` option: ``auto`` (a bar when stderr is a terminal and the search runs on a CPU: on an
+    accelerator the bar's host callback would be a round trip inside the iteration loop), true or false."""
     if isinstance(setting, bool):
         return setting
     if setting in (None, "auto"):
-        return sys.stderr.isatty()
+        return sys.stderr.isatty() and not accelerator
     raise SettingError(f"progress must be auto, true or false, got {setting!r}")
 
 
-def run_with_progress(frame, scfg, meta, enable: bool, desc: str, target=None):
-    """``icgo.studies.icgo_relm.run_study`` with a progress bar over the optimizer's iterations (:class:`Progress`);
-    without an optimizer (plain RELM) there is no search and no bar."""
+def run_with_progress(frame, scfg, meta, progress, desc: str, target=None, timings: dict | None = None):
+    """``icgo.studies.icgo_relm.run_study`` with a progress bar over the optimizer's iterations (:class:`Progress`).
+
+    The bar follows the search's iterations on the host, in this process or summed over its worker processes
+    (``run_study(progress=...)``); without an optimizer (plain RELM), or on an accelerator under
+    ``progress=auto``, there is no bar. ``progress``: the ``progress`` setting (:func:`progress_enabled`).
+    ``timings``: see ``run_study``. Prints the execution plan (``search: ...``).
+    """
+    from icgo.core.execution import is_accelerator
     from icgo.studies import icgo_relm as study
 
-    n_workers = scfg.search_workers(len(frame))
-    if n_workers > 1:
-        print(f"search: {n_workers} worker processes, one per core (workers={scfg.workers})", file=sys.stderr)
+    plan = scfg.execution(len(frame))
+    enable = progress_enabled(progress, is_accelerator(plan.backend))
+    print(f"search: {plan.why}", file=sys.stderr)
     if not enable or scfg.optimizer is None:
-        return study.run_study(frame, scfg, meta, target=target)
+        return study.run_study(frame, scfg, meta, target=target, timings=timings)
     bar = Progress(desc)
     try:
-        return study.run_study(frame, scfg, meta, target=target, progress=bar)
+        return study.run_study(frame, scfg, meta, target=target, timings=timings, progress=bar)
     finally:
         bar.close()
 
@@ -467,6 +475,7 @@ def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, m
     from icgo.survey.apply import study_qc
     from icgo.survey.verdict import study_verdict
 
+    t0 = time.perf_counter()
     qc = None if frame is None else study_qc(frame[result.kept].reset_index(drop=True), meta, result.msa_model)
 
     outdir.mkdir(parents=True, exist_ok=True)
@@ -501,6 +510,8 @@ def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, m
         plot(outdir / "study.png")
     models = [result.model.save(outdir / result.model.KIND).name, result.msa_model.save(outdir / result.msa_model.KIND).name]
     methods = result.config.method_names()
+    if "timings" in info:  # everything above, the run record's own few bytes aside
+        info = {**info, "timings": {**info["timings"], "write_s": time.perf_counter() - t0}}
     run = {**info, "records_version": R.RECORDS_VERSION, "status": "ok", "seed": result.config.seed,
            "wall_time_s": result.wall_time_s, "methods": methods,
            "n_evals": {m: int(v) for m, v in zip(methods, np.asarray(result.n_evals)[:, 0])},

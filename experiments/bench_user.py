@@ -4,7 +4,11 @@
   fresh process, with an empty (cold) and then a filled (warm) compilation cache; and
   Table 3 as a five-job sweep (one strategy per job) through the default launcher on
   1 and on 2 workers.
-* :func:`measure`: any command in a child process, its wall time and peak memory.
+* :func:`measure`: any command in a child process (optionally on fewer cores), its wall time and
+  peak memory; :func:`breakdown`: where a front-door run's time went, from its run.json;
+* :func:`core_curve`: Table 3's front door with the job's affinity cut to 1, 2, ... cores;
+* :func:`like_for_like`: the front door run as mealpy's side of the comparison is (CGO's ``mealpy``
+  variant, the original seed, float64);
 * :func:`peer_comparison`: a JAX peer on the same fitness, evosax's PSO and
   differential evolution beside icgo's PSO.
 
@@ -41,8 +45,13 @@ from icgo.optim.registry import get
 #: Runs argv[2:] as its child and writes that child's peak resident memory (kB) to the file argv[1]. The
 #: command must be started by a small process: a child's ru_maxrss includes the memory of the process it
 #: was forked from (Linux carries the pre-exec high-water mark over exec), so forking it straight from a
-#: benchmark that holds a large data set would report that data set as the command's own.
+#: benchmark that holds a large data set would report that data set as the command's own. With
+#: ``ICGO_BENCH_CPUS`` (comma list) set, the launcher first cuts its affinity to those cores (the child
+#: inherits it); set here rather than in the benchmark, which must not fork once JAX runs threads.
 _SHIM = """import os, sys
+cpus = os.environ.pop("ICGO_BENCH_CPUS", "")
+if cpus:
+    os.sched_setaffinity(0, {int(c) for c in cpus.split(",")})
 pid = os.fork()
 if pid == 0:
     os.execvp(sys.argv[2], sys.argv[2:])
@@ -52,18 +61,20 @@ sys.exit(os.waitstatus_to_exitcode(status))
 """
 
 
-def measure(cmd: list[str], timeout: float | None = None) -> dict:
+def measure(cmd: list[str], timeout: float | None = None, cpus: list[int] | None = None) -> dict:
     """Run ``cmd`` in a child process: wall time (s), peak resident memory (GB), exit status, output tail.
 
     Peak memory is the command's own ``ru_maxrss`` (``os.wait4`` in a small launcher process, see
-    :data:`_SHIM`), whatever the size of this process.
+    :data:`_SHIM`), whatever the size of this process. ``cpus``: the child may run on these cores only
+    (its affinity mask, inherited by everything it starts: a study then plans one worker per core of it).
     """
     with tempfile.TemporaryDirectory() as tmp:
         log_path, rss_path = Path(tmp) / "log", Path(tmp) / "rss"
         with open(log_path, "w") as log:
             t = time.perf_counter()
+            env = None if cpus is None else {**os.environ, "ICGO_BENCH_CPUS": ",".join(str(c) for c in cpus)}
             proc = subprocess.Popen([sys.executable, "-c", _SHIM, str(rss_path), *cmd], stdout=log,
-                                    stderr=subprocess.STDOUT, start_new_session=True)
+                                    stderr=subprocess.STDOUT, start_new_session=True, env=env)
             try:
                 rc = proc.wait(timeout)
             except subprocess.TimeoutExpired:  # the launcher and the command are one process group
@@ -80,7 +91,71 @@ def measure(cmd: list[str], timeout: float | None = None) -> dict:
 TABLE3_STRATEGIES = ("original", "chaos", "gaussian", "wavelet", "three_stage")
 
 
-def front_door(workdir=None, extra=()) -> dict:
+def table3_command(work: Path, name: str, extra=()) -> list[str]:
+    """``python -m experiments.run experiment=table3`` into ``work/name`` with the cache ``work/cache``."""
+    return [sys.executable, "-m", "experiments.run", "experiment=table3", "figures=false", "progress=false",
+            f"jax_cache_dir={work / 'cache'}", f"hydra.run.dir={work / name}", *extra]
+
+
+def breakdown(run_dir: Path, wall_s: float) -> dict:
+    """Where a front-door run's wall time went, from its run.json (``timings``, :mod:`icgo.studies.timing`).
+
+    Keys (seconds): ``start`` (Python, Hydra and the interpreter's exit: the wall time outside the job),
+    ``import`` (the study's modules, JAX with them), ``load_data``, ``msa`` (the split and the multi-station
+    analysis), ``search``, ``scoring`` (refit, metrics, tables), ``write``; ``compile`` (of all of them: JAX
+    tracing and compiling or loading programs from the persistent cache; a worker's counted in its own
+    process), and per search worker process its ``import``, ``compile`` and ``run``.
+    """
+    import json
+
+    run = json.loads((run_dir / "run.json").read_text())
+    t = run["timings"]
+    workers = t.get("workers") or []
+    out = {"start": wall_s - run["total_time_s"] - t["write_s"], "import": t["import_s"], "load_data": t["load_data_s"],
+           "msa": t["prepare_s"], "search": t["search_s"], "scoring": t["score_s"] + t["tables_s"],
+           "write": t["write_s"],
+           "compile": sum(t[f"{s}_compile_s"] for s in ("prepare", "search", "score", "tables"))
+           + max([w["compile_s"] for w in workers], default=0.0),
+           "workers": [{k: w[k] for k in ("ready_s", "import_s", "compile_s", "run_s")} for w in workers],
+           "execution": run["execution"]}
+    return out
+
+
+def core_curve(cores: list[int], workdir=None, extra=()) -> list[dict]:
+    """Table 3 through the front door with the job's CPU affinity cut to the first ``k`` cores, for each k.
+
+    Each point runs twice into its own compilation cache: ``cold`` (it compiles) and ``warm`` (it loads
+    what the cold run compiled: the search blocks' shapes depend on the number of workers, so a cache
+    filled at another point would not hold them). With ``workers=null`` the study plans one worker
+    process per core it may use.
+
+    Returns:
+        One dict per k: cores, cold and warm ``{wall_s, peak_rss_gb, breakdown}`` (:func:`breakdown`).
+    """
+    avail = sorted(os.sched_getaffinity(0))
+    out = []
+    for k in cores:
+        if k > len(avail):
+            raise ValueError(f"core_curve: {k} cores asked, this process may use {len(avail)}")
+        work = Path(workdir or tempfile.mkdtemp(prefix="icgo-cores-")) / f"cores_{k}"
+        point = {"cores": k}
+        for name in ("cold", "warm"):
+            m = measure(table3_command(work, name, extra), cpus=avail[:k])
+            if m["rc"] != 0:
+                raise RuntimeError(f"front door on {k} cores ({name}) failed (exit {m['rc']}): "
+                                   f"{m['tail'].strip().splitlines()[-1:]}")
+            point[name] = {"wall_s": m["wall_s"], "peak_rss_gb": m["peak_rss_gb"],
+                           "breakdown": breakdown(work / name, m["wall_s"])}
+            b = point[name]["breakdown"]
+            print(f"  {k} core(s), {name}: {m['wall_s']:.1f} s = start {b['start']:.1f} + import {b['import']:.1f} + "
+                  f"data {b['load_data']:.1f} + MSA {b['msa']:.1f} + search {b['search']:.1f} + scoring "
+                  f"{b['scoring']:.1f} + write {b['write']:.1f} (compile or cache load {b['compile']:.1f})",
+                  file=sys.stderr, flush=True)
+        out.append(point)
+    return out
+
+
+def front_door(workdir=None, extra=(), sweeps: bool = True) -> dict:
     """Wall time and peak memory of Table 3 through ``python -m experiments.run``, each in a fresh process.
 
     Measured, in order, all with one compilation cache that starts empty:
@@ -93,30 +168,58 @@ def front_door(workdir=None, extra=()) -> dict:
     Args:
         workdir: where the run directories and the cache go (default: a temporary directory).
         extra: further overrides for every command (e.g. a smaller budget in a test).
+        sweeps: False: only ``cold`` and ``warm``.
     Returns:
-        {name: {"wall_s", "peak_rss_gb", "rc"}} for cold, warm, warm_1_worker, sweep_1_worker, sweep_2_workers,
-        and ``max_abs_diff``: per other run, the largest difference of its CGO metrics (test and train
-        MAE, RMSE, R^2 as written) from ``warm``'s; 0 = bitwise.
+        {name: {"wall_s", "peak_rss_gb", "rc"}} for cold, warm, warm_1_worker, sweep_1_worker, sweep_2_workers
+        (the single runs with their :func:`breakdown`), and ``max_abs_diff``: per other run, the largest
+        difference of its CGO metrics (test and train MAE, RMSE, R^2 as written) from ``warm``'s; 0 = bitwise.
     """
     work = Path(workdir or tempfile.mkdtemp(prefix="icgo-frontdoor-"))
-    base = [sys.executable, "-m", "experiments.run", "experiment=table3", "figures=false", "progress=false",
-            f"jax_cache_dir={work / 'cache'}", *extra]
     sweep = [sys.executable, "-m", "experiments.run", "-m", "experiment=table3",
              f"strategy={','.join(TABLE3_STRATEGIES)}", "figures=false", "progress=false",
              f"jax_cache_dir={work / 'cache'}", *extra]
-    cmds = {"cold": base + [f"hydra.run.dir={work / 'cold'}"], "warm": base + [f"hydra.run.dir={work / 'warm'}"],
-            "warm_1_worker": base + ["workers=1", f"hydra.run.dir={work / 'warm1'}"],
+    cmds = {"cold": table3_command(work, "cold", extra), "warm": table3_command(work, "warm", extra),
+            "warm_1_worker": table3_command(work, "warm1", [*extra, "workers=1"]),
             "sweep_1_worker": sweep + ["hydra.launcher.workers=1", f"hydra.sweep.dir={work / 'sweep1'}"],
             "sweep_2_workers": sweep + ["hydra.launcher.workers=2", f"hydra.sweep.dir={work / 'sweep2'}"]}
+    if not sweeps:
+        cmds = {k: v for k, v in cmds.items() if k in ("cold", "warm")}
     out = {}
     for name, cmd in cmds.items():
         m = measure(cmd)
         if m["rc"] != 0:
             raise RuntimeError(f"front door {name} failed (exit {m['rc']}): {m['tail'].strip().splitlines()[-1:]}")
         out[name] = {k: m[k] for k in ("wall_s", "peak_rss_gb", "rc")}
+        if name in ("cold", "warm", "warm_1_worker"):
+            out[name]["breakdown"] = breakdown(work / {"warm_1_worker": "warm1"}.get(name, name), m["wall_s"])
         print(f"  front door {name}: {m['wall_s']:.1f} s, {m['peak_rss_gb']:.2f} GB", file=sys.stderr, flush=True)
-    out["max_abs_diff"] = {name: _table_diff(work / "warm", work / d) for name, d in
-                           (("warm_1_worker", "warm1"), ("sweep_1_worker", "sweep1"), ("sweep_2_workers", "sweep2"))}
+    if sweeps:
+        out["max_abs_diff"] = {name: _table_diff(work / "warm", work / d) for name, d in
+                               (("warm_1_worker", "warm1"), ("sweep_1_worker", "sweep1"),
+                                ("sweep_2_workers", "sweep2"))}
+    return out
+
+
+def like_for_like_command(work: Path, name: str, runs: int = 50, extra=()) -> list[str]:
+    """The like-for-like front-door command (:func:`like_for_like`) into ``work/name``, cache ``work/cache``."""
+    return [sys.executable, "-m", "experiments.run", "strategy=original", f"split.n_repeats={runs}",
+            "optimizer.params.variant=mealpy", "dtype=float64", "figures=false", "progress=false",
+            f"jax_cache_dir={work / 'cache'}", f"hydra.run.dir={work / name}", *extra]
+
+
+def like_for_like(workdir=None, runs: int = 50, extra=()) -> dict:
+    """The front door run like mealpy's side of the comparison: ``runs`` searches (Table 3 has 50) of CGO's
+    ``mealpy`` variant (mealpy's OriginalCGO rules) with the original 4th seed, in float64 (``dtype=float64``,
+    as mealpy's numpy fitness), cold then warm. Returns ``{cold, warm}`` as :func:`front_door`'s entries."""
+    work = Path(workdir or tempfile.mkdtemp(prefix="icgo-likeforlike-"))
+    out = {}
+    for name in ("cold", "warm"):
+        m = measure(like_for_like_command(work, name, runs, extra))
+        if m["rc"] != 0:
+            raise RuntimeError(f"like-for-like {name} failed (exit {m['rc']}): {m['tail'].strip().splitlines()[-1:]}")
+        out[name] = {"wall_s": m["wall_s"], "peak_rss_gb": m["peak_rss_gb"], "breakdown": breakdown(work / name,
+                                                                                                      m["wall_s"])}
+        print(f"  like-for-like front door {name}: {m['wall_s']:.1f} s", file=sys.stderr, flush=True)
     return out
 
 

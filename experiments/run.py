@@ -73,6 +73,7 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
         print(f"error: {outdir} already holds a complete run; choose another hydra.run.dir or pass overwrite=true "
               f"(the old run is then replaced whole)", file=sys.stderr)
         raise SystemExit(EXIT_CONFIG)
+    timings = {}
     try:
         C.check_config(cfg)
         C.run_output(outdir, overwrite=E.bool_setting(cfg, "overwrite"))
@@ -83,13 +84,16 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
             return None
         E.fail_line(e)
     try:
-        scfg = C.study_config(cfg)  # every check before any computation
-        bar = C.progress_enabled(cfg.progress)
+        scfg = C.study_config(cfg)  # every check before any computation (imports the study, JAX with it)
+        C.progress_enabled(cfg.progress)
+        timings["import_s"] = time.perf_counter() - t0
         E.enable_jax_cache(cfg.jax_cache_dir)
+        t1 = time.perf_counter()
         frame, meta, desc = C.load_data(cfg)
         target = C.load_target(cfg)
-        result = C.run_with_progress(frame, scfg, meta, bar, desc=f"{desc} {'/'.join(scfg.method_names())}",
-                                     target=target)
+        timings["load_data_s"] = time.perf_counter() - t1
+        result = C.run_with_progress(frame, scfg, meta, cfg.progress, desc=f"{desc} {'/'.join(scfg.method_names())}",
+                                     target=target, timings=timings)
     except ValueError as e:  # SettingError, DataError (icgo.core.errors), study/optimizer checks: one line each
         if multirun:
             E.write_failure(outdir, E.one_line(e), E.format_traceback(e))
@@ -111,6 +115,7 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
             "schedule": OmegaConf.to_container(cfg.schedule, resolve=True),
             "optimizer_params": OmegaConf.to_container(cfg.optimizer.params, resolve=True) if cfg.optimizer.name
             else None,
+            "execution": timings.pop("execution"), "timings": timings,
             "total_time_s": time.perf_counter() - t0, **E.env_info()}
     plot = None
     if cfg.figures:

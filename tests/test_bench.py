@@ -1,6 +1,7 @@
 """Building blocks of experiments/bench.py at tiny sizes (no timing is tested)."""
 
 import numpy as np
+import pytest
 from conftest import relm_train_data as _data
 
 from experiments import bench, bench_user
@@ -26,6 +27,7 @@ def test_numpy_fitness_equals_jax_fitness():
 
 def test_large_recording_and_measure(tmp_path):
     """--rows building blocks: a tiled contract CSV that reads back, and a child's time and peak memory."""
+    import os
     import sys
 
     from icgo.io import recording as io
@@ -36,6 +38,9 @@ def test_large_recording_and_measure(tmp_path):
     np.testing.assert_array_equal(back.frame["azimuth_deg"], rec.frame["azimuth_deg"])
     m = bench_user.measure([sys.executable, "-c", "print('ok')"])
     assert m["rc"] == 0 and "ok" in m["tail"] and 0 < m["peak_rss_gb"] < 1 and m["wall_s"] > 0
+    core = max(os.sched_getaffinity(0))  # --cores: the command runs on the cores it is given
+    m = bench_user.measure([sys.executable, "-c", "import os; print(sorted(os.sched_getaffinity(0)))"], cpus=[core])
+    assert m["rc"] == 0 and m["tail"].strip() == f"[{core}]"
 
 
 def test_evosax_peers_spend_the_same_evaluations_and_icgo_pso_is_run_batch():
@@ -62,3 +67,44 @@ def test_mealpy_in_its_parallel_mode_runs_the_same_search():
     parallel = bench.run_mealpy(sd, 1, pop_size=8, iterations=2, mode="process", n_workers=2)
     assert single["evals_per_run"] == parallel["evals_per_run"] > 8
     assert np.isfinite(parallel["best_f"]).all()
+
+
+def test_breakdown_splits_a_front_door_run_from_its_record(tmp_path):
+    import json
+
+    t = {"import_s": 1.0, "load_data_s": 2.0, "prepare_s": 3.0, "search_s": 4.0, "score_s": 0.5, "tables_s": 0.25,
+         "write_s": 0.75, "prepare_compile_s": 1.0, "search_compile_s": 0.0, "score_compile_s": 0.1,
+         "tables_compile_s": 0.2, "workers": [{"ready_s": 1.5, "import_s": 1.2, "compile_s": 2.0, "run_s": 3.5,
+                                                "wait_s": 0.1}, {"ready_s": 1.6, "import_s": 1.3, "compile_s": 1.0,
+                                                                 "run_s": 3.0, "wait_s": 0.1}]}
+    (tmp_path / "run.json").write_text(json.dumps({"timings": t, "total_time_s": 11.0, "execution": {"workers": 2}}))
+    b = bench_user.breakdown(tmp_path, wall_s=13.0)
+    assert b["start"] == 13.0 - 11.0 - 0.75 and b["msa"] == 3.0 and b["scoring"] == 0.75 and b["write"] == 0.75
+    assert b["compile"] == 1.0 + 0.0 + 0.1 + 0.2 + 2.0  # the slowest worker's compile is on the critical path
+    assert [w["run_s"] for w in b["workers"]] == [3.5, 3.0] and b["execution"]["workers"] == 2
+
+
+def test_backend_check_skips_a_study_point_that_would_overrun_the_budget():
+    from experiments.bench_backend import overrun
+
+    assert overrun(None, 1000, 0.0) is None                                          # the first point always runs
+    last = {"repeats": 10, "compile_s": 20.0, "run_s": 3.0}
+    assert overrun(last, 100, 50.0) is None                                          # 20 + 30 s projected, 50 left
+    assert overrun(last, 1000, 100.0) == "projected 320 s from 10 repeats does not fit in the 100 s left"
+    assert overrun(last, 1000, -5.0) == "projected 320 s from 10 repeats does not fit in the 0 s left"
+
+
+@pytest.mark.slow
+def test_gpu_check_runs_on_a_cpu_and_says_the_gpu_is_absent(capsys):
+    from experiments.bench_backend import backend_check, report
+
+    res = backend_check(budget_s=300, mealpy_runs=1, front=False, batches=(12, 24, 48), repeats=(1, 2, 10**6),
+                        strategies=("original",), hidden=6, pop_size=5, iterations=2)
+    assert not res["gpu_present"] and res["headline"].startswith("GPU absent") and "unmeasured" in res["headline"]
+    assert res["plan"]["kernel"] == "cache_chunked" and set(res["kernel_evals_per_s"]) == {"cache_chunked", "batched"}
+    assert list(res["kernel_evals_per_s"]["cache_chunked"]) == ["12", "24", "48"]
+    assert res["max_rel_diff_vs_float64"] < 5e-6 and 0 < res["flop_fraction"] < 1
+    assert [p["repeats"] for p in res["study"]] == [1, 2, 10**6] and all("wall_s" in p for p in res["study"][:2])
+    assert "projected" in res["study"][2]["skipped"]
+    md = report(res)
+    assert md.startswith("GPU absent") and "study, 2 repeats" in md

@@ -130,6 +130,17 @@ def test_run_writes_outputs_and_prints_table(small_csv, tmp_path, capsys):
     assert run["n_evals"]["cgo-three_stage"] == 8 + 3 * 32
     rec = json.loads((tmp_path / "run.json").read_text())
     assert rec["status"] == "ok" and rec["models"] == ["relm_compensation.json", "msa.json"]
+    # the execution plan and where the time went
+    import jax
+
+    ex = rec["execution"]
+    assert ex["backend"] == jax.default_backend() and ex["kernel"] == "cache_chunked" and ex["workers"] == 1
+    assert ex["fitness"] == "icgo.methods.relm.train_fitness" and ex["dtype"] == "float32_features" and ex["why"]
+    t = rec["timings"]
+    for stage in ("prepare", "search", "score", "tables"):
+        assert 0 <= t[f"{stage}_compile_s"] <= t[f"{stage}_s"]
+    assert t["import_s"] > 0 and t["load_data_s"] > 0 and t["write_s"] > 0 and t["workers"] is None
+    assert sum(t[f"{s}_s"] for s in ("import", "load_data", "prepare", "search", "score", "tables")) <= rec["total_time_s"]
     # survey QC of the raw stations, recomputed with numpy against the recording's reference field
     from icgo.io.recording import read_recording
 
@@ -305,7 +316,7 @@ def test_progress_bar_starts_after_the_first_chunk(capsys):
 
 # ------------------------------------------------------------ one source of defaults
 def test_composed_default_equals_the_study_dataclass_defaults():
-    """`python -m experiments.run` with no override is icgo.studies.icgo_relm.StudyConfig() field by field (dtype=fast)."""
+    """`python -m experiments.run` with no override is icgo.studies.icgo_relm.StudyConfig() field by field (dtype=float32_features)."""
     import dataclasses
 
     from icgo.studies.icgo_relm import StudyConfig
@@ -316,7 +327,7 @@ def test_composed_default_equals_the_study_dataclass_defaults():
         if f.name == "optimizer_config":
             continue
         assert getattr(cfg, f.name) == getattr(default, f.name), f.name
-    assert cfg.dtype == "fast"
+    assert cfg.dtype == "float32_features"
     opt = cfg.optimizer_config
     assert opt == type(opt)(), "the composed optimizer config must equal its dataclass defaults"
 

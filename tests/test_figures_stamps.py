@@ -18,7 +18,7 @@ from tests.test_figures import _condition_runs, _conv, _metrics, _pred, _run_dir
 S5 = F.STRATEGIES5
 
 
-def _config(path, pop=8, iterations=3, repeats=10, dtype="fast"):
+def _config(path, pop=8, iterations=3, repeats=10, dtype="float32_features"):
     (path / "config.yaml").write_text(yaml.safe_dump({"budget": {"pop_size": pop, "iterations": iterations,
                                                                  "max_evals": None}, "dtype": dtype,
                                                       "split": {"n_repeats": repeats, "protocol": "random"}}))
@@ -39,7 +39,7 @@ def test_a_single_split_run_writes_what_it_supports_and_names_what_it_skips(tmp_
     assert done["table3"].startswith("skipped: 1 repeat: Table 3's mean +/- std and its Friedman and Wilcoxon")
     assert "table3: skipped: 1 repeat" in (out / "tables_missing.txt").read_text()
     t2 = (out / "table2.md").read_text()
-    assert ("Run settings: population 8 x 3 iterations, 1 repeat(s) per run, search dtype fast. NOT the paper's "
+    assert ("Run settings: population 8 x 3 iterations, 1 repeat(s) per run, search dtype float32_features. NOT the paper's "
             "protocol") in t2
     f10 = pd.read_csv(out / "fig10.csv")
     assert f10["n_repeats"].tolist() == [1] * 5 and f10["mae_std"].isna().all()
@@ -56,7 +56,7 @@ def test_stamps_say_the_papers_protocol_and_fig9_its_budget(tmp_path):
     out = tmp_path / "r"
     F.build([tmp_path / "m"], out)
     t3 = (out / "table3.md").read_text()
-    assert "population 30 x 100 iterations, 10 repeat(s) per run, search dtype fast. The paper's protocol" in t3
+    assert "population 30 x 100 iterations, 10 repeat(s) per run, search dtype float32_features. The paper's protocol" in t3
     assert t3.startswith("# Table 3: 10 repeats")
     assert "Equal iterations (population x iterations 30 x 100, the paper's)" in (out / "fig9.md").read_text()
     # a smoke budget is said as such, in fig9 too
@@ -69,7 +69,7 @@ def test_stamps_say_the_papers_protocol_and_fig9_its_budget(tmp_path):
 
 
 def test_describe_and_title():
-    paper = {"pop_size": 30, "iterations": 100, "max_evals": None, "dtype": "fast", "n_repeats": 10,
+    paper = {"pop_size": 30, "iterations": 100, "max_evals": None, "dtype": "float32_features", "n_repeats": 10,
              "protocol": "random"}
     assert _stamp.describe([paper])["paper"]
     assert _stamp.describe([paper | {"max_evals": 12030}])["paper"]  # the equal-evaluation variant

@@ -1,12 +1,14 @@
 """ICGO-RELM study core: bookkeeping, batched == alone (bitwise), honesty, bad inputs, lab_casing numbers."""
 
 import dataclasses
+import re
 
 import numpy as np
 import pandas as pd
 import pytest
 
 import icgo  # noqa: F401
+from icgo.core.errors import SettingError
 from icgo.maths import metrics
 from icgo.physics import effects, frames
 from icgo.studies import icgo_relm as study
@@ -163,17 +165,18 @@ def test_lab_casing_msa_and_plain_relm():
     assert s.loc[("relm", "test"), "mae_mean"] < s.loc[("msa", "test"), "mae_mean"]
 
 
-@pytest.mark.parametrize("dtype, rtol", [("fast", 5e-6), ("mixed", 1e-9)])
+@pytest.mark.parametrize("dtype, rtol", [("float32_features", 5e-6), ("float64", 1e-9)])
 def test_tiny_cgo_study_train_kernel_batched_equals_alone(frame, dtype, rtol):
-    """The train-mode searches (fast = default, mixed): repeat k batched == alone, and the fitness they
-    search with is the row-weighted float64 one to the kernel's tolerance."""
+    """The train-mode searches (float32_features = default, float64): repeat k batched == alone, and the
+    fitness they search with, on either kernel, is the row-weighted float64 one to the precision's tolerance."""
     import jax
 
+    from icgo.core.execution import ACCELERATOR_KERNEL, CPU_KERNEL
     from icgo.methods import relm
 
     cfg = study.StudyConfig(optimizer="cgo", strategies=("original", "three_stage"), n_repeats=2,
                             hidden=10, pop_size=6, iterations=3, seed=5, dtype=dtype)
-    assert study.StudyConfig().dtype == "fast"
+    assert study.StudyConfig().dtype == "float32_features"
     res = study.run_study(frame, cfg)
     alone = study.run_study(frame, dataclasses.replace(cfg, repeat_ids=(1,)))
     np.testing.assert_array_equal(alone.curves["best_fitness"][:, 0], res.curves["best_fitness"][:, 1])
@@ -182,9 +185,19 @@ def test_tiny_cgo_study_train_kernel_batched_equals_alone(frame, dtype, rtol):
     data = jax.tree_util.tree_map(lambda x: x[0], prep.data)
     rows = jax.tree_util.tree_map(lambda x: x[0], study.train_rows(prep))
     pop = relm.random_theta(jax.random.PRNGKey(1), 10, (12,))
-    search = study._fitness_fn(1e-3, 10, dtype)
-    np.testing.assert_allclose(np.asarray(search(pop, rows)), np.asarray(relm.fitness(pop, data, 1e-3, 10)),
-                               rtol=rtol)
+    ref = np.asarray(relm.fitness(pop, data, 1e-3, 10))
+    for kernel in (CPU_KERNEL, ACCELERATOR_KERNEL):
+        sf = study.search_fitness(1e-3, 10, dtype, "train", kernel)
+        assert sf.train_rows
+        np.testing.assert_allclose(np.asarray(sf.fitness(pop, rows)), ref, rtol=rtol)
+
+
+@pytest.mark.parametrize("old, new", list(study.RENAMED_DTYPES.items()))
+def test_old_dtype_names_are_refused_naming_the_new_ones(old, new):
+    line = f"dtype '{old}' was renamed: use float32_features (was fast) or float64 (was mixed)"
+    with pytest.raises(SettingError, match=re.escape(line)):
+        study.StudyConfig(dtype=old)
+    assert study.StudyConfig(dtype=new).dtype == new
 
 
 def test_wrap_fitness_sees_every_search_call(frame):

@@ -15,7 +15,6 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 import pandas as pd
-from scipy import stats as _st
 
 
 def mean_std(x, ddof: int = 1) -> tuple[float, float]:
@@ -82,6 +81,8 @@ def wilcoxon_paired(x, y, alternative: str = "two-sided") -> TestResult:
         raise ValueError("wilcoxon_paired: need at least 2 paired repeats")
     if np.all(x == y):
         return TestResult(0.0, 1.0)
+    from scipy import stats as _st  # here, not at import: scipy.stats costs 1.2 s, and a study's worker needs none
+
     r = _st.wilcoxon(x, y, alternative=alternative)
     return TestResult(float(r.statistic), float(r.pvalue))
 
@@ -126,6 +127,8 @@ def friedman(table, names: Sequence[str] | None = None) -> TestResult:
     names = [str(i) for i in range(table.shape[1])] if names is None else list(names)
     if len(names) != table.shape[1]:
         raise ValueError(f"friedman: {len(names)} names for {table.shape[1]} columns")
+    from scipy import stats as _st
+
     ranks = np.apply_along_axis(_st.rankdata, 1, table)
     r = _st.friedmanchisquare(*table.T)
     return TestResult(float(r.statistic), float(r.pvalue), dict(zip(names, ranks.mean(0).tolist())))

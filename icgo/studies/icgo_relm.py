@@ -44,6 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
+from icgo.core.execution import ACCELERATOR_KERNEL, CPU_KERNEL, ExecutionPlan, execution_plan
 from icgo.maths.metrics import azimuth_metrics
 from icgo.maths.stats import mean_std_table
 from icgo.methods import msa as _msa
@@ -52,7 +53,7 @@ from icgo.optim.cgo import CGO
 from icgo.physics.frames import angle_diff, azimuth_from_gv, wrap360
 from icgo.physics.qc import measured_dip_deg
 from icgo.studies import splits as _splits
-from icgo.studies import workers
+from icgo.studies import timing, workers
 from icgo.studies.protocol import Study
 
 REQUIRED_COLUMNS = ("gx", "gy", "gz", "bx", "by", "bz", "azimuth_deg")
@@ -60,9 +61,13 @@ REQUIRED_COLUMNS = ("gx", "gy", "gz", "bx", "by", "bz", "azimuth_deg")
 
 log = logging.getLogger(__name__)
 
-#: Search-fitness precisions served by the train-mode kernel :func:`icgo.methods.relm.train_fitness`
-#: -> its ``feature_dtype`` (``mixed``: float64 features; ``fast``: float32 features).
-TRAIN_KERNEL_FEATURES = {"mixed": "float64", "fast": "float32"}
+#: Search-fitness precisions (``StudyConfig.dtype``) -> (dtype of the hidden layer, eq. 8; dtype of the
+#: ridge solve and the RMSE, eq. 9). Which kernel computes them follows the backend
+#: (:func:`icgo.core.execution.execution_plan`), not this setting.
+PRECISIONS = {"float32_features": ("float32", "float64"), "float64": ("float64", "float64"),
+              "float32": ("float32", "float32")}
+#: Former ``dtype`` values, refused with their new names.
+RENAMED_DTYPES = {"fast": "float32_features", "mixed": "float64"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -74,11 +79,12 @@ class StudyConfig:
         seed: base seed; repeat k uses key ``fold_in(PRNGKey(seed), k)``.
         repeat_ids: run only these repeat ids (e.g. ``(3,)`` to rerun repeat 3
             alone); None = ``range(n_repeats)``.
-        workers: processes the search is split over by repeats (:mod:`icgo.studies.workers`:
-            one per core, XLA on one thread each, bitwise the one-process result);
+        workers: processes the search is split over by strategies x repeats (:mod:`icgo.studies.workers`,
+            :func:`search_grid`: one per core, XLA on one thread each, bitwise the one-process result) on a CPU;
             None (default) = one per available core when the search is large
-            (:data:`icgo.studies.workers.AUTO_MIN_WORK`) and no fitness wrapper (progress
-            bar) is given, else 1. Only the random protocol's searches split.
+            (:data:`icgo.core.execution.AUTO_MIN_WORK`) and no fitness wrapper (progress
+            bar) is given, else 1. Only the random protocol's searches split. On an
+            accelerator always 1 (:meth:`execution`).
         protocol: the split (:data:`icgo.studies.splits.PROTOCOLS`): ``random`` (paper),
             ``leave_azimuth_out``, ``leave_condition_out`` or ``transfer`` (needs
             ``SurveyData.target``, the second instrument's survey).
@@ -114,18 +120,17 @@ class StudyConfig:
         iterations: optimizer iterations (paper: 100); exclusive with max_evals.
         max_evals: fitness-evaluation budget instead of iterations.
         optimizer_config: the optimizer's config object (None = its defaults).
-        dtype: precision of the search's fitness. ``"fast"`` (default): the
-            train-mode kernel :func:`icgo.methods.relm.train_fitness` with float32
-            features (pre-activation, sigmoid, matrix-vector products), a float32
-            Gram of centred features, float64 Cholesky and iterative refinement:
-            within 1e-6 relative of the float64 fitness (tested), which is all a
-            search needs to rank candidates; the reported numbers come from the
-            float64 refit. ``"mixed"``: the same kernel with float64 features,
-            the float64 solution to 1e-9 (about 1.6x slower). Both are used when
-            ``fitness="train"``; other fitness modes then use the float64 path
-            (measured on Table 3: ``results/performance.md``). ``"float64"``: the
-            row-weighted float64 path of :func:`icgo.methods.relm.fitness`; ``"float32"``
-            that path in float32. The final refit and scoring are float64 always.
+        dtype: precision of the search's fitness (:data:`PRECISIONS`), whatever the backend.
+            ``"float32_features"`` (default): the hidden layer (eq. 8) in float32, the ridge solve
+            and the RMSE in float64: within 5e-6 relative of the float64 fitness (tested), which
+            is all a search needs to rank candidates. ``"float64"``: everything in float64 (the
+            float64 fitness to 1e-9 relative). ``"float32"``: everything in float32 (1e-3).
+            The kernel that computes it follows the backend (:meth:`execution`): on a CPU the
+            cache-chunked :func:`icgo.methods.relm.train_fitness` for ``fitness="train"`` (float32
+            Gram of centred features, float64 Cholesky and iterative refinement), the row-weighted
+            :func:`icgo.methods.relm.fitness` otherwise (float64, or float32 for ``"float32"``);
+            on an accelerator :func:`icgo.methods.relm.gram_fitness`. The final refit and every
+            reported number are float64 always. (Formerly ``fast`` and ``mixed``: refused with their new names.)
     """
 
     n_repeats: int = 10
@@ -152,7 +157,7 @@ class StudyConfig:
     iterations: int | None = 100
     max_evals: int | None = None
     optimizer_config: Any = None
-    dtype: str = "fast"
+    dtype: str = "float32_features"
 
     def __post_init__(self):
         """Validate every setting that does not depend on the data (one-line SettingError naming the field)."""
@@ -201,8 +206,11 @@ class StudyConfig:
         tb = self.theta_bounds
         need(isinstance(tb, tuple) and len(tb) == 2 and all(is_real(x) for x in tb) and tb[0] < tb[1],
              "theta_bounds", f"must be [low, high] with low < high, got {tb!r}")
-        need(self.dtype in (*TRAIN_KERNEL_FEATURES, "float64", "float32"), "dtype",
-             f"must be one of {[*TRAIN_KERNEL_FEATURES, 'float64', 'float32']}, got {self.dtype!r}")
+        need(not (isinstance(self.dtype, str) and self.dtype in RENAMED_DTYPES), "dtype",
+             f"{self.dtype!r} was renamed: use {' or '.join(f'{v} (was {k})' for k, v in RENAMED_DTYPES.items())}; "
+             f"dtype names the precision only, the kernel follows the backend")
+        need(isinstance(self.dtype, str) and self.dtype in PRECISIONS, "dtype",
+             f"must be one of {list(PRECISIONS)}, got {self.dtype!r}")
         need(isinstance(self.tune, bool), "tune", f"must be true or false, got {self.tune!r}")
         if self.tune:
             need(self.optimizer is None, "tune", f"tunes plain RELM only: set optimizer none (got {self.optimizer!r})")
@@ -235,16 +243,32 @@ class StudyConfig:
             need(is_int(self.max_evals) and self.max_evals >= 1, "max_evals",
                  f"must be an integer >= 1, got {self.max_evals!r}")
 
-    def search_workers(self, n_rows: int) -> int:
-        """Processes the search runs in for a survey of ``n_rows`` rows (:func:`icgo.studies.workers.plan_workers`).
+    def execution(self, n_rows: int, backend: str | None = None, cores: int | None = None) -> ExecutionPlan:
+        """How the search runs for a survey of ``n_rows`` rows (:func:`icgo.core.execution.execution_plan`).
 
-        One unless the random protocol with an optimizer: then ``workers``, or for None one per
-        available core when the search is large enough to pay for starting them.
+        On a CPU: the cache-chunked kernel, and one process unless the random protocol with an
+        optimizer: then ``workers``, or for None one per available core when the search is large
+        enough to pay for starting them. On an accelerator: the batched kernel in one process.
+
+        Args:
+            n_rows: the survey's rows. backend: the JAX backend (default ``jax.default_backend()``).
+            cores: CPU cores the job may use (default: its affinity mask).
         """
+        if backend is None:
+            backend = jax.default_backend()
+        cores = len(workers.available_cores()) if cores is None else cores
         if self.optimizer is None or self.protocol != "random":
-            return 1
+            return execution_plan(backend, cores, 1)
+        from icgo.optim import get
+
+        n_methods, n_repeats = len(self.strategies) if get(self.optimizer).axis else 1, len(self.ids())
         n_train = int(round(self.train_fraction * n_rows))
-        return workers.plan_workers(self.workers, len(self.ids()), search_work(self, n_train))
+        plan = execution_plan(backend, cores, self.workers, n_methods * n_repeats, search_work(self, n_train))
+        a, b = search_grid(n_methods, n_repeats, plan.workers)
+        if a * b < plan.workers:
+            plan = plan._replace(workers=a * b, why=f"{plan.why}; the {n_methods} x {n_repeats} (methods x repeats) "
+                                                    f"grid cut into {a} x {b} blocks")
+        return plan
 
     def ids(self) -> tuple:
         """The repeat ids this config runs."""
@@ -408,22 +432,42 @@ def _prepare(keys, train, test, G, B, a_true, reference, *, msa_model, msa_iter,
     return jax.lax.map(one, (keys, train.astype(G.dtype), test.astype(G.dtype)))
 
 
+class SearchFitness(NamedTuple):
+    """The search's fitness as run: the kernel function's name, the closure the optimizer calls, and
+    whether it reads the gathered training rows (:func:`train_rows`) or the row-weighted FitData."""
+
+    name: str
+    fitness: Any
+    train_rows: bool
+
+
 @functools.lru_cache(maxsize=None)
-def _fitness_fn(lam: float, hidden: int, dtype: str | None):
-    # Cached so that the optimizer runner (fitness is a static argument) compiles once per setting.
-    if dtype in TRAIN_KERNEL_FEATURES:
-        return _relm.make_train_fitness(lam, hidden, feature_dtype=TRAIN_KERNEL_FEATURES[dtype])
-    return _relm.make_fitness(lam, hidden, None if dtype == "float64" else dtype)
+def search_fitness(lam: float, hidden: int, dtype: str, fitness: str, kernel: str) -> SearchFitness:
+    """The fitness a search runs for a precision (:data:`PRECISIONS`), fitness mode and kernel.
+
+    ``kernel`` :data:`icgo.core.execution.ACCELERATOR_KERNEL`: :func:`icgo.methods.relm.gram_train_fitness`
+    (train mode, gathered rows) or :func:`icgo.methods.relm.gram_fitness`. CPU: the train-mode kernel
+    :func:`icgo.methods.relm.train_fitness` for ``fitness="train"`` with a float64 solve, else the
+    row-weighted :func:`icgo.methods.relm.fitness` (float64; float32 for ``dtype="float32"``).
+    Cached so that the optimizer runner (the fitness is a static argument) compiles once per setting.
+    """
+    features, solve = PRECISIONS[dtype]
+    train = fitness == "train"
+    if kernel == ACCELERATOR_KERNEL:
+        return SearchFitness(f"icgo.methods.relm.gram_{'train_' if train else ''}fitness",
+                             _relm.make_gram_fitness(lam, hidden, train, features, solve), train)
+    if kernel != CPU_KERNEL:
+        raise ValueError(f"study: unknown search kernel {kernel!r}")
+    if train and solve == "float64":
+        return SearchFitness("icgo.methods.relm.train_fitness",
+                             _relm.make_train_fitness(lam, hidden, feature_dtype=features), True)
+    return SearchFitness("icgo.methods.relm.fitness", _relm.make_fitness(lam, hidden, None if solve == "float64"
+                                                                         else "float32"), False)
 
 
 def _plain_dtype(cfg: StudyConfig) -> str | None:
     """Plain RELM's fitness precision: ``float32`` when asked, else None (the float64 library path)."""
     return "float32" if cfg.dtype == "float32" else None
-
-
-def _search_dtype(cfg: StudyConfig) -> str:
-    """The fitness precision actually used: the train-mode kernels exist for fitness="train" only."""
-    return "float64" if cfg.dtype in TRAIN_KERNEL_FEATURES and cfg.fitness != "train" else cfg.dtype
 
 
 class _Scored(NamedTuple):
@@ -480,32 +524,68 @@ def search_work(cfg: StudyConfig, n_train_rows: int) -> float:
     return float(first + per * iters) * n_train_rows * methods * len(cfg.ids())
 
 
-def search_block(rows, G, B, a_true, cfg: StudyConfig, key, reference, n_source) -> tuple:
-    """:func:`search` of one block of repeats (``cfg.repeat_ids``) from scratch: a worker process's job; its
-    progress goes to the parent (:func:`icgo.studies.workers.progress_sink`)."""
-    prep, _ = prepare(rows, G, B, a_true, cfg, jnp.asarray(key), reference, n_source)
-    return search(cfg, prep, progress=workers.progress_sink())
+def search_block(cfg: StudyConfig, prep: Prepared) -> tuple:
+    """:func:`search` of one block (``cfg.strategies`` x the members of ``prep``) with the CPU kernel: a
+    worker process's job (:class:`icgo.studies.workers.Workers`); its progress goes to the parent
+    (:func:`icgo.studies.workers.progress_sink`)."""
+    return search(cfg, jax.tree_util.tree_map(jnp.asarray, prep), kernel=CPU_KERNEL, progress=workers.progress_sink())
 
 
-def search_in_workers(rows, G, B, a_true, cfg: StudyConfig, base_key, reference, n_source, n_workers: int,
-                      progress=None) -> tuple:
-    """:func:`search` split by repeats over ``n_workers`` processes (:func:`icgo.studies.workers.run_in_workers`);
-    ``progress(done, total)`` sums the workers' iterations (each worker's repeats weighted by their count).
+def search_grid(n_methods: int, n_repeats: int, n_workers: int) -> tuple[int, int]:
+    """How to cut the methods x repeats grid of a search into at most ``n_workers`` rectangular blocks:
+    (parts of the methods, parts of the repeats), the smallest largest block first (the critical path),
+    then the fewest blocks (each costs a process), then the most repeat parts."""
+    def key(ab):
+        a, b = ab
+        return (-(-n_methods // a)) * (-(-n_repeats // b)), a * b, -b
+
+    return min(((a, b) for a in range(1, n_methods + 1) for b in range(1, n_repeats + 1) if a * b <= n_workers),
+               key=key)
+
+
+def search_in_workers(pool: workers.Workers, cfg: StudyConfig, prep: Prepared, progress=None) -> tuple:
+    """:func:`search` split over the worker processes of ``pool`` (random protocol: one member per repeat).
+
+    The methods x repeats grid is cut into blocks (:func:`search_grid`); block (strategies ``s``,
+    repeats ``r``) is ``search_block`` of ``cfg`` with those strategies and repeat ids, on the
+    members' prepared arrays.
 
     Returns:
-        (thetas (S, R, D), curves (S, R, T), evals (S, R, T)) as numpy arrays, repeats in ``cfg.ids()`` order.
+        (thetas (S, R, D), curves (S, R, T), evals (S, R, T)) as numpy arrays in ``cfg``'s order, and the
+        workers' timings (:meth:`icgo.studies.workers.Workers.run`).
     """
-    blocks = [b for b in np.array_split(np.asarray(cfg.ids()), n_workers) if b.size]
-    payloads = [(rows, G, B, a_true, dataclasses.replace(cfg, repeat_ids=tuple(int(i) for i in b), workers=1),
-                 np.asarray(base_key), reference, n_source) for b in blocks]
-    results = workers.run_in_workers(search_block, payloads, [f"repeats {b[0]}-{b[-1]}" for b in blocks],
-                                     progress=progress, weights=[b.size for b in blocks])
-    return tuple(np.concatenate([r[i] for r in results], axis=1) for i in range(3))
+    from icgo.optim import get
+
+    ids = np.asarray(cfg.ids())
+    n_methods = len(cfg.strategies) if get(cfg.optimizer).axis else 1
+    a, b = search_grid(n_methods, len(ids), len(pool.procs))
+    blocks = [(m, r) for m in np.array_split(np.arange(n_methods), a) for r in np.array_split(np.arange(len(ids)), b)]
+    host = jax.tree_util.tree_map(np.asarray, prep)
+    payloads, labels = [], []
+    for m, r in blocks:
+        block_cfg = dataclasses.replace(cfg, repeat_ids=tuple(int(i) for i in ids[r]), workers=1,
+                                        **({"strategies": tuple(cfg.strategies[i] for i in m)} if a > 1 else {}))
+        payloads.append((block_cfg, jax.tree_util.tree_map(lambda x, r=r: x[r], host)))
+        labels.append(f"repeats {ids[r[0]]}-{ids[r[-1]]}" + (f", strategies {list(block_cfg.strategies)}" if a > 1
+                                                             else ""))
+    results, timings = pool.run(payloads, labels, progress=progress, weights=[m.size * r.size for m, r in blocks])
+    out = []
+    for i in range(3):
+        shape = (n_methods, len(ids)) + results[0][i].shape[2:]
+        full = np.empty(shape, results[0][i].dtype)
+        for (m, r), res in zip(blocks, results):
+            full[np.ix_(m, r)] = res[i]
+        out.append(full)
+    return (*out, timings)
 
 
-def search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None, progress=None):
-    """Hidden parameters per (method, repeat): (S, R, D), curves (S, R, T), evals (S, R, T); ``progress``: see
-    :func:`icgo.optim.base.run_batch`."""
+def search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None, kernel: str = CPU_KERNEL, progress=None):
+    """Hidden parameters per (method, repeat): (S, R, D), curves (S, R, T), evals (S, R, T).
+
+    One jitted call (:func:`icgo.optim.run_batch`: ``lax.scan`` over iterations, ``vmap`` over repeats
+    and strategies); ``kernel`` (:meth:`StudyConfig.execution`) chooses the fitness (:func:`search_fitness`);
+    ``progress``: see :func:`icgo.optim.base.run_batch`.
+    """
     D = _relm.n_params(cfg.hidden)
     R = prep.key.shape[0]
     low, high = cfg.theta_bounds
@@ -517,13 +597,9 @@ def search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None, progress=None):
     bounds = (np.full(D, low), np.full(D, high))
     alg = get(cfg.optimizer)
     configs = alg.axis_configs(cfg.optimizer_config, cfg.strategies) if alg.axis else None
-    dtype = _search_dtype(cfg)
-    aux = prep.data
-    if dtype in TRAIN_KERNEL_FEATURES:
-        aux = train_rows(prep)
-    fitness = _fitness_fn(float(cfg.lam), int(cfg.hidden), dtype)
-    if wrap_fitness is not None:
-        fitness = wrap_fitness(fitness)
+    sf = search_fitness(float(cfg.lam), int(cfg.hidden), cfg.dtype, cfg.fitness, kernel)
+    aux = train_rows(prep) if sf.train_rows else prep.data
+    fitness = sf.fitness if wrap_fitness is None else wrap_fitness(sf.fitness)
     res = run_batch(get(cfg.optimizer), fitness, bounds, prep.key,
                     cfg.pop_size, cfg.iterations, max_evals=cfg.max_evals,
                     config=None if configs else cfg.optimizer_config, configs=configs, aux=aux, progress=progress)
@@ -619,7 +695,8 @@ def run(data: SurveyData, config: StudyConfig, key, *, wrap_fitness=None) -> Stu
 
 
 def run_study(frame: pd.DataFrame, config: StudyConfig | None = None, metadata: dict | None = None, *,
-              wrap_fitness=None, target: pd.DataFrame | None = None, progress=None) -> StudyResult:
+              wrap_fitness=None, target: pd.DataFrame | None = None, timings: dict | None = None,
+              progress=None) -> StudyResult:
     """Run an ICGO-RELM study on a data-contract frame with the key ``PRNGKey(config.seed)``.
 
     Args:
@@ -632,6 +709,11 @@ def run_study(frame: pd.DataFrame, config: StudyConfig | None = None, metadata: 
             static argument of the runner, so that run compiles afresh; for progress
             use ``progress``, which keeps the compiled programs cacheable.
         target: the second instrument's survey (``protocol="transfer"`` only).
+        timings: a dict to fill with where the time went: per stage (``prepare``: split and MSA;
+            ``search``; ``score``: refit and metrics; ``tables``) its wall seconds ``<stage>_s`` and the
+            part spent compiling or loading programs ``<stage>_compile_s`` (:mod:`icgo.studies.timing`);
+            ``execution``: the plan run (:meth:`StudyConfig.execution`, with the fitness function's
+            name and the dtype); ``workers``: per worker process its timings, or None.
         progress: optional ``progress(done, total)`` called on the host as the search's iterations complete,
             in this process or summed over its worker processes (:func:`icgo.optim.base.run_batch`); it never
             enters the compiled programs, so they stay in the compilation cache.
@@ -643,7 +725,7 @@ def run_study(frame: pd.DataFrame, config: StudyConfig | None = None, metadata: 
             that cannot determine the MSA parameters.
     """
     cfg = StudyConfig() if config is None else config
-    return _run(frame, cfg, metadata, jax.random.PRNGKey(cfg.seed), wrap_fitness, target, progress)
+    return _run(frame, cfg, metadata, jax.random.PRNGKey(cfg.seed), wrap_fitness, target, timings, progress)
 
 
 def filtered(frame: pd.DataFrame, cfg: StudyConfig):
@@ -653,7 +735,7 @@ def filtered(frame: pd.DataFrame, cfg: StudyConfig):
     return frame[kept], G[kept], B[kept], a[kept], kept
 
 
-def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None, progress=None) -> StudyResult:
+def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None, timings=None, progress=None) -> StudyResult:
     if (cfg.protocol == "transfer") != (target is not None):
         raise ValueError("study: protocol 'transfer' needs the second instrument's survey (target) and no other "
                          f"protocol takes one; got protocol {cfg.protocol!r} with"
@@ -669,28 +751,46 @@ def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None,
         raise ValueError("study: msa_model='biases_scales' needs msa_reference='known'")
 
     t0 = time.perf_counter()
-    prep, mem = prepare(rows, G, B, a_true, cfg, base_key, reference, n_source)
-    prep, mem, cfg, excluded = exclude_failed_repeats(prep, mem, cfg, reference)
-    tuning = None
-    if cfg.tune:
-        cfg, tuning = _tune(cfg, prep, rows_per_fit(cfg, mem))
-    n_workers = 1 if wrap_fitness is not None and cfg.workers is None else cfg.search_workers(len(frame))
-    if n_workers > 1:
-        if wrap_fitness is not None:
-            raise ValueError(f"study: workers={cfg.workers} runs the search in other processes, which a fitness "
-                             "wrapper (progress bar) cannot follow; use workers=1 (or null) with it")
-        thetas, curve, evals = search_in_workers(rows, G, B, a_true, cfg, base_key, reference, n_source, n_workers,
-                                                 progress)
-    else:
-        thetas, curve, evals = search(cfg, prep, wrap_fitness, progress)
+    stages = timing.Stages()
+    plan = cfg.execution(len(frame))
+    if wrap_fitness is not None and cfg.workers is None and plan.workers > 1:
+        plan = plan._replace(workers=1, why=f"{plan.why}; 1 process: the fitness wrapper (progress bar) follows it")
+    n_workers = plan.workers
+    if n_workers > 1 and wrap_fitness is not None:
+        raise ValueError(f"study: workers={cfg.workers} runs the search in other processes, which a fitness "
+                         "wrapper (progress bar) cannot follow; use workers=1 (or null) with it")
+    pool = workers.Workers(search_block, n_workers) if n_workers > 1 else None  # they start while we prepare
+    worker_times = None
+    try:
+        with stages("prepare"):
+            prep, mem = prepare(rows, G, B, a_true, cfg, base_key, reference, n_source)
+            prep, mem, cfg, excluded = exclude_failed_repeats(prep, mem, cfg, reference)
+            jax.block_until_ready(prep)
+        tuning = None
+        if cfg.tune:
+            cfg, tuning = _tune(cfg, prep, rows_per_fit(cfg, mem))
+        with stages("search"):
+            if pool is not None:
+                thetas, curve, evals, worker_times = search_in_workers(pool, cfg, prep, progress)
+            else:
+                thetas, curve, evals = jax.block_until_ready(search(cfg, prep, wrap_fitness, plan.kernel, progress))
+    finally:
+        if pool is not None:
+            pool.close()
     check_search(np.asarray(curve), cfg.method_names(), [f"{r}" if cfg.protocol not in _splits.FOLD_PROTOCOLS
                                                           else f"{r}, {mem.fold_label[f]}"
                                                           for r, f in zip(mem.repeat, mem.fold)])
-    scored = score_all(thetas, prep, jnp.asarray(a_true), cfg.lam, cfg.hidden)
-    jax.block_until_ready(scored)
+    with stages("score"):
+        scored = jax.block_until_ready(score_all(thetas, prep, jnp.asarray(a_true), cfg.lam, cfg.hidden))
     wall = time.perf_counter() - t0
     prep = prep._replace(data=None)  # the features (members x rows x 6) are done with: free them before the tables
-    res = _collect(cfg, rows, kept, a_true, G, B, n_source, mem, prep, thetas, scored, curve, evals, wall)
+    with stages("tables"):
+        res = _collect(cfg, rows, kept, a_true, G, B, n_source, mem, prep, thetas, scored, curve, evals, wall)
+    if timings is not None:
+        kernel = search_fitness(float(cfg.lam), int(cfg.hidden), cfg.dtype, cfg.fitness, plan.kernel).name \
+            if cfg.optimizer is not None else "icgo.methods.relm.fitness (plain RELM, no search)"
+        timings.update(stages.times, execution={**plan._asdict(), "fitness": kernel, "dtype": cfg.dtype},
+                       workers=worker_times)
     return res._replace(tuning=tuning, excluded=excluded)
 
 

@@ -1,0 +1,202 @@
+"""The benchmark on the backend it finds, in minutes: ``python -m experiments.bench --gpu-check``.
+
+Made to run on a lent GPU machine in under 8 minutes and to print everything a backend's row of
+``results/performance.md`` needs, with the device named. On a machine without a GPU it runs the same
+measurements on what it finds and says first that the GPU is absent: its numbers are that device's,
+and the GPU's stay unmeasured (never estimated).
+
+Measured, in order (:func:`backend_check`):
+
+1. the device, the backend and the study's execution plan for Table 3 (:meth:`icgo.studies.icgo_relm.StudyConfig.execution`);
+2. the plan's search kernel (``float32_features``) at batch 120, 1,200 and 60,000 (evaluations per second,
+   after compilation, best of a few calls), the other backend's kernel beside it at 120 and 1,200, and the
+   plan kernel's largest relative difference from the float64 library fitness (120 thetas);
+3. a 2048^2 matrix product in float32 (the backend's default precision) and float64, and ``flop_fraction``:
+   kernel evals/s at batch 1,200 x :func:`experiments.bench.flops_per_eval` / the float32 rate;
+4. Table 3 through the front door (``python -m experiments.run experiment=table3``) in fresh processes,
+   cold (empty compilation cache) and warm, with each run's time breakdown;
+5. the Table 3 study (5 strategies, 12,030 evaluations a run) in this process at 1, 10, 100 and 1,000
+   repeats (``run_study``: time with and without compilation, per stage); a point whose time, projected
+   from the one before (its compile time, and its run time linear in repeats), would not fit in what is
+   left of the budget is skipped and says so;
+6. mealpy's OriginalCGO on the numpy fitness, ``--mealpy-runs`` of the 50 Table 3 runs timed and scaled
+   to 50 (marked), and the ratio to the warm front door.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+
+#: Wall seconds the check aims to stay under (the lent machine's 8 minutes, less a margin).
+BUDGET_S = 420.0
+BATCHES = (120, 1200, 60_000)
+STUDY_REPEATS = (1, 10, 100, 1000)
+
+
+def device_line() -> dict:
+    """The device this process computes on, the backend's name, and whether a GPU is there."""
+    d = jax.devices()[0]
+    gpu = any(x.platform in ("gpu", "cuda", "rocm") for x in jax.devices())
+    return {"backend": jax.default_backend(), "device": f"{d.platform}:{d.device_kind}", "n_devices": len(jax.devices()),
+            "gpu_present": gpu, "cpu_count": os.cpu_count(), "jax": jax.__version__}
+
+
+def kernel_rates(sd, plan_kernel: str, batches=BATCHES, reps: int = 3) -> dict:
+    """Evaluations per second of the study's search kernels at each batch (repeat 0's training rows).
+
+    Returns:
+        {kernel: {batch: evals/s}} for the plan's kernel at every batch and the other one at the batches
+        up to 1,200; and ``max_rel_diff``: the plan kernel against :func:`icgo.methods.relm.fitness` (float64).
+    """
+    from experiments.bench import HIDDEN, LAM, best_time, population, slice_tree
+    from icgo.core.execution import ACCELERATOR_KERNEL, CPU_KERNEL
+    from icgo.methods import relm
+    from icgo.studies import icgo_relm as study
+
+    rows, fit = slice_tree(sd.compact, 0), slice_tree(sd.fit, 0)
+    out = {}
+    for kernel in (plan_kernel, CPU_KERNEL if plan_kernel == ACCELERATOR_KERNEL else ACCELERATOR_KERNEL):
+        f = jax.jit(study.search_fitness(LAM, HIDDEN, "float32_features", "train", kernel).fitness)
+        out[kernel] = {}
+        for P in batches if kernel == plan_kernel else [b for b in batches if b <= 1200]:
+            pop = population(jax.random.PRNGKey(P), P)
+            out[kernel][P] = P / best_time(f, pop, rows, reps=reps if P <= 1200 else 1)
+            print(f"  {kernel} kernel, batch {P:,}: {out[kernel][P]:,.0f} evals/s", file=sys.stderr, flush=True)
+    pop = population(jax.random.PRNGKey(7), 120)
+    f = study.search_fitness(LAM, HIDDEN, "float32_features", "train", plan_kernel).fitness
+    out["max_rel_diff"] = float(jnp.max(jnp.abs(f(pop, rows) / relm.fitness(pop, fit, LAM, HIDDEN) - 1)))
+    return out
+
+
+def overrun(last: dict | None, repeats: int, left_s: float) -> str | None:
+    """Why a study point of ``repeats`` repeats is skipped, or None: its time projected from the last point
+    run (``{"repeats", "compile_s", "run_s"}``: the same compile time, the run time linear in repeats; None
+    for the first point, always run) exceeds ``left_s``."""
+    if last is None:
+        return None
+    projected = last["compile_s"] + last["run_s"] * repeats / last["repeats"]
+    if projected <= left_s:
+        return None
+    return (f"projected {projected:.0f} s from {last['repeats']} repeats does not fit in the "
+            f"{max(left_s, 0.0):.0f} s left")
+
+
+def study_scaling(repeats=STUDY_REPEATS, deadline: float = float("inf"), **config) -> list[dict]:
+    """Table 3's study (lab_casing, 5 strategies, pop 30, 100 iterations) in this process at each repeat count.
+
+    A point is skipped (``skipped``: why) when the previous point's time x the ratio of repeats would end
+    past ``deadline`` (``time.perf_counter()``); a failing point records its one-line error and the rest go on.
+    ``config``: other :class:`icgo.studies.icgo_relm.StudyConfig` settings (smaller ones in a test).
+    """
+    from icgo.datasets import protocols as datasets
+    from icgo.optim import STRATEGIES
+    from icgo.studies import icgo_relm as study
+
+    frame = datasets.lab_casing(0).frame
+    out, last = [], None
+    for R in repeats:
+        cfg = study.StudyConfig(**{"strategies": STRATEGIES, **config, "n_repeats": R})
+        why = overrun(last, R, deadline - time.perf_counter())
+        if why:
+            out.append({"repeats": R, "skipped": why})
+            print(f"  study, {R} repeats: {why}", file=sys.stderr, flush=True)
+            continue
+        timings: dict = {}
+        t = time.perf_counter()
+        try:
+            study.run_study(frame, cfg, timings=timings)
+        except Exception as e:  # noqa: BLE001 (recorded, the other points go on)
+            out.append({"repeats": R, "error": f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"})
+            print(f"  study, {R} repeats: {out[-1]['error']}", file=sys.stderr, flush=True)
+            continue
+        wall = time.perf_counter() - t
+        compile_s = sum(timings[f"{s}_compile_s"] for s in ("prepare", "search", "score", "tables"))
+        last = {"repeats": R, "wall_s": wall, "compile_s": compile_s, "run_s": wall - compile_s,
+                **{k: timings[k] for k in ("prepare_s", "search_s", "search_compile_s", "score_s", "tables_s")},
+                "workers": timings["execution"]["workers"], "kernel": timings["execution"]["kernel"]}
+        out.append(last)
+        print(f"  study, {R} repeats x 5 strategies: {wall:.1f} s ({compile_s:.1f} s compiling), search "
+              f"{timings['search_s']:.1f} s", file=sys.stderr, flush=True)
+    return out
+
+
+def backend_check(budget_s: float = BUDGET_S, mealpy_runs: int = 5, front: bool = True, batches=BATCHES,
+                  repeats=STUDY_REPEATS, **config) -> dict:
+    """Every measurement of the module docstring on this process's backend; returns them (JSON-able).
+
+    ``front``: False leaves the front door out; ``batches``, ``repeats``, ``config``: smaller sizes (a test).
+    """
+    from experiments.bench import HIDDEN, flops_per_eval, matmul_gflops, run_mealpy, study_data
+    from experiments.bench_user import front_door
+    from icgo.optim import STRATEGIES
+    from icgo.studies import icgo_relm as study
+
+    t0 = time.perf_counter()
+    deadline = t0 + budget_s
+    out = device_line()
+    head = (f"device: {out['device']} (backend {out['backend']}, {out['n_devices']} device(s), jax {out['jax']})"
+            if out["gpu_present"] else
+            f"GPU absent: this check ran on {out['device']} (backend {out['backend']}); every number below is that "
+            f"device's, and the GPU numbers are unmeasured")
+    print(head, file=sys.stderr, flush=True)
+    out["headline"] = head
+    sd = study_data(10)
+    plan = study.StudyConfig(strategies=STRATEGIES).execution(sd.n_rows)
+    out["plan"] = plan._asdict()
+    print(f"  plan for Table 3: {plan.why}", file=sys.stderr, flush=True)
+    rates = kernel_rates(sd, plan.kernel, batches)
+    out["kernel_evals_per_s"] = {k: {str(b): v for b, v in r.items()} for k, r in rates.items() if k != "max_rel_diff"}
+    out["max_rel_diff_vs_float64"] = rates["max_rel_diff"]
+    out["matmul_gflops_f32"], out["matmul_gflops_f64"] = matmul_gflops("float32"), matmul_gflops("float64")
+    out["flop_fraction"] = rates[plan.kernel][max(b for b in batches if b <= 1200)] * flops_per_eval(sd.n_train, HIDDEN) / (out["matmul_gflops_f32"] * 1e9)
+    print(f"  matmul float32 {out['matmul_gflops_f32']:,.0f} GFLOP/s, float64 {out['matmul_gflops_f64']:,.0f}; "
+          f"flop_fraction {out['flop_fraction']:.3g}", file=sys.stderr, flush=True)
+    if front:
+        fd = front_door(sweeps=False)
+        out["front_door"] = fd
+        out["table3_cold_s"], out["table3_s"] = fd["cold"]["wall_s"], fd["warm"]["wall_s"]
+    if mealpy_runs:
+        m = run_mealpy(sd, mealpy_runs)
+        out["mealpy_table3_s"] = m["per_run_s"] * len(STRATEGIES) * 10
+        out["mealpy_runs_timed"] = mealpy_runs
+        if front:
+            out["speedup_vs_mealpy"] = out["mealpy_table3_s"] / out["table3_s"]
+        print(f"  mealpy OriginalCGO: {mealpy_runs} of 50 runs timed, Table 3 scaled to {out['mealpy_table3_s']:.1f} s",
+              file=sys.stderr, flush=True)
+    out["study"] = study_scaling(repeats, deadline, **config)
+    out["check_s"] = time.perf_counter() - t0
+    return out
+
+
+def report(res: dict) -> str:
+    """Markdown of :func:`backend_check`'s result."""
+    lines = [res["headline"], "", f"Plan for Table 3: {res['plan']['why']}", "",
+             "| measurement | value |", "| --- | ---: |"]
+    for kernel, by in res["kernel_evals_per_s"].items():
+        for b, v in by.items():
+            lines.append(f"| {kernel} kernel, batch {int(b):,} | {v:,.0f} evals/s |")
+    lines.append(f"| plan kernel vs float64 library, max relative difference | {res['max_rel_diff_vs_float64']:.2g} |")
+    lines.append(f"| 2048^2 matmul float32 / float64 | {res['matmul_gflops_f32']:,.0f} / "
+                 f"{res['matmul_gflops_f64']:,.0f} GFLOP/s |")
+    lines.append(f"| flop_fraction (batch 1,200, vs float32 matmul) | {res['flop_fraction']:.3g} |")
+    if "front_door" in res:
+        for name in ("cold", "warm"):
+            b = res["front_door"][name]["breakdown"]
+            lines.append(f"| Table 3 front door, {name} | {res['front_door'][name]['wall_s']:.1f} s (search "
+                         f"{b['search']:.1f}, MSA {b['msa']:.1f}, compile or cache load {b['compile']:.1f}) |")
+    if "mealpy_table3_s" in res:
+        lines.append(f"| mealpy OriginalCGO, Table 3 ({res['mealpy_runs_timed']} of 50 runs timed, scaled) | "
+                     f"{res['mealpy_table3_s']:.1f} s |")
+    if "speedup_vs_mealpy" in res:
+        lines.append(f"| speed-up vs mealpy (front door, warm) | {res['speedup_vs_mealpy']:.2f}x |")
+    for p in res["study"]:
+        what = (p.get("skipped") or p.get("error") or
+                f"{p['wall_s']:.1f} s ({p['compile_s']:.1f} s compiling; search {p['search_s']:.1f} s)")
+        lines.append(f"| study, {p['repeats']:,} repeats x 5 strategies | {what} |")
+    lines.append(f"| the whole check | {res['check_s']:.0f} s |")
+    return "\n".join(lines)
