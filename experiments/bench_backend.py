@@ -61,15 +61,17 @@ def kernel_rates(sd, plan_kernel: str, batches=BATCHES, reps: int = 3) -> dict:
     rows, fit = slice_tree(sd.compact, 0), slice_tree(sd.fit, 0)
     out = {}
     for kernel in (plan_kernel, CPU_KERNEL if plan_kernel == ACCELERATOR_KERNEL else ACCELERATOR_KERNEL):
-        f = jax.jit(study.search_fitness(LAM, HIDDEN, "float32_features", "train", kernel).fitness)
+        aux = study.search_kernel("float32_features", "train", kernel).aux(rows, jnp.asarray(LAM), HIDDEN)
+        f = jax.jit(relm.search_fitness)
         out[kernel] = {}
         for P in batches if kernel == plan_kernel else [b for b in batches if b <= 1200]:
             pop = population(jax.random.PRNGKey(P), P)
-            out[kernel][P] = P / best_time(f, pop, rows, reps=reps if P <= 1200 else 1)
+            out[kernel][P] = P / best_time(f, pop, aux, reps=reps if P <= 1200 else 1)
             print(f"  {kernel} kernel, batch {P:,}: {out[kernel][P]:,.0f} evals/s", file=sys.stderr, flush=True)
     pop = population(jax.random.PRNGKey(7), 120)
-    f = study.search_fitness(LAM, HIDDEN, "float32_features", "train", plan_kernel).fitness
-    out["max_rel_diff"] = float(jnp.max(jnp.abs(f(pop, rows) / relm.fitness(pop, fit, LAM, HIDDEN) - 1)))
+    aux = study.search_kernel("float32_features", "train", plan_kernel).aux(rows, jnp.asarray(LAM), HIDDEN)
+    out["max_rel_diff"] = float(jnp.max(jnp.abs(relm.search_fitness(pop, aux) / relm.fitness(pop, fit, LAM, HIDDEN)
+                                                - 1)))
     return out
 
 

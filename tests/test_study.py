@@ -170,6 +170,7 @@ def test_tiny_cgo_study_train_kernel_batched_equals_alone(frame, dtype, rtol):
     """The train-mode searches (float32_features = default, float64): repeat k batched == alone, and the
     fitness they search with, on either kernel, is the row-weighted float64 one to the precision's tolerance."""
     import jax
+    import jax.numpy as jnp
 
     from icgo.core.execution import ACCELERATOR_KERNEL, CPU_KERNEL
     from icgo.methods import relm
@@ -187,9 +188,32 @@ def test_tiny_cgo_study_train_kernel_batched_equals_alone(frame, dtype, rtol):
     pop = relm.random_theta(jax.random.PRNGKey(1), 10, (12,))
     ref = np.asarray(relm.fitness(pop, data, 1e-3, 10))
     for kernel in (CPU_KERNEL, ACCELERATOR_KERNEL):
-        sf = study.search_fitness(1e-3, 10, dtype, "train", kernel)
-        assert sf.train_rows
-        np.testing.assert_allclose(np.asarray(sf.fitness(pop, rows)), ref, rtol=rtol)
+        sk = study.search_kernel(dtype, "train", kernel)
+        assert sk.train_rows
+        f = relm.search_fitness(pop, sk.aux(rows, jnp.asarray(1e-3), 10))
+        np.testing.assert_allclose(np.asarray(f), ref, rtol=rtol)
+
+
+def test_a_lambda_sweep_compiles_the_search_once(frame):
+    """lam travels as data (:class:`icgo.methods.relm.SearchData`): a search at another ridge lambda reuses
+    the compiled search and minimises the float64 fitness at that lambda."""
+    import jax
+
+    from icgo.methods import relm
+    from icgo.optim.base import compiled_runners
+
+    cfg = study.StudyConfig(optimizer="pso", n_repeats=2, hidden=5, pop_size=5, iterations=2, seed=4,
+                            dtype="float64")
+    G, B, a = study.frame_arrays(frame)
+    prep, _ = study.prepare(None, G, B, a, cfg, jax.random.PRNGKey(cfg.seed))
+    study.search(cfg, prep)
+    n = compiled_runners()
+    thetas, curve, _ = study.search(dataclasses.replace(cfg, lam=0.5), prep)
+    assert compiled_runners() == n
+    for r in range(2):
+        data = jax.tree_util.tree_map(lambda x, r=r: x[r], prep.data)
+        ref = [float(relm.fitness(thetas[0, r][None], data, lam, 5)[0]) for lam in (0.5, 1e-3)]
+        assert float(curve[0, r, -1]) == pytest.approx(ref[0], rel=1e-9) and abs(ref[1] / ref[0] - 1) > 1e-6
 
 
 @pytest.mark.parametrize("old, new", list(study.RENAMED_DTYPES.items()))

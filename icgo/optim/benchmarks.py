@@ -149,7 +149,7 @@ class Benchmark(NamedTuple):
 CEC2017_DATA = "cec2017.npz"
 
 
-@lru_cache(maxsize=1)
+@lru_cache(maxsize=1)  # a data cache, not a function's identity: the vendored file is read once per process
 def _cec2017_arrays() -> dict:
     from importlib import resources
 
@@ -157,7 +157,6 @@ def _cec2017_arrays() -> dict:
         return {k: z[k] for k in z.files}
 
 
-@lru_cache(maxsize=None)
 def cec2017_data(slot: int, dim: int) -> tuple[np.ndarray, np.ndarray]:
     """Shift vector (D,) and rotation matrix (D, D) of a CEC 2017 slot."""
     arrays = _cec2017_arrays()

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from functools import lru_cache
 from typing import NamedTuple
 
 import jax
@@ -148,10 +147,11 @@ def misma_box(x_centre, x_lsq, field_scale_nT: float, matrix_halfwidth: float = 
     return x_centre - h, x_centre + h
 
 
-@lru_cache(maxsize=None)
-def _objective(n: int):
-    """One MismaObjective per recording size (the data travel as aux, so it compiles once per size)."""
-    return MismaObjective(cal.make_caldata(np.ones((n, 3)), np.ones((n, 3)), 1.0))
+#: MISMA's fitness on static shots (default weights, one segment). The shots travel as ``aux`` and replace
+#: its own two placeholder rows (numpy, so importing this module starts no JAX backend), so this one
+#: instance, the runner's static fitness, serves every recording; JAX compiles once per recording size.
+_SHOTS_OBJECTIVE = MismaObjective(cal.CalData(np.ones((2, 3)), np.ones((2, 3)), np.zeros(2, np.int32), np.zeros(2),
+                                              np.float64(1.0), np.ones(2), np.ones(2)))
 
 
 def misma_on_shots(G_cal, B, config: CalibrationConfig, box, key, weights=None) -> np.ndarray:
@@ -162,7 +162,7 @@ def misma_on_shots(G_cal, B, config: CalibrationConfig, box, key, weights=None) 
     R = int(config.misma_repeats)
     data = cal.make_caldata(G_cal, B, 1.0, weights=weights)
     aux = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (R,) + jnp.shape(a)), data)
-    r = base.run_batch(get("misma"), _objective(len(B)), box, jax.random.split(key, R), int(config.misma_pop),
+    r = base.run_batch(get("misma"), _SHOTS_OBJECTIVE, box, jax.random.split(key, R), int(config.misma_pop),
                        int(config.misma_iter), aux=aux)
     return np.asarray(r.best_x[int(np.argmin(np.asarray(r.best_f)))])
 

@@ -427,8 +427,9 @@ def search_theta(rc: RelmConfig, keys, data: relm.FitData, n_in: int):
     L, lo, hi = int(rc.hidden), *(float(x) for x in rc.theta_bounds)
     D = relm.n_params(L, n_in)
     configs = rc.search_configs()
-    res = run_batch(get(rc.optimizer), relm.make_fitness(float(rc.lam), L), (np.full(D, lo), np.full(D, hi)), keys,
-                    int(rc.pop_size), int(rc.iterations), configs=configs, aux=data)
+    aux = relm.SearchData(data, np.full(keys.shape[:1], float(rc.lam), data.X.dtype), L)
+    res = run_batch(get(rc.optimizer), relm.search_fitness, (np.full(D, lo), np.full(D, hi)), keys,
+                    int(rc.pop_size), int(rc.iterations), configs=configs, aux=aux)
     if configs is not None:  # one value on the side-by-side axis: drop that axis
         res = jax.tree_util.tree_map(lambda x: x[0], res)
     return res.best_x, res.best_f

@@ -432,37 +432,39 @@ def _prepare(keys, train, test, G, B, a_true, reference, *, msa_model, msa_iter,
     return jax.lax.map(one, (keys, train.astype(G.dtype), test.astype(G.dtype)))
 
 
-class SearchFitness(NamedTuple):
-    """The search's fitness as run: the kernel function's name, the closure the optimizer calls, and
-    whether it reads the gathered training rows (:func:`train_rows`) or the row-weighted FitData."""
+class SearchKernel(NamedTuple):
+    """The search's fitness kernel: its name in :mod:`icgo.methods.relm` (one of
+    :data:`icgo.methods.relm.SEARCH_KERNELS`), whether it reads the gathered training rows (:func:`train_rows`)
+    or the row-weighted FitData, and its precisions (:class:`icgo.methods.relm.SearchData`)."""
 
     name: str
-    fitness: Any
     train_rows: bool
+    feature_dtype: str
+    solve_dtype: str
+
+    def aux(self, rows, lam, hidden: int) -> _relm.SearchData:
+        """The optimizer's ``aux`` for :func:`icgo.methods.relm.search_fitness`: ``rows`` (TrainRows or FitData)
+        and ``lam`` (an array with the rows' leading axes: (R,) for a search, () for one repeat) as data."""
+        return _relm.SearchData(rows, lam, int(hidden), self.name, self.feature_dtype, self.solve_dtype)
 
 
-@functools.lru_cache(maxsize=None)
-def search_fitness(lam: float, hidden: int, dtype: str, fitness: str, kernel: str) -> SearchFitness:
-    """The fitness a search runs for a precision (:data:`PRECISIONS`), fitness mode and kernel.
+def search_kernel(dtype: str, fitness: str, kernel: str) -> SearchKernel:
+    """The fitness kernel a search runs for a precision (:data:`PRECISIONS`), fitness mode and backend kernel.
 
     ``kernel`` :data:`icgo.core.execution.ACCELERATOR_KERNEL`: :func:`icgo.methods.relm.gram_train_fitness`
     (train mode, gathered rows) or :func:`icgo.methods.relm.gram_fitness`. CPU: the train-mode kernel
     :func:`icgo.methods.relm.train_fitness` for ``fitness="train"`` with a float64 solve, else the
     row-weighted :func:`icgo.methods.relm.fitness` (float64; float32 for ``dtype="float32"``).
-    Cached so that the optimizer runner (the fitness is a static argument) compiles once per setting.
     """
     features, solve = PRECISIONS[dtype]
     train = fitness == "train"
     if kernel == ACCELERATOR_KERNEL:
-        return SearchFitness(f"icgo.methods.relm.gram_{'train_' if train else ''}fitness",
-                             _relm.make_gram_fitness(lam, hidden, train, features, solve), train)
+        return SearchKernel("gram_train_fitness" if train else "gram_fitness", train, features, solve)
     if kernel != CPU_KERNEL:
         raise ValueError(f"study: unknown search kernel {kernel!r}")
     if train and solve == "float64":
-        return SearchFitness("icgo.methods.relm.train_fitness",
-                             _relm.make_train_fitness(lam, hidden, feature_dtype=features), True)
-    return SearchFitness("icgo.methods.relm.fitness", _relm.make_fitness(lam, hidden, None if solve == "float64"
-                                                                         else "float32"), False)
+        return SearchKernel("train_fitness", True, features, solve)
+    return SearchKernel("fitness", False, "float64", solve)
 
 
 def _plain_dtype(cfg: StudyConfig) -> str | None:
@@ -583,7 +585,7 @@ def search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None, kernel: str = CP
     """Hidden parameters per (method, repeat): (S, R, D), curves (S, R, T), evals (S, R, T).
 
     One jitted call (:func:`icgo.optim.run_batch`: ``lax.scan`` over iterations, ``vmap`` over repeats
-    and strategies); ``kernel`` (:meth:`StudyConfig.execution`) chooses the fitness (:func:`search_fitness`);
+    and strategies); ``kernel`` (:meth:`StudyConfig.execution`) chooses the fitness kernel (:func:`search_kernel`);
     ``progress``: see :func:`icgo.optim.base.run_batch`.
     """
     D = _relm.n_params(cfg.hidden)
@@ -597,9 +599,10 @@ def search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None, kernel: str = CP
     bounds = (np.full(D, low), np.full(D, high))
     alg = get(cfg.optimizer)
     configs = alg.axis_configs(cfg.optimizer_config, cfg.strategies) if alg.axis else None
-    sf = search_fitness(float(cfg.lam), int(cfg.hidden), cfg.dtype, cfg.fitness, kernel)
-    aux = train_rows(prep) if sf.train_rows else prep.data
-    fitness = sf.fitness if wrap_fitness is None else wrap_fitness(sf.fitness)
+    sk = search_kernel(cfg.dtype, cfg.fitness, kernel)
+    aux = sk.aux(train_rows(prep) if sk.train_rows else prep.data, np.full(R, cfg.lam, prep.data.X.dtype),
+                 cfg.hidden)
+    fitness = _relm.search_fitness if wrap_fitness is None else wrap_fitness(_relm.search_fitness)
     res = run_batch(get(cfg.optimizer), fitness, bounds, prep.key,
                     cfg.pop_size, cfg.iterations, max_evals=cfg.max_evals,
                     config=None if configs else cfg.optimizer_config, configs=configs, aux=aux, progress=progress)
@@ -787,7 +790,7 @@ def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None,
     with stages("tables"):
         res = _collect(cfg, rows, kept, a_true, G, B, n_source, mem, prep, thetas, scored, curve, evals, wall)
     if timings is not None:
-        kernel = search_fitness(float(cfg.lam), int(cfg.hidden), cfg.dtype, cfg.fitness, plan.kernel).name \
+        kernel = f"icgo.methods.relm.{search_kernel(cfg.dtype, cfg.fitness, plan.kernel).name}" \
             if cfg.optimizer is not None else "icgo.methods.relm.fitness (plain RELM, no search)"
         timings.update(stages.times, execution={**plan._asdict(), "fitness": kernel, "dtype": cfg.dtype},
                        workers=worker_times)
