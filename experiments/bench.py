@@ -1,4 +1,4 @@
-"""Benchmark of the ICGO-RELM study against the machine's limit and against mealpy (issue #10).
+"""Benchmark of the ICGO-RELM study against the machine's limit and against mealpy.
 
 ``python -m experiments.bench`` (``make bench``) measures, in one run on the
 machine it runs on (the CPU kernels here; ``--gpu-check`` measures the backend it finds,

@@ -1,4 +1,4 @@
-"""Cross-check of the casing model against an established magnetics library (issue 18, sweep 5).
+"""Cross-check of the casing model against an established magnetics library (the casing sweeps, ``experiment=sweep_casing*``).
 
 ``python -m experiments.casing_check`` writes ``results/casing_model_check.{md,csv}``.
 

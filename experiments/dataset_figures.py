@@ -1,4 +1,4 @@
-"""Issue #3 comparison figures and tables: simulated data sets next to the papers.
+"""Comparison figures and tables: simulated data sets next to the papers.
 
     python -m experiments.dataset_figures [--out results] [--seed 0]
 

@@ -1,4 +1,4 @@
-"""Hydra entry of the discrepancy workflow (issue #7): load data, call the library, render.
+"""Hydra entry of the discrepancy workflow: load data, call the library, render.
 
     python -m experiments.discrepancy data=path/to/file.csv     # .meta.json next to it
     python -m experiments.discrepancy data=device.json [mag_axes=.. grav_axes=..] [groups=..]   # circuitpython-mag-cal

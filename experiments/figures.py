@@ -73,11 +73,11 @@ FIG9_NAMES = {m: METHOD_NAMES[m] for m in ("pso", "ga", "cgo-original")}
 
 #: Runs whose label starts with this are sweeps: kept out of the pooled paper tables.
 SWEEP_PREFIX = "sweep_"
-#: Run label of the schedules sweep (``experiment=sweep_schedules``, issue 18).
+#: Run label of the schedules sweep (``experiment=sweep_schedules``).
 SCHEDULES_LABEL = "sweep_schedules"
 
 
-#: Run labels of the mutation-readings sweeps (``experiment=sweep_wavelet``, ``sweep_sigma`` and ``sweep_paper_literal``, issue 18).
+#: Run labels of the mutation-readings sweeps (``experiment=sweep_wavelet``, ``sweep_sigma`` and ``sweep_paper_literal``).
 MUTATIONS_LABELS = ("sweep_wavelet", "sweep_sigma", "sweep_paper_literal")
 
 
@@ -308,7 +308,7 @@ def _paper_variances() -> dict:
 
 
 def _paper_consistency_note() -> str:
-    """The paper's Table 3 three-stage row against the target variance its other rows imply (issue 18)."""
+    """The paper's Table 3 three-stage row against the target variance its other rows imply."""
     var = _paper_variances()
     odd = var["Table 3 three_stage"]
     rest = [v for k, v in var.items() if k != "Table 3 three_stage"]
@@ -404,7 +404,7 @@ def _fig9_notes(m, conv, methods, df, settings=()) -> list[str]:
 
 
 def fig9_budgets(iters: Runs, evals: Runs, out: Path) -> bool:
-    """Fig. 9 at equal iterations and at equal fitness evaluations, side by side (issue 18, item 3)."""
+    """Fig. 9 at equal iterations and at equal fitness evaluations, side by side."""
     from icgo.maths.stats import holm, wilcoxon_paired
 
     mi, me = iters.metrics(), evals.metrics()
@@ -447,7 +447,7 @@ def _schedule_name(info: dict) -> str:
 
 
 def sweep_schedules(pooled: Runs, sched: Runs, out: Path) -> bool:
-    """Three-stage under each schedule beside the single strategies (issue 18, sweep 1).
+    """Three-stage under each schedule beside the single strategies (``experiment=sweep_schedules``).
 
     Every column holds the same 10 repeats (splits and keys of Table 3), so the
     comparison is paired: Friedman over all columns, Wilcoxon of each schedule
@@ -512,7 +512,7 @@ def _reading(params: dict) -> str:
 
 
 def sweep_mutations(pooled: Runs, sweep: Runs, out: Path) -> bool:
-    """Mutation readings (issue 18, sweep 2): each reading's single strategy and three-stage, and the ranking.
+    """Mutation readings (``experiment=sweep_wavelet``, ``sweep_sigma``, ``sweep_paper_literal``): each reading's single strategy and three-stage, and the ranking.
 
     Each run holds one reading's single strategy (wavelet or Gaussian) and
     three-stage on Table 3's splits and keys; the other strategies keep their

@@ -1,4 +1,4 @@
-"""Generalisation table: every method under every split protocol (issue 15).
+"""Generalisation table: every method under every split protocol.
 
     .venv/bin/python -m experiments.generalisation       # results/generalisation.md + CSVs + figure (make generalisation)
     .venv/bin/python -m experiments.generalisation --n-repeats 2 --iterations 5 --out /tmp/g   # quick look

@@ -1,4 +1,4 @@
-"""Gyro inclinometer study entry point (issue #9): ``conf/gyro.yaml`` -> :mod:`icgo.studies.gyro` -> ``results/gyro_*``.
+"""Gyro inclinometer study entry point: ``conf/gyro.yaml`` -> :mod:`icgo.studies.gyro` -> ``results/gyro_*``.
 
 One command writes every table and figure into ``results/gyro_*`` and the
 fitted models (lookup table, networks, RELMs) into the Hydra run directory

@@ -1,4 +1,4 @@
-"""MISMA study entry point (issue #8): ``conf/misma.yaml`` -> :mod:`icgo.studies.misma` -> ``results/misma_*``.
+"""MISMA study entry point: ``conf/misma.yaml`` -> :mod:`icgo.studies.misma` -> ``results/misma_*``.
 
 One command writes every table and figure into ``results/misma_*`` and the
 fitted calibrations into the Hydra run directory (``outputs/misma/<time>/models/``)::

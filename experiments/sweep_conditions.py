@@ -1,4 +1,4 @@
-"""Noise and interference sweeps (issue 18, sweep 5): every method against the noise floor, per level.
+"""Noise and interference sweeps (``experiment=sweep_noise``, ``sweep_casing``, ``sweep_casing_strength``): every method against the noise floor, per level.
 
 Built by :func:`experiments.figures.build` from the runs of three presets (labels below):
 

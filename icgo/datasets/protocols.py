@@ -212,7 +212,7 @@ def lab_casing(
         accel_noise_g, mag_noise_nT: white noise per raw sample.
         spike_prob, spike_nT: spike rate per raw magnetometer sample-axis and spike size.
         outlier_sigma: 3-sigma threshold; ``None`` keeps all rows (raw data).
-        noise_scale: factor on both ``accel_noise_g`` and ``mag_noise_nT`` (the noise sweep, issue 18).
+        noise_scale: factor on both ``accel_noise_g`` and ``mag_noise_nT`` (the noise sweep, ``experiment=sweep_noise``).
         casing_distance_m: the casing moved sideways so its axis passes this far from the
             turntable's vertical axis (m, :func:`icgo.datasets.instruments.casing_at_distance`); ``None``
             keeps ``casing`` as given (the lab's 1 m).

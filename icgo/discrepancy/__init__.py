@@ -1,7 +1,7 @@
 """Discrepancy workflow: find where simulation and measurement disagree, name the
 missing physical effect, add it to the model and show the gap shrink.
 
-Five verbs (issue #7), all usable from a notebook with plain arguments::
+Five verbs, all usable from a notebook with plain arguments::
 
     from icgo import discrepancy as D
     st = D.stations_from_recording(icgo.io.recording.read_recording(path))   # or D.simulate(...)

@@ -1,4 +1,4 @@
-"""Physical sanity of a magnetometer calibration: what the group-spread score cannot see (issue 16).
+"""Physical sanity of a magnetometer calibration: what the group-spread score cannot see.
 
 A calibration can shrink the within-group spread of rolled shots by bending the
 field out of shape: in the first build the joint fit reached 0.10 deg while the

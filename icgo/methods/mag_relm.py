@@ -1,4 +1,4 @@
-"""A non-linear magnetometer correction: a RELM on the residual of a linear calibration (issue 16, item 5).
+"""A non-linear magnetometer correction: a RELM on the residual of a linear calibration.
 
 After a linear calibration (12-parameter least squares + axis alignment) the
 field ``b`` (unit sphere, tool frame) keeps a small non-linear error, mostly the

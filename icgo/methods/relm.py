@@ -36,7 +36,7 @@ import numpy as np
 
 N_INPUTS = 6
 FITNESS_MODES = ("train", "validation", "kfold")
-#: The tuned plain-RELM baseline's grid (issue 18): hidden units L and ridge lambda over six decades.
+#: The tuned plain-RELM baseline's grid: hidden units L and ridge lambda over six decades.
 TUNE_HIDDEN = (10, 20, 30, 50, 80, 120)
 TUNE_LAMBDA = (1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1)
 _STD_FLOOR = 1e-12

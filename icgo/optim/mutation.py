@@ -120,7 +120,7 @@ def wavelet_sigma(key, shape, a, dtype, amplitude: str = "ling") -> jax.Array:
 
     Returns values in [-a^(-1/2), a^(-1/2)]: large moves early (a ~ 1), fine
     moves late (a -> g). ``amplitude="none"`` drops Ling's ``a^(-1/2)``: the
-    step is ``psi(phi/a)`` in [-1, 1] throughout (issue 18's reading without it).
+    step is ``psi(phi/a)`` in [-1, 1] throughout (eq. 18 as the paper prints it).
     """
     u = jax.random.uniform(key, shape, dtype, -2.5, 2.5)  # phi / a
     return morlet(u) / jnp.sqrt(a) if amplitude == "ling" else morlet(u)

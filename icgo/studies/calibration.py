@@ -1,4 +1,4 @@
-"""Magnetometer calibration from grouped static shots: every method, in-sample and held out, with sanity (issue 16).
+"""Magnetometer calibration from grouped static shots: every method, in-sample and held out, with sanity.
 
 A recording is static shots (``G`` g, ``B`` nT) with a ``group`` column: shots of
 one group share one true direction. Groups of at least :data:`icgo.methods.calibration.MIN_ROLLED_SHOTS` shots are

@@ -1,4 +1,4 @@
-"""Generalisation study: every method under every protocol of :mod:`icgo.studies.splits` (issue 15).
+"""Generalisation study: every method under every protocol of :mod:`icgo.studies.splits`.
 
 A *cell* is a (data set, protocol) pair. In each cell every method is fitted on
 the same members (the split depends only on the key, the repeat and the fold, so

@@ -1,4 +1,4 @@
-"""The gyro inclinometer study (issue #9, patent CN1888384): BP network vs lookup table (+ RELM, ICGO-RELM).
+"""The gyro inclinometer study (patent CN1888384): BP network vs lookup table (+ RELM, ICGO-RELM).
 
 Training data: the patent's turntable plan (:func:`icgo.datasets.protocols.turntable`:
 inclination 3, 5, 10, 15, 25, 35, 45, 55, 65, 75 deg x azimuth and toolface

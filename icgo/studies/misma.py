@@ -1,4 +1,4 @@
-"""The MISMA study (issue #8): MISMA vs SMA on ``rotating_drill`` and the 9 real devices.
+"""The MISMA study: MISMA vs SMA on ``rotating_drill`` and the 9 real devices.
 
 Simulated part (per ``rotating_drill`` variant, :func:`simulated_variant`):
 MISMA and the standard SMA minimise the penalised MISMA fitness

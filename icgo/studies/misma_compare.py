@@ -1,4 +1,4 @@
-"""MISMA vs SMA, one contribution at a time (issue 17): the rows, their runs, paired tests and convergence.
+"""MISMA vs SMA, one contribution at a time: the rows, their runs, paired tests and convergence.
 
 MISMA differs from the standard SMA in four things at once: its box (around
 U instead of a prior box around ``R^-1 = I, b = 0``), its coordinates

@@ -1,5 +1,5 @@
 """Train / test protocols of the ICGO-RELM study: the paper's random split and three
-generalisation protocols (issue 15).
+generalisation protocols.
 
 A protocol turns the rows of a data set (after the 3-sigma filter) into
 *members*: one fitted model each, with its own PRNG key and three 0/1 row masks:
