@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 
@@ -272,7 +273,9 @@ def test_relm_on_exact_shots_stays_the_identity():
     np.testing.assert_allclose(mag_relm.apply(model.hidden, model.out, b), b, atol=1e-9)
 
 
-def test_a_first_build_relm_file_reads_as_tanh_and_a_bad_activation_is_refused():
+def test_an_older_builds_relm_file_and_a_bad_activation_are_refused(tmp_path):
+    """A correction without nl_activation (model schema 1 as an older build wrote it, tanh units) is refused in
+    one line, from the constructor and from a file; so are an unknown activation and one without a correction."""
     from icgo.core.errors import ModelError
     from icgo.methods import mag_relm
     from icgo.models.calibration import MagCalibration
@@ -280,15 +283,22 @@ def test_a_first_build_relm_file_reads_as_tanh_and_a_bad_activation_is_refused()
     h, o = np.random.default_rng(0).normal(size=(4, 5)), np.zeros((5, 3))
     kw = dict(config={}, data_hash="-", domain={}, method="twelve_relm", axis_aligned=False, field_scale_nT=1.0,
               x_mag=np.r_[np.eye(3).ravel(), 0, 0, 0])
-    old = MagCalibration(**kw, nl_hidden=h, nl_out=o + 0.01)
-    b = np.array([[0.5, 0.2, 0.8]])
-    first_build = b + np.tanh(np.c_[b / np.linalg.norm(b), 1.0] @ h) @ (o + 0.01)
-    np.testing.assert_allclose(old.corrected(None, b)[1], first_build)
+    line = ("a non-linear correction without nl_activation (model schema 1 as an older icgo build wrote it); "
+            "refit the model")
+    with pytest.raises(ModelError, match=re.escape(line)):
+        MagCalibration(**kw, nl_hidden=h, nl_out=o)
+    path = MagCalibration(**kw, nl_hidden=h, nl_out=o, nl_activation="gauss").save(tmp_path / "m")
+    head = json.loads(path.read_text())
+    del head["fields"]["nl_activation"]
+    path.write_text(json.dumps(head))
+    with pytest.raises(ModelError, match=re.escape(line)) as e:
+        load_model(path)
+    assert "\n" not in str(e.value)
     with pytest.raises(ModelError, match="nl_activation"):
         MagCalibration(**kw, nl_hidden=h, nl_out=o, nl_activation="relu")
     with pytest.raises(ModelError, match="nl_activation"):
         MagCalibration(**kw, nl_activation="gauss")
-    assert set(mag_relm.ACTIVATIONS) == {"gauss", "tanh"}
+    assert mag_relm.ACTIVATIONS == ("gauss",)
 
 
 def test_a_relm_calibration_saves_and_applies_bitwise(tmp_path):

@@ -33,10 +33,10 @@ about its own mean; a shot's dip and modulus against the fitting shots' field).
 The chosen ``lambda`` minimises their mean square over :data:`LAMBDAS`; all
 ``len(LAMBDAS) x (groups + 1)`` fits run as one vmapped batch.
 
-The first build fitted ``W`` in closed form to fixed targets (the field at the
-group's mean azimuth and the median dip) with 12 random tanh units: 0.428 deg
+Why not a closed-form fit: ``W`` fitted to fixed targets (the field at the group's
+mean azimuth and the median dip) with 12 random tanh units reaches 0.428 deg
 in-sample on the bundled devices. Fixed targets cannot follow the direction the
-correction moves, and the model could not reach the peer's in-sample spread even
+correction moves, and that model cannot reach the peer's in-sample spread even
 unregularized (0.30 deg); ``docs/calibrate.md`` has the measurements.
 """
 
@@ -58,12 +58,13 @@ LAMBDAS = tuple(float(v) for v in 10.0 ** np.arange(0.0, 7.01, 0.5))
 #: Basis centres on each axis' unit component and their width (Underwood's 3-parameter basis, mag_cal ``RBF``).
 CENTRES = (-1.0, 0.0, 1.0)
 WIDTH = 0.5
-#: Levenberg-Marquardt steps per fit. On the 9 bundled devices x 3 splits, 20, 40 (the first build) and 80
+#: Levenberg-Marquardt steps per fit. On the 9 bundled devices x 3 splits, 20, 40 and 80
 #: steps choose the same ridges and give the same scores to 1e-15 deg (10 steps: 3e-9 deg); each step
 #: costs the batch of 15 ridges x (groups + 1) fits, the largest part of a calibration's time.
 N_STEPS = 20
-#: Hidden activations, by the name saved in a model file (``tanh``: the first build's files).
-ACTIVATIONS = ("gauss", "tanh")
+#: Hidden activations, by the name saved in a model file: the Gaussian basis ``exp(-z^2)``.
+_ACTIVATIONS = {"gauss": lambda z, xp: xp.exp(-z * z)}
+ACTIVATIONS = tuple(_ACTIVATIONS)
 
 
 class MagRELM(NamedTuple):
@@ -95,7 +96,7 @@ def axis_rbf_hidden(centres=CENTRES, width: float = WIDTH) -> np.ndarray:
 
 
 def _act(z, activation: str, xp):
-    return xp.exp(-z * z) if activation == "gauss" else xp.tanh(z)
+    return _ACTIVATIONS[activation](z, xp)
 
 
 def features(b, hidden, activation: str = "gauss", xp=np):

@@ -64,8 +64,8 @@ class MagCalibration(FittedModel):
         alignment: (3, 3) rotation Q or None.
         nl_hidden, nl_out: the non-linear residual correction (:mod:`icgo.methods.mag_relm`), applied after
             the alignment: (4, L) hidden and (L, 3) output weights, or None (a linear calibration).
-        nl_activation: the correction's hidden activation (:data:`icgo.methods.mag_relm.ACTIVATIONS`); None with a
-            correction means ``tanh``, the only one files of the first build used.
+        nl_activation: the correction's hidden activation (:data:`icgo.methods.mag_relm.ACTIVATIONS`), given exactly
+            with a correction.
     """
 
     KIND = "mag_calibration"
@@ -106,6 +106,9 @@ class MagCalibration(FittedModel):
                 raise ModelError(f"mag_calibration: nl_hidden (4, L) and nl_out (L, 3) must be finite, got "
                                  f"{h.shape} and {o.shape}")
         act = self.nl_activation
+        if self.nl_hidden is not None and act is None:
+            raise ModelError("mag_calibration: a non-linear correction without nl_activation (model schema 1 as an "
+                             "older icgo build wrote it); refit the model")
         if act is not None and (self.nl_hidden is None or act not in mag_relm.ACTIVATIONS):
             raise ModelError(f"mag_calibration: nl_activation must be one of {mag_relm.ACTIVATIONS} and comes with "
                              f"nl_hidden, got {act!r}")
@@ -144,7 +147,7 @@ class MagCalibration(FittedModel):
             Bc = Bc @ Q.T
             Gc = None if Gc is None else Gc @ Q.T
         if self.nl_hidden is not None:
-            Bc = mag_relm.apply(self.nl_hidden, self.nl_out, Bc, self.nl_activation or "tanh")
+            Bc = mag_relm.apply(self.nl_hidden, self.nl_out, Bc, self.nl_activation)
         return Gc, Bc
 
     def apply(self, frame: pd.DataFrame) -> pd.DataFrame:

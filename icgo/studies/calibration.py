@@ -133,8 +133,8 @@ def misma_box(x_centre, x_lsq, field_scale_nT: float, matrix_halfwidth: float = 
     The box of eqs. 9-11 around the ellipsoid fit ``x_centre``
     (:func:`icgo.optim.misma.misma_bounds`): matrix entries +/- ``matrix_halfwidth``
     x their largest magnitude, biases +/- ``bias_halfwidth`` x the median |B| of
-    the data (``field_scale_nT``, nT; the first build used 1.0 here, which pinned
-    the biases to +/- 0.02 nT). Each half-width is then at least ``margin`` x the
+    the data (``field_scale_nT``, nT; 1.0 here would pin the biases to
+    +/- 0.02 nT). Each half-width is then at least ``margin`` x the
     distance from the centre to the 12-parameter least-squares solution
     ``x_lsq``, so the box contains it with room on both sides.
 
