@@ -50,17 +50,17 @@ dropped) and its predicted reduction ``|J d|^2 = gᵀ H⁺ g``, both from ``J`` 
 * step: ``|d_j| <= atol + rtol |x_j|`` for every j (zero-residual problems,
   whose relative reduction stays of order one to the end).
 
-It then takes ``d`` once more if that does not raise the cost. The previous
-solver (optimistix's LM, Cauchy termination on an *accepted* step with the
-residual vector changing by < 1e-10 + 1e-10 |r_i| element-wise) could not
+It then takes ``d`` once more if that does not raise the cost. Why not
+optimistix's LM (Cauchy termination on an *accepted* step with the
+residual vector changing by < 1e-10 + 1e-10 |r_i| element-wise): it cannot
 meet its own tolerance at the float64 minimum of a large-residual problem:
 there every Gauss-Newton step changes the cost by about one unit in the last
-place, so acceptance was decided by rounding; it stopped only after the trust
-region had shrunk the step to exactly zero *and* two separately computed
-float64 sums of squares (the cost and the model's prediction) agreed bitwise.
-A different reduction order (a GPU) breaks that tie for some problems, and the
-solver then rejected every step to ``max_steps``: the Table 3 MSA at 100
-repeats on an H100 (repeat 61, 1,000 steps). ``docs/relm_study.md`` has the
+place, so acceptance is decided by rounding; it stops only after the trust
+region has shrunk the step to exactly zero *and* two separately computed
+float64 sums of squares (the cost and the model's prediction) agree bitwise.
+A different reduction order (a GPU) breaks that tie for some problems, and that
+solver then rejects every step to ``max_steps`` (measured: the Table 3 MSA at 100
+repeats on an H100, repeat 61, 1,000 steps). ``docs/relm_study.md`` has the
 evidence and the CPU reproduction.
 """
 

@@ -1,9 +1,9 @@
 """Physical sanity of a magnetometer calibration: what the group-spread score cannot see.
 
 A calibration can shrink the within-group spread of rolled shots by bending the
-field out of shape: in the first build the joint fit reached 0.10 deg while the
-dip varied by 7-15 deg across the shots of one device, and one held-out fit
-collapsed to a rank-1 matrix (every shot due south, score 0.000). A calibrated
+field out of shape: an unconstrained joint fit reaches 0.10 deg while the
+dip varies by 7-15 deg across the shots of one device, and one held-out fit
+collapses to a rank-1 matrix (every shot due south, score 0.000). A calibrated
 magnetometer at one site must instead see **one field**: one dip and one |B| for
 every shot, through a well-conditioned matrix. :func:`sanity` measures the three:
 

@@ -8,7 +8,7 @@ fitted together on grouped static shots. Per shot, the residuals (:func:`residua
 * its ``G_c . B_c / (|G_c| |B_c|)`` minus the mean over the fitting shots (eq. 5: one dip);
 * ``|G_c| - 1`` and ``|B_c| - 1`` (one gravity, one field strength).
 
-Freed completely, the 24 parameters over-fit the two rolls of a 24-shot recording (the first build: 0.256 deg
+Freed completely, the 24 parameters over-fit the two rolls of a 24-shot recording (measured: 0.256 deg
 in-sample, 0.577 held out on the bundled devices; 0.408 / 0.792 on unseen devices). So the fit starts from
 ``twelve+axis`` (the accelerometer's ellipsoid fit and the 12-parameter magnetometer fit, both turned onto the
 rolls' axis, :func:`icgo.methods.calibration.align_to_axis`) and **the accelerometer may leave its start only
