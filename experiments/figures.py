@@ -276,7 +276,7 @@ def table1(runs: Runs, out: Path) -> bool:
 
 
 def _tuned_note(runs: Runs, m: pd.DataFrame, others) -> str:
-    """The tuned plain-RELM baseline (issue 18): its chosen cell and the CGO rows measured against it."""
+    """The tuned plain-RELM baseline: its chosen cell and the CGO rows measured against it."""
     from icgo.maths import stats
 
     info = [r for r in runs.runs if "relm-tuned" in r.get("methods", []) and r.get("tuning")]
