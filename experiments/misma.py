@@ -128,7 +128,7 @@ def paper_table(summary: list[dict]) -> list[str]:
                                            f"{100 * (1 - b['misma'] / b['raw']):.1f}"}
     rows = {"raw": "az_err_raw_deg", "SMA": "az_err_SMA_deg_mean", "MISMA": "az_err_MISMA_deg_mean",
             "MISMA reduction vs raw (%)": "az_reduction_MISMA_pct"}
-    table = pd.DataFrame([{"mean |azimuth error| at the stops (deg)": k,
+    table = pd.DataFrame([{"mean abs. azimuth error at the stops (deg)": k,
                            "paper: Fig. 10 / Fig. 11 first 2 stops / Fig. 11 the rest": paper[k],
                            **{f"ours: {s['variant']}": round(float(s[v]), 3 if "pct" not in v else 1)
                               for s in summary}} for k, v in rows.items()])

@@ -406,3 +406,30 @@ def test_conditions_builders_say_which_runs_are_missing(runs_dir, tmp_path):
     done = F.build([runs_dir / "m"], out)
     assert "experiment=sweep_noise" in done["sweep_noise"]
     assert "experiment=sweep_casing_strength" in done["sweep_casing"]
+
+
+def test_fig9_ablation_rows_against_the_default_cgo(tmp_path):
+    """The CGO ablation behind Fig. 9: each run's final training RMSE and test MAE against the default CGO-RELM,
+    paired Wilcoxon, Holm over the ablation rows (one family per metric), recomputed here with scipy."""
+    rng = np.random.default_rng(11)
+    methods = ["pso", "ga", "cgo-original"]
+    conv = _conv(methods)
+    _run_dir(tmp_path / "m" / "fig9", _metrics(methods, rng), conv=conv, label="fig9")
+    runs = {}
+    for k, dims in enumerate(("one", "all")):
+        c = _conv(["cgo-original"]).assign(best_fitness=lambda d, k=k: d.best_fitness * (0.5 + k) + 1e-3 * d.repeat)
+        runs[dims] = c
+        _run_dir(tmp_path / "m" / f"abl-{dims}", _metrics(["cgo-original"], rng), conv=c, label=F.ABLATION_LABEL,
+                 extra={"optimizer_params": {"variant": "paper", "dims": dims}})
+    out = tmp_path / "r"
+    assert F.build([tmp_path / "m"], out)["fig9_ablation"] is True
+    t = pd.read_csv(out / "fig9_ablation.csv").set_index("configuration")
+    assert list(t.index[:3]) == ["PSO-RELM", "GA-RELM", "CGO-RELM (default: variant paper, dims subset, bound_mode clip)"]
+    last = lambda c: c.sort_values("iteration").groupby("repeat").best_fitness.last()  # noqa: E731
+    base = last(conv[conv.method == "cgo-original"])
+    p = [st.wilcoxon(last(runs[d]), base).pvalue for d in ("one", "all")]
+    rows = ["CGO-RELM, variant paper, dims one, bound_mode clip", "CGO-RELM, variant paper, dims all, bound_mode clip"]
+    np.testing.assert_allclose(t.loc[rows, "p training RMSE (Holm)"], _holm_by_hand(p))
+    assert t.loc[rows[0], "training RMSE - default, median (deg)"] == pytest.approx(
+        round(float((last(runs["one"]) - base).median()), 4))
+    assert "Protocol: command: `make figures`" in (out / "fig9_ablation.md").read_text()

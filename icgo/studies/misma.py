@@ -411,11 +411,11 @@ def boxes(p: Problem, U, U_mod, scfg: SimulatedConfig) -> tuple[dict, dict]:
            "U": misma_opt.misma_bounds(U_mod, p.ref_nT, mc.matrix_halfwidth, mc.bias_halfwidth),
            "paper": misma_opt.paper_bounds()}
     text = {"prior": f"prior: R^-1 = I +/- {sc.matrix_halfwidth:g}, b = 0 +/- {sc.bias_halfwidth * p.ref_nT:.0f} nT",
-            "U": f"U (modulus fit) +/- {mc.matrix_halfwidth:g} max|U_R| and {mc.bias_halfwidth * p.ref_nT:.0f} nT",
+            "U": f"U (modulus fit) +/- {mc.matrix_halfwidth:g} max(abs(U_R)) and {mc.bias_halfwidth * p.ref_nT:.0f} nT",
             "paper": "paper: 128 / -68 uT (R^-1 entries -68 .. 128, b -68 000 .. 128 000 nT)"}
     if p.gyro is not None:
         out["U_omega"] = misma_opt.misma_bounds(U, p.ref_nT, mc.matrix_halfwidth, mc.bias_halfwidth)
-        text["U_omega"] = (f"U_omega (gyro-reference fit) +/- {mc.matrix_halfwidth:g} max|U_R| and "
+        text["U_omega"] = (f"U_omega (gyro-reference fit) +/- {mc.matrix_halfwidth:g} max(abs(U_R)) and "
                            f"{mc.bias_halfwidth * p.ref_nT:.0f} nT")
     return out, text
 

@@ -42,7 +42,7 @@ class Row(NamedTuple):
 
     @property
     def label(self) -> str:
-        return f"{self.algorithm} | box {self.box} | {self.coords} | {self.objective}"
+        return f"{self.algorithm}, box {self.box}, {self.coords}, {self.objective}"
 
 
 #: The standard SMA (Li et al. 2020) as the paper compares against it.
