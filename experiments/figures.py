@@ -68,11 +68,16 @@ PAPER = ICGO
 EQUAL_EVALS_LABEL = "fig9_evals"
 FIG9_NAMES = {m: METHOD_NAMES[m] for m in ("pso", "ga", "cgo-original")}
 
-#: Why CGO-RELM comes last in Fig. 9 here (measured by the ablation described in docs/optimizers.md).
-FIG9_MECHANISM = "Why CGO-RELM is last here: TODO"
-
-#: Why the compensated error at I >= 60 deg stays at 3-5x the noise floor (docs/experiments.md, "Table 4").
-TABLE4_HIGH_INCLINATION = "TODO"
+#: Why CGO-RELM is last in Fig. 9 here: found by the ablation of ``experiment=fig9_cgo_ablation``
+#: (``results/fig9_ablation.md``) and by counting the seeds' acceptance (docs/optimizers.md, "Fig. 9").
+FIG9_MECHANISM = (
+    "Why CGO-RELM is last here, where the paper has it first (`fig9_ablation.md`; docs/optimizers.md, \"Fig. 9\"): "
+    "its search ends at a higher training RMSE than PSO's and GA's (it optimises worse; it does not over-fit). The "
+    "cause is the 4th seed of eq. 15, x_k + R with R ~ U(0, 1) on a random subset of the 210 hidden weights and "
+    "biases (105 on average): such a jump is almost never accepted, so a quarter of CGO's evaluations buy nothing. "
+    "With the 4th seed on one coordinate (`dims=one`) CGO-RELM optimises better than PSO-RELM and GA-RELM; on every "
+    "coordinate it is worse still. The 4th seed keeps the original CGO's reading (eq. 15 does not say which "
+    "coordinates; the reference codes take a random subset), and no default is changed on these numbers.")
 
 
 #: Runs whose label starts with this are sweeps: kept out of the pooled paper tables.
@@ -98,10 +103,7 @@ PLAN = (("table3", "table3", []), ("table1", "table1", ["optimizer=none"]),
         ("sweep_sigma", "sweep_sigma", []), ("sweep_paper_literal", "sweep_paper_literal", []),
         ("sweep_noise", "sweep_noise", []), ("sweep_casing", "sweep_casing", []),
         ("sweep_casing_strength", "sweep_casing_strength", []), ("table4", "table4", []),
-        ("fig9_ablation_dims", "fig9_cgo_ablation", []),
-        ("fig9_ablation_bounds", "fig9_cgo_ablation", ["+optimizer.params.dims=subset",
-                                                       "+optimizer.params.bound_mode=random"]),
-        ("fig9_ablation_matlab", "fig9_cgo_ablation", ["+optimizer.params.dims=subset", "optimizer.params.variant=matlab"]))
+        ("fig9_ablation", "fig9_cgo_ablation", []))
 
 #: The plan entries whose runs each output is made from (named in its "missing runs" line).
 SOURCES = {"table1": ("table1", "table3"), "fig9": ("fig9", "table3"), "table2": ("table3",), "fig10": ("table3",),
@@ -109,7 +111,7 @@ SOURCES = {"table1": ("table1", "table3"), "fig9": ("fig9", "table3"), "table2":
            "table4": ("table4",), "sweep_mutations": ("sweep_wavelet", "sweep_sigma", "sweep_paper_literal", "table3"),
            "sweep_noise": ("sweep_noise",), "sweep_casing": ("sweep_casing", "sweep_casing_strength"),
            "fig9_budgets": ("fig9_evals", "fig9"), "sweep_schedules": ("sweep_schedules", "table3"),
-           "fig9_ablation": ("fig9_ablation_dims", "fig9_ablation_bounds", "fig9_ablation_matlab", "fig9", "table3")}
+           "fig9_ablation": ("fig9_ablation", "fig9", "table3")}
 
 
 def plan_command(name: str) -> str:
@@ -285,7 +287,9 @@ def table1(runs: Runs, out: Path) -> bool:
     n = int(m[m.method == "relm"]["repeat"].nunique())
     others = [x for x in ("cgo-original", "cgo-three_stage") if x in set(m.method)]
     notes = [_reduction_note(m, "relm", others)]
-    pairs = [(o, "relm") for o in others] + ([(o, "relm-tuned") for o in others] if tuned else [])
+    # against the tuned baseline: every searched model the pooled runs hold (Fig. 9's, Table 3's), one family
+    searched = [x for x in ("cgo-original", "pso", "ga", *(f"cgo-{s}" for s in STRATEGIES4)) if x in set(m.method)]
+    pairs = [(o, "relm") for o in others] + ([(o, "relm-tuned") for o in searched] if tuned else [])
     tests = _paired_tests(m, pairs) if n >= 2 else pd.DataFrame()
     if tuned:
         notes.append(_tuned_note(runs, m, others))
@@ -294,7 +298,8 @@ def table1(runs: Runs, out: Path) -> bool:
                  "the paper's Table 1 is one split of its measured data (no spread, no test).")
     if len(tests):
         notes += ["", f"Paired Wilcoxon signed-rank on test MAE, Holm over the table's {len(tests)} tests (one family: "
-                  "each CGO row against each plain-RELM baseline):", "", tests.to_markdown(index=False, floatfmt=".4g"),
+                  "the CGO rows against plain RELM, and every searched RELM of Fig. 9 and Table 3 against the tuned "
+                  "RELM):", "", tests.drop(columns="verdict").to_markdown(index=False, floatfmt=".4g"),
                   "", *(f"- {x}" for x in tests["verdict"]), ""]
     notes.append(_floor_note())
     test = (f"paired Wilcoxon signed-rank (two-sided) on test MAE, Holm over the {len(tests)} tests below"
@@ -437,7 +442,7 @@ def _fig9_notes(tests: pd.DataFrame, conv, methods, df, settings=()) -> list[str
     if tests.empty:
         notes.append("Fewer than 2 repeats: no paired test (Wilcoxon needs at least 2 repeats).")
     else:
-        notes += ["", tests.to_markdown(index=False, floatfmt=".4g"), "", *(f"- {x}." for x in tests["verdict"]), ""]
+        notes += ["", tests.drop(columns="verdict").to_markdown(index=False, floatfmt=".4g"), "", *(f"- {x}." for x in tests["verdict"]), ""]
     ev = {FIG9_NAMES[x]: conv[conv.method == x]["evals"].max() for x in methods
           if not conv.empty}
     if ev and all(np.isfinite(v) for v in ev.values()):
@@ -530,8 +535,8 @@ def fig9_ablation(pooled: Runs, ablation: Runs, out: Path) -> bool:
         t = t[(t.split == "test") & (t.method == "cgo-original")].set_index("repeat")["mae"]
         c = R.read_table(info["dir"], "convergence")
         params = info.get("optimizer_params") or {}
-        label = (f"CGO-RELM, variant {params.get('variant', d.variant)}, dims {params.get('dims', d.dims)}, "
-                 f"bound_mode {params.get('bound_mode', d.bound_mode)}")
+        changed = {k: v for k, v in params.items() if not (k == "variant" and v == d.variant)}
+        label = "CGO-RELM, " + (", ".join(f"{k} {v}" for k, v in changed.items()) or "as the default")
         cols[label] = (_final_fitness(c, "cgo-original"), t)
         rows_ablation.append(label)
     rows, p_fit, p_mae = [], [], []
@@ -551,11 +556,12 @@ def fig9_ablation(pooled: Runs, ablation: Runs, out: Path) -> bool:
     df.loc[idx, "p test MAE (Holm)"] = holm(p_mae)
     notes = ["PSO-RELM and GA-RELM spend 3030 evaluations per run, every CGO row 12030 (population 30 x 100 "
              "iterations, Fig. 9's protocol). The training RMSE is the search's own objective on the training rows; "
-             "the test MAE is reported beside it. `dims`: which coordinates the 4th seed moves (`subset`: a random "
-             "subset of random size, the default; `one`; `all`); `bound_mode`: how a new seed's coordinates outside "
-             "the box [-1, 1] are repaired (`clip`, the default and both reference codes; `random`: redrawn); "
-             "`variant matlab`: the original MATLAB code (per-dimension alpha, seeds 2-3 as coded there, a uniform "
-             "random point as 4th seed, (N + 4N) truncation; docs/optimizers.md).",
+             "the test MAE is reported beside it. Each row changes one CGO option (`conf/cgo_ablation`): `dims`, "
+             "which coordinates the 4th seed moves (default `subset`: a random subset of random size); "
+             "`bound_mode`, how a new seed's coordinates outside the box [-1, 1] are repaired (default `clip`, as "
+             "both reference codes); `bg_low 0`, beta and gamma in {0, 1} (default {1, 2}); `mg_size 3`, MG_i the "
+             "mean of 3 seeds; `selection truncation`, (N + 4N) truncation (default greedy per seed); `variant "
+             "matlab` / `mealpy`, the original MATLAB code / mealpy's OriginalCGO (docs/optimizers.md).",
              FIG9_MECHANISM, "This table explains the order of Fig. 9; it chooses nothing: the defaults stay the "
              "paper's reading (docs/optimizers.md).", _floor_note()]
     _write(df, out, "fig9_ablation", "Why CGO-RELM is last in Fig. 9: CGO with one option changed (lab_casing)",
@@ -956,6 +962,22 @@ def _condition_of(p: pd.DataFrame) -> pd.Series:
     return pd.Series(cond, index=p.index)
 
 
+def _table4_high_inclination(t: pd.DataFrame) -> str:
+    """Why the compensated error at I >= 60 deg stays above this table's noise floor (measured in docs/experiments.md,
+    "Table 4": the same study on the four I >= 60 deg conditions alone)."""
+    hi = t[t["inclination (deg)"] >= 60]
+    if hi.empty:
+        return ""
+    r = hi["compensated mean ours"] / hi["noise floor MAE"]
+    return (f"At I >= 60 deg the compensated mean stays {r.min():.1f}-{r.max():.1f} times its noise floor (the paper's "
+            "is lower still). The cause is the joint fit: one model is fitted to all six conditions, and the two "
+            "near-vertical conditions, whose error after compensation is ten times larger, dominate the training "
+            "RMSE the search minimises and the ridge fit. The same study on the four I >= 60 deg conditions alone "
+            "brings those rows to their noise floor (docs/experiments.md, \"Table 4\", gives the measurement and its "
+            "script). The table keeps the joint fit, chosen before any result (MSA needs more than one attitude: "Choices" in "
+            "docs/experiments.md); splitting the conditions after seeing these rows would be choosing on test data.")
+
+
 def table4(runs: Runs, out: Path) -> bool:
     """Table 4 and Fig. 15: six well conditions, raw vs ICGO-RELM error (|error| mean and std, test rows)."""
     p = runs.predictions(dataset="well_conditions")
@@ -999,7 +1021,7 @@ def table4(runs: Runs, out: Path) -> bool:
              "(all rows of the condition): the simulated sensor noise alone. Near vertical (I = 0.594, 1.8 deg) the "
              "azimuth is ill-conditioned (error ~ sigma_G / sin I) and the floor is far above the paper's "
              "compensated means, so those rows measure the assumed accelerometer noise more than the method.",
-             TABLE4_HIGH_INCLINATION]
+             _table4_high_inclination(pd.DataFrame(rows))]
     _write(pd.DataFrame(rows), out, "table4", "Table 4: raw and compensated azimuth error per well condition (deg)",
            notes, _stamp.protocol(commands("table4"), "none: one split; per-condition mean and std of |error| "
                                   "(no method is compared with another here; Fig. 15 shows the five strategies)",
