@@ -974,8 +974,9 @@ def _table4_high_inclination(t: pd.DataFrame) -> str:
             "near-vertical conditions, whose error after compensation is ten times larger, dominate the training "
             "RMSE the search minimises and the ridge fit. The same study on the four I >= 60 deg conditions alone "
             "brings those rows to their noise floor (docs/experiments.md, \"Table 4\", gives the measurement and its "
-            "script). The table keeps the joint fit, chosen before any result (MSA needs more than one attitude: "Choices" in "
-            "docs/experiments.md); splitting the conditions after seeing these rows would be choosing on test data.")
+            "script). The table keeps the joint fit, chosen before any result (MSA needs more than one attitude: "
+            "\"Choices\" in docs/experiments.md); splitting the conditions after seeing these rows would be choosing "
+            "on test data.")
 
 
 def table4(runs: Runs, out: Path) -> bool:
