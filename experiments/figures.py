@@ -409,7 +409,8 @@ def fig9(runs: Runs, out: Path) -> bool:
             row[f"{k}_paper"] = p[METRICS.index(k)] if p else np.nan
         rows.append(row)
     df = pd.DataFrame(rows)
-    tests = _paired_tests(m, [("cgo-original", "pso"), ("cgo-original", "ga")]) if _n_repeats(m) >= 2 else pd.DataFrame()
+    tests = (_paired_tests(m, [("cgo-original", "pso"), ("cgo-original", "ga")]) if _n_repeats(m) >= 2
+             else pd.DataFrame())
     test = (f"paired Wilcoxon signed-rank (two-sided) on test MAE, CGO-RELM against each, Holm over the {len(tests)} "
             "tests" if len(tests) else "none (fewer than 2 repeats)")
     _write(df, out, "fig9", "Fig. 9: RELM tuned by PSO, GA and CGO (test split, mean +/- std over repeats)",
@@ -442,7 +443,8 @@ def _fig9_notes(tests: pd.DataFrame, conv, methods, df, settings=()) -> list[str
     if tests.empty:
         notes.append("Fewer than 2 repeats: no paired test (Wilcoxon needs at least 2 repeats).")
     else:
-        notes += ["", tests.drop(columns="verdict").to_markdown(index=False, floatfmt=".4g"), "", *(f"- {x}." for x in tests["verdict"]), ""]
+        notes += ["", tests.drop(columns="verdict").to_markdown(index=False, floatfmt=".4g"), "",
+                  *(f"- {x}." for x in tests["verdict"]), ""]
     ev = {FIG9_NAMES[x]: conv[conv.method == x]["evals"].max() for x in methods
           if not conv.empty}
     if ev and all(np.isfinite(v) for v in ev.values()):
@@ -690,7 +692,8 @@ def sweep_mutations(pooled: Runs, sweep: Runs, out: Path) -> bool:
                        f"{_reading({'sigma': params.get('sigma', CGOConfig().sigma)})}")
         rows.append({"reading": reading,
                      "single strategy alone (deg)": _fmt(*_ms(mae[single])), "three-stage (deg)": _fmt(*_ms(mae["three_stage"])),
-                     "median difference three-stage - single (deg)": round(float((w["three"] - w["single"]).median()), 4),
+                     "median difference three-stage - single (deg)":
+                         round(float((w["three"] - w["single"]).median()), 4),
                      "p three-stage vs single": wilcoxon_paired(w["three"], w["single"]).p_value,
                      "order by MAE": " < ".join(LABEL[s] for s in order), "paper's order": order == paper})
     df = pd.DataFrame(rows)
@@ -849,9 +852,10 @@ def table3(runs: Runs, out: Path) -> bool:
              f"paper: {' < '.join(LABEL[s] for s in paper)} -> "
              f"{'the same order' if agree else 'a different order'}"
              f"{'' if agree else f' (ours ranks {LABEL[ours[0]]} first)'}.",
-             f"Friedman test on MAE over the four strategies: chi2 = {fr_mae.statistic:.2f}, p = {fr_mae['p (Holm)']:.3g} "
-             f"(Holm over the {n_f} Friedman tests; {'significant' if fr_mae['p (Holm)'] < ALPHA else 'not significant'} "
-             f"at {ALPHA:g}). Mean ranks: {fr_mae.effect}.",
+             f"Friedman test on MAE over the four strategies: chi2 = {fr_mae.statistic:.2f}, "
+             f"p = {fr_mae['p (Holm)']:.3g} (Holm over the {n_f} Friedman tests; "
+             f"{'significant' if fr_mae['p (Holm)'] < ALPHA else 'not significant'} at {ALPHA:g}). "
+             f"Mean ranks: {fr_mae.effect}.",
              f"Wilcoxon signed-rank (MAE, paired repeats), three-stage vs each single strategy, Holm over the {n_w} "
              f"Wilcoxon tests (MAE and RMSE): significantly better than {', '.join(won) or 'none'}; significantly "
              f"worse than {', '.join(lost) or 'none'}; no significant difference from {', '.join(tied) or 'none'}. "

@@ -135,8 +135,8 @@ def paper_table(summary: list[dict]) -> list[str]:
     conv = [c for s in summary for k, c in s["convergence"].items() if k.startswith("MISMA vs standard SMA")]
     return ["### The MISMA paper's values beside ours", "",
             "The paper's numbers are its coal-mine field runs (Figs. 10-11: mean |azimuth error| at the static survey "
-            "points against the reference azimuth; Fig. 10 gives no raw value); ours are the simulated `rotating_drill` "
-            "runs above. The `straight` variant is our reading of the paper's field run (a near-straight hole); "
+            "points against the reference azimuth; Fig. 10 gives no raw value); ours are the simulated "
+            "`rotating_drill` runs above. The `straight` variant is our reading of the paper's field run (a near-straight hole); "
             "`curving` is the identifiable build-and-turn section this study's default uses. Different data: compare "
             "orders of magnitude, not digits.", "", table.to_markdown(index=False), "",
             f"Convergence: the paper's MISMA reaches SMA's fitness {MISMA['fig7_faster_pct']} % faster (Fig. 7, "

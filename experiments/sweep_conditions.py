@@ -17,8 +17,8 @@ of the methods by mean MAE, the Friedman test over the methods (Holm over the le
 method against the second (paired Wilcoxon, its median difference, Holm over the levels), and
 Kendall's tau between the level's order and the default level's. Two families per sweep, each
 Holm-adjusted over the sweep's levels: "do the methods differ at this level" (Friedman) and "is
-the first place separable from the second at this level" (Wilcoxon). Outputs: ``results/sweep_noise.{md,csv,png}`` and ``results/sweep_casing.{md,csv,png}``
-(distance and strength).
+the first place separable from the second at this level" (Wilcoxon). Outputs:
+``results/sweep_noise.{md,csv,png}`` and ``results/sweep_casing.{md,csv,png}`` (distance and strength).
 """
 
 from __future__ import annotations

@@ -424,7 +424,8 @@ def test_fig9_ablation_rows_against_the_default_cgo(tmp_path):
     out = tmp_path / "r"
     assert F.build([tmp_path / "m"], out)["fig9_ablation"] is True
     t = pd.read_csv(out / "fig9_ablation.csv").set_index("configuration")
-    assert list(t.index[:3]) == ["PSO-RELM", "GA-RELM", "CGO-RELM (default: variant paper, dims subset, bound_mode clip)"]
+    assert list(t.index[:3]) == ["PSO-RELM", "GA-RELM",
+                                 "CGO-RELM (default: variant paper, dims subset, bound_mode clip)"]
     last = lambda c: c.sort_values("iteration").groupby("repeat").best_fitness.last()  # noqa: E731
     base = last(conv[conv.method == "cgo-original"])
     p = [st.wilcoxon(last(runs[d]), base).pvalue for d in ("one", "all")]

@@ -407,7 +407,8 @@ def summary_table(cells: pd.DataFrame, dims, methods_=None) -> pd.DataFrame:
             n = {c: int((d.result == c).sum()) for c in "+=-"}
             out.append({"dim": dim, "ours": m.label, "vs": m.peer_label, "+ uncorrected": n["+"],
                         "= uncorrected": n["="], "- uncorrected": n["-"],
-                        "+ / = / - (Holm: the decision)": "/".join(str(int((d.result_holm == c).sum())) for c in "+=-")})
+                        "+ / = / - (Holm: the decision)":
+                            "/".join(str(int((d.result_holm == c).sum())) for c in "+=-")})
     return pd.DataFrame(out)
 
 
