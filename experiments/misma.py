@@ -199,7 +199,8 @@ def write_results(result, composed: dict, out: Path, models_dir: Path | None, co
     for name, plot in result.plots.items():
         params = result.records[f"params_{name}"]
         params.to_csv(out / f"misma_params_{name}.csv", index=False)
-        (out / f"misma_params_{name}.md").write_text(params.to_markdown(index=False, floatfmt=".5g") + "\n")
+        head = f"# MISMA: recovered vs true parameters ({name})\n\n" + (protocol(config) + "\n\n" if config else "")
+        (out / f"misma_params_{name}.md").write_text(head + params.to_markdown(index=False, floatfmt=".5g") + "\n")
         result.records[f"modulus_{name}"].to_csv(out / f"misma_modulus_{name}.csv")
         result.records[f"fair_{name}"].to_csv(out / f"misma_fair_{name}.csv", index=False)
         result.records[f"tests_{name}"].to_csv(out / f"misma_tests_{name}.csv", index=False)
