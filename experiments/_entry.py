@@ -11,13 +11,13 @@ point prints ``error: <line>`` and exits with :data:`EXIT_CONFIG` (2), before an
 
 from __future__ import annotations
 
-import contextlib
 import os
 import sys
 import traceback
 from pathlib import Path
+from typing import NoReturn
 
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from icgo.core.errors import SettingError
 
@@ -68,6 +68,9 @@ def check_overrides(args: list[str], groups=STUDY_GROUPS, conf_dir: Path = CONF_
 
 #: Hydra's run-mode flags that take no value (moved in front of the overrides by :func:`preflight`).
 MULTIRUN_FLAGS = ("-m", "--multirun")
+#: Hydra's flags whose next argument is their value, not an override.
+VALUE_FLAGS = ("--config-path", "-cp", "--config-name", "-cn", "--config-dir", "-cd", "--experimental-rerun",
+               "--package", "-p", "--info", "-i")
 #: Overrides naming a directory Hydra creates before the task function runs.
 HYDRA_DIR_KEYS = ("hydra.run.dir", "hydra.sweep.dir")
 
@@ -105,10 +108,16 @@ def check_plain_overrides(args: list[str], config_name: str, conf_dir: Path = CO
     from hydra.core.override_parser.overrides_parser import OverridesParser
     from hydra.core.override_parser.types import OverrideType
 
-    try:
-        overrides = OverridesParser.create().parse_overrides([a for a in args if not a.startswith("-")])
-    except Exception:  # Hydra's grammar: let Hydra print its own message for a malformed override
-        return None
+    parser = OverridesParser.create()
+    candidates = [a for i, a in enumerate(args) if not a.startswith("-") and not (i and args[i - 1] in VALUE_FLAGS)]
+    for a in candidates:
+        try:
+            parser.parse_overrides([a])
+        except Exception as e:  # noqa: BLE001  (Hydra's grammar error: three lines and a URL otherwise)
+            why = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+            return (f"cannot read the override {a!r} ({why}); a value with special characters (=, ',', spaces, "
+                    f"brackets) goes in quotes: key='a=b'")
+    overrides = parser.parse_overrides(candidates)
     groups, plain = [], []
     for ov in overrides:
         key = ov.key_or_group
@@ -191,32 +200,118 @@ def enable_jax_cache(path: str | None) -> None:
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 
-@contextlib.contextmanager
-def staged_results(out: Path, last: str | None = None):
-    """Write a study's files into a shared results folder all at once, or not at all.
+def fail_line(e: BaseException) -> NoReturn:
+    """Print ``error: <line>`` (one per problem of a SettingsError) and exit 2 for a bad setting, 1 for other
+    errors of the input (:func:`icgo.core.settings.error_status`)."""
+    from icgo.core.settings import error_status
 
-    Yields a fresh staging directory inside ``out`` (same file system). When the
-    block ends normally every staged file is moved into ``out`` with
-    ``os.replace`` (``last``, the study's summary record, moved last); when it
-    raises (Ctrl-C, a full disk, a bug) the staging directory is removed and
-    ``out`` holds exactly what it held before, and a line says so on stderr.
-    Sub-directories are not supported (the studies write flat files).
+    raise SystemExit(error_status(e) or EXIT_CONFIG)
+
+
+def one_line_errors(task):
+    """Decorator of a Hydra task function: a user's error becomes one line and an exit status, never a traceback.
+
+    ``ValueError`` (every :class:`~icgo.core.errors.IcgoError`), a disk's ``OSError`` and ``MemoryError``
+    are printed by :func:`icgo.core.settings.error_status` (exit 2 or 1); Hydra would print each with a
+    traceback. Numerical ``RuntimeWarning`` lines are not printed (a result that matters is checked and
+    raised as an error).
     """
-    import shutil
-    import tempfile
+    import functools
 
-    out.mkdir(parents=True, exist_ok=True)
-    stage = Path(tempfile.mkdtemp(prefix=".staging-", dir=out))
-    try:
+    @functools.wraps(task)
+    def wrapper(cfg):
+        import logging
+        import warnings
+
+        from icgo.core.settings import error_status
+
+        # JAX's backend probe ("Unable to initialize backend 'tpu'") is noise on a terminal, not a second line.
+        logging.getLogger("jax._src.xla_bridge").setLevel(logging.WARNING)
+        warnings.simplefilter("ignore", RuntimeWarning)
         try:
-            yield stage
-        except BaseException:
-            print(f"[results] stopped before the files were complete: nothing in {out} was changed", file=sys.stderr)
-            raise
-        for f in sorted(stage.iterdir(), key=lambda f: f.name == last):
-            os.replace(f, out / f.name)
-    finally:
-        shutil.rmtree(stage, ignore_errors=True)
+            return task(cfg)
+        except (ValueError, OSError, MemoryError) as e:
+            rc = error_status(e)
+            if rc is None:
+                raise
+            raise SystemExit(rc) from None
+
+    return wrapper
+
+
+def guarded(main) -> None:
+    """Run an entry point's ``__main__`` body (:func:`icgo.core.settings.run_cli`): Ctrl-C or SIGTERM is one
+    line and exit status 130; outputs are staged (:mod:`icgo.io.files`), so an interrupted command leaves
+    every output directory as it was."""
+    from icgo.core.settings import run_cli
+
+    rc = run_cli(main)
+    if rc:
+        raise SystemExit(rc)
+
+
+#: The repository's shared results folder: commands regenerate their own files in it (and leave the others).
+RESULTS_DIR = CONF_DIR.parent / "results"
+
+
+def results_output(out, *, overwrite: bool = False, writer: str = ""):
+    """The :class:`icgo.io.files.Output` of an argparse command's ``--out``, checked (one SettingError line).
+
+    The repository's ``results/`` (:data:`RESULTS_DIR`) is a shared folder: the command's files replace their
+    namesakes, the others stay. Any other directory is the command's own: refused when it already holds
+    files, unless ``--overwrite``, which replaces its content whole.
+    """
+    from icgo.io.files import Output
+
+    p = Path(out).expanduser()
+    try:
+        shared = p.resolve() == RESULTS_DIR.resolve()
+    except (OSError, RuntimeError):
+        shared = False
+    return Output(p, setting="--out", overwrite=overwrite, shared=shared, writer=writer,
+                  overwrite_hint="--overwrite").check()
+
+
+def bool_setting(cfg: DictConfig, key: str) -> bool:
+    """The value of a true/false setting; anything else (``maybe``, ``'false'``, ``0``, null) is a SettingError."""
+    v = OmegaConf.select(cfg, key)
+    if not isinstance(v, bool):
+        raise SettingError(f"{key}={v!r}: must be true or false")
+    return v
+
+
+def hydra_keep() -> tuple[str, ...]:
+    """Names Hydra writes into the run directory of this job before the task runs (its job log), which an
+    output directory leaves alone."""
+    from hydra.core.hydra_config import HydraConfig
+
+    return (f"{HydraConfig.get().job.name}.log",)
+
+
+def hydra_files(cfg: DictConfig) -> dict[str, str]:
+    """Hydra's ``.hydra/`` record of this job (``config.yaml`` unresolved, ``hydra.yaml``, ``overrides.yaml``).
+
+    The configs set ``hydra.output_subdir: null``, so Hydra does not write it into the run directory
+    before the task runs (it would rewrite the record of the run a refused command was refused to
+    replace); the entry point stages it with its other files instead.
+    """
+    from hydra.core.hydra_config import HydraConfig
+
+    hc = HydraConfig.get()
+    return {"config.yaml": OmegaConf.to_yaml(cfg), "hydra.yaml": OmegaConf.to_yaml({"hydra": hc}),
+            "overrides.yaml": OmegaConf.to_yaml(hc.overrides.task)}
+
+
+def write_hydra_record(stage: Path, cfg: DictConfig) -> None:
+    """Write :func:`hydra_files` into ``stage/.hydra`` (nothing outside a Hydra job, e.g. a library call)."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if not HydraConfig.initialized():
+        return
+    d = stage / ".hydra"
+    d.mkdir(exist_ok=True)
+    for name, text in hydra_files(cfg).items():
+        (d / name).write_text(text)
 
 
 def study_main(cfg: DictConfig, build_config, run) -> None:
@@ -257,24 +352,6 @@ def write_failure(outdir: Path, message: str, tb: str | None = None) -> None:
     (outdir / FAILED).write_text(message.strip().splitlines()[0] + "\n")
     if tb:
         (outdir / "error.txt").write_text(tb)
-
-
-def write_hydra_record(out: Path, cfg: DictConfig) -> None:
-    """Hydra's ``.hydra/`` record (``config.yaml``, ``overrides.yaml``, ``hydra.yaml``) into ``out``.
-
-    For an entry point whose config sets ``hydra.output_subdir: null`` because its files may go into a
-    directory of the user's choosing (``out=``) that must stay untouched when the run fails: called once
-    the run's files are written.
-    """
-    from hydra.core.hydra_config import HydraConfig
-    from omegaconf import OmegaConf
-
-    hc = HydraConfig.get()
-    rec = out / ".hydra"
-    rec.mkdir(parents=True, exist_ok=True)
-    (rec / "config.yaml").write_text(OmegaConf.to_yaml(cfg))
-    (rec / "overrides.yaml").write_text(OmegaConf.to_yaml(OmegaConf.create(list(hc.overrides.task))))
-    (rec / "hydra.yaml").write_text(OmegaConf.to_yaml(OmegaConf.create({"hydra": OmegaConf.to_container(hc)})))
 
 
 def one_line(e: BaseException) -> str:

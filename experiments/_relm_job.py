@@ -8,12 +8,10 @@ library import it inside.
 from __future__ import annotations
 
 import json
-import os
 import sys
-import time
 from pathlib import Path
 
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from experiments._entry import FAILED
 from icgo.core.errors import SettingError
@@ -67,17 +65,35 @@ def check_config(cfg: DictConfig) -> None:
     Raises:
         SettingError: one line naming the setting, its value and what is allowed.
     """
+    from experiments._entry import bool_setting
+    from icgo.models.relm import MAX_LAM
+
     _unknown(cfg.keys(), ENTRY_KEYS[""], "")
+    for node in ("optimizer", "strategy", "schedule", "dataset", *STUDY_NODES):
+        _need(isinstance(cfg.get(node), DictConfig), f"{node} must be a group of settings (e.g. {node}.key=value), "
+                                                     f"got {cfg.get(node)!r}")
     for node in ("optimizer", "strategy", "schedule"):
         _unknown(cfg[node].keys(), ENTRY_KEYS[node], f"{node}.")
+    for key in ("figures", "overwrite"):
+        bool_setting(cfg, key)
+    _need(cfg.get("label") is None or isinstance(cfg.get("label"), str),
+          f"label must be a name (a string) or null, got {cfg.get('label')!r}")
+    lam = OmegaConf.select(cfg, "model.lam")
+    _need(not isinstance(lam, (int, float)) or isinstance(lam, bool) or lam <= MAX_LAM,
+          f"model.lam={lam!r}: at most {MAX_LAM:g}; the ridge lambda is absolute, and far above that the RELM's "
+          f"output weights vanish and it returns MSA's azimuth unchanged (docs/reliability.md)")
     ds = cfg.dataset
     _need(ds.get("name") in DATASET_KEYS,
           f"dataset.name must be one of {sorted(DATASET_KEYS)}, got {ds.get('name')!r}")
     _unknown(ds.keys(), DATASET_KEYS[ds.name], "dataset.")
+    if "seed" in DATASET_KEYS[ds.name]:
+        _need(_is_int(ds.get("seed")) and 0 <= ds.seed < 2**32, f"dataset.seed must be an integer 0 <= seed < 2**32, "
+                                                               f"got {ds.get('seed')!r}")
     if ds.name == "csv":
         _need(OmegaConf.select(ds, "path", throw_on_missing=False) not in (None, "???"),
               "dataset.path is required with dataset=csv (dataset.path=/path/to/file.csv)")
         _need_file(Path(str(ds.path)).expanduser(), "dataset.path")
+        bool_setting(cfg, "dataset.require_meta")
     elif ds.name == "well_conditions":
         c = ds.condition
         _need(c is None or (_is_int(c) and 0 <= c <= 5),
@@ -85,6 +101,8 @@ def check_config(cfg: DictConfig) -> None:
     target = OmegaConf.select(cfg, "split.target")
     protocol = OmegaConf.select(cfg, "split.protocol")
     if target is not None:
+        _need(isinstance(target, DictConfig), f"split.target must be a group of settings ({', '.join(TARGET_KEYS)}), "
+                                              f"got {target!r}")
         _need(protocol == "transfer", f"split.target is read only by split.protocol=transfer (split=transfer); "
                                       f"here split.protocol={protocol!r}, so it would do nothing")
         _unknown(target.keys(), TARGET_KEYS, "split.target.")
@@ -92,7 +110,8 @@ def check_config(cfg: DictConfig) -> None:
             _need_file(Path(str(target.path)).expanduser(), "split.target.path")
     elif protocol == "transfer":
         _need(False, "split.protocol=transfer needs split.target (use split=transfer, which defines it)")
-    b = list(cfg.schedule.bounds)
+    b = cfg.schedule.get("bounds")
+    b = list(b) if isinstance(b, ListConfig) else [b]
     _need(len(b) == 2 and all(isinstance(x, (int, float)) for x in b) and 0.0 < b[0] < b[1] < 1.0,
           f"schedule.bounds must be two fractions 0 < b1 < b2 < 1, got {b}")
     _need(cfg.schedule.get("clock", "global") in ("global", "stage"),
@@ -340,21 +359,87 @@ def excluded_line(result) -> str | None:
     return excluded_sentence(result.excluded, len(result.config.ids()) + len(result.excluded))
 
 
-#: Files of a run directory that a new run replaces or removes (besides the tables and models it writes).
-RUN_EXTRAS = ("study.png", "error.txt", FAILED)
+#: Files a failed attempt leaves in a run directory (replaced by the next run; they do not make the directory used).
+FAILURE_FILES = ("error.txt", FAILED)
+#: Settings that change how a run is executed, not what it computes: left out of :func:`config_hash`.
+RUNTIME_KEYS = ("overwrite", "progress", "jax_cache_dir", "workers")
+
+
+def config_hash(container: dict) -> str:
+    """SHA-256 (hex) of a resolved config (a plain mapping, ``hydra`` node excluded) without :data:`RUNTIME_KEYS`:
+    the identity of what a run computes. A sweep re-run into its directory keeps a finished job only when the
+    hashes agree."""
+    import hashlib
+
+    core = {k: v for k, v in container.items() if k not in RUNTIME_KEYS and k != "hydra"}
+    return hashlib.sha256(json.dumps(core, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def cfg_hash(cfg: DictConfig) -> str:
+    """:func:`config_hash` of a composed config."""
+    return config_hash(OmegaConf.to_container(cfg, resolve=True))
+
+
+def stored_config(outdir: Path) -> dict | None:
+    """The resolved config a finished run recorded (its ``config.yaml``), or None if unreadable."""
+    from icgo.reporting import records as R
+
+    try:
+        c = OmegaConf.to_container(OmegaConf.load(outdir / R.CONFIG_FILE), resolve=False)
+    except Exception:  # noqa: BLE001  (absent, not YAML: the run cannot be matched, so it is not kept)
+        return None
+    return c if isinstance(c, dict) else None
+
+
+def stored_hash(outdir: Path, run: dict) -> str | None:
+    """The config hash of a finished run: the one its run.json records, else that of its ``config.yaml``."""
+    h = run.get("config_sha256")
+    if isinstance(h, str):
+        return h
+    c = stored_config(outdir)
+    return None if c is None else config_hash(c)
+
+
+def config_difference(a: dict, b: dict, limit: int = 4) -> str:
+    """``key: a-value vs b-value`` for the first keys (dotted) where two configs differ (runtime keys ignored)."""
+    def flat(d, prefix=""):
+        out = {}
+        for k, v in d.items():
+            if not prefix and k in RUNTIME_KEYS:
+                continue
+            if isinstance(v, dict):
+                out.update(flat(v, f"{prefix}{k}."))
+            else:
+                out[f"{prefix}{k}"] = v
+        return out
+
+    fa, fb = flat(a), flat(b)
+    keys = sorted(k for k in set(fa) | set(fb) if fa.get(k, "<absent>") != fb.get(k, "<absent>"))
+    shown = [f"{k}: {fa.get(k, '<absent>')!r} there, {fb.get(k, '<absent>')!r} here" for k in keys[:limit]]
+    return "; ".join(shown) + (f"; and {len(keys) - limit} more" if len(keys) > limit else "")
+
+
+def run_output(outdir: Path, overwrite: bool):
+    """The run directory as an :class:`icgo.io.files.Output`, checked (a used directory refused unless
+    ``overwrite``; a failed attempt's marker does not count); Hydra's job log left alone."""
+    from hydra.core.hydra_config import HydraConfig
+
+    from icgo.io.files import Output
+
+    keep = (f"{HydraConfig.get().job.name}.log",) if HydraConfig.initialized() else ()
+    return Output(outdir, setting="the run directory", overwrite=overwrite, keep=keep, ignore=FAILURE_FILES,
+                  writer="experiments.run").check()
 
 
 def write_outputs(outdir: Path, cfg: DictConfig, result, info: dict, frame=None, meta=None, plot=None) -> dict:
-    """Write the run directory atomically: config, tables, summary, fitted models, figure, then run.json.
+    """Write the run directory all at once: config, tables, summary, fitted models, figure, then run.json.
 
-    Everything is written into a staging directory first (``outdir/.staging``);
-    only when every file is complete is the previous run record removed, the
-    files moved into place (``os.replace``) and the new ``run.json`` moved last.
-    An interruption or a full disk before that leaves the previous run as it was
-    (and no staging directory); during the moves it leaves no ``run.json``, so no
-    reader takes the directory for a complete run. File and column names come
-    from :mod:`icgo.reporting.records`; the fitted models are saved with
-    :meth:`icgo.models.format.FittedModel.save`.
+    Everything is written into a staging directory inside ``outdir`` first; only when every file is complete
+    is the previous content moved aside, the new files moved in (``os.replace``), ``run.json`` last, and the
+    old content deleted (:class:`icgo.io.files.Output`). An interruption or a full disk before that leaves
+    the previous run as it was (and no staging directory). Hydra's record of the job (``.hydra/``) is staged
+    with the rest. File and column names come from :mod:`icgo.reporting.records`; the fitted models are saved
+    with :meth:`icgo.models.format.FittedModel.save`.
 
     Args:
         frame, meta: the study's data and metadata; with a reference field in
@@ -364,31 +449,13 @@ def write_outputs(outdir: Path, cfg: DictConfig, result, info: dict, frame=None,
     Returns:
         The run.json dictionary.
     """
-    import shutil
-
-    stage = outdir / ".staging"
-    shutil.rmtree(stage, ignore_errors=True)
-    stage.mkdir(parents=True)
-    try:
-        run = _write_run_files(stage, cfg, result, info, frame, meta, plot, run_dir=outdir)
-        _commit_run(stage, outdir)
-    finally:
-        shutil.rmtree(stage, ignore_errors=True)
-    return run
-
-
-def _commit_run(stage: Path, outdir: Path) -> None:
-    """Move a complete staged run into ``outdir``: old record out, files in, new run.json last."""
+    from experiments._entry import write_hydra_record
     from icgo.reporting import records as R
 
-    (outdir / R.RUN_FILE).unlink(missing_ok=True)
-    for name in RUN_EXTRAS:
-        if not (stage / name).exists():
-            (outdir / name).unlink(missing_ok=True)
-    for f in sorted(stage.iterdir()):
-        if f.name != R.RUN_FILE:
-            os.replace(f, outdir / f.name)
-    os.replace(stage / R.RUN_FILE, outdir / R.RUN_FILE)
+    with run_output(outdir, overwrite=True).staged(last=(R.RUN_FILE,)) as stage:
+        write_hydra_record(stage, cfg)
+        run = _write_run_files(stage, cfg, result, info, frame, meta, plot, run_dir=outdir)
+    return run
 
 
 def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, meta, plot, run_dir=None) -> dict:
@@ -438,7 +505,7 @@ def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, m
            "wall_time_s": result.wall_time_s, "methods": methods,
            "n_evals": {m: int(v) for m, v in zip(methods, np.asarray(result.n_evals)[:, 0])},
            "n_rows": int(result.kept.sum()), "n_repeats": result.config.n_repeats,
-           "repeat_ids": list(result.config.ids()), "models": models, "qc": qc,
+           "repeat_ids": list(result.config.ids()), "models": models, "qc": qc, "config_sha256": cfg_hash(cfg),
            "excluded_repeats": [{"repeat": int(r), "reason": why} for r, why in result.excluded]}
     if result.tuning is not None:
         run["tuning"] = result.tuning

@@ -6,7 +6,12 @@ report is the same for every launcher (``icgo_local``, joblib, submitit,
 SLURM) and names the jobs that never started. A job's status is read from its
 directory:
 
-* ``ok``: a complete run record (``run.json``);
+* ``ok``: a complete run record (``run.json``) of this job's configuration;
+* ``refused``: a complete run record of another configuration (the directory
+  held it before this sweep; a re-run never takes it for this job, and leaves
+  it as it was: ``overwrite=true`` redoes the job). The configuration is
+  matched by the hash of the job's resolved config
+  (:func:`experiments._relm_job.config_hash`), never by the job's number;
 * ``killed``: a ``FAILED`` marker saying so, or a directory with neither a
   marker nor a run record (the job started and its process died);
 * ``failed``: any other ``FAILED`` marker (its one line is the reason);
@@ -33,7 +38,7 @@ from omegaconf import DictConfig, OmegaConf
 REPORT_FILE = "sweep_report.json"
 #: The cross-job results table (``.csv`` and ``.md``) beside the report.
 RESULTS_FILE = "sweep_results"
-STATUSES = ("ok", "failed", "killed", "not run")
+STATUSES = ("ok", "refused", "failed", "killed", "not run")
 
 
 def job_overrides(config: DictConfig) -> list[list[str]]:
@@ -47,14 +52,42 @@ def job_overrides(config: DictConfig) -> list[list[str]]:
     return [job for batch in BasicSweeper.split_arguments(parsed, None) for job in batch]
 
 
-def job_status(job_dir: Path) -> tuple[str, str]:
-    """(status, reason) of one job's directory; see the module docstring."""
+def job_config(config: DictConfig, overrides) -> dict | None:
+    """The resolved task config (no ``hydra`` node) of one job, composed as the launcher composes it, or None
+    outside a running Hydra application (a library call)."""
+    from hydra.core.global_hydra import GlobalHydra
+
+    gh = GlobalHydra.instance()
+    if not gh.is_initialized():
+        return None
+    from omegaconf import open_dict
+
+    job = gh.config_loader().load_sweep_config(config, list(overrides))
+    with open_dict(job):
+        del job["hydra"]  # as the task function receives it (Hydra's run_job drops it)
+    return OmegaConf.to_container(job, resolve=True)
+
+
+def job_status(job_dir: Path, expected: dict | None = None) -> tuple[str, str]:
+    """(status, reason) of one job's directory; see the module docstring.
+
+    Args:
+        expected: the job's resolved config; a finished run of another config is ``refused``
+            (None: any finished run is ``ok``).
+    """
     from experiments import _entry as C
+    from experiments import _relm_job as J
 
     if not job_dir.is_dir():
         return "not run", ""
-    if C.previous_run(job_dir) is not None:
-        return "ok", ""
+    run = C.previous_run(job_dir)
+    if run is not None:
+        if expected is None or J.stored_hash(job_dir, run) == J.config_hash(expected):
+            return "ok", ""
+        old = J.stored_config(job_dir)
+        diff = J.config_difference(old, expected) if old else "it records no readable config"
+        return "refused", (f"the directory holds a finished run of another configuration ({diff}); left as it was: "
+                           f"overwrite=true redoes the job, or choose another hydra.sweep.dir")
     marker = job_dir / C.FAILED
     if marker.is_file():
         reason = marker.read_text(errors="replace").strip()
@@ -70,7 +103,10 @@ def statuses(config: DictConfig) -> list[dict]:
     for num, overrides in enumerate(job_overrides(config)):
         # The default subdir is the job number; another pattern is resolved per job as Hydra does.
         name = str(num) if subdir == "${hydra.job.num}" else _subdir(config, overrides, num)
-        status, reason = job_status(sweep / name)
+        from experiments._entry import previous_run
+
+        finished = previous_run(sweep / name) is not None  # only then is the job's config needed (composing costs)
+        status, reason = job_status(sweep / name, job_config(config, overrides) if finished else None)
         jobs.append({"num": num, "overrides": list(overrides), "dir": name, "status": status, "reason": reason})
     return jobs
 
@@ -140,6 +176,9 @@ class FailureReport(Callback):
         jobs = report(config)
         bad = [j for j in jobs if j["status"] != "ok"]
         if bad:
-            print(f"{len(bad)} of {len(jobs)} job(s) did not finish; the others' results are in "
-                  f"{config.hydra.sweep.dir} (re-running the sweep into it resumes it)", file=sys.stderr)
+            refused = sum(j["status"] == "refused" for j in bad)
+            print(f"{len(bad)} of {len(jobs)} job(s) did not finish"
+                  + (f" ({refused} refused: their directories hold runs of another configuration)" if refused else "")
+                  + f"; the others' results are in {config.hydra.sweep.dir} (re-running the sweep into it resumes "
+                    f"it)", file=sys.stderr)
             raise SystemExit(1)

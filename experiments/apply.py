@@ -1,69 +1,102 @@
 """Apply a fitted model to a new survey: ``python -m experiments.apply model=<run dir or model> data=<survey.csv>``.
 
 Loads any saved model (:func:`icgo.models.registry.load_model`; a run directory of
-``experiments.run`` gives its main model, ``relm_compensation``), reads the
+``experiments.run`` gives its main model, ``relm_compensation``; one of ``experiments.calibrate`` the
+calibration its record recommends), reads the
 survey (:func:`icgo.io.recording.read_recording`), corrects it with
 :func:`icgo.survey.apply.correct_survey` and writes ``<survey>_corrected.csv`` and
 ``<survey>_corrected.meta.json`` (the model, the QC counts before/after, the
 metrics where the survey has a reference azimuth, the notices) into the run
-directory (``outputs/apply/<date>/<time>/`` or ``out=``). Prints the MAE (or
-"QC only") and the QC counts. A bad setting, model or survey is one line on
-stderr and exit status 2; nothing is written then.
+directory (``outputs/apply/<date>/<time>/`` or ``out=``), both or neither
+(:class:`icgo.io.files.Output`: a directory that already holds files is refused
+unless ``overwrite=true``, which replaces its content whole). Prints the MAE (or
+"QC only") and the QC counts. A bad setting is one line on stderr and exit
+status 2, a bad model, survey or output place exit status 1; nothing is written
+then. A survey that already holds a correction's output columns (a corrected
+survey) is refused: its columns would mix with the new model's.
 """
 
 from __future__ import annotations
 
-import json
-import sys
 from pathlib import Path
 
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from experiments._entry import CONF_DIR, EXIT_CONFIG, one_line, write_hydra_record
+from experiments._entry import CONF_DIR, bool_setting, hydra_keep, one_line_errors, write_hydra_record
+from icgo.core.errors import DataError
 
-KEYS = ("model", "data", "method", "require_meta", "out", "qc", "columns", "columns_file")
+KEYS = ("model", "data", "method", "require_meta", "out", "qc", "columns", "columns_file", "overwrite")
 
 
 def model_path(path: Path) -> Path:
-    """The model file a ``model=`` setting names: a header, or a run directory's main model."""
+    """The model file a ``model=`` setting names: a header, a run directory's main model (the first of its
+    ``run.json``'s ``models``, which must be a file in that directory), or the calibration a calibrate run
+    directory recommends."""
+    from icgo.models.format import run_model_path
     from icgo.reporting import records
 
-    if path.is_dir() and (path / records.RUN_FILE).is_file():
-        run = records.read_run(path)
-        if run.get("models"):
-            return path / run["models"][0]
+    if path.is_dir() and (path / records.CALIBRATION_FILE).is_file():
+        return records.recommended_model(path)
+    if path.is_dir() and ((path / records.RUN_FILE).exists() or (path / records.RUN_FILE).is_symlink()):
+        return run_model_path(path)
     return path
 
 
-def run_apply(cfg: DictConfig, out_dir: Path) -> dict:
-    """Check the settings, correct the survey, write the two files; return the meta dict.
-
-    Raises:
-        ValueError (ModelError, DataError, RecordError, SettingError): one line.
-    """
-    from icgo.core.settings import config_from_mapping
-    from icgo.io.recording import atomic_write_texts, column_map, read_recording
-    from icgo.models.registry import load_model
-    from icgo.physics.qc import QCBands
-    from icgo.survey.apply import correct_survey
-    from icgo.survey.verdict import survey_verdict
+def check_settings(cfg: DictConfig) -> None:
+    """Every setting checked before anything is read or written (one SettingError line)."""
+    from icgo.core.errors import SettingError
 
     unknown = sorted(set(cfg.keys()) - set(KEYS))
     if unknown:
-        raise ValueError(f"unknown setting(s) {unknown}; experiments.apply takes {list(KEYS)}")
+        raise SettingError(f"unknown setting(s) {unknown}; experiments.apply takes {list(KEYS)}")
     for k in ("model", "data"):
         if OmegaConf.is_missing(cfg, k) or cfg[k] in (None, ""):
-            raise ValueError(f"{k}= is required: python -m experiments.apply model=<run dir or model .json> "
-                             f"data=<survey.csv>")
+            raise SettingError(f"{k}= is required: python -m experiments.apply model=<run dir or model .json> "
+                               f"data=<survey.csv>")
+        if not isinstance(cfg[k], str):
+            raise SettingError(f"{k}={cfg[k]!r}: must be a path")
+    if cfg.method is not None and not isinstance(cfg.method, str):
+        raise SettingError(f"method={cfg.method!r}: must be a method name or null")
+    if cfg.out is not None and not isinstance(cfg.out, str):
+        raise SettingError(f"out={cfg.out!r}: must be a directory path or null")
+    for k in ("require_meta", "overwrite"):
+        bool_setting(cfg, k)
+
+
+def run_apply(cfg: DictConfig, out_dir: Path, keep=()) -> dict:
+    """Check the settings, correct the survey, write the two files (all or none); return the meta dict.
+
+    Args:
+        cfg: the composed config. out_dir: the output directory (refused if it holds files, unless
+            ``overwrite=true``; :class:`icgo.io.files.Output`). keep: names in it to leave alone (Hydra's log).
+    Raises:
+        ValueError (ModelError, DataError, RecordError, SettingError, OutputError): one line.
+    """
+    from icgo.core.settings import config_from_mapping
+    from icgo.io.files import Output, json_text
+    from icgo.io.recording import column_map, read_recording
+    from icgo.models.registry import load_model
+    from icgo.physics.qc import QCBands
+    from icgo.survey.apply import correct_survey, output_columns_in
+    from icgo.survey.verdict import survey_verdict
+
+    check_settings(cfg)
     bands = config_from_mapping(QCBands, OmegaConf.to_container(cfg.qc, resolve=True), "qc")
+    output = Output(out_dir, setting="out" if cfg.out else "hydra.run.dir", overwrite=cfg.overwrite, keep=keep,
+                    writer="experiments.apply").check()
     mpath = model_path(Path(str(cfg.model)).expanduser())
     model = load_model(mpath)
+    data = Path(str(cfg.data)).expanduser()
     cmap = column_map(OmegaConf.to_container(cfg.columns) if cfg.get("columns") else None, cfg.get("columns_file"))
-    rec = read_recording(Path(str(cfg.data)).expanduser(), require_meta=bool(cfg.require_meta), require_reference=False,
-                         columns=cmap)
+    rec = read_recording(data, require_meta=cfg.require_meta, require_reference=False, columns=cmap)
+    held = output_columns_in(rec.frame.columns)
+    if held:
+        raise DataError(f"{data}: already holds the output columns of a correction ({', '.join(held[:4])}"
+                        f"{', ...' if len(held) > 4 else ''}): it is a corrected survey; apply the model to the "
+                        f"original survey (mixing two models' columns is refused)")
     res = correct_survey(model, rec.frame, rec.field, method=cfg.method, bands=bands)
-    stem = Path(str(cfg.data)).stem
+    stem = data.stem
     verdict = survey_verdict(res, model, rec.frame, bands, out_csv=str(out_dir / f"{stem}_corrected.csv"),
                              model_path=str(mpath), survey_path=str(cfg.data), method=cfg.method)
     meta = {"source": rec.source, "model": str(mpath), "model_kind": model.KIND,
@@ -74,9 +107,10 @@ def run_apply(cfg: DictConfig, out_dir: Path) -> dict:
             "trajectory": res.trajectory, "verdict": verdict.as_dict()}
     if rec.field is not None:
         meta.update({k: getattr(rec.field, k) for k in ("total_field_nT", "dip_deg", "declination_deg", "gravity_g")})
-    out_dir.mkdir(parents=True, exist_ok=True)
-    atomic_write_texts([(out_dir / f"{stem}_corrected.csv", res.table.to_csv(index=False, lineterminator="\n")),
-                        (out_dir / f"{stem}_corrected.meta.json", json.dumps(meta, indent=2) + "\n")])
+    with output.staged(last=(f"{stem}_corrected.meta.json",)) as stage:
+        res.table.to_csv(stage / f"{stem}_corrected.csv", index=False, lineterminator="\n")
+        (stage / f"{stem}_corrected.meta.json").write_text(json_text(meta))
+        write_hydra_record(stage, cfg)
     return meta
 
 
@@ -102,24 +136,27 @@ def report(meta: dict, out_dir: Path, stem: str) -> None:
 
 
 @hydra.main(version_base="1.3", config_path=str(CONF_DIR / "apply"), config_name="apply")
+@one_line_errors
 def main(cfg: DictConfig) -> None:
-    """Hydra task: one survey, one model."""
+    """Hydra task: one survey, one model (a bad setting exits 2, a bad model or survey 1, one line each)."""
     from hydra.core.hydra_config import HydraConfig
 
+    check_settings(cfg)  # out= among them, before it is used
     out = Path(str(cfg.out)).expanduser() if cfg.get("out") else Path(HydraConfig.get().runtime.output_dir)
-    try:
-        meta = run_apply(cfg, out)
-    except ValueError as e:
-        print(f"error: {one_line(e)}", file=sys.stderr)
-        raise SystemExit(EXIT_CONFIG) from None
-    write_hydra_record(out, cfg)
+    meta = run_apply(cfg, out, keep=hydra_keep())
     report(meta, out, Path(str(cfg.data)).stem)
     if meta["verdict"]["exit_code"]:  # far outside the training domain (icgo.survey.verdict.EXIT_OUT_OF_DOMAIN)
         raise SystemExit(meta["verdict"]["exit_code"])
 
 
-if __name__ == "__main__":
+def cli() -> None:
     from experiments._entry import preflight
 
     preflight("apply", conf_dir=CONF_DIR / "apply")
     main()
+
+
+if __name__ == "__main__":
+    from experiments._entry import guarded
+
+    guarded(cli)

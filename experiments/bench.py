@@ -67,10 +67,10 @@ features (the default) those are rounded to float32, within 1e-6 relative of
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import platform
+import re
 import subprocess
 import sys
 import tempfile
@@ -84,7 +84,8 @@ import jax.numpy as jnp
 import numpy as np
 
 import icgo  # noqa: F401  (enables float64)
-from experiments.bench_user import front_door, measure, peer_comparison
+from experiments._entry import RESULTS_DIR, results_output
+from experiments.bench_user import calibrate_front_door, front_door, measure, peer_comparison
 from icgo.datasets import protocols as datasets
 from icgo.methods import relm
 from icgo.optim import run_batch
@@ -363,7 +364,9 @@ def rows_scaling(sizes, budget: str = "smoke", repeats: int | None = None, workd
 
 # --------------------------------------------------------------------------- main
 def main(argv=None) -> dict:
-    p = argparse.ArgumentParser(prog="python -m experiments.bench", description=__doc__.split("\n\n")[0])
+    from icgo.core.settings import ArgumentParser
+
+    p = ArgumentParser(prog="python -m experiments.bench", description=__doc__.split("\n\n")[0])
     p.add_argument("--quick", action="store_true", help="small sizes everywhere (smoke use)")
     p.add_argument("--mealpy-runs", type=int, default=None,
                    help="mealpy runs to time (default: all 50, quick: 2); fewer are extrapolated and marked")
@@ -379,6 +382,9 @@ def main(argv=None) -> dict:
     p.add_argument("--skip-peers", action="store_true", help="skip the evosax comparison")
     p.add_argument("--skip-roofline", action="store_true", help="skip the per-stage roofline (experiments.roofline)")
     p.add_argument("--out", default=None, help="also write the JSON and the table to results/bench_<out>.{json,md}")
+    p.add_argument("--calibrate", action="store_true",
+                   help="only time python -m experiments.calibrate on one bundled 24-shot device, cold then warm")
+    p.add_argument("--calibrate-runs", type=int, default=3, help="--calibrate: warm runs after the cold one")
     p.add_argument("--rows", default=None,
                    help="comma list of row counts (e.g. 1e3,1e4,1e5,1e6): only measure time and peak memory of the "
                         "reader, the study and the discrepancy workflow on contract CSVs of that many rows")
@@ -387,6 +393,15 @@ def main(argv=None) -> dict:
     p.add_argument("--rows-commands", default="reader,study,discrepancy", help="--rows: which commands to run")
     p.add_argument("--rows-dir", default=None, help="--rows: directory for the CSVs and run directories")
     a = p.parse_args(argv)
+    if a.out is not None and not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}", a.out):
+        p.error(f"--out {a.out!r}: a tag of letters, digits, '.', '_', '-' (the files are results/bench_<tag>.*)")
+    if a.calibrate:
+        res = calibrate_front_door(warm_runs=a.calibrate_runs)
+        res.update(cpu_count=os.cpu_count(), loadavg_end=list(os.getloadavg()))
+        print(f"calibrate {res['data']}: cold {res['cold']['wall_s']:.1f} s, warm {res['warm_min_s']:.1f} s (min of "
+              f"{len(res['warm'])}), median {res['warm_median_s']:.1f} s")
+        print(json.dumps(res))
+        return res
     if a.rows:
         sizes = [int(float(x)) for x in a.rows.split(",")]
         if min(sizes) < 1:
@@ -587,16 +602,16 @@ def main(argv=None) -> dict:
     table += [f"| {w} | {v:.4g} | {u} | {nt} |" for w, v, u, nt in rows]
     md = "\n".join(table)
     line = json.dumps(out, default=float)
-    if a.out:  # both files or neither
-        from icgo.io.recording import atomic_write_texts
-
-        os.makedirs("results", exist_ok=True)
-        atomic_write_texts([(Path(f"results/bench_{a.out}.md"), md + "\n"),
-                            (Path(f"results/bench_{a.out}.json"), line + "\n")])
+    if a.out:  # both files or neither, into the shared results folder
+        with results_output(RESULTS_DIR, writer="experiments.bench").staged() as stage:
+            (stage / f"bench_{a.out}.md").write_text(md + "\n")
+            (stage / f"bench_{a.out}.json").write_text(line + "\n")
     print(md)
     print(line)
     return out
 
 
 if __name__ == "__main__":
-    main()
+    from icgo.core.settings import run_cli
+
+    raise SystemExit(run_cli(lambda: (main(), 0)[1]))

@@ -120,6 +120,30 @@ def front_door(workdir=None, extra=()) -> dict:
     return out
 
 
+def calibrate_front_door(data: str = "icgo/data/mag_cal/ab.json", warm_runs: int = 3, workdir=None) -> dict:
+    """Wall time of ``python -m experiments.calibrate data=<one 24-shot device>``, each run a fresh process.
+
+    One compilation cache that starts empty: ``cold`` (the first run compiles and fills it), then
+    ``warm_runs`` runs of the same command (the cache holds their programs; what is left is the imports,
+    tracing and lowering, the fits, the peer package and the figure).
+
+    Returns:
+        {"cold": {"wall_s", "peak_rss_gb", "rc"}, "warm": [...], "warm_min_s", "warm_median_s", "data"}.
+    """
+    work = Path(workdir or tempfile.mkdtemp(prefix="icgo-calibrate-"))
+    cmd = [sys.executable, "-m", "experiments.calibrate", f"data={data}", f"jax_cache_dir={work / 'cache'}"]
+    runs = []
+    for k in range(1 + warm_runs):
+        m = measure(cmd + [f"hydra.run.dir={work / f'run{k}'}"])
+        if m["rc"] != 0:
+            raise RuntimeError(f"calibrate run {k} failed (exit {m['rc']}): {m['tail'].strip().splitlines()[-1:]}")
+        runs.append({key: m[key] for key in ("wall_s", "peak_rss_gb", "rc")})
+        print(f"  calibrate {'cold' if k == 0 else 'warm'}: {m['wall_s']:.1f} s", file=sys.stderr, flush=True)
+    warm = [r["wall_s"] for r in runs[1:]]
+    return {"data": data, "cold": runs[0], "warm": runs[1:], "warm_min_s": min(warm),
+            "warm_median_s": float(sorted(warm)[len(warm) // 2])}
+
+
 def _table_diff(single: Path, other: Path) -> float:
     """Largest absolute difference of the CGO methods' metrics between a run (or a sweep's jobs) and ``single``."""
     import pandas as pd

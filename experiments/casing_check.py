@@ -90,7 +90,7 @@ def main(argv=None) -> int:
 
     df = compare()
     noise = float(datasets.lab_casing(0).truth["mag_noise_nT"])
-    from experiments._entry import staged_results
+    from icgo.io.files import staged_results
 
     at_lab = df[(df.distance_m == 1.0) & (df.model == "pole_pair")].iloc[0]
     from icgo.reporting.protocol import protocol_line

@@ -28,7 +28,6 @@ the paper's published numbers in adjacent columns, ``table3_stats.*``
 
 from __future__ import annotations
 
-import argparse
 import contextvars
 import subprocess
 import sys
@@ -1227,13 +1226,14 @@ def _clock(seconds: float) -> str:
     return f"{m // 60}:{m % 60:02d}:{sec:02d}" if m >= 60 else f"{m}:{sec:02d}"
 
 
-def run_plan(base: Path, jobs: int, extra=()) -> list[Path]:
-    """Run the preset plan (:data:`PLAN`) as multiruns under ``base``; return their sweep dirs.
+def run_plan(base: Path, jobs: int, extra=()) -> tuple[list[Path], list[str]]:
+    """Run the preset plan (:data:`PLAN`) as multiruns under ``base``; return their sweep dirs and the names
+    of the presets whose sweep did not finish (exit status not 0).
 
     Before each entry a line ``[k/N] <entry>: J job(s), elapsed, ETA``; the ETA is the time per job of the
     entries done so far times the jobs left (none before the first entry has finished).
     """
-    dirs = []
+    dirs, failed = [], []
     counts = [plan_jobs(preset, overrides) for _, preset, overrides in PLAN]
     total, done, t0 = sum(counts), 0, time.perf_counter()
     print(f"plan: {len(PLAN)} entries, {total} jobs, into {base}", flush=True)
@@ -1252,35 +1252,69 @@ def run_plan(base: Path, jobs: int, extra=()) -> list[Path]:
         print(f"  {name}: exit {rc}, {time.perf_counter() - t:.0f} s", flush=True)
         done += n
         dirs.append(d)
-    return dirs
+        if rc:
+            failed.append(name)
+    return dirs, failed
+
+
+def check_plan_overrides(extra) -> None:
+    """SettingError (one line) for an ``--override`` the study would refuse, before any preset runs."""
+    from experiments._entry import check_overrides, check_plain_overrides
+    from icgo.core.errors import SettingError
+
+    for ov in extra:
+        if ov.startswith("-") or "=" not in ov.lstrip("+~"):
+            raise SettingError(f"--override {ov!r}: expected key=value (a Hydra override of experiments.run)")
+    err = check_overrides(list(extra)) or check_plain_overrides(list(extra), "config")
+    if err:
+        raise SettingError(f"--override: {err}")
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    from icgo.core.settings import ArgumentParser
+
+    ap = ArgumentParser(prog="python -m experiments.figures", description=__doc__.split("\n\n")[0])
     ap.add_argument("dirs", nargs="*", help="run/multirun directories to collect (default: run the presets)")
-    ap.add_argument("--out", default=str(Path(__file__).resolve().parent.parent / "results"))
+    ap.add_argument("--out", default=str(Path(__file__).resolve().parent.parent / "results"),
+                    help="results/ (default: its tables and figures are replaced) or a directory of its own")
+    ap.add_argument("--overwrite", action="store_true", help="replace a used --out directory (not results/) whole")
     ap.add_argument("--jobs", type=int, default=None,
                     help="jobs at once for the preset plan (icgo_local launcher; default one per core)")
     ap.add_argument("--override", action="append", default=[], help="extra Hydra override for the preset plan")
     a = ap.parse_args(argv)
+    from experiments._entry import results_output
+    from icgo.core.errors import SettingError
+
+    if a.jobs is not None and a.jobs < 1:
+        raise SettingError(f"--jobs {a.jobs}: must be >= 1")
+    if a.override and a.dirs:
+        raise SettingError("--override applies to the preset plan; it has no effect when run directories are given")
+    check_plan_overrides(a.override)
+    for d in a.dirs:
+        if not Path(d).is_dir():
+            raise SettingError(f"{d!r}: not a directory (give run or multirun directories to collect)")
+    output = results_output(a.out, overwrite=a.overwrite, writer="experiments.figures")
     t0 = time.perf_counter()
-    dirs = a.dirs
+    dirs, failed = a.dirs, []
     if not dirs:
         stamp = time.strftime("%Y-%m-%d_%H-%M-%S")
-        dirs = run_plan(Path("multirun") / f"figures-{stamp}", a.jobs, a.override)
-    from experiments._entry import staged_results
-
-    out = Path(a.out)
-    with staged_results(out) as stage:  # all tables and figures move in together, or none (Ctrl-C, full disk)
+        dirs, failed = run_plan(Path("multirun") / f"figures-{stamp}", a.jobs, a.override)
+    with output.staged() as stage:  # all tables and figures move in together, or none (Ctrl-C, full disk)
         done = build(dirs, stage)
         complete = not (stage / "tables_missing.txt").exists()
     if complete:  # nothing missing now: an old list must not stay beside the new results
-        (out / "tables_missing.txt").unlink(missing_ok=True)
+        (output.path / "tables_missing.txt").unlink(missing_ok=True)
     for name, ok in done.items():
         print(f"{name}: {'written' if ok is True else ok}")
     print(f"figures: {time.perf_counter() - t0:.0f} s, output in {a.out}")
+    if failed:
+        print(f"error: {len(failed)} of {len(PLAN)} preset sweep(s) did not finish ({', '.join(failed)}); their "
+              f"tables are missing or incomplete", file=sys.stderr)
+        return 1
     return 0
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from icgo.core.settings import run_cli
+
+    raise SystemExit(run_cli(main))

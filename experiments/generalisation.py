@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import io as _io
 import sys
-from pathlib import Path
 
 from icgo.reporting.names import METHOD_NAMES  # noqa: E402  (light: no JAX)
 
@@ -34,12 +33,18 @@ def parser() -> argparse.ArgumentParser:
     from icgo.studies.generalisation import GeneralisationConfig
 
     d = GeneralisationConfig()
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    from experiments._entry import RESULTS_DIR
+    from icgo.core.settings import ArgumentParser
+
+    ap = ArgumentParser(prog="python -m experiments.generalisation", description=__doc__,
+                        formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--n-repeats", type=int, default=d.n_repeats)
     ap.add_argument("--iterations", type=int, default=d.iterations)
     ap.add_argument("--pop-size", type=int, default=d.pop_size)
     ap.add_argument("--seed", type=int, default=d.seed)
-    ap.add_argument("--out", default="results")
+    ap.add_argument("--out", default=str(RESULTS_DIR),
+                    help="results/ (default: its generalisation files are replaced) or a directory of its own")
+    ap.add_argument("--overwrite", action="store_true", help="replace a used --out directory (not results/) whole")
     return ap
 
 
@@ -56,8 +61,6 @@ def _bands() -> str:
 
 def markdown(rec: dict, config, seconds: dict) -> str:
     """The Markdown report: MAE table (mean +/- std), significance marks, coverage table, noise floors."""
-    import pandas as pd
-
     from icgo.maths.stats import format_mean_std, mean_std
 
     from icgo.reporting.protocol import ALPHA, protocol_line
@@ -147,7 +150,7 @@ def markdown(rec: dict, config, seconds: dict) -> str:
               f"- Transfer target: noise seed {tr.seed}, casing position x {tr.casing_distance_scale}, "
               f"magnetization x {tr.casing_strength_scale}, magnetometer misalignment + {list(tr.misalignment_deg)} "
               "deg (chosen before any run; docs/generalisation.md).",
-              f"- Seconds per cell: " + ", ".join(f"{k} {v:.0f} s" for k, v in seconds.items()) + "."]
+              "- Seconds per cell: " + ", ".join(f"{k} {v:.0f} s" for k, v in seconds.items()) + "."]
     return "\n".join(lines) + "\n"
 
 
@@ -185,13 +188,11 @@ def figure(rec: dict) -> bytes:
 def main(argv=None) -> int:
     args = parser().parse_args(sys.argv[1:] if argv is None else argv)
     import dataclasses
-    import os
-    import tempfile
 
     import jax
 
+    from experiments._entry import results_output
     from icgo.core.errors import SettingError
-    from icgo.io.recording import atomic_write_texts
     from icgo.studies.generalisation import GeneralisationConfig, build_data, run
 
     try:
@@ -200,27 +201,22 @@ def main(argv=None) -> int:
     except SettingError as e:
         print(f"error: --{e.field.replace('_', '-')} {e.problem}" if e.field else f"error: {e}", file=sys.stderr)
         return 2
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    output = results_output(args.out, overwrite=args.overwrite, writer="experiments.generalisation")
+    out = output.path
     res = run(build_data(config), config, jax.random.PRNGKey(config.seed), progress=lambda s: print(s, flush=True))
     rec = res.records
     png = figure(rec)
-    fd, tmp = tempfile.mkstemp(prefix=".generalisation.png.", dir=out)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(png)
-        atomic_write_texts([(out / "generalisation.md", markdown(rec, config, res.seconds)),
-                            (out / "generalisation.csv", rec["metrics"].to_csv(index=False)),
-                            (out / "generalisation_coverage.csv", rec["coverage"].to_csv(index=False)),
-                            (out / "generalisation_tests.csv", rec["tests"].to_csv(index=False)),
-                            (out / "generalisation_qc.csv", rec["qc"].to_csv(index=False))])
-        os.chmod(tmp, 0o644)  # mkstemp creates 0600; the figure is a result like the others
-        os.replace(tmp, out / "generalisation.png")
-    finally:  # a failed write leaves the previous files and no temp file
-        Path(tmp).unlink(missing_ok=True)
+    with output.staged(last=("generalisation.md",)) as stage:
+        (stage / "generalisation.png").write_bytes(png)
+        (stage / "generalisation.md").write_text(markdown(rec, config, res.seconds))
+        for name in ("metrics", "coverage", "tests", "qc"):
+            suffix = "" if name == "metrics" else f"_{name}"
+            (stage / f"generalisation{suffix}.csv").write_text(rec[name].to_csv(index=False))
     print((out / "generalisation.md").read_text())
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from icgo.core.settings import run_cli
+
+    sys.exit(run_cli(main))

@@ -25,7 +25,8 @@ import numpy as np
 import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
-from experiments._entry import enable_jax_cache, staged_results, study_main
+from experiments._entry import enable_jax_cache, one_line_errors, study_main
+from icgo.io.files import Output, staged_results
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -226,6 +227,7 @@ def run(cfg: DictConfig, models_dir: Path | None = None, config=None) -> dict:
         enable_jax_cache(str(p if p.is_absolute() else ROOT / p))
     out = Path(str(cfg.out_dir))
     out = out if out.is_absolute() else ROOT / out
+    Output(out, setting="out_dir", shared=True).check()  # a file in the way, a read-only folder: before the study
     t_start = time.perf_counter()
     data = study.load_data(config)
     result = study.run(data, config, jax.random.PRNGKey(config.seed))
@@ -241,13 +243,20 @@ def run(cfg: DictConfig, models_dir: Path | None = None, config=None) -> dict:
 
 
 @hydra.main(config_path="../conf", config_name="gyro", version_base="1.3")
+@one_line_errors
 def main(cfg: DictConfig) -> None:
     """Hydra entry point: ``python -m experiments.gyro [overrides]``; a bad setting exits 2 with one line."""
     study_main(cfg, study_config, run)
 
 
-if __name__ == "__main__":
+def cli() -> None:
     from experiments._entry import preflight
 
     preflight("gyro")
     main()
+
+
+if __name__ == "__main__":
+    from experiments._entry import guarded
+
+    guarded(cli)

@@ -20,7 +20,8 @@ import hydra
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from experiments._entry import staged_results, study_main
+from experiments._entry import one_line_errors, study_main
+from icgo.io.files import Output, staged_results
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -235,6 +236,7 @@ def run(cfg: DictConfig, models_dir: Path | None = None, config=None):
     config = study_config(cfg) if config is None else config
     out = Path(str(cfg.out_dir))
     out = out if out.is_absolute() else ROOT / out
+    Output(out, setting="out_dir", shared=True).check()  # a file in the way, a read-only folder: before the study
     result = study.run(None, config, jax.random.PRNGKey(config.seed))
     with staged_results(out, last="misma_summary.json") as stage:
         write_results(result, OmegaConf.to_container(cfg, resolve=True), stage, models_dir, config)
@@ -244,13 +246,20 @@ def run(cfg: DictConfig, models_dir: Path | None = None, config=None):
 
 
 @hydra.main(config_path="../conf", config_name="misma", version_base="1.3")
+@one_line_errors
 def main(cfg: DictConfig) -> None:
     """Hydra entry point: ``python -m experiments.misma [overrides]``; a bad setting exits 2 with one line."""
     study_main(cfg, study_config, run)
 
 
-if __name__ == "__main__":
+def cli() -> None:
     from experiments._entry import preflight
 
     preflight("misma")
     main()
+
+
+if __name__ == "__main__":
+    from experiments._entry import guarded
+
+    guarded(cli)

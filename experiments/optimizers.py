@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import os
 import sys
 
 import pandas as pd
@@ -34,7 +33,11 @@ def parser() -> argparse.ArgumentParser:
     from icgo.studies.optimizers import OptimizerStudyConfig
 
     d = OptimizerStudyConfig()
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    from experiments._entry import RESULTS_DIR
+    from icgo.core.settings import ArgumentParser
+
+    ap = ArgumentParser(prog="python -m experiments.optimizers", description=__doc__,
+                        formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--dims", type=int, nargs="+", default=list(d.dims))
     ap.add_argument("--runs", type=int, default=d.runs)
     ap.add_argument("--pop-size", type=int, default=d.pop_size)
@@ -49,7 +52,9 @@ def parser() -> argparse.ArgumentParser:
                     help="a subset of the study functions (a follow-up of single cells with more runs)")
     ap.add_argument("--methods", nargs="+", default=d.methods, metavar="LABEL",
                     help="a subset of our methods by label, e.g. 'icgo (paper, three_stage)' pso")
-    ap.add_argument("--out", default="results")
+    ap.add_argument("--out", default=str(RESULTS_DIR),
+                    help="results/ (default: its optimizers files are replaced) or a directory of its own")
+    ap.add_argument("--overwrite", action="store_true", help="replace a used --out directory (not results/) whole")
     return ap
 
 
@@ -71,7 +76,9 @@ def main(argv=None):
         study.study_functions(None, cfg)
     except SettingError as e:
         ap.error(f"--{e.field.replace('_', '-')}: {e.problem}" if e.field else str(e))
-    os.makedirs(args.out, exist_ok=True)
+    from experiments._entry import results_output
+
+    output = results_output(args.out, overwrite=args.overwrite, writer="experiments.optimizers")
     log = logging.getLogger(study.__name__)  # progress lines of the study, not every library's INFO
     if not log.handlers:
         handler = logging.StreamHandler(sys.stdout)
@@ -80,10 +87,10 @@ def main(argv=None):
         log.setLevel(logging.INFO)
     res = study.run(None, cfg, jax.random.PRNGKey(cfg.seed))
     rec = res.records
-    rec["cells"].to_csv(os.path.join(args.out, "optimizers_table.csv"), index=False)
-    rec["runs"].drop(columns="evals").to_csv(os.path.join(args.out, "optimizers_runs.csv"), index=False)
-    with open(os.path.join(args.out, "optimizers.md"), "w") as fh:
-        fh.write("\n".join(markdown(res, argv)) + "\n")
+    with output.staged(last=("optimizers.md",)) as stage:
+        rec["cells"].to_csv(stage / "optimizers_table.csv", index=False)
+        rec["runs"].drop(columns="evals").to_csv(stage / "optimizers_runs.csv", index=False)
+        (stage / "optimizers.md").write_text("\n".join(markdown(res, argv)) + "\n")
     print(rec["summary"].to_string(index=False))
 
 
@@ -171,4 +178,6 @@ def markdown(res, argv) -> list[str]:
 
 
 if __name__ == "__main__":
-    main()
+    from icgo.core.settings import run_cli
+
+    sys.exit(run_cli(main))

@@ -68,7 +68,6 @@ if __name__ == "__main__":  # one XLA thread on one core, set before JAX is impo
     except (AttributeError, OSError):  # no affinity on this OS or in this container: one thread still holds
         pass
 
-import argparse  # noqa: E402
 import json  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -283,16 +282,23 @@ def table(res: dict) -> str:
 
 
 def main(argv=None) -> dict:
-    p = argparse.ArgumentParser(prog="python -m experiments.roofline", description=__doc__.split("\n\n")[0])
+    from icgo.core.settings import ArgumentParser
+
+    p = ArgumentParser(prog="python -m experiments.roofline", description=__doc__.split("\n\n")[0])
     p.add_argument("--batch", type=int, default=None, help="thetas per call (default 1200, quick 120)")
     p.add_argument("--chunk", type=int, default=10, help="thetas per lax.map step of the kernel")
     p.add_argument("--refine", type=int, default=2, help="refinement steps")
     p.add_argument("--reps", type=int, default=None, help="timing rounds, best taken (default 7, quick 3)")
     p.add_argument("--quick", action="store_true", help="batch 120 and 3 rounds (smoke use, under a minute)")
-    p.add_argument("--out", default=None, help="also write the JSON object to this file")
+    p.add_argument("--out", default=None, help="also write the JSON object to this file (refused if it exists)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     a = p.parse_args(argv)
-    batch = a.batch or (120 if a.quick else 1200)
-    reps = a.reps or (3 if a.quick else 7)
+    if a.out:
+        from icgo.io.files import check_output_file
+
+        check_output_file(a.out, overwrite=a.overwrite, setting="--out", overwrite_hint="--overwrite")
+    batch = a.batch if a.batch is not None else (120 if a.quick else 1200)
+    reps = a.reps if a.reps is not None else (3 if a.quick else 7)
     if batch < 1 or a.chunk < 1 or a.refine < 0 or reps < 1:
         p.error("--batch, --chunk and --reps must be >= 1 and --refine >= 0")
     res = {"loadavg_start": list(os.getloadavg())}
@@ -304,11 +310,18 @@ def main(argv=None) -> dict:
     if a.out:
         from icgo.io.recording import atomic_write_texts
 
-        atomic_write_texts([(Path(a.out), line + "\n")])
+        try:
+            atomic_write_texts([(Path(a.out), line + "\n")])
+        except OSError as e:
+            from icgo.core.errors import OutputError
+
+            raise OutputError(f"--out {a.out!r}: writing failed ({e.strerror}); nothing was written") from None
     print(table(res))
     print(line)
     return res
 
 
 if __name__ == "__main__":
-    main()
+    from icgo.core.settings import run_cli
+
+    raise SystemExit(run_cli(lambda: (main(), 0)[1]))

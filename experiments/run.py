@@ -32,7 +32,7 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from experiments._entry import CONF_DIR, EXIT_CONFIG, check_overrides, preflight
+from experiments._entry import CONF_DIR, EXIT_CONFIG, check_overrides, one_line_errors, preflight
 
 log = logging.getLogger(__name__)
 
@@ -55,14 +55,33 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
 
     t0 = time.perf_counter()
     previous = E.previous_run(outdir)
-    if previous is not None and not cfg.overwrite:
-        if multirun:  # re-running a sweep into its directory resumes it: a finished job is kept
+    if previous is not None and multirun and cfg.overwrite is not True:
+        # Re-running a sweep into its directory resumes it: a finished job is kept only when it ran this
+        # job's configuration (its hash); one of another configuration is refused, never taken for this job.
+        there = C.stored_hash(outdir, previous)
+        if there is not None and there == C.cfg_hash(cfg):
             log.info("kept the finished job in %s (overwrite=true reruns it)", outdir)
             (outdir / E.FAILED).unlink(missing_ok=True)
             return previous
+        old = C.stored_config(outdir)
+        diff = C.config_difference(old, OmegaConf.to_container(cfg, resolve=True)) if old else \
+            "it records no readable config"
+        log.error("refused: %s holds a finished run of another configuration (%s); it is left as it was "
+                  "(overwrite=true redoes the job, or choose another hydra.sweep.dir)", outdir, diff)
+        return None
+    if previous is not None and not multirun and cfg.overwrite is not True:
         print(f"error: {outdir} already holds a complete run; choose another hydra.run.dir or pass overwrite=true "
               f"(the old run is then replaced whole)", file=sys.stderr)
         raise SystemExit(EXIT_CONFIG)
+    try:
+        C.check_config(cfg)
+        C.run_output(outdir, overwrite=E.bool_setting(cfg, "overwrite"))
+    except ValueError as e:
+        if multirun:
+            E.write_failure(outdir, E.one_line(e))
+            log.error("job failed: %s", E.one_line(e))
+            return None
+        E.fail_line(e)
     try:
         scfg = C.study_config(cfg)  # every check before any computation
         bar = C.progress_enabled(cfg.progress)
@@ -76,10 +95,7 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
             E.write_failure(outdir, E.one_line(e), E.format_traceback(e))
             log.error("job failed: %s", E.one_line(e))
             return None
-        outdir.mkdir(parents=True, exist_ok=True)
-        (outdir / "error.txt").write_text(E.format_traceback(e))
-        print(f"error: {E.one_line(e)}", file=sys.stderr)
-        raise SystemExit(EXIT_CONFIG) from None
+        E.fail_line(e)
     except Exception as e:
         if not multirun:
             raise
@@ -106,11 +122,12 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
         plot = _plot
     try:
         run = C.write_outputs(outdir, cfg, result, info, frame, meta, plot)
-    except OSError as e:  # a full disk, a read-only directory: the previous run (if any) is intact
-        print(f"error: writing the run directory {outdir} failed ({e.strerror or e}); "
-              f"{'the previous run there is unchanged' if (outdir / 'run.json').exists() else 'no run was written'}",
-              file=sys.stderr)
-        raise SystemExit(EXIT_CONFIG) from None
+    except ValueError as e:  # OutputError (a full disk, a read-only directory): the previous run is intact
+        if multirun:
+            E.write_failure(outdir, E.one_line(e))
+            log.error("job failed: %s", E.one_line(e))
+            return None
+        E.fail_line(e)
     table = C.summary_table(result).drop(columns=["method"])
     print(f"\nICGO-RELM study on {desc}: test split, {len(result.config.ids())} repeats (mean +/- std)")
     print(table.to_markdown(index=False))
@@ -126,6 +143,7 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
 
 
 @hydra.main(version_base="1.3", config_path=str(CONF_DIR), config_name="config")
+@one_line_errors
 def app(cfg: DictConfig) -> None:
     """Hydra task function: one job of a run or a sweep."""
     from hydra.core.hydra_config import HydraConfig
@@ -151,4 +169,6 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    from experiments._entry import guarded
+
+    guarded(main)

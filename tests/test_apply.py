@@ -103,7 +103,7 @@ def test_bad_model_files_are_one_line_errors(setup, tmp_path):
 
 
 def test_cli_survey_lacking_sensor_columns_is_one_line(setup, tmp_path):
-    """A survey without bz: one line on stderr, exit 2, nothing written (run in a fresh process)."""
+    """A survey without bz: one line on stderr, exit 1 (bad data), nothing written (run in a fresh process)."""
     _, _, path, survey = setup
     frame = pd.read_csv(survey).drop(columns=["bz"])
     bad = tmp_path / "nobz.csv"
@@ -112,5 +112,69 @@ def test_cli_survey_lacking_sensor_columns_is_one_line(setup, tmp_path):
                         f"out={tmp_path / 'o'}"], capture_output=True, text=True, timeout=300,
                        env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"}, cwd=tmp_path)
     lines = [x for x in p.stderr.strip().splitlines() if "xla_bridge" not in x and "libtpu" not in x]
-    assert p.returncode == 2 and len(lines) == 1 and lines[0].startswith("error: ") and "bz" in lines[0], p.stderr
+    assert p.returncode == 1 and len(lines) == 1 and lines[0].startswith("error: ") and "bz" in lines[0], p.stderr
     assert not (tmp_path / "o").exists()
+
+
+def test_every_kinds_output_is_a_known_output_column():
+    """A survey holding any column a correction writes is refused as input (never mixed): the list must hold every
+    kind's output and the QC columns."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import hostile_models
+
+    from icgo.physics.qc import survey_qc
+    from icgo.survey.apply import OUTPUT_COLUMNS, QC_COLUMNS
+
+    survey = hostile_models.survey()
+    for model in hostile_models.models().values():
+        assert set(model.apply(survey).columns) - {"station", "azimuth_raw_deg"} <= OUTPUT_COLUMNS, model.KIND
+    G = survey[["gx", "gy", "gz"]].to_numpy()
+    B = survey[["bx", "by", "bz"]].to_numpy()
+    assert tuple(survey_qc(G, B, 50_000.0, 60.0).table.columns) == QC_COLUMNS
+
+
+def test_a_corrected_survey_is_refused_never_mixed(setup, tmp_path):
+    _, _, path, survey = setup
+    run_apply(_cfg([f"model={path}", f"data={survey}"]), tmp_path / "first")
+    corrected = tmp_path / "first" / "survey_corrected.csv"
+    with pytest.raises(ValueError, match="output columns of a correction"):
+        run_apply(_cfg([f"model={path}", f"data={corrected}", "require_meta=false"]), tmp_path / "second")
+    assert not (tmp_path / "second").exists()
+
+
+def test_a_used_output_directory_is_refused_then_replaced_whole(setup, tmp_path):
+    _, _, path, survey = setup
+    out = tmp_path / "out"
+    run_apply(_cfg([f"model={path}", f"data={survey}"]), out)
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    with pytest.raises(ValueError, match="already holds files"):
+        run_apply(_cfg([f"model={path}", f"data={survey}"]), out)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    (out / "stale.txt").write_text("old")
+    run_apply(_cfg([f"model={path}", f"data={survey}", "overwrite=true"]), out)
+    assert not (out / "stale.txt").exists()
+
+
+@pytest.mark.parametrize("value", ["maybe", "'false'", "0", "null"])
+def test_require_meta_takes_only_true_or_false(setup, tmp_path, value):
+    _, _, path, survey = setup
+    with pytest.raises(ValueError, match="require_meta=.*must be true or false"):
+        run_apply(_cfg([f"model={path}", f"data={survey}", f"require_meta={value}"]), tmp_path / "o")
+
+
+def test_another_devices_calibration_is_said_in_a_notice():
+    """Device ab's ellipsoid calibration: its own shots give one earth field (no notice); device jd's do not."""
+    from icgo.io.recording import load_mag_cal_device
+    from icgo.methods.calibration import ellipsoid_fit
+    from icgo.models.calibration import mag_calibration
+    from icgo.survey.apply import correct_survey
+
+    ab = load_mag_cal_device("ab")
+    scale = float(np.median(np.linalg.norm(ab.B, axis=1)))
+    model = mag_calibration("ellipsoid", ellipsoid_fit(ab.B / scale, 1.0), ab.G, ab.B / scale, {},
+                            field_scale_nT=scale)
+    model = dataclasses.replace(model, x_mag=np.r_[model.x_mag[:9], model.x_mag[9:] * scale], field_scale_nT=1.0)
+    own = correct_survey(model, ab.frame).notices
+    other = correct_survey(model, load_mag_cal_device("jd").frame).notices
+    assert not any("one earth field" in n for n in own), own
+    assert any("one earth field" in n for n in other), other

@@ -37,6 +37,9 @@ def _compose(*overrides):
 def test_conf_yaml_equals_the_dataclass_defaults():
     composed = {k: v for k, v in OmegaConf.to_container(_compose(), resolve=True).items() if k not in entry.ENTRY_KEYS}
     assert composed == config_to_mapping(C.CalibrationConfig())
+    # the compilation cache is the study app's (conf/config.yaml), restated here and kept equal
+    app = OmegaConf.load(CONF_DIR / "config.yaml")
+    assert OmegaConf.load(CONF_DIR / "calibrate.yaml").jax_cache_dir == app.jax_cache_dir
 
 
 def _one_field(n=40, seed=0, F=50_000.0, dip=60.0):
@@ -126,7 +129,10 @@ def test_front_door_on_a_raw_layout_json(tmp_path):
 
 @pytest.mark.parametrize("args,code,match", [
     ([], 2, "data= is required"),
-    (["data=bundled", "mag_axes=+x+y+z"], 2, "mag_axes / grav_axes apply"),
+    (["data=bundled", "mag_axes=+x+y+z"], 2, "mag_axes / grav_axes / groups apply to a file"),
+    ([f"data={io._mag_cal_dir().joinpath('ab.json')}", "groups=[8-15,12-20]"], 2, "groups ranges 8-15 and 12-20 overlap"),
+    ([f"data={io._mag_cal_dir().joinpath('ab.json')}", "groups=[8-10]"], 2, "range 8-10 holds 3 shot(s)"),
+    ([f"data={io._mag_cal_dir().joinpath('ab.json')}", "groups=[8-23]"], 1, "group 8 (shots 8-23) is not a plausible roll"),
     ([f"data={io._mag_cal_dir().joinpath('ab.json')}", "mag_axes=+x+y+z"], 2, "device frame already"),
     (["data=x.json", "misma_iter=0"], 2, "misma_iter must be an integer >= 1"),
     (["data=x.csv", "+no_such=1"], 2, "unknown setting"),
@@ -309,3 +315,105 @@ def test_misma_bounds_option_reaches_the_search_and_is_recorded():
     assert header["misma_box_lb"][9:] == [-68_000.0] * 3 and header["misma_box_ub"][:9] == [128.0] * 9
     with pytest.raises(SettingError, match="misma_bounds must be one of around_lsq, paper"):
         C.CalibrationConfig(misma_bounds="wide")
+
+
+def _fits_table(rows):
+    """A calibration table (the columns evaluate writes) from (split, method, score, degenerate) rows."""
+    return pd.DataFrame([{"recording": "r", "split": sp, "method": m, "score_deg": np.nan if d else sc,
+                          "degenerate": d} for sp, m, sc, d in rows])
+
+
+def test_recommend_picks_the_lowest_held_out_sound_method_and_says_when_it_is_not_clear():
+    rows = [("in-sample", "twelve+axis", 0.5, False), ("held-out group 8", "twelve+axis", 0.50, False),
+            ("held-out group 9", "twelve+axis", 0.70, False),
+            ("in-sample", "twelve+axis+relm", 0.2, False), ("held-out group 8", "twelve+axis+relm", 0.30, False),
+            ("held-out group 9", "twelve+axis+relm", 0.50, False),
+            ("in-sample", "joint", 0.1, False), ("held-out group 8", "joint", 0.1, True),
+            ("held-out group 9", "joint", 0.1, False)]
+    r = C.recommend(_fits_table(rows), "r")
+    # joint is best where it is sound but has a degenerate fit: never recommended
+    assert r["method"] == "twelve+axis+relm" and r["model"] == "models/r_twelve_axis_relm.json"
+    assert r["held_out_deg"] == pytest.approx(0.4) and r["runner_up"] == "twelve+axis"
+    assert r["spread_deg"] == pytest.approx(np.std([0.3, 0.5], ddof=1) / np.sqrt(2))  # 0.1
+    assert r["clear_winner"] and "a clear winner" in r["sentence"]  # margin 0.2 > 0.1
+    close = [(sp, m, sc + (0.15 if m == "twelve+axis+relm" and sp != "in-sample" else 0.0), d) for sp, m, sc, d in rows]
+    r = C.recommend(_fits_table(close), "r")
+    assert r["method"] == "twelve+axis+relm" and not r["clear_winner"] and "no clear winner" in r["sentence"]
+    # no held-out split: in-sample decides, never a clear winner
+    r = C.recommend(_fits_table([x for x in rows if x[0] == "in-sample" and x[1] != "joint"]), "r")
+    assert r["method"] == "twelve+axis+relm" and r["spread_deg"] is None and not r["clear_winner"]
+    assert "in-sample" in r["criterion"]
+    with pytest.raises(ValueError, match="every calibration method has a degenerate fit"):
+        C.recommend(_fits_table([("in-sample", "joint", 0.1, True)]), "r")
+
+
+def test_splits_of_one_roll_hold_out_its_interleaved_halves():
+    groups = np.r_[np.arange(8), [8] * 8]
+    labels = [s[0] for s in C.splits(groups)]
+    assert labels == ["in-sample", "held-out half of group 8 (odd shots)", "held-out half of group 8 (even shots)"]
+    _, train, score = C.splits(groups)[1]
+    assert score.tolist() == [False] * 8 + [False, True] * 4 and (train == ~score).all()
+    assert [s[0] for s in C.splits(np.r_[np.arange(8), [8] * 6])] == ["in-sample"]
+
+
+def test_apply_takes_the_model_a_calibrate_run_recommends(tmp_path):
+    from experiments.apply import model_path
+    from icgo.core.errors import RecordError
+
+    run = tmp_path / "run"
+    (run / "models").mkdir(parents=True)
+    rec = {"model": "models/x_joint.json", "method": "joint", "criterion": "c", "held_out_deg": 0.4,
+           "spread_deg": 0.1, "clear_winner": True, "runner_up": "twelve+axis"}
+    (run / "calibration.json").write_text(json.dumps({"recommendation": rec, "recommendations": {"x": rec}}))
+    assert model_path(run) == run / "models" / "x_joint.json"
+    (run / "calibration.json").write_text(json.dumps({"recommendations": {"a": {"model": "models/a.json"},
+                                                                          "b": {"model": "models/b.json"}}}))
+    with pytest.raises(RecordError, match="one per recording: models/a.json, models/b.json"):
+        model_path(run)
+    (run / "calibration.json").write_text(json.dumps({"recommendation": {**rec, "model": "../../etc/x.json"}}))
+    with pytest.raises(RecordError, match="inside the run directory"):
+        model_path(run)
+
+
+@pytest.mark.slow
+def test_front_door_on_a_16_shot_json_recommends_and_apply_uses_it(tmp_path):
+    from mag_cal_files import device_attitudes, synth, write_fixture
+
+    A, I, T = device_attitudes("hj2")
+    G, B = synth("hj2", A[:16], I[:16], T[:16], noise_g=3e-4 * 3, noise_b_nT=15 * 10, seed=4)
+    path = tmp_path / "hj2_16.json"
+    write_fixture(path, G, B)
+    out = _run_entry(tmp_path, f"data={path}", *FAST)
+    assert out.returncode == 0, out.stderr
+    run = tmp_path / "run"
+    record = json.loads((run / "calibration.json").read_text())
+    r = record["recommendation"]
+    assert set(r) == {"model", "method", "criterion", "held_out_deg", "spread_deg", "clear_winner", "runner_up"}
+    assert (run / r["model"]).is_file() and r["method"] in C.METHODS and isinstance(r["clear_winner"], bool)
+    assert [x["shots"] for x in record["recordings"]["hj2_16"]["rolls"]] == ["8-15"]
+    text = (run / "report.md").read_text()
+    assert "## Recommendation" in text and f"Apply `{r['method']}`" in text and "held-out half of group 8" in text
+    fits = pd.read_csv(run / "calibration.csv")
+    assert set(fits.split) == {"in-sample", "held-out half of group 8 (odd shots)",
+                               "held-out half of group 8 (even shots)"}
+    survey = tmp_path / "survey.csv"
+    io.write_recording(survey, io.load_mag_cal_device("hj2").frame.drop(columns="group"), {}, require_reference=False)
+    applied = subprocess.run([sys.executable, "-m", "experiments.apply", f"model={run}", f"data={survey}",
+                              f"out={tmp_path / 'applied'}"], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert applied.returncode == 0, applied.stderr
+    meta = json.loads((tmp_path / "applied" / "survey_corrected.meta.json").read_text())
+    assert meta["model"] == str(run / r["model"])
+
+
+@pytest.mark.slow
+def test_front_door_names_a_missing_mounting(tmp_path):
+    from mag_cal_files import device_attitudes, synth, write_raw
+
+    G, B = synth("ai", *device_attitudes("ai"))
+    path = tmp_path / "raw.json"
+    write_raw(path, G, B, "-y+x+z", "+z-x-y", keys=False)
+    out = _run_entry(tmp_path, f"data={path}", *FAST)
+    err = out.stderr.strip()
+    assert out.returncode == 1 and len(err.splitlines()) == 1 and "probable cause: the mounting is not given" in err
+    out = _run_entry(tmp_path, f"data={path}", "mag_axes=-y+x+z", "grav_axes=+z-x-y", *FAST)
+    assert out.returncode == 0, out.stderr

@@ -18,7 +18,7 @@ import pytest
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 from hydra.core.hydra_config import HydraConfig
-from omegaconf import open_dict
+from omegaconf import OmegaConf, open_dict
 
 from experiments import _entry as E
 from experiments import _relm_job as C
@@ -135,7 +135,7 @@ def test_run_writes_outputs_and_prints_table(small_csv, tmp_path, capsys):
 
     r = read_recording(small_csv)
     keep = pd.read_csv(tmp_path / "predictions.csv").query("method == 'cgo-chaos' and repeat == 0").row.to_numpy()
-    G, B = r.G[keep], r.B[keep]
+    B = r.B[keep]
     bad_b = np.abs(np.linalg.norm(B, axis=1) - r.meta["total_field_nT"]) > 300.0
     assert rec["qc"]["raw"]["n"] == len(keep) and rec["qc"]["raw"]["b"] == int(bad_b.sum())
     assert rec["qc"]["msa"]["n"] == len(keep) and "Survey QC" in (tmp_path / "summary.md").read_text()
@@ -387,7 +387,7 @@ def test_a_writer_failing_midway_leaves_the_previous_run_intact(small_csv, tmp_p
     with pytest.raises(SystemExit):
         run_job(_job_cfg(base + ["overwrite=true", "split.seed=5"]), tmp_path)
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "No space left" in err[0] and "previous run there is unchanged" in err[0]
+    assert len(err) == 1 and "No space left" in err[0] and "nothing in it was changed" in err[0]
     after = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()}
     assert after == before and not (tmp_path / ".staging").exists()
 
@@ -400,6 +400,28 @@ def test_rerunning_a_sweep_keeps_finished_jobs(small_csv, tmp_path):
     again = run_job(_job_cfg(base), tmp_path / "0", multirun=True)
     assert again["seed"] == first["seed"] and (tmp_path / "0" / "run.json").stat().st_mtime_ns == stamp
     assert not (tmp_path / "0" / E.FAILED).exists()
+
+
+def test_a_sweep_rerun_with_another_config_is_refused_and_changes_nothing(small_csv, tmp_path):
+    """A kept job is matched by its config hash, never by its number: another strategy, or more repeats, in the
+    job's directory is refused, and the finished run (its .hydra record included) is left byte for byte."""
+    from experiments import _relm_job as J
+    from experiments._sweep import job_status
+
+    base = TINY + ["dataset=csv", f"dataset.path={small_csv}", "split.n_repeats=1"]
+    first = run_job(_job_cfg(base + ["strategy=chaos"]), tmp_path / "0", multirun=True)
+    assert first["config_sha256"] == J.cfg_hash(_job_cfg(base + ["strategy=chaos"]))
+    before = {p.name: p.read_bytes() for p in (tmp_path / "0").iterdir() if p.is_file()}
+    for other in (["strategy=wavelet"], ["strategy=chaos", "split.n_repeats=2"]):
+        cfg = _job_cfg(base + other)
+        assert run_job(cfg, tmp_path / "0", multirun=True) is None
+        assert {p.name: p.read_bytes() for p in (tmp_path / "0").iterdir() if p.is_file()} == before
+        status, reason = job_status(tmp_path / "0", OmegaConf.to_container(cfg, resolve=True))
+        assert status == "refused" and ("strategy.names" in reason or "split.n_repeats" in reason), reason
+    # settings that do not change the result do not make it another run
+    assert J.cfg_hash(_job_cfg(base + ["strategy=chaos", "progress=true", "overwrite=true"])) == first["config_sha256"]
+    redo = run_job(_job_cfg(base + ["strategy=wavelet", "overwrite=true"]), tmp_path / "0", multirun=True)
+    assert redo["strategies"] == ["wavelet"]
 
 
 def test_jax_cache_dir_that_cannot_be_created_is_one_line(tmp_path, capsys):

@@ -223,3 +223,144 @@ def test_a_list_where_a_name_belongs_is_a_setting_error():
 @given(st.dictionaries(FIELDS, SETTING_VALUES, min_size=1, max_size=3))
 def test_study_settings_are_valid_or_one_line_setting_errors_long(values):
     _check_settings(values)
+
+
+# ---------------------------------------------------------------- model files and the JSON layouts
+# Hostile edits of saved models (every kind, tests/hostile_models.py): a header value replaced by an arbitrary
+# JSON value, an array replaced by an arbitrary array (any dtype, shape, NaN/inf/huge). Loading ends in a model
+# or one ModelError line naming the file; a model that loads corrects the survey with finite azimuths, or says
+# in one IcgoError line why not. Never another exception.
+import sys as _sys  # noqa: E402
+from pathlib import Path as _Path  # noqa: E402
+
+from hypothesis.extra import numpy as hnp  # noqa: E402
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import hostile_models  # noqa: E402
+
+from icgo.core.errors import IcgoError, ModelError  # noqa: E402
+from icgo.models.registry import load_model  # noqa: E402
+from icgo.survey.apply import correct_survey  # noqa: E402
+
+_MODELS = hostile_models.models()
+_SURVEY = hostile_models.survey()
+HEADER_PATHS = st.one_of(
+    st.sampled_from([("kind",), ("schema_version",), ("arrays",), ("fields",), ("array_shapes",), ("units",)]),
+    st.sampled_from(sorted(_MODELS)).flatmap(lambda k: st.sampled_from(
+        [("fields", f) for f in _MODELS[k].header()["fields"]]
+        + [("fields", "domain", d) for d in _MODELS[k].domain] + [("array_shapes", a) for a in
+                                                                  _MODELS[k].header()["array_names"]])))
+ARRAYS = hnp.arrays(dtype=st.one_of(hnp.floating_dtypes(), hnp.integer_dtypes(), hnp.complex_number_dtypes(),
+                                    hnp.boolean_dtypes(), hnp.unicode_string_dtypes(max_len=3)),
+                    shape=hnp.array_shapes(min_dims=0, max_dims=3, min_side=0, max_side=5))
+
+
+def _load_and_apply(path):
+    try:
+        model = load_model(path)
+    except ModelError as e:
+        msg = str(e)
+        assert msg and "\n" not in msg, msg
+        assert _Path(path).stem in msg, msg  # names the file at fault
+        return
+    try:
+        res = correct_survey(model, _SURVEY)
+    except IcgoError as e:
+        assert "\n" not in str(e), str(e)
+        return
+    assert np.isfinite(res.table["azimuth_compensated"].to_numpy(float)).all()
+
+
+def _check_header_edit(tmp_path_factory, kind, path, value):
+    d = tmp_path_factory.mktemp("mh")
+    p = _MODELS[kind].save(d / "m")
+    head = json.loads(p.read_text())
+    node = head
+    for key in path[:-1]:
+        node = node.get(key) if isinstance(node, dict) else None
+        if not isinstance(node, dict):
+            return
+    node[path[-1]] = value
+    p.write_text(json.dumps(head, allow_nan=True))
+    _load_and_apply(p)
+
+
+def _check_array_edit(tmp_path_factory, kind, data):
+    d = tmp_path_factory.mktemp("ma")
+    p = _MODELS[kind].save(d / "m")
+    with np.load(d / "m.npz") as z:
+        arrays = {k: z[k] for k in z.files}
+    name = data.draw(st.sampled_from(sorted(arrays)))
+    factor = data.draw(st.sampled_from([np.nan, np.inf, 1e300, -1.0, 0.0, 1.0]))
+    with np.errstate(all="ignore"):  # inf * 0 is NaN: wanted
+        scaled = arrays[name] * factor
+    arrays[name] = data.draw(st.one_of(ARRAYS, st.just(scaled)))
+    with open(d / "m.npz", "wb") as fh:
+        np.savez(fh, **arrays)
+    _load_and_apply(p)
+
+
+@FAST
+@given(st.sampled_from(sorted(_MODELS)), HEADER_PATHS, JSON)
+def test_edited_model_headers_load_or_fail_in_one_line(tmp_path_factory, kind, path, value):
+    _check_header_edit(tmp_path_factory, kind, path, value)
+
+
+@FAST
+@given(st.sampled_from(sorted(_MODELS)), st.data())
+def test_edited_model_arrays_load_or_fail_in_one_line(tmp_path_factory, kind, data):
+    _check_array_edit(tmp_path_factory, kind, data)
+
+
+@pytest.mark.slow
+@LONG
+@given(st.sampled_from(sorted(_MODELS)), HEADER_PATHS, JSON)
+def test_edited_model_headers_load_or_fail_in_one_line_long(tmp_path_factory, kind, path, value):
+    _check_header_edit(tmp_path_factory, kind, path, value)
+
+
+@pytest.mark.slow
+@LONG
+@given(st.sampled_from(sorted(_MODELS)), st.data())
+def test_edited_model_arrays_load_or_fail_in_one_line_long(tmp_path_factory, kind, data):
+    _check_array_edit(tmp_path_factory, kind, data)
+
+
+TRIPLE = st.one_of(st.lists(st.one_of(st.floats(), st.integers(-10**6, 10**6), st.none(), st.text(max_size=2),
+                                      st.booleans()), min_size=0, max_size=4),
+                   st.tuples(st.floats(-100, 100), st.floats(-100, 100), st.floats(-100, 100)).map(list))
+LAYOUTS = st.one_of(
+    JSON,
+    st.fixed_dictionaries({"mag": st.lists(TRIPLE, max_size=30), "grav": st.lists(TRIPLE, max_size=30)},
+                          optional={"mag_axes": JSON | st.sampled_from(["+x+y+z", "-y+x+z", "+X-Z+Y"]),
+                                    "grav_axes": JSON | st.sampled_from(["+x+y+z", "+z+z+z"]), "name": JSON}),
+    st.fixed_dictionaries({"shots": st.fixed_dictionaries({
+        "mag": st.lists(st.one_of(st.floats(), st.none(), st.integers(), st.text(max_size=2)), max_size=80),
+        "grav": st.lists(st.one_of(st.floats(), st.none(), st.integers()), max_size=80)})}))
+
+
+def _check_layout(tmp_path_factory, doc):
+    from icgo.io.mag_cal_json import read_mag_cal_json
+
+    d = tmp_path_factory.mktemp("js")
+    p = d / "dev.json"
+    p.write_text(json.dumps(doc, allow_nan=True))
+    try:
+        rec = read_mag_cal_json(p)
+    except io.DataError as e:
+        assert str(e) and "\n" not in str(e) and "dev.json" in str(e), str(e)
+        return
+    assert np.isfinite(rec.frame[["gx", "gy", "gz", "bx", "by", "bz"]].to_numpy(float)).all()
+
+
+@FAST
+@given(LAYOUTS)
+def test_mag_cal_json_layouts_read_or_fail_in_one_line(tmp_path_factory, doc):
+    _check_layout(tmp_path_factory, doc)
+
+
+@pytest.mark.slow
+@LONG
+@given(LAYOUTS)
+def test_mag_cal_json_layouts_read_or_fail_in_one_line_long(tmp_path_factory, doc):
+    _check_layout(tmp_path_factory, doc)

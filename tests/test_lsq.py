@@ -248,3 +248,31 @@ def test_stops_after_the_steps_the_problem_needs_whatever_the_last_bits_of_the_c
     assert np.asarray(res.ok).all()
     assert int(np.max(res.n_steps)) <= 4
     np.testing.assert_allclose(np.asarray(res.x), np.broadcast_to(ref, (50, 3)), rtol=1e-9)
+
+
+def test_gauss_newton_gap_quadratic_equals_the_projection_onto_the_jacobian():
+    """gᵀ(JᵀJ)⁺g (icgo.maths.lsq._pinv_quadratic, no LAPACK) against numpy's float64 least squares: the part of
+    |r|² in J's column space, for scaled, rank-deficient and fixed-column Jacobians."""
+    from icgo.maths.lsq import _pinv_quadratic, gauss_newton_gap
+
+    rng = np.random.default_rng(0)
+    for t in range(60):
+        P = int(rng.integers(2, 30))
+        M = int(rng.integers(P, 3 * P))
+        J = rng.normal(size=(M, P)) * 10.0 ** rng.uniform(-4, 4, size=P)
+        if t % 3 == 0:
+            J[:, rng.integers(P)] = 0.0
+        if t % 3 == 1:
+            J[:, -1] = 2.0 * J[:, 0]
+        r = rng.normal(size=M)
+        ref = np.linalg.norm(J @ np.linalg.lstsq(J, r, rcond=1e-12)[0]) ** 2
+        got = float(_pinv_quadratic(jnp.asarray(J.T @ J), jnp.asarray(J.T @ r)))
+        assert abs(got - ref) <= 1e-6 * (r @ r)
+    # a linear problem: the gap is the fitted share of |r|² at 0 and vanishes at the least-squares solution
+    A = rng.normal(size=(20, 4))
+    b = rng.normal(size=20)
+    res = lambda x, _: A @ x - b
+    x_ls = np.linalg.lstsq(A, b, rcond=None)[0]
+    share = np.linalg.norm(A @ x_ls) ** 2 / (b @ b)
+    assert abs(float(gauss_newton_gap(res, jnp.zeros(4))) - share) < 1e-9
+    assert float(gauss_newton_gap(res, jnp.asarray(x_ls))) < 1e-12

@@ -5,13 +5,15 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pandas as pd
 import pytest
 from mag_cal.axes import Axes
 from mag_cal.utils import read_fixture
 
+from icgo.core.errors import SettingError
 from icgo.io import __main__ as io_cli
 from icgo.io import recording as io
-from icgo.io.mag_cal_json import parse_axes, read_mag_cal_json, roll_groups
+from icgo.io.mag_cal_json import parse_axes, read_mag_cal_json
 
 FIXTURE = io._mag_cal_dir().joinpath("ab.json")
 INV = np.argsort(io.MAG_CAL_DEVICE_TO_TOOL)  # tool -> device columns
@@ -53,21 +55,16 @@ def test_raw_layout_converts_axes_and_units_as_the_peer(tmp_path, mag_axes, grav
     np.testing.assert_array_equal(read_mag_cal_json(path).B, rec.B)
 
 
-def test_roll_groups_find_both_rolls_on_every_bundled_device():
-    for name in io.mag_cal_devices():
-        rec = io.load_mag_cal_device(name)
-        assert roll_groups(rec.G, rec.B).tolist() == rec.frame.group.tolist(), name
-
-
 @pytest.mark.parametrize("doc,kw,match", [
     ({"shots": {"mag": [1.0] * 72}}, {}, "expected a circuitpython-mag-cal JSON"),
     ({"shots": {"mag": ["a"] + [1.0] * 71, "grav": [1.0] * 72}}, {}, "'shots.mag' value 0 is not a finite number"),
-    ({"mag": [[1, 2, 3]], "grav": [[0, 0, 9.8]]}, {"mag_axes": "+x+x+z"}, "each axis once"),
-    ({"mag": [[1, 2, 3]], "grav": [[0, 0, 9.8]]}, {"mag_axes": "xyz"}, "expected 6 characters"),
+    ({"mag": [[1, 2, 3]], "grav": [[0, 0, 9.8]], "mag_axes": "+x+x+z"}, {}, "the file's mag_axes '\\+x\\+x\\+z'.*each axis once"),
+    ({"mag": [[1, 2, 3]], "grav": [[0, 0, 9.8]], "grav_axes": "xyz"}, {}, "the file's grav_axes 'xyz': expected 6 characters"),
     ({"mag": [[1, 2, 3]], "grav": [[0, 0, 9.8], [0, 0, 9.8]]}, {}, "one of each per shot"),
     ({"mag": [[1, 2, "a"]], "grav": [[0, 0, 9.8]]}, {}, r"'mag\[0\]' must be \[x, y, z\]"),
     ({"mag": [[30, 20, 10]], "grav": [[0, 0, 3.0]]}, {}, "neither g"),
-    ({"mag": [[30000, 20000, 10000]], "grav": [[0, 0, 1.0]]}, {}, "expected the earth's field in uT"),
+    ({"mag": [[30000, 20000, 10000]], "grav": [[0, 0, 1.0]]}, {}, "expected the earth's field in uT.*looks like nT"),
+    ({"shots": {"mag": [0.3, 0.2, 0.1] * 24, "grav": [0, 0, 1.0] * 24}}, {}, "looks like Gauss: multiply by 100"),
 ])
 def test_bad_files_are_one_line(tmp_path, doc, kw, match):
     path = tmp_path / "bad.json"
@@ -78,10 +75,102 @@ def test_bad_files_are_one_line(tmp_path, doc, kw, match):
 
 
 def test_fixture_layout_refuses_axes_and_check_reads_json(tmp_path, capsys):
-    with pytest.raises(io.DataError, match="device frame already"):
+    with pytest.raises(SettingError, match="device frame already"):
         read_mag_cal_json(FIXTURE, mag_axes="+x+y+z")
     assert io_cli.main(["check", str(FIXTURE)]) == 0
     assert "24 shots, 10 groups" in capsys.readouterr().out
     (tmp_path / "x.json").write_text("{}")
     assert io_cli.main(["check", str(tmp_path / "x.json")]) == 1
     assert "expected a circuitpython-mag-cal JSON" in capsys.readouterr().err
+
+
+# ----------------------------------------------- real-looking files made from the bundled devices
+from mag_cal_files import device_attitudes, join, roll, singles, synth, write_fixture, write_raw  # noqa: E402
+
+MOUNT = ("-y+x+z", "+z-x-y")  # a mounting in which no sensor axis is a device axis of the same name
+
+
+def _device(name="jd"):
+    A, I, T = device_attitudes(name)
+    return synth(name, A, I, T)
+
+
+@pytest.mark.parametrize("keep", [slice(0, 16), slice(None)])
+def test_fixture_files_of_any_length_find_their_rolls(tmp_path, keep):
+    G, B = _device()
+    path = tmp_path / "dev.json"
+    write_fixture(path, G[keep], B[keep])
+    rec = read_mag_cal_json(path)
+    n = len(G[keep])
+    assert len(rec.frame) == n and rec.frame.group.tolist() == (
+        list(range(8)) + [8] * 8 + ([9] * 8 if n == 24 else []))
+    assert f"{n} shots, {1 if n == 16 else 2} roll(s)" in rec.meta["description"]
+
+
+def test_a_fixture_file_with_one_roll_and_singles_after_it(tmp_path):
+    name = "hj"
+    A, I, T = device_attitudes(name)
+    att = join(roll(A[8:16].mean(), I[8:16].mean()), singles(name))
+    G, B = synth(name, *att)
+    path = tmp_path / "one_roll.json"
+    write_fixture(path, G, B)
+    rec = read_mag_cal_json(path)
+    assert rec.frame.group.tolist() == [8] * 8 + list(range(8))
+
+
+def test_raw_layout_mounting_from_keys_or_settings_and_the_cause_when_missing(tmp_path, capsys):
+    G, B = _device("ab")
+    with_keys, without = tmp_path / "keys.json", tmp_path / "nokeys.json"
+    write_raw(with_keys, G, B, *MOUNT)
+    write_raw(without, G, B, *MOUNT, keys=False)
+    rec = read_mag_cal_json(with_keys)
+    np.testing.assert_allclose(rec.G, G, atol=1e-12)
+    np.testing.assert_allclose(rec.B, B, rtol=1e-12)
+    assert rec.frame.group.tolist() == list(range(8)) + [8] * 8 + [9] * 8
+    np.testing.assert_array_equal(read_mag_cal_json(without, mag_axes=MOUNT[0], grav_axes=MOUNT[1]).B, rec.B)
+    with pytest.raises(io.DataError, match="probable cause: the mounting is not given") as e:
+        read_mag_cal_json(without)
+    assert "\n" not in str(e.value)
+    # the command line: the same settings, the same refusal (exit 1), a bad setting exit 2 naming itself
+    assert io_cli.main(["check", str(without)]) == 1
+    assert "mounting is not given" in capsys.readouterr().err
+    assert io_cli.main(["check", str(without), f"mag_axes={MOUNT[0]}", f"grav_axes={MOUNT[1]}"]) == 0
+    out = capsys.readouterr().out
+    assert "roll: group 8, shots 8-15 (8)" in out and "roll: group 9, shots 16-23 (8)" in out
+    assert io_cli.main(["check", str(without), "mag_axes=+x+y-q"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: mag_axes '+x+y-q'") and "grav_axes" not in err and len(err.splitlines()) == 1
+    assert io_cli.main(["check", str(without), "mag_axis=+x+y+z"]) == 2
+    assert "unknown setting 'mag_axis'" in capsys.readouterr().err
+
+
+def test_convert_writes_the_contract_and_every_reader_sees_the_same_groups(tmp_path, capsys):
+    from icgo.io.shots import read_shots
+
+    G, B = _device("fb")
+    src = tmp_path / "raw.json"
+    write_raw(src, G, B, *MOUNT, keys=False)
+    out = tmp_path / "out" / "fb.csv"
+    out.parent.mkdir()
+    assert io_cli.main(["convert", str(src), "--out", str(out), f"mag_axes={MOUNT[0]}", f"grav_axes={MOUNT[1]}"]) == 0
+    assert "wrote" in capsys.readouterr().out
+    back = read_shots(out)
+    ref = read_mag_cal_json(src, mag_axes=MOUNT[0], grav_axes=MOUNT[1])
+    pd.testing.assert_frame_equal(back.frame, ref.frame)
+    assert back.meta["description"] == ref.meta["description"]
+    assert io_cli.main(["check", str(out), "groups=column"]) == 0
+    # bad uses: no --out, the input itself, not a CSV; nothing written
+    for args in (["convert", str(src)], ["convert", str(src), "--out", str(src)],
+                 ["convert", str(src), "--out", str(tmp_path / "x.txt")]):
+        assert io_cli.main(args) == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "raw.json"]
+
+
+def test_groups_setting_on_a_json_gives_the_rolls_and_checks_them(tmp_path):
+    G, B = _device("bi")
+    path = tmp_path / "bi.json"
+    write_fixture(path, G, B)
+    assert read_mag_cal_json(path, groups=((8, 15), (16, 23))).frame.group.tolist() == (
+        read_mag_cal_json(path).frame.group.tolist())
+    with pytest.raises(io.DataError, match=r"group 8 \(shots 8-23\) is not a plausible roll"):
+        read_mag_cal_json(path, groups=((8, 23),))

@@ -136,3 +136,123 @@ def test_models_carry_their_interval(fitted):
     hw = res.model.interval_halfwidth
     assert hw.shape == (1,) and np.isfinite(hw).all() and hw[0] > 0
     assert (out.azimuth_interval_deg == hw[0]).all() and res.model.interval_level == 0.9
+
+
+# ---------------------------------------------------------------- hostile model files (docs/reliability.md)
+def _copy_model(tmp_path, kind="msa"):
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import hostile_models
+
+    return hostile_models.models()[kind].save(tmp_path / "m")
+
+
+def test_only_the_models_own_arrays_are_read(tmp_path):
+    """An extra member is never opened: here one whose data is corrupt (reading it would fail its CRC)."""
+    import zipfile
+
+    path = _copy_model(tmp_path)
+    with zipfile.ZipFile(tmp_path / "m.npz", "a") as z:
+        z.writestr("extra.npy", b"\x93NUMPY" + b"x" * 100)
+    data = bytearray((tmp_path / "m.npz").read_bytes())
+    i = data.rfind(b"x" * 100)
+    data[i:i + 10] = b"y" * 10  # corrupt the extra member only
+    (tmp_path / "m.npz").write_bytes(bytes(data))
+    assert load_model(path).KIND == "msa"
+
+
+def test_an_array_header_claiming_a_huge_shape_is_refused_before_reading(tmp_path):
+    import zipfile
+
+    path = _copy_model(tmp_path)
+    with zipfile.ZipFile(tmp_path / "m.npz") as z:
+        members = {i.filename: z.read(i) for i in z.infolist()}
+    hdr = "{'descr': '<f8', 'fortran_order': False, 'shape': (1000000, 1000000), }"
+    hdr += " " * (118 - len(hdr)) + "\n"
+    members["bias.npy"] = b"\x93NUMPY\x01\x00" + len(hdr).to_bytes(2, "little") + hdr.encode()
+    with zipfile.ZipFile(tmp_path / "m.npz", "w") as z:
+        for k, v in members.items():
+            z.writestr(k, v)
+    with pytest.raises(ModelError, match=r"'bias' declares shape \(1000000, 1000000\).*over the 64 MiB limit"):
+        load_model(path)
+
+
+@pytest.mark.parametrize("edit, says", [
+    (lambda h: h.__setitem__("fields", [1, 2]), "'fields' must be a JSON object"),
+    (lambda h: h.__setitem__("kind", ["msa"]), "unknown model kind"),
+    (lambda h: h.__setitem__("arrays", "../x.npz"), "'arrays' must be a file name"),
+    (lambda h: h["fields"].__setitem__("repeat_ids", None), "field 'repeat_ids' must be list"),
+    (lambda h: h["fields"]["domain"].__setitem__("dip_deg", [float("nan"), 1.0]), "NaN in the model header"),
+    (lambda h: h["fields"]["domain"].__setitem__("dip_deg", [5.0, 1.0]), "training domain 'dip_deg'"),
+    (lambda h: h["fields"]["domain"].__setitem__("dip_deg", "wide"), "training domain 'dip_deg'"),
+])
+def test_edited_headers_are_one_modelerror_line(tmp_path, edit, says):
+    path = _copy_model(tmp_path)
+    head = json.loads(path.read_text())
+    edit(head)
+    path.write_text(json.dumps(head))
+    with pytest.raises(ModelError, match=says) as e:
+        load_model(path)
+    assert "\n" not in str(e.value) and "m.json" in str(e.value)
+
+
+@pytest.mark.parametrize("array, value, says", [
+    ("bias", np.full((2, 3), np.nan), "NaN or inf"), ("bias", np.full((2, 3), 1e300), "beyond"),
+    ("bias", np.ones((3, 2)), "shape"), ("bias", np.ones((2, 3)) + 1j, "dtype complex"),
+    ("scale", -np.ones((2, 3)), "scale must be > -1"), ("bias", np.zeros((0, 3)), "empty"),
+])
+def test_edited_arrays_are_one_modelerror_line(tmp_path, array, value, says):
+    path = _copy_model(tmp_path)
+    with np.load(tmp_path / "m.npz") as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays[array] = value
+    head = json.loads(path.read_text())
+    head.pop("array_shapes")  # a file of the first build: the shape is then checked by the kind itself
+    path.write_text(json.dumps(head))
+    with open(tmp_path / "m.npz", "wb") as fh:
+        np.savez(fh, **arrays)
+    with pytest.raises(ModelError, match=says):
+        load_model(path)
+
+
+@pytest.mark.parametrize("listed", ["../outside.json", "/etc/passwd", "link.json"])
+def test_a_run_directory_may_not_point_out_of_itself(tmp_path, listed):
+    run = tmp_path / "run"
+    run.mkdir()
+    _copy_model(tmp_path)
+    (tmp_path / "m.json").rename(tmp_path / "outside.json")
+    (run / "link.json").symlink_to(tmp_path / "outside.json")
+    (run / "run.json").write_text(json.dumps({"models": [listed]}))
+    with pytest.raises(ModelError, match="models"):
+        load_model(run)
+
+
+def test_every_kind_loads_back_checked(tmp_path):
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import hostile_models
+
+    survey = hostile_models.survey()
+    for kind, model in hostile_models.models().items():
+        back = load_model(model.save(tmp_path / kind))
+        pd.testing.assert_frame_equal(back.apply(survey), model.apply(survey))
+
+
+def test_apply_in_row_blocks_is_bitwise_the_whole(monkeypatch):
+    """RELMCompensation applies a long survey in row blocks (bounded memory); the result does not depend on them."""
+    import sys
+    from pathlib import Path
+
+    import icgo.models.relm as relm_models
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import hostile_models
+
+    model, survey = hostile_models.models()["relm_compensation"], hostile_models.survey(n=130)
+    whole = model.apply(survey)
+    monkeypatch.setattr(relm_models, "APPLY_BLOCK_ROWS", 50)
+    pd.testing.assert_frame_equal(model.apply(survey), whole, check_exact=True)

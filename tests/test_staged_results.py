@@ -1,4 +1,5 @@
-"""experiments._relm_job.staged_results: a study's files land in a shared results folder all at once or not at all."""
+"""icgo.io.files.staged_results (Output, shared): a study's files land in a shared results folder
+all at once or not at all."""
 
 from __future__ import annotations
 
@@ -6,7 +7,8 @@ import errno
 
 import pytest
 
-from experiments._entry import staged_results
+from icgo.core.errors import OutputError
+from icgo.io.files import staged_results
 
 
 def _previous(out):
@@ -18,16 +20,22 @@ def _previous(out):
 
 
 @pytest.mark.parametrize("failure", [KeyboardInterrupt, OSError(errno.ENOSPC, "No space left on device"), ValueError])
-def test_a_failed_write_leaves_the_folder_as_it_was(tmp_path, capsys, failure):
+def test_a_failed_write_leaves_the_folder_as_it_was(tmp_path, failure):
+    """The folder is unchanged; a full disk is one OutputError line saying so, anything else is re-raised carrying
+    the folder (the entry point's line names it: icgo.core.settings.interrupted)."""
     out = tmp_path / "results"
     before = _previous(out)
-    with pytest.raises(type(failure) if isinstance(failure, BaseException) else failure):
+    disk = isinstance(failure, OSError)
+    with pytest.raises(OutputError if disk else failure) as e:
         with staged_results(out, last="misma_summary.json") as stage:
             (stage / "misma_summary.md").write_text("new, complete\n")
             (stage / "misma_fair_curving.csv").write_text("a,b\n1,")  # cut off mid-write
             raise failure
     assert {f.name: f.read_text() for f in out.iterdir()} == before  # no staging directory left either
-    assert f"nothing in {out} was changed" in capsys.readouterr().err
+    if disk:
+        assert f"into {out} failed (No space left on device); nothing in it was changed" in str(e.value)
+    else:
+        assert e.value.icgo_unchanged == str(out)
 
 
 def test_a_complete_write_replaces_only_its_files_record_last(tmp_path, monkeypatch):
@@ -50,9 +58,10 @@ def test_a_complete_write_replaces_only_its_files_record_last(tmp_path, monkeypa
 
 def test_figures_entry_writes_through_the_staging(tmp_path, monkeypatch):
     """experiments.figures moves its tables in only when the build finished (a failing builder changes nothing)."""
-    from experiments import figures
+    from experiments import _entry, figures
 
     out = tmp_path / "results"
+    monkeypatch.setattr(_entry, "RESULTS_DIR", out)  # the shared results folder
     before = _previous(out)
 
     def boom(dirs, stage):
@@ -61,6 +70,6 @@ def test_figures_entry_writes_through_the_staging(tmp_path, monkeypatch):
 
     monkeypatch.setattr(figures, "build", boom)
     (tmp_path / "runs").mkdir()
-    with pytest.raises(OSError):
+    with pytest.raises(OutputError):
         figures.main([str(tmp_path / "runs"), "--out", str(out)])
     assert {f.name: f.read_text() for f in out.iterdir()} == before

@@ -111,19 +111,15 @@ def test_run_verdict_numbers_are_the_studys(fitted):
     assert "nan" not in v1.accuracy and "+/-" not in v1.accuracy.split(";")[0]
 
 
-def test_calibrate_verdict_reads_the_recommendation(tmp_path):
+def test_calibrate_verdict_reads_the_recommendation():
     rec = {"model": "dev_joint", "method": "joint", "criterion": "lowest mean held-out spread", "held_out_deg": 0.2871,
            "spread_deg": 0.0412, "clear_winner": False, "runner_up": "twelve+axis"}
-    (tmp_path / "calibrate.json").write_text(json.dumps({"status": "ok", "recommendation": rec}))
-    (tmp_path / "other.json").write_text("[1, 2]")
-    found = V.recommendation_in(tmp_path)
-    assert found == rec
-    v = V.calibrate_verdict(recommendation=found, n_models=5, n_degenerate=2, n_fits=24, run_dir="R")
+    v = V.calibrate_verdict(recommendation=rec, n_models=5, n_degenerate=2, n_fits=24, run_dir="R")
     assert "held-out pointing spread 0.287 deg" in v.accuracy and "0.041 deg" in v.accuracy
     assert "not a clear winner: twelve+axis" in v.model and "dev_joint (joint)" in v.model
-    assert v.next == "python -m experiments.apply model=R/models/dev_joint.json data=<your survey.csv>"
+    assert v.next == "python -m experiments.apply model=R data=<your survey.csv>"
     assert v.qc.startswith("2 of 24 fits degenerate")
-    none = V.calibrate_verdict(recommendation=V.recommendation_in(tmp_path / "missing"), n_models=5, n_degenerate=0,
+    none = V.calibrate_verdict(recommendation=None, n_models=5, n_degenerate=0,
                                n_fits=3, run_dir="R", held_out={"joint": 0.31, "ellipsoid": float("nan")})
     assert none.model.startswith("no recommendation") and "joint 0.310 deg" in none.accuracy
 

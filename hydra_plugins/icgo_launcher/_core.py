@@ -37,6 +37,7 @@ from hydra.core.singleton import Singleton
 from hydra.core.utils import JobReturn, JobStatus, configure_log, filter_overrides, run_job, setup_globals
 from omegaconf import OmegaConf, open_dict
 
+from icgo.core.settings import interrupts_raise
 from icgo.studies.workers import xla_flags
 
 log = logging.getLogger(__name__)
@@ -159,53 +160,54 @@ def launch(launcher, job_overrides: Sequence[Sequence[str]], initial_job_idx: in
     results: dict[int, JobReturn] = {}
     running: dict[int, dict] = {}  # job index -> its process, pipe, received result, config, dir, slot
     free_slots = deque(range(workers))
-    try:
-        while queue or running:
-            while queue and free_slots:
-                idx, overrides = queue.popleft()
-                config, job_dir = _job_config(launcher, overrides, idx)
-                log.info("\t#%d : %s", idx, " ".join(filter_overrides(overrides)))
-                slot = free_slots.popleft()
-                recv, send = ctx.Pipe(duplex=False)
-                payload = cloudpickle.dumps((config, launcher.hydra_context, launcher.task_function, state))
-                proc = ctx.Process(target=_child, args=(payload, send, launcher.xla_threads,
-                                                        cpus[slot] if pin else None))
-                proc.start()
-                send.close()
-                running[idx] = dict(proc=proc, recv=recv, ret=None, overrides=overrides, config=config,
-                                    dir=job_dir, slot=slot)
-            # The pipe is read as soon as it has data: a result larger than the pipe's buffer
-            # would otherwise block the job's process from exiting.
-            owner = {}
-            for idx, job in running.items():
-                owner[job["proc"].sentinel] = idx
-                if not job["recv"].closed:
-                    owner[job["recv"]] = idx
-            for ready in wait(list(owner)):
-                job = running[owner[ready]]
-                if ready is job["recv"]:
-                    try:
-                        job["ret"] = cloudpickle.loads(job["recv"].recv_bytes())
-                    except (EOFError, OSError):  # the process died before it sent its result
-                        pass
-                    job["recv"].close()
-            for idx in [i for i, job in running.items() if job["recv"].closed and not job["proc"].is_alive()]:
-                job = running.pop(idx)
-                job["proc"].join()
-                results[idx] = _settle(job["ret"], job["config"], job["overrides"], job["dir"], job["proc"].exitcode)
-                free_slots.append(job["slot"])
-    except KeyboardInterrupt:
-        for job in running.values():
-            job["proc"].terminate()
-        for job in running.values():
-            job["proc"].join(timeout=10)
-            if job["proc"].is_alive():  # a job that does not stop on SIGTERM
-                job["proc"].kill()
-                job["proc"].join()
-            _mark_dead(job["dir"], job["proc"].exitcode if job["proc"].exitcode is not None else -signal.SIGTERM)
-        from experiments import _sweep
+    with interrupts_raise():  # Ctrl-C stops the jobs and reports (icgo.core.settings.on_interrupt)
+        try:
+            while queue or running:
+                while queue and free_slots:
+                    idx, overrides = queue.popleft()
+                    config, job_dir = _job_config(launcher, overrides, idx)
+                    log.info("\t#%d : %s", idx, " ".join(filter_overrides(overrides)))
+                    slot = free_slots.popleft()
+                    recv, send = ctx.Pipe(duplex=False)
+                    payload = cloudpickle.dumps((config, launcher.hydra_context, launcher.task_function, state))
+                    proc = ctx.Process(target=_child, args=(payload, send, launcher.xla_threads,
+                                                            cpus[slot] if pin else None))
+                    proc.start()
+                    send.close()
+                    running[idx] = dict(proc=proc, recv=recv, ret=None, overrides=overrides, config=config,
+                                        dir=job_dir, slot=slot)
+                # The pipe is read as soon as it has data: a result larger than the pipe's buffer
+                # would otherwise block the job's process from exiting.
+                owner = {}
+                for idx, job in running.items():
+                    owner[job["proc"].sentinel] = idx
+                    if not job["recv"].closed:
+                        owner[job["recv"]] = idx
+                for ready in wait(list(owner)):
+                    job = running[owner[ready]]
+                    if ready is job["recv"]:
+                        try:
+                            job["ret"] = cloudpickle.loads(job["recv"].recv_bytes())
+                        except (EOFError, OSError):  # the process died before it sent its result
+                            pass
+                        job["recv"].close()
+                for idx in [i for i, job in running.items() if job["recv"].closed and not job["proc"].is_alive()]:
+                    job = running.pop(idx)
+                    job["proc"].join()
+                    results[idx] = _settle(job["ret"], job["config"], job["overrides"], job["dir"], job["proc"].exitcode)
+                    free_slots.append(job["slot"])
+        except KeyboardInterrupt:
+            for job in running.values():
+                job["proc"].terminate()
+            for job in running.values():
+                job["proc"].join(timeout=10)
+                if job["proc"].is_alive():  # a job that does not stop on SIGTERM
+                    job["proc"].kill()
+                    job["proc"].join()
+                _mark_dead(job["dir"], job["proc"].exitcode if job["proc"].exitcode is not None else -signal.SIGTERM)
+            from experiments import _sweep
 
-        print("interrupted (Ctrl-C): the running jobs were stopped", file=sys.stderr)
-        _sweep.report(launcher.config, file=sys.stderr)
-        raise SystemExit(EXIT_INTERRUPTED) from None
+            print("interrupted (Ctrl-C): the running jobs were stopped", file=sys.stderr)
+            _sweep.report(launcher.config, file=sys.stderr)
+            raise SystemExit(EXIT_INTERRUPTED) from None
     return [results[i] for i in sorted(results)]

@@ -59,6 +59,12 @@ class IcgoSlurmLauncher(SlurmLauncher):
         return executor
 
     def launch(self, job_overrides: Sequence[Sequence[str]], initial_job_idx: int) -> Sequence[JobReturn]:
+        from icgo.core.settings import interrupts_raise
+
+        with interrupts_raise():  # Ctrl-C reaches submitit as KeyboardInterrupt, as before
+            return self._launch(job_overrides, initial_job_idx)
+
+    def _launch(self, job_overrides: Sequence[Sequence[str]], initial_job_idx: int) -> Sequence[JobReturn]:
         from experiments import _entry as C
 
         self._check_request()

@@ -53,3 +53,8 @@ class ModelError(IcgoError):
 
 class RecordError(IcgoError):
     """A run directory or table that does not follow the run-record schema (one line naming the file)."""
+
+
+class OutputError(IcgoError):
+    """An output that could not be written (a full or read-only disk, a path under a file): one line naming the
+    place; nothing that was there before is changed (exit status 1)."""

@@ -3,8 +3,11 @@ and the mapping <-> dataclass conversions every entry point uses."""
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
+import errno
 import math
+import sys
 
 import numpy as np
 
@@ -27,7 +30,7 @@ def is_real(x) -> bool:
     return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
 
 
-def config_from_mapping(cls, values: dict, where: str = "config"):
+def config_from_mapping(cls, values: dict, where: str = "config", _prefix: str = ""):
     """Build a config dataclass from a plain mapping, refusing unknown keys in one line.
 
     Args:
@@ -47,7 +50,9 @@ def config_from_mapping(cls, values: dict, where: str = "config"):
     for k, v in values.items():
         default = names[k].default
         if dataclasses.is_dataclass(default) and isinstance(v, dict):
-            v = config_from_mapping(type(default), v, f"{where}.{k}")
+            v = config_from_mapping(type(default), v, f"{where}.{k}", f"{_prefix}{k}.")
+        elif str(names[k].type) == "bool" and not isinstance(v, bool):  # "maybe", "false", 0: never read as a bool
+            raise SettingError(f"{_prefix}{k}", f"must be true or false, got {v!r}")
         kwargs[k] = v
     return cls(**kwargs)
 
@@ -66,4 +71,133 @@ def config_to_mapping(config) -> dict:
     return plain(config)
 
 
-__all__ = ["need", "is_int", "is_real", "config_from_mapping", "config_to_mapping", "SettingError", "SettingsError"]
+__all__ = ["need", "is_int", "is_real", "config_from_mapping", "config_to_mapping", "SettingError", "SettingsError",
+           "ArgumentParser", "interrupted", "error_status", "run_cli", "on_interrupt", "interrupts_raise",
+           "startup_interrupts"]
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """``argparse.ArgumentParser`` whose usage errors are one line (``error: ...; see --help``) and exit 2.
+
+    The standard parser prints its usage block before the error; a command-line front door of icgo
+    says what is wrong in one line, like its config errors.
+    """
+
+    def error(self, message: str):  # noqa: D401  (argparse's hook)
+        print(f"error: {self.prog}: {message}; see {self.prog} --help", file=sys.stderr)
+        raise SystemExit(2)
+
+
+#: Errors of the disk or the place written to (full, read-only, permissions): one line, not a traceback.
+DISK_ERRNOS = frozenset({errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM, errno.EDQUOT, errno.EFBIG, errno.EIO,
+                         errno.ENOTDIR, errno.EISDIR, errno.ENOENT, errno.EEXIST, errno.ENAMETOOLONG, errno.ELOOP})
+
+
+def error_status(e: BaseException) -> int | None:
+    """Print the one line of a user's error and return its exit status, or None for anything else (a bug).
+
+    A bad setting (:class:`~icgo.core.errors.SettingError`) exits 2, one line per problem of a
+    :class:`~icgo.core.errors.SettingsError`; any other ``ValueError`` (bad data, a bad model file, an
+    output that could not be written, a fit the data cannot support) exits 1; so do an ``OSError`` of
+    the disk (:data:`DISK_ERRNOS`) and ``MemoryError``.
+    """
+    if isinstance(e, ValueError):
+        for line in getattr(e, "problems", None) or (_first_line(e),):
+            print(f"error: {line}", file=sys.stderr)
+        return 2 if isinstance(e, SettingError) else 1
+    if isinstance(e, OSError) and e.errno in DISK_ERRNOS:
+        where = f"{e.filename}: " if getattr(e, "filename", None) else ""
+        print(f"error: {where}{e.strerror or type(e).__name__}", file=sys.stderr)
+        return 1
+    if isinstance(e, MemoryError):
+        print("error: out of memory; give a smaller input (docs/data.md lists the limits)", file=sys.stderr)
+        return 1
+    return None
+
+
+def _first_line(e: BaseException) -> str:
+    text = str(e).strip()
+    return text.splitlines()[0] if text else type(e).__name__
+
+
+#: What a command does on Ctrl-C or SIGTERM (:func:`on_interrupt`): the clean-ups of the outputs being staged
+#: (registered by :class:`icgo.io.files.Output`), and how many callers currently handle KeyboardInterrupt
+#: themselves (:func:`interrupts_raise`).
+INTERRUPT = {"cleanups": [], "raise": 0}
+
+
+def on_interrupt(signum=None, frame=None):
+    """Signal handler of a command: remove the outputs being staged, print one line, exit 130 at once.
+
+    Exiting from the handler (``os._exit``) instead of raising KeyboardInterrupt is deliberate: the
+    exception would surface wherever Python happens to be, inside JAX's import or a garbage-collection
+    callback, where it is printed as "Exception ignored" or crashes the interpreter. Outputs are
+    staged and committed with the signals blocked (:class:`icgo.io.files.Output`), so there is nothing
+    to finish: dropping the staging folders leaves every output directory as it was. Inside
+    :func:`interrupts_raise` (a sweep's launcher, which stops its jobs and reports) it raises instead.
+    """
+    import os
+
+    if INTERRUPT["raise"]:
+        raise KeyboardInterrupt
+    where = None
+    for cleanup in list(INTERRUPT["cleanups"]):
+        try:
+            where = cleanup() or where
+        except Exception:  # noqa: BLE001  (best effort: the exit below must happen)
+            pass
+    os._exit(interrupted(where))
+
+
+class interrupts_raise:
+    """Context: within it, Ctrl-C and SIGTERM raise KeyboardInterrupt (for code that stops and reports itself)."""
+
+    def __enter__(self):
+        INTERRUPT["raise"] += 1
+        return self
+
+    def __exit__(self, *exc):
+        INTERRUPT["raise"] -= 1
+        return False
+
+
+def startup_interrupts() -> None:
+    """Ctrl-C or SIGTERM while a command is still importing its modules ends it at once with the one line of
+    :func:`interrupted` (:func:`on_interrupt`; nothing has been written yet)."""
+    import signal
+
+    if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
+        signal.signal(signal.SIGINT, on_interrupt)
+    signal.signal(signal.SIGTERM, on_interrupt)
+
+
+def run_cli(main, *args) -> int:
+    """Run a command-line front door: its user errors one line each (:func:`error_status`), Ctrl-C or SIGTERM
+    one line and exit status 130 (:func:`interrupted`); returns the exit status (``main``'s, 0 for None)."""
+    startup_interrupts()
+    try:
+        rc = main(*args)
+    except KeyboardInterrupt as e:  # raised by the code itself (a library call, interrupts_raise)
+        return interrupted(getattr(e, "icgo_unchanged", None))
+    except BrokenPipeError:  # the reader of stdout stopped (``| head``): stop quietly, as a SIGPIPE would
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
+    except (ValueError, OSError, MemoryError) as e:
+        rc = error_status(e)
+        if rc is None:
+            raise
+    return int(rc or 0)
+
+
+def interrupted(where: str | None = None) -> int:
+    """Print the one line of a command stopped by Ctrl-C and return its exit status (130).
+
+    Args:
+        where: the output directory left unchanged, if the interruption came while writing into it.
+    """
+    print("interrupted: " + (f"nothing in {where} was changed" if where else
+                             "stopped; outputs are written all at once, so none was left half-written"),
+          file=sys.stderr)
+    return 130

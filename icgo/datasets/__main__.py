@@ -1,28 +1,54 @@
-"""``python -m icgo.datasets NAME --out DIR [--seed S]``: write a simulated data set (CSV + meta + truth)."""
+"""``python -m icgo.datasets NAME --out DIR [--seed S] [--overwrite]``: write a simulated data set (CSV + meta + truth).
+
+``DIR`` is a directory of its own (:class:`icgo.io.files.Output`): the three files are written all at once
+or not at all, and a directory that already holds files is refused unless ``--overwrite`` (which then
+replaces its content whole).
+"""
 
 from __future__ import annotations
 
-import argparse
-import sys
+from icgo.core.settings import startup_interrupts
 
-from icgo.datasets.protocols import DATASETS, write_dataset
+if __name__ == "__main__":
+    startup_interrupts()  # a Ctrl-C while the modules below load: one line (run_cli takes over in main)
+
+from pathlib import Path  # noqa: E402
+
+from icgo.core.settings import ArgumentParser, run_cli  # noqa: E402
+from icgo.datasets.protocols import DATASETS, write_dataset  # noqa: E402
+from icgo.io.files import Output  # noqa: E402
+
+
+def seed(text: str) -> int:
+    """``--seed``: an integer 0 <= S < 2**63."""
+    import argparse
+
+    try:
+        s = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
+    if not 0 <= s < 2**63:
+        raise argparse.ArgumentTypeError(f"must be 0 <= S < 2**63, got {s}")
+    return s
 
 
 def main(argv=None) -> int:
-    """``python -m icgo.datasets NAME --out DIR [--seed S]``."""
-    p = argparse.ArgumentParser(prog="python -m icgo.datasets", description="Write a simulated data set (CSV + meta + truth).")
+    """``python -m icgo.datasets NAME --out DIR [--seed S] [--overwrite]``."""
+    p = ArgumentParser(prog="python -m icgo.datasets", description="Write a simulated data set (CSV + meta + truth).")
     p.add_argument("name", choices=sorted(DATASETS))
-    p.add_argument("--out", required=True, help="output directory (created if missing)")
-    p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    p.add_argument("--out", required=True, help="output directory (created if missing; refused if it holds files)")
+    p.add_argument("--seed", type=seed, default=0, help="noise seed (default 0)")
+    p.add_argument("--overwrite", action="store_true", help="replace a used --out directory whole")
     a = p.parse_args(argv)
-    try:
-        path = write_dataset(DATASETS[a.name](a.seed), a.out, a.name)
-    except ValueError as e:  # includes icgo.io.recording.DataError: one line, no traceback
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    print(f"wrote {path} ({path.with_name(a.name + '.meta.json').name}, {a.name}.truth.json)")
+    output = Output(Path(a.out), setting="--out", overwrite=a.overwrite, writer=f"python -m icgo.datasets {a.name}",
+                    overwrite_hint="--overwrite").check()
+    ds = DATASETS[a.name](a.seed)
+    with output.staged(last=(f"{a.name}.csv",)) as stage:
+        write_dataset(ds, stage, a.name)
+    path = output.path / f"{a.name}.csv"
+    print(f"wrote {path} ({a.name}.meta.json, {a.name}.truth.json)")
     return 0
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(run_cli(main))

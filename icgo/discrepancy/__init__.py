@@ -24,7 +24,8 @@ Five verbs (issue #7), all usable from a notebook with plain arguments::
 Modules: ``noise`` (the one set of noise constants), ``stations`` (input,
 checks, simulation, designs), ``model`` (layout, prepare, predict, residuals),
 ``stats`` (the paired z), ``fit``, ``identifiability``, ``compare``, ``config``
-(:class:`WorkflowConfig`, every option's one default), ``search``, ``report``,
+(:class:`WorkflowConfig`, every option's one default), ``scatter`` (the noise estimated from grouped
+shots), ``search``, ``report``,
 ``plots``, ``result_studies`` (the ``results/discrepancy_*`` studies as data;
 the workflow as a registered study is :mod:`icgo.studies.discrepancy`),
 ``artifact`` (:class:`~icgo.models.discrepancy.PhysicsModel`, the fitted
@@ -93,6 +94,7 @@ from icgo.discrepancy.report import (
     verdict,
     write_report,
 )
+from icgo.discrepancy.scatter import NoiseEstimate
 from icgo.discrepancy.search import (
     KINDS,
     Candidate,

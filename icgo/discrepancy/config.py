@@ -46,6 +46,10 @@ class WorkflowConfig:
         candidates: effect names the search considers; None = the whole vocabulary.
         bucket: stations are padded to a multiple of this so data sets of up to
             ``bucket`` stations share one compiled fit (0 = no padding).
+        noise_from_data: in group mode (no reference attitude), estimate the sensors' scatter from the
+            shots (:func:`icgo.discrepancy.scatter.estimate_noise`) and use it in place of ``sigma_b_nT`` /
+            ``sigma_g`` (each kept as a floor) for the fits and the verdict; both are reported. No effect with
+            a reference attitude.
     """
 
     k_folds: int = 5
@@ -61,6 +65,7 @@ class WorkflowConfig:
     sigma_g: float = NOISE.sigma_g
     candidates: tuple | None = None
     bucket: int = 120
+    noise_from_data: bool = True
 
     def __post_init__(self):
         bad = []
@@ -93,6 +98,8 @@ class WorkflowConfig:
         real("sigma_b_nT", 0.0, math.inf, lo_open=True, hi_open=True)
         real("sigma_g", 0.0, math.inf, lo_open=True, hi_open=True)
         integer("bucket", 0)
+        if not isinstance(self.noise_from_data, bool):
+            bad.append(f"noise_from_data={self.noise_from_data!r}: must be true or false")
         c = self.candidates
         if c is not None:
             if isinstance(c, str) or not isinstance(c, Sequence) or not all(isinstance(x, str) for x in c):

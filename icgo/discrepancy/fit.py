@@ -25,7 +25,7 @@ from icgo.discrepancy.model import (
     station_blocks,
 )
 from icgo.discrepancy.noise import Noise, effective_sigma
-from icgo.maths.lsq import least_squares_fixed
+from icgo.maths.lsq import gauss_newton_gap, least_squares_fixed
 from icgo.physics import effects as _fx
 from icgo.physics.frames import azimuth_from_gv, field_vector_ned, inclination_from_g, tool_to_earth, toolface_from_g
 
@@ -50,6 +50,27 @@ def block_stations(layout: Layout) -> int:
 
 
 # ============================================================ Levenberg-Marquardt
+def _weighted_residuals(w, data: Data, layout: Layout, row_block: int):
+    """(residual_fn, blocks) of the station-weighted, noise-normalized residuals for
+    :func:`icgo.maths.lsq.least_squares_fixed` (``blocks`` None at or below ``row_block`` stations)."""
+    if data.G.shape[0] <= row_block:
+        sw = jnp.sqrt(w)[:, None]
+
+        def res(th, _):
+            r = residuals(th, data, layout) * sw
+            return jnp.where(jnp.isfinite(r), r, 1e6).ravel()
+
+        return res, None
+    fields, (wb,), real = station_blocks(data, layout, row_block, w)
+
+    def res_block(th, args_blk):
+        fb, w_b, real_b = args_blk[1]
+        r = residuals(th, data._replace(**fb), layout) * jnp.sqrt(w_b)[:, None]
+        return (jnp.where(jnp.isfinite(r), r, 1e6) * real_b[:, None]).ravel()  # pads (real 0) drop out
+
+    return res_block, (fields, wb, real)
+
+
 def lm_fit(theta0, free, w, data: Data, layout: Layout, n_iter: int, row_block: int = ROW_BLOCK):
     """Weighted fit of the scaled parameters; only ``free`` parameters move.
 
@@ -64,26 +85,12 @@ def lm_fit(theta0, free, w, data: Data, layout: Layout, n_iter: int, row_block: 
         free: (P,) 0/1 or bool. w: (n,) station weights (0 = not used).
         n_iter: LM iterations (static). row_block: stations per block (static).
     Returns:
-        (theta (P,), cost = sum of weighted squared noise-normalized residuals ()).
+        (theta (P,), cost = sum of weighted squared noise-normalized residuals (),
+        gap = :func:`icgo.maths.lsq.gauss_newton_gap` at theta (): 0 when converged).
     """
-    if data.G.shape[0] <= row_block:
-        sw = jnp.sqrt(w)[:, None]
-
-        def res(th, _):
-            r = residuals(th, data, layout) * sw
-            return jnp.where(jnp.isfinite(r), r, 1e6).ravel()
-
-        out = least_squares_fixed(res, theta0, n_steps=n_iter, free=free)
-        return out.x, out.cost
-    fields, (wb,), real = station_blocks(data, layout, row_block, w)
-
-    def res_block(th, args_blk):
-        fb, w_b, real_b = args_blk[1]
-        r = residuals(th, data._replace(**fb), layout) * jnp.sqrt(w_b)[:, None]
-        return (jnp.where(jnp.isfinite(r), r, 1e6) * real_b[:, None]).ravel()  # pads (real 0) drop out
-
-    out = least_squares_fixed(res_block, theta0, n_steps=n_iter, free=free, blocks=(fields, wb, real))
-    return out.x, out.cost
+    res, blocks = _weighted_residuals(w, data, layout, row_block)
+    out = least_squares_fixed(res, theta0, n_steps=n_iter, free=free, blocks=blocks)
+    return out.x, out.cost, gauss_newton_gap(res, out.x, free=free, blocks=blocks)
 
 
 def jacobian_r(theta, w, data: Data, layout: Layout, row_block: int = ROW_BLOCK):
@@ -116,7 +123,7 @@ def jacobian_r(theta, w, data: Data, layout: Layout, row_block: int = ROW_BLOCK)
 class Evaluation(NamedTuple):
     """Every model fitted on every training fold and on all stations (a pytree).
 
-    M models (rows of the mask stack), n stations, P parameters.
+    M models (rows of the mask stack), n stations, P parameters, K folds.
 
     Attributes:
         theta_full: (M, P) fit on all valid stations.
@@ -129,6 +136,11 @@ class Evaluation(NamedTuple):
             fold that left it out).
         r_held: (M, n, 6) held-out residuals measured - predicted, g and nT.
         az_held: (M, n) held-out predicted azimuth, deg.
+        theta_fold: (M, K, P) each fold's fit (before the group directions are refitted on all stations).
+        gap: (M,) the largest :func:`icgo.maths.lsq.gauss_newton_gap` of the model's fits (folds, their
+            group-direction refits, all stations): 0 when every fit converged.
+        cost_total: (M,) the sum of the costs of all the model's fits (folds, refits, all stations): it can
+            only fall when the fits go on from here (``starts``), so its fall measures their progress.
     """
 
     theta_full: jnp.ndarray
@@ -137,11 +149,14 @@ class Evaluation(NamedTuple):
     chi2_held: jnp.ndarray
     r_held: jnp.ndarray
     az_held: jnp.ndarray
+    theta_fold: jnp.ndarray
+    gap: jnp.ndarray
+    cost_total: jnp.ndarray
 
 
 @partial(jax.jit, static_argnames=("layout", "n_iter", "row_block"))
 def evaluate_models(theta0, masks, train_w, test_w, valid_w, group_free, data: Data, layout: Layout,
-                    n_iter: int, row_block: int | None = None) -> Evaluation:
+                    n_iter: int, row_block: int | None = None, starts=None) -> Evaluation:
     """Fit every model on every training fold and on all stations, in one jitted call.
 
     Args:
@@ -152,16 +167,25 @@ def evaluate_models(theta0, masks, train_w, test_w, valid_w, group_free, data: D
         n_iter: LM iterations per fit (static).
         row_block: stations per block above which the fits and the held-out residuals run
             in row blocks (static; None: :func:`block_stations` of the layout).
+        starts: None (every fit starts at ``theta0``) or ``(theta_fold (M, K, P), theta_full (M, P))``:
+            the fits of an earlier evaluation, to go on from for another ``n_iter`` steps.
     Returns:
         :class:`Evaluation` (``vmap`` over models x folds).
     """
     row_block = block_stations(layout) if row_block is None else row_block
-    fit = lambda m, w: lm_fit(theta0, m, w, data, layout, n_iter, row_block)
-    th_fold, _ = jax.vmap(lambda m: jax.vmap(lambda w: fit(m, w))(train_w))(masks)  # (M, K, P)
+    M, K, P = masks.shape[0], train_w.shape[0], masks.shape[1]
+    if starts is None:
+        starts = (jnp.broadcast_to(theta0, (M, K, P)), jnp.broadcast_to(theta0, (M, P)))
+    fit = lambda t0, m, w: lm_fit(t0, m, w, data, layout, n_iter, row_block)
+    th_fold, cost_fold, gap_fold = jax.vmap(lambda t, m: jax.vmap(lambda t1, w: fit(t1, m, w))(t, train_w))(
+        starts[0], masks)
+    th_train = th_fold
     if layout.n_groups:
-        refit = lambda th: lm_fit(th, group_free, valid_w, data, layout, n_iter, row_block)[0]
-        th_fold = jax.vmap(jax.vmap(refit))(th_fold)
-    th_full, cost_full = jax.vmap(lambda m: fit(m, valid_w))(masks)
+        refit = lambda th: lm_fit(th, group_free, valid_w, data, layout, n_iter, row_block)
+        th_fold, cost_refit, gap_refit = jax.vmap(jax.vmap(refit))(th_fold)
+        gap_fold = jnp.maximum(gap_fold, gap_refit)
+        cost_fold = cost_fold + cost_refit
+    th_full, cost_full, gap_full = jax.vmap(lambda t, m: fit(t, m, valid_w))(starts[1], masks)
 
     def heldout(th):  # (n, 6) residuals, (n,) azimuth pred, for one fit
         pred = predict(th, data, layout)
@@ -190,7 +214,9 @@ def evaluate_models(theta0, masks, train_w, test_w, valid_w, group_free, data: D
         J_full = jax.vmap(jac)(th_full)
     else:
         J_full = jax.vmap(lambda th: jacobian_r(th, valid_w, data, layout, row_block))(th_full)
-    return Evaluation(th_full, cost_full, J_full, chi2_held, r_held, az_held)
+    gap = jnp.maximum(jnp.max(gap_fold, axis=1), gap_full)
+    return Evaluation(th_full, cost_full, J_full, chi2_held, r_held, az_held, th_train, gap,
+                      jnp.sum(cost_fold, axis=1) + cost_full)
 
 
 def folds(valid, k: int, key, group=None):

@@ -15,7 +15,7 @@ import numpy as np
 from icgo.core.settings import config_to_mapping
 from icgo.discrepancy.compare import Pattern
 from icgo.discrepancy.identifiability import Degeneracy, Separability
-from icgo.discrepancy.search import Result, Step, gap_table
+from icgo.discrepancy.search import MAX_ROUNDS, Result, Step, gap_table
 from icgo.physics import effects as _fx
 from icgo.physics.qc import qc_sentence
 
@@ -73,9 +73,19 @@ def pattern_sentences(p: Pattern) -> list[str]:
     return s
 
 
+def _noise_basis(res: Result) -> str:
+    """What "noise" means in the verdict: the assumed noise, or the scatter estimated from the shots."""
+    est = res.noise_estimate
+    if est is None:
+        return "noise"
+    return (f"the scatter estimated from the shots ({est.noise.sigma_b_nT:.4g} nT, {est.noise.sigma_g * 1e3:.3g} mg "
+            f"per axis: {est.ratios[0]:.0f}x and {est.ratios[1]:.0f}x the assumed noise)")
+
+
 def verdict(res: Result) -> str:
     """The verdict in one line (by ``res.kind``, see :data:`~icgo.discrepancy.search.KINDS`)."""
     pattern = "; ".join(pattern_sentences(res.pattern))
+    basis = _noise_basis(res)
     if res.kind == "not_separable":
         text = "not separable: " + "; ".join(
             f"{' / '.join((s.name,) + s.equivalent)} explain the same discrepancy with these attitudes "
@@ -89,10 +99,18 @@ def verdict(res: Result) -> str:
         text = "unexplained structure remains"
         if res.model:
             text += f" after adding {', '.join(res.model)}"
-        return text + f" (held-out chi2/residual {res.heldout:.2f}): " + pattern
+        est = res.noise_estimate
+        if est is not None:
+            text += (f" (held-out chi2/residual {res.heldout:.4g}, more than {res.config.noise_tolerance:g}x that of "
+                     f"{est.model}, {est.heldout:.4g}: the vocabulary predicts the held-out shots better than the "
+                     "effects the search could add one by one with significance)")
+        else:
+            text += f" (held-out chi2/residual {res.heldout:.2f})"
+        return text + ": " + pattern
     if res.kind == "no_missing_effect":
-        return f"no missing effect: the reference model explains the data to noise (held-out chi2/residual {res.heldout:.2f})"
-    return f"explained by {', '.join(res.model)}; the rest is noise (held-out chi2/residual {res.heldout:.2f})"
+        return (f"no missing effect: the reference model explains the data to {basis} "
+                f"(held-out chi2/residual {res.heldout:.4g})")
+    return f"explained by {', '.join(res.model)}; the rest is {basis} (held-out chi2/residual {res.heldout:.4g})"
 
 
 def _step_line(s: Step) -> str:
@@ -104,8 +122,8 @@ def _step_line(s: Step) -> str:
 def _candidate_lines(step_no: int, model, heldout: float, candidates) -> list[str]:
     lines = [f"step {step_no}: model {list(model) or '[reference]'}; held-out chi2/residual {heldout:.3f}"]
     for c in candidates:
-        lines.append(f"    {c.name:20s} held-out {c.heldout:9.3f}  BIC {c.bic:12.1f}  z {c.z:7.1f}  "
-                     f"{'qualifies' if c.qualifies else ''}")
+        tag = "qualifies" if c.qualifies else ("" if c.converged else "not converged: cannot qualify")
+        lines.append(f"    {c.name:20s} held-out {c.heldout:9.3f}  BIC {c.bic:12.1f}  z {c.z:7.1f}  {tag}")
     return lines
 
 
@@ -117,6 +135,8 @@ def search_log(res: Result) -> list[str]:
         lines.append(_step_line(s))
         lines += [f"     note: {nt}" for nt in step_notes(s)]
     lines += _candidate_lines(len(res.steps) + 1, res.model, res.heldout, res.final_candidates)
+    if res.noise_estimate is not None:
+        lines.append(res.noise_estimate.sentence())
     return lines + [f"verdict: {verdict(res)}"]
 
 
@@ -144,6 +164,13 @@ def result_to_json(res: Result) -> dict:
             for s in res.steps],
         "verdict": verdict(res),
         "kind": res.kind,
+        "noise": {"assumed": {"sigma_b_nT": res.config.sigma_b_nT, "sigma_g": res.config.sigma_g},
+                  "estimated": None if res.noise_estimate is None else {
+                      "sigma_b_nT": res.noise_estimate.noise.sigma_b_nT, "sigma_g": res.noise_estimate.noise.sigma_g,
+                      "from_model": res.noise_estimate.model, "heldout_chi2": res.noise_estimate.heldout},
+                  "verdict_based_on": "assumed" if res.noise_estimate is None else "estimated"},
+        "not_converged": sorted({c.name for s in res.steps for c in s.candidates if not c.converged}
+                                | {c.name for c in res.final_candidates if not c.converged}),
         "pattern": pattern_sentences(res.pattern),
         "config": config_to_mapping(res.config),
         "seconds": res.seconds,
@@ -156,8 +183,25 @@ def report_markdown(res: Result, label: str, truth=None, qc=None) -> str:
     ``qc``: survey-QC counts before and after the fitted model
     (:func:`icgo.models.discrepancy.station_qc`), or None without a reference field.
     """
-    lines = [f"# Discrepancy report: {label}", "", f"**Verdict:** {verdict(res)}", "",
-             "## Where the reference model disagrees (before)", ""]
+    lines = [f"# Discrepancy report: {label}", "", f"**Verdict:** {verdict(res)}", "", "## Noise", "",
+             "| noise per axis | magnetometer (nT) | accelerometer (mg) |", "|---|---|---|",
+             (f"| assumed (`sigma_b_nT`, `sigma_g`; the fits' weights) | {res.config.sigma_b_nT:g} | "
+              f"{res.config.sigma_g * 1e3:g} |")]
+    if res.noise_estimate is not None:
+        est = res.noise_estimate
+        lines += [(f"| estimated from the shots (the verdict's basis) | {est.noise.sigma_b_nT:.4g} | "
+                   f"{est.noise.sigma_g * 1e3:.3g} |"), "",
+                  (f"The estimate is the held-out scatter of the best model evaluated ({est.model}, chi2/residual "
+                   f"{est.heldout:.4g}; `icgo.discrepancy.scatter`): sensor noise plus what no vocabulary model "
+                   "predicts on shots it did not see.")]
+    else:
+        lines += ["", "The verdict is based on the assumed noise (a reference attitude, or `noise_from_data=false`)."]
+    unconv = sorted({c.name for s in res.steps for c in s.candidates if not c.converged}
+                    | {c.name for c in res.final_candidates if not c.converged})
+    if unconv:
+        lines += ["", (f"Not converged within {MAX_ROUNDS} x {res.config.n_iter} LM steps, so never added: "
+                       f"{', '.join(unconv)}.")]
+    lines += ["", "## Where the reference model disagrees (before)", ""]
     lines += [f"- {s}" for s in pattern_sentences(res.pattern_before)]
     lines += ["", "## Steps", ""]
     for i, s in enumerate(res.steps, 1):
@@ -241,18 +285,25 @@ def hidden_study_markdown(study) -> str:
 
 def devices_study_markdown(runs, config) -> str:
     """``results/discrepancy_devices.md`` from :func:`~icgo.studies.discrepancy_results.devices_study`."""
-    rows = ["| device | named (in order) | verdict kind | mag residual nT before -> after | azimuth spread deg before -> after |",
-            "|---|---|---|---|---|"]
+    rows = [("| device | named (in order) | verdict kind | mag residual nT before -> after | azimuth spread deg before "
+             "-> after | noise estimated nT / mg (x assumed) | estimate from |"),
+            "|---|---|---|---|---|---|---|"]
     for run in runs:
         res = run.result
         g0, g1 = res.gaps[0], res.gaps[-1]
+        est = res.noise_estimate
+        cell = "-" if est is None else (f"{est.noise.sigma_b_nT:.0f} / {est.noise.sigma_g * 1e3:.1f} "
+                                        f"({est.ratios[0]:.0f}x / {est.ratios[1]:.0f}x)")
         rows.append(f"| {run.device} | {', '.join(res.model) or '-'} | {res.kind} | {g0.mag_rms_nT:.0f} -> {g1.mag_rms_nT:.0f} | "
-                    f"{g0.azimuth_rms_deg:.2f} -> {g1.azimuth_rms_deg:.2f} |")
+                    f"{g0.azimuth_rms_deg:.2f} -> {g1.azimuth_rms_deg:.2f} | {cell} | {'-' if est is None else est.model} |")
     return "\n".join(["# Discrepancy workflow on the 9 real circuitpython-mag-cal devices", "",
-                      "`python -m experiments.discrepancy study=devices` — no reference attitude: each group's "
-                      "direction and the field magnitude/dip are nuisances; the azimuth spread is the held-out RMS "
-                      f"deviation from the group's fitted direction. Noise assumed {config.sigma_b_nT} nT / {config.sigma_g} g.",
-                      ""] + rows)
+                      ("`python -m experiments.discrepancy study=devices` — no reference attitude: each group's "
+                       "direction and the field magnitude/dip are nuisances; the azimuth spread is the held-out RMS "
+                       f"deviation from the group's fitted direction. Noise assumed {config.sigma_b_nT} nT / "
+                       f"{config.sigma_g} g (the fits' weights); the verdict is based on the scatter estimated from the "
+                       "shots: the held-out scatter of the best model evaluated (`icgo.discrepancy.scatter`). Every "
+                       "candidate is fitted to convergence or said not to have converged (and never added)."), ""]
+                     + rows)
 
 
 def lab_casing_study_markdown(study) -> str:

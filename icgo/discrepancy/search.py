@@ -22,10 +22,14 @@ not only the overall lowest); another qualifying
 candidate within paired z < ``ambiguity_z`` of it makes the step not separable
 (both are reported; the best is kept so that the search can go on). The search
 stops when the best does not qualify or ``max_effects`` are in the model.
+Every evaluation goes on from its last fits until every model's fits have converged
+(:data:`CONVERGED_GAP`, :data:`CONVERGED_FALL`, at most :data:`MAX_ROUNDS` evaluations); a candidate
+whose fits have not converged never qualifies.
 Result kinds (:data:`KINDS`): ``not_separable`` when a step was ambiguous,
 else ``unexplained`` when the final held-out chi2 per residual exceeds
-``noise_tolerance`` x the noise floor, else ``no_missing_effect`` (nothing
-added) or ``explained``.
+``noise_tolerance`` x the noise floor (in group mode with ``noise_from_data``: x the larger of the noise
+floor and the best held-out chi2 of any converged model evaluated, :mod:`icgo.discrepancy.scatter`), else
+``no_missing_effect`` (nothing added) or ``explained``.
 """
 
 from __future__ import annotations
@@ -43,6 +47,7 @@ from icgo.discrepancy.fit import Evaluation, evaluate_models, folds, standard_er
 from icgo.discrepancy.identifiability import identifiability
 from icgo.discrepancy.model import Data, Layout, fitted_field, predict, prepare
 from icgo.discrepancy.noise import noise_floor
+from icgo.discrepancy.scatter import VOCABULARY, NoiseEstimate, estimate
 from icgo.discrepancy.stations import Stations, check_stations, pad_stations
 from icgo.discrepancy.stats import paired_z
 from icgo.physics import effects as _fx
@@ -51,6 +56,16 @@ from icgo.physics.frames import angle_diff, azimuth_from_gv
 #: The result kinds, in the order they are decided.
 KINDS = ("not_separable", "unexplained", "no_missing_effect", "explained")
 
+
+#: A model's fits have converged when one more Gauss-Newton step would remove at most this fraction of
+#: each one's cost (:func:`icgo.maths.lsq.gauss_newton_gap`), or when another ``n_iter`` LM steps lowered
+#: their summed cost by at most :data:`CONVERGED_FALL` of it (near a minimum of a badly fitting model the
+#: linearised step promises more than any step delivers). The decisions compare scores at 10 % steps.
+CONVERGED_GAP = 1e-3
+CONVERGED_FALL = 1e-3
+#: Most evaluations of one step: each goes on from the last for ``n_iter`` more LM steps while a fit has
+#: not converged (5 x the default 12 steps = 60).
+MAX_ROUNDS = 5
 
 #: Relative rise of the held-out field or azimuth residual that still lets an effect qualify: refitting
 #: a model that adds an accelerometer effect moves the magnetometer residual by a fraction of a
@@ -71,6 +86,8 @@ class Candidate(NamedTuple):
             field nor the azimuth residual (beyond :data:`GAP_TOLERANCE`; see :func:`_evaluated`).
         params: (n_params,) the effect's fitted physical parameters (all stations).
         gap: its held-out :class:`~icgo.discrepancy.compare.Gap`.
+        converged: every fit of the model converged (:data:`CONVERGED_GAP`, within :data:`MAX_ROUNDS`
+            evaluations); an unconverged candidate never qualifies.
     """
 
     index: int
@@ -81,6 +98,7 @@ class Candidate(NamedTuple):
     qualifies: bool
     params: np.ndarray
     gap: Gap | None = None
+    converged: bool = True
 
 
 class Step(NamedTuple):
@@ -139,6 +157,9 @@ class SearchContext(NamedTuple):
         train, test: (K, n) fold weights. valid_w: (n,) 0/1.
         az_meas: (n,) measured azimuth, deg. floor: noise-only chi2 per residual.
         n_res: residual components used. names: candidate effect names. config: the options.
+        scatter_from_data: judge the rest against the best held-out prediction of any evaluated model and
+            also evaluate every candidate effect together (group mode with ``noise_from_data``;
+            :mod:`icgo.discrepancy.scatter`).
     """
 
     stations: Stations
@@ -156,6 +177,7 @@ class SearchContext(NamedTuple):
     n_res: int
     names: tuple
     config: WorkflowConfig
+    scatter_from_data: bool = False
 
 
 class SearchState(NamedTuple):
@@ -172,6 +194,9 @@ class SearchState(NamedTuple):
         before: comparison of the reference model's full fit with the measurements.
         done: True when the search stops here (best does not qualify, or ``max_effects``).
         ctx: :class:`SearchContext`.
+        converged: (M,) whether each evaluated model's fits converged (:data:`CONVERGED_GAP`, :data:`CONVERGED_FALL`).
+        best: (held-out chi2 per residual, (n, 6) its held-out chi2 per component, model name) of the best
+            converged model evaluated so far (``scatter_from_data``), or None.
     """
 
     model: tuple
@@ -185,6 +210,8 @@ class SearchState(NamedTuple):
     before: Comparison
     done: bool
     ctx: SearchContext
+    converged: np.ndarray | None = None
+    best: tuple | None = None
 
 
 class Result(NamedTuple):
@@ -202,6 +229,8 @@ class Result(NamedTuple):
         structure_remains: ``heldout > noise_tolerance * noise_floor``.
         final_candidates: the candidates of the last evaluation (where the search stopped).
         config: the options used. seconds: wall time, s (including compilation).
+        noise_estimate: the sensors' scatter estimated from the shots (group mode with ``noise_from_data``;
+            :mod:`icgo.discrepancy.scatter`), on which ``structure_remains`` is then based; or None.
     """
 
     steps: tuple
@@ -221,6 +250,7 @@ class Result(NamedTuple):
     final_candidates: tuple
     config: WorkflowConfig
     seconds: float
+    noise_estimate: NoiseEstimate | None = None
 
     @property
     def named(self) -> list:
@@ -229,9 +259,10 @@ class Result(NamedTuple):
 
 
 def _mask(ctx: SearchContext, effects) -> np.ndarray:
-    """(P,) 0/1 free parameters of the model ``effects`` (+ the free nuisances)."""
+    """(P,) 0/1 free parameters of the model ``effects`` (+ the free nuisances); :data:`VOCABULARY`: every
+    candidate effect."""
     m = ctx.free_nuisance.astype(float).copy()
-    for e in effects:
+    for e in (ctx.names if VOCABULARY in effects else effects):
         m[ctx.layout.slice(e)] = 1.0
     return m
 
@@ -242,7 +273,7 @@ def _gap_of(ctx: SearchContext, ev: Evaluation, m: int) -> Gap:
 
 
 def _evaluated(ctx: SearchContext, model: tuple, theta, steps: tuple, gaps: tuple, before,
-               own: Evaluation | None = None) -> SearchState:
+               own: Evaluation | None = None, best: tuple | None = None) -> SearchState:
     """Evaluate the current model and every candidate from ``theta``; score and rank the candidates.
 
     ``own``: the current model's evaluation when it was a candidate of the step before (one row of
@@ -254,13 +285,31 @@ def _evaluated(ctx: SearchContext, model: tuple, theta, steps: tuple, gaps: tupl
     # a fixed number of models (current + every candidate) so that shapes, hence the
     # compiled function, stay the same across steps; effects already in the model are
     # evaluated as duplicates of the current model and ignored.
-    trial = [None] + [c if c not in model else "" for c in ctx.names]
+    trial = [None] + [c if c not in model else "" for c in ctx.names] + (
+        [VOCABULARY] if ctx.scatter_from_data else [])
     masks = np.stack([_mask(ctx, model + ((c,) if c else ())) for c in trial])
-    ev = evaluate_models(jnp.asarray(theta), jnp.asarray(masks), jnp.asarray(ctx.train), jnp.asarray(ctx.test),
-                         jnp.asarray(ctx.valid_w), jnp.asarray(ctx.group_free), ctx.data, layout, cfg.n_iter)
-    ev = Evaluation(*(np.asarray(x) for x in ev))
-    if own is not None:
+    M, K, P = len(masks), len(ctx.train), len(theta)
+    starts = (np.broadcast_to(np.asarray(theta), (M, K, P)), np.broadcast_to(np.asarray(theta), (M, P)))
+    previous = None
+    for _ in range(MAX_ROUNDS):  # go on from the last fits until every fit has converged (a fixed budget)
+        ev = evaluate_models(jnp.asarray(theta), jnp.asarray(masks), jnp.asarray(ctx.train), jnp.asarray(ctx.test),
+                             jnp.asarray(ctx.valid_w), jnp.asarray(ctx.group_free), ctx.data, layout, cfg.n_iter,
+                             starts=(jnp.asarray(starts[0]), jnp.asarray(starts[1])))
+        ev = Evaluation(*(np.asarray(x) for x in ev))
+        converged = ev.gap <= CONVERGED_GAP
+        if previous is not None:
+            converged |= (previous - ev.cost_total) <= CONVERGED_FALL * previous
+        # row 0, the current model, is replaced by its own evaluation below; the whole vocabulary is used
+        # only from the first evaluation
+        pending = ~converged
+        pending[0] &= own is None
+        pending[-1] &= not (ctx.scatter_from_data and before is not None)
+        if not pending.any():
+            break
+        starts, previous = (ev.theta_fold, ev.theta_full), ev.cost_total
+    if own is not None:  # a winner of the step before, whose fits converged
         ev = Evaluation(*(np.concatenate([np.asarray(o)[None], x[1:]]) for o, x in zip(own, ev)))
+        converged[0] = True
     g0 = _gap_of(ctx, ev, 0)
     if before is None:
         before = compare(ctx.stations, predict(jnp.asarray(ev.theta_full[0]), ctx.data, layout), valid)
@@ -271,7 +320,7 @@ def _evaluated(ctx: SearchContext, model: tuple, theta, steps: tuple, gaps: tupl
     scales = layout.scales()
     cands = []
     for m, c in enumerate(trial):
-        if not c:
+        if not c or c == VOCABULARY:
             continue
         z = paired_z(chi2[0, valid], chi2[m, valid])
         g = _gap_of(ctx, ev, m)
@@ -280,12 +329,21 @@ def _evaluated(ctx: SearchContext, model: tuple, theta, steps: tuple, gaps: tupl
         az_ok = not (np.isfinite(g.azimuth_rms_deg) and np.isfinite(g0.azimuth_rms_deg)) or \
             g.azimuth_rms_deg <= (1.0 + GAP_TOLERANCE) * g0.azimuth_rms_deg
         mag_ok = g.mag_rms_nT <= (1.0 + GAP_TOLERANCE) * g0.mag_rms_nT
-        ok = S[m] < (1.0 - cfg.min_rel_improvement) * S[0] and z >= cfg.min_z and mag_ok and az_ok
+        ok = S[m] < (1.0 - cfg.min_rel_improvement) * S[0] and z >= cfg.min_z and mag_ok and az_ok and converged[m]
         sl = layout.slice(c)
-        cands.append(Candidate(m, c, float(S[m]), float(bic[m]), z, bool(ok), ev.theta_full[m][sl] * scales[sl], g))
+        cands.append(Candidate(m, c, float(S[m]), float(bic[m]), z, bool(ok), ev.theta_full[m][sl] * scales[sl], g,
+                               bool(converged[m])))
     cands.sort(key=lambda t: (not t.qualifies, t.heldout))  # every qualifying candidate before any other
     done = not cands or not cands[0].qualifies or len(model) >= cfg.max_effects
-    return SearchState(model, np.asarray(theta), ev, masks, S, tuple(cands), steps, gaps, before, bool(done), ctx)
+    if ctx.scatter_from_data:
+        rows = [m for m in range(len(trial)) if converged[m] and (m > 0 or own is None)]
+        m = min(rows, key=lambda k: S[k]) if rows else None
+        if m is not None and (best is None or S[m] < best[0]):
+            name = ("every candidate effect together" if trial[m] == VOCABULARY
+                    else "+".join(model + ((trial[m],) if trial[m] else ())) or "reference")
+            best = (float(S[m]), (ev.r_held[m] / np.asarray(ctx.data.sig)) ** 2, name)
+    return SearchState(model, np.asarray(theta), ev, masks, S, tuple(cands), steps, gaps, before, bool(done), ctx,
+                       converged, best)
 
 
 def init(st: Stations, config: WorkflowConfig = WorkflowConfig(), key=None) -> SearchState:
@@ -312,7 +370,7 @@ def init(st: Stations, config: WorkflowConfig = WorkflowConfig(), key=None) -> S
         free_nuisance=prep.free_nuisance, group_free=group_free, train=train, test=test,
         valid_w=valid.astype(float), az_meas=np.asarray(azimuth_from_gv(st.G, st.B)),
         floor=noise_floor(int(valid.sum()), layout.n_groups), n_res=6 * int(valid.sum()), names=names,
-        config=config)
+        config=config, scatter_from_data=bool(config.noise_from_data and not st.has_reference))
     return _evaluated(ctx, (), np.zeros(layout.n_params), (), (), None)
 
 
@@ -358,7 +416,7 @@ def step(state: SearchState) -> SearchState:
         candidates=state.candidates, aliases=aliases)
     own = Evaluation(*(np.asarray(x)[best.index] for x in ev))
     return _evaluated(ctx, state.model + (best.name,), ev.theta_full[best.index], state.steps + (new,),
-                      state.gaps + (gap_after,), state.before, own)
+                      state.gaps + (gap_after,), state.before, own, state.best)
 
 
 def component_aliases(J, layout, effect: str, context, exclude, names, threshold, known=()) -> tuple:
@@ -398,7 +456,10 @@ def finish(state: SearchState, seconds: float = float("nan")) -> Result:
     theta = state.evaluation.theta_full[0]
     heldout = float(state.evaluation.chi2_held[0, valid].mean() / 6.0)
     after = compare(ctx.stations, predict(jnp.asarray(theta), ctx.data, layout), valid)
-    structure_remains = bool(heldout > cfg.noise_tolerance * ctx.floor)
+    est = None if state.best is None else estimate(state.best[1], valid, ctx.floor, cfg.noise, state.best[0],
+                                                    state.best[2])
+    scale = ctx.floor if est is None else max(ctx.floor, est.heldout)
+    structure_remains = bool(heldout > cfg.noise_tolerance * scale)
     if any(not s.separable for s in state.steps):
         kind = "not_separable"
     elif structure_remains:
@@ -412,7 +473,7 @@ def finish(state: SearchState, seconds: float = float("nan")) -> Result:
                   pattern_before=find_pattern(state.before, cfg.noise), pattern=find_pattern(after, cfg.noise),
                   field=fitted_field(theta, layout, ctx.data), heldout=heldout, noise_floor=ctx.floor,
                   structure_remains=structure_remains,
-                  final_candidates=state.candidates, config=cfg, seconds=seconds)
+                  final_candidates=state.candidates, config=cfg, seconds=seconds, noise_estimate=est)
 
 
 def run_workflow(st: Stations, config: WorkflowConfig = WorkflowConfig(), key=None) -> Result:

@@ -1,66 +1,154 @@
-"""``python -m icgo.io check FILE.csv|FILE.json [...] [--columns MAP]`` and ``python -m icgo.io export-mag-cal OUTDIR``."""
+"""``python -m icgo.io check|convert|export-mag-cal``: check a recording, convert a JSON to the contract, export.
+
+    python -m icgo.io check FILE.csv|FILE.json [...] [mag_axes=+x+y-z] [grav_axes=-y-x+z] [groups=auto|column|8-15,16-23] [--columns MAP]
+    python -m icgo.io convert FILE.json --out FILE.csv [mag_axes=...] [grav_axes=...] [groups=...] [--overwrite]
+    python -m icgo.io export-mag-cal OUTDIR [--overwrite]
+
+Settings are ``key=value`` words anywhere after the command (the keys of :data:`icgo.io.shots.SETTINGS`),
+the same keys the Hydra front doors take. A ``.json`` file is a circuitpython-mag-cal recording (either layout,
+:func:`icgo.io.shots.read_shots`); a CSV is checked against the data contract (``--columns MAP``: a JSON or YAML
+column map for a field export, :mod:`icgo.io.columns`), and with ``groups=`` also its groups. ``convert`` writes
+the contract CSV and its ``.meta.json`` (atomically, both or neither; an existing file is refused unless
+``--overwrite``) with the ``group`` column, so every front door that reads the contract can use the recording.
+``export-mag-cal`` writes the bundled devices into a directory of its own (all files or none). Exit status: 0 ok,
+1 bad data (one line per bad file; the others are still checked), 2 a bad setting or usage (one line).
+"""
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
+from icgo.core.settings import startup_interrupts
 
-from icgo.core.errors import DataError, SettingError
-from icgo.io.mag_cal_json import read_mag_cal_json
-from icgo.io.recording import column_map, load_mag_cal_device, mag_cal_devices, read_recording, write_recording
+if __name__ == "__main__":
+    startup_interrupts()  # a Ctrl-C while the modules below load: one line (run_cli takes over in main)
+
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+from icgo.core.errors import DataError, SettingError  # noqa: E402
+from icgo.core.settings import ArgumentParser, run_cli  # noqa: E402
+from icgo.io.files import Output  # noqa: E402
+from icgo.io.grouping import roll_table  # noqa: E402
+from icgo.io.recording import (  # noqa: E402
+    column_map,
+    load_mag_cal_device,
+    mag_cal_devices,
+    read_recording,
+    write_recording,
+)
+from icgo.io.shots import SETTINGS, is_json, read_shots  # noqa: E402
 
 
-def main(argv=None) -> int:
-    """``check FILE.csv|FILE.json [...]`` or ``export-mag-cal OUTDIR``; a DataError prints one line, exit 1.
+def split_words(words: list[str]) -> tuple[list[str], dict]:
+    """(paths, settings) of a command's words; a word with ``=`` is a setting (SettingError if unknown)."""
+    paths, settings = [], {}
+    for w in words:
+        key, sep, value = w.partition("=")
+        if not sep:
+            paths.append(w)
+        elif key in SETTINGS:
+            settings[key] = value
+        else:
+            raise SettingError(f"unknown setting {key!r} in {w!r}; python -m icgo.io takes {', '.join(SETTINGS)}")
+    return paths, settings
 
-    A ``.json`` file is read as a circuitpython-mag-cal recording (either layout,
-    :func:`icgo.io.mag_cal_json.read_mag_cal_json`). ``--columns MAP`` (a JSON or YAML column map,
-    :mod:`icgo.io.columns`) reads field exports whose column names differ from the contract's.
-    """
-    argv = list(sys.argv[1:] if argv is None else argv)
-    usage = "usage: python -m icgo.io check FILE.csv|FILE.json [...] [--columns MAP] | export-mag-cal OUTDIR"
-    cmap = None
-    if "--columns" in argv:
-        i = argv.index("--columns")
-        if i + 1 >= len(argv):
-            print(usage, file=sys.stderr)
-            return 2
+
+def describe_shots(p, rec) -> list[str]:
+    """The ``ok`` line of a file of grouped shots and one line per roll."""
+    lines = [(f"{p}: ok, {len(rec.frame)} shots, {rec.frame['group'].nunique()} groups; "
+              f"{rec.meta.get('description', '')}")]
+    for r in roll_table(rec.frame).itertuples():
+        lines.append(f"  roll: group {r.group}, shots {r.shots} ({r.n}), raw inclination {r.inclination_deg:.1f} deg, "
+                     f"roll span {r.roll_span_deg:.0f} deg, off its plane {r.plane_g:.4f} g / {r.plane_b:.4f} |B|, "
+                     f"axis {r.axis_to_z_deg:.1f} deg from tool z")
+    return lines
+
+
+def check(words: list[str], columns: str | None = None) -> int:
+    """Print one ``ok`` block per file (its rolls for grouped shots) and the notices; a bad file is one line on
+    stderr and the others are still checked. Exit status 1 if any was bad; a bad setting raises SettingError."""
+    paths, settings = split_words(words)
+    if not paths:
+        raise SettingError("check: no file given")
+    cmap = column_map(None, columns, "--columns") if columns else None
+    bad = 0
+    for p in paths:
         try:
-            cmap = column_map(None, argv[i + 1], "--columns")
-        except SettingError as e:
-            print(str(e), file=sys.stderr)
-            return 2
-        del argv[i:i + 2]
-    if len(argv) < 2 or argv[0] not in ("check", "export-mag-cal"):
-        print(usage, file=sys.stderr)
-        return 2
-    try:
-        if argv[0] == "check":
-            for p in argv[1:]:
-                if str(p).lower().endswith(".json"):
-                    rec = read_mag_cal_json(p)
-                    print(f"{p}: ok, {len(rec.frame)} shots, {rec.frame['group'].nunique()} groups; "
-                          f"{rec.meta['description']}")
-                    continue
+            if is_json(p) or settings:
+                rec = read_shots(p, columns=cmap, **settings)
+                lines = describe_shots(p, rec)
+            else:
                 rec = read_recording(p, columns=cmap)
                 f = rec.field
                 fdesc = (f"field {f.total_field_nT:.1f} nT, dip {f.dip_deg:.3f}, decl {f.declination_deg:.3f} "
                          f"({f.origin})" if f else "no reference field")
-                print(f"{p}: ok, {len(rec.frame)} rows, columns {', '.join(rec.frame.columns)}; {fdesc}")
-                for n in rec.notices:
-                    print(f"  notice: {n}")
-        else:
-            out = Path(argv[1])
-            out.mkdir(parents=True, exist_ok=True)
-            for name in mag_cal_devices():
-                rec = load_mag_cal_device(name)
-                write_recording(out / f"mag_cal_{name}.csv", rec.frame, rec.meta)
-                print(out / f"mag_cal_{name}.csv")
-    except DataError as e:
-        print(str(e), file=sys.stderr)
-        return 1
+                lines = [f"{p}: ok, {len(rec.frame)} rows, columns {', '.join(rec.frame.columns)}; {fdesc}"]
+        except SettingError:
+            raise
+        except DataError as e:
+            print(f"error: {e}", file=sys.stderr)
+            bad += 1
+            continue
+        print("\n".join(lines + [f"  notice: {n}" for n in rec.notices]))
+    return 1 if bad else 0
+
+
+def convert(words: list[str], out: str, overwrite: bool) -> int:
+    """``FILE.json --out FILE.csv [settings]``: the contract CSV + ``.meta.json`` with the checked groups."""
+    from icgo.io.recording import meta_path_for
+
+    paths, settings = split_words(words)
+    if len(paths) != 1:
+        raise SettingError("convert: give one FILE.json (and --out FILE.csv)")
+    if not str(out).lower().endswith(".csv"):
+        raise SettingError(f"convert: --out {out!r} must name a .csv file (its .meta.json is written beside it)")
+    if Path(out).resolve() == Path(paths[0]).resolve():
+        raise SettingError("convert: --out must not be the input file")
+    held = [p for p in (Path(out), meta_path_for(out)) if p.exists() or p.is_symlink()]
+    if held and not overwrite:
+        raise SettingError(f"convert: {held[0]} already exists; give --overwrite to replace it (and its pair)")
+    rec = read_shots(paths[0], **settings)
+    write_recording(out, rec.frame, rec.meta)
+    print("\n".join(describe_shots(paths[0], rec) + [f"  notice: {n}" for n in rec.notices]
+                    + [f"wrote {out} and {meta_path_for(out).name}"]))
     return 0
 
 
+def export_mag_cal(out: Path, overwrite: bool) -> int:
+    """The bundled devices as contract CSV + meta.json into ``out`` (a directory of its own: all files or none)."""
+    output = Output(out, setting="OUTDIR", overwrite=overwrite, writer="python -m icgo.io export-mag-cal",
+                    overwrite_hint="--overwrite").check()
+    recs = {name: load_mag_cal_device(name) for name in mag_cal_devices()}
+    with output.staged() as stage:
+        for name, rec in recs.items():
+            write_recording(stage / f"mag_cal_{name}.csv", rec.frame, rec.meta)
+    for name in recs:
+        print(out / f"mag_cal_{name}.csv")
+    return 0
+
+
+def main(argv=None) -> int:
+    """The command line; one line on stderr and exit 1 for bad data, 2 for a bad setting or usage."""
+    ap = ArgumentParser(prog="python -m icgo.io", description="Check recordings, convert a JSON recording to the "
+                        "data contract, export the bundled devices.")
+    sub = ap.add_subparsers(dest="command", required=True)
+    c = sub.add_parser("check", help="read and check contract CSVs and circuitpython-mag-cal JSON files")
+    c.add_argument("words", nargs="+", metavar="FILE|key=value",
+                   help=f"files to check; settings {', '.join(f'{k}=' for k in SETTINGS)}")
+    c.add_argument("--columns", metavar="MAP", help="a JSON or YAML column map for field exports (docs/data.md)")
+    v = sub.add_parser("convert", help="write a JSON recording as a contract CSV + meta.json with its groups")
+    v.add_argument("words", nargs="+", metavar="FILE.json|key=value")
+    v.add_argument("--out", required=True, metavar="FILE.csv")
+    v.add_argument("--overwrite", action="store_true", help="replace an existing FILE.csv and its meta.json")
+    e = sub.add_parser("export-mag-cal", help="write the 9 bundled devices as contract CSV + meta.json")
+    e.add_argument("outdir")
+    e.add_argument("--overwrite", action="store_true", help="replace a used OUTDIR whole")
+    a = ap.parse_args(argv)
+    if a.command == "check":
+        return check(a.words, a.columns)
+    if a.command == "convert":
+        return convert(a.words, a.out, a.overwrite)
+    return export_mag_cal(Path(a.outdir), a.overwrite)
+
+
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(run_cli(main))

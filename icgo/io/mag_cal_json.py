@@ -1,23 +1,23 @@
-"""circuitpython-mag-cal JSON recordings -> contract :class:`icgo.io.recording.Recording` (issue 16).
+"""circuitpython-mag-cal JSON recordings -> contract :class:`icgo.io.recording.Recording`.
 
 Two layouts are read (``docs/calibrate.md``):
 
 * **fixture** (mag_cal's ``tests/fixtures/cal_data``, the 9 bundled devices):
   ``{"shots": {"mag": [x, y, z, x, ...], "grav": [...]}, ...}``, flat lists padded
-  with null/NaN, already in the device frame, gravity in g, field in uT. 24 shots:
-  0-7 eight distinct orientations, 8-15 and 16-23 rolled about the pointing axis
-  (mag_cal ``read_fixture``).
+  with null/NaN, already in the device frame, gravity in g, field in uT; any number of shots.
 * **raw** (newer mag_cal): ``{"mag": [[x, y, z], ...], "grav": [[x, y, z], ...]}`` in
   the *sensor* frames, with the mounting given by axis strings (``mag_axes``,
   ``grav_axes``, mag_cal ``Axes``: for each device axis X, Y, Z the sensor axis
-  and its sign, e.g. ``+x+y-z``), gravity in m/s^2 and field in uT. The strings
-  come from the JSON (keys ``mag_axes`` / ``grav_axes``) or from the caller; the
-  rolled groups are found from the data (:func:`roll_groups`).
+  and its sign, e.g. ``+x+y-z``), gravity in m/s^2 or g and field in uT. The strings
+  come from the caller (a setting) or from the JSON (keys ``mag_axes`` / ``grav_axes``).
 
+In both, the rolls are found from the data (:func:`icgo.methods.rolls.find_rolls`) unless the caller
+gives them (``groups=``, :mod:`icgo.io.grouping`); every roll is checked, and a file without one is
+refused with the probable cause (for a raw file read with the default mounting: the mounting).
 Units are converted and stated in the recording's ``description``: gravity to g
-(m/s^2 / 9.80665 when the median |G| is near 9.8), field uT -> nT (x 1000). The
-device frame (X right, Y pointing, Z up) maps to the tool frame as for the bundled
-devices (:data:`icgo.io.recording.MAG_CAL_DEVICE_TO_TOOL`).
+(m/s^2 / 9.80665 when the median |G| is near 9.8), field uT -> nT (x 1000); a field that
+is not in uT (Gauss, nT) is refused with the factor. The device frame (X right, Y pointing, Z up)
+maps to the tool frame as for the bundled devices (:data:`icgo.io.recording.MAG_CAL_DEVICE_TO_TOOL`).
 """
 
 from __future__ import annotations
@@ -29,42 +29,50 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from icgo.core.errors import DataError
-from icgo.io.recording import STANDARD_GRAVITY, UT_TO_NT, Recording, device_to_tool, fail, fixture_shots, validate
-from icgo.methods.calibration import MIN_ROLLED_SHOTS
+from icgo.core.errors import DataError, SettingError
+from icgo.io.files import read_text_bounded
+from icgo.io.grouping import assign_groups
+from icgo.io.recording import (
+    MAG_CAL_RUNS,
+    STANDARD_GRAVITY,
+    UT_TO_NT,
+    Recording,
+    device_to_tool,
+    fail,
+    fixture_shots,
+    validate,
+)
+from icgo.methods.rolls import shot_ranges
 
-#: Median |G| bands that identify the gravity unit of a raw recording.
+#: Largest JSON recording read (bytes; docs/data.md): ten times the largest recording calibrate takes.
+MAX_JSON_BYTES = 4 << 20
+#: Median |G| bands that identify the gravity unit of a recording.
 G_UNIT_BANDS = {"g": (0.5, 1.5), "m/s^2": (5.0, 15.0)}
-#: Median |B| band (uT) of a magnetometer reading the earth's field in uT.
+#: Median |B| band (uT) of a magnetometer reading the earth's field in uT (hard iron included).
 B_UT_BAND = (5.0, 500.0)
-#: Roll-group finder: consecutive shots whose tool-z components of G (g) and of B (relative
-#: to the median |B|) stay within these tolerances of the run's mean, at least MIN_ROLLED_SHOTS (icgo.methods.calibration)
-#: long and spanning at least MIN_ROLL_SPAN_DEG of toolface, are one rolled group (one true
-#: direction). A hand-held roll wobbles: on the 9 bundled devices the pointing axis moves by up
-#: to 0.13 g in G_z and 0.06 |B| in B_z within a roll, and two rolls differ by 0.17 |B| in B_z.
-ROLL_G_TOL = 0.15
-ROLL_B_TOL = 0.10
-MIN_ROLL_SPAN_DEG = 90.0
+#: Other field units recognised only to name them in the refusal: median |B| band in that unit, x to uT.
+B_OTHER_UNITS = {"Gauss": ((0.05, 5.0), 100.0), "nT": ((5000.0, 500000.0), 0.001)}
+#: Mounting assumed when neither the caller nor the file gives one (mag_cal's default).
+DEFAULT_AXES = "+X+Y+Z"
 
 
-class AxesNotApplicable(DataError):
-    """``mag_axes`` / ``grav_axes`` given for a fixture-layout file (already in the device frame): a bad setting."""
-
-
-def parse_axes(axes: str, what: str) -> tuple[list[int], list[int]]:
+def parse_axes(axes: str, what: str, setting: bool = False) -> tuple[list[int], list[int]]:
     """mag_cal's axis string (``+X+Y+Z``, case-insensitive) -> (sensor index, sign) per device axis.
 
+    Args:
+        axes: the string. what: its name for the message (``mag_axes``, ``<file>: grav_axes``).
+        setting: the string is a setting (SettingError, exit 2) rather than read from a file (DataError).
     Raises:
-        DataError: one line naming ``what`` and the expected form.
+        SettingError / DataError: one line naming ``what`` and the expected form.
     """
     s = str(axes).strip().upper()
     bad = f"{axes!r}: expected 6 characters, a sign and one of X, Y, Z per device axis, e.g. +x+y-z"
-    if len(s) != 6 or any(s[i] not in "+-" or s[i + 1] not in "XYZ" for i in (0, 2, 4)):
-        fail(what, bad)
-    idx = ["XYZ".index(s[i + 1]) for i in (0, 2, 4)]
-    if sorted(idx) != [0, 1, 2]:
-        fail(what, bad + " (each axis once)")
-    return idx, [1 if s[i] == "+" else -1 for i in (0, 2, 4)]
+    ok = len(s) == 6 and all(s[i] in "+-" and s[i + 1] in "XYZ" for i in (0, 2, 4))
+    if ok and sorted("XYZ".index(s[i + 1]) for i in (0, 2, 4)) != [0, 1, 2]:
+        ok, bad = False, bad + " (each axis once)"
+    if not ok:
+        raise (SettingError if setting else DataError)(f"{what} {bad}")
+    return ["XYZ".index(s[i + 1]) for i in (0, 2, 4)], [1 if s[i] == "+" else -1 for i in (0, 2, 4)]
 
 
 def sensor_to_device(data, axes: str, what: str) -> np.ndarray:
@@ -72,48 +80,6 @@ def sensor_to_device(data, axes: str, what: str) -> np.ndarray:
     idx, sign = parse_axes(axes, what)
     data = np.asarray(data, np.float64)
     return data[:, idx] * np.asarray(sign, np.float64)
-
-
-def roll_groups(G, B) -> np.ndarray:
-    """Group ids of rolled shots (one true direction each), found from the data; other shots alone.
-
-    A roll about the pointing axis (tool z) keeps the tool-z components of gravity and of the
-    field (a body-fixed bias included) while the toolface turns. Consecutive shots within
-    :data:`ROLL_G_TOL` (g) and :data:`ROLL_B_TOL` (x median |B|) of the run's mean form a
-    run; a run of at least :data:`icgo.methods.calibration.MIN_ROLLED_SHOTS` spanning at least :data:`MIN_ROLL_SPAN_DEG` of
-    toolface is a group. Group ids: singles 0, 1, ... in shot order, then the rolled groups.
-
-    Args:
-        G: (N, 3) tool-frame gravity, g. B: (N, 3) tool-frame field (any unit).
-    Returns:
-        (N,) int64 group ids.
-    """
-    G = np.asarray(G, np.float64)
-    B = np.asarray(B, np.float64)
-    bscale = float(np.median(np.linalg.norm(B, axis=1)))
-    tf = np.degrees(np.arctan2(G[:, 1], -G[:, 0]))
-    runs, start = [], 0
-    for k in range(1, len(G) + 1):
-        if (k == len(G) or abs(G[k, 2] - G[start:k, 2].mean()) > ROLL_G_TOL
-                or abs(B[k, 2] - B[start:k, 2].mean()) > ROLL_B_TOL * bscale):
-            runs.append((start, k))
-            start = k
-    rolled = []
-    for a, b in runs:
-        if b - a >= MIN_ROLLED_SHOTS:
-            t = np.sort(np.mod(tf[a:b], 360.0))
-            gaps = np.diff(np.concatenate([t, t[:1] + 360.0]))
-            if 360.0 - gaps.max() >= MIN_ROLL_SPAN_DEG:
-                rolled.append((a, b))
-    group = np.full(len(G), -1, np.int64)
-    n_single = 0
-    for k in range(len(G)):
-        if not any(a <= k < b for a, b in rolled):
-            group[k] = n_single
-            n_single += 1
-    for j, (a, b) in enumerate(rolled):
-        group[a:b] = n_single + j
-    return group
 
 
 def _triples(v, src: str, key: str) -> np.ndarray:
@@ -127,20 +93,23 @@ def _triples(v, src: str, key: str) -> np.ndarray:
     return np.asarray(v, np.float64)
 
 
-def _gravity_to_g(grav: np.ndarray, src: str) -> tuple[np.ndarray, str]:
+def _gravity_to_g(grav: np.ndarray, src: str, key: str = "grav") -> tuple[np.ndarray, str]:
     med = float(np.median(np.linalg.norm(grav, axis=1)))
     for unit, (lo, hi) in G_UNIT_BANDS.items():
         if lo <= med <= hi:
             return (grav / STANDARD_GRAVITY if unit == "m/s^2" else grav), unit
-    fail(src, f"'grav': median |G| = {med:.4g} is neither g (~1) nor m/s^2 (~9.81)")
+    fail(src, f"'{key}': median |G| = {med:.4g} is neither g (~1) nor m/s^2 (~9.81)")
 
 
-def _field_to_nT(mag: np.ndarray, src: str) -> np.ndarray:
+def _field_to_nT(mag: np.ndarray, src: str, key: str = "mag") -> np.ndarray:
+    """uT -> nT; a field in another unit is refused with the factor that makes it uT."""
     med = float(np.median(np.linalg.norm(mag, axis=1)))
-    if not B_UT_BAND[0] <= med <= B_UT_BAND[1]:
-        fail(src, f"'mag': median |B| = {med:.4g}; expected the earth's field in uT "
-                   f"({B_UT_BAND[0]:g}-{B_UT_BAND[1]:g})")
-    return mag * UT_TO_NT
+    if B_UT_BAND[0] <= med <= B_UT_BAND[1]:
+        return mag * UT_TO_NT
+    unit = next((f"; looks like {u}: multiply by {k:g} to give uT" for u, ((lo, hi), k) in B_OTHER_UNITS.items()
+                 if lo <= med <= hi), "")
+    fail(src, f"'{key}': median |B| = {med:.4g}; expected the earth's field in uT "
+              f"({B_UT_BAND[0]:g}-{B_UT_BAND[1]:g}){unit}")
 
 
 def layout_of(d) -> str:
@@ -153,55 +122,81 @@ def layout_of(d) -> str:
                     "\"grav\": [...]}} or the raw layout {\"mag\": [[x, y, z], ...], \"grav\": [[x, y, z], ...]}")
 
 
-def read_mag_cal_json(path, mag_axes: str | None = None, grav_axes: str | None = None) -> Recording:
-    """A circuitpython-mag-cal JSON file (either layout) as a contract Recording with a ``group`` column.
+def read_mag_cal_json(path, mag_axes: str | None = None, grav_axes: str | None = None, groups=None) -> Recording:
+    """A circuitpython-mag-cal JSON file (either layout) as a contract Recording with a checked ``group`` column.
 
     Args:
         path: the JSON file.
-        mag_axes, grav_axes: mounting strings for the raw layout (override the file's keys;
+        mag_axes, grav_axes: mounting strings for the raw layout (settings: override the file's keys;
             default ``+X+Y+Z``, grav default = mag, as mag_cal). Refused for the fixture layout,
             which is in the device frame already.
+        groups: a :func:`icgo.io.grouping.parse_groups` value; None = ``auto`` (rolls found from the data).
     Returns:
-        Recording (station = shot index; no reference attitude, no field metadata).
+        Recording (station = shot index; no reference attitude, no field metadata); ``notices`` say
+        how the rolls were found.
     Raises:
-        DataError: one line naming the file and what is wrong.
+        SettingError: a bad ``mag_axes`` / ``grav_axes`` setting, axes for a fixture file, a bad shot range.
+        DataError: one line naming the file and what is wrong (no roll: with the probable cause).
     """
     src = str(path)
+    for key, v in (("mag_axes", mag_axes), ("grav_axes", grav_axes)):
+        if v is not None:
+            parse_axes(v, key, setting=True)
     try:
-        d = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError) as e:
-        fail(src, f"cannot read: {e.__class__.__name__}: {e}".splitlines()[0])
+        d = json.loads(read_text_bounded(path, MAX_JSON_BYTES, "a circuitpython-mag-cal JSON file"))
     except (json.JSONDecodeError, RecursionError, ValueError) as e:
+        if isinstance(e, DataError):
+            raise
         fail(src, f"not valid JSON: {str(e).splitlines()[0][:120]}")
     try:
         layout = layout_of(d)
     except DataError as e:
         fail(src, str(e))
+    hint = ""
     if layout == "fixture":
         if mag_axes is not None or grav_axes is not None:
-            raise AxesNotApplicable(f"{src}: mag_axes / grav_axes apply to the raw layout; this fixture-layout file "
-                                    "is in the device frame already: drop them")
-        G, B, group = fixture_shots(d, src)
+            raise SettingError(f"mag_axes / grav_axes apply to the raw layout; {src} is a fixture-layout file, "
+                               "in the device frame already: drop them")
+        G, B, fixed = fixture_shots(d, src)
+        _field_to_nT(B / UT_TO_NT, src, "shots.mag")
+        if _gravity_to_g(G, src, "shots.grav")[1] != "g":
+            fail(src, "'shots.grav': the fixture layout holds gravity in g; this file's looks like m/s^2")
         g_unit, axes_note = "g", "device frame (fixture layout)"
     else:
+        fixed = None
         mag, grav = _triples(d["mag"], src, "mag"), _triples(d["grav"], src, "grav")
         if len(mag) != len(grav):
             fail(src, f"'mag' has {len(mag)} readings and 'grav' {len(grav)}: one of each per shot")
-        ma = mag_axes if mag_axes is not None else d.get("mag_axes", "+X+Y+Z")
-        ga = grav_axes if grav_axes is not None else d.get("grav_axes", ma)
-        G_dev, g_unit = _gravity_to_g(sensor_to_device(grav, ga, f"{src}: grav_axes"), src)
+        from_file = {k: d.get(k) for k in ("mag_axes", "grav_axes")}
+        ma = mag_axes if mag_axes is not None else from_file["mag_axes"]
+        ga = grav_axes if grav_axes is not None else from_file["grav_axes"]
+        ga = ga if ga is not None else ma
+        if ma is None:
+            hint = (f"the mounting is not given (no mag_axes= / grav_axes=, and {src} has no mag_axes / grav_axes "
+                    f"keys; {DEFAULT_AXES} assumed): give mag_axes= and grav_axes=")
+        ma, ga = ma or DEFAULT_AXES, ga or DEFAULT_AXES
+        for key, v in (("mag_axes", ma), ("grav_axes", ga)):  # the settings were checked above; these are the file's
+            parse_axes(v, f"{src}: the file's {key}")
+        B = device_to_tool(_field_to_nT(sensor_to_device(mag, ma, "mag_axes"), src))
+        G_dev, g_unit = _gravity_to_g(sensor_to_device(grav, ga, "grav_axes"), src)
         G = device_to_tool(G_dev)
-        B = device_to_tool(_field_to_nT(sensor_to_device(mag, ma, f"{src}: mag_axes"), src))
-        group = roll_groups(G, B)
-        axes_note = f"sensor frames mapped to the device frame with mag_axes {str(ma).upper()}, " \
-                    f"grav_axes {str(ga).upper()} (mag_cal Axes)"
+        axes_note = (f"sensor frames mapped to the device frame with mag_axes {str(ma).upper()}, "
+                     f"grav_axes {str(ga).upper()} (mag_cal Axes{'; default: none given' if hint else ''})")
     frame = pd.DataFrame({"station": np.arange(len(G)), "gx": G[:, 0], "gy": G[:, 1], "gz": G[:, 2],
-                          "bx": B[:, 0], "by": B[:, 1], "bz": B[:, 2], "group": group})
+                          "bx": B[:, 0], "by": B[:, 1], "bz": B[:, 2]})
+    frame, notices = assign_groups(frame, groups, src, default="auto", no_roll_hint=hint)
+    if fixed is not None and groups is None and frame["group"].tolist() != fixed.tolist():
+        notices.append("the rolls found differ from mag_cal read_fixture's shots "
+                       + ", ".join(f"{a}-{b - 1}" for a, b in MAG_CAL_RUNS))
+    group = frame["group"].to_numpy()
     n_rolled = int(sum(np.sum(group == g) >= 2 for g in np.unique(group)))
     meta = {"name": str(d.get("name", Path(path).stem)) if isinstance(d, dict) else Path(path).stem,
             "source": src,
             "description": f"circuitpython-mag-cal {layout} layout; {axes_note}; device axes (X right, Y pointing, "
                            f"Z up) -> tool (x, y, z) = (Z, X, Y); gravity {g_unit}"
                            + (" / 9.80665 -> g" if g_unit == "m/s^2" else "")
-                           + f"; field uT x 1000 -> nT; {n_rolled} rolled group(s)"}
-    return validate(frame, meta, source=src, require_reference=False)
+                           + f"; field uT x 1000 -> nT; {len(group)} shots, {n_rolled} roll(s) "
+                           + "(" + "; ".join(f"shots {shot_ranges(np.flatnonzero(group == g))}"
+                                             for g in np.unique(group) if np.sum(group == g) >= 2) + ")"}
+    rec = validate(frame, meta, source=src, require_reference=False)
+    return rec._replace(notices=notices + rec.notices)

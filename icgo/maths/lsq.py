@@ -193,6 +193,42 @@ def least_squares(residual_fn: Callable[[jax.Array, Any], jax.Array], x0, args=N
     return LSQResult(x, cost, s.n, ok)
 
 
+def _normal_equations(residual_fn, args, f, blocks, P: int, dtype):
+    """``(cost(x), normal(x) -> (JᵀJ, Jᵀr))`` of ``residual_fn`` (fixed columns, ``f == 0``, zeroed), summed over
+    ``blocks`` when given (see :func:`least_squares_fixed`)."""
+    if blocks is None:
+        def res(x):
+            return jnp.ravel(residual_fn(x, args))
+
+        def cost(x):
+            return jnp.sum(res(x) ** 2)
+
+        def normal(x):
+            r = res(x)
+            J = jax.jacfwd(res)(x) * f
+            return J.T @ J, J.T @ r
+        return cost, normal
+
+    def res_b(x, blk):
+        return jnp.ravel(residual_fn(x, (args, blk)))
+
+    def over_blocks(fn, init):  # sum of fn(block) over the leading block axis
+        def body(acc, blk):
+            return jax.tree_util.tree_map(jnp.add, acc, fn(blk)), None
+        return jax.lax.scan(body, init, blocks)[0]
+
+    def cost_b(x):
+        return over_blocks(lambda blk: jnp.sum(res_b(x, blk) ** 2), jnp.zeros((), dtype))
+
+    def normal_b(x):
+        def one(blk):
+            r = res_b(x, blk)
+            J = jax.jacfwd(res_b)(x, blk) * f
+            return J.T @ J, J.T @ r
+        return over_blocks(one, (jnp.zeros((P, P), dtype), jnp.zeros((P,), dtype)))
+    return cost_b, normal_b
+
+
 def least_squares_fixed(residual_fn: Callable[[jax.Array, Any], jax.Array], x0, args=None, *, n_steps: int,
                         free=None, lam0: float = 1e-3, blocks=None) -> LSQResult:
     """Minimise ``sum(residual_fn(x, args)**2)`` by Levenberg-Marquardt with exactly ``n_steps`` steps.
@@ -247,36 +283,7 @@ def least_squares_fixed(residual_fn: Callable[[jax.Array, Any], jax.Array], x0, 
     dtype = x0.dtype
     P = x0.shape[0]
     f = jnp.ones((P,), dtype) if free is None else (jnp.asarray(free) != 0).astype(dtype)
-
-    if blocks is None:
-        def res(x):
-            return jnp.ravel(residual_fn(x, args))
-
-        def cost(x):
-            return jnp.sum(res(x) ** 2)
-
-        def normal(x):
-            r = res(x)
-            J = jax.jacfwd(res)(x) * f
-            return J.T @ J, J.T @ r
-    else:
-        def res_b(x, blk):
-            return jnp.ravel(residual_fn(x, (args, blk)))
-
-        def over_blocks(fn, init):  # sum of fn(block) over the leading block axis
-            def body(acc, blk):
-                return jax.tree_util.tree_map(jnp.add, acc, fn(blk)), None
-            return jax.lax.scan(body, init, blocks)[0]
-
-        def cost(x):
-            return over_blocks(lambda blk: jnp.sum(res_b(x, blk) ** 2), jnp.zeros((), dtype))
-
-        def normal(x):
-            def one(blk):
-                r = res_b(x, blk)
-                J = jax.jacfwd(res_b)(x, blk) * f
-                return J.T @ J, J.T @ r
-            return over_blocks(one, (jnp.zeros((P, P), dtype), jnp.zeros((P,), dtype)))
+    cost, normal = _normal_equations(residual_fn, args, f, blocks, P, dtype)
 
     eye = jnp.eye(P, dtype=dtype)
 
@@ -293,3 +300,69 @@ def least_squares_fixed(residual_fn: Callable[[jax.Array, Any], jax.Array], x0, 
     (x, _, c), _ = jax.lax.scan(step, init, None, length=n_steps)
     ok = jnp.isfinite(c) & jnp.all(jnp.isfinite(x))
     return LSQResult(x, c, jnp.asarray(n_steps), ok)
+
+
+def gauss_newton_gap(residual_fn: Callable[[jax.Array, Any], jax.Array], x, args=None, free=None,
+                     blocks=None) -> jax.Array:
+    """Fraction of the cost at ``x`` that one full Gauss-Newton step would still remove: a convergence measure.
+
+    With ``r = r(x)`` and ``J`` its Jacobian (fixed columns dropped through ``free``), the linearised
+    problem's best step removes ``|P_J r|^2 = gᵀ (JᵀJ)⁺ g`` (``g = Jᵀr``, ``P_J`` the projection onto
+    ``J``'s columns) of the cost ``|r|^2``, so ``gap`` is in [0, 1]: 0 at a stationary point (``g = 0``),
+    near 1 far from one. A fixed-budget fit (:func:`least_squares_fixed`) that ended with a gap above
+    1e-3 had not converged. ``gᵀ (JᵀJ)⁺ g`` is computed by :func:`_pinv_quadratic` (no LAPACK call).
+    Pure, jittable, vmappable.
+
+    Args:
+        residual_fn, x, args, blocks: as :func:`least_squares_fixed`. free: (P,) mask or None (all).
+    Returns:
+        () gap; 0 when the cost is 0, 1 when it is not finite.
+    """
+    x = jnp.asarray(x, dtype=jnp.result_type(float))
+    P = x.shape[0]
+    f = jnp.ones((P,), x.dtype) if free is None else (jnp.asarray(free) != 0).astype(x.dtype)
+    cost_fn, normal = _normal_equations(residual_fn, args, f, blocks, P, x.dtype)
+    H, g = normal(x)
+    removed = _pinv_quadratic(H, g)
+    cost = cost_fn(x)
+    gap = jnp.where(cost > 0, removed / jnp.where(cost > 0, cost, 1.0), 0.0)
+    return jnp.where(jnp.isfinite(cost) & jnp.isfinite(gap), jnp.clip(gap, 0.0, 1.0), 1.0)
+
+
+#: Ridge added to the unit-diagonal (Jacobi-scaled) normal matrix in :func:`_pinv_quadratic`.
+PINV_RIDGE = 1e-11
+
+
+def _pinv_quadratic(H, g):
+    """``gᵀ H⁺ g`` () for a symmetric positive semi-definite ``H`` (P, P) and ``g`` (P,) in its range.
+
+    Jacobi-scaled (unit diagonal; a zero column, a fixed parameter, is left out), a ridge of
+    :data:`PINV_RIDGE`, then a Cholesky factor and one forward substitution written in ``jnp`` and
+    ``lax.fori_loop``: ``|L⁻¹ g|²``. Directions the residuals do not see (eigenvalues at the ridge) carry
+    no part of ``g``, so they add nothing, as the pseudo-inverse drops them (tested against ``eigh``).
+
+    Why not ``jnp.linalg.eigh``: on CPU, jaxlib's batched LAPACK kernels wait for their batch on XLA's
+    intra-op thread pool, and two such calls running side by side in one program (the fold fits and the
+    all-station fits of :func:`icgo.discrepancy.fit.evaluate_models`) can hold every thread of a 2-core
+    pool while waiting for each other: the program never finishes (measured: jaxlib 0.10.2, 2 cores).
+    """
+    P = H.shape[0]
+    d = jnp.diag(H)
+    seen = d > 0
+    s = jnp.where(seen, 1.0 / jnp.sqrt(jnp.where(seen, d, 1.0)), 0.0)
+    idx = jnp.arange(P)
+    A = H * s[:, None] * s[None, :] + jnp.diag(jnp.where(seen, PINV_RIDGE, 1.0))
+    b = g * s
+
+    def column(j, L):
+        v = A[:, j] - L @ L[j, :]
+        ljj = jnp.sqrt(jnp.maximum(v[j], PINV_RIDGE))
+        return L.at[:, j].set(jnp.where(idx > j, v / ljj, jnp.where(idx == j, ljj, 0.0)))
+
+    L = jax.lax.fori_loop(0, P, column, jnp.zeros_like(A))
+
+    def forward(i, y):
+        return y.at[i].set((b[i] - L[i, :] @ y) / L[i, i])
+
+    y = jax.lax.fori_loop(0, P, forward, jnp.zeros_like(b))
+    return jnp.sum(y * y)

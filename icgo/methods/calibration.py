@@ -389,7 +389,7 @@ def _twelve_residuals(u, args):
     scale, G, B, sw, ref_nT, mu = args
     Bc = correct(u * scale, B)
     d = normalized_dot(G, Bc)
-    r1 = (d - jnp.mean(d)) * sw
+    r1 = (d - jnp.sum(sw * sw * d) / jnp.sum(sw * sw)) * sw  # the weighted mean: zero-weight shots do not enter
     r2 = jnp.sqrt(mu) * (jnp.linalg.norm(Bc, axis=1) / ref_nT - 1.0) * sw
     return jnp.concatenate([r1, r2])
 
@@ -399,18 +399,6 @@ def _modulus_residuals(u, args):
     scale, B, ref_nT, u0, ridge = args
     m = jnp.linalg.norm(correct(u * scale, B), axis=1) / ref_nT - 1.0
     return jnp.concatenate([m, ridge * (u - u0)])
-
-
-def _joint_residuals(u, args):
-    """Residuals of :func:`fit_joint` (rolled-group directions, eq. 5, unit spheres, ridge)."""
-    scale, G, B, member, avg, back, u0, ridge, group_weight = args
-    x = u * scale
-    Gc, Bc = correct(x[:12], G), correct(x[12:], B)
-    d = pointing_jnp(Gc, Bc)
-    dev = (d - back @ (avg @ d)) * member[:, None]
-    c = normalized_dot(Gc, Bc)
-    return jnp.concatenate([group_weight * dev.ravel(), c - jnp.mean(c), jnp.linalg.norm(Gc, axis=1) - 1.0,
-                            jnp.linalg.norm(Bc, axis=1) - 1.0, ridge * (u - u0)])
 
 
 def _column_scaled(fn):
@@ -438,11 +426,6 @@ def _solve_twelve(u0, args) -> LSQResult:
 @jax.jit
 def _solve_modulus(u0, args) -> LSQResult:
     return least_squares(_modulus_residuals, u0, args, max_steps=LSQ_MAX_STEPS)
-
-
-@jax.jit
-def _solve_joint(u0, args) -> LSQResult:
-    return least_squares(_joint_residuals, u0, args, max_steps=LSQ_MAX_STEPS)
 
 
 def _checked(fit: LSQResult, what: str) -> np.ndarray:
@@ -626,49 +609,6 @@ def pointing_jnp(G, B):
     east = east / jnp.linalg.norm(east, axis=-1, keepdims=True)
     north = jnp.cross(east, down)
     return jnp.stack([north[..., 2], east[..., 2], down[..., 2]], -1)
-
-
-def fit_joint(G, B, groups, xg0, xm0, min_size=MIN_ROLLED_SHOTS, ridge=1e-5, group_weight=1.0):
-    """Accelerometer (12) and magnetometer (12) parameters fitted together on rolled groups.
-
-    The group-aware pipeline (like mag_cal's fit_to_axis, but one least-squares
-    problem): residuals are the deviations of each rolled shot's pointing
-    direction from its group mean (rad), the dot-invariance residuals (eq. 5),
-    ``|G| - 1`` and ``|B| - 1`` (unit spheres), and a weak ridge towards the
-    start (the roll about the pointing axis is otherwise free); solved by
-    :func:`icgo.maths.lsq.least_squares` in variables scaled to order one.
-
-    Args:
-        G, B: (N, 3) raw readings. groups: (N,) ids (groups with >= min_size
-            shots are rolled groups). xg0, xm0: (12,) starts (ellipsoid fits to
-            radius 1).
-        min_size: smallest group treated as a rolled group.
-        ridge: weight of the pull towards the start (scaled variables).
-        group_weight: weight of the direction deviations against the dot-invariance
-            (one common dip over all shots) and unit-sphere residuals. 1: both are
-            angles in rad to first order. The first build used 100, which let the fit
-            trade the common dip for tighter groups: the dip then varied by 2.5-50 deg
-            over one device's shots (degenerate by :mod:`icgo.methods.cal_sanity` on all 27
-            fits of the 9 bundled devices; at 1, none is).
-    Returns:
-        (xg, xm) numpy (12,) each.
-    """
-    groups = np.asarray(groups)
-    ids = [g for g in np.unique(groups) if (groups == g).sum() >= min_size]
-    if not ids:
-        raise ValueError(f"fit_joint: no group with {min_size} or more rolled shots")
-    onehot = np.stack([(groups == g).astype(float) for g in ids])  # (K, N)
-    member = jnp.asarray(onehot.sum(0) > 0)
-    avg = jnp.asarray(onehot / onehot.sum(1, keepdims=True))
-    back = jnp.asarray(onehot.T)
-    x0 = np.concatenate([np.asarray(xg0), np.asarray(xm0)])
-    scale = np.concatenate([np.full(9, np.abs(x0[:9]).max()), np.ones(3) * np.abs(x0[:9]).max() ** -1,
-                            np.full(9, np.abs(x0[12:21]).max()), np.ones(3) * np.abs(x0[12:21]).max() ** -1])
-    u0 = jnp.asarray(x0 / scale)
-    args = (jnp.asarray(scale), jnp.asarray(G, jnp.float64), jnp.asarray(B, jnp.float64), member, avg, back, u0,
-            jnp.asarray(float(ridge)), jnp.asarray(float(group_weight)))
-    x = _checked(_solve_joint(u0, args), "fit_joint") * scale
-    return x[:12], x[12:]
 
 
 # ------------------------------------------------------------------- azimuth

@@ -58,8 +58,10 @@ LAMBDAS = tuple(float(v) for v in 10.0 ** np.arange(0.0, 7.01, 0.5))
 #: Basis centres on each axis' unit component and their width (Underwood's 3-parameter basis, mag_cal ``RBF``).
 CENTRES = (-1.0, 0.0, 1.0)
 WIDTH = 0.5
-#: Levenberg-Marquardt steps per fit: more change no chosen ridge or score of the bundled devices (tested).
-N_STEPS = 40
+#: Levenberg-Marquardt steps per fit. On the 9 bundled devices x 3 splits, 20, 40 (the first build) and 80
+#: steps choose the same ridges and give the same scores to 1e-15 deg (10 steps: 3e-9 deg); each step
+#: costs the batch of 15 ridges x (groups + 1) fits, the largest part of a calibration's time.
+N_STEPS = 20
 #: Hidden activations, by the name saved in a model file (``tanh``: the first build's files).
 ACTIVATIONS = ("gauss", "tanh")
 
@@ -134,8 +136,8 @@ def residuals(W, H, G, b, member, fit_w):
     return jnp.degrees(jnp.concatenate([dev, dip_dev[:, None], mod_dev[:, None]], 1))
 
 
-def _fit_one(lam, fit_w, H, G, b, member, n_steps):
-    """W (L, 3) minimising the fit shots' squared residuals + lam |W|^2, and the left-out shots' sum of squares."""
+def _fit_one(lam, fit_w, held_w, H, G, b, member, n_steps):
+    """W (L, 3) minimising the fit shots' squared residuals + lam |W|^2, and the held shots' sum of squares."""
     L = H.shape[1]
 
     def res(x, _):
@@ -143,44 +145,52 @@ def _fit_one(lam, fit_w, H, G, b, member, n_steps):
         return jnp.concatenate([r.ravel(), jnp.sqrt(lam) * x])
 
     x = least_squares_fixed(res, jnp.zeros(3 * L, b.dtype), n_steps=n_steps).x
-    held = residuals(x.reshape(L, 3), H, G, b, member, fit_w) * (1.0 - fit_w)[:, None]
+    held = residuals(x.reshape(L, 3), H, G, b, member, fit_w) * held_w[:, None]
     return x.reshape(L, 3), jnp.sum(held ** 2)
 
 
 @partial(jax.jit, static_argnames="n_steps")
-def _fit_batch(lambdas, fit_w, H, G, b, member, n_steps):
-    """:func:`_fit_one` for every ridge (lambdas (R,)) x fold (fit_w (F, N)): W (R, F, L, 3), held (R, F)."""
+def _fit_batch(lambdas, fit_w, held_w, H, G, b, member, n_steps):
+    """:func:`_fit_one` for every ridge (lambdas (R,)) x fold (fit_w, held_w (F, N)): W (R, F, L, 3), held (R, F)."""
     one = partial(_fit_one, n_steps=n_steps)
-    over_folds = jax.vmap(one, in_axes=(None, 0, None, None, None, None))
-    return jax.vmap(over_folds, in_axes=(0, None, None, None, None, None))(lambdas, fit_w, H, G, b, member)
+    over_folds = jax.vmap(one, in_axes=(None, 0, 0, None, None, None, None))
+    return jax.vmap(over_folds, in_axes=(0, None, None, None, None, None, None))(lambdas, fit_w, held_w, H, G, b,
+                                                                                member)
 
 
-def fit(G, b, groups, hidden=None, lambdas=LAMBDAS) -> MagRELM:
+def fit(G, b, groups, hidden=None, lambdas=LAMBDAS, train=None) -> MagRELM:
     """Fit the residual RELM on linearly calibrated shots; ``lambda`` by leave-one-group-out.
 
     Args:
         G: (N, 3) calibrated gravity (tool frame, any scale). b: (N, 3) linearly calibrated field (unit sphere).
         groups: (N,) group ids; groups of at least :data:`icgo.methods.calibration.MIN_ROLLED_SHOTS` shots are rolls.
         hidden: (4, L) hidden layer (default :func:`axis_rbf_hidden`). lambdas: candidate ridges (deg^2).
+        train: (N,) bool, the shots to fit on (default all); the others get zero weight, so that every
+            split of one recording has the same shapes (one compilation).
     Returns:
         :class:`MagRELM`.
     Raises:
-        ValueError: fewer than two groups (nothing to leave out).
+        ValueError: fewer than two training groups (nothing to leave out).
     """
     G = jnp.asarray(G, jnp.float64)
     b = jnp.asarray(b, jnp.float64)
     groups = np.asarray(groups)
+    train = np.ones(len(groups), bool) if train is None else np.asarray(train, bool)
     ids = np.unique(groups)
-    if len(ids) < 2:
-        raise ValueError(f"mag_relm.fit: leave-one-group-out needs at least 2 groups, got {len(ids)}")
+    if len(np.unique(groups[train])) < 2:
+        raise ValueError(f"mag_relm.fit: leave-one-group-out needs at least 2 groups, got "
+                         f"{len(np.unique(groups[train]))}")
     hidden = axis_rbf_hidden() if hidden is None else np.asarray(hidden, np.float64)
     H = features(b, jnp.asarray(hidden), "gauss", jnp)
     rolled = [g for g in ids if (groups == g).sum() >= MIN_ROLLED_SHOTS]
-    member = jnp.asarray(np.array([(groups == g) for g in rolled], np.float64).reshape(len(rolled), len(groups)))
-    # fold 0 fits every shot (the final model); fold k >= 1 leaves group ids[k-1] out
-    fit_w = jnp.asarray(np.array([np.ones(len(groups))] + [(groups != g) for g in ids], np.float64))
-    W, held = _fit_batch(jnp.asarray(lambdas, jnp.float64), fit_w, H, G, b, member, n_steps=N_STEPS)
-    cv = np.asarray(held[:, 1:].sum(1)) / len(groups)
+    member = jnp.asarray(np.array([train & (groups == g) for g in rolled], np.float64).reshape(len(rolled),
+                                                                                              len(groups)))
+    # fold 0 fits every training shot (the final model); fold k >= 1 leaves group ids[k-1] out and scores it
+    fit_w = np.array([train] + [train & (groups != g) for g in ids], np.float64)
+    held_w = np.array([np.zeros(len(groups))] + [train & (groups == g) for g in ids], np.float64)
+    W, held = _fit_batch(jnp.asarray(lambdas, jnp.float64), jnp.asarray(fit_w), jnp.asarray(held_w), H, G, b,
+                         member, n_steps=N_STEPS)
+    cv = np.asarray(held[:, 1:].sum(1)) / int(train.sum())
     if not np.all(np.isfinite(cv)):
         raise ValueError("mag_relm.fit: a leave-one-group-out fit is not finite (shots with gravity along the field?)")
     k = int(np.argmin(cv))

@@ -33,7 +33,7 @@ import pandas as pd
 from icgo.core.errors import ModelError
 from icgo.methods import calibration as cal
 from icgo.methods import mag_relm
-from icgo.models.format import CORRECTED_B, FittedModel, data_hash, frame_values, sensor_domain
+from icgo.models.format import CORRECTED_B, FittedModel, data_hash, frame_values, need, sensor_domain
 from icgo.physics.frames import azimuth_from_gv, inclination_from_g, toolface_from_g
 
 #: Methods a :class:`MagCalibration` may come from.
@@ -69,6 +69,9 @@ class MagCalibration(FittedModel):
     """
 
     KIND = "mag_calibration"
+    #: A calibration makes the field one earth field: its corrected |B| and dip are checked for spread over a
+    #: survey's stations (icgo.survey.apply.consistency_notice).
+    ONE_FIELD = True
     UNITS = {"x_mag": "R^-1 (1), b (nT)", "x_accel": "S (1), c (g)", "alignment": "1",
              "bx,by,bz": "nT", "gx,gy,gz": "g", "angles": "deg", "b_total_nT": "nT"}
 
@@ -106,6 +109,22 @@ class MagCalibration(FittedModel):
         if act is not None and (self.nl_hidden is None or act not in mag_relm.ACTIVATIONS):
             raise ModelError(f"mag_calibration: nl_activation must be one of {mag_relm.ACTIVATIONS} and comes with "
                              f"nl_hidden, got {act!r}")
+
+    #: Largest condition number of a loaded calibration's matrices (R^-1, S): beyond it a matrix is singular
+    #: in float64 and the corrected field meaningless.
+    MAX_CONDITION = 1e8
+
+    def validate(self) -> None:
+        """The matrices R^-1 (and S) invertible, the alignment a rotation."""
+        for name, x in (("x_mag", self.x_mag), ("x_accel", self.x_accel)):
+            if x is not None:
+                M = np.asarray(x, np.float64)[:9].reshape(3, 3)
+                need(bool(np.linalg.cond(M) < self.MAX_CONDITION), f"{name}: its matrix is singular (condition "
+                                                                     f"{np.linalg.cond(M):.3g})")
+        if self.alignment is not None:
+            Q = np.asarray(self.alignment, np.float64)
+            need(bool(np.allclose(Q @ Q.T, np.eye(3), atol=1e-6) and np.linalg.det(Q) > 0),
+                 "alignment must be a rotation matrix (orthonormal, determinant +1)")
 
     def corrected_field(self, B) -> np.ndarray:
         """Corrected field in fit units (before alignment): eq. (4), (N, 3) -> (N, 3)."""

@@ -16,7 +16,7 @@ import pandas as pd
 from icgo.core.settings import config_to_mapping
 from icgo.discrepancy.fit import correct_with, model_params
 from icgo.discrepancy.noise import Noise
-from icgo.models.format import CORRECTED_B, FittedModel, frame_values, sensor_domain
+from icgo.models.format import CORRECTED_B, FittedModel, frame_values, need, need_shape, sensor_domain
 from icgo.physics.frames import azimuth_from_gv, inclination_from_g, toolface_from_g
 from icgo.physics.qc import QCBands, survey_qc
 
@@ -47,6 +47,27 @@ class PhysicsModel(FittedModel):
     sigma_b_nT: float
     sigma_g: float
     n_iter: int = 10
+
+    MAY_BE_EMPTY = ("params",)  # a workflow that found no effect
+
+    #: Largest number of LM steps of the per-station inversion a loaded model may ask for.
+    MAX_ITER = 1000
+
+    def validate(self) -> None:
+        """Known effects with their parameter counts, field (3,) with |F| > 0, noise > 0, a bounded n_iter."""
+        from icgo.physics import effects as E
+
+        need(all(isinstance(n, str) and n in E.EFFECTS for n in self.effects),
+             f"effects must be names of icgo.physics.effects ({', '.join(E.EFFECTS)}), got {str(self.effects)[:80]}")
+        need(len(set(self.effects)) == len(self.effects), "effects must not repeat")
+        need(self.sizes == [E.EFFECTS[n].n_params for n in self.effects],
+             f"sizes {str(self.sizes)[:60]} do not match the effects' parameter counts")
+        need_shape(self.params, (sum(self.sizes),), "params")
+        need_shape(self.field, (3,), "field")
+        need(self.field[0] > 0 and abs(self.field[1]) <= 90, "field must be (total nT > 0, dip deg in [-90, 90], "
+                                                               "declination deg)")
+        need(self.sigma_b_nT > 0 and self.sigma_g > 0, "sigma_b_nT and sigma_g must be > 0")
+        need(1 <= self.n_iter <= self.MAX_ITER, f"n_iter must be 1 to {self.MAX_ITER}, got {self.n_iter}")
 
     @classmethod
     def from_result(cls, res, G, B) -> "PhysicsModel":

@@ -29,7 +29,7 @@ import pandas as pd
 
 from icgo.core.errors import ModelError
 from icgo.methods import nets, relm
-from icgo.models.format import FittedModel, data_hash, frame_values
+from icgo.models.format import FittedModel, data_hash, frame_values, need, need_shape
 from icgo.models.relm import circular_mean_spread
 from icgo.physics.frames import wrap360
 
@@ -103,6 +103,25 @@ class GyroNetwork(FittedModel):
                    train_loss=np.asarray(res.train_loss), val_loss=np.asarray(res.val_loss),
                    stopped_epoch=np.asarray(res.stopped_epoch))
 
+    def validate(self) -> None:
+        """S seeds: the weights' shapes follow ``net_config`` (hidden sizes, encoding), ``y_scale`` > 0."""
+        try:
+            cfg = nets.check_config(self.netconfig())
+            n = nets.n_inputs(cfg.encoding)
+        except (TypeError, ValueError, KeyError) as e:
+            raise ModelError(f"net_config is not a network configuration ({type(e).__name__}: "
+                             f"{str(e).splitlines()[0][:100] if str(e) else ''})") from None
+        need(isinstance(self.variant, str), "variant must be a name")
+        m1, m2 = cfg.hidden
+        S = np.shape(self.v)[0] if np.ndim(self.v) == 2 else -1
+        need(S >= 1, f"array 'v' has shape {np.shape(self.v)}, expected (S, {m2})")
+        E = np.shape(self.train_loss)[-1] if np.ndim(self.train_loss) == 2 else None
+        for name, shape in (("w1", (S, m1, n)), ("b1", (S, m1)), ("w2", (S, m2, m1)), ("b2", (S, m2)), ("v", (S, m2)),
+                            ("y_scale", (S,)), ("best_epoch", (S,)), ("best_val_loss", (S,)),
+                            ("train_loss", (S, E)), ("val_loss", (S, E)), ("stopped_epoch", (S,))):
+            need_shape(getattr(self, name), shape, name)
+        need(bool(np.all(self.y_scale > 0)), "y_scale must be > 0 (deg per output unit)")
+
     def netconfig(self) -> nets.NetConfig:
         """The :class:`icgo.methods.nets.NetConfig` the networks were trained with."""
         return nets.NetConfig(**{**self.net_config, "hidden": tuple(self.net_config["hidden"])})
@@ -151,6 +170,20 @@ class GyroRELM(FittedModel):
     std: np.ndarray
     train_fitness: np.ndarray
 
+    def validate(self) -> None:
+        """S seeds: theta (S, (n_in + 1) L), beta (S, L), mean and std (S, n_in) with std > 0."""
+        need(self.method in ("relm", "icgo_relm"), f"method must be relm or icgo_relm, got {self.method!r}")
+        need(self.encoding in nets.ENCODINGS, f"encoding must be one of {nets.ENCODINGS}, got {self.encoding!r}")
+        need(self.hidden >= 1, f"hidden must be >= 1, got {self.hidden}")
+        need(self.lam > 0, f"lam must be > 0, got {self.lam}")
+        n, L = nets.n_inputs(self.encoding), self.hidden
+        S = np.shape(self.beta)[0] if np.ndim(self.beta) == 2 else -1
+        need(S >= 1, f"array 'beta' has shape {np.shape(self.beta)}, expected (S, {L})")
+        for name, shape in (("theta", (S, (n + 1) * L)), ("beta", (S, L)), ("mean", (S, n)), ("std", (S, n)),
+                            ("train_fitness", (S,))):
+            need_shape(getattr(self, name), shape, name)
+        need(bool(np.all(self.std > 0)), "std must be > 0 (the inputs are divided by it)")
+
     def relms(self) -> relm.RELM:
         """The batched :class:`icgo.methods.relm.RELM` (seed axis first)."""
         return relm.RELM(jnp.asarray(self.theta), jnp.asarray(self.beta), jnp.asarray(self.mean),
@@ -188,9 +221,18 @@ class LookupTableModel(FittedModel):
     error: np.ndarray
 
     def __post_init__(self):
-        if self.error.shape != (len(self.inc_nodes), len(self.az_nodes)):
-            raise ModelError(f"gyro_lookup_table: error must be ({len(self.inc_nodes)}, {len(self.az_nodes)}), "
-                             f"got {self.error.shape}")
+        if np.shape(self.error) != (np.size(self.inc_nodes), np.size(self.az_nodes)):
+            raise ModelError(f"gyro_lookup_table: error must be ({np.size(self.inc_nodes)}, {np.size(self.az_nodes)}), "
+                             f"got {np.shape(self.error)}")
+
+    def validate(self) -> None:
+        """Ascending nodes (inclination in [0, 180], azimuth in [0, 360)), the error table on them."""
+        for name, hi in (("inc_nodes", 180.0), ("az_nodes", 360.0)):
+            a = getattr(self, name)
+            need(np.ndim(a) == 1 and bool(np.all(np.diff(a) > 0)), f"{name} must be a 1-d ascending array")
+            need(bool(np.all((a >= 0) & (a <= hi))), f"{name} must lie in [0, {hi:g}] deg")
+        need(isinstance(self.toolface, str) and self.toolface == "mean" or not isinstance(self.toolface, str),
+             f"toolface must be 'mean' or a number (deg), got {self.toolface!r}")
 
     def table(self) -> nets.LookupTable:
         """The :class:`icgo.methods.nets.LookupTable`."""

@@ -28,10 +28,21 @@ from icgo.core.errors import ModelError
 from icgo.maths.conformal import conformal_quantile
 from icgo.methods import msa as _msa
 from icgo.methods import relm as _relm
-from icgo.models.format import CORRECTED_B, FittedModel, frame_values
+from icgo.models.format import CORRECTED_B, FittedModel, frame_values, need, need_shape
 from icgo.physics.frames import angle_diff, azimuth_from_gv, inclination_from_g, toolface_from_g, wrap360
 
 SENSORS = ("gx", "gy", "gz", "bx", "by", "bz")
+#: Input features of the RELM: the six raw sensor values (the paper) or G with the MSA-corrected field.
+FEATURES = ("raw", "msa")
+#: Largest ridge lambda a study or a model may carry. lambda is absolute (not scaled by the number of rows,
+#: docs/relm_study.md): at 1 the validation RMSE on lab_casing is already 1.5 x that at 1e-3, and far above
+#: 1e3 the output weights shrink to nothing and the RELM returns MSA's azimuth unchanged (docs/reliability.md).
+MAX_LAM = 1e3
+#: Survey rows per block of :meth:`RELMCompensation.members`: bounds its memory (members x rows x hidden units
+#: of float64: 10 x 50,000 x 30 is 120 MB) whatever the survey's length; results do not depend on it.
+APPLY_BLOCK_ROWS = 50_000
+#: Largest number of hidden units of a loaded model.
+MAX_HIDDEN = 100_000
 
 
 def circular_mean_spread(a_deg):
@@ -105,6 +116,10 @@ class MSAModel(FittedModel):
     scale: np.ndarray
     repeat_ids: list
 
+    def validate(self) -> None:
+        """R members: bias (R, 3), scale (R, 3) with 1 + s > 0, R repeat ids."""
+        _check_members(self.bias, self.scale, self.repeat_ids, "bias", "scale")
+
     def apply(self, frame: pd.DataFrame) -> pd.DataFrame:
         """Per row: corrected field (ensemble mean, nT), MSA azimuth (ensemble) and its spread (deg)."""
         v = frame_values(frame, SENSORS, "MSA model")
@@ -116,6 +131,15 @@ class MSAModel(FittedModel):
         return pd.DataFrame({**_attitude_columns(frame, G), "azimuth_raw": np.asarray(azimuth_from_gv(G, B)),
                              **dict(zip(CORRECTED_B, Bm.T)), "azimuth_compensated": a_mean,
                              "azimuth_spread_deg": spread})
+
+
+def _check_members(bias, scale, repeat_ids, bname: str, sname: str) -> int:
+    R = len(repeat_ids)
+    need(R >= 1, "repeat_ids must list one id per member (at least one)")
+    need_shape(bias, (R, 3), bname)
+    need_shape(scale, (R, 3), sname)
+    need(bool(np.all(1.0 + np.asarray(scale) > 0)), f"{sname} must be > -1 (the field is divided by 1 + s)")
+    return R
 
 
 @jax.jit
@@ -173,6 +197,25 @@ class RELMCompensation(FittedModel):
     interval_halfwidth: np.ndarray
     interval_level: float = INTERVAL_LEVEL
 
+    NAN_OK = ("interval_halfwidth",)  # NaN: a method no row was out of bag for
+
+    def validate(self) -> None:
+        """S methods x R members: the shapes agree with ``hidden``, ``x_std`` > 0, names and settings known."""
+        S = len(self.methods)
+        need(S >= 1 and all(isinstance(m, str) for m in self.methods) and len(set(self.methods)) == S,
+             f"methods must be a list of distinct names, got {str(self.methods)[:80]}")
+        need(self.selected in self.methods, f"selected {self.selected!r} is not one of the methods {self.methods}")
+        need(self.features in FEATURES, f"features must be one of {FEATURES}, got {self.features!r}")
+        need(1 <= self.hidden <= MAX_HIDDEN, f"hidden must be 1 to {MAX_HIDDEN}, got {self.hidden}")
+        need(0 < self.lam <= MAX_LAM, f"lam must be > 0 and at most {MAX_LAM:g}, got {self.lam}")
+        need(0 < self.interval_level < 1, f"interval_level must be in (0, 1), got {self.interval_level}")
+        R = _check_members(self.msa_bias, self.msa_scale, self.repeat_ids, "msa_bias", "msa_scale")
+        L = self.hidden
+        for name, shape in (("x_mean", (R, 6)), ("x_std", (R, 6)), ("theta", (S, R, _relm.n_params(L))),
+                            ("beta", (S, R, L)), ("train_rmse", (S, R)), ("interval_halfwidth", (S,))):
+            need_shape(getattr(self, name), shape, name)
+        need(bool(np.all(self.x_std > 0)), "x_std must be > 0 (the inputs are divided by it)")
+
     def members(self, frame: pd.DataFrame, method: str | None = None):
         """Every repeat's (A_msa, predicted error) for one method: two (R, N) arrays, deg."""
         method = self.selected if method is None else method
@@ -180,11 +223,14 @@ class RELMCompensation(FittedModel):
             raise ModelError(f"method {method!r} is not in this model; it holds {self.methods}")
         s = self.methods.index(method)
         v = frame_values(frame, SENSORS, f"{self.KIND} model")
-        a_msa, pred = _relm_members(jnp.asarray(v[:, :3]), jnp.asarray(v[:, 3:]), jnp.asarray(self.msa_bias),
-                                    jnp.asarray(self.msa_scale), jnp.asarray(self.x_mean), jnp.asarray(self.x_std),
-                                    jnp.asarray(self.theta[s]), jnp.asarray(self.beta[s]), int(self.hidden),
-                                    self.features == "raw")
-        return np.asarray(a_msa), np.asarray(pred)
+        params = (jnp.asarray(self.msa_bias), jnp.asarray(self.msa_scale), jnp.asarray(self.x_mean),
+                  jnp.asarray(self.x_std), jnp.asarray(self.theta[s]), jnp.asarray(self.beta[s]))
+        # row blocks: the hidden layer of every member at once is (R, rows, L), unbounded for a long survey
+        blocks = [_relm_members(jnp.asarray(v[i:i + APPLY_BLOCK_ROWS, :3]), jnp.asarray(v[i:i + APPLY_BLOCK_ROWS, 3:]),
+                                *params, int(self.hidden), self.features == "raw")
+                  for i in range(0, max(len(v), 1), APPLY_BLOCK_ROWS)]
+        return (np.concatenate([np.asarray(b[0]) for b in blocks], axis=1),
+                np.concatenate([np.asarray(b[1]) for b in blocks], axis=1))
 
     def apply(self, frame: pd.DataFrame, method: str | None = None) -> pd.DataFrame:
         """Compensated azimuth per row: ensemble over repeats of ``method`` (default :attr:`selected`).

@@ -14,7 +14,6 @@ Host-side numpy (float64): this is data preparation, not a search's hot path.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from icgo.physics.frames import earth_rate_ned, tool_to_earth
 
@@ -24,6 +23,8 @@ DEG_H_TO_RAD_S = np.pi / 180.0 / 3600.0
 def rot_exp(phi) -> np.ndarray:
     """Rotation matrices ``exp([phi x])`` of rotation vectors ``phi`` (..., 3) rad -> (..., 3, 3)."""
     phi = np.asarray(phi, np.float64)
+    from scipy.spatial.transform import Rotation  # imported here: scipy.spatial takes 0.6 s, most commands never rotate
+
     return Rotation.from_rotvec(phi.reshape(-1, 3)).as_matrix().reshape(phi.shape[:-1] + (3, 3))
 
 
@@ -36,6 +37,8 @@ def rot_log(R, near) -> np.ndarray:
     """
     R = np.asarray(R, np.float64)
     near = np.broadcast_to(np.asarray(near, np.float64), R.shape[:-2] + (3,)).reshape(-1, 3)
+    from scipy.spatial.transform import Rotation
+
     phi = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec()
     theta = np.linalg.norm(phi, axis=1, keepdims=True)
     nn = np.linalg.norm(near, axis=1, keepdims=True)

@@ -27,6 +27,10 @@ from icgo.core.errors import RecordError
 RECORDS_VERSION = 2
 
 RUN_FILE = "run.json"
+#: The record of an ``experiments.calibrate`` run directory (its ``recommendation`` names the model to apply).
+CALIBRATION_FILE = "calibration.json"
+#: Keys of a calibration run's ``recommendation``.
+RECOMMENDATION_KEYS = ("model", "method", "criterion", "held_out_deg", "spread_deg", "clear_winner", "runner_up")
 FAILED_FILE = "FAILED"
 CONFIG_FILE = "config.yaml"
 
@@ -105,3 +109,29 @@ def read_run(run_dir) -> dict:
     if missing:
         raise RecordError(f"{path}: run record lacks {missing} (written by an older icgo? re-run the study)")
     return run
+
+
+def recommended_model(run_dir) -> Path:
+    """The model file a calibration run directory recommends (its record's ``recommendation.model``).
+
+    Raises:
+        RecordError: an unreadable record, or one without a single recommendation (a run over several
+            recordings: the message lists their models).
+    """
+    path = Path(run_dir) / CALIBRATION_FILE
+    try:
+        run = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as e:
+        raise RecordError(f"{path}: unreadable calibration record ({type(e).__name__})") from None
+    rec = run.get("recommendation") if isinstance(run, dict) else None
+    if not isinstance(rec, dict):
+        several = run.get("recommendations") if isinstance(run, dict) else None
+        names = ", ".join(str(r.get("model")) for r in several.values()) if isinstance(several, dict) else ""
+        raise RecordError(f"{path}: no single recommendation" + (f" (one per recording: {names}; name one model file)"
+                                                                  if names else ""))
+    missing = [k for k in RECOMMENDATION_KEYS if k not in rec]
+    model = rec.get("model")
+    if missing or not isinstance(model, str) or Path(model).is_absolute() or ".." in Path(model).parts:
+        raise RecordError(f"{path}: a recommendation needs {list(RECOMMENDATION_KEYS)} with a model file inside the "
+                          f"run directory (missing {missing})")
+    return Path(run_dir) / model

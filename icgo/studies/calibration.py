@@ -12,17 +12,20 @@ Methods (unit-sphere fits; :func:`fit_recording`):
   one rotation putting the rolled groups' roll axis on tool z;
 * ``misma+axis``: MISMA on the same objective, in a box in the data's units that
   contains the least-squares solution (:func:`misma_box`), then the axis rotation;
-* ``joint``: accelerometer and magnetometer (24 parameters) fitted together on the
-  rolled groups' directions, with one common dip over all shots (:func:`icgo.methods.calibration.fit_joint`);
+* ``joint``: ``twelve+axis`` with the accelerometer's 12 parameters refitted on the rolls' directions, one
+  dip and unit spheres, regularised toward small accelerometer errors with its strength chosen by
+  leave-one-group-out (:mod:`icgo.methods.joint`);
 * ``twelve+axis+relm``: ``twelve+axis`` plus a RELM on its field residual, trained by group
   consistency with its ridge chosen by leave-one-group-out on the training shots (:mod:`icgo.methods.mag_relm`);
 * the peer package circuitpython-mag-cal side by side (``peer_*``), when installed.
 
 Splits (:func:`splits`): in-sample (fit and score on every shot) and one held-out
-split per rolled group (fit without it, score on it). Score: the peer's metric
+split per rolled group (fit without it, score on it; one roll: its two interleaved halves). Score: the peer's metric
 (:func:`icgo.methods.calibration.group_spread_deg`, deg) on the scored rolled groups. Every
 fit also gets its physical sanity on all shots (:func:`icgo.methods.cal_sanity.sanity`);
-a degenerate fit's score is withheld (NaN) and it is never counted as a win.
+a degenerate fit's score is withheld (NaN) and it is never counted as a win. Every group of a recording
+is checked to be a plausible roll first (:func:`icgo.methods.rolls.check_groups`); :func:`recommend`
+names the calibration to apply.
 """
 
 from __future__ import annotations
@@ -41,10 +44,11 @@ from icgo.core.errors import DataError
 from icgo.core.settings import is_int, need
 from icgo.io.recording import MAG_CAL_DEVICE_TO_TOOL, UT_TO_NT
 from icgo.methods import calibration as cal
-from icgo.methods import mag_relm
+from icgo.methods import joint, mag_relm
 from icgo.methods.cal_sanity import sanity
 from icgo.methods.calibration import MIN_ROLLED_SHOTS
 from icgo.methods.misma_objective import MismaObjective
+from icgo.methods.rolls import check_groups, rolled_ids
 from icgo.models.calibration import MagCalibration, mag_calibration
 from icgo.optim import base
 from icgo.optim import misma as misma_opt
@@ -96,16 +100,13 @@ def model_label(recording: str, method: str) -> str:
     return f"{recording}_{method.replace('+', '_')}"
 
 
-def rolled_ids(groups) -> list:
-    """Ids of the rolled groups (at least :data:`icgo.methods.calibration.MIN_ROLLED_SHOTS` shots), sorted."""
-    groups = np.asarray(groups)
-    return [g for g in np.unique(groups) if (groups == g).sum() >= MIN_ROLLED_SHOTS]
-
-
 def splits(groups) -> list[tuple]:
-    """(label, train mask, score mask): in-sample, then one per rolled group held out.
+    """(label, train mask, score mask): in-sample, then the held-out splits.
 
-    A rolled group is held out only when another rolled group remains to fit on.
+    With two or more rolls, one split per roll held out (fit without it, score on it). With one roll of
+    at least 2 x MIN_ROLLED_SHOTS shots, its two interleaved halves are held out in turn (odd shots, then
+    even shots, in shot order: each half still spans the roll): a weaker test, since the fit sees the
+    other half of the same direction. With one shorter roll, in-sample only.
     Raises ValueError (one line) when the recording has no rolled group.
     """
     groups = np.asarray(groups)
@@ -117,6 +118,12 @@ def splits(groups) -> list[tuple]:
     out = [("in-sample", allrows, allrows)]
     if len(ids) > 1:
         out += [(f"held-out group {g}", groups != g, groups == g) for g in ids]
+    elif (groups == ids[0]).sum() >= 2 * MIN_ROLLED_SHOTS:
+        rows = np.flatnonzero(groups == ids[0])
+        for half, name in ((rows[1::2], "odd"), (rows[0::2], "even")):
+            score = np.zeros(len(groups), bool)
+            score[half] = True
+            out.append((f"held-out half of group {ids[0]} ({name} shots)", ~score, score))
     return out
 
 
@@ -147,10 +154,13 @@ def _objective(n: int):
     return MismaObjective(cal.make_caldata(np.ones((n, 3)), np.ones((n, 3)), 1.0))
 
 
-def misma_on_shots(G_cal, B, config: CalibrationConfig, box, key) -> np.ndarray:
-    """MISMA on static shots (unit-sphere field) in ``box``, ``misma_repeats`` repeats; the lowest-fitness (12,)."""
+def misma_on_shots(G_cal, B, config: CalibrationConfig, box, key, weights=None) -> np.ndarray:
+    """MISMA on static shots (unit-sphere field) in ``box``, ``misma_repeats`` repeats; the lowest-fitness (12,).
+
+    ``weights``: (N,) 0/1, the shots it fits (default all): the others enter with zero weight, so every split
+    of a recording has one shape."""
     R = int(config.misma_repeats)
-    data = cal.make_caldata(G_cal, B, 1.0)
+    data = cal.make_caldata(G_cal, B, 1.0, weights=weights)
     aux = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (R,) + jnp.shape(a)), data)
     r = base.run_batch(get("misma"), _objective(len(B)), box, jax.random.split(key, R), int(config.misma_pop),
                        int(config.misma_iter), aux=aux)
@@ -161,30 +171,39 @@ class GeometryError(DataError):
     """The shots do not span the orientations the linear fits need (one line)."""
 
 
-def fit_recording(G, B, groups, config: CalibrationConfig, key, header: dict) -> dict:
-    """Our methods fitted on the given shots, as :class:`MagCalibration` s (see the module doc).
+def fit_recording(G, B, groups, config: CalibrationConfig, key, header: dict, train=None) -> dict:
+    """Our methods fitted on the ``train`` shots, as :class:`MagCalibration` s (see the module doc).
 
+    Every jitted fit sees all N shots of the recording, the held-out ones with zero weight, so one
+    recording compiles each fit once whatever the split (the closed forms run on the training rows).
+
+    Args:
+        G, B: (N, 3) raw shots, g and nT. groups: (N,) group ids. train: (N,) bool (default all).
     Raises:
         GeometryError: the ellipsoid or 12-parameter fit refuses the shots' geometry.
     """
+    groups = np.asarray(groups)
+    train = np.ones(len(groups), bool) if train is None else np.asarray(train, bool)
+    Gt, Bt, gt = G[train], B[train], groups[train]
     try:
-        xg = cal.ellipsoid_fit_accel(G)
-        xm = cal.ellipsoid_fit(B, 1.0, G)
+        xg = cal.ellipsoid_fit_accel(Gt)
+        xm = cal.ellipsoid_fit(Bt, 1.0, Gt)
+        cal.check_orientations(Gt, Bt)
     except ValueError as e:
         raise GeometryError(str(e).splitlines()[0]) from None
     G_c = np.asarray(cal.correct(jnp.asarray(xg), G))
-    scale = float(np.median(np.linalg.norm(B, axis=1)))
+    scale = float(np.median(np.linalg.norm(Bt, axis=1)))
 
     def model(method, x, alignment=None, x_accel=xg, extra=None):
-        return mag_calibration(method, x, G, B, {**header, **(extra or {})}, x_accel=x_accel, alignment=alignment,
+        return mag_calibration(method, x, Gt, Bt, {**header, **(extra or {})}, x_accel=x_accel, alignment=alignment,
                                field_scale_nT=scale)
 
     def aligned(method, x, extra=None):
-        return model(method, x, cal.align_to_axis(G_c, np.asarray(cal.correct(jnp.asarray(x), B)), groups),
+        return model(method, x, cal.align_to_axis(G_c[train], np.asarray(cal.correct(jnp.asarray(x), Bt)), gt),
                      extra=extra)
 
     try:
-        x12 = cal.fit_twelve(G_c, B, 1.0, x0=xm)
+        x12 = cal.fit_twelve(G_c, B, 1.0, x0=xm, weights=train.astype(float), check=False)
     except ValueError as e:
         raise GeometryError(str(e).splitlines()[0]) from None
     if config.misma_bounds == "paper":
@@ -192,13 +211,16 @@ def fit_recording(G, B, groups, config: CalibrationConfig, key, header: dict) ->
     else:
         (lb, ub), box = misma_box(xm, x12, scale), "icgo.studies.calibration.misma_box (defaults)"
     out = {"ellipsoid": model("ellipsoid", xm), "twelve+axis": aligned("twelve", x12)}
-    out["misma+axis"] = aligned("misma", misma_on_shots(G_c, B, config, (lb, ub), key),
+    out["misma+axis"] = aligned("misma", misma_on_shots(G_c, B, config, (lb, ub), key, train.astype(float)),
                                 {"misma_box_lb": lb.tolist(), "misma_box_ub": ub.tolist(), "misma_box": box})
-    jg, jm = cal.fit_joint(G, B, groups, xg, xm)
-    out["joint"] = model("joint", jm, x_accel=jg)
     lin = out["twelve+axis"]
+    Q = lin.alignment
+    rot = lambda x: np.concatenate([(Q @ np.asarray(x[:9]).reshape(3, 3)).ravel(), np.asarray(x[9:])])
+    j = joint.fit(G, B, groups, train, rot(xg), rot(x12))
+    out["joint"] = model("joint", j.xm, x_accel=j.xg, extra={"joint_lambda": j.lam, "joint_cv": j.cv.tolist(),
+                                                             "joint_gauss_newton_gap": j.gap})
     Gc_lin, Bc_lin = lin.corrected(G, B)
-    nl = mag_relm.fit(Gc_lin, Bc_lin, groups)
+    nl = mag_relm.fit(Gc_lin, Bc_lin, groups, train=train)
     out["twelve+axis+relm"] = dataclasses.replace(
         lin, method="twelve_relm", nl_hidden=nl.hidden, nl_out=nl.out, nl_activation=nl.activation,
         config={**lin.config, "relm_lambda_deg2": nl.lam, "relm_hidden": int(nl.hidden.shape[1]),
@@ -275,11 +297,16 @@ def evaluate(recordings: dict, config: CalibrationConfig, key) -> tuple[pd.DataF
     rows, models = [], {}
     for name, rec in recordings.items():
         G, B, groups = rec.G, rec.B, rec.frame["group"].to_numpy()
+        bad = {g: c for g, c in check_groups(G, B, groups).items() if not c.ok}
+        if bad:  # a group that is not a roll would be scored as one: never silently
+            g, c = next(iter(bad.items()))
+            raise DataError(f"{name}: group {g} is not a plausible roll: {'; '.join(c.reasons)} "
+                            "(icgo.methods.rolls; docs/calibrate.md)")
         for split, train, score in splits(groups):
             key, sub = jax.random.split(key)
             header = {"study": "calibration", "recording": name, "split": split, **dataclasses.asdict(config)}
             try:
-                fitted = fit_recording(G[train], B[train], groups[train], config, sub, header)
+                fitted = fit_recording(G, B, groups, config, sub, header, train)
             except GeometryError as e:  # the fits refuse a geometry they cannot solve: say where, and what helps
                 raise ValueError(f"{name}, {split}: {e} (the fits need shots in many "
                                  "orientations besides the rolls, e.g. the 8 single shots of the mag_cal "
@@ -322,6 +349,69 @@ def wide(df: pd.DataFrame) -> pd.DataFrame:
     cell = df.assign(cell=[("degenerate" if d else f"{s:.3f}") for s, d in zip(df["score_deg"], df["degenerate"])])
     out = cell.pivot(index=["recording", "split"], columns="method", values="cell")[order]
     return out.reindex(pd.unique(pd.MultiIndex.from_frame(df[["recording", "split"]]))).reset_index()
+
+
+def recommend(df: pd.DataFrame, recording: str) -> dict:
+    """The calibration to apply for one recording, and why (:func:`evaluate`'s table).
+
+    Among our methods (the ones saved as models) with no degenerate fit in any split, the lowest mean
+    held-out score; its uncertainty is the standard error of that mean over the held-out splits
+    (``spread_deg``). It is a **clear winner** when its margin over the runner-up exceeds that spread
+    (a rule of thumb over a few splits, not a significance test). Without a held-out split (one short
+    roll) the in-sample score decides and there is no clear winner.
+
+    Returns:
+        ``{"model", "method", "criterion", "held_out_deg", "spread_deg", "clear_winner", "runner_up",
+        "sentence"}``: ``model`` the file name relative to the run directory (``models/<label>.json``),
+        ``held_out_deg`` the deciding mean (in-sample when there is no held-out split), ``spread_deg`` its
+        standard error or None, ``runner_up`` a method or None, ``sentence`` the report's line.
+    Raises:
+        ValueError: every method has a degenerate fit.
+    """
+    g = df[(df["recording"] == recording) & df["method"].isin(METHODS)]
+    held = g[g["split"] != "in-sample"]
+    use = held if len(held) else g[g["split"] == "in-sample"]
+    sound = [m for m in METHODS if m in set(g["method"]) and not g.loc[g["method"] == m, "degenerate"].any()]
+    if not sound:
+        raise ValueError(f"{recording}: every calibration method has a degenerate fit (calibration.csv has the "
+                         "reasons); nothing to recommend")
+    scores = {m: use.loc[use["method"] == m, "score_deg"].to_numpy(np.float64) for m in sound}
+    ranked = sorted(sound, key=lambda m: (np.mean(scores[m]), METHODS.index(m)))
+    best, runner = ranked[0], (ranked[1] if len(ranked) > 1 else None)
+    n = len(scores[best])
+    mean = float(np.mean(scores[best]))
+    spread = float(np.std(scores[best], ddof=1) / np.sqrt(n)) if len(held) and n > 1 else None
+    margin = None if runner is None else float(np.mean(scores[runner]) - mean)
+    clear = bool(spread is not None and margin is not None and margin > spread)
+    what = f"mean held-out score over {n} held-out split(s)" if len(held) else "in-sample score (no held-out split)"
+    criterion = (f"lowest {what} among the methods with no degenerate fit"
+                 + ("" if runner is None else f"; margin over {runner} {margin:.3f} deg"
+                    + (f" vs the standard error {spread:.3f} deg" if spread is not None else "")))
+    verdict = ("a clear winner" if clear else "no clear winner" + ("" if runner is None else
+                                                                    f" ({runner} is within the spread)"))
+    sentence = (f"Apply `{best}` (`models/{model_label(recording, best)}.json`): {what} {mean:.3f}"
+                + (f" +/- {spread:.3f}" if spread is not None else "") + " deg, the lowest among the "
+                f"{len(sound)} method(s) with no degenerate fit"
+                + ("" if runner is None else f"; runner-up `{runner}` {mean + margin:.3f} deg") + f": {verdict}.")
+    return {"model": f"models/{model_label(recording, best)}.json", "method": best, "criterion": criterion,
+            "held_out_deg": mean, "spread_deg": spread, "clear_winner": clear, "runner_up": runner,
+            "sentence": sentence}
+
+
+def roll_directions(model: MagCalibration, G, B, groups) -> pd.DataFrame:
+    """Per roll: its mean pointing direction after a calibration (azimuth magnetic and inclination, deg) and
+    the spread of the shots about it (the peer's metric, deg)."""
+    Gc, Bc = model.corrected(G, B)
+    d = cal.pointing_directions(Gc, Bc)
+    _, spread = cal.group_spread_deg(Gc, Bc, groups, min_size=MIN_ROLLED_SHOTS)
+    rows = []
+    for g in rolled_ids(groups):
+        m = np.mean(d[np.asarray(groups) == g], axis=0)
+        m /= np.linalg.norm(m)
+        rows.append({"group": int(g), "azimuth_deg": float(np.mod(np.degrees(np.arctan2(m[1], m[0])), 360.0)),
+                     "inclination_deg": float(np.degrees(np.arccos(np.clip(m[2], -1.0, 1.0)))),
+                     "spread_deg": spread[int(g)]})
+    return pd.DataFrame(rows)
 
 
 class CalibrationResult(NamedTuple):

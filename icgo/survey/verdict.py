@@ -14,19 +14,18 @@ their summary / meta / report), from the numbers of the run they just made:
 
 A survey far outside the training domain makes ``apply`` exit with :data:`EXIT_OUT_OF_DOMAIN` after
 writing its files (docs/qc.md, "The verdict"): the correction there is an extrapolation. Pure functions
-over numbers and small dicts; nothing here reads files except :func:`recommendation_in`.
+over numbers and small dicts; nothing here reads files.
 """
 
 from __future__ import annotations
 
-import json
 import math
-from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 
 from icgo.models.format import DOMAIN_TOLERANCE, domain_overshoots
+from icgo.reporting.records import RECOMMENDATION_KEYS
 
 #: ``apply``'s exit status when the survey is far outside the model's training domain (files still written).
 EXIT_OUT_OF_DOMAIN = 3
@@ -35,8 +34,6 @@ EXIT_OUT_OF_DOMAIN = 3
 FAR_TOLERANCE = {k: 10.0 * v for k, v in DOMAIN_TOLERANCE.items()}
 #: Model kinds whose output corrects the magnetic field itself (their corrected field is what QC checks).
 FIELD_CORRECTING_KINDS = ("mag_calibration", "discrepancy_model", "msa")
-#: Keys of a calibrate run's ``recommendation`` (the calibrate run record).
-RECOMMENDATION_KEYS = ("model", "method", "criterion", "held_out_deg", "spread_deg", "clear_winner", "runner_up")
 
 
 class Verdict(NamedTuple):
@@ -264,24 +261,12 @@ def run_verdict(*, maes: dict, selected: str, halfwidth_deg: float | None, cover
 
 
 # ---------------------------------------------------------------- calibrate
-def recommendation_in(run_dir) -> dict | None:
-    """The ``recommendation`` of a calibrate run record in ``run_dir`` (any top-level ``*.json`` holding one), or None."""
-    for p in sorted(Path(run_dir).glob("*.json")):
-        try:
-            d = json.loads(p.read_text())
-        except (OSError, ValueError, UnicodeDecodeError):
-            continue
-        if isinstance(d, dict) and isinstance(d.get("recommendation"), dict):
-            return d["recommendation"]
-    return None
-
-
 def calibrate_verdict(*, recommendation: dict | None, n_models: int, n_degenerate: int, n_fits: int,
                       run_dir: str, held_out: dict | None = None) -> Verdict:
     """The verdict of ``experiments.calibrate``.
 
     Args:
-        recommendation: the run record's ``recommendation`` (:data:`RECOMMENDATION_KEYS`), or None.
+        recommendation: the run record's ``recommendation`` (:data:`icgo.reporting.records.RECOMMENDATION_KEYS`), or None.
         n_models: calibrations saved. n_degenerate, n_fits: fits flagged degenerate by the sanity check, of all.
         run_dir: the run directory (its ``models/`` folder).
         held_out: method -> mean held-out score (deg) of its sound fits, named when there is no recommendation.
@@ -308,8 +293,7 @@ def calibrate_verdict(*, recommendation: dict | None, n_models: int, n_degenerat
               f"not a clear winner: {r.get('runner_up')} is as good within the spread")
     runner = f"; runner-up {r['runner_up']}" if r.get("runner_up") and r.get("clear_winner") else ""
     model = f"{r['model']} ({r['method']}), chosen by {r['criterion']}: {winner}{runner}"
-    path = r["model"] if str(r["model"]).endswith(".json") else f"{r['model']}.json"
-    nxt = f"python -m experiments.apply model={run_dir}/models/{Path(path).name} data=<your survey.csv>"
+    nxt = f"python -m experiments.apply model={run_dir} data=<your survey.csv>"  # the run's recommended model
     return Verdict(acc, dom, qline, model, nxt, "n/a", 0, {"recommendation": r})
 
 

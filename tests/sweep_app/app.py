@@ -11,10 +11,12 @@ from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
+from omegaconf import OmegaConf
 
 
 @hydra.main(version_base="1.3", config_path=".", config_name="config")
 def app(cfg) -> None:
+    from experiments._relm_job import config_hash
     from icgo.reporting import records as R
 
     hc = HydraConfig.get()
@@ -26,7 +28,9 @@ def app(cfg) -> None:
         time.sleep(0.05)
     run = {k: None for k in R.RUN_KEYS} | {"status": "ok", "label": cfg.job,
                                            "xla_flags": os.environ.get("XLA_FLAGS", ""),
-                                           "affinity": sorted(os.sched_getaffinity(0))}
+                                           "affinity": sorted(os.sched_getaffinity(0)),
+                                           # the config it ran, as experiments.run records it (a re-run keeps it)
+                                           "config_sha256": config_hash(OmegaConf.to_container(cfg, resolve=True))}
     (out / R.RUN_FILE).write_text(json.dumps(run))
 
 
