@@ -12,7 +12,7 @@ Measured, in order (:func:`backend_check`):
    after compilation, best of a few calls), the other backend's kernel beside it at 120 and 1,200, and the
    plan kernel's largest relative difference from the float64 library fitness (120 thetas);
 3. a 2048^2 matrix product in float32 (the backend's default precision) and float64, and ``flop_fraction``:
-   kernel evals/s at batch 1,200 x :func:`experiments.bench.flops_per_eval` / the float32 rate;
+   kernel evals/s at batch 1,200 x :func:`experiments.bench_kernels.flops_per_eval` / the float32 rate;
 4. Table 3 through the front door (``python -m experiments.run experiment=table3``) in fresh processes,
    cold (empty compilation cache) and warm, with each run's time breakdown;
 5. the Table 3 study (5 strategies, 12,030 evaluations a run) in this process at 1, 10, 100 and 1,000
@@ -53,7 +53,7 @@ def kernel_rates(sd, plan_kernel: str, batches=BATCHES, reps: int = 3) -> dict:
         {kernel: {batch: evals/s}} for the plan's kernel at every batch and the other one at the batches
         up to 1,200; and ``max_rel_diff``: the plan kernel against :func:`icgo.methods.relm.fitness` (float64).
     """
-    from experiments.bench import HIDDEN, LAM, best_time, population, slice_tree
+    from experiments.bench_kernels import HIDDEN, LAM, best_time, population, slice_tree
     from icgo.core.execution import ACCELERATOR_KERNEL, CPU_KERNEL
     from icgo.methods import relm
     from icgo.studies import icgo_relm as study
@@ -131,7 +131,7 @@ def backend_check(budget_s: float = BUDGET_S, mealpy_runs: int = 5, front: bool 
 
     ``front``: False leaves the front door out; ``batches``, ``repeats``, ``config``: smaller sizes (a test).
     """
-    from experiments.bench import HIDDEN, flops_per_eval, matmul_gflops, run_mealpy, study_data
+    from experiments.bench_kernels import HIDDEN, flops_per_eval, matmul_gflops, run_mealpy, study_data
     from experiments.bench_user import front_door
     from icgo.optim import STRATEGIES
     from icgo.studies import icgo_relm as study

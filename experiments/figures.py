@@ -86,7 +86,7 @@ SCHEDULES_LABEL = "sweep_schedules"
 
 
 #: Run label of the CGO ablation behind Fig. 9 (``experiment=fig9_cgo_ablation``).
-ABLATION_LABEL = "sweep_fig9_ablation"
+ABLATION_LABEL = "fig9_cgo_ablation"
 
 
 #: Run labels of the mutation-readings sweeps (``experiment=sweep_wavelet``, ``sweep_sigma`` and ``sweep_paper_literal``, issue 18).
@@ -1098,10 +1098,10 @@ def build(dirs, out: Path) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     found = Runs(dirs)
     evals, runs = found.split_label(EQUAL_EVALS_LABEL)
-    # a sweep's runs (label "sweep_...") never replace the paper presets' runs in the pooled tables,
-    # whether or not a builder reads them
-    sweeps, runs = runs.split_label(*{str(r.get("label")) for r in runs.runs
-                                      if str(r.get("label") or "").startswith(SWEEP_PREFIX)})
+    # a sweep's runs (label "sweep_...") and the CGO ablation's never replace the paper presets' runs in the
+    # pooled tables, whether or not a builder reads them
+    sweeps, runs = runs.split_label(ABLATION_LABEL, *{str(r.get("label")) for r in runs.runs
+                                                      if str(r.get("label") or "").startswith(SWEEP_PREFIX)})
     sched, mutations = sweeps.split_label(SCHEDULES_LABEL)[0], sweeps.split_label(*MUTATIONS_LABELS)[0]
     ablation = sweeps.split_label(ABLATION_LABEL)[0]
     # each output: its builder and the runs it is made from (their budget, repeats and dtype stamp it)

@@ -5,7 +5,7 @@ table and, as its last line, one JSON object (also written to ``--out``). Run as
 itself to one core with one XLA thread (:func:`icgo.studies.workers.xla_flags`, as the launcher's jobs,
 set before JAX is imported); :mod:`experiments.bench` runs it in a child process for the same reason.
 
-Shape: the Table 3 study's repeat 0 (:func:`experiments.bench.study_data`): n = 407 training
+Shape: the Table 3 study's repeat 0 (:func:`experiments.bench_kernels.study_data`): n = 407 training
 rows, d1 = 7 augmented inputs (6 standardised sensors and a column of ones for the bias),
 L = 30 hidden units, chunks of C = 10 thetas, ``refine`` = 2, a batch of P = 1200 thetas.
 
@@ -76,7 +76,7 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from experiments.bench import HIDDEN, LAM, best_time, population, slice_tree, study_data  # noqa: E402
+from experiments.bench_kernels import HIDDEN, LAM, best_time, population, slice_tree, study_data  # noqa: E402
 from icgo.methods import relm  # noqa: E402
 
 #: Fewest loop iterations of a timed stage or ceiling (a call costs ~20 us before its first iteration).
