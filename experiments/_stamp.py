@@ -1,5 +1,6 @@
 """What a table or figure of ``results/`` was made from: budget, repeats, search dtype, and whether that is the paper's
-protocol, stamped on every Markdown table and every figure title by :mod:`experiments.figures`.
+protocol, stamped on every Markdown table and every figure title by :mod:`experiments.figures`; and the table's
+protocol line (command, repeats, split, seeds, test: :func:`icgo.reporting.protocol.protocol_line`) from the same runs.
 
 The stamp of the output being built is held in a context variable set by :func:`stamping` around each builder, so
 the builders' ``_write`` and :func:`save` calls stamp without passing it along. A run's settings are read from the
@@ -26,13 +27,16 @@ def run_settings(run_dir: Path) -> dict:
         cfg = yaml.safe_load((Path(run_dir) / "config.yaml").read_text()) or {}
     except (OSError, ValueError, yaml.YAMLError):
         cfg = {}
-    b, s = cfg.get("budget") or {}, cfg.get("split") or {}
+    b, s, d = cfg.get("budget") or {}, cfg.get("split") or {}, cfg.get("dataset") or {}
     return {"pop_size": b.get("pop_size"), "iterations": b.get("iterations"), "max_evals": b.get("max_evals"),
-            "dtype": cfg.get("dtype"), "n_repeats": s.get("n_repeats"), "protocol": s.get("protocol")}
+            "dtype": cfg.get("dtype"), "n_repeats": s.get("n_repeats"), "protocol": s.get("protocol"),
+            "train_fraction": s.get("train_fraction"), "split_seed": s.get("seed"), "dataset": d.get("name"),
+            "data_seed": d.get("seed")}
 
 
 def describe(settings: list[dict]) -> dict:
-    """The stamp of an output made from runs with these settings: ``{"text", "short", "paper"}``.
+    """The stamp of an output made from runs with these settings: ``{"text", "short", "paper", "repeats", "split",
+    "seeds"}`` (the last three: the fields of its protocol line).
 
     ``paper`` is True when every run used the paper's population and iterations (or its equal-evaluation
     variant) on the random 7:3 protocol; the text then says so, else it says which budget it was and
@@ -44,7 +48,7 @@ def describe(settings: list[dict]) -> dict:
         if key not in seen:
             seen.append(key)
     if not seen:
-        return {"text": "", "short": "", "paper": False}
+        return {"text": "", "short": "", "paper": False, **_split_and_seeds(settings)}
     paper = all(p == PAPER_POP and (it == PAPER_ITERATIONS or ev is not None) for p, it, ev, _, _ in seen) and all(
         s.get("protocol") in (None, "random") for s in settings)
     parts = []
@@ -58,7 +62,41 @@ def describe(settings: list[dict]) -> dict:
     p, it, ev, _, n = seen[0]
     short = (f"{p} x {it if ev is None else str(ev) + ' evals'}, {n} repeat(s)" + ("" if len(seen) == 1 else ", mixed")
              + ("" if paper else ": NOT the paper's protocol"))
-    return {"text": text, "short": short, "paper": paper}
+    return {"text": text, "short": short, "paper": paper, **_split_and_seeds(settings)}
+
+
+def _values(settings: list[dict], key: str) -> list:
+    """The distinct values of ``key`` over the runs, in first-seen order (None left out)."""
+    out = []
+    for s in settings:
+        v = s.get(key)
+        if v is not None and v not in out:
+            out.append(v)
+    return out
+
+
+def _split_and_seeds(settings: list[dict]) -> dict:
+    """The protocol line's repeats, split and seeds fields for runs with these settings."""
+    def listed(key, unknown="not recorded"):
+        v = _values(settings, key)
+        return ", ".join(str(x) for x in v) if v else unknown
+
+    repeats = listed("n_repeats")
+    fractions = _values(settings, "train_fraction")
+    parts = []
+    for protocol in _values(settings, "protocol") or ["random"]:
+        if protocol == "random":
+            share = " / ".join(f"{round(10 * f):g}:{round(10 * (1 - f)):g}" for f in fractions) or "7:3"
+            parts.append(f"random {share} of the 3-sigma-filtered rows, a new permutation per repeat; fitted (search "
+                         "fitness, MSA, ridge) on the training rows only, scored on the test rows")
+        else:
+            parts.append(f"{protocol} (docs/generalisation.md)")
+    seeds = (f"data: {listed('dataset', 'the data set')} with noise seed {listed('data_seed')}; repeat k: split and "
+             f"search key fold_in(PRNGKey({listed('split_seed')}), k), the same for every method (paired repeats). "
+             "No setting was chosen on these seeds' test rows (lambda: lab_casing seed 1, study seed 100, "
+             "docs/relm_study.md; the tuned RELM chooses on validation rows inside each training set)")
+    return {"repeats": f"{repeats} per run (paired: the same splits and keys for every method)",
+            "split": "; ".join(parts), "seeds": seeds}
 
 
 @contextlib.contextmanager
@@ -75,6 +113,16 @@ def note() -> str:
     """The stamp line for a Markdown table (empty outside :func:`stamping`)."""
     s = _CURRENT.get()
     return s["text"] if s else ""
+
+
+def protocol(command: str, test: str, repeats: str | None = None, split: str | None = None,
+             seeds: str | None = None) -> str:
+    """The protocol line of the table being built (:func:`icgo.reporting.protocol.protocol_line`): repeats, split and
+    seeds from the runs it is made from (within :func:`stamping`), unless given."""
+    from icgo.reporting.protocol import protocol_line
+
+    s = _CURRENT.get() or _split_and_seeds([])
+    return protocol_line(command, repeats or s["repeats"], split or s["split"], seeds or s["seeds"], test)
 
 
 def title(text: str) -> str:

@@ -65,6 +65,8 @@ def lab_casing_figures(out: Path, seed: int):
     stats = pd.DataFrame(rows)
     stats.to_csv(out / "datasets_lab_casing_fig6.csv", index=False)
     (out / "datasets_lab_casing_fig6.md").write_text(
+        _protocol(seed, "every kept row (MSA fitted to all of them: a description of the data, not a held-out "
+                  "score)") + "\n\n"
         f"lab_casing(seed={seed}): {len(f)} of {ds.meta['n_raw_rows']} rows kept by the 3-sigma rule; "
         f"MSA bias {np.round(bias, 1).tolist()} nT (true hard iron {ds.truth['effects'].get('hard_iron')})\n\n"
         + stats.round(3).to_markdown(index=False) + "\n\n"
@@ -73,6 +75,15 @@ def lab_casing_figures(out: Path, seed: int):
     plots.azimuth_per_station(stats).savefig(out / "datasets_lab_casing_fig6.png", dpi=120)
     plots.error_vs_toolface(f).savefig(out / "datasets_lab_casing_fig7.png", dpi=120)
     return stats
+
+
+def _protocol(seed: int, split: str) -> str:
+    """The protocol line of a data-set table (:func:`icgo.reporting.protocol.protocol_line`)."""
+    from icgo.reporting.protocol import protocol_line
+
+    return protocol_line("`make dataset-figures` (`python -m experiments.dataset_figures`)",
+                         "1 (one simulated draw)", split, f"data noise seed {seed}",
+                         "none: a description of the simulated data beside the paper's values")
 
 
 def well_conditions_table(out: Path, seed: int):
@@ -89,8 +100,12 @@ def well_conditions_table(out: Path, seed: int):
     })
     table.to_csv(out / "datasets_well_conditions_table4.csv", index=False)
     (out / "datasets_well_conditions_table4.md").write_text(
+        _protocol(seed, "every row (raw error only: nothing is fitted)") + "\n\n"
         f"well_conditions(seed={seed}), {len(f) // len(cond)} toolfaces per condition; raw azimuth error (deg)\n\n"
-        + table.round(4).to_markdown(index=False) + "\n")
+        + table.round(4).to_markdown(index=False) + "\n\n"
+        "The simulated columns are calibration targets, not a result: the casing geometry and the lab field were "
+        "set so that each condition's raw error lands near the paper's Table 4 (`tests/test_datasets.py` requires "
+        "|simulated - paper| < 6 deg per condition; docs/datasets.md).\n")
     plots.error_by_condition(table.assign(label=[f"I={i:g}, A={a:g}" for i, a in cond])).savefig(
         out / "datasets_well_conditions_table4.png", dpi=120)
     return table

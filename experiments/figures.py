@@ -41,40 +41,52 @@ from experiments import _stamp, sweep_conditions
 from icgo.optim import STRATEGIES
 from icgo.reporting.names import METHOD_NAMES, STRATEGY_NAMES, method_name
 from icgo.reporting.plots import plt_agg, save_figure
+from icgo.reporting.protocol import ALPHA
+from icgo.reporting.published import ICGO
 
 #: The five CGO 4th-seed strategies (:data:`icgo.optim.STRATEGIES`) and the four mutated ones.
 STRATEGIES5 = STRATEGIES
 STRATEGIES4 = tuple(s for s in STRATEGIES5 if s != "original")
 LABEL = STRATEGY_NAMES
-METRICS = ("mae", "rmse", "r2")
-MNAME = {"mae": "MAE (deg)", "rmse": "RMSE (deg)", "r2": "R^2"}
+#: The metrics of the paper's tables. R^2 is ``r2_error``, the R^2 of the error signal (``icgo.maths.metrics``): the
+#: reading the paper's R^2 values are consistent with (docs/relm_study.md); eq. (21) over the true azimuths (``r2`` in
+#: metrics.csv) is ~1.000000 for any sub-degree error and is not put beside the paper's values.
+METRICS = ("mae", "rmse", "r2_error")
+MNAME = {"mae": "MAE (deg)", "rmse": "RMSE (deg)", "r2_error": "R^2"}
+#: The note every table with an R^2 column carries.
+R2_NOTE = ("R^2 (ours) is the R^2 of the error signal, `r2_error` = 1 - sum(e_after^2) / sum((e_before - mean)^2) "
+           "with e_before the MSA residual (the model's target), the reading the paper's R^2 values are consistent "
+           "with (its 0.866 with RMSE 0.6035 implies a target variance of 2.7 deg^2; docs/relm_study.md). Eq. (21) "
+           "over the true azimuths (30-330 deg) is 1.000000 to six digits for every method here and is in "
+           "metrics.csv as `r2`.")
 
-#: Published numbers of the ICGO paper (test split; Tables 1-4, Fig. 9 text).
-PAPER = {
-    "table1": {"relm": (0.5111, 0.6035, 0.8660), "cgo-original": (0.0516, 0.0731, 0.9980)},
-    "fig9": {"cgo-original": (0.052, 0.073, 0.998)},
-    "table2": {"original": (0.0516, 0.0731, 0.9980), "chaos": (0.0393, 0.0532, 0.9990),
-               "gaussian": (0.0527, 0.0707, 0.9982), "wavelet": (0.0365, 0.0521, 0.9990),
-               "three_stage": (0.0300, 0.0417, 0.9994)},
-    "table3": {"chaos": ((0.0486, 0.0100), (0.0682, 0.0098), (0.9984, 0.0005)),
-               "gaussian": ((0.0444, 0.0060), (0.0693, 0.0097), (0.9984, 0.0002)),
-               "wavelet": ((0.0434, 0.0103), (0.0676, 0.0155), (0.9985, 0.0006)),
-               "three_stage": ((0.0391, 0.0100), (0.0453, 0.0070), (0.9987, 0.0004))},
-    # inclination, azimuth, raw error mean, raw std, compensated mean, compensated std (deg)
-    "table4": ((0.594, 30.0, 31.2905, 0.8895, 0.0459, 0.0370), (1.800, 60.0, 29.6639, 0.9838, 0.0719, 0.0656),
-               (60.0, 135.0, 6.2256, 0.1378, 0.0115, 0.0103), (90.0, 150.0, 5.7334, 0.6672, 0.0473, 0.0295),
-               (135.0, 210.0, 9.2645, 0.4551, 0.0049, 0.0117), (150.0, 270.0, 7.1916, 0.3263, 0.0621, 0.0521)),
-}
+#: Published numbers of the ICGO paper (test split; Tables 1-4, Fig. 9 text): :data:`icgo.reporting.published.ICGO`.
+PAPER = ICGO
 
 #: Run label of Fig. 9 at equal fitness evaluations (``experiment=fig9 budget=evaluations label=fig9_evals``).
 EQUAL_EVALS_LABEL = "fig9_evals"
 FIG9_NAMES = {m: METHOD_NAMES[m] for m in ("pso", "ga", "cgo-original")}
+
+#: Why CGO-RELM is last in Fig. 9 here: found by the ablation of ``experiment=fig9_cgo_ablation``
+#: (``results/fig9_ablation.md``) and by counting the seeds' acceptance (docs/optimizers.md, "Fig. 9").
+FIG9_MECHANISM = (
+    "Why CGO-RELM is last here, where the paper has it first (`fig9_ablation.md`; docs/optimizers.md, \"Fig. 9\"): "
+    "its search ends at a higher training RMSE than PSO's and GA's (it optimises worse; it does not over-fit). The "
+    "cause is the 4th seed of eq. 15, x_k + R with R ~ U(0, 1) on a random subset of the 210 hidden weights and "
+    "biases (105 on average): such a jump is almost never accepted, so a quarter of CGO's evaluations buy nothing. "
+    "With the 4th seed on one coordinate (`dims=one`) CGO-RELM optimises better than PSO-RELM and GA-RELM; on every "
+    "coordinate it is worse still. The 4th seed keeps the original CGO's reading (eq. 15 does not say which "
+    "coordinates; the reference codes take a random subset), and no default is changed on these numbers.")
 
 
 #: Runs whose label starts with this are sweeps: kept out of the pooled paper tables.
 SWEEP_PREFIX = "sweep_"
 #: Run label of the schedules sweep (``experiment=sweep_schedules``).
 SCHEDULES_LABEL = "sweep_schedules"
+
+
+#: Run label of the CGO ablation behind Fig. 9 (``experiment=fig9_cgo_ablation``).
+ABLATION_LABEL = "fig9_cgo_ablation"
 
 
 #: Run labels of the mutation-readings sweeps (``experiment=sweep_wavelet``, ``sweep_sigma`` and ``sweep_paper_literal``).
@@ -89,14 +101,16 @@ PLAN = (("table3", "table3", []), ("table1", "table1", ["optimizer=none"]),
         ("sweep_schedules", "sweep_schedules", []), ("sweep_wavelet", "sweep_wavelet", []),
         ("sweep_sigma", "sweep_sigma", []), ("sweep_paper_literal", "sweep_paper_literal", []),
         ("sweep_noise", "sweep_noise", []), ("sweep_casing", "sweep_casing", []),
-        ("sweep_casing_strength", "sweep_casing_strength", []), ("table4", "table4", []))
+        ("sweep_casing_strength", "sweep_casing_strength", []), ("table4", "table4", []),
+        ("fig9_ablation", "fig9_cgo_ablation", []))
 
 #: The plan entries whose runs each output is made from (named in its "missing runs" line).
 SOURCES = {"table1": ("table1", "table3"), "fig9": ("fig9", "table3"), "table2": ("table3",), "fig10": ("table3",),
            "fig11": ("table3",), "table3": ("table3",), "fig12": ("table3",), "fig13": ("table3",),
            "table4": ("table4",), "sweep_mutations": ("sweep_wavelet", "sweep_sigma", "sweep_paper_literal", "table3"),
            "sweep_noise": ("sweep_noise",), "sweep_casing": ("sweep_casing", "sweep_casing_strength"),
-           "fig9_budgets": ("fig9_evals", "fig9"), "sweep_schedules": ("sweep_schedules", "table3")}
+           "fig9_budgets": ("fig9_evals", "fig9"), "sweep_schedules": ("sweep_schedules", "table3"),
+           "fig9_ablation": ("fig9_ablation", "fig9", "table3")}
 
 
 def plan_command(name: str) -> str:
@@ -237,10 +251,18 @@ def _fmt(m, s=None, d=4) -> str:
     return f"{m:.{d}f}" if s is None or not np.isfinite(s) else f"{m:.{d}f} +/- {s:.{d}f}"
 
 
-def _write(df: pd.DataFrame, out: Path, name: str, title: str, notes=()) -> None:
+def commands(name: str) -> str:
+    """The commands that regenerate output ``name``: its plan entries' runs, then the builder."""
+    runs = ", ".join(f"`{plan_command(src)}`" for src in SOURCES[name])
+    return f"`make figures` (the runs {runs}, then `python -m experiments.figures`)"
+
+
+def _write(df: pd.DataFrame, out: Path, name: str, title: str, notes=(), protocol: str = "") -> None:
+    """``<name>.csv`` and ``<name>.md``: title, stamp, protocol line, the table, the notes."""
     df.to_csv(out / f"{name}.csv", index=False)
     stamp = _stamp.note()
-    text = [f"# {title}", "", *([stamp, ""] if stamp else []), df.to_markdown(index=False), ""]
+    text = [f"# {title}", "", *([stamp, ""] if stamp else []), *([protocol, ""] if protocol else []),
+            df.to_markdown(index=False), ""]
     text += [n for n in notes]
     (out / f"{name}.md").write_text("\n".join(text).rstrip() + "\n")
 
@@ -255,7 +277,7 @@ def table1(runs: Runs, out: Path) -> bool:
     rows = []
     for k in METRICS:
         r, c = (_ms(m[m.method == x][k]) for x in ("relm", "cgo-original"))
-        d = 6 if k == "r2" else 4
+        d = 4
         row = {"metric": MNAME[k], "RELM (ours)": _fmt(*r, d=d)}
         if tuned:
             row["tuned RELM (ours)"] = _fmt(*_ms(m[m.method == "relm-tuned"][k]), d=d)
@@ -264,30 +286,61 @@ def table1(runs: Runs, out: Path) -> bool:
     n = int(m[m.method == "relm"]["repeat"].nunique())
     others = [x for x in ("cgo-original", "cgo-three_stage") if x in set(m.method)]
     notes = [_reduction_note(m, "relm", others)]
+    # against the tuned baseline: every searched model the pooled runs hold (Fig. 9's, Table 3's), one family
+    searched = [x for x in ("cgo-original", "pso", "ga", *(f"cgo-{s}" for s in STRATEGIES4)) if x in set(m.method)]
+    pairs = [(o, "relm") for o in others] + ([(o, "relm-tuned") for o in searched] if tuned else [])
+    tests = _paired_tests(m, pairs) if n >= 2 else pd.DataFrame()
     if tuned:
         notes.append(_tuned_note(runs, m, others))
-    notes.append("R^2 is eq. (21) with squares over the true azimuths (30-330 deg), which inflates it; "
-                 "metrics.csv also holds r2_error, the R^2 of the error model.")
+    notes.append(R2_NOTE)
     notes.append(f"Ours: simulated `lab_casing`, {n} repeats of a random 7:3 split (mean +/- sample std); "
-                 "the paper's Table 1 is one split of its measured data.")
+                 "the paper's Table 1 is one split of its measured data (no spread, no test).")
+    if len(tests):
+        notes += ["", f"Paired Wilcoxon signed-rank on test MAE, Holm over the table's {len(tests)} tests (one family: "
+                  "the CGO rows against plain RELM, and every searched RELM of Fig. 9 and Table 3 against the tuned "
+                  "RELM):", "", tests.drop(columns="verdict").to_markdown(index=False, floatfmt=".4g"),
+                  "", *(f"- {x}" for x in tests["verdict"]), ""]
     notes.append(_floor_note())
-    _write(pd.DataFrame(rows), out, "table1", "Table 1: RELM vs CGO-RELM (test split)", notes)
+    test = (f"paired Wilcoxon signed-rank (two-sided) on test MAE, Holm over the {len(tests)} tests below"
+            if len(tests) else "none (fewer than 2 repeats)")
+    _write(pd.DataFrame(rows), out, "table1", "Table 1: RELM vs CGO-RELM (test split)", notes,
+           _stamp.protocol(commands("table1"), test))
     return True
 
 
-def _tuned_note(runs: Runs, m: pd.DataFrame, others) -> str:
-    """The tuned plain-RELM baseline: its chosen cell and the CGO rows measured against it."""
-    from icgo.maths import stats
+def _paired_tests(m: pd.DataFrame, pairs, value: str = "mae") -> pd.DataFrame:
+    """Paired Wilcoxon (two-sided) of ``a`` against ``b`` on the repeats both hold, for each ``(a, b)``, Holm over
+    them all: one family. Columns: comparison, median difference (a - b), p, p (Holm), verdict (a sentence of
+    :func:`icgo.reporting.protocol.comparison`)."""
+    from icgo.maths.stats import holm, wilcoxon_paired
+    from icgo.reporting.protocol import comparison
 
+    w = m.pivot_table(index="repeat", columns="method", values=value)
+    eff = f"median {value.upper()} difference a - b (deg)"
+    rows = []
+    for a, b in pairs:
+        d = w[[a, b]].dropna()
+        if len(d) < 2:
+            continue
+        t = wilcoxon_paired(d[a], d[b])
+        rows.append({"comparison": f"{method_name(a)} vs {method_name(b)}", "a": a, "b": b, "n": len(d),
+                     eff: float((d[a] - d[b]).median()), "p": t.p_value})
+    df = pd.DataFrame(rows)
+    if df.empty:
+        return df
+    df["p (Holm)"] = holm(df["p"].to_numpy())
+    df["verdict"] = [comparison(method_name(r.a), method_name(r.b), r["p (Holm)"], r[eff], family=len(df))
+                     for _, r in df.iterrows()]
+    return df.drop(columns=["a", "b"])
+
+
+def _tuned_note(runs: Runs, m: pd.DataFrame, others) -> str:
+    """The tuned plain-RELM baseline: its chosen cell (on validation rows inside the training rows) and the CGO rows'
+    mean MAE against it (the paired tests are the table's)."""
     info = [r for r in runs.runs if "relm-tuned" in r.get("methods", []) and r.get("tuning")]
     cell = info[-1]["tuning"] if info else {}
-    t = m[m.method == "relm-tuned"].sort_values("repeat")
-    parts = []
-    for o in others:
-        x = m[m.method == o].sort_values("repeat")
-        if list(x["repeat"]) == list(t["repeat"]) and len(x) >= 2:
-            p = stats.wilcoxon_paired(x["mae"], t["mae"]).p_value
-            parts.append(f"{o}: MAE {100 * (x['mae'].mean() / t['mae'].mean() - 1):+.1f} % (paired Wilcoxon p = {p:.3g})")
+    t = m[m.method == "relm-tuned"]["mae"].mean()
+    parts = [f"{method_name(o)}: mean MAE {100 * (m[m.method == o]['mae'].mean() / t - 1):+.1f} %" for o in others]
     from icgo.methods.relm import TUNE_HIDDEN, TUNE_LAMBDA
     from icgo.studies.icgo_relm import StudyConfig
 
@@ -296,7 +349,7 @@ def _tuned_note(runs: Runs, m: pd.DataFrame, others) -> str:
             f"L in {{{', '.join(map(str, TUNE_HIDDEN))}}} x lambda in {TUNE_LAMBDA[0]:g} .. {TUNE_LAMBDA[-1]:g} by the "
             f"mean validation RMSE over repeats on the training rows only ({100 * d.val_fraction:.0f} % of them held "
             f"out), chosen L = {cell.get('hidden')}, lambda = {cell.get('lam')}. Against it: "
-            f"{'; '.join(parts) or 'no paired CGO runs'}. The CGO rows use L = {d.hidden}.")
+            f"{'; '.join(parts) or 'no CGO runs'} (tests below). The CGO rows use L = {d.hidden}.")
 
 
 def _paper_variances() -> dict:
@@ -334,9 +387,10 @@ def _reduction_note(m: pd.DataFrame, base: str, others) -> str:
     b_mae, b_rmse = m[m.method == base]["mae"].mean(), m[m.method == base]["rmse"].mean()
     for o in others:
         mae, rmse = m[m.method == o]["mae"].mean(), m[m.method == o]["rmse"].mean()
-        parts.append(f"{o}: MAE -{100 * (1 - mae / b_mae):.1f} %, RMSE -{100 * (1 - rmse / b_rmse):.1f} %")
-    return (f"Reduction vs plain RELM (means over repeats): {'; '.join(parts)}. "
-            "Paper: three-stage ICGO-RELM vs RELM, MAE -94.1 %, RMSE -93.1 %.")
+        parts.append(f"{method_name(o)}: MAE -{100 * (1 - mae / b_mae):.1f} %, RMSE -{100 * (1 - rmse / b_rmse):.1f} %")
+    return (f"Reduction vs plain RELM (means over repeats): {'; '.join(parts)}. Paper: three-stage ICGO-RELM vs "
+            f"RELM, MAE -{PAPER['reduction_pct']['mae']} %, RMSE -{PAPER['reduction_pct']['rmse']} % (abstract, "
+            "section 3.3).")
 
 
 def fig9(runs: Runs, out: Path) -> bool:
@@ -354,41 +408,42 @@ def fig9(runs: Runs, out: Path) -> bool:
             row[f"{k}_paper"] = p[METRICS.index(k)] if p else np.nan
         rows.append(row)
     df = pd.DataFrame(rows)
+    tests = (_paired_tests(m, [("cgo-original", "pso"), ("cgo-original", "ga")]) if _n_repeats(m) >= 2
+             else pd.DataFrame())
+    test = (f"paired Wilcoxon signed-rank (two-sided) on test MAE, CGO-RELM against each, Holm over the {len(tests)} "
+            "tests" if len(tests) else "none (fewer than 2 repeats)")
     _write(df, out, "fig9", "Fig. 9: RELM tuned by PSO, GA and CGO (test split, mean +/- std over repeats)",
-           _fig9_notes(m, runs.convergence(), methods, df, runs.settings()) + [_floor_note()])
+           _fig9_notes(tests, runs.convergence(), methods, df, runs.settings()) + [R2_NOTE, _floor_note()],
+           _stamp.protocol(commands("fig9"), test))
     plt = plt_agg()
     fig, axes = plt.subplots(1, 3, figsize=(11, 3.4))
     for ax, k in zip(axes, METRICS):
         # R^2 is drawn as 1 - R^2 on a log axis from zero-free bars: bars of R^2 near 1 need a cut axis,
         # which makes small differences look large
-        f = (lambda v: 1.0 - v) if k == "r2" else (lambda v: v)
+        r2 = k == "r2_error"
+        f = (lambda v: 1.0 - v) if r2 else (lambda v: v)
         ax.bar(df["method"], f(df[f"{k}_mean"]), yerr=df[f"{k}_std"], capsize=4,
                color=["#8da0cb", "#fc8d62", "#66c2a5"], label="ours (mean +/- std)")
         ax.scatter(df["method"], f(df[f"{k}_paper"]), color="k", marker="D", zorder=3, label="paper")
-        ax.set_title("1 - R^2 (unexplained fraction, log)" if k == "r2" else MNAME[k])
-        if k == "r2":
+        ax.set_title("1 - R^2 of the error (log)" if r2 else MNAME[k])
+        if r2:
             ax.set_yscale("log")
     axes[0].legend(fontsize=8)
     _stamp.save(fig, out / "fig9.png", "Fig. 9: RELM tuned by three optimizers (test split, lab_casing)")
     return True
 
 
-def _fig9_notes(m, conv, methods, df, settings=()) -> list[str]:
-    """Order of the three optimizers by MAE, paired Wilcoxon tests of CGO against each, evaluation counts."""
-    from icgo.maths.stats import wilcoxon_paired
-
+def _fig9_notes(tests: pd.DataFrame, conv, methods, df, settings=()) -> list[str]:
+    """Order of the three optimizers by MAE, the paired tests of CGO against each (Holm), evaluation counts, and
+    why CGO-RELM comes last here (:data:`FIG9_MECHANISM`)."""
     order = df.sort_values("mae_mean")["method"].tolist()
-    w = m.pivot_table(index="repeat", columns="method", values="mae")
-    notes = [f"Order by mean MAE, ours: {' < '.join(order)}; the paper reports CGO-RELM best (MAE 0.052)."]
-    if len(w) < 2:
-        notes.append(f"{len(w)} repeat: no paired test (Wilcoxon needs at least 2 repeats).")
-    for x in (("pso", "ga") if len(w) >= 2 else ()):
-        label = FIG9_NAMES[x]
-        t = wilcoxon_paired(w["cgo-original"], w[x])
-        verdict = "no significant difference" if t.p_value >= 0.05 else (
-            "CGO-RELM significantly better" if (w["cgo-original"] - w[x]).median() < 0 else
-            f"{label} significantly better")
-        notes.append(f"Wilcoxon signed-rank, CGO-RELM vs {label} (MAE, paired repeats): p = {t.p_value:.4f}, {verdict}.")
+    notes = [f"Order by mean MAE, ours: {' < '.join(order)}; the paper reports CGO-RELM best (MAE 0.052; its Fig. 9 "
+             "gives PSO-RELM's and GA-RELM's values only as bars)."]
+    if tests.empty:
+        notes.append("Fewer than 2 repeats: no paired test (Wilcoxon needs at least 2 repeats).")
+    else:
+        notes += ["", tests.drop(columns="verdict").to_markdown(index=False, floatfmt=".4g"), "",
+                  *(f"- {x}." for x in tests["verdict"]), ""]
     ev = {FIG9_NAMES[x]: conv[conv.method == x]["evals"].max() for x in methods
           if not conv.empty}
     if ev and all(np.isfinite(v) for v in ev.values()):
@@ -399,7 +454,8 @@ def _fig9_notes(m, conv, methods, df, settings=()) -> list[str]:
         notes.append(f"Equal iterations (population x iterations {budget}{', the paper' + chr(39) + 's' if paper else ''}"
                      "), so unequal fitness evaluations per run: "
                      + ", ".join(f"{k} {v}" for k, v in ev.items())
-                     + "; `budget=evaluations` compares at equal evaluations.")
+                     + "; `budget=evaluations` compares at equal evaluations (`fig9_budgets.md`).")
+    notes.append(FIG9_MECHANISM)
     return notes
 
 
@@ -427,14 +483,92 @@ def fig9_budgets(iters: Runs, evals: Runs, out: Path) -> bool:
             t = wilcoxon_paired(w["cgo-original"], w[x])
             tests.append({"budget": budget, "comparison": f"CGO-RELM vs {FIG9_NAMES[x]}",
                           "median MAE difference (deg)": float((w["cgo-original"] - w[x]).median()), "p": t.p_value})
+    from icgo.reporting.protocol import comparison
+
     tdf = pd.DataFrame(tests)
     tdf["p_holm"] = holm(tdf["p"].to_numpy())
     df = pd.DataFrame(rows)
-    notes = ["Commands: `python -m experiments.run -m experiment=fig9` and `python -m experiments.run -m "
-             "experiment=fig9 budget=evaluations label=fig9_evals` (both in `experiments.figures`' plan); same "
-             "splits and keys, 10 repeats each. Paired Wilcoxon on MAE, Holm-adjusted over the four tests:", "",
-             tdf.to_markdown(index=False, floatfmt=".4g"), "", _floor_note()]
-    _write(df, out, "fig9_budgets", "Fig. 9 at equal iterations and at equal fitness evaluations (test split)", notes)
+    verdicts = [f"- {r['budget']}: " + comparison("CGO-RELM", r["comparison"].split(" vs ")[1], r["p_holm"],
+                                                   r["median MAE difference (deg)"], family=len(tdf)) + "."
+                for _, r in tdf.iterrows()]
+    notes = ["Same splits and keys in both budgets. Paired Wilcoxon on MAE, Holm-adjusted over the four tests "
+             "(one family):", "", tdf.to_markdown(index=False, floatfmt=".4g"), "", *verdicts, "", FIG9_MECHANISM,
+             _floor_note()]
+    _write(df, out, "fig9_budgets", "Fig. 9 at equal iterations and at equal fitness evaluations (test split)", notes,
+           _stamp.protocol(commands("fig9_budgets"), "paired Wilcoxon signed-rank (two-sided) on test MAE, CGO-RELM "
+                           "against PSO-RELM and GA-RELM under each budget, Holm over the 4 tests"))
+    return True
+
+
+def _final_fitness(conv: pd.DataFrame, method: str) -> pd.Series:
+    """Best training RMSE (deg) at the last iteration, per repeat, of one method."""
+    c = conv[conv.method == method].sort_values("iteration")
+    return c.groupby("repeat")["best_fitness"].last()
+
+
+def fig9_ablation(pooled: Runs, ablation: Runs, out: Path) -> bool:
+    """Why CGO-RELM is last in Fig. 9: CGO-RELM with one option changed (``experiment=fig9_cgo_ablation``) beside
+    the default CGO-RELM, PSO-RELM and GA-RELM, on the same splits and keys.
+
+    Per configuration: the final best training RMSE (the search's own objective, training rows only) and the test
+    MAE; each ablation row against the default CGO-RELM by paired Wilcoxon, Holm over the ablation rows, one family
+    per metric. It explains the order of Fig. 9; no default is chosen from it.
+    """
+    from icgo.maths.stats import holm, wilcoxon_paired
+    from icgo.optim.cgo import CGOConfig
+    from icgo.reporting import records as R
+
+    m, conv = pooled.metrics(), pooled.convergence()
+    if not ablation.runs or not _have(m, list(FIG9_NAMES)):
+        return False
+    if _n_repeats(m) < 2:
+        return _skip("one repeat: the paired tests of the CGO ablation need at least 2 repeats")
+    d = CGOConfig()
+    cols = {}
+    for x in FIG9_NAMES:
+        label = FIG9_NAMES[x] + (f" (default: variant {d.variant}, dims {d.dims}, bound_mode {d.bound_mode})"
+                                 if x == "cgo-original" else "")
+        cols[label] = (_final_fitness(conv, x), m[m.method == x].set_index("repeat")["mae"])
+    base = next(k for k in cols if k.startswith("CGO-RELM"))
+    rows_ablation = []
+    for info in ablation.runs:
+        t = R.read_table(info["dir"], "metrics")
+        t = t[(t.split == "test") & (t.method == "cgo-original")].set_index("repeat")["mae"]
+        c = R.read_table(info["dir"], "convergence")
+        params = info.get("optimizer_params") or {}
+        changed = {k: v for k, v in params.items() if not (k == "variant" and v == d.variant)}
+        label = "CGO-RELM, " + (", ".join(f"{k} {v}" for k, v in changed.items()) or "as the default")
+        cols[label] = (_final_fitness(c, "cgo-original"), t)
+        rows_ablation.append(label)
+    rows, p_fit, p_mae = [], [], []
+    for label, (fit, mae) in cols.items():
+        row = {"configuration": label, "final training RMSE (deg)": _fmt(*_ms(fit)), "test MAE (deg)": _fmt(*_ms(mae))}
+        if label in rows_ablation:
+            bf, bm = cols[base]
+            f2, m2 = pd.concat([fit, bf], axis=1).dropna(), pd.concat([mae, bm], axis=1).dropna()
+            row["training RMSE - default, median (deg)"] = round(float((f2.iloc[:, 0] - f2.iloc[:, 1]).median()), 4)
+            row["test MAE - default, median (deg)"] = round(float((m2.iloc[:, 0] - m2.iloc[:, 1]).median()), 4)
+            p_fit.append(wilcoxon_paired(f2.iloc[:, 0], f2.iloc[:, 1]).p_value)
+            p_mae.append(wilcoxon_paired(m2.iloc[:, 0], m2.iloc[:, 1]).p_value)
+        rows.append(row)
+    df = pd.DataFrame(rows)
+    idx = [i for i, r in df.iterrows() if r["configuration"] in rows_ablation]
+    df.loc[idx, "p training RMSE (Holm)"] = holm(p_fit)
+    df.loc[idx, "p test MAE (Holm)"] = holm(p_mae)
+    notes = ["PSO-RELM and GA-RELM spend 3030 evaluations per run, every CGO row 12030 (population 30 x 100 "
+             "iterations, Fig. 9's protocol). The training RMSE is the search's own objective on the training rows; "
+             "the test MAE is reported beside it. Each row changes one CGO option (`conf/cgo_ablation`): `dims`, "
+             "which coordinates the 4th seed moves (default `subset`: a random subset of random size); "
+             "`bound_mode`, how a new seed's coordinates outside the box [-1, 1] are repaired (default `clip`, as "
+             "both reference codes); `bg_low 0`, beta and gamma in {0, 1} (default {1, 2}); `mg_size 3`, MG_i the "
+             "mean of 3 seeds; `selection truncation`, (N + 4N) truncation (default greedy per seed); `variant "
+             "matlab` / `mealpy`, the original MATLAB code / mealpy's OriginalCGO (docs/optimizers.md).",
+             FIG9_MECHANISM, "This table explains the order of Fig. 9; it chooses nothing: the defaults stay the "
+             "paper's reading (docs/optimizers.md).", _floor_note()]
+    _write(df, out, "fig9_ablation", "Why CGO-RELM is last in Fig. 9: CGO with one option changed (lab_casing)",
+           notes, _stamp.protocol(commands("fig9_ablation"), f"paired Wilcoxon signed-rank (two-sided) of each "
+                                  f"ablation row against the default CGO-RELM, Holm over the {len(rows_ablation)} "
+                                  "rows; one family for the training RMSE, one for the test MAE"))
     return True
 
 
@@ -477,17 +611,24 @@ def sweep_schedules(pooled: Runs, sched: Runs, out: Path) -> bool:
     winners = wide.idxmin(axis=1).value_counts()
     rows = [{"column": c, "MAE (deg)": _fmt(*_ms(wide[c])), "mean rank": round(fr.mean_ranks[c], 2),
              "repeats best": int(winners.get(c, 0)),
+             f"median difference vs {best_single} (deg)": round(float((wide[c] - wide[best_single]).median()), 4)
+             if c in p_holm else np.nan,
              f"p vs {best_single} (Holm)": round(float(p_holm[c]), 4) if c in p_holm else np.nan}
             for c in sorted(names, key=lambda c: wide[c].mean())]
     df = pd.DataFrame(rows)
     first = df.iloc[0]["column"]
-    notes = [f"Command: `python -m experiments.run -m experiment=sweep_schedules` (5 jobs) with Table 3's runs; "
-             f"{len(wide)} paired repeats (same splits and keys in every column).",
-             f"Friedman over all {len(names)} columns: chi2 = {fr.statistic:.2f}, p = {fr.p_value:.3g}. First by mean "
-             f"MAE: {first} (best in {int(winners.get(first, 0))} of {len(wide)} repeats). Wilcoxon of each "
-             f"schedule against the best single strategy ({best_single}), Holm over the schedules, in the table.",
+    worse = [c for c in sched_cols if p_holm[c] < ALPHA and (wide[c] - wide[best_single]).median() > 0]
+    notes = [f"{len(wide)} paired repeats (same splits and keys in every column; the single strategies are Table 3's).",
+             f"Friedman over all {len(names)} columns: chi2 = {fr.statistic:.2f}, p = {fr.p_value:.3g} (a family of "
+             f"one test). First by mean MAE: {first} (best in {int(winners.get(first, 0))} of {len(wide)} repeats). "
+             f"Wilcoxon of each schedule against the best single strategy ({best_single}), Holm over the "
+             f"{len(sched_cols)} schedules, in the table: {len(worse)} of {len(sched_cols)} schedules significantly "
+             f"worse than {best_single} (Holm p < {ALPHA:g}).",
              _floor_note()]
-    _write(df, out, "sweep_schedules", "Sweep: three-stage schedules vs the single strategies (test MAE)", notes)
+    _write(df, out, "sweep_schedules", "Sweep: three-stage schedules vs the single strategies (test MAE)", notes,
+           _stamp.protocol(commands("sweep_schedules"), f"Friedman over all {len(names)} columns (one test); paired "
+                           f"Wilcoxon signed-rank (two-sided) of each schedule against {best_single}, Holm over the "
+                           f"{len(sched_cols)} schedules"))
     plt = plt_agg()
     fig, ax = plt.subplots(figsize=(10, 4))
     order = [r["column"] for r in rows]
@@ -550,21 +691,28 @@ def sweep_mutations(pooled: Runs, sweep: Runs, out: Path) -> bool:
                        f"{_reading({'sigma': params.get('sigma', CGOConfig().sigma)})}")
         rows.append({"reading": reading,
                      "single strategy alone (deg)": _fmt(*_ms(mae[single])), "three-stage (deg)": _fmt(*_ms(mae["three_stage"])),
+                     "median difference three-stage - single (deg)":
+                         round(float((w["three"] - w["single"]).median()), 4),
                      "p three-stage vs single": wilcoxon_paired(w["three"], w["single"]).p_value,
                      "order by MAE": " < ".join(LABEL[s] for s in order), "paper's order": order == paper})
     df = pd.DataFrame(rows)
     df["p Holm"] = holm(df["p three-stage vs single"].to_numpy())
     df = df.sort_values("reading").reset_index(drop=True)
     hits = df[df["paper's order"]]["reading"].tolist()
-    notes = ["Commands: `python -m experiments.run -m experiment=sweep_wavelet` (6 jobs) and `... experiment=sweep_sigma` "
-             "(3 jobs), with Table 3's runs for the strategies a reading does not touch (their defaults: "
-             f"{_reading({})}, Gaussian sigma {CGOConfig().sigma:g}). 10 paired repeats per column. "
-             "`python -m experiments.run experiment=sweep_paper_literal` (1 job) runs all four strategies under the "
-             "paper's literal readings (eq. 18's wavelet without Ling's amplitude factor, N(0, 1), thirds on the "
-             "global clock); its row takes every column from that run.",
+    notes = ["`sweep_wavelet` (6 jobs) and `sweep_sigma` (3 jobs) use Table 3's runs for the strategies a reading "
+             f"does not touch (their defaults: {_reading({})}, Gaussian sigma {CGOConfig().sigma:g}). "
+             "`sweep_paper_literal` (1 job) runs all four strategies under the paper's literal readings (eq. 18's "
+             "wavelet without Ling's amplitude factor, N(0, 1), thirds on the global clock); its row takes every "
+             "column from that run (and the three `amplitude none` rows equal it: without the amplitude the "
+             "dilation has no effect).",
              f"The paper's order: {' < '.join(LABEL[s] for s in paper)}. Readings that reproduce it: "
-             f"{', '.join(hits) if hits else 'none'}.", _floor_note()]
-    _write(df, out, "sweep_mutations", "Sweep: mutation readings (test MAE)", notes)
+             f"{', '.join(hits) if hits else 'none'}.",
+             "These are test-row numbers: they report what each reading does and choose nothing. The defaults were "
+             "fixed before this sweep from the published readings (the wavelet of Ling et al., whom eq. 18 follows; "
+             "sigma 1 as eq. 16 prints N(0, sigma^2) without a value: docs/optimizers.md).", _floor_note()]
+    _write(df, out, "sweep_mutations", "Sweep: mutation readings (test MAE)", notes,
+           _stamp.protocol(commands("sweep_mutations"), f"paired Wilcoxon signed-rank (two-sided) of three-stage "
+                           f"against the reading's single strategy, Holm over the {len(df)} readings"))
     return True
 
 
@@ -580,7 +728,7 @@ def table2(runs: Runs, out: Path) -> bool:
         r = m0[m0.method == f"cgo-{s}"].iloc[0]
         row = {"strategy": LABEL[s]}
         for k in METRICS:
-            row[f"{MNAME[k]} ours"] = round(float(r[k]), 6 if k == "r2" else 4)
+            row[f"{MNAME[k]} ours"] = round(float(r[k]), 4)
             row[f"{MNAME[k]} paper"] = PAPER["table2"][s][METRICS.index(k)]
         rows.append(row)
     df = pd.DataFrame(rows)
@@ -592,8 +740,10 @@ def table2(runs: Runs, out: Path) -> bool:
              "A single split cannot tell these strategies apart; Table 3 tests the differences over 10 repeats."]
     if "relm" in set(m0.method):
         notes.insert(1, _reduction_note(m0, "relm", ["cgo-three_stage"]).replace("means over repeats", "repeat 0"))
-    notes.append(_floor_note())
-    _write(df, out, "table2", "Table 2: five 4th-seed mutation strategies (one split, test rows)", notes)
+    notes += [R2_NOTE, _floor_note()]
+    _write(df, out, "table2", "Table 2: five 4th-seed mutation strategies (one split, test rows)", notes,
+           _stamp.protocol(commands("table2"), "none: one split gives one number per strategy (Table 3 tests them "
+                           "over the repeats)", repeats="1 (repeat 0 of Table 3's runs)"))
     return True
 
 
@@ -658,9 +808,7 @@ def fig11(runs: Runs, out: Path) -> bool:
 
 
 def table3(runs: Runs, out: Path) -> bool:
-    """Table 3: 10 repeats, mean +/- std, with Wilcoxon signed-rank and Friedman tests."""
-    from icgo.maths.stats import friedman, wilcoxon_paired
-
+    """Table 3: 10 repeats, mean +/- std, with Wilcoxon signed-rank and Friedman tests (Holm per family)."""
     m = runs.metrics()
     methods = [f"cgo-{s}" for s in STRATEGIES4]
     if not _have(m, methods):
@@ -674,7 +822,7 @@ def table3(runs: Runs, out: Path) -> bool:
         g = m[m.method == f"cgo-{s}"]
         row = {"strategy": LABEL[s], "n": len(g)}
         for i, k in enumerate(METRICS):
-            row[f"{MNAME[k]} ours"] = _fmt(*_ms(g[k]), d=6 if k == "r2" else 4)
+            row[f"{MNAME[k]} ours"] = _fmt(*_ms(g[k]), d=4)
             p = PAPER["table3"].get(s)
             row[f"{MNAME[k]} paper"] = _fmt(*p[i]) if p else "(not in Table 3)"
         rows.append(row)
@@ -682,48 +830,70 @@ def table3(runs: Runs, out: Path) -> bool:
 
     wide = {k: m[m.method.isin(methods)].pivot_table(index="repeat", columns="method", values=k) for k in METRICS}
     wide = {k: w.dropna() for k, w in wide.items()}
-    stat_rows, notes = [], []
-    for k in ("mae", "rmse"):
-        w = wide[k]
-        fr = friedman({s: w[f"cgo-{s}"].to_numpy() for s in STRATEGIES4})
-        stat_rows.append({"metric": MNAME[k], "test": "Friedman (4 strategies)", "comparison": "all",
-                          "statistic": round(fr.statistic, 4), "p_value": round(fr.p_value, 4),
-                          "mean ranks": ", ".join(f"{LABEL[s]} {fr.mean_ranks[s]:.2f}" for s in STRATEGIES4)})
-        for s in STRATEGIES4[:-1]:
-            t = wilcoxon_paired(w["cgo-three_stage"], w[f"cgo-{s}"])
-            d = float(np.median(w["cgo-three_stage"] - w[f"cgo-{s}"]))
-            stat_rows.append({"metric": MNAME[k], "test": "Wilcoxon signed-rank (paired repeats)",
-                              "comparison": f"three-stage vs {LABEL[s]}", "statistic": round(t.statistic, 4),
-                              "p_value": round(t.p_value, 4), "mean ranks": f"median difference {d:+.4f}"})
-    stats_df = pd.DataFrame(stat_rows)
+    stats_df = _table3_tests(wide)
     n_rep = len(wide["mae"])
     ours = sorted(STRATEGIES4, key=lambda s: wide["mae"][f"cgo-{s}"].mean())
     paper = sorted(STRATEGIES4, key=lambda s: PAPER["table3"][s][0][0])
-    fr_mae = stats_df.iloc[0]
     agree = ours == paper
-    best_ours = ours[0]
-    wil = [r for r in stat_rows if r["metric"] == MNAME["mae"] and r["test"].startswith("Wilcoxon")]
-    won = [r["comparison"].split(" vs ")[1] for r in wil if r["p_value"] < 0.05 and "-" in r["mean ranks"]]
-    lost = [r["comparison"].split(" vs ")[1] for r in wil if r["p_value"] < 0.05 and "+" in r["mean ranks"]]
-    tied = [r["comparison"].split(" vs ")[1] for r in wil if r["p_value"] >= 0.05]
-    notes += [f"Ours: simulated `lab_casing`, {n_rep} repeats, each a new random 7:3 split and optimizer seed "
-              "(the same splits and keys for every strategy, so the repeats are paired).",
-              f"Order by mean MAE, ours: {' < '.join(LABEL[s] for s in ours)}; "
-              f"paper: {' < '.join(LABEL[s] for s in paper)} -> "
-              f"{'the same order' if agree else 'a different order'}"
-              f"{'' if agree else f' (ours ranks {LABEL[best_ours]} first)'}.",
-              f"Friedman test on MAE over the four strategies: chi2 = {fr_mae['statistic']}, "
-              f"p = {fr_mae['p_value']} ({'significant' if fr_mae['p_value'] < 0.05 else 'not significant'} "
-              "at 5 %). Mean ranks: " + fr_mae["mean ranks"] + ".",
-              "Wilcoxon signed-rank (MAE, paired repeats), three-stage vs each single strategy: "
-              f"significantly better than {', '.join(won) or 'none'}; significantly worse than "
-              f"{', '.join(lost) or 'none'}; no significant difference from {', '.join(tied) or 'none'} (5 %). "
-              "The paper claims three-stage beats all three; our simulated study supports that only for the "
-              "strategies listed as significantly better.",
-              _paper_consistency_note(), _floor_note(), "", "## Statistics", "", stats_df.to_markdown(index=False)]
-    _write(df, out, "table3", f"Table 3: {n_rep} repeats, mean +/- std (test split)", notes)
-    _write(stats_df, out, "table3_stats", "Table 3 statistics: Friedman and Wilcoxon signed-rank")
+    fr_mae = stats_df[(stats_df.metric == MNAME["mae"]) & (stats_df.family == "Friedman")].iloc[0]
+    wil = stats_df[(stats_df.metric == MNAME["mae"]) & (stats_df.family == "Wilcoxon")]
+    sig = wil["p (Holm)"] < ALPHA
+    won = [f"{r.comparison.split(' vs ')[1]} (median difference {r.effect:+.4f} deg, p = {r['p (Holm)']:.3g})"
+           for _, r in wil[sig & (wil.effect < 0)].iterrows()]
+    lost = [f"{r.comparison.split(' vs ')[1]} ({r.effect:+.4f} deg, p = {r['p (Holm)']:.3g})"
+            for _, r in wil[sig & (wil.effect > 0)].iterrows()]
+    tied = [f"{r.comparison.split(' vs ')[1]} ({r.effect:+.4f} deg, p = {r['p (Holm)']:.3g})"
+            for _, r in wil[~sig].iterrows()]
+    n_w, n_f = int((stats_df.family == "Wilcoxon").sum()), int((stats_df.family == "Friedman").sum())
+    notes = [f"Ours: simulated `lab_casing`, {n_rep} repeats, each a new random 7:3 split and optimizer seed "
+             "(the same splits and keys for every strategy, so the repeats are paired).",
+             f"Order by mean MAE, ours: {' < '.join(LABEL[s] for s in ours)}; "
+             f"paper: {' < '.join(LABEL[s] for s in paper)} -> "
+             f"{'the same order' if agree else 'a different order'}"
+             f"{'' if agree else f' (ours ranks {LABEL[ours[0]]} first)'}.",
+             f"Friedman test on MAE over the four strategies: chi2 = {fr_mae.statistic:.2f}, "
+             f"p = {fr_mae['p (Holm)']:.3g} (Holm over the {n_f} Friedman tests; "
+             f"{'significant' if fr_mae['p (Holm)'] < ALPHA else 'not significant'} at {ALPHA:g}). "
+             f"Mean ranks: {fr_mae.effect}.",
+             f"Wilcoxon signed-rank (MAE, paired repeats), three-stage vs each single strategy, Holm over the {n_w} "
+             f"Wilcoxon tests (MAE and RMSE): significantly better than {', '.join(won) or 'none'}; significantly "
+             f"worse than {', '.join(lost) or 'none'}; no significant difference from {', '.join(tied) or 'none'}. "
+             "The paper claims three-stage beats all three; our simulated study supports that only for the "
+             "strategies listed as significantly better.",
+             R2_NOTE, _paper_consistency_note(), _floor_note(), "", "## Statistics", "",
+             stats_df.to_markdown(index=False, floatfmt=".4g")]
+    test = (f"Friedman over the 4 mutated strategies (MAE, RMSE: Holm over these {n_f}) and paired Wilcoxon "
+            f"signed-rank (two-sided) of three-stage against each single strategy (MAE, RMSE: Holm over these {n_w})")
+    line = _stamp.protocol(commands("table3"), test)
+    _write(df, out, "table3", f"Table 3: {n_rep} repeats, mean +/- std (test split)", notes, line)
+    _write(stats_df, out, "table3_stats", "Table 3 statistics: Friedman and Wilcoxon signed-rank", (), line)
     return True
+
+
+def _table3_tests(wide: dict) -> pd.DataFrame:
+    """Table 3's tests on the paired repeats, per metric (MAE, RMSE): Friedman over the four mutated strategies and
+    Wilcoxon of three-stage against each single one; two families (Friedman, Wilcoxon), each Holm-adjusted.
+    ``effect``: the Friedman mean ranks, or the median paired difference three-stage - single (deg)."""
+    from icgo.maths.stats import friedman, holm, wilcoxon_paired
+
+    rows = []
+    for k in ("mae", "rmse"):
+        w = wide[k]
+        fr = friedman({s: w[f"cgo-{s}"].to_numpy() for s in STRATEGIES4})
+        rows.append({"metric": MNAME[k], "family": "Friedman", "test": "Friedman (4 strategies)", "comparison": "all",
+                     "statistic": round(fr.statistic, 4),
+                     "effect": ", ".join(f"{LABEL[s]} {fr.mean_ranks[s]:.2f}" for s in STRATEGIES4),
+                     "p": fr.p_value})
+        for s in STRATEGIES4[:-1]:
+            t = wilcoxon_paired(w["cgo-three_stage"], w[f"cgo-{s}"])
+            rows.append({"metric": MNAME[k], "family": "Wilcoxon", "test": "Wilcoxon signed-rank (paired repeats)",
+                         "comparison": f"three-stage vs {LABEL[s]}", "statistic": round(t.statistic, 4),
+                         "effect": round(float(np.median(w["cgo-three_stage"] - w[f"cgo-{s}"])), 4), "p": t.p_value})
+    df = pd.DataFrame(rows)
+    df["p (Holm)"] = np.nan
+    for fam, g in df.groupby("family"):
+        df.loc[g.index, "p (Holm)"] = holm(g["p"].to_numpy())
+    return df
 
 
 def fig12(runs: Runs, out: Path) -> bool:
@@ -795,6 +965,23 @@ def _condition_of(p: pd.DataFrame) -> pd.Series:
     return pd.Series(cond, index=p.index)
 
 
+def _table4_high_inclination(t: pd.DataFrame) -> str:
+    """Why the compensated error at I >= 60 deg stays above this table's noise floor (measured in docs/experiments.md,
+    "Table 4": the same study on the four I >= 60 deg conditions alone)."""
+    hi = t[t["inclination (deg)"] >= 60]
+    if hi.empty:
+        return ""
+    r = hi["compensated mean ours"] / hi["noise floor MAE"]
+    return (f"At I >= 60 deg the compensated mean stays {r.min():.1f}-{r.max():.1f} times its noise floor (the paper's "
+            "is lower still). The cause is the joint fit: one model is fitted to all six conditions, and the two "
+            "near-vertical conditions, whose error after compensation is ten times larger, dominate the training "
+            "RMSE the search minimises and the ridge fit. The same study on the four I >= 60 deg conditions alone "
+            "brings those rows to their noise floor (docs/experiments.md, \"Table 4\", gives the measurement and its "
+            "script). The table keeps the joint fit, chosen before any result (MSA needs more than one attitude: "
+            "\"Choices\" in docs/experiments.md); splitting the conditions after seeing these rows would be choosing "
+            "on test data.")
+
+
 def table4(runs: Runs, out: Path) -> bool:
     """Table 4 and Fig. 15: six well conditions, raw vs ICGO-RELM error (|error| mean and std, test rows)."""
     p = runs.predictions(dataset="well_conditions")
@@ -829,12 +1016,20 @@ def table4(runs: Runs, out: Path) -> bool:
              "three-stage ICGO-RELM); statistics of |azimuth error| on the test rows of each condition. The paper "
              "does not say whether its means are of signed or absolute errors; its compensated means are all "
              "positive, so we read them as absolute.",
+             "**The raw columns are calibration targets, not a result.** The simulator's casing geometry and lab "
+             "field were set so that the raw error of each condition lands near the paper's raw column "
+             "(`icgo.datasets.protocols.TABLE4_ORIGINAL` holds the paper's values; `tests/test_datasets.py` requires "
+             "|simulated - paper| < 6 deg per condition; docs/datasets.md). Agreement there is by construction; only "
+             "the compensated columns measure the method.",
              "Noise floor MAE: the same draw (seed 0) with the casing, every systematic effect and the spikes removed "
              "(all rows of the condition): the simulated sensor noise alone. Near vertical (I = 0.594, 1.8 deg) the "
              "azimuth is ill-conditioned (error ~ sigma_G / sin I) and the floor is far above the paper's "
-             "compensated means, so those rows measure the assumed accelerometer noise more than the method."]
+             "compensated means, so those rows measure the assumed accelerometer noise more than the method.",
+             _table4_high_inclination(pd.DataFrame(rows))]
     _write(pd.DataFrame(rows), out, "table4", "Table 4: raw and compensated azimuth error per well condition (deg)",
-           notes)
+           notes, _stamp.protocol(commands("table4"), "none: one split; per-condition mean and std of |error| "
+                                  "(no method is compared with another here; Fig. 15 shows the five strategies)",
+                                  repeats="1 (one split)"))
     # Fig. 15: five methods per condition
     methods = [f"cgo-{s}" for s in STRATEGIES5 if f"cgo-{s}" in set(p.method)]
     f15 = []
@@ -903,18 +1098,20 @@ def build(dirs, out: Path) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     found = Runs(dirs)
     evals, runs = found.split_label(EQUAL_EVALS_LABEL)
-    # a sweep's runs (label "sweep_...") never replace the paper presets' runs in the pooled tables,
-    # whether or not a builder reads them
-    sweeps, runs = runs.split_label(*{str(r.get("label")) for r in runs.runs
-                                      if str(r.get("label") or "").startswith(SWEEP_PREFIX)})
+    # a sweep's runs (label "sweep_...") and the CGO ablation's never replace the paper presets' runs in the
+    # pooled tables, whether or not a builder reads them
+    sweeps, runs = runs.split_label(ABLATION_LABEL, *{str(r.get("label")) for r in runs.runs
+                                                      if str(r.get("label") or "").startswith(SWEEP_PREFIX)})
     sched, mutations = sweeps.split_label(SCHEDULES_LABEL)[0], sweeps.split_label(*MUTATIONS_LABELS)[0]
+    ablation = sweeps.split_label(ABLATION_LABEL)[0]
     # each output: its builder and the runs it is made from (their budget, repeats and dtype stamp it)
     calls = {name: (lambda fn=fn: fn(runs, out), runs) for name, fn in BUILDERS.items()}
     calls |= {name: (lambda name=name: sweep_conditions.build(sweeps, out, name, _LACKING.get()),
                      sweeps.split_label(*sweep_conditions.OUTPUTS[name])[0]) for name in sweep_conditions.OUTPUTS}
     calls |= {"sweep_mutations": (lambda: sweep_mutations(runs, mutations, out), mutations),
               "fig9_budgets": (lambda: fig9_budgets(runs, evals, out), evals),
-              "sweep_schedules": (lambda: sweep_schedules(runs, sched, out), sched)}
+              "sweep_schedules": (lambda: sweep_schedules(runs, sched, out), sched),
+              "fig9_ablation": (lambda: fig9_ablation(runs, ablation, out), ablation)}
     done, partial = {}, []
     for name, (call, source) in calls.items():
         lacking = []

@@ -158,19 +158,40 @@ def rate_qc_sentence(qc: dict) -> str:
                or "no gyro rates (wx, wy, wz) in the data")
             + ". The |G|, |B| and dip checks cannot fail on this instrument (no magnetometer, gz implied by |g|), "
             "and the methods correct the azimuth, not the rates: no count after.")
+def protocol(config, data, test_sets: str) -> str:
+    """A gyro table's protocol line (:func:`icgo.reporting.protocol.protocol_line`)."""
+    from icgo.reporting.protocol import protocol_line
+
+    return protocol_line(
+        "`make gyro` (`python -m experiments.gyro`, config `conf/gyro.yaml`)",
+        f"{config.n_seeds} seeds per trained method (network initialisation, early-stopping split, batches), all "
+        "seeds in one run; raw and the lookup table are deterministic (one value)",
+        f"trained on the patent's turntable plan ({len(data.train)} points; {100 * config.net.val_fraction:.0f} % "
+        f"of them held out per seed for early stopping), scored on {test_sets}",
+        f"data: turntable seed {config.seed}, random test set seed {config.seed + 1}, between-grid test set seed "
+        f"{config.seed + 2}; networks: PRNGKey({config.seed}) split into {config.n_seeds}. No setting was chosen on "
+        "these test sets",
+        "none: the table reports mean +/- sample std (ddof 1) over seeds and calls no method better by a test; "
+        "the patent gives no accuracy figure to put beside ours")
+
+
 def write_results(result, data, config, out: Path, models_dir: Path | None) -> None:
     """Tables and figures into ``out`` (``gyro_*``), the fitted models into ``models_dir``."""
     out.mkdir(parents=True, exist_ok=True)
+    both = (f"turntable_random ({len(data.tests['random'])} attitudes, I in [3, 75] deg) and turntable_between "
+            f"({len(data.tests['between'])} attitudes between the grid's nodes)")
     methods = result.records["methods"].copy()
     methods["train_s"] = methods["method"].map(result.summary["train_seconds"])
     write_table(methods[METHOD_COLUMNS + ["train_s"]], out / "gyro_methods",
                 "Gyro inclinometer: azimuth RMSE (deg) on attitudes off the training grid",
+                protocol(config, data, both) + "\n\n"
                 f"Trained on the patent's turntable plan ({len(data.train)} points); {config.n_seeds} seeds "
                 "per trained method (mean +/- std over seeds, one run). `train_s`: wall time of one "
-                "vmapped call for all seeds, including compilation. Command: `python -m experiments.gyro`.\n\n"
-                + rate_qc_sentence(result.summary["qc"]))
+                "vmapped call for all seeds, including compilation (one run on a shared machine: a rough figure). "
+                "Command: `python -m experiments.gyro`.\n\n" + rate_qc_sentence(result.summary["qc"]))
     band = float(config.seam.band_deg)
     write_table(result.records["seam"], out / "gyro_seam", "The 0/360 seam: RMSE near north vs elsewhere",
+                protocol(config, data, f"turntable_random ({len(data.tests['random'])} attitudes)") + "\n\n"
                 f"Random test set; 'north' = |true azimuth| < {band:g} deg. ratio = north / elsewhere.")
     seam_preds = {m: p["random"] for m, p in result.predictions.items() if m in SEAM_FIGURE_METHODS}
     seam_preds["raw"] = result.predictions["raw"]["random"]
@@ -179,6 +200,7 @@ def write_results(result, data, config, out: Path, models_dir: Path | None) -> N
     if "points" in result.records:
         write_table(result.records["points"][POINT_COLUMNS], out / "gyro_points",
                     "Azimuth RMSE (deg) vs number of turntable points",
+                    protocol(config, data, both + " (the 30-deg plan's test sets for every point count)") + "\n\n"
                     f"network = variant `{config.sweep.variant}`, {config.n_seeds} seeds (mean +/- std); "
                     "inclinations as the patent; test sets fixed (30-deg plan's between-grid set).")
         fig_points(result.records["points"], out / "gyro_points.png")

@@ -13,10 +13,12 @@ Each level runs every method on Table 3's splits and keys (10 paired repeats): p
 PSO-RELM, GA-RELM and CGO-RELM's five 4th-seed strategies. Per level the table gives each
 method's test MAE, the noise floor of that level's data (:func:`icgo.datasets.protocols.noise_floor`: the
 same draw without casing, sensor effects and spikes), the casing's field at the sensor, the order
-of the methods by mean MAE, the Friedman test over the methods, the best method against the
-second (paired Wilcoxon, Holm over the levels), and Kendall's tau between the level's order and
-the default level's. Outputs: ``results/sweep_noise.{md,csv,png}`` and ``results/sweep_casing.{md,csv,png}``
-(distance and strength).
+of the methods by mean MAE, the Friedman test over the methods (Holm over the levels), the best
+method against the second (paired Wilcoxon, its median difference, Holm over the levels), and
+Kendall's tau between the level's order and the default level's. Two families per sweep, each
+Holm-adjusted over the sweep's levels: "do the methods differ at this level" (Friedman) and "is
+the first place separable from the second at this level" (Wilcoxon). Outputs:
+``results/sweep_noise.{md,csv,png}`` and ``results/sweep_casing.{md,csv,png}`` (distance and strength).
 """
 
 from __future__ import annotations
@@ -108,7 +110,7 @@ def table(label: str, levels: dict) -> tuple[pd.DataFrame, list[str]]:
     base_order = None
     if default in levels:
         base_order = sorted([m for m in methods if m in levels[default]], key=lambda m: levels[default][m].mean())
-    rows, p_best = [], []
+    rows, p_best, p_fr = [], [], []
     for level, wide in levels.items():
         here = [m for m in methods if m in wide.columns]
         w = wide[here].dropna()
@@ -126,10 +128,13 @@ def table(label: str, levels: dict) -> tuple[pd.DataFrame, list[str]]:
                         .statistic), 2) if len(common) >= 2 else np.nan)
         row["first in repeats"] = f"{METHODS[order[0]]} {int((w.idxmin(axis=1) == order[0]).sum())}/{len(w)}"
         fr = friedman({m: w[m].to_numpy() for m in here}) if len(here) >= 3 and len(w) >= 2 else None
-        row["Friedman p"] = float(fr.p_value) if fr else np.nan
-        p_best.append(wilcoxon_paired(w[order[0]], w[order[1]]).p_value if len(order) > 1 and len(w) > 1 else np.nan)
+        p_fr.append(float(fr.p_value) if fr else np.nan)
+        two = len(order) > 1 and len(w) > 1
+        row["best - second, median (deg)"] = round(float((w[order[0]] - w[order[1]]).median()), 4) if two else np.nan
+        p_best.append(wilcoxon_paired(w[order[0]], w[order[1]]).p_value if two else np.nan)
         rows.append(row)
     df = pd.DataFrame(rows)
+    df["Friedman p (Holm)"] = holm(np.nan_to_num(np.asarray(p_fr, float), nan=1.0))
     df["p best vs second (Holm)"] = holm(np.nan_to_num(np.asarray(p_best, float), nan=1.0))
     return df, methods
 
@@ -168,11 +173,15 @@ def build(runs, out: Path, name: str, lacking: list | None = None) -> bool:
         if lacking is not None:
             lacking.extend(f"partial: {x}" for x in missing_cells(label, levels))
         key, _, default = SWEEPS[label]
+        test = (f"per level, Friedman over the methods and the paired Wilcoxon signed-rank (two-sided) of the first "
+                f"against the second by mean MAE; each of the two families Holm-adjusted over the {len(df)} levels")
         text += [f"## {label}: `python -m experiments.run -m experiment={label}`", "",
+                 _stamp.protocol(f"`make figures` (the runs `python -m experiments.run -m experiment={label}`, then "
+                                 "`python -m experiments.figures`)", test), "",
                  df.to_markdown(index=False, floatfmt=".4g"), "",
                  f"Levels of `dataset.kwargs.{key}` (default {default:g}); each row: {len(methods)} methods x "
                  f"{min(len(w) for w in levels.values())} paired repeats (Table 3's splits and keys). "
-                 + _changes(df, SWEEPS[label][1], default), ""]
+                 + _changes(df, SWEEPS[label][1], default) + " " + _separable(df, SWEEPS[label][1]), ""]
         csv.append(df.assign(sweep=label))
         _plot(ax, label, df, levels, methods)
     axes[0][0].legend(fontsize=7)
@@ -189,6 +198,16 @@ def build(runs, out: Path, name: str, lacking: list | None = None) -> bool:
     (out / f"{name}.md").write_text("\n".join([f"# {title} (test MAE, lab_casing)", "", *stamp, *text, *notes]) + "\n")
     _stamp.save(fig, out / f"{name}.png", f"{title}: every method against the noise floor (lab_casing)")
     return True
+
+
+def _separable(df: pd.DataFrame, name: str) -> str:
+    """One sentence: at which levels the first place is separable from the second (Holm p < ALPHA)."""
+    from icgo.reporting.protocol import ALPHA
+
+    sig = df["p best vs second (Holm)"] < ALPHA
+    levels = lambda mask: ", ".join(f"{v:g}" for v in df.loc[mask, name]) or "none"  # noqa: E731
+    return (f"The first place is separable from the second (Holm p < {ALPHA:g}) at {int(sig.sum())} of {len(df)} "
+            f"levels ({levels(sig)}); at the others ({levels(~sig)}) the first two are not significantly different.")
 
 
 def _changes(df: pd.DataFrame, name: str, default: float) -> str:

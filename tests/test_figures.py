@@ -73,6 +73,16 @@ def _pred(methods, rng, azimuths=(30.0, 60.0), n=6):
     return pd.DataFrame(rows)
 
 
+def _holm_by_hand(p):
+    """Holm's step-down adjustment written out: the i-th smallest p times (m - i), running maximum, capped at 1."""
+    order = sorted(range(len(p)), key=lambda i: p[i])
+    out, running = [0.0] * len(p), 0.0
+    for rank, i in enumerate(order):
+        running = max(running, min(1.0, (len(p) - rank) * p[i]))
+        out[i] = running
+    return out
+
+
 @pytest.fixture()
 def runs_dir(tmp_path):
     rng = np.random.default_rng(1)
@@ -93,7 +103,7 @@ def test_tables_match_direct_computation(runs_dir, tmp_path):
                                            "`python -m experiments.run -m experiment=fig9 budget=evaluations")
     missing = (out / "tables_missing.txt").read_text().splitlines()
     assert [ln.split(":")[0] for ln in missing] == ["table4", "sweep_noise", "sweep_casing", "sweep_mutations",
-                                                    "fig9_budgets", "sweep_schedules"]
+                                                    "fig9_budgets", "sweep_schedules", "fig9_ablation"]
     assert missing[0] == f"table4: {done['table4']}"
     m = pd.concat([pd.read_csv(p) for p in sorted((runs_dir / "m").rglob("metrics.csv"))])
     m = m[m.split == "test"]
@@ -118,14 +128,20 @@ def test_tables_match_direct_computation(runs_dir, tmp_path):
     wide = m.pivot_table(index="repeat", columns="method", values="mae")
     fr = st.friedmanchisquare(*[wide[f"cgo-{x}"] for x in F.STRATEGIES4])
     row = s[(s.metric == "MAE (deg)") & s.test.str.startswith("Friedman")].iloc[0]
-    assert row.statistic == pytest.approx(round(fr.statistic, 4)) and row.p_value == pytest.approx(round(fr.pvalue, 4))
+    assert row.statistic == pytest.approx(round(fr.statistic, 4)) and row.p == pytest.approx(fr.pvalue)
     ranks = np.apply_along_axis(st.rankdata, 1, wide[[f"cgo-{x}" for x in F.STRATEGIES4]].to_numpy()).mean(0)
-    assert f"three-stage {ranks[3]:.2f}" in row["mean ranks"]
+    assert f"three-stage {ranks[3]:.2f}" in row["effect"]
     w = st.wilcoxon(wide["cgo-three_stage"], wide["cgo-chaos"])
     row = s[(s.metric == "MAE (deg)") & (s.comparison == "three-stage vs chaotic")].iloc[0]
-    assert row.p_value == pytest.approx(round(w.pvalue, 4))
+    assert row.p == pytest.approx(w.pvalue)
+    assert float(row.effect) == pytest.approx(round(np.median(wide["cgo-three_stage"] - wide["cgo-chaos"]), 4))
+    for family, n in (("Friedman", 2), ("Wilcoxon", 6)):  # Holm within each family, by hand
+        g = s[s.family == family]
+        assert len(g) == n
+        np.testing.assert_allclose(g["p (Holm)"], _holm_by_hand(g["p"].to_numpy()))
     md = (out / "table3.md").read_text()
     assert "Order by mean MAE, ours:" in md and "Friedman test on MAE" in md and "paper:" in md
+    assert "Protocol: command: `make figures`" in md and "Holm over these 6" in md
 
     f10 = pd.read_csv(out / "fig10.csv").set_index("strategy")
     assert f10.loc["chaos", "mae_mean"] == pytest.approx(m[m.method == "cgo-chaos"].mae.mean())
@@ -371,7 +387,12 @@ def test_noise_and_casing_sweeps_report_every_method_against_the_floor(runs_dir,
     # Friedman over the 8 methods, recomputed from the runs of level 2
     wide = pd.concat([pd.read_csv(p) for p in (runs_dir / "m").glob("sweep_noise-2.0-*/metrics.csv")])
     wide = wide[wide.split == "test"].pivot_table(index="repeat", columns="method", values="mae")[list(SC.METHODS)]
-    assert t.iloc[2]["Friedman p"] == pytest.approx(st.friedmanchisquare(*wide.to_numpy().T).pvalue)
+    p_fr = [st.friedmanchisquare(*w.to_numpy().T).pvalue for w in (
+        pd.concat([pd.read_csv(p) for p in (runs_dir / "m").glob(f"sweep_noise-{lv}-*/metrics.csv")]).query(
+            "split == 'test'").pivot_table(index="repeat", columns="method", values="mae")[list(SC.METHODS)]
+        for lv in ("0.5", "1.0", "2.0"))]
+    assert p_fr[2] == pytest.approx(st.friedmanchisquare(*wide.to_numpy().T).pvalue)
+    np.testing.assert_allclose(t["Friedman p (Holm)"], _holm_by_hand(p_fr))  # one family over the levels
     c = pd.read_csv(out / "sweep_casing.csv")
     assert set(c["sweep"]) == {"sweep_casing"} and list(c["casing distance (m)"]) == [0.5, 1.0]
     near, far = (float(x.split()[0]) for x in c["casing field at sensor (nT)"])
@@ -385,3 +406,31 @@ def test_conditions_builders_say_which_runs_are_missing(runs_dir, tmp_path):
     done = F.build([runs_dir / "m"], out)
     assert "experiment=sweep_noise" in done["sweep_noise"]
     assert "experiment=sweep_casing_strength" in done["sweep_casing"]
+
+
+def test_fig9_ablation_rows_against_the_default_cgo(tmp_path):
+    """The CGO ablation behind Fig. 9: each run's final training RMSE and test MAE against the default CGO-RELM,
+    paired Wilcoxon, Holm over the ablation rows (one family per metric), recomputed here with scipy."""
+    rng = np.random.default_rng(11)
+    methods = ["pso", "ga", "cgo-original"]
+    conv = _conv(methods)
+    _run_dir(tmp_path / "m" / "fig9", _metrics(methods, rng), conv=conv, label="fig9")
+    runs = {}
+    for k, dims in enumerate(("one", "all")):
+        c = _conv(["cgo-original"]).assign(best_fitness=lambda d, k=k: d.best_fitness * (0.5 + k) + 1e-3 * d.repeat)
+        runs[dims] = c
+        _run_dir(tmp_path / "m" / f"abl-{dims}", _metrics(["cgo-original"], rng), conv=c, label=F.ABLATION_LABEL,
+                 extra={"optimizer_params": {"variant": "paper", "dims": dims}})
+    out = tmp_path / "r"
+    assert F.build([tmp_path / "m"], out)["fig9_ablation"] is True
+    t = pd.read_csv(out / "fig9_ablation.csv").set_index("configuration")
+    assert list(t.index[:3]) == ["PSO-RELM", "GA-RELM",
+                                 "CGO-RELM (default: variant paper, dims subset, bound_mode clip)"]
+    last = lambda c: c.sort_values("iteration").groupby("repeat").best_fitness.last()  # noqa: E731
+    base = last(conv[conv.method == "cgo-original"])
+    p = [st.wilcoxon(last(runs[d]), base).pvalue for d in ("one", "all")]
+    rows = ["CGO-RELM, dims one", "CGO-RELM, dims all"]
+    np.testing.assert_allclose(t.loc[rows, "p training RMSE (Holm)"], _holm_by_hand(p))
+    assert t.loc[rows[0], "training RMSE - default, median (deg)"] == pytest.approx(
+        round(float((last(runs["one"]) - base).median()), 4))
+    assert "Protocol: command: `make figures`" in (out / "fig9_ablation.md").read_text()

@@ -42,11 +42,13 @@ class Row(NamedTuple):
 
     @property
     def label(self) -> str:
-        return f"{self.algorithm} | box {self.box} | {self.coords} | {self.objective}"
+        return f"{self.algorithm}, box {self.box}, {self.coords}, {self.objective}"
 
 
 #: The standard SMA (Li et al. 2020) as the paper compares against it.
 STANDARD_SMA = Row("SMA", "prior", "raw", "mag")
+#: SMA in MISMA's box (around the modulus fit U) but its own raw coordinates: only the box differs from STANDARD_SMA.
+SMA_U_RAW = Row("SMA", "U", "raw", "mag")
 #: SMA in MISMA's box (around the modulus fit U) and coordinates: only the operators differ from MISMA_U.
 SMA_U = Row("SMA", "U", "unit", "mag")
 #: MISMA without the gyro term (the magnetometer-only reading).
@@ -59,7 +61,7 @@ MISMA_U_OMEGA = Row("MISMA", "U_omega", "unit", "mag+gyro")
 
 def rows(gyro_on: bool) -> list[Row]:
     """The rows of the comparison, each differing from a neighbour in one thing."""
-    out = [STANDARD_SMA, SMA_U, MISMA_U] + ([SMA_U_OMEGA, MISMA_U_OMEGA] if gyro_on else [])
+    out = [STANDARD_SMA, SMA_U_RAW, SMA_U, MISMA_U] + ([SMA_U_OMEGA, MISMA_U_OMEGA] if gyro_on else [])
     return out + [paper_row(gyro_on)]
 
 
@@ -77,7 +79,8 @@ def headline_misma(gyro_on: bool, bounds: str) -> Row:
 
 def contrasts(gyro_on: bool) -> list[tuple[str, Row, Row]]:
     """(name, row a, row b): what each pair of rows isolates."""
-    out = [("box + coordinates (SMA)", STANDARD_SMA, SMA_U), ("update operators, magnetometer objective", SMA_U, MISMA_U)]
+    out = [("box (SMA, raw coordinates)", STANDARD_SMA, SMA_U_RAW), ("box coordinates (SMA, box U)", SMA_U_RAW, SMA_U),
+           ("update operators, magnetometer objective", SMA_U, MISMA_U)]
     if gyro_on:
         return out + [("gyro term + U_omega box (SMA)", SMA_U, SMA_U_OMEGA),
                       ("update operators, with the gyro term", SMA_U_OMEGA, MISMA_U_OMEGA),

@@ -399,15 +399,16 @@ def cell_table(runs: pd.DataFrame, dims, functions_, alpha: float = 0.05, method
 
 
 def summary_table(cells: pd.DataFrame, dims, methods_=None) -> pd.DataFrame:
-    """+/=/- counts per (dim, method) over the functions, raw and after Holm."""
+    """+/=/- counts per (dim, method) over the functions: after Holm (the decision) and uncorrected (for reference)."""
     out = []
     for dim in dims:
         for m in methods_ or methods():
             d = cells[(cells.ours == m.label) & (cells.dim == dim)]
             n = {c: int((d.result == c).sum()) for c in "+=-"}
-            out.append({"dim": dim, "ours": m.label, "vs": m.peer_label, "+ (ours better)": n["+"], "=": n["="],
-                        "- (ours worse)": n["-"],
-                        "+ / = / - (Holm)": "/".join(str(int((d.result_holm == c).sum())) for c in "+=-")})
+            out.append({"dim": dim, "ours": m.label, "vs": m.peer_label, "+ uncorrected": n["+"],
+                        "= uncorrected": n["="], "- uncorrected": n["-"],
+                        "+ / = / - (Holm: the decision)":
+                            "/".join(str(int((d.result_holm == c).sum())) for c in "+=-")})
     return pd.DataFrame(out)
 
 
