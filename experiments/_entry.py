@@ -183,8 +183,9 @@ def preflight(config_name: str, args: list[str] | None = None, conf_dir: Path = 
 def enable_jax_cache(path: str | None) -> None:
     """Turn on JAX's persistent compilation cache in ``path`` (None: leave it off).
 
-    Programs with host callbacks (the progress bar) are never cached by JAX;
-    multirun jobs run without a bar, so their compiled study is reused.
+    Programs with host callbacks are never cached by JAX (the progress bar reports between compiled chunks,
+    so the study's programs are cached with or without it). JAX's warnings about a cache entry it could not
+    write or read are silenced (the run goes on; the entry is compiled again).
     """
     if not path:
         return
@@ -198,6 +199,12 @@ def enable_jax_cache(path: str | None) -> None:
                           f"set jax_cache_dir=null to run without the cache") from None
     jax.config.update("jax_compilation_cache_dir", str(Path(path).expanduser()))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    import warnings
+
+    # a cache entry that cannot be written (a full disk) or read (cut short by an interrupted run) only costs a
+    # compilation: JAX warns and goes on, and the command's one error or interruption line stays the only one
+    warnings.filterwarnings("ignore", message=r"Error (writing|reading) persistent compilation cache entry",
+                            category=UserWarning)
 
 
 def fail_line(e: BaseException) -> NoReturn:

@@ -325,7 +325,7 @@ def run_with_progress(frame, scfg, meta, progress, desc: str, target=None, timin
 
     plan = scfg.execution(len(frame))
     enable = progress_enabled(progress, is_accelerator(plan.backend))
-    print(f"search: {plan.why}", file=sys.stderr)
+    print(f"search: {plan.why}")  # information, on stdout: stderr is for the one error or interruption line
     if not enable or scfg.optimizer is None:
         return study.run_study(frame, scfg, meta, target=target, timings=timings)
     bar = Progress(desc)

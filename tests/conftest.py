@@ -7,11 +7,17 @@ lives in ``.jax_cache/`` at the repository root (git-ignored); results do not
 depend on it.
 """
 
+import os
 from pathlib import Path
 
-import jax
+# Entry points called in-process (calibrate, run) turn on the cache their config names, by default under
+# $XDG_CACHE_HOME: point it into the repository's cache folder, so the test session never shares a cache
+# with the user's own runs going on beside it (a program read while another process wrote it crashed a worker).
+os.environ["XDG_CACHE_HOME"] = str(Path(__file__).resolve().parents[1] / ".jax_cache" / "xdg")
 
-import icgo  # noqa: F401  (enables float64 before any test builds arrays)
+import jax  # noqa: E402
+
+import icgo  # noqa: F401, E402  (enables float64 before any test builds arrays)
 
 _CACHE = Path(__file__).resolve().parents[1] / ".jax_cache"
 jax.config.update("jax_compilation_cache_dir", str(_CACHE))

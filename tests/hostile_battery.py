@@ -63,7 +63,7 @@ class Case:
     name: str
     door: str
     argv: list
-    expect: str = "refuse"            # refuse | ok | interrupt
+    expect: str = "refuse"            # refuse | ok | interrupt | outside (apply: exit status 3)
     says: tuple = ()                  # words the error line must contain (case-insensitive)
     setup: Callable | None = None
     check: Callable | None = None
@@ -667,7 +667,7 @@ def apply_cases() -> list[Case]:
                                                                                        dirs_exist_ok=True),
                                                   remember("hr")), says=("hydra.run.dir",), check=unchanged("hr"))
     # the domain and the device
-    add("far-outside-domain", [M, "data={a}/far_survey.csv", "out={w}/out"], expect="ok",
+    add("far-outside-domain", [M, "data={a}/far_survey.csv", "out={w}/out"], expect="outside",
         check=lambda w, a, r: None if "training domain" in r.stdout else "no notice of the training domain")
     # interrupted
     for sig, label in ((signal.SIGINT, "ctrl-c"), (signal.SIGTERM, "sigterm")):
@@ -1208,6 +1208,8 @@ def classify(case: Case, ran: _Ran) -> tuple[str, str]:
         return ("clean", "") if ran.rc in (0, -signal.SIGKILL) else ("traceback", f"rc {ran.rc} after SIGKILL")
     if ran.rc is not None and ran.rc < 0:
         return "traceback", f"killed by signal {-ran.rc}"
+    if case.expect == "outside":  # apply far outside the training domain: its files, the verdict, exit status 3
+        return ("clean", "") if ran.rc == 3 else ("unclear", f"rc {ran.rc} (expected 3): {(lines or ['?'])[-1][:160]}")
     if ran.rc not in (0, 1, 2, 130):
         return "traceback", f"exit status {ran.rc}: {(lines or ['?'])[-1][:160]}"
     if case.expect == "interrupt":

@@ -132,11 +132,12 @@ def main(argv=None) -> int:
                         "data contract, export the bundled devices.")
     sub = ap.add_subparsers(dest="command", required=True)
     c = sub.add_parser("check", help="read and check contract CSVs and circuitpython-mag-cal JSON files")
-    c.add_argument("words", nargs="+", metavar="FILE|key=value",
-                   help=f"files to check; settings {', '.join(f'{k}=' for k in SETTINGS)}")
+    c.add_argument("words", nargs="+", metavar="FILES",
+                   help=f"files to check, and settings {', '.join(f'{k}=' for k in SETTINGS)}")
     c.add_argument("--columns", metavar="MAP", help="a JSON or YAML column map for field exports (docs/data.md)")
     v = sub.add_parser("convert", help="write a JSON recording as a contract CSV + meta.json with its groups")
-    v.add_argument("words", nargs="+", metavar="FILE.json|key=value")
+    v.add_argument("words", nargs="+", metavar="FILE.json", help=f"the recording, and settings "
+                   f"{', '.join(f'{k}=' for k in SETTINGS)}")
     v.add_argument("--out", metavar="FILE.csv", help="the contract CSV to write (required)")
     v.add_argument("--overwrite", action="store_true", help="replace an existing FILE.csv and its meta.json")
     e = sub.add_parser("export-mag-cal", help="write the 9 bundled devices as contract CSV + meta.json")
