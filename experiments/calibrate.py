@@ -41,6 +41,8 @@ ENTRY_KEYS = ("data", "mag_axes", "grav_axes", "groups", "results_dir", "jax_cac
 #: groups passed 24 GB.
 MAX_CAL_SHOTS = 400
 MAX_CAL_GROUPS = 50
+#: Seed of the fits' PRNG key (split once per recording and split; MISMA is the only fit that draws from it).
+SEED = 0
 
 
 def results_path(cfg: DictConfig) -> Path:
@@ -156,13 +158,52 @@ def rolls_section(name: str, rec, model) -> list[str]:
     return lines
 
 
-def report(df, summ, recordings: dict, label: str, recs: dict, models: dict) -> str:
-    """The Markdown report: the rolls, the recommendation, the scores (degenerate marked), the per-method summary."""
+def protocol(df, config) -> str:
+    """The protocol line of ``data=bundled``'s table (:func:`icgo.reporting.protocol.protocol_line`), from
+    :func:`icgo.studies.calibration.evaluate`'s long table ``df`` and the run's ``config``."""
+    from icgo.core.settings import config_overrides
+    from icgo.reporting.protocol import protocol_line
+
+    extra = config_overrides(config)
+    command = ("`make calibration` (`python -m experiments.calibrate data=bundled`)" if not extra else
+               f"`python -m experiments.calibrate data=bundled {' '.join(extra)}`")
+    recordings = df["recording"].unique()
+    held = df.loc[df["split"] != "in-sample", ["recording", "split"]].drop_duplicates()
+    per_rec = held.groupby("recording").size().reindex(recordings, fill_value=0)
+    lo, hi = int(per_rec.min()), int(per_rec.max())
+    return protocol_line(
+        command,
+        f"one fit per recording, split and method (a score cell pools no repeats); `misma+axis` keeps the lowest "
+        f"fitness of {config.misma_repeats} MISMA runs (population {config.misma_pop}, {config.misma_iter} "
+        f"iterations) per fit; a recommendation's mean pools its recording's {lo if lo == hi else f'{lo}-{hi}'} "
+        f"held-out split(s); the per-method means pool the sound fits of all {len(recordings)} recordings "
+        f"({len(recordings)} in-sample and {len(held)} held-out fits per method), unpaired (each method's "
+        "degenerate fits are left out)",
+        "in-sample: fitted and scored on every shot of a recording; held out (`icgo.studies.calibration.splits`): "
+        "each rolled group left out of the fit in turn and scored alone (a recording with one roll: its "
+        "interleaved halves), the single shots always fitted; the joint fit's strength and the RELM's ridge are "
+        "chosen by leave-one-group-out inside each split's training shots; the recommendation ranks the sound "
+        "methods by the same held-out scores it reports (a selection: the winner's mean is optimistic)",
+        f"no data seed (the {len(recordings)} bundled recordings, real shots); PRNGKey({SEED}) split once per "
+        f"recording and split in table order, used only by MISMA (its {config.misma_repeats} runs split that key); "
+        "every other fit and the peer are deterministic. No device is kept back: the joint fit's staging was chosen "
+        "on these recordings' held-out means and the step counts checked on them (docs/calibrate.md); the sanity "
+        "limits were fixed before any device was scored",
+        "none: no p-value here; a recommendation's \"clear winner\" is a rule of thumb (its margin over the "
+        "runner-up exceeds the standard error of its held-out mean), not a significance test. The paired Wilcoxon "
+        "of `twelve+axis+relm` against the other methods over the held-out splits, Holm over those tests, is in "
+        "docs/calibrate.md (from calibration_devices.csv)")
+
+
+def report(df, summ, recordings: dict, label: str, recs: dict, models: dict, protocol_line: str | None = None) -> str:
+    """The Markdown report: the rolls, the recommendation, the scores (degenerate marked), the per-method summary;
+    ``protocol_line`` (:func:`protocol`) under the title when given."""
     from icgo.methods.cal_sanity import limits_sentence
     from icgo.methods.rolls import AXIS_TO_Z_DEG, MIN_SPAN_DEG, PLANE_TOL_B, PLANE_TOL_G
     from icgo.studies.calibration import wide
 
-    lines = [f"# Magnetometer calibration: {label}", "", "## Recommendation", ""]
+    lines = [f"# Magnetometer calibration: {label}", ""] + ([protocol_line, ""] if protocol_line else [])
+    lines += ["## Recommendation", ""]
     lines += [f"- `{name}`: {r['sentence']}" for name, r in recs.items()]
     lines += ["", "`python -m experiments.apply model=<this run directory> data=<survey.csv>` applies it"
               + (" (the run holds several recordings: name one model file instead)" if len(recs) > 1 else "") + ".",
@@ -220,15 +261,16 @@ def run(cfg: DictConfig, out: Path, config=None, keep=()) -> None:
     if str(cfg.data) == "bundled":  # results/ checked now, not after the fits
         Output(results_path(cfg), setting="results_dir", shared=True).check()
     recordings = load(cfg)
-    df, models = calibration.evaluate(recordings, config, jax.random.PRNGKey(0))
+    df, models = calibration.evaluate(recordings, config, jax.random.PRNGKey(SEED))
     summ = calibration.summary(df)
     try:
         recs = {name: calibration.recommend(df, name) for name in recordings}
     except ValueError as e:
         raise DataError(str(e)) from None
     chosen = {name: models[calibration.model_label(name, r["method"])] for name, r in recs.items()}
-    label = "the 9 bundled circuitpython-mag-cal devices" if str(cfg.data) == "bundled" else str(cfg.data)
-    text = report(df, summ, recordings, label, recs, chosen)
+    bundled = str(cfg.data) == "bundled"
+    label = "the 9 bundled circuitpython-mag-cal devices" if bundled else str(cfg.data)
+    text = report(df, summ, recordings, label, recs, chosen, protocol(df, config) if bundled else None)
     run_record = record(cfg, config, recordings, recs, time.perf_counter() - t0)
     verdict = calibrate_verdict(recommendation=run_record.get("recommendation"), n_models=len(models),
                                 run_dir=str(out), n_degenerate=int(df["degenerate"].sum()), n_fits=len(df),
@@ -244,7 +286,7 @@ def run(cfg: DictConfig, out: Path, config=None, keep=()) -> None:
         for label_, model in models.items():
             model.save(stage / "models" / label_)
         (stage / CALIBRATION_FILE).write_text(json.dumps(run_record, indent=2, allow_nan=False) + "\n")
-    if str(cfg.data) == "bundled":
+    if bundled:
         from icgo.io.recording import atomic_write_texts
 
         res = results_path(cfg)

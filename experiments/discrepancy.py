@@ -118,7 +118,8 @@ def run_study(name: str, config: D.WorkflowConfig, cfg: DictConfig) -> str:
     if name == "lab_casing":
         study = discrepancy_results.lab_casing_study(config, int(cfg.seed))
         D.write_report(study.result, "lab_casing (training split; QC on the test split)",
-                       Path(cfg.results_dir) / "discrepancy_lab_casing_report", qc=study.qc)
+                       Path(cfg.results_dir) / "discrepancy_lab_casing_report", qc=study.qc,
+                       protocol=report.lab_casing_report_protocol(study))
         return report.lab_casing_study_markdown(study)
     raise ValueError(f"study={name!r}: choose none, hidden, devices or lab_casing")
 

@@ -357,6 +357,38 @@ def test_recommend_picks_the_lowest_held_out_sound_method_and_says_when_it_is_no
         C.recommend(_fits_table([("in-sample", "joint", 0.1, True)]), "r")
 
 
+def test_the_bundled_table_states_its_protocol():
+    """results/calibration_devices.md's protocol line, from a small fits table (no fit run): the counts come from
+    the table, the command from the config (its non-default settings spelled out)."""
+    from icgo.core.settings import config_overrides
+    from icgo.reporting.protocol import PROTOCOL_FIELDS, parse_protocols
+
+    splits = {"a": ["in-sample", "held-out group 8", "held-out group 9"],
+              "b": ["in-sample", "held-out group 8", "held-out group 9", "held-out group 10"]}
+    df = pd.DataFrame([{"recording": r, "split": sp, "method": m, "score_deg": 0.1 * (i + 1), "degenerate": False,
+                        "dip_spread_deg": 0.5, "b_spread_pct": 0.1, "cond": 1.01, "reasons": ""}
+                       for r, sps in splits.items() for sp in sps for i, m in enumerate(C.METHODS)])
+    md = entry.report(df, C.summary(df), {}, "two recordings", {}, {}, entry.protocol(df, C.CalibrationConfig()))
+    (line,) = parse_protocols(md)
+    assert md.splitlines()[2].startswith("Protocol: ") and set(line) == set(PROTOCOL_FIELDS)
+    assert line["command"] == "`make calibration` (`python -m experiments.calibrate data=bundled`)"
+    assert "4 MISMA runs (population 30, 300 iterations)" in line["repeats"]
+    assert "its recording's 2-3 held-out split(s)" in line["repeats"]
+    assert "all 2 recordings (2 in-sample and 5 held-out fits per method)" in line["repeats"]
+    assert "each rolled group left out of the fit in turn" in line["split"]
+    assert f"PRNGKey({entry.SEED})" in line["seeds"] and "the 2 bundled recordings" in line["seeds"]
+    assert line["test"].startswith("none: no p-value here")
+    # a run with other settings names them, so the line's command regenerates its table
+    fast = C.CalibrationConfig(peer=False, misma_iter=3, misma_repeats=2)
+    assert config_overrides(fast) == ["peer=false", "misma_iter=3", "misma_repeats=2"]
+    assert config_overrides(C.CalibrationConfig()) == []
+    (line,) = parse_protocols(entry.protocol(df[df.recording == "a"], fast))
+    assert line["command"] == "`python -m experiments.calibrate data=bundled peer=false misma_iter=3 misma_repeats=2`"
+    assert "2 MISMA runs (population 30, 3 iterations)" in line["repeats"] and "2 held-out split(s)" in line["repeats"]
+    # a run on a user's file has no protocol line (its command is not known here)
+    assert not parse_protocols(entry.report(df, C.summary(df), {}, "x.csv", {}, {}))
+
+
 def test_splits_of_one_roll_hold_out_its_interleaved_halves():
     groups = np.r_[np.arange(8), [8] * 8]
     labels = [s[0] for s in C.splits(groups)]

@@ -518,3 +518,70 @@ def test_a_component_aliased_with_an_effect_not_named_is_said_on_the_effect():
     # random attitudes resolve every component of hard iron: nothing to say
     free = D.run_workflow(D.simulate(jax.random.PRNGKey(3), 120, {"hard_iron": np.array([800.0, -600.0, 1200.0])}))
     assert free.model == ("hard_iron",) and free.steps[0].aliases == ()
+
+
+@pytest.fixture(scope="module")
+def small_result():
+    """One real workflow result (60 stations, hard iron hidden; the file's one compiled bucket)."""
+    st, _ = _hidden(["hard_iron"], seed=3, n=60)
+    return D.run_workflow(st)
+
+
+def _study_cfg(tmp_path, study, **settings):
+    cfg = OmegaConf.load(CONF_DIR / "discrepancy.yaml")
+    cfg.pop("hydra")
+    cfg.study, cfg.results_dir = study, str(tmp_path)
+    for k, v in settings.items():
+        cfg[k] = v
+    return cfg
+
+
+def test_the_study_tables_state_their_protocol(small_result, tmp_path, monkeypatch, capsys):
+    """``study=hidden|devices|lab_casing`` write results/discrepancy_*.md (and the lab_casing report) with a protocol
+    line whose command regenerates the file; the studies are replaced by one small real result (no study runs)."""
+    from experiments.discrepancy import main_body
+    from icgo.reporting.protocol import PROTOCOL_FIELDS, parse_protocols
+    from icgo.studies import discrepancy_results as R
+    from icgo.studies.icgo_relm import StudyConfig
+
+    res = small_result
+    err = np.array([0.5, -0.25, 0.125, -1.0])
+    monkeypatch.setattr(R, "hidden_study", lambda config, seed, n: R.HiddenStudy(
+        (R.HiddenRun(("hard_iron",), res),), (), seed, n, config))
+    monkeypatch.setattr(R, "devices_study", lambda config: (R.DeviceRun("ab", res), R.DeviceRun("ai", res)))
+    monkeypatch.setattr(R, "lab_casing_study", lambda config, seed: R.LabCasingStudy(
+        res, err, err / 4, {"cgo-three_stage": err / 10}, err / 2, {}, seed, None,
+        StudyConfig(n_repeats=1, seed=seed, strategies=("three_stage",))))
+
+    def protocol(path):
+        (line,) = parse_protocols(path.read_text())
+        assert set(line) == set(PROTOCOL_FIELDS) and all(line.values()), line
+        return line
+
+    assert main_body(_study_cfg(tmp_path, "hidden", seed=5, n_stations=60), tmp_path / "run") == 0
+    line = protocol(tmp_path / "discrepancy_hidden.md")
+    assert line["command"] == "`python -m experiments.discrepancy study=hidden seed=5 n_stations=60`"
+    assert "60 stations" in line["repeats"] and "5-fold held-out score" in line["split"]
+    assert "fold_in(PRNGKey(5), 1)" in line["seeds"] and "fold_in(PRNGKey(5), 100 + i)" in line["seeds"]
+    assert f"PRNGKey({D.search.FOLD_SEED})" in line["split"]
+    assert line["test"].startswith("none: no p-value") and f"over {len(fx.ORDER)} candidates" in line["test"]
+
+    assert main_body(_study_cfg(tmp_path, "devices", max_effects=4), tmp_path / "run") == 0
+    line = protocol(tmp_path / "discrepancy_devices.md")
+    assert line["command"] == "`python -m experiments.discrepancy study=devices max_effects=4`"
+    assert line["repeats"].startswith("one workflow run per device (2 devices")
+    assert "no data seed" in line["seeds"] and "were added after runs on these devices" in line["seeds"]
+
+    assert main_body(_study_cfg(tmp_path, "lab_casing"), tmp_path / "run") == 0
+    line = protocol(tmp_path / "discrepancy_lab_casing.md")
+    assert line["command"] == "`python -m experiments.discrepancy study=lab_casing seed=0`"
+    assert "pools the 4 test rows" in line["repeats"]
+    assert ("the ICGO study's random split (70% of the rows for training) of the rows its 3-sigma filter keeps of "
+            "lab_casing(seed=0), repeat 0") in line["split"]
+    assert "fold_in(PRNGKey(0), 0)" in line["seeds"] and "L = 30, lambda = 0.001" in line["seeds"]
+    line = protocol(tmp_path / "discrepancy_lab_casing_report" / "report.md")
+    assert line["command"] == "`python -m experiments.discrepancy study=lab_casing seed=0`"
+    assert "inside the training rows" in line["split"] and "applied to the 4 test rows" in line["split"]
+    capsys.readouterr()
+    # a user's run directory report has none (its command is the user's)
+    assert not parse_protocols(D.report_markdown(res, "x"))

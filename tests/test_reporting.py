@@ -22,19 +22,12 @@ from icgo.reporting.protocol import ALPHA, PROTOCOL_FIELDS, comparison, parse_pr
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "results"
 
-#: Markdown files of results/ that are not study tables, or whose generator is not yet on the rules, and why.
+#: Markdown files of results/ that are not study tables (the protocol line does not apply), and why.
 EXEMPT = {
     "performance.md": "a benchmark (one run, ratios within it: docs/performance.md), not a method comparison",
     "bench_cpu.md": "a benchmark (one run, ratios within it: docs/performance.md), not a method comparison",
     "bench_gpu_check_cpu.md": "a benchmark (the per-backend check, one run: docs/performance.md), not a method "
                               "comparison",
-    "calibration_devices.md": "pending: written by experiments.calibrate, which another branch is changing; its "
-                              "protocol line goes in with it (icgo.reporting.protocol.protocol_line)",
-    "discrepancy_devices.md": "pending: written by experiments.discrepancy (being changed on another branch)",
-    "discrepancy_hidden.md": "pending: written by experiments.discrepancy (being changed on another branch)",
-    "discrepancy_lab_casing.md": "pending: written by experiments.discrepancy (being changed on another branch)",
-    "discrepancy_lab_casing_report/report.md": "pending: written by experiments.discrepancy (being changed on "
-                                               "another branch)",
 }
 
 

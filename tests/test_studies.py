@@ -15,7 +15,7 @@ import jax
 import pandas as pd
 import pytest
 
-from icgo.core.settings import config_from_mapping, config_to_mapping
+from icgo.core.settings import config_from_mapping, config_overrides, config_to_mapping
 from icgo.models.format import FittedModel
 from icgo.models.registry import load_model
 from icgo.reporting import records as REC
@@ -52,6 +52,20 @@ def test_default_config_is_valid_and_round_trips(name):
     assert config_from_mapping(study.config_cls, config_to_mapping(cfg)) == cfg
     with pytest.raises(ValueError, match="unknown setting"):
         config_from_mapping(study.config_cls, {**config_to_mapping(cfg), "no_such_setting": 1})
+    assert config_overrides(cfg) == []
+
+
+def test_config_overrides_name_each_setting_off_its_default_in_hydras_syntax():
+    from icgo.studies.misma import MismaConfig
+
+    cfg = MismaConfig()
+    changed = dataclasses.replace(cfg, seed=cfg.seed + 1,
+                                  real=dataclasses.replace(cfg.real, misma_repeats=cfg.real.misma_repeats + 2))
+    assert config_overrides(changed) == [f"seed={cfg.seed + 1}", f"real.misma_repeats={cfg.real.misma_repeats + 2}"]
+    from icgo.discrepancy import WorkflowConfig
+
+    assert config_overrides(WorkflowConfig(candidates=("hard_iron", "mag_scale"), noise_from_data=False)) == [
+        "candidates=[hard_iron,mag_scale]", "noise_from_data=false"]
 
 
 @pytest.mark.parametrize("name", NAMES)

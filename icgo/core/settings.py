@@ -71,9 +71,36 @@ def config_to_mapping(config) -> dict:
     return plain(config)
 
 
-__all__ = ["need", "is_int", "is_real", "config_from_mapping", "config_to_mapping", "SettingError", "SettingsError",
-           "ArgumentParser", "interrupted", "error_status", "run_cli", "on_interrupt", "interrupts_raise",
-           "startup_interrupts"]
+def config_overrides(config) -> list[str]:
+    """The command-line overrides (``key=value``, Hydra's syntax) that turn the class defaults into ``config``.
+
+    One per field whose value differs from the default of ``type(config)()`` (nested dataclasses as dotted keys),
+    in field order; ``[]`` for the defaults. Values: ``true`` / ``false``, ``null``, ``[a,b]`` for a sequence.
+    """
+    def value(v):
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if v is None:
+            return "null"
+        if isinstance(v, list):
+            return "[" + ",".join(value(x) for x in v) + "]"
+        return str(v)
+
+    def diff(cur: dict, default: dict, prefix: str) -> list[str]:
+        out = []
+        for k, v in cur.items():
+            if isinstance(v, dict) and isinstance(default.get(k), dict):
+                out += diff(v, default[k], f"{prefix}{k}.")
+            elif v != default.get(k):
+                out.append(f"{prefix}{k}={value(v)}")
+        return out
+
+    return diff(config_to_mapping(config), config_to_mapping(type(config)()), "")
+
+
+__all__ = ["need", "is_int", "is_real", "config_from_mapping", "config_to_mapping", "config_overrides",
+           "SettingError", "SettingsError", "ArgumentParser", "interrupted", "error_status", "run_cli", "on_interrupt",
+           "interrupts_raise", "startup_interrupts"]
 
 
 class ArgumentParser(argparse.ArgumentParser):

@@ -12,12 +12,13 @@ from pathlib import Path
 
 import numpy as np
 
-from icgo.core.settings import config_to_mapping
+from icgo.core.settings import config_overrides, config_to_mapping
 from icgo.discrepancy.compare import Pattern
 from icgo.discrepancy.identifiability import Degeneracy, Separability
-from icgo.discrepancy.search import MAX_ROUNDS, Result, Step, gap_table
+from icgo.discrepancy.search import FOLD_SEED, MAX_ROUNDS, Result, Step, gap_table
 from icgo.physics import effects as _fx
 from icgo.physics.qc import qc_sentence
+from icgo.reporting.protocol import protocol_line
 
 
 # ============================================================ sentences
@@ -177,13 +178,15 @@ def result_to_json(res: Result) -> dict:
     }
 
 
-def report_markdown(res: Result, label: str, truth=None, qc=None) -> str:
+def report_markdown(res: Result, label: str, truth=None, qc=None, protocol: str | None = None) -> str:
     """The workflow report (steps, gap table, remaining pattern, residual by toolface bin, QC, figures).
 
     ``qc``: survey-QC counts before and after the fitted model
-    (:func:`icgo.models.discrepancy.station_qc`), or None without a reference field.
+    (:func:`icgo.models.discrepancy.station_qc`), or None without a reference field. ``protocol``: the report's
+    protocol line (:func:`icgo.reporting.protocol.protocol_line`), under the title when given.
     """
-    lines = [f"# Discrepancy report: {label}", "", f"**Verdict:** {verdict(res)}", "", "## Noise", "",
+    lines = [f"# Discrepancy report: {label}", ""] + ([protocol, ""] if protocol else [])
+    lines += [f"**Verdict:** {verdict(res)}", "", "## Noise", "",
              "| noise per axis | magnetometer (nT) | accelerometer (mg) |", "|---|---|---|",
              (f"| assumed (`sigma_b_nT`, `sigma_g`; the fits' weights) | {res.config.sigma_b_nT:g} | "
               f"{res.config.sigma_g * 1e3:g} |")]
@@ -228,10 +231,10 @@ def report_markdown(res: Result, label: str, truth=None, qc=None) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_report(res: Result, label: str, out_dir, truth=None, qc=None) -> Path:
+def write_report(res: Result, label: str, out_dir, truth=None, qc=None, protocol: str | None = None) -> Path:
     """report.md + discrepancy.json + the two figures into ``out_dir``; returns the report path.
 
-    ``qc``: as in :func:`report_markdown` (also written to discrepancy.json).
+    ``qc``, ``protocol``: as in :func:`report_markdown` (``qc`` also written to discrepancy.json).
     """
     from icgo.discrepancy.plots import plot_gap_per_step, plot_residual_vs_toolface
 
@@ -241,7 +244,7 @@ def write_report(res: Result, label: str, out_dir, truth=None, qc=None) -> Path:
     plot_residual_vs_toolface(res, out_dir / "residual_vs_toolface.png")
     plot_gap_per_step(res, out_dir / "gap_per_step.png")
     path = out_dir / "report.md"
-    path.write_text(report_markdown(res, label, truth, qc))
+    path.write_text(report_markdown(res, label, truth, qc, protocol))
     return path
 
 
@@ -263,6 +266,102 @@ def _noise_words(config) -> str:
     return f"noise {config.sigma_b_nT:g} nT / {_sci(config.sigma_g)} g"
 
 
+def study_command(study: str, config, **entry) -> str:
+    """The command that rewrites ``results/discrepancy_<study>.md`` with these settings (a Markdown code span):
+    ``study=``, the entry settings given (``seed=0``) and every workflow option that is not its default."""
+    args = [f"study={study}"] + [f"{k}={v}" for k, v in entry.items()] + config_overrides(config)
+    return f"`python -m experiments.discrepancy {' '.join(args)}`"
+
+
+def _selection_test(config) -> str:
+    """The protocol's ``test``: the search's decision rules are no reported test."""
+    n = len(config.candidates or _fx.ORDER)
+    return (f"none: no p-value is reported. An effect is added when it lowers the held-out chi2 by >= "
+            f"{config.min_rel_improvement:.0%} with a paired per-station z >= {config.min_z:g}, and a step is not "
+            f"separable when another qualifying candidate is within z < {config.ambiguity_z:g} (docs/discrepancy.md): "
+            f"decision rules of a greedy search over {n} candidates per step, not tests of a family, and not adjusted "
+            "for their number")
+
+
+def _folds(config) -> str:
+    return (f"{config.k_folds}-fold held-out score (each station held out once, the model fitted on the other "
+            f"folds; fold permutation PRNGKey({FOLD_SEED}))")
+
+
+def hidden_protocol(study) -> str:
+    """The protocol line of ``results/discrepancy_hidden.md`` (:func:`hidden_study_markdown`)."""
+    c, seed, n = study.config, study.seed, study.n_stations
+    return protocol_line(
+        study_command("hidden", c, seed=seed, n_stations=n),
+        f"one simulated data set and one workflow run per row ({n} stations; no repeat pooled); the design table: "
+        "one set of attitudes per design, no fit",
+        f"rows: {_folds(c)} over the {n} stations; before -> after: the reference and the final model's held-out "
+        "gaps. Design table: none held out (canonical correlations of the noise-weighted Jacobian at the design's "
+        "attitudes)",
+        f"data seed {seed}: attitudes and noise fold_in(PRNGKey({seed}), 1), the same in every row; "
+        f"the i-th hidden effect's magnitudes fold_in(PRNGKey({seed}), 100 + i); designs PRNGKey({seed}). The "
+        "workflow's options: `WorkflowConfig` (docs/discrepancy.md, Choices), overridden only as the command says",
+        _selection_test(c))
+
+
+def devices_protocol(runs, config) -> str:
+    """The protocol line of ``results/discrepancy_devices.md`` (:func:`devices_study_markdown`)."""
+    return protocol_line(
+        study_command("devices", config),
+        f"one workflow run per device ({len(runs)} devices; no repeat pooled)",
+        f"{_folds(config)} over each device's shots, each group's shots spread over the folds; a held-out shot's "
+        "group direction is refitted with the fold's global parameters fixed; before -> after: the reference and "
+        "the final model's held-out residual and azimuth spread; the noise estimate: the held-out scatter of the "
+        "best model evaluated",
+        f"no data seed (real recordings); folds PRNGKey({FOLD_SEED}). No device is kept back: the held-out "
+        "field/azimuth guard (`search.GAP_TOLERANCE`), one score per model and the scatter estimate "
+        "(`noise_from_data`) were added after runs on these devices (docs/discrepancy.md)",
+        _selection_test(config))
+
+
+def _lab_casing_split(study) -> str:
+    """The ICGO study's split the lab_casing study reuses, in words."""
+    c = study.icgo_config
+    kept = "every row" if c.sigma_filter is None else f"the rows its {c.sigma_filter:g}-sigma filter keeps"
+    return (f"the ICGO study's {c.protocol} split ({c.train_fraction:.0%} of the rows for training) of {kept} of "
+            f"lab_casing(seed={study.seed}), repeat 0")
+
+
+def _lab_casing_seeds(study) -> str:
+    s = study.seed
+    return (f"data: lab_casing(seed={s}); ICGO study PRNGKey({s}), repeat 0's key fold_in(PRNGKey({s}), 0) (its "
+            f"split and search); the workflow's folds PRNGKey({FOLD_SEED})")
+
+
+def lab_casing_protocol(study) -> str:
+    """The protocol line of ``results/discrepancy_lab_casing.md`` (:func:`lab_casing_study_markdown`)."""
+    c, res = study.icgo_config, study.result
+    return protocol_line(
+        study_command("lab_casing", res.config, seed=study.seed),
+        f"one split, one CGO search (repeat 0 of the ICGO study); each MAE and RMSE pools the {len(study.error_raw)} "
+        "test rows",
+        f"{_lab_casing_split(study)}: MSA, ICGO-RELM and the workflow fit its training rows only (the workflow "
+        f"chooses its effects by a {_folds(res.config)} inside them); every method is scored on the same test rows",
+        f"{_lab_casing_seeds(study)}. ICGO-RELM: `StudyConfig`'s defaults (L = {c.hidden}, lambda = {c.lam:g}, "
+        f"population {c.pop_size}, {c.iterations} iterations); the default lambda was chosen on lab_casing(seed=1), "
+        "study seed 100 (docs/reporting.md)",
+        "none: one split, no significance test (the table compares MAE and RMSE only); the workflow's own z are "
+        "decision rules (`results/discrepancy_lab_casing_report/report.md`)")
+
+
+def lab_casing_report_protocol(study) -> str:
+    """The protocol line of the lab_casing study's full report (``results/discrepancy_lab_casing_report``)."""
+    res = study.result
+    return protocol_line(
+        study_command("lab_casing", res.config, seed=study.seed),
+        f"one workflow run on repeat 0's training rows; each held-out number pools its {res.config.k_folds} folds",
+        f"the search and the gap table: {_folds(res.config)} inside the training rows of "
+        f"{_lab_casing_split(study)}; the survey QC: the model fitted on every training row, applied to the "
+        f"{len(study.error_raw)} test rows",
+        _lab_casing_seeds(study),
+        _selection_test(res.config))
+
+
 def hidden_study_markdown(study) -> str:
     """``results/discrepancy_hidden.md`` from :func:`~icgo.studies.discrepancy_results.hidden_study`."""
     rows = ["| hidden | named (in order) | verdict | mag gap nT before -> after | azimuth gap deg before -> after | excess over noise before -> after | s |",
@@ -277,9 +376,9 @@ def hidden_study_markdown(study) -> str:
     for dz, sep in study.designs:
         pairs, unobs = separability_cells(sep)
         designs.append(f"| {dz} | {pairs} | {unobs} |")
-    return "\n".join(["# Discrepancy workflow: hidden-effect study", "",
-                      f"`python -m experiments.discrepancy study=hidden` (seed {study.seed}, {study.n_stations} stations, "
-                      f"random attitudes, {_noise_words(study.config)}, magnitudes typical x U(0.5, 1.5)).", ""] + rows +
+    return "\n".join(["# Discrepancy workflow: hidden-effect study", "", hidden_protocol(study), "",
+                      f"Simulated: seed {study.seed}, {study.n_stations} stations, random attitudes, "
+                      f"{_noise_words(study.config)}, magnitudes typical x U(0.5, 1.5).", ""] + rows +
                      ["", "## Which effects a design cannot separate (Jacobian canonical correlations)", ""] + designs)
 
 
@@ -296,8 +395,9 @@ def devices_study_markdown(runs, config) -> str:
                                         f"({est.ratios[0]:.0f}x / {est.ratios[1]:.0f}x)")
         rows.append(f"| {run.device} | {', '.join(res.model) or '-'} | {res.kind} | {g0.mag_rms_nT:.0f} -> {g1.mag_rms_nT:.0f} | "
                     f"{g0.azimuth_rms_deg:.2f} -> {g1.azimuth_rms_deg:.2f} | {cell} | {'-' if est is None else est.model} |")
-    return "\n".join(["# Discrepancy workflow on the 9 real circuitpython-mag-cal devices", "",
-                      ("`python -m experiments.discrepancy study=devices` — no reference attitude: each group's "
+    return "\n".join([f"# Discrepancy workflow on the {len(runs)} real circuitpython-mag-cal devices", "",
+                      devices_protocol(runs, config), "",
+                      ("No reference attitude: each group's "
                        "direction and the field magnitude/dip are nuisances; the azimuth spread is the held-out RMS "
                        f"deviation from the group's fitted direction. Noise assumed {config.sigma_b_nT} nT / "
                        f"{config.sigma_g} g (the fits' weights); the verdict is based on the scatter estimated from the "
@@ -319,9 +419,9 @@ def lab_casing_study_markdown(study) -> str:
     truth = {k: np.round(v, 5).tolist() for k, v in study.truth_effects.items()}
     named = "; ".join(f"{s.name} = {np.round(s.params, 5).tolist()} ± {np.round(s.stderr, 5).tolist()} {s.units}"
                       + ("" if s.separable else f" (not separable from {list(s.equivalent)})") for s in res.steps)
-    return "\n".join(["# Discrepancy workflow on lab_casing vs ICGO-RELM", "",
-                      f"`python -m experiments.discrepancy study=lab_casing` (seed {study.seed}). The workflow is fitted on "
-                      "the ICGO study's training rows of repeat 0 only; both are scored on its test rows.", "",
+    return "\n".join(["# Discrepancy workflow on lab_casing vs ICGO-RELM", "", lab_casing_protocol(study), "",
+                      f"Seed {study.seed}. The workflow is fitted on the ICGO study's training rows of repeat 0 only; "
+                      "both are scored on its test rows.", "",
                       f"**Verdict (training rows):** {verdict(res)}", "",
                       "Named: " + named, "",
                       f"Injected by the simulation: casing (earth-fixed, position-dependent field) and {truth}.", ""]

@@ -56,6 +56,9 @@ from icgo.physics.frames import angle_diff, azimuth_from_gv
 #: The result kinds, in the order they are decided.
 KINDS = ("not_separable", "unexplained", "no_missing_effect", "explained")
 
+#: Seed of the fold permutation when no key is given (:func:`init`, :func:`run_workflow`).
+FOLD_SEED = 0
+
 
 #: A model's fits have converged when one more Gauss-Newton step would remove at most this fraction of
 #: each one's cost (:func:`icgo.maths.lsq.gauss_newton_gap`), or when another ``n_iter`` LM steps lowered
@@ -351,11 +354,11 @@ def init(st: Stations, config: WorkflowConfig = WorkflowConfig(), key=None) -> S
 
     Args:
         st: the measured stations. config: the options.
-        key: PRNG key of the fold permutation (default ``PRNGKey(0)``).
+        key: PRNG key of the fold permutation (default ``PRNGKey(FOLD_SEED)``).
     Returns:
         The first :class:`SearchState` (no effect added yet).
     """
-    key = jax.random.PRNGKey(0) if key is None else key
+    key = jax.random.PRNGKey(FOLD_SEED) if key is None else key
     check_stations(st)
     names = tuple(config.candidates or _fx.ORDER)
     st, real = pad_stations(st, config.bucket)
@@ -481,7 +484,7 @@ def run_workflow(st: Stations, config: WorkflowConfig = WorkflowConfig(), key=No
 
     Args:
         st: the measured stations. config: the options (:class:`WorkflowConfig`).
-        key: PRNG key of the fold permutation (default ``PRNGKey(0)``).
+        key: PRNG key of the fold permutation (default ``PRNGKey(FOLD_SEED)``).
     Returns:
         :class:`Result`; :func:`icgo.discrepancy.report.verdict` words it.
     """

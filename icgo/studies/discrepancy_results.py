@@ -10,7 +10,7 @@ registered study.)
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import numpy as np
@@ -93,6 +93,7 @@ class LabCasingStudy(NamedTuple):
         seed: data-set and study seed.
         qc: survey-QC counts of the test stations, raw and after the physics model
             (:func:`icgo.models.discrepancy.station_qc`).
+        icgo_config: the ICGO study's :class:`~icgo.studies.icgo_relm.StudyConfig` (its split, its budget).
     """
 
     result: Result
@@ -103,6 +104,7 @@ class LabCasingStudy(NamedTuple):
     truth_effects: dict
     seed: int
     qc: dict | None = None
+    icgo_config: Any = None
 
 
 def lab_casing_study(config: WorkflowConfig = WorkflowConfig(), seed: int = 0) -> LabCasingStudy:
@@ -114,7 +116,8 @@ def lab_casing_study(config: WorkflowConfig = WorkflowConfig(), seed: int = 0) -
 
     ds = lab_casing(seed)
     rec = icgo_io.validate(ds.frame, ds.meta, source="lab_casing")
-    sres = run_study(ds.frame, StudyConfig(n_repeats=1, seed=int(seed), strategies=("three_stage",)), ds.meta)
+    icgo_config = StudyConfig(n_repeats=1, seed=int(seed), strategies=("three_stage",))
+    sres = run_study(ds.frame, icgo_config, ds.meta)
     pred = sres.predictions
     p0 = pred[pred["repeat"] == pred["repeat"].iloc[0]]
     meth = list(p0["method"].unique())
@@ -135,4 +138,4 @@ def lab_casing_study(config: WorkflowConfig = WorkflowConfig(), seed: int = 0) -
     from icgo.models.discrepancy import PhysicsModel, station_qc
 
     qc = station_qc(PhysicsModel.from_result(res, st_all.G[itr], st_all.B[itr]), select_stations(st_all, ite))
-    return LabCasingStudy(res, err_raw, err, methods, err_msa, truth, int(seed), qc)
+    return LabCasingStudy(res, err_raw, err, methods, err_msa, truth, int(seed), qc, icgo_config)
