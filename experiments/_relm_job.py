@@ -472,6 +472,7 @@ def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, m
 
     from icgo.physics.qc import qc_sentence
     from icgo.reporting import records as R
+    from icgo.studies.splits import describe as describe_split
     from icgo.survey.apply import study_qc
     from icgo.survey.verdict import study_verdict
 
@@ -489,7 +490,8 @@ def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, m
     table.to_csv(outdir / "summary.csv", index=False)
     excluded = excluded_line(result)
     md = [f"# ICGO-RELM study: {info['dataset']}", "",
-          f"Test split (30 %), {len(result.config.ids())} repeats, mean +/- std (sample std). "
+          f"{describe_split(result.config.protocol, result.config.train_fraction).capitalize()}; "
+          f"{len(result.config.ids())} repeats, mean +/- std (sample std). "
           f"Optimizer {cfg.optimizer.name or 'none (plain RELM)'}, strategies {list(cfg.strategy.names)}, "
           f"population {cfg.budget.pop_size}, iterations {cfg.budget.iterations}, "
           f"max_evals {cfg.budget.max_evals}.", "",

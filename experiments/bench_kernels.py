@@ -80,6 +80,8 @@ class StudyData(NamedTuple):
     n_rows: int
     prep: object            # study.Prepared, for scoring
     a_true: np.ndarray
+    G: np.ndarray           # (N, 3) g
+    B: np.ndarray           # (N, 3) nT
 
 
 def study_data(n_repeats: int, seed: int = 0, dataset_seed: int = 0, tile: int = 1) -> StudyData:
@@ -95,7 +97,7 @@ def study_data(n_repeats: int, seed: int = 0, dataset_seed: int = 0, tile: int =
     G, B, a = (np.tile(x[kept], (tile, 1)) if x.ndim == 2 else np.tile(x[kept], tile) for x in (G, B, a))
     prep, _ = study.prepare(None, G, B, a, cfg, jax.random.PRNGKey(seed))
     rows = study.train_rows(prep)
-    return StudyData(prep.data, rows, int(rows.T.shape[1]), len(a), prep, a)
+    return StudyData(prep.data, rows, int(rows.T.shape[1]), len(a), prep, a, G, B)
 
 
 def slice_tree(tree, i):

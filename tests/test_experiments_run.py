@@ -123,6 +123,7 @@ def test_run_writes_outputs_and_prints_table(small_csv, tmp_path, capsys):
     methods = {"raw", "msa"} | {f"cgo-{s}" for s in ("original", "chaos", "gaussian", "wavelet", "three_stage")}
     assert set(m.method) == methods
     assert set(m.repeat) == {0, 1} and set(m.split) == {"train", "test"}
+    assert "Test rows: a random 30 % of the rows per repeat; 2 repeats" in (tmp_path / "summary.md").read_text()
     conv = pd.read_csv(tmp_path / "convergence.csv")
     assert conv.iteration.max() == 3
     # CGO: 8 initial + 4 x 8 per iteration

@@ -28,24 +28,45 @@ def fitted():
 
 
 def test_apply_reproduces_the_study_predictions(fitted):
-    """Each member's apply on the training data equals the study's own prediction (float64 round-off)."""
+    """Each member's apply on the training data IS the study's own prediction (bitwise: one forward pass)."""
     frame, res = fitted
     model = res.model
     assert isinstance(model, RELMCompensation) and model.methods == ["pso"] and model.selected == "pso"
     kept = frame.iloc[np.flatnonzero(res.kept)].reset_index(drop=True)
     a_msa, pred = model.members(kept)
     p = res.predictions
+    comp = []
     for r, rid in enumerate(model.repeat_ids):
         rows = p[(p.repeat == rid)].sort_values("row")
-        np.testing.assert_allclose(pred[r], rows.predicted_error.to_numpy(), rtol=0, atol=1e-9)
-        np.testing.assert_allclose(a_msa[r], rows.azimuth_msa.to_numpy(), rtol=0, atol=1e-9)
+        np.testing.assert_array_equal(pred[r], rows.predicted_error.to_numpy())
+        np.testing.assert_array_equal(a_msa[r], rows.azimuth_msa.to_numpy())
+        np.testing.assert_array_equal(np.mod(a_msa[r] - pred[r], 360.0), rows.azimuth_compensated.to_numpy())
+        comp.append(rows.azimuth_compensated.to_numpy())
     out = model.apply(kept)
-    comp = np.stack([p[p.repeat == rid].sort_values("row").azimuth_compensated.to_numpy() for rid in model.repeat_ids])
+    comp = np.stack(comp)
     dev = (comp - comp[0] + 180.0) % 360.0 - 180.0  # members relative to member 0, no wrap jumps
     np.testing.assert_allclose(((out.azimuth_compensated - comp[0] + 180.0) % 360.0 - 180.0), dev.mean(axis=0),
                                rtol=0, atol=1e-9)
     np.testing.assert_allclose(out.azimuth_spread_deg, dev.std(axis=0, ddof=1), rtol=0, atol=1e-9)
     assert out.azimuth_spread_deg.max() > 0
+
+
+def test_one_member_predicts_the_same_alone_or_among_others(fitted):
+    """A member's prediction does not depend on how many members or rows it is run with (lax.map)."""
+    import jax
+    import jax.numpy as jnp
+
+    from icgo.methods.compensation import predict
+
+    frame, res = fitted
+    model = res.model
+    params = model.params()
+    v = jnp.asarray(frame[["gx", "gy", "gz", "bx", "by", "bz"]].to_numpy())
+    kw = dict(hidden=model.hidden, raw_features=True)
+    whole = predict(params, v[:, :3], v[:, 3:], **kw)
+    alone = predict(jax.tree_util.tree_map(lambda x: x[1:2], params), v[:700, :3], v[:700, 3:], **kw)
+    np.testing.assert_array_equal(np.asarray(alone.error), np.asarray(whole.error)[1:2, :700])
+    np.testing.assert_array_equal(np.asarray(alone.a_msa), np.asarray(whole.a_msa)[1:2, :700])
 
 
 def test_msa_model_applies_the_biases(fitted):
@@ -242,17 +263,23 @@ def test_every_kind_loads_back_checked(tmp_path):
         pd.testing.assert_frame_equal(back.apply(survey), model.apply(survey))
 
 
-def test_apply_in_row_blocks_is_bitwise_the_whole(monkeypatch):
+def test_apply_in_row_blocks_is_bitwise_the_whole():
     """RELMCompensation applies a long survey in row blocks (bounded memory); the result does not depend on them."""
     import sys
     from pathlib import Path
 
-    import icgo.models.relm as relm_models
+    import jax.numpy as jnp
+
+    from icgo.methods.compensation import predict
 
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     import hostile_models
 
     model, survey = hostile_models.models()["relm_compensation"], hostile_models.survey(n=130)
-    whole = model.apply(survey)
-    monkeypatch.setattr(relm_models, "APPLY_BLOCK_ROWS", 50)
-    pd.testing.assert_frame_equal(model.apply(survey), whole, check_exact=True)
+    v = jnp.asarray(survey[["gx", "gy", "gz", "bx", "by", "bz"]].to_numpy())
+    kw = dict(hidden=model.hidden, raw_features=model.features == "raw")
+    whole = predict(model.params(), v[:, :3], v[:, 3:], **kw)
+    blocks = predict(model.params(), v[:, :3], v[:, 3:], block_rows=50, **kw)
+    np.testing.assert_array_equal(np.asarray(blocks.error), np.asarray(whole.error))
+    np.testing.assert_array_equal(np.asarray(blocks.a_msa), np.asarray(whole.a_msa))
+    np.testing.assert_array_equal(model.members(survey)[1], np.asarray(whole.error))

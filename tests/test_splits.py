@@ -179,3 +179,13 @@ def test_generalisation_defaults_are_the_relm_studys():
     g, r = GeneralisationConfig(), StudyConfig()
     assert (g.pop_size, g.iterations, g.hidden) == (r.pop_size, r.iterations, r.hidden)
     assert g.transfer == splits.TransferDraw()
+
+
+def test_every_protocol_is_described_with_its_own_fraction():
+    """A run's caption names its split (not a fixed 30 %)."""
+    assert splits.describe("random", 0.8) == "test rows: a random 20 % of the rows per repeat"
+    assert "70 % of the first instrument" in splits.describe("transfer", 0.7)
+    for protocol in splits.PROTOCOLS:
+        assert splits.describe(protocol, 0.7).startswith("test rows: ")
+    with pytest.raises(ValueError, match="bogus"):
+        splits.describe("bogus", 0.7)

@@ -7,17 +7,14 @@ runs every member on a new survey and returns the ensemble: the circular mean
 of the members' compensated azimuths and their spread (sample std, deg), the
 per-station uncertainty of the compensation.
 
-Pipeline per member (ICGO paper section 3; :mod:`icgo.methods.msa`, :mod:`icgo.methods.relm`):
-``B_corr = (B - eps) / (1 + s)`` (eq. 2), ``A_msa = A(G, B_corr)``, features
-``X = (G, B)`` (``features="raw"``, the paper) or ``(G, B_corr)``, standardised
-with the member's training statistics, ``H = sigmoid(Xs W + b)`` (eq. 8),
-predicted error ``H beta`` (deg), compensated azimuth ``A_msa - H beta``.
+Each member's forward pass is :func:`icgo.methods.compensation.predict` (the one the study
+scores with): MSA correction (eq. 2), standardised features, RELM (eq. 8), compensated azimuth
+``A_msa - H beta``.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from functools import partial
 
 import jax
 import jax.numpy as jnp
@@ -28,6 +25,7 @@ from icgo.core.errors import ModelError
 from icgo.maths.conformal import conformal_quantile
 from icgo.methods import msa as _msa
 from icgo.methods import relm as _relm
+from icgo.methods.compensation import RELMParams, predict
 from icgo.models.format import CORRECTED_B, FittedModel, frame_values, need, need_shape
 from icgo.physics.frames import angle_diff, azimuth_from_gv, inclination_from_g, toolface_from_g, wrap360
 
@@ -38,9 +36,6 @@ FEATURES = ("raw", "msa")
 #: docs/relm_study.md): at 1 the validation RMSE on lab_casing is already 1.5 x that at 1e-3, and far above
 #: 1e3 the output weights shrink to nothing and the RELM returns MSA's azimuth unchanged (docs/reliability.md).
 MAX_LAM = 1e3
-#: Survey rows per block of :meth:`RELMCompensation.members`: bounds its memory (members x rows x hidden units
-#: of float64: 10 x 50,000 x 30 is 120 MB) whatever the survey's length; results do not depend on it.
-APPLY_BLOCK_ROWS = 50_000
 #: Largest number of hidden units of a loaded model.
 MAX_HIDDEN = 100_000
 
@@ -147,17 +142,6 @@ def _msa_members(B, bias, scale):
     return jax.vmap(lambda b, s: _msa.correct_field(B, b, s))(bias, scale)
 
 
-@partial(jax.jit, static_argnames=("hidden", "raw_features"))
-def _relm_members(G, B, bias, scale, mean, std, theta, beta, hidden, raw_features):
-    """(a_msa (R, N), predicted error (R, N)) of R members on one survey."""
-    def one(b, s, m, sd, th, be):
-        B_corr = _msa.correct_field(B, b, s)
-        X = jnp.concatenate([G, B if raw_features else B_corr], axis=1)
-        return azimuth_from_gv(G, B_corr), _relm.predict_rows(th, be, _relm.standardize(X, m, sd), hidden)
-
-    return jax.vmap(one)(bias, scale, mean, std, theta, beta)
-
-
 @dataclasses.dataclass(frozen=True, eq=False)
 class RELMCompensation(FittedModel):
     """MSA + RELM azimuth compensation (plain RELM or optimizer-searched, one model per method and repeat).
@@ -216,21 +200,23 @@ class RELMCompensation(FittedModel):
             need_shape(getattr(self, name), shape, name)
         need(bool(np.all(self.x_std > 0)), "x_std must be > 0 (the inputs are divided by it)")
 
-    def members(self, frame: pd.DataFrame, method: str | None = None):
-        """Every repeat's (A_msa, predicted error) for one method: two (R, N) arrays, deg."""
+    def params(self, method: str | None = None) -> RELMParams:
+        """The R members of ``method`` (default :attr:`selected`) as :class:`icgo.methods.compensation.RELMParams`."""
         method = self.selected if method is None else method
         if method not in self.methods:
             raise ModelError(f"method {method!r} is not in this model; it holds {self.methods}")
         s = self.methods.index(method)
+        return RELMParams(*(jnp.asarray(x) for x in (self.msa_bias, self.msa_scale, self.x_mean, self.x_std,
+                                                      self.theta[s], self.beta[s])))
+
+    def members(self, frame: pd.DataFrame, method: str | None = None):
+        """Every repeat's (A_msa, predicted error) for one method: two (R, N) arrays, deg
+        (:func:`icgo.methods.compensation.predict`, the study's own forward pass)."""
+        params = self.params(method)
         v = frame_values(frame, SENSORS, f"{self.KIND} model")
-        params = (jnp.asarray(self.msa_bias), jnp.asarray(self.msa_scale), jnp.asarray(self.x_mean),
-                  jnp.asarray(self.x_std), jnp.asarray(self.theta[s]), jnp.asarray(self.beta[s]))
-        # row blocks: the hidden layer of every member at once is (R, rows, L), unbounded for a long survey
-        blocks = [_relm_members(jnp.asarray(v[i:i + APPLY_BLOCK_ROWS, :3]), jnp.asarray(v[i:i + APPLY_BLOCK_ROWS, 3:]),
-                                *params, int(self.hidden), self.features == "raw")
-                  for i in range(0, max(len(v), 1), APPLY_BLOCK_ROWS)]
-        return (np.concatenate([np.asarray(b[0]) for b in blocks], axis=1),
-                np.concatenate([np.asarray(b[1]) for b in blocks], axis=1))
+        out = predict(params, jnp.asarray(v[:, :3]), jnp.asarray(v[:, 3:]), hidden=int(self.hidden),
+                      raw_features=self.features == "raw")
+        return np.asarray(out.a_msa), np.asarray(out.error)
 
     def apply(self, frame: pd.DataFrame, method: str | None = None) -> pd.DataFrame:
         """Compensated azimuth per row: ensemble over repeats of ``method`` (default :attr:`selected`).

@@ -21,7 +21,9 @@ weights see them only with zero weight. Stages 2-6 run as three jitted calls:
 ``_prepare`` (mapped over repeats: split, MSA, features), a host-side MSA
 observability check, the optimizer's runner (:func:`icgo.optim.run_batch`,
 one call vmapped over repeats and CGO strategies), then ``score_all`` (refit
-and metrics, vmapped over strategies, mapped over repeats).
+vmapped over strategies and mapped over repeats; predictions by
+:func:`icgo.methods.compensation.predict`, the forward pass the saved model
+applies; metrics).
 Repeat k of a batched run equals the same repeat run alone (``repeat_ids``).
 
 Fold protocols fit one member per (repeat, fold); a repeat's metrics pool its
@@ -49,6 +51,7 @@ from icgo.maths.metrics import azimuth_metrics
 from icgo.maths.stats import mean_std_table
 from icgo.methods import msa as _msa
 from icgo.methods import relm as _relm
+from icgo.methods.compensation import RELMParams, predict
 from icgo.optim.cgo import CGO
 from icgo.physics.frames import angle_diff, azimuth_from_gv, wrap360
 from icgo.physics.qc import measured_dip_deg
@@ -473,30 +476,66 @@ def _plain_dtype(cfg: StudyConfig) -> str | None:
 
 
 class _Scored(NamedTuple):
-    pred: jnp.ndarray       # (S, R, N)
-    a_comp: jnp.ndarray     # (S, R, N)
+    a_msa: jnp.ndarray      # (S, R, N) MSA azimuth, deg
+    pred: jnp.ndarray       # (S, R, N) predicted error, deg
+    a_comp: jnp.ndarray     # (S, R, N) compensated azimuth, deg
     test: Any               # Metrics (S, R)
     train: Any              # Metrics (S, R)
     beta: jnp.ndarray       # (S, R, L) output weights of the refit
 
 
-def _score(theta, prep: Prepared, a_true, lam, hidden):
-    """Refit beta on all training rows for one (strategy, repeat); predict; score (row blocks above
-    :data:`icgo.methods.relm.ROW_BLOCK` rows, so memory does not grow with strategies x rows x hidden)."""
-    beta = _relm.ridge_beta(theta, prep.data.X, prep.target, lam, hidden, prep.train)
-    pred = _relm.predict_rows(theta, beta, prep.data.X, hidden)
-    a_comp = wrap360(prep.a_msa - pred)
-    test = azimuth_metrics(a_true, a_comp, prep.target, prep.test)
-    train = azimuth_metrics(a_true, a_comp, prep.target, prep.train)
-    return pred, a_comp, test, train, beta
-
-
 @functools.partial(jax.jit, static_argnames=("hidden",))
-def score_all(thetas, prep: Prepared, a_true, lam, hidden):
-    over_s = jax.vmap(_score, in_axes=(0, None, None, None, None))
+def refit_all(thetas, prep: Prepared, lam, hidden):
+    """Output weights beta (S, R, L) refitted on all training rows of each (strategy, repeat) (eq. 9; row blocks
+    above :data:`icgo.methods.relm.ROW_BLOCK` rows, so memory does not grow with strategies x rows x hidden)."""
+    over_s = jax.vmap(lambda th, p: _relm.ridge_beta(th, p.data.X, p.target, lam, hidden, p.train), in_axes=(0, None))
     # lax.map over repeats for bitwise batch-size independence (see _prepare).
-    out = jax.lax.map(lambda tp: over_s(tp[0], tp[1], a_true, lam, hidden), (jnp.swapaxes(thetas, 0, 1), prep))
-    return _Scored(*jax.tree_util.tree_map(lambda x: jnp.swapaxes(x, 0, 1), tuple(out)))
+    return jnp.swapaxes(jax.lax.map(lambda tp: over_s(*tp), (jnp.swapaxes(thetas, 0, 1), prep)), 0, 1)
+
+
+def fitted_params(thetas, betas, prep: Prepared) -> RELMParams:
+    """The S x R fitted members as one :class:`icgo.methods.compensation.RELMParams` of S R members
+    (strategy-major): every strategy of a repeat shares its MSA and standardisation."""
+    S, R = thetas.shape[:2]
+
+    def per_member(x):
+        return jnp.broadcast_to(x, (S, *x.shape)).reshape(S * R, *x.shape[1:])
+
+    return RELMParams(per_member(prep.msa.bias), per_member(prep.msa.scale), per_member(prep.x_mean),
+                      per_member(prep.x_std), thetas.reshape(S * R, -1), betas.reshape(S * R, -1))
+
+
+@jax.jit
+def _metrics(a_comp, prep: Prepared, a_true):
+    """Test and training metrics (S, R) of the compensated azimuths a_comp (S, R, N)."""
+    def one(ap):
+        a, p = ap
+        return jax.vmap(lambda x: (azimuth_metrics(a_true, x, p.target, p.test),
+                                   azimuth_metrics(a_true, x, p.target, p.train)))(a)
+
+    test, train = jax.lax.map(one, (jnp.swapaxes(a_comp, 0, 1), prep._replace(data=None)))
+    return jax.tree_util.tree_map(lambda x: jnp.swapaxes(x, 0, 1), (test, train))
+
+
+def score_all(thetas, prep: Prepared, G, B, a_true, lam, hidden: int, raw_features: bool) -> _Scored:
+    """Refit, predict and score every (strategy, repeat).
+
+    The predictions come from :func:`icgo.methods.compensation.predict` on the members the study saves
+    (:func:`fitted_params`), the forward pass its artifact applies, so a saved model reproduces them bitwise.
+
+    Args:
+        thetas: (S, R, 7 L) searched hidden weights. prep: the R repeats' :class:`Prepared`.
+        G, B: (N, 3) the study's rows (g, nT). a_true: (N,) reference azimuth, deg.
+        lam: ridge lambda. hidden: L. raw_features: the RELM reads (G, B), else (G, B_corr).
+    """
+    betas = refit_all(thetas, prep, lam, hidden)
+    S, R = thetas.shape[:2]
+    out = predict(fitted_params(thetas, betas, prep), jnp.asarray(G), jnp.asarray(B), hidden=hidden,
+                  raw_features=raw_features)
+    a_msa, pred = (x.reshape(S, R, -1) for x in out)
+    a_comp = wrap360(a_msa - pred)
+    test, train = _metrics(a_comp, prep, jnp.asarray(a_true))
+    return _Scored(a_msa, pred, a_comp, test, train, betas)
 
 
 @functools.partial(jax.jit, static_argnames=("hidden", "low", "high", "dtype"))
@@ -784,7 +823,8 @@ def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None,
                                                           else f"{r}, {mem.fold_label[f]}"
                                                           for r, f in zip(mem.repeat, mem.fold)])
     with stages("score"):
-        scored = jax.block_until_ready(score_all(thetas, prep, jnp.asarray(a_true), cfg.lam, cfg.hidden))
+        scored = jax.block_until_ready(score_all(thetas, prep, G, B, a_true, cfg.lam, cfg.hidden,
+                                                 cfg.features == "raw"))
     wall = time.perf_counter() - t0
     prep = prep._replace(data=None)  # the features (members x rows x 6) are done with: free them before the tables
     with stages("tables"):
@@ -936,7 +976,7 @@ def _collect(cfg, rows, kept, a_true, G, B, n_source, mem: _splits.Members, prep
     train = np.asarray(prep.train) > 0
     test = np.asarray(prep.test) > 0
     target = np.asarray(prep.target)
-    a_msa = np.asarray(prep.a_msa)
+    a_msa = np.asarray(scored.a_msa[0])  # every strategy of a repeat shares its MSA
     a_comp = np.asarray(scored.a_comp)
     a_raw = np.asarray(azimuth_from_gv(G, B))
     err_raw = np.asarray(angle_diff(a_raw, a_true))

@@ -135,6 +135,22 @@ def members(protocol: str, frame: pd.DataFrame, base_key, repeat_ids, train_frac
                    np.stack(train), np.stack(test), np.stack(held))
 
 
+def describe(protocol: str, train_fraction: float) -> str:
+    """What a protocol's test rows are, for a table's caption (e.g. ``"test rows: a random 30 % of the rows per
+    repeat"``)."""
+    test_pct = f"{100 * (1 - train_fraction):.3g} %"
+    text = {"random": f"test rows: a random {test_pct} of the rows per repeat",
+            "transfer": f"test rows: every row of a second instrument (training: a random "
+                        f"{100 * train_fraction:.3g} % of the first instrument's rows)",
+            "leave_azimuth_out": "test rows: each reference azimuth's stations in turn (one fold per azimuth, "
+                                 "its metrics pooled over the folds)",
+            "leave_condition_out": "test rows: each well condition's rows in turn (one fold per condition, "
+                                   "its metrics pooled over the folds)"}
+    if protocol not in text:
+        raise ValueError(f"split protocol {protocol!r}: choose one of {list(PROTOCOLS)}")
+    return text[protocol]
+
+
 # ------------------------------------------------------------- transfer draw
 @dataclasses.dataclass(frozen=True)
 class TransferDraw:
