@@ -427,6 +427,7 @@ def test_no_step_raises_the_held_out_field_or_azimuth_residual_on_the_bundled_de
                 assert a.azimuth_rms_deg <= (1 + GAP_TOLERANCE) * b.azimuth_rms_deg, (name, s.name)
 
 
+@pytest.mark.slow  # the whole workflow on a real device (about 40 s with a warm cache): make test-all
 def test_one_model_has_one_score_converged_fits_and_the_noise_from_the_shots(tmp_path):
     # a real device (issue 16): the model a step adds was refitted from another starting point when it became
     # the current model, and the fixed-budget fold fits gave it a second score (8528 as a candidate, 2134 after)

@@ -256,8 +256,10 @@ def test_gauss_newton_gap_quadratic_equals_the_projection_onto_the_jacobian():
     from icgo.maths.lsq import _pinv_quadratic, gauss_newton_gap
 
     rng = np.random.default_rng(0)
+    pinv_quadratic = jax.jit(_pinv_quadratic)  # as the solver calls it: inside a compiled program
+    sizes = (2, 5, 13, 29)  # a few Jacobian widths, each compiled once (a new width is a new program)
     for t in range(60):
-        P = int(rng.integers(2, 30))
+        P = sizes[t % 4]
         M = int(rng.integers(P, 3 * P))
         J = rng.normal(size=(M, P)) * 10.0 ** rng.uniform(-4, 4, size=P)
         if t % 3 == 0:
@@ -266,7 +268,7 @@ def test_gauss_newton_gap_quadratic_equals_the_projection_onto_the_jacobian():
             J[:, -1] = 2.0 * J[:, 0]
         r = rng.normal(size=M)
         ref = np.linalg.norm(J @ np.linalg.lstsq(J, r, rcond=1e-12)[0]) ** 2
-        got = float(_pinv_quadratic(jnp.asarray(J.T @ J), jnp.asarray(J.T @ r)))
+        got = float(pinv_quadratic(jnp.asarray(J.T @ J), jnp.asarray(J.T @ r)))
         assert abs(got - ref) <= 1e-6 * (r @ r)
     # a linear problem: the gap is the fitted share of |r|² at 0 and vanishes at the least-squares solution
     A = rng.normal(size=(20, 4))
