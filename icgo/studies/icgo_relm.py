@@ -398,7 +398,6 @@ class Prepared(NamedTuple):
     train: jnp.ndarray      # (N,) 0/1
     test: jnp.ndarray       # (N,) 0/1
     msa: _msa.MSAResult
-    a_msa: jnp.ndarray      # (N,) deg
     target: jnp.ndarray     # (N,) deg
     data: _relm.FitData     # standardised features, target, fold weights
     key: jnp.ndarray        # model key
@@ -419,13 +418,12 @@ def _prepare(keys, train, test, G, B, a_true, reference, *, msa_model, msa_iter,
         _, k_fold, k_model = jax.random.split(key, 3)  # the first split drew the random protocol's permutation
         m = _msa.msa_solve(G, B, train, reference, model=msa_model, max_steps=msa_iter)
         b_corr = _msa.correct_field(B, m.bias, m.scale)
-        a_msa = azimuth_from_gv(G, b_corr)
-        target = angle_diff(a_msa, a_true)
+        target = angle_diff(azimuth_from_gv(G, b_corr), a_true)
         X = jnp.concatenate([G, B if features == "raw" else b_corr], axis=1)
         mean, std = _relm.standardize_stats(X, train)
         Xs = _relm.standardize(X, mean, std)
         fit_w, score_w = _relm.fold_weights(k_fold, train, mode, val_fraction, k_folds)
-        return Prepared(train, test, m, a_msa, target, _relm.FitData(Xs, target, fit_w, score_w), k_model, mean,
+        return Prepared(train, test, m, target, _relm.FitData(Xs, target, fit_w, score_w), k_model, mean,
                         std)
 
     # lax.map, not vmap: the per-repeat program is then the same whatever the
