@@ -1,5 +1,6 @@
 # Two-command start: `make run` and `make test` on a fresh machine.
-PY ?= python3
+# Python 3.12+ (scripts/find_python.sh): JAX >= 0.12 installs there.
+PY ?= $(shell sh scripts/find_python.sh)
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed

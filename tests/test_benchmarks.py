@@ -1,7 +1,7 @@
 """Benchmark functions vs opfunu's CEC 2017 implementations (same shift/rotation data).
 
-opfunu installs on Python < 3.12 only (its later releases declare it; 1.0.1 needs the removed
-``pkg_resources``), so its values at fixed points are kept as test data
+opfunu 1.0.1 imports ``pkg_resources`` (setuptools < 81, which the dev extras ask for), so where it
+does not import its values at fixed points are kept as test data
 (``tests/data/cec2017_opfunu_reference.json``, provenance inside) and checked on every Python; where
 opfunu imports, the functions and the vendored data are also checked against it live.
 """
@@ -14,6 +14,7 @@ import pytest
 
 import icgo  # noqa: F401  (float64)
 from icgo.optim import benchmarks as bm
+from icgo.studies import optimizers as study
 
 REFERENCE = json.loads((Path(__file__).parent / "data" / "cec2017_opfunu_reference.json").read_text())
 
@@ -40,6 +41,9 @@ def test_matches_the_recorded_opfunu_values(case):
 @pytest.mark.parametrize("name", sorted(REFERENCE["classes"]))
 def test_matches_opfunu_class(name, dim):
     cec, _ = _opfunu()
+    if name == "schwefel" and not study._opfunu_fixed_schwefel():
+        pytest.skip("opfunu < 1.0.4 mis-signs the modified Schwefel's z > 500 branch; "
+                    "test_peer_schwefel_matches_the_recorded_values checks the peer's replacement")
     b = bm.make(name, dim)
     ref = getattr(cec, REFERENCE["classes"][name])(ndim=dim)
     np.testing.assert_array_equal(ref.f_shift, b.shift)
@@ -47,6 +51,15 @@ def test_matches_opfunu_class(name, dim):
     x = np.array(REFERENCE["cases"][f"{name}/{dim}"]["x"])
     want = np.array([ref.evaluate(xi) for xi in x]) - ref.f_bias
     np.testing.assert_allclose(np.asarray(b.fn(x)), want, rtol=1e-6, atol=1e-9 * max(1.0, np.abs(want).max()))
+
+
+@pytest.mark.parametrize("dim", [10, 30])
+def test_peer_schwefel_matches_the_recorded_values(dim):
+    """The peer's CEC 2017 Schwefel (written from the definition) against opfunu 1.0.4's recorded values."""
+    b = bm.make("schwefel", dim)
+    x, want = np.array(REFERENCE["cases"][f"schwefel/{dim}"]["x"]), np.array(REFERENCE["cases"][f"schwefel/{dim}"]["f"])
+    got = [study.cec2017_schwefel(b.rotation @ (b.scale * (xi - b.shift))) for xi in x]
+    np.testing.assert_allclose(got, want, rtol=1e-9)
 
 
 @pytest.mark.parametrize("dim", [10, 30])

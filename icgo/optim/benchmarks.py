@@ -145,7 +145,7 @@ class Benchmark(NamedTuple):
 #: (where the suite ships them), vendored from opfunu 1.0.4's ``cec_based/data_2017`` text files
 #: (``shift_data_{slot}.txt``, ``M_{slot}_D{dim}.txt``; the CEC 2017 competition's data, Awad et al. 2016)
 #: as arrays ``shift_{slot}`` and ``rotation_{slot}_D{dim}``; ``tests/test_benchmarks.py`` checks them
-#: against opfunu's files where opfunu imports (it installs on Python < 3.12 only).
+#: against opfunu's files where opfunu imports (it needs setuptools < 81 for ``pkg_resources``).
 CEC2017_DATA = "cec2017.npz"
 
 

@@ -286,13 +286,40 @@ def _need_peer():
     try:
         import mealpy  # noqa: F401
         import opfunu  # noqa: F401
-    except ImportError as e:  # opfunu installs on Python < 3.12 only (pyproject.toml)
-        raise ValueError(f"peer=True needs mealpy and opfunu, which does not import here ({e}; it installs on "
-                         "Python < 3.12 only: pip install mealpy 'opfunu>=1.0.4'), or run with peer=False") from None
+    except ImportError as e:  # opfunu 1.0.1 imports pkg_resources (pyproject.toml's extras)
+        raise ValueError(f"peer=True needs mealpy and opfunu, which does not import here ({e}: "
+                         "pip install mealpy opfunu 'setuptools<81'), or run with peer=False") from None
+
+
+def cec2017_schwefel(z) -> float:
+    """CEC 2017's modified Schwefel function (Awad et al. 2016, F10's base) of a rotated, scaled point ``z`` (D,).
+
+    Written from the report's definition, for the peer where opfunu is older than 1.0.4: opfunu 1.0.1's
+    ``modified_schwefel_func`` adds ``mod(z, 500)`` to 500 in the ``z > 500`` branch where the definition subtracts it.
+    """
+    z = np.asarray(z, float).ravel() + 420.9687462275036
+    d = z.size
+    inside = z * np.sin(np.sqrt(np.abs(z)))
+    m_hi = 500.0 - np.fmod(z, 500.0)
+    above = m_hi * np.sin(np.sqrt(np.abs(m_hi))) - (z - 500.0) ** 2 / (10000.0 * d)
+    m_lo = np.fmod(np.abs(z), 500.0) - 500.0
+    below = m_lo * np.sin(np.sqrt(np.abs(m_lo))) - (z + 500.0) ** 2 / (10000.0 * d)
+    g = np.where(z > 500.0, above, np.where(z < -500.0, below, inside))
+    return float(418.9828872724338 * d - g.sum())
+
+
+def _opfunu_fixed_schwefel() -> bool:
+    """Whether the installed opfunu's modified Schwefel follows the CEC 2017 definition (1.0.4 and later)."""
+    import opfunu
+
+    return tuple(int(p) for p in opfunu.__version__.split(".")[:3]) >= (1, 0, 4)
 
 
 def numpy_fn(name: str, dim: int):
-    """Independent numpy fitness for mealpy: opfunu's operator on the same shift/rotation data."""
+    """Independent numpy fitness for mealpy: opfunu's operator on the same shift/rotation data.
+
+    Schwefel is :func:`cec2017_schwefel` where opfunu is older than 1.0.4 (the only opfunu Python 3.12 installs).
+    """
     _need_peer()
     from opfunu.utils import operator as op
 
@@ -300,7 +327,8 @@ def numpy_fn(name: str, dim: int):
     base = {"sphere": op.sphere_func, "ellipsoid": op.elliptic_func, "rastrigin": op.rastrigin_func,
             "ackley": op.ackley_func, "griewank": op.griewank_func,
             "rosenbrock": lambda z: op.rosenbrock_func(z, shift=1.0), "levy": lambda z: op.levy_func(z, shift=1.0),
-            "schwefel": op.modified_schwefel_func, "bent_cigar": op.bent_cigar_func,
+            "schwefel": op.modified_schwefel_func if _opfunu_fixed_schwefel() else cec2017_schwefel,
+            "bent_cigar": op.bent_cigar_func,
             "zakharov": op.zakharov_func}[name]
     M, o, s = b.rotation, b.shift, b.scale
     return lambda x: float(base(M @ (s * (np.asarray(x) - o))))
