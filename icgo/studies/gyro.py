@@ -12,15 +12,18 @@ seeds per trained method (mean +/- sample std over seeds, ddof 1):
 
 * ``raw``: the instrument's computed azimuth (patent eq. 7);
 * ``table``: the prior-art error table over (I, A), toolface ignored, bilinear
-  (:class:`icgo.models.network.LookupTableModel`);
+  (:mod:`icgo.methods.lookup_table`; :class:`icgo.models.network.LookupTableModel`);
 * the network variants of ``variants`` (patent eqs. 8-12, :mod:`icgo.methods.nets`; all
   seeds of one variant train in one jitted, vmapped call;
   :class:`icgo.models.network.GyroNetwork`);
-* ``relm`` / ``icgo_relm``: RELM (ICGO paper eqs. 8-9, :mod:`icgo.methods.relm`) on the
+* ``relm`` / ``icgo_relm``: RELM (ICGO paper eqs. 8-9, :mod:`icgo.methods.gyro_relm`) on the
   encoded (I, T, computed A) with random hidden weights, or with hidden
   weights searched by ``relm.optimizer`` (CGO with the three-stage 4th-seed
   mutation by default) on the training-only RELM fitness
   (:class:`icgo.models.network.GyroRELM`).
+
+Every method is scored through its family's pure ``predict(params, x)`` on the test sets' measured angles
+(:func:`predict_all`), the function its saved model applies.
 
 Also: error vs number of turntable points (:func:`points_sweep`) and the
 ``target=azimuth`` seam at north (:func:`seam_rows`).
@@ -46,8 +49,15 @@ from icgo.core.errors import SettingError
 from icgo.core.settings import is_int, is_real, need
 from icgo.datasets import protocols as datasets
 from icgo.maths import metrics, stats
-from icgo.methods import nets, relm
-from icgo.models.network import GyroNetwork, GyroRELM, LookupTableModel, turntable_domain, turntable_hash
+from icgo.methods import gyro_relm, lookup_table, nets, relm
+from icgo.models.network import (
+    ANGLE_COLUMNS,
+    GyroNetwork,
+    GyroRELM,
+    LookupTableModel,
+    turntable_domain,
+    turntable_hash,
+)
 from icgo.optim.cgo import CGO
 from icgo.optim.registry import get
 from icgo.physics.frames import angle_diff
@@ -371,8 +381,11 @@ def seam_rows(method, preds, f: pd.DataFrame, band) -> dict:
 
 
 def predict_all(model, tests: dict) -> dict:
-    """``{test: model.members(frame)}``, (S, N) compensated azimuth per test set."""
-    return {k: model.members(f) for k, f in tests.items()}
+    """``{test: (S, N) compensated azimuth, deg}``: the model's ``predict`` (its family's pure forward pass on its
+    params, :meth:`icgo.models.format.FittedModel.predict`) on each test set's measured angles ((1, N) for the
+    table)."""
+    return {k: np.atleast_2d(np.asarray(model.predict(f[list(ANGLE_COLUMNS)].to_numpy(float))))
+            for k, f in tests.items()}
 
 
 # ==================================================================== methods
@@ -380,11 +393,10 @@ def fit_table(tcfg: TableConfig, train: pd.DataFrame, config: dict) -> LookupTab
     """The lookup table from the turntable points (nominal I, A; error ``A_true - A_raw``)."""
     err = azimuth_errors(train["azimuth_raw_deg"], train["azimuth_deg"])
     tf = tcfg.toolface
-    t = nets.lookup_table_fit(train["inclination_deg"], train["azimuth_deg"], err, toolface_deg=train["toolface_deg"],
-                              at_toolface_deg=None if tf == "mean" else float(tf))
+    t = lookup_table.fit(train["inclination_deg"], train["azimuth_deg"], err, toolface_deg=train["toolface_deg"],
+                         at_toolface_deg=None if tf == "mean" else float(tf))
     return LookupTableModel(config=dict(config), data_hash=turntable_hash(train), domain=turntable_domain(train),
-                            toolface=tf, inc_nodes=np.asarray(t.inc_nodes), az_nodes=np.asarray(t.az_nodes),
-                            error=np.asarray(t.error))
+                            toolface=tf, params=lookup_table.LookupTable(*(np.asarray(a) for a in t)))
 
 
 def fit_network(variant: str, ncfg: nets.NetConfig, keys, train: pd.DataFrame, config: dict):
@@ -465,10 +477,10 @@ def fit_relm(rc: RelmConfig, keys, train: pd.DataFrame, optimized: bool, config:
     fitted = jax.vmap(lambda th: relm.fit_unchecked(th, X, T, lam, w, L))(theta)
     jax.block_until_ready(fitted.beta)
     secs = time.perf_counter() - t0
+    params = gyro_relm.GyroRELMParams(*(np.asarray(a) for a in fitted), encoding=rc.encoding)
     model = GyroRELM(config=dict(config), data_hash=turntable_hash(train), domain=turntable_domain(train),
                      method="icgo_relm" if optimized else "relm", encoding=rc.encoding, hidden=L, lam=lam,
-                     theta=np.asarray(fitted.theta), beta=np.asarray(fitted.beta), mean=np.asarray(fitted.mean),
-                     std=np.asarray(fitted.std), train_fitness=np.asarray(best_f))
+                     params=params, train_fitness=np.asarray(best_f))
     return model, secs
 
 
