@@ -324,8 +324,8 @@ def read_model(path, kinds: dict) -> FittedModel:
     if cls is None:
         raise ModelError(f"{p}: unknown model kind {str(kind)[:60]!r}; known: {sorted(kinds)}")
     if head["schema_version"] < cls.OLDEST_SCHEMA:
-        raise ModelError(f"{p}: a {kind} model of schema {head['schema_version']}, whose layout this icgo no longer "
-                         f"reads (schema {cls.OLDEST_SCHEMA} or later); {cls.REFIT}")
+        raise ModelError(f"{p}: a {kind} file of model schema {head['schema_version']}, a layout this icgo no longer "
+                         f"reads (it reads schema {cls.OLDEST_SCHEMA} on); {cls.REFIT}")
     npz = p.with_name(local_name(head["arrays"], str(p), "'arrays'"))
     types = field_types(cls)
     if cls.PARAMS is not None:
