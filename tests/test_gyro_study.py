@@ -116,7 +116,7 @@ def test_smoke_run_is_deterministic_by_key():
     assert set(a.records) == {"methods", "seam"} and set(a.models) == {"table", "net_error"}
     for k in a.records:
         pd.testing.assert_frame_equal(a.records[k], b.records[k], check_exact=True)
-    np.testing.assert_array_equal(a.models["net_error"].w1, b.models["net_error"].w1)
+    np.testing.assert_array_equal(a.models["net_error"].params.w1, b.models["net_error"].params.w1)
 
 
 @pytest.fixture(scope="module")
