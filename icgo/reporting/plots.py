@@ -101,7 +101,8 @@ def error_by_condition(table: pd.DataFrame, title: str = "Raw azimuth error per 
 
 
 def residual_vs_toolface(panels):
-    """Magnetometer residual components (measured - predicted, nT) against toolface, one row of panels per set.
+    """Magnetometer residual components (measured - predicted, nT) against toolface, one row of panels per set
+    (not yet laid out: :func:`save_figure` does it).
 
     Args:
         panels: ``(name, toolface deg (n,), residual (n, 3) nT of bx, by, bz)`` per row (e.g. before and after a
@@ -120,12 +121,12 @@ def residual_vs_toolface(panels):
             ax.set_ylabel("nT")
             if row == len(panels) - 1:
                 ax.set_xlabel("toolface (deg)")
-    fig.tight_layout()
     return fig
 
 
 def gap_per_step(table: pd.DataFrame):
-    """Held-out gap after each step of a model search: RMS magnetometer residual (nT) and RMS azimuth error (deg).
+    """Held-out gap after each step of a model search: RMS magnetometer residual (nT) and RMS azimuth error (deg)
+    (not yet laid out: :func:`save_figure` does it).
 
     Args:
         table: one row per model, columns ``model`` (its name), ``mag_rms_nT`` and ``azimuth_rms_deg``.
@@ -141,5 +142,4 @@ def gap_per_step(table: pd.DataFrame):
     for a in ax:
         a.set_xticks(x, table["model"], rotation=20, ha="right", fontsize=8)
         a.set_yscale("log")
-    fig.tight_layout()
     return fig
