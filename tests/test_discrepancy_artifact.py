@@ -35,6 +35,20 @@ def test_the_physics_model_recovers_the_hidden_effect_and_corrects_azimuth(fitte
     np.testing.assert_allclose(got.inclination_compensated, st.inclination, atol=0.2)
 
 
+def test_predict_is_pure_jit_able(fitted):
+    """The family's predict jits whole (the same function up to XLA's fusion) and the model applies it as it is."""
+    from icgo.discrepancy import inversion
+
+    st, out = fitted
+    m = out.models["discrepancy_model"]
+    x = np.column_stack([st.G, st.B])
+    eager, jitted = inversion.predict(m.params, x), jax.jit(inversion.predict)(m.params, x)
+    frame = pd.DataFrame(x, columns=["gx", "gy", "gz", "bx", "by", "bz"])
+    np.testing.assert_array_equal(m.apply(frame)["azimuth_compensated"], np.asarray(eager.azimuth))
+    np.testing.assert_allclose(np.asarray(jitted.azimuth), np.asarray(eager.azimuth), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(np.asarray(jitted.b_corrected), np.asarray(eager.b_corrected), rtol=0, atol=1e-6)
+
+
 def test_save_load_apply_is_bitwise(fitted, tmp_path):
     st, out = fitted
     m = out.models["discrepancy_model"]

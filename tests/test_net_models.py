@@ -9,7 +9,7 @@ import pytest
 
 import icgo  # noqa: F401
 from icgo.core.errors import ModelError
-from icgo.methods import nets
+from icgo.methods import gyro_relm, nets
 from icgo.models.network import GyroNetwork, GyroRELM, LookupTableModel
 from icgo.models.registry import load_model
 from icgo.studies import gyro
@@ -73,6 +73,21 @@ def test_save_load_apply_is_bitwise(fitted, tmp_path, name, cls):
     assert isinstance(back, cls) and back.config == m.config and back.data_hash == m.data_hash
     pd.testing.assert_frame_equal(back.apply(new), before, check_exact=True)
     np.testing.assert_array_equal(back.members(new), m.members(new))
+
+
+@pytest.mark.parametrize("name", ["table", "net", "relm"])
+def test_predict_is_pure_jit_and_vmap_able(fitted, name):
+    """Each family's predict jits whole (the same function up to XLA's fusion: last-bit rounding) and vmaps over
+    members; the model applies it as it is."""
+    _, new, _, _, models = fitted
+    m = models[name]
+    x = m.inputs(new)
+    np.testing.assert_allclose(np.atleast_2d(np.asarray(jax.jit(type(m).PREDICT)(m.params, x))), m.members(new),
+                               rtol=0, atol=1e-9)
+    if name != "table":  # one member alone is predict of that member's params
+        one = jax.tree.map(lambda a: a[1], m.params)
+        single = {"net": nets.predict, "relm": gyro_relm.predict}[name]
+        np.testing.assert_allclose(np.asarray(single(one, x)), m.members(new)[1], rtol=0, atol=1e-9)
 
 
 @pytest.mark.parametrize("name", ["table", "net", "relm"])
