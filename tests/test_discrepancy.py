@@ -19,9 +19,9 @@ from omegaconf import OmegaConf
 import icgo  # noqa: F401
 from experiments._entry import EXIT_CONFIG
 from icgo import discrepancy as D
-from icgo.discrepancy import inversion
 from icgo.core.errors import SettingsError
 from icgo.core.settings import config_from_mapping, config_to_mapping
+from icgo.discrepancy import inversion
 from icgo.io import recording as icgo_io
 from icgo.models.registry import load_model
 from icgo.physics import effects as fx

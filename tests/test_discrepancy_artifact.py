@@ -89,7 +89,7 @@ def test_a_schema_1_model_is_refused_with_what_to_do(fitted, tmp_path):
     head = json.loads(path.read_text())
     head["schema_version"] = 1
     path.write_text(json.dumps(head))
-    with pytest.raises(ModelError, match=r"phys\.json: a discrepancy_model file of model schema 1.*experiments\.discrepancy"
-                       ) as e:
+    says = r"phys\.json: a discrepancy_model file of model schema 1.*experiments\.discrepancy"
+    with pytest.raises(ModelError, match=says) as e:
         load_model(path)
     assert "\n" not in str(e.value)

@@ -18,7 +18,7 @@ import pytest
 
 import icgo  # noqa: F401  (float64)
 from icgo.core.errors import ModelError
-from icgo.models.format import FittedModel, SCHEMA_VERSION, need, need_shape, param_arrays, read_model
+from icgo.models.format import SCHEMA_VERSION, FittedModel, need, need_shape, param_arrays, read_model
 
 
 class Scale(NamedTuple):

@@ -23,7 +23,6 @@ from icgo.maths.lsq import least_squares_fixed
 from icgo.physics import effects as _fx
 from icgo.physics.frames import azimuth_from_gv, field_vector_ned, inclination_from_g, tool_to_earth, toolface_from_g
 
-
 #: Levenberg-Marquardt steps of the per-station inversion of a workflow's model.
 N_ITER = 10
 

@@ -71,13 +71,16 @@ class GyroModel(FittedModel):
 
     def members(self, frame: pd.DataFrame) -> np.ndarray:
         """Compensated azimuth of every member, (S, N) deg (the study's ``predict``)."""
-        return np.atleast_2d(np.asarray(self.predict(self.inputs(frame))))
+        return self._members(self.inputs(frame))
+
+    def _members(self, x) -> np.ndarray:
+        return np.atleast_2d(np.asarray(self.predict(x)))
 
     def apply(self, frame: pd.DataFrame) -> pd.DataFrame:
         """``station`` (if given), ``azimuth_raw_deg``, ``azimuth_compensated`` (circular mean over members)
         and ``azimuth_spread_deg`` (sample std over members; 0 for one)."""
         x = self.inputs(frame)
-        mean, spread = circular_mean_spread(np.atleast_2d(np.asarray(self.predict(x))))
+        mean, spread = circular_mean_spread(self._members(x))
         out = {"station": frame["station"].to_numpy()} if "station" in frame.columns else {}
         out.update({"azimuth_raw_deg": x[:, 2], "azimuth_compensated": mean, "azimuth_spread_deg": spread})
         return pd.DataFrame(out)
