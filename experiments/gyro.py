@@ -27,6 +27,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from experiments._entry import enable_jax_cache, one_line_errors, study_main
 from icgo.io.files import Output, staged_results
+from icgo.reporting.plots import plt_agg
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -58,20 +59,11 @@ def write_table(df: pd.DataFrame, path: Path, title: str, note: str = "") -> Non
 
 
 # ----------------------------------------------------------------- figures
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def fig_seam(preds: dict, f: pd.DataFrame, band, path: Path) -> None:
     """|error| vs true azimuth (10-deg bins, RMS over points and seeds) per method."""
     from icgo.maths.metrics import rmse
 
-    plt = _plt()
+    plt = plt_agg()
     a = np.mod(f["azimuth_deg"].to_numpy(), 360.0)
     edges = np.arange(0, 361, 10.0)
     centers = 0.5 * (edges[1:] + edges[:-1])
@@ -97,7 +89,7 @@ def fig_seam(preds: dict, f: pd.DataFrame, band, path: Path) -> None:
 
 def fig_points(df: pd.DataFrame, path: Path) -> None:
     """Test RMSE vs number of turntable points, table vs network, one panel per test set."""
-    plt = _plt()
+    plt = plt_agg()
     tests = list(dict.fromkeys(df["test"]))
     fig, axes = plt.subplots(1, len(tests), figsize=(5 * len(tests), 4), squeeze=False)
     for ax, k in zip(axes[0], tests):
@@ -132,7 +124,7 @@ def fig_toolface(train: pd.DataFrame, path: Path, inclination=25.0) -> None:
     """Raw azimuth error vs toolface at one inclination, one curve per azimuth (why the table fails)."""
     from icgo.studies.gyro import azimuth_errors
 
-    plt = _plt()
+    plt = plt_agg()
     d = train[np.isclose(train["inclination_deg"], inclination)]
     fig, ax = plt.subplots(figsize=(7, 4))
     for a, g in d.groupby("azimuth_deg"):

@@ -9,7 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from icgo.methods import nets
+from icgo.discrepancy.inversion import PhysicsParams
+from icgo.methods import gyro_relm, lookup_table, nets
 from icgo.methods import relm as _relm
 from icgo.models.calibration import MagCalibration
 from icgo.models.discrepancy import PhysicsModel
@@ -60,15 +61,21 @@ def models(seed: int = 0) -> dict:
     tdom = {"inclination_raw_deg": [0.0, 90.0], "n_points": 100}
     tbase = dict(config={}, data_hash="1" * 16, domain=tdom)
     net = GyroNetwork(**tbase, variant="net_error", net_config={**cfg._asdict(), "hidden": list(cfg.hidden)},
-                      w1=rng.normal(0, 0.3, (S, m1, n_in)), b1=np.zeros((S, m1)), w2=rng.normal(0, 0.3, (S, m2, m1)),
-                      b2=np.zeros((S, m2)), v=rng.normal(0, 0.3, (S, m2)), y_scale=np.ones(S),
+                      params=nets.NetParams(w1=rng.normal(0, 0.3, (S, m1, n_in)), b1=np.zeros((S, m1)),
+                                            w2=rng.normal(0, 0.3, (S, m2, m1)), b2=np.zeros((S, m2)),
+                                            v=rng.normal(0, 0.3, (S, m2)), y_scale=np.ones(S),
+                                            encoding=cfg.encoding, target=cfg.target),
                       best_epoch=np.ones(S, np.int64), best_val_loss=np.ones(S), train_loss=np.ones((S, E)),
                       val_loss=np.ones((S, E)), stopped_epoch=np.full(S, E, np.int64))
     grelm = GyroRELM(**tbase, method="relm", encoding="scaled", hidden=L, lam=1e-3,
-                     theta=rng.uniform(-1, 1, (S, (n_in + 1) * L)), beta=rng.normal(0, 0.1, (S, L)),
-                     mean=np.zeros((S, n_in)), std=np.ones((S, n_in)), train_fitness=np.ones(S))
-    table = LookupTableModel(**tbase, toolface="mean", inc_nodes=np.array([0.0, 45.0, 90.0]),
-                             az_nodes=np.array([0.0, 120.0, 240.0]), error=rng.normal(0, 0.1, (3, 3)))
-    phys = PhysicsModel(**base, effects=["hard_iron"], sizes=[3], params=rng.normal(0, 50, 3),
-                        field=np.array([50_000.0, 60.0, 0.0]), sigma_b_nT=50.0, sigma_g=0.001, n_iter=5)
+                     params=gyro_relm.GyroRELMParams(theta=rng.uniform(-1, 1, (S, (n_in + 1) * L)),
+                                                     beta=rng.normal(0, 0.1, (S, L)), mean=np.zeros((S, n_in)),
+                                                     std=np.ones((S, n_in)), encoding="scaled"),
+                     train_fitness=np.ones(S))
+    table = LookupTableModel(**tbase, toolface="mean", params=lookup_table.LookupTable(
+        inc_nodes=np.array([0.0, 45.0, 90.0]), az_nodes=np.array([0.0, 120.0, 240.0]),
+        error=rng.normal(0, 0.1, (3, 3))))
+    phys = PhysicsModel(**base, effects=["hard_iron"], sigma_b_nT=50.0, sigma_g=0.001, n_iter=5,
+                        params=PhysicsParams({"hard_iron": rng.normal(0, 50, 3)}, np.array([50_000.0, 60.0, 0.0]),
+                                             50.0, 0.001, 5))
     return {m.KIND: m for m in (relm, msa, cal, net, grelm, table, phys)}

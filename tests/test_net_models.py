@@ -9,7 +9,7 @@ import pytest
 
 import icgo  # noqa: F401
 from icgo.core.errors import ModelError
-from icgo.methods import nets
+from icgo.methods import gyro_relm, nets
 from icgo.models.network import GyroNetwork, GyroRELM, LookupTableModel
 from icgo.models.registry import load_model
 from icgo.studies import gyro
@@ -43,7 +43,8 @@ def test_members_are_the_library_predictions(fitted):
     i, t, a = (new[c].to_numpy() for c in ("inclination_raw_deg", "toolface_raw_deg", "azimuth_raw_deg"))
     res = nets.fit(keys, train.inclination_raw_deg, train.toolface_raw_deg, train.azimuth_raw_deg,
                    train.azimuth_deg, ncfg)
-    np.testing.assert_array_equal(models["net"].members(new), np.asarray(nets.predict(res, i, t, a, ncfg)))
+    np.testing.assert_array_equal(models["net"].members(new),
+                                  np.asarray(nets.predict_seeds(res.params, np.column_stack([i, t, a]))))
     assert models["net"].members(new).shape == (3, 40) and models["relm"].members(new).shape == (3, 40)
     assert models["table"].members(new).shape == (1, 40)
     # every method compensates most of the smooth systematic error it was trained on
@@ -72,6 +73,34 @@ def test_save_load_apply_is_bitwise(fitted, tmp_path, name, cls):
     assert isinstance(back, cls) and back.config == m.config and back.data_hash == m.data_hash
     pd.testing.assert_frame_equal(back.apply(new), before, check_exact=True)
     np.testing.assert_array_equal(back.members(new), m.members(new))
+
+
+@pytest.mark.parametrize("name", ["table", "net", "relm"])
+def test_predict_is_pure_jit_and_vmap_able(fitted, name):
+    """Each family's predict jits whole (the same function up to XLA's fusion: last-bit rounding) and vmaps over
+    members; the model applies it as it is."""
+    _, new, _, _, models = fitted
+    m = models[name]
+    x = m.inputs(new)
+    np.testing.assert_allclose(np.atleast_2d(np.asarray(jax.jit(type(m).PREDICT)(m.params, x))), m.members(new),
+                               rtol=0, atol=1e-9)
+    if name != "table":  # one member alone is predict of that member's params
+        one = jax.tree.map(lambda a: a[1], m.params)
+        single = {"net": nets.predict, "relm": gyro_relm.predict}[name]
+        np.testing.assert_allclose(np.asarray(single(one, x)), m.members(new)[1], rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["table", "net", "relm"])
+def test_a_schema_1_file_loads_as_it_is(fitted, tmp_path, name):
+    """The gyro kinds' layout is schema 1's: a file written before schema 2 loads and applies the same."""
+    import json
+
+    _, new, _, _, models = fitted
+    path = models[name].save(tmp_path / name)
+    head = json.loads(path.read_text())
+    head["schema_version"] = 1
+    path.write_text(json.dumps(head))
+    pd.testing.assert_frame_equal(load_model(path).apply(new), models[name].apply(new), check_exact=True)
 
 
 def test_missing_angle_column_is_one_line(fitted):

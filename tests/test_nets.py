@@ -1,4 +1,4 @@
-"""Tests for icgo.methods.nets: the patent's BP network and the lookup-table baseline."""
+"""Tests for icgo.methods.nets (the patent's BP network) and icgo.methods.lookup_table (the baseline it replaced)."""
 
 import jax
 import jax.numpy as jnp
@@ -7,7 +7,7 @@ import pytest
 from scipy.interpolate import RegularGridInterpolator
 
 import icgo  # noqa: F401  (float64)
-from icgo.methods import nets
+from icgo.methods import lookup_table, nets
 from icgo.physics.frames import angle_diff
 
 
@@ -87,11 +87,11 @@ def test_fit_vmapped_equals_single_and_reduces_error():
     res = nets.fit(keys, inc, tf, a_raw, a_true, CFG)
     assert res.params.w1.shape == (3, 8, 3) and res.train_loss.shape == (3, CFG.epochs)
     alone = nets.fit(keys[1], inc, tf, a_raw, a_true, CFG)
-    for a, b in zip(res.params, alone.params):
+    for a, b in zip(jax.tree.leaves(res.params), jax.tree.leaves(alone.params)):
         np.testing.assert_allclose(np.asarray(a[1]), np.asarray(b), rtol=1e-10, atol=1e-12)
     # held-out points of the same smooth error function
     ti, tt, tr, ta, te = _synthetic(300, seed=9)
-    pred = nets.predict(res, ti, tt, tr, CFG)
+    pred = nets.predict_seeds(res.params, np.column_stack([ti, tt, tr]))
     rmse = np.sqrt(np.mean(np.asarray(angle_diff(ta[None], pred)) ** 2, axis=1))
     raw = np.sqrt(np.mean(te ** 2))
     assert np.all(rmse < 0.2 * raw), (rmse, raw)  # >5x reduction in 150 epochs
@@ -101,6 +101,29 @@ def test_fit_vmapped_equals_single_and_reduces_error():
         be = int(res.best_epoch[s])
         np.testing.assert_allclose(float(res.best_val_loss[s]), vl[be], rtol=1e-12)
         assert vl[be] <= vl[: int(res.stopped_epoch[s])].min() + 1e-15
+
+
+def test_predict_is_the_patent_network_on_encoded_angles():
+    """Independent reference: numpy float64 encoding (scaled / sincos), eqs. 8-12 and the target's map; each
+    seed of predict_seeds is predict of that seed's params."""
+    rng = np.random.default_rng(5)
+    angles = np.column_stack([rng.uniform(3, 75, 50), rng.uniform(-180, 540, 50), rng.uniform(0, 360, 50)])
+    for encoding, target in (("scaled", "error"), ("sincos", "azimuth")):
+        n = nets.n_inputs(encoding)
+        ps = [nets.init_params(k, n, (8, 8)) for k in jax.random.split(jax.random.PRNGKey(1), 2)]
+        params = nets.NetParams(*(jnp.stack(x) for x in zip(*ps)), y_scale=jnp.array([2.5, 360.0]),
+                                encoding=encoding, target=target)
+        I, T, A = angles[:, 0], np.mod(angles[:, 1], 360.0), np.mod(angles[:, 2], 360.0)
+        x = (np.column_stack([I / 45 - 1, T / 180 - 1, A / 180 - 1]) if encoding == "scaled" else
+             np.column_stack([I / 45 - 1, np.sin(np.radians(T)), np.cos(np.radians(T)), np.sin(np.radians(A)),
+                              np.cos(np.radians(A))]))
+        got = np.asarray(nets.predict_seeds(params, angles))
+        for s in range(2):
+            y = _np_forward_backward(ps[s], x, np.zeros(50))[0] * float(params.y_scale[s])
+            want = np.mod(y if target == "azimuth" else angles[:, 2] + y, 360.0)
+            np.testing.assert_allclose(got[s], want, rtol=0, atol=1e-10)
+            one = jax.tree.map(lambda a, s=s: a[s], params)
+            np.testing.assert_allclose(np.asarray(nets.predict(one, angles)), got[s], rtol=0, atol=1e-12)
 
 
 def test_compiles_once_per_config():
@@ -134,7 +157,7 @@ def test_target_azimuth_fails_at_north_and_error_target_does_not():
     for target in ("azimuth", "error"):
         c = CFG._replace(target=target)
         res = nets.fit(jax.random.PRNGKey(5), inc, tf, a_raw, a_true, c)
-        e = np.asarray(angle_diff(a_true, nets.predict(res, inc, tf, a_raw, c)))
+        e = np.asarray(angle_diff(a_true, nets.predict(res.params, np.column_stack([inc, tf, a_raw]))))
         north = np.abs(angle_diff(a_true, 0.0)) < 10.0
         out[target] = (np.sqrt(np.mean(e[north] ** 2)), np.sqrt(np.mean(e[~north] ** 2)))
     n_az, far_az = out["azimuth"]
@@ -153,22 +176,22 @@ def test_lookup_table_matches_scipy_bilinear_periodic():
     tf_effect = {0.0: 0.3, 120.0: -0.1, 240.0: -0.2}  # averages to zero over toolface
     err = node_err[np.searchsorted(inc_nodes, I), (A // 30).astype(int)] + np.vectorize(
         tf_effect.get)(T)
-    table = nets.lookup_table_fit(I, A, err)
+    table = lookup_table.fit(I, A, err)
     np.testing.assert_allclose(table.error, node_err, atol=1e-12)
     # reference: scipy's linear interpolator on the table padded periodically in azimuth
     ref = RegularGridInterpolator((inc_nodes, np.append(az_nodes, 360.0)),
                                   np.concatenate([node_err, node_err[:, :1]], 1))
     qi, qa = rng.uniform(3, 75, 500), rng.uniform(0, 360, 500)
-    np.testing.assert_allclose(nets.lookup_table_error(table, qi, qa),
+    np.testing.assert_allclose(lookup_table.error_at(table, qi, qa),
                                ref(np.stack([qi, qa], -1)), atol=1e-12)
     # periodic: just below 360 approaches the 0-deg node; clamped outside the inclinations
-    np.testing.assert_allclose(nets.lookup_table_error(table, 3.0, 359.9999999),
+    np.testing.assert_allclose(lookup_table.error_at(table, 3.0, 359.9999999),
                                node_err[0, 0], atol=1e-7)
-    np.testing.assert_allclose(nets.lookup_table_error(table, 80.0, 30.0), node_err[-1, 1])
-    np.testing.assert_allclose(nets.lookup_table_predict(table, [3.0], [359.0]),
+    np.testing.assert_allclose(lookup_table.error_at(table, 80.0, 30.0), node_err[-1, 1])
+    np.testing.assert_allclose(lookup_table.predict(table, np.array([[3.0, 77.0, 359.0]])),  # toolface unused
                                np.mod(359.0 + ref([[3.0, 359.0]]), 360.0), atol=1e-12)
     # fixed-toolface table (patent background)
-    t0 = nets.lookup_table_fit(I, A, err, toolface_deg=T, at_toolface_deg=120.0)
+    t0 = lookup_table.fit(I, A, err, toolface_deg=T, at_toolface_deg=120.0)
     np.testing.assert_allclose(t0.error, node_err - 0.1, atol=1e-12)
 
 
@@ -188,6 +211,6 @@ def test_bad_inputs_raise_one_line_errors():
         nets.fit(jax.random.PRNGKey(0), inc[:10], tf[:10], a_raw[:10], a_true[:10],
                  CFG._replace(batch_size=64))
     with pytest.raises(ValueError, match="not on a table node"):
-        nets.lookup_table_fit(inc, a_true, err, inc_nodes=[3.0, 75.0], az_nodes=[0.0, 180.0])
+        lookup_table.fit(inc, a_true, err, inc_nodes=[3.0, 75.0], az_nodes=[0.0, 180.0])
     with pytest.raises(ValueError, match="has no turntable point"):
-        nets.lookup_table_fit([3.0, 3.0], [0.0, 0.0], [0.1, 0.2], az_nodes=[0.0, 180.0])
+        lookup_table.fit([3.0, 3.0], [0.0, 0.0], [0.1, 0.2], az_nodes=[0.0, 180.0])

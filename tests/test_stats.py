@@ -52,3 +52,12 @@ def test_holm_hand_computed():
     np.testing.assert_allclose(stats.holm([0.01, 0.04, 0.03, 0.005]), [0.03, 0.06, 0.06, 0.02])
     np.testing.assert_allclose(stats.holm([0.5, 0.9]), [1.0, 1.0])
     np.testing.assert_allclose(stats.holm([0.2]), [0.2])
+
+
+def test_paired_z_hand_computed():
+    before = np.array([3.0, 4.0, 5.0, 6.0])
+    after = before - np.array([1.0, 2.0, 1.0, 2.0])  # improvement 1.5 +- 0.577 / 2
+    assert stats.paired_z(before, after) == pytest.approx(1.5 / (np.std([1, 2, 1, 2], ddof=1) / 2))
+    assert stats.paired_z(after, before) == pytest.approx(-stats.paired_z(before, after))
+    # no spread: the standard error is floored at 1e-9, so the z is finite
+    assert stats.paired_z(before, before - 1.0) == pytest.approx(1e9)

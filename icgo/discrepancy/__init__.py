@@ -1,7 +1,7 @@
 """Discrepancy workflow: find where simulation and measurement disagree, name the
 missing physical effect, add it to the model and show the gap shrink.
 
-Five verbs, all usable from a notebook with plain arguments::
+Six verbs, all usable from a notebook with plain arguments::
 
     from icgo import discrepancy as D
     st = D.stations_from_recording(icgo.io.recording.read_recording(path))   # or D.simulate(...)
@@ -19,17 +19,20 @@ Five verbs, all usable from a notebook with plain arguments::
   BIC, standard errors; :mod:`.identifiability`: what the attitudes cannot tell apart.
 * **add** — :func:`run_workflow` (:mod:`.search`): the greedy forward search
   as ``init`` / ``step`` / ``finish`` over a :class:`SearchState`.
-* **show** — :mod:`.report` (every sentence, Markdown, JSON), :mod:`.plots`.
+* **show** — :mod:`.report` (every sentence, Markdown, JSON; its figures drawn by
+  :mod:`icgo.reporting.plots`).
+* **apply** — :mod:`.inversion`: the fitted physics model as a :class:`PhysicsParams` pytree
+  (:func:`physics_params` of a result) and its pure ``predict(params, sensors)``, the attitude that
+  best explains each measured station; saved and applied as
+  :class:`~icgo.models.discrepancy.PhysicsModel`.
 
 Modules: ``noise`` (the one set of noise constants), ``stations`` (input,
 checks, simulation, designs), ``model`` (layout, prepare, predict, residuals),
-``stats`` (the paired z), ``fit``, ``identifiability``, ``compare``, ``config``
+``fit`` (the fits, and fixed models fitted per member), ``identifiability``, ``compare``, ``config``
 (:class:`WorkflowConfig`, every option's one default), ``scatter`` (the noise estimated from grouped
-shots), ``search``, ``report``,
-``plots``, ``result_studies`` (the ``results/discrepancy_*`` studies as data;
-the workflow as a registered study is :mod:`icgo.studies.discrepancy`),
-``artifact`` (:class:`~icgo.models.discrepancy.PhysicsModel`, the fitted
-physics model saved and applied through :mod:`icgo.models.format`).
+shots), ``search``, ``report``, ``inversion``. The ``results/discrepancy_*`` studies as data are
+:mod:`icgo.studies.discrepancy_results`; the workflow as a registered study is :mod:`icgo.studies.discrepancy`.
+The workflow's decision statistic is :func:`icgo.maths.stats.paired_z`.
 Sign convention everywhere: residual = measured - predicted.
 Units: G in g, B in nT, angles in degrees at every public boundary.
 """
@@ -47,14 +50,12 @@ from icgo.discrepancy.compare import (
 )
 from icgo.discrepancy.config import WorkflowConfig
 from icgo.discrepancy.fit import (
+    TWELVE_PLUS_FIELD,
     Evaluation,
-    Inversion,
-    correct,
-    correct_with,
     evaluate_models,
+    fit_members,
     folds,
     lm_fit,
-    model_params,
     standard_errors,
 )
 from icgo.discrepancy.identifiability import (
@@ -66,6 +67,7 @@ from icgo.discrepancy.identifiability import (
     identifiability,
     separability,
 )
+from icgo.discrepancy.inversion import Inversion, PhysicsParams, physics_params
 from icgo.discrepancy.model import (
     FIELD_SCALES,
     GROUP_SCALE_DEG,
@@ -82,7 +84,6 @@ from icgo.discrepancy.model import (
     residuals,
 )
 from icgo.discrepancy.noise import NOISE, Noise, effective_sigma, noise_floor
-from icgo.discrepancy.plots import plot_gap_per_step, plot_residual_vs_toolface
 from icgo.discrepancy.report import (
     degeneracy_sentence,
     pattern_sentences,
@@ -120,4 +121,3 @@ from icgo.discrepancy.stations import (
     simulate,
     stations_from_recording,
 )
-from icgo.discrepancy.stats import paired_z

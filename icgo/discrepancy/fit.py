@@ -1,6 +1,7 @@
 """The fits: Levenberg-Marquardt over a free-parameter mask (:func:`icgo.maths.lsq.least_squares_fixed`), the
-batched k-fold evaluation of candidate models, standard errors, and the inverse model
-(:func:`correct`).
+batched k-fold evaluation of candidate models, standard errors, and fixed models fitted one per member
+(:func:`fit_members`, the generalisation study's physics baseline). The fitted model inverted per station
+is :mod:`icgo.discrepancy.inversion`.
 
 All residuals are measured - predicted (see :mod:`icgo.discrepancy.model`).
 """
@@ -14,20 +15,21 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from icgo.discrepancy.inversion import PhysicsParams
 from icgo.discrepancy.model import (
     Data,
     Layout,
+    fitted_field,
     make_layout,
     physical_residuals,
     predict,
-    remove_accel_effects,
+    prepare,
     residuals,
     station_blocks,
 )
-from icgo.discrepancy.noise import Noise, effective_sigma
+from icgo.discrepancy.noise import NOISE, Noise
 from icgo.maths.lsq import gauss_newton_gap, least_squares_fixed
-from icgo.physics import effects as _fx
-from icgo.physics.frames import azimuth_from_gv, field_vector_ned, inclination_from_g, tool_to_earth, toolface_from_g
+from icgo.physics.frames import azimuth_from_gv
 
 #: Stations per block (stations) of the row-blocked fits, for the reference-attitude layout's
 #: parameters (:func:`block_stations` scales it for more). Above this many stations a fit
@@ -270,90 +272,38 @@ def standard_errors(J, free, cost: float, n_res: int) -> np.ndarray:
     return se_all
 
 
-# ============================================================ the inverse model
-def model_params(res) -> dict:
-    """name -> (n_params,) physical parameters of the effects in a workflow result's final model."""
-    phys = res.theta * res.layout.scales()
-    return {nm: phys[res.layout.slice(nm)] for nm in res.model}
+# ============================================================ fixed models, one per member
+#: The physics baseline of the generalisation protocols: the 12-parameter magnetometer
+#: model (bias, scale, cross-coupling, misalignment) with an earth-fixed external field.
+TWELVE_PLUS_FIELD = ("hard_iron", "mag_scale", "mag_cross_coupling", "mag_misalignment", "external_field")
 
 
-class Inversion(NamedTuple):
-    """Per station, what the inverted physics model says (:func:`correct`, :func:`correct_with`).
-
-    Attributes:
-        azimuth: (n,) deg in the frame of the fitted declination. inclination: (n,) deg.
-        b_corrected: (n, 3) nT, the measured field with the model's fitted disturbance removed:
-            ``B_meas - (B_pred - C^T f)`` at the solved attitude ``C`` (f the earth field, NED), i.e.
-            the earth field in the tool frame plus what the model leaves unexplained.
-    """
-
-    azimuth: np.ndarray
-    inclination: np.ndarray
-    b_corrected: np.ndarray
-
-
-def correct(res, G, B, noise: Noise | None = None, n_iter: int = 10) -> Inversion:
-    """Invert the fitted model: the attitude that best explains each measured station.
-
-    Per station, (A, I) (toolface from G with the model's accelerometer
-    effects removed) minimizing the noise-weighted residual of the fitted
-    forward model, started from the raw attitude, by
-    :func:`icgo.maths.lsq.least_squares_fixed` (Marquardt-damped LM, ``n_iter``
-    steps, vmapped over stations). Used to score an augmented physics model's
-    azimuth against a reference (e.g. against ICGO-RELM on the same test split).
+def fit_members(st, weights, effects=TWELVE_PLUS_FIELD, noise: Noise = NOISE, n_iter: int = 30) -> list:
+    """Fit one fixed physics model per row-weight vector (no search): :func:`lm_fit` over ``effects``,
+    vmapped over the members (one compile for every member).
 
     Args:
-        res: a workflow result (its model, fitted parameters, field and config).
-        G: (n, 3) g, B: (n, 3) nT measured.
-        noise: residual weights; default the noise of ``res.config``.
-        n_iter: LM steps per station.
+        st: :class:`icgo.discrepancy.stations.Stations` with a reference attitude.
+        weights: (M, n) 0/1 station weights, one row per member (its training rows).
+        effects: effect names (``icgo.physics.effects`` vocabulary) that are fitted.
+        noise: residual weights (:class:`icgo.discrepancy.noise.Noise`).
+        n_iter: LM steps (fixed; 30 reach the converged cost on the bundled data to 1e-9 relative).
     Returns:
-        :class:`Inversion`.
+        M :class:`~icgo.discrepancy.inversion.PhysicsParams`, each with the effects' parameters and the field
+        (the metadata's field when the stations carry one, else the fitted one).
     """
-    noise = res.config.noise if noise is None else noise
-    return correct_with(model_params(res), res.field, G, B, noise, n_iter)
-
-
-def correct_with(params: dict, field, G, B, noise: Noise, n_iter: int = 10) -> Inversion:
-    """:func:`correct` for given effect parameters and field (what a saved physics model holds).
-
-    Args:
-        params: effect name -> (n_params,) physical parameters (:func:`model_params`).
-        field: (total nT, dip deg, declination deg).
-        G: (n, 3) g, B: (n, 3) nT measured.
-        noise: residual weights. n_iter: LM steps per station.
-    Returns:
-        :class:`Inversion`.
-    """
-    G = jnp.asarray(np.asarray(G, np.float64))
-    B = jnp.asarray(np.asarray(B, np.float64))
-    params = {k: jnp.asarray(v) for k, v in params.items()}
-    F, dip, dec = field
-    f_ned = field_vector_ned(F, dip, dec)
-    sig = jnp.asarray(effective_sigma(np.asarray(G), np.asarray(B), noise))
-    return Inversion(*(np.asarray(x) for x in _correct_jit(params, G, B, sig, f_ned, dec, n_iter)))
-
-
-@partial(jax.jit, static_argnames=("n_iter",))
-def _correct_jit(params, G, B, sig, f_ned, dec, n_iter):
-    T = toolface_from_g(remove_accel_effects(params, G))
-    g_ned = jnp.array([0.0, 0.0, 1.0]) * jnp.linalg.norm(G, axis=1).mean()
-
-    def res1(ai, tgbs):  # (6,) measured - predicted, noise units
-        t, g, b, s = tgbs
-        C = tool_to_earth(ai[0], ai[1], t)
-        Gp, Bp = _fx.apply_effects(params, C.T @ g_ned, C.T @ f_ned, C)
-        return jnp.concatenate([g - Gp, b - Bp]) / s
-
-    def solve(t, g, b, s, a0, i0):
-        return least_squares_fixed(res1, jnp.stack([a0, i0]), (t, g, b, s), n_steps=n_iter).x
-
-    def disturbance(ai, t, g):  # (3,) B_pred - C^T f at the solved attitude, nT
-        C = tool_to_earth(ai[0], ai[1], t)
-        b0 = C.T @ f_ned
-        return _fx.apply_effects(params, C.T @ g_ned, b0, C)[1] - b0
-
-    a0 = azimuth_from_gv(G, B) + dec
-    i0 = inclination_from_g(G)
-    ai = jax.vmap(solve)(T, G, B, sig, a0, i0)
-    return jnp.mod(ai[:, 0], 360.0), ai[:, 1], B - jax.vmap(disturbance)(ai, T, G)
+    if not st.has_reference:
+        raise ValueError("physics baseline: the stations need a reference attitude (azimuth_deg, inclination_deg)")
+    prep = prepare(st, noise)
+    layout = prep.layout
+    free = prep.free_nuisance.astype(float)
+    for e in effects:
+        free[layout.slice(e)] = 1.0
+    w = np.asarray(weights, float) * prep.valid[None]
+    fit = jax.jit(jax.vmap(lambda wm: lm_fit(jnp.zeros(layout.n_params), jnp.asarray(free), wm, prep.data, layout,
+                                             n_iter)[0]))
+    thetas = np.asarray(fit(jnp.asarray(w)))
+    scales = layout.scales()
+    return [PhysicsParams({e: (th * scales)[layout.slice(e)] for e in effects},
+                          np.asarray(fitted_field(th, layout, prep.data), float), float(noise.sigma_b_nT),
+                          float(noise.sigma_g)) for th in thetas]

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import numpy as np
+import jax.numpy as jnp
 
 
 class Noise(NamedTuple):
@@ -28,7 +28,7 @@ class Noise(NamedTuple):
 NOISE = Noise(sigma_b_nT=15.0, sigma_g=3e-4)
 
 
-def effective_sigma(G, B, noise: Noise = NOISE) -> np.ndarray:
+def effective_sigma(G, B, noise: Noise = NOISE) -> jnp.ndarray:
     """Per-station 1-sigma of the (G, B) residual components.
 
     The model takes toolface from the measured G, so accelerometer noise turns
@@ -41,13 +41,13 @@ def effective_sigma(G, B, noise: Noise = NOISE) -> np.ndarray:
     Returns:
         (n, 6) sigmas: gx, gy, gz in g, then bx, by, bz in nT.
     """
-    G, B = np.asarray(G), np.asarray(B)
+    G, B = jnp.asarray(G), jnp.asarray(B)
     sigma_b, sigma_g = noise
-    gxy2 = np.maximum(G[:, 0] ** 2 + G[:, 1] ** 2, 1e-12)
+    gxy2 = jnp.maximum(G[:, 0] ** 2 + G[:, 1] ** 2, 1e-12)
     st2 = sigma_g**2 / gxy2
-    sb = np.stack([np.sqrt(sigma_b**2 + B[:, 1] ** 2 * st2), np.sqrt(sigma_b**2 + B[:, 0] ** 2 * st2),
-                   np.full(G.shape[0], sigma_b)], 1)
-    return np.concatenate([np.full((G.shape[0], 3), sigma_g), sb], 1)
+    sb = jnp.stack([jnp.sqrt(sigma_b**2 + B[:, 1] ** 2 * st2), jnp.sqrt(sigma_b**2 + B[:, 0] ** 2 * st2),
+                    jnp.full(G.shape[0], sigma_b, G.dtype)], 1)
+    return jnp.concatenate([jnp.full((G.shape[0], 3), sigma_g, G.dtype), sb], 1)
 
 
 def noise_floor(n_valid: int, n_groups: int = 0) -> float:

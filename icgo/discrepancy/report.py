@@ -1,4 +1,5 @@
-"""show: every English sentence of the workflow, the Markdown report and the JSON record.
+"""show: every English sentence of the workflow, the Markdown report, the JSON record and its two figures
+(drawn by :mod:`icgo.reporting.plots`).
 
 The library's results are data (:mod:`icgo.discrepancy.search`,
 :mod:`~icgo.discrepancy.identifiability`, :mod:`~icgo.discrepancy.compare`);
@@ -236,13 +237,15 @@ def write_report(res: Result, label: str, out_dir, truth=None, qc=None, protocol
 
     ``qc``, ``protocol``: as in :func:`report_markdown` (``qc`` also written to discrepancy.json).
     """
-    from icgo.discrepancy.plots import plot_gap_per_step, plot_residual_vs_toolface
+    from icgo.reporting import plots
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "discrepancy.json").write_text(json.dumps({**result_to_json(res), "qc": qc}, indent=2, default=float))
-    plot_residual_vs_toolface(res, out_dir / "residual_vs_toolface.png")
-    plot_gap_per_step(res, out_dir / "gap_per_step.png")
+    panels = [(name, c.toolface[c.valid], c.resid[c.valid, 3:6])
+              for c, name in ((res.compare_before, "before"), (res.compare_after, "after"))]
+    plots.save_figure(plots.residual_vs_toolface(panels), out_dir / "residual_vs_toolface.png", None, dpi=110)
+    plots.save_figure(plots.gap_per_step(gap_table(res)), out_dir / "gap_per_step.png", None, dpi=110)
     path = out_dir / "report.md"
     path.write_text(report_markdown(res, label, truth, qc, protocol))
     return path

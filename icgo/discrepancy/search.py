@@ -49,7 +49,7 @@ from icgo.discrepancy.model import Data, Layout, fitted_field, predict, prepare
 from icgo.discrepancy.noise import noise_floor
 from icgo.discrepancy.scatter import VOCABULARY, NoiseEstimate, estimate
 from icgo.discrepancy.stations import Stations, check_stations, pad_stations
-from icgo.discrepancy.stats import paired_z
+from icgo.maths.stats import paired_z
 from icgo.physics import effects as _fx
 from icgo.physics.frames import angle_diff, azimuth_from_gv
 

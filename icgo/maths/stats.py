@@ -6,11 +6,13 @@
   paired repeats (same split, same key), two-sided;
 * :func:`friedman`: Friedman test over k >= 3 methods on the same repeats, with
   the mean rank of each method (rank 1 = smallest value = best for errors);
-* :func:`holm`: Holm's step-down adjustment of a family of p-values.
+* :func:`holm`: Holm's step-down adjustment of a family of p-values;
+* :func:`paired_z`: the paired z of a per-unit improvement (the discrepancy workflow's decision statistic).
 """
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple, Sequence
 
 import numpy as np
@@ -106,6 +108,23 @@ def holm(p_values) -> np.ndarray:
     out = np.empty(m)
     out[order] = adj
     return out
+
+
+def paired_z(before, after) -> float:
+    """Paired z of the per-unit improvement ``before - after``.
+
+    ``z = mean(d) / (std(d, ddof=1) / sqrt(n))`` with ``d = before - after`` (the standard error floored at
+    1e-9); positive when ``after`` is smaller. The discrepancy workflow takes it for a candidate's improvement
+    over the current model and for the evidence margin of the best candidate over another (held-out chi2 per
+    station in both cases), as a decision statistic, not a reported test.
+
+    Args:
+        before, after: (n,) per-unit values (e.g. held-out chi2 per station), paired by unit.
+    Returns:
+        z, dimensionless.
+    """
+    d = np.asarray(before) - np.asarray(after)
+    return float(d.mean() / max(d.std(ddof=1) / math.sqrt(d.size), 1e-9))
 
 
 def friedman(table, names: Sequence[str] | None = None) -> TestResult:

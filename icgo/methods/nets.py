@@ -1,4 +1,4 @@
-"""The patent's BP network (CN1888384) and the lookup-table baseline it replaced.
+"""The patent's BP network (CN1888384): a trained network is a :class:`NetParams` pytree and :func:`predict`.
 
 Network (patent eqs. 8-12): inputs (inclination I, toolface T, computed
 azimuth A_raw), two sigmoid hidden layers of ``m1`` and ``m2`` units (patent:
@@ -37,17 +37,14 @@ Input encodings (degrees in, dimensionless out):
 * ``"sincos"``: ``(I/45 - 1, sin T, cos T, sin A, cos A)`` (5 inputs),
   continuous across 0/360.
 
-Lookup table (the prior art of the patent's background section): the azimuth
-error tabulated over (inclination, azimuth) at the turntable points, toolface
-ignored (its values averaged over the toolface positions at each node, or taken
-at one fixed toolface), compensated by bilinear interpolation, periodic in
-azimuth and clamped in inclination.
+The lookup table the network replaced is :mod:`icgo.methods.lookup_table`.
 
 All angles are in degrees at every public function.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from functools import partial
 from typing import NamedTuple
 
@@ -133,6 +130,31 @@ class MLPParams(NamedTuple):
     w2: jnp.ndarray
     b2: jnp.ndarray
     v: jnp.ndarray
+
+
+@partial(jax.tree_util.register_dataclass, data_fields=("w1", "b1", "w2", "b2", "v", "y_scale"),
+         meta_fields=("encoding", "target"))
+@dataclasses.dataclass(frozen=True)
+class NetParams:
+    """A trained network as :func:`predict` takes it: its weights, output scale and the two settings of its
+    input and output (a pytree; a leading seed axis S on every array when batched).
+
+    Attributes:
+        w1, b1, w2, b2, v: the weights of :class:`MLPParams` (patent eqs. 8-12).
+        y_scale: () degrees per output unit (360 for ``target="azimuth"``; the training std of the error
+            for ``target="error"``).
+        encoding: input encoding (:func:`encode_inputs`), static.
+        target: ``"azimuth"`` or ``"error"`` (:func:`output_to_azimuth`), static.
+    """
+
+    w1: jnp.ndarray
+    b1: jnp.ndarray
+    w2: jnp.ndarray
+    b2: jnp.ndarray
+    v: jnp.ndarray
+    y_scale: jnp.ndarray
+    encoding: str = "scaled"
+    target: str = "error"
 
 
 def n_inputs(encoding: str) -> int:
@@ -248,9 +270,7 @@ class TrainResult(NamedTuple):
     """Result of training (leading seed axis S when from :func:`fit`).
 
     Attributes:
-        params: MLPParams at the epoch of best validation loss.
-        y_scale: () degrees per output unit (360 for target=azimuth; the training
-            std of the error for target=error).
+        params: :class:`NetParams` at the epoch of best validation loss (what :func:`predict` takes).
         best_epoch: () int, epoch (0-based) of the best validation loss.
         best_val_loss: () best validation loss (scaled units).
         train_loss: (epochs,) training loss per epoch (mean over the epoch's batches).
@@ -258,8 +278,7 @@ class TrainResult(NamedTuple):
         stopped_epoch: () int, epoch at which patience ran out (``epochs`` if never).
     """
 
-    params: MLPParams
-    y_scale: jnp.ndarray
+    params: NetParams
     best_epoch: jnp.ndarray
     best_val_loss: jnp.ndarray
     train_loss: jnp.ndarray
@@ -298,7 +317,7 @@ def train_one(key, x, t, cfg: NetConfig):
         t: (N,) scaled targets.
         cfg: NetConfig (static).
     Returns:
-        TrainResult with ``y_scale`` = 1 (callers rescale).
+        TrainResult whose params have ``y_scale`` = 1 (callers rescale).
     """
     n = x.shape[0]
     n_val, n_train, n_batches = split_sizes(n, cfg)
@@ -339,7 +358,8 @@ def train_one(key, x, t, cfg: NetConfig):
     (_, _, best_p, best_v, best_e, _), (tl, vl, st) = jax.lax.scan(
         epoch, carry0, (jnp.arange(cfg.epochs), keys))
     stopped_epoch = jnp.where(st.any(), jnp.argmax(st), cfg.epochs)
-    return TrainResult(best_p, jnp.asarray(1.0, x.dtype), best_e, best_v, tl, vl, stopped_epoch)
+    params = NetParams(*best_p, y_scale=jnp.asarray(1.0, x.dtype), encoding=cfg.encoding, target=cfg.target)
+    return TrainResult(params, best_e, best_v, tl, vl, stopped_epoch)
 
 
 @partial(jax.jit, static_argnames=("cfg",))
@@ -347,16 +367,18 @@ def _train_batch(keys, x, t, cfg):
     return jax.vmap(train_one, in_axes=(0, None, None, None))(keys, x, t, cfg)
 
 
-def _check_angles(name, arrays, n=None):
+def check_angles(name, arrays, n=None, who: str = "nets"):
+    """Each array of ``arrays`` as a 1-D float64 array of finite values, all of one length (``n`` if given);
+    ValueError ``"<who>: <name> ..."`` naming the first that is not."""
     out = []
     for label, a in zip(name, arrays):
         a = np.asarray(a, dtype=np.float64)
         if a.ndim != 1:
-            raise ValueError(f"nets: {label} must be 1-D, got shape {a.shape}")
+            raise ValueError(f"{who}: {label} must be 1-D, got shape {a.shape}")
         if n is not None and a.shape[0] != n:
-            raise ValueError(f"nets: {label} has {a.shape[0]} rows, expected {n}")
+            raise ValueError(f"{who}: {label} has {a.shape[0]} rows, expected {n}")
         if not np.all(np.isfinite(a)):
-            raise ValueError(f"nets: {label} contains NaN or inf")
+            raise ValueError(f"{who}: {label} contains NaN or inf")
         n = a.shape[0]
         out.append(a)
     return out
@@ -370,7 +392,7 @@ def prepare(inclination_deg, toolface_deg, azimuth_raw_deg, azimuth_true_deg, cf
             or too few points for the validation split and one batch.
     """
     cfg = check_config(cfg)
-    i, tf, ar, at = _check_angles(
+    i, tf, ar, at = check_angles(
         ("inclination_deg", "toolface_deg", "azimuth_raw_deg", "azimuth_true_deg"),
         (inclination_deg, toolface_deg, azimuth_raw_deg, azimuth_true_deg))
     if np.any((i < 0) | (i > 180)):
@@ -405,157 +427,35 @@ def fit(keys, inclination_deg, toolface_deg, azimuth_raw_deg, azimuth_true_deg,
     keys = jnp.asarray(keys)
     single = keys.ndim == 1
     res = _train_batch(keys[None] if single else keys, x, tdeg / y_scale, cfg)
-    res = res._replace(y_scale=jnp.full(res.best_epoch.shape, y_scale))
+    res = res._replace(params=dataclasses.replace(res.params, y_scale=jnp.full(res.best_epoch.shape, y_scale)))
     if single:
         res = jax.tree.map(lambda a: a[0], res)
     return res
 
 
-@partial(jax.jit, static_argnames=("cfg",))
-def _predict(params, y_scale, x, azimuth_raw_deg, cfg):
-    def one(p, s):
-        return output_to_azimuth(forward(p, x) * s, azimuth_raw_deg, cfg.target)
-    if params.v.ndim == 1:
-        return one(params, y_scale)
-    return jax.vmap(one)(params, y_scale)
+def predict(params: NetParams, angles):
+    """Compensated azimuth (deg, [0, 360)) of one trained network: the whole forward pass, pure.
 
-
-def predict(result: TrainResult, inclination_deg, toolface_deg, azimuth_raw_deg,
-            cfg: NetConfig = NetConfig()):
-    """Compensated azimuth (deg, [0, 360)) from trained network(s).
+    Jit- and vmap-able; the study and the saved model call it as it is (:func:`predict_seeds`): the inputs
+    are encoded op by op and the network runs as one compiled program (:func:`_network_output`), which
+    fixes the rounding of every prediction (a jit around the whole may fuse the encoding and differ in the
+    last bits).
 
     Args:
-        result: TrainResult from :func:`fit` (batched over seeds or not).
-        inclination_deg, toolface_deg, azimuth_raw_deg: (N,) measured angles, deg.
-        cfg: the NetConfig used for training.
+        params: :class:`NetParams` of one network (no seed axis).
+        angles: (N, 3) measured inclination I, toolface T and computed azimuth A_raw, deg.
     Returns:
-        (S, N) or (N,) compensated azimuth.
+        (N,) compensated azimuth, deg.
     """
-    cfg = check_config(cfg)
-    i, tf, ar = _check_angles(("inclination_deg", "toolface_deg", "azimuth_raw_deg"),
-                              (inclination_deg, toolface_deg, azimuth_raw_deg))
-    x = encode_inputs(i, tf, ar, cfg.encoding)
-    return _predict(result.params, result.y_scale, x, jnp.asarray(ar), cfg)
-
-
-# ------------------------------------------------------------- lookup table
-class LookupTable(NamedTuple):
-    """Azimuth error tabulated over (inclination, azimuth) nodes.
-
-    Attributes:
-        inc_nodes: (Ni,) ascending inclinations, deg.
-        az_nodes: (Na,) ascending azimuths in [0, 360), deg.
-        error: (Ni, Na) azimuth error ``wrap180(A_true - A_raw)`` at the nodes, deg.
-    """
-
-    inc_nodes: jnp.ndarray
-    az_nodes: jnp.ndarray
-    error: jnp.ndarray
-
-
-def _node_index(values, nodes, tol, label, periodic=False):
-    d = values[:, None] - nodes[None, :]
-    if periodic:
-        d = (d + 180.0) % 360.0 - 180.0
-    j = np.argmin(np.abs(d), axis=1)
-    if np.any(np.abs(d[np.arange(len(values)), j]) > tol):
-        k = int(np.argmax(np.abs(d[np.arange(len(values)), j]) > tol))
-        raise ValueError(f"nets: {label} {values[k]:.6g} deg is not on a table node "
-                         f"(tolerance {tol} deg)")
-    return j
-
-
-def lookup_table_fit(inclination_deg, azimuth_deg, error_deg, toolface_deg=None,
-                     at_toolface_deg=None, inc_nodes=None, az_nodes=None, tol=1e-6):
-    """Build the prior-art error table from turntable points (toolface ignored).
-
-    Each table node is the mean of the wrapped errors of the points at that
-    (inclination, azimuth), i.e. averaged over the toolface positions, or, when
-    ``at_toolface_deg`` is given, the error of the points at that one toolface
-    (the patent background's table built with the toolface held fixed).
-
-    Args:
-        inclination_deg, azimuth_deg: (N,) nominal (turntable) angles, deg; they
-            must sit on the nodes.
-        error_deg: (N,) azimuth error ``wrap180(A_true - A_raw)``, deg.
-        toolface_deg: (N,) nominal toolface, needed with ``at_toolface_deg``.
-        at_toolface_deg: None (average over toolface) or one toolface, deg.
-        inc_nodes, az_nodes: node angles; default the distinct input values.
-        tol: how far (deg) a point may sit from its node.
-    Returns:
-        LookupTable.
-    Raises:
-        ValueError: a node without points, a point off the nodes, NaN input.
-    """
-    i, a, e = _check_angles(("inclination_deg", "azimuth_deg", "error_deg"),
-                            (inclination_deg, azimuth_deg, error_deg))
-    a = np.mod(a, 360.0)
-    e = (e + 180.0) % 360.0 - 180.0
-    if at_toolface_deg is not None:
-        if toolface_deg is None:
-            raise ValueError("nets: at_toolface_deg needs toolface_deg")
-        (tf,) = _check_angles(("toolface_deg",), (toolface_deg,), n=i.shape[0])
-        keep = np.abs((tf - at_toolface_deg + 180.0) % 360.0 - 180.0) <= tol
-        if not keep.any():
-            raise ValueError(f"nets: no point at toolface {at_toolface_deg} deg")
-        i, a, e = i[keep], a[keep], e[keep]
-    inc_nodes = np.unique(np.round(i, 9)) if inc_nodes is None else np.sort(np.asarray(
-        inc_nodes, np.float64))
-    az_nodes = np.unique(np.round(a, 9) % 360.0) if az_nodes is None else np.sort(np.mod(
-        np.asarray(az_nodes, np.float64), 360.0))
-    if len(inc_nodes) < 1 or len(az_nodes) < 2:
-        raise ValueError("nets: the table needs at least 1 inclination and 2 azimuth nodes")
-    ji = _node_index(i, inc_nodes, tol, "inclination")
-    ja = _node_index(a, az_nodes, tol, "azimuth", periodic=True)
-    flat = ji * len(az_nodes) + ja
-    size = len(inc_nodes) * len(az_nodes)
-    count = np.bincount(flat, minlength=size)
-    if np.any(count == 0):
-        k = int(np.argmax(count == 0))
-        raise ValueError(f"nets: table node (I={inc_nodes[k // len(az_nodes)]:g}, "
-                         f"A={az_nodes[k % len(az_nodes)]:g}) has no turntable point")
-    err = (np.bincount(flat, weights=e, minlength=size) / count).reshape(
-        len(inc_nodes), len(az_nodes))
-    return LookupTable(jnp.asarray(inc_nodes), jnp.asarray(az_nodes), jnp.asarray(err))
+    x = encode_inputs(angles[:, 0], angles[:, 1], angles[:, 2], params.encoding)
+    return _network_output(params, x, angles[:, 2])
 
 
 @jax.jit
-def lookup_table_error(table: LookupTable, inclination_deg, azimuth_deg):
-    """Bilinear interpolation of the table's error (deg) at (I, A_raw).
-
-    Periodic in azimuth (the last node interpolates towards the first + 360);
-    inclinations outside the nodes take the edge value (no extrapolation).
-
-    Args:
-        table: LookupTable.
-        inclination_deg, azimuth_deg: (...) measured angles, deg.
-    Returns:
-        (...) interpolated azimuth error, deg.
-    """
-    inc = jnp.asarray(inclination_deg)
-    az = wrap360(jnp.asarray(azimuth_deg))
-    ni = table.inc_nodes
-    na = table.az_nodes
-    # inclination: clamp, then linear between bracketing nodes
-    ic = jnp.clip(inc, ni[0], ni[-1])
-    k = jnp.clip(jnp.searchsorted(ni, ic, side="right") - 1, 0, max(ni.shape[0] - 2, 0))
-    k1 = jnp.minimum(k + 1, ni.shape[0] - 1)
-    span = ni[k1] - ni[k]
-    wi = jnp.where(span > 0, (ic - ni[k]) / jnp.where(span > 0, span, 1.0), 0.0)
-    # azimuth: periodic, nodes extended by the first node + 360
-    ext = jnp.concatenate([na, na[:1] + 360.0])
-    azs = jnp.where(az < na[0], az + 360.0, az)
-    m = jnp.clip(jnp.searchsorted(ext, azs, side="right") - 1, 0, na.shape[0] - 1)
-    wa = (azs - ext[m]) / (ext[m + 1] - ext[m])
-    m1 = (m + 1) % na.shape[0]
-    e = table.error
-    lo = (1 - wa) * e[k, m] + wa * e[k, m1]
-    hi = (1 - wa) * e[k1, m] + wa * e[k1, m1]
-    return (1 - wi) * lo + wi * hi
+def _network_output(params: NetParams, x, azimuth_raw_deg):
+    """Compensated azimuth from encoded inputs ``x`` (N, n): eqs. 8-12, scaled to deg, then the target's map."""
+    return output_to_azimuth(forward(params, x) * params.y_scale, azimuth_raw_deg, params.target)
 
 
-def lookup_table_predict(table: LookupTable, inclination_deg, azimuth_raw_deg):
-    """Compensated azimuth (deg, [0, 360)): ``A_raw + table error at (I, A_raw)``."""
-    (i, a) = _check_angles(("inclination_deg", "azimuth_raw_deg"),
-                           (inclination_deg, azimuth_raw_deg))
-    return wrap360(jnp.asarray(a) + lookup_table_error(table, jnp.asarray(i), jnp.asarray(a)))
+#: :func:`predict` of S networks (params with a leading seed axis) on the same points: (S, N) deg.
+predict_seeds = jax.vmap(predict, in_axes=(0, None))

@@ -1,9 +1,9 @@
 """The discrepancy workflow's fitted physics model as an artifact (:class:`PhysicsModel`).
 
-The final model of :func:`icgo.discrepancy.run_workflow` (the named effects with
-their fitted parameters, the fitted reference field, the noise weights) saved
-with :mod:`icgo.models.format`. ``apply`` inverts it per station: the attitude that
-best explains each measured (G, B) (:func:`icgo.discrepancy.fit.correct_with`).
+The final model of :func:`icgo.discrepancy.run_workflow` (the named effects with their fitted parameters,
+the fitted reference field, the noise weights): a :class:`icgo.discrepancy.inversion.PhysicsParams`
+pytree saved with :mod:`icgo.models.format`. ``apply`` inverts it per station through the family's pure
+:func:`icgo.discrepancy.inversion.predict`: the attitude that best explains each measured (G, B).
 """
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ import numpy as np
 import pandas as pd
 
 from icgo.core.settings import config_to_mapping
-from icgo.discrepancy.fit import correct_with, model_params
-from icgo.discrepancy.noise import Noise
-from icgo.models.format import CORRECTED_B, FittedModel, frame_values, need, need_shape, sensor_domain
+from icgo.discrepancy import inversion
+from icgo.models.format import CORRECTED_B, FittedModel, data_hash, need, need_shape, sensor_domain
+from icgo.physics import effects as _fx
 from icgo.physics.frames import azimuth_from_gv, inclination_from_g, toolface_from_g
 from icgo.physics.qc import QCBands, survey_qc
 
@@ -28,67 +28,75 @@ class PhysicsModel(FittedModel):
     """Named effects + earth field fitted by the discrepancy workflow.
 
     Attributes:
-        effects: the effect names of the final model, in order (``icgo.physics.effects`` vocabulary).
-        sizes: number of parameters of each effect.
-        params: (sum(sizes),) their physical parameters, concatenated (units per effect:
-            ``icgo.physics.effects``; nT, g, dimensionless, deg).
-        field: (3,) total field nT, dip deg, declination deg.
-        sigma_b_nT, sigma_g: the residual weights (sensor noise, 1 sigma per axis).
-        n_iter: LM steps of the per-station inversion.
+        effects: the effect names of the final model, in the order the search added them
+            (``icgo.physics.effects`` vocabulary).
+        sigma_b_nT, sigma_g: the residual weights (sensor noise, 1 sigma per axis), the params' settings.
+        n_iter: LM steps of the per-station inversion, the params' setting.
+        params: :class:`icgo.discrepancy.inversion.PhysicsParams`: ``effects.<name>`` (n_params,) physical
+            parameters of each effect (units per effect: ``icgo.physics.effects``; nT, g, dimensionless, deg),
+            ``field`` (3,) total field nT, dip deg, declination deg.
     """
 
     KIND = "discrepancy_model"
     UNITS = {"field": "nT, deg, deg", "sigma_b_nT": "nT", "sigma_g": "g", "angles": "deg"}
+    PARAMS = inversion.PhysicsParams
+    PREDICT = inversion.predict
+    INPUTS = SENSORS
+    #: Schema 2 stores each effect's parameters as its own array (``effects.<name>``).
+    OLDEST_SCHEMA = 2
+    REFIT = ("refit it with python -m experiments.discrepancy data=<its data>, which saves discrepancy_model.json "
+             "in the run directory")
 
     effects: list
-    sizes: list
-    params: np.ndarray
-    field: np.ndarray
     sigma_b_nT: float
     sigma_g: float
-    n_iter: int = 10
-
-    MAY_BE_EMPTY = ("params",)  # a workflow that found no effect
+    params: inversion.PhysicsParams
+    n_iter: int = inversion.N_ITER
 
     #: Largest number of LM steps of the per-station inversion a loaded model may ask for.
     MAX_ITER = 1000
 
+    @classmethod
+    def params_like(cls, fields: dict) -> inversion.PhysicsParams:
+        """One placeholder array per effect of ``fields["effects"]`` and the field, with the meta's settings."""
+        effects = fields["effects"]
+        need(all(isinstance(n, str) and n in _fx.EFFECTS for n in effects),
+             f"effects must be names of icgo.physics.effects ({', '.join(_fx.EFFECTS)}), got {str(effects)[:80]}")
+        return inversion.PhysicsParams({n: 0 for n in effects}, 0, fields["sigma_b_nT"], fields["sigma_g"],
+                                       fields.get("n_iter", inversion.N_ITER))
+
     def validate(self) -> None:
         """Known effects with their parameter counts, field (3,) with |F| > 0, noise > 0, a bounded n_iter."""
-        from icgo.physics import effects as E
-
-        need(all(isinstance(n, str) and n in E.EFFECTS for n in self.effects),
-             f"effects must be names of icgo.physics.effects ({', '.join(E.EFFECTS)}), got {str(self.effects)[:80]}")
         need(len(set(self.effects)) == len(self.effects), "effects must not repeat")
-        need(self.sizes == [E.EFFECTS[n].n_params for n in self.effects],
-             f"sizes {str(self.sizes)[:60]} do not match the effects' parameter counts")
-        need_shape(self.params, (sum(self.sizes),), "params")
-        need_shape(self.field, (3,), "field")
-        need(self.field[0] > 0 and abs(self.field[1]) <= 90, "field must be (total nT > 0, dip deg in [-90, 90], "
-                                                               "declination deg)")
+        need(set(self.effects) == set(self.params.effects), f"effects {self.effects} are not the params' "
+                                                            f"{sorted(self.params.effects)}")
+        for n in self.effects:
+            need_shape(self.params.effects[n], (_fx.EFFECTS[n].n_params,), f"effects.{n}")
+        f = self.params.field
+        need_shape(f, (3,), "field")
+        need(f[0] > 0 and abs(f[1]) <= 90, "field must be (total nT > 0, dip deg in [-90, 90], declination deg)")
         need(self.sigma_b_nT > 0 and self.sigma_g > 0, "sigma_b_nT and sigma_g must be > 0")
         need(1 <= self.n_iter <= self.MAX_ITER, f"n_iter must be 1 to {self.MAX_ITER}, got {self.n_iter}")
 
     @classmethod
+    def from_params(cls, params: inversion.PhysicsParams, effects, G, B, config: dict) -> "PhysicsModel":
+        """The artifact of fitted params, with the training stations' hash and domain.
+
+        Args:
+            params: :class:`icgo.discrepancy.inversion.PhysicsParams`. effects: their names in the model's
+                order. G, B: (n, 3) training stations, g and nT. config: the fit's settings (JSON-able).
+        """
+        params = inversion.PhysicsParams({n: np.asarray(params.effects[n], float) for n in effects},
+                                         np.asarray(params.field, float), params.sigma_b_nT, params.sigma_g,
+                                         params.n_iter)
+        return cls(config=config, data_hash=data_hash(G, B), domain=sensor_domain(G, B), effects=list(effects),
+                   sigma_b_nT=params.sigma_b_nT, sigma_g=params.sigma_g, params=params, n_iter=params.n_iter)
+
+    @classmethod
     def from_result(cls, res, G, B) -> "PhysicsModel":
-        """The model of a workflow result, with the training stations' hash and domain."""
-        from icgo.models.format import data_hash
-
-        p = model_params(res)
-        names = list(res.model)
-        flat = np.concatenate([np.asarray(p[n], float) for n in names]) if names else np.zeros(0)
-        return cls(config=config_to_mapping(res.config), data_hash=data_hash(G, B), domain=sensor_domain(G, B), effects=names,
-                   sizes=[int(np.size(p[n])) for n in names], params=flat,
-                   field=np.asarray(res.field, float), sigma_b_nT=float(res.config.sigma_b_nT),
-                   sigma_g=float(res.config.sigma_g))
-
-    def effect_params(self) -> dict:
-        """effect name -> (n_params,) physical parameters."""
-        out, i = {}, 0
-        for n, k in zip(self.effects, self.sizes):
-            out[n] = self.params[i:i + k]
-            i += k
-        return out
+        """The model of a workflow result (:func:`icgo.discrepancy.inversion.physics_params`), with the
+        training stations' hash and domain."""
+        return cls.from_params(inversion.physics_params(res), res.model, G, B, config_to_mapping(res.config))
 
     def apply(self, frame: pd.DataFrame) -> pd.DataFrame:
         """Per row: raw attitude and the attitude the fitted physics model explains best (deg).
@@ -97,19 +105,19 @@ class PhysicsModel(FittedModel):
         north when the field was given with its declination), as is
         ``azimuth_raw`` (the standard formula on the raw sensors, + declination).
         ``bx_corrected .. bz_corrected`` (nT): the measured field with the fitted disturbance
-        removed (:class:`icgo.discrepancy.fit.Inversion`), what survey QC checks after the model.
+        removed (:class:`icgo.discrepancy.inversion.Inversion`), what survey QC checks after the model.
         """
-        v = frame_values(frame, SENSORS, f"{self.KIND} model")
-        G, B = v[:, :3], v[:, 3:]
-        inv = correct_with(self.effect_params(), tuple(float(x) for x in self.field), G, B,
-                           Noise(self.sigma_b_nT, self.sigma_g), int(self.n_iter))
+        x = self.inputs(frame)
+        G, B = x[:, :3], x[:, 3:]
+        inv = self.predict(x)
         out = {}
         if "station" in frame.columns:
             out["station"] = frame["station"].to_numpy()
         out.update({"inclination_raw": np.asarray(inclination_from_g(G)), "toolface_raw": np.asarray(toolface_from_g(G)),
-                    "azimuth_raw": np.mod(np.asarray(azimuth_from_gv(G, B)) + float(self.field[2]), 360.0),
-                    "inclination_compensated": inv.inclination, "azimuth_compensated": inv.azimuth})
-        out.update(dict(zip(CORRECTED_B, inv.b_corrected.T)))
+                    "azimuth_raw": np.mod(np.asarray(azimuth_from_gv(G, B)) + float(self.params.field[2]), 360.0),
+                    "inclination_compensated": np.asarray(inv.inclination),
+                    "azimuth_compensated": np.asarray(inv.azimuth)})
+        out.update(dict(zip(CORRECTED_B, np.asarray(inv.b_corrected).T)))
         return pd.DataFrame(out)
 
 
@@ -127,64 +135,6 @@ def station_qc(model: PhysicsModel, st, bands: QCBands = QCBands()) -> dict | No
     if st.field is None:
         return None
     F, dip = float(st.field[0]), float(st.field[1])
-    frame = pd.DataFrame(np.hstack([st.G, st.B]), columns=list(SENSORS))
-    after = model.apply(frame)[list(CORRECTED_B)].to_numpy(float)
+    after = np.asarray(model.predict(np.hstack([st.G, st.B])).b_corrected)
     return {"raw": survey_qc(st.G, st.B, F, dip, st.gravity_g, bands).counts,
             "physics": survey_qc(st.G, after, F, dip, st.gravity_g, bands).counts}
-
-
-#: The physics baseline of the generalisation protocols: the 12-parameter magnetometer
-#: model (bias, scale, cross-coupling, misalignment) with an earth-fixed external field.
-TWELVE_PLUS_FIELD = ("hard_iron", "mag_scale", "mag_cross_coupling", "mag_misalignment", "external_field")
-
-
-def fit_members(st, weights, effects=TWELVE_PLUS_FIELD, noise=None, n_iter: int = 30) -> list:
-    """Fit one fixed physics model per row-weight vector (no search): the discrepancy
-    engine's Levenberg-Marquardt (:func:`icgo.discrepancy.fit.lm_fit`) over ``effects``,
-    vmapped over the members (one compile for every member).
-
-    Args:
-        st: :class:`icgo.discrepancy.stations.Stations` with a reference attitude.
-        weights: (M, n) 0/1 station weights, one row per member (its training rows).
-        effects: effect names (``icgo.physics.effects`` vocabulary) that are fitted.
-        noise: residual weights (:class:`icgo.discrepancy.noise.Noise`); default the
-            workflow's noise constants.
-        n_iter: LM steps (fixed; 30 reach the converged cost on the bundled data to 1e-9 relative).
-    Returns:
-        M :class:`PhysicsModel`, each with the effects' parameters and the field (the
-        metadata's field when the stations carry one, else the fitted one).
-    """
-    import jax
-    import jax.numpy as jnp
-
-    from icgo.discrepancy.config import WorkflowConfig
-    from icgo.discrepancy.fit import lm_fit
-    from icgo.discrepancy.model import fitted_field, prepare
-    from icgo.models.format import data_hash
-
-    if not st.has_reference:
-        raise ValueError("physics baseline: the stations need a reference attitude (azimuth_deg, inclination_deg)")
-    cfg = WorkflowConfig()
-    noise = cfg.noise if noise is None else noise
-    prep = prepare(st, noise)
-    layout = prep.layout
-    free = prep.free_nuisance.astype(float)
-    for e in effects:
-        free[layout.slice(e)] = 1.0
-    w = np.asarray(weights, float) * prep.valid[None]
-    fit = jax.jit(jax.vmap(lambda wm: lm_fit(jnp.zeros(layout.n_params), jnp.asarray(free), wm, prep.data, layout,
-                                             n_iter)[0]))
-    thetas = np.asarray(fit(jnp.asarray(w)))
-    scales = layout.scales()
-    out = []
-    for th, wm in zip(thetas, w):
-        rows = wm > 0
-        phys = th * scales
-        out.append(PhysicsModel(
-            config={"effects": list(effects), "n_iter": int(n_iter), "baseline": "twelve_plus_field"},
-            data_hash=data_hash(st.G[rows], st.B[rows]), domain=sensor_domain(st.G[rows], st.B[rows]),
-            effects=list(effects), sizes=[int(layout.sizes[layout.names.index(e)]) for e in effects],
-            params=np.concatenate([phys[layout.slice(e)] for e in effects]),
-            field=np.asarray(fitted_field(th, layout, prep.data), float),
-            sigma_b_nT=float(noise.sigma_b_nT), sigma_g=float(noise.sigma_g)))
-    return out

@@ -1,27 +1,32 @@
-"""Fitted models as artifacts: one header format, one file format, one registry.
+"""Fitted models as artifacts: one pattern, one file format, one generic save/load.
 
-Every method in icgo hands back what it fitted as a :class:`FittedModel`: a
-frozen dataclass whose array fields are the fitted parameters and whose other
-fields are plain JSON values (settings, labels). Subclasses implement
-``apply(frame) -> DataFrame`` on a data-contract frame (columns ``gx, gy, gz``
-in g, ``bx, by, bz`` in nT, ...) and register themselves with
-:func:`register_model` under a ``KIND`` name.
+Every fitted model is a **params pytree** and one pure ``predict(params, x)`` (jit- and vmap-able) of its
+family: the study scores through that ``predict`` and the saved model applies through it, so applying a
+saved model reproduces the study. :class:`FittedModel` is the artifact around it: the params (field
+``params``, a pytree of the family's class :attr:`FittedModel.PARAMS`), and the meta: the fit's settings,
+its training data's hash and domain and the family's own labels (JSON values) and records (arrays that
+``predict`` does not use, such as loss curves). A subclass sets ``KIND``, ``UNITS``, ``PARAMS``,
+``PREDICT``, ``INPUTS`` (the frame columns that make ``x``) and implements ``apply(frame) -> DataFrame`` on
+a data-contract frame (``gx, gy, gz`` in g, ``bx, by, bz`` in nT, ...). A kind whose parameters are still
+loose array fields (``PARAMS`` None) is saved and loaded by the same code, its arrays taken from its fields.
 
-File format (open, readable without icgo): ``<stem>.npz`` holds the arrays
-(float64/int, exact), ``<stem>.json`` the header::
+File format (open, readable without icgo): ``<stem>.npz`` holds the arrays (float64/int, exact): each leaf
+of the params under its path in the pytree (``w1``; ``effects.hard_iron`` for a dict entry), then the meta's
+arrays under their field names; ``<stem>.json`` holds the header::
 
-    {"schema_version": 1, "package_version": "0.1.0", "kind": "relm_compensation",
-     "units": {...}, "fields": {...JSON fields...}, "arrays": "<stem>.npz",
-     "array_names": [...]}
+    {"schema_version": 2, "package_version": "0.1.0", "kind": "gyro_network",
+     "units": {...}, "fields": {...meta JSON values...}, "arrays": "<stem>.npz",
+     "array_names": [...], "array_shapes": {...}}
 
-The JSON file is written last (both atomically, temp file + rename), so a
-header on disk always names a complete array file. ``save -> load -> apply``
-is bitwise ``apply`` (tested): arrays are stored exactly and ``apply`` is
-deterministic.
+Loading (:func:`read_model`) is the equinox way: the kind rebuilds the params' skeleton from the meta
+(:meth:`FittedModel.params_like`: its leaves' paths and the static settings ``predict`` needs), and
+exactly those leaves are read into it, every one checked (:mod:`icgo.models.reading`). The JSON file is
+written last (both atomically, temp file + rename), so a header on disk always names a complete array
+file. ``save -> load -> apply`` is bitwise ``apply`` (tested): arrays are stored exactly, the skeleton
+rebuilt from the meta is the saved params' own (checked on save) and ``predict`` is deterministic.
 
-Errors (a file that is not a model, a newer schema, a frame lacking the
-columns a model needs) are :class:`ModelError`, one line naming the file or
-the columns.
+Errors (a file that is not a model, a newer schema, a frame lacking the columns a model needs) are
+:class:`ModelError`, one line naming the file or the columns.
 """
 
 from __future__ import annotations
@@ -31,20 +36,33 @@ import dataclasses
 import hashlib
 import json
 import os
+import re
 import tempfile
-import zipfile
-import zlib
 from pathlib import Path
-from typing import ClassVar
+from typing import Any, Callable, ClassVar
 
+import jax
 import numpy as np
 import pandas as pd
 
-from icgo.core.errors import DataError, ModelError
-from icgo.io.files import read_text_bounded
+from icgo.core.errors import ModelError
+from icgo.models.reading import (
+    check_array,
+    check_domain,
+    field_types,
+    header_path,
+    local_name,
+    one_line,
+    plain_ok,
+    read_arrays,
+    read_header,
+    run_model_path,  # noqa: F401  (a run directory's main model; experiments.apply finds it here)
+)
 
-#: Version of the header/array layout written by :meth:`FittedModel.save`.
-SCHEMA_VERSION = 1
+#: Version of the header/array layout written by :meth:`FittedModel.save`. Schema 2 stores a discrepancy
+#: model's effects one array each (``effects.<name>``); every other kind's layout is schema 1's, and those
+#: files are read as they are (a kind's :attr:`FittedModel.OLDEST_SCHEMA`).
+SCHEMA_VERSION = 2
 
 #: Output columns of a model that corrects the field itself (nT); survey QC after the model checks them.
 CORRECTED_B = ("bx_corrected", "by_corrected", "bz_corrected")
@@ -121,26 +139,53 @@ def _atomic_write(path: Path, write) -> None:
         raise
 
 
+#: A leaf name of a params pytree: letters, digits, ``_``, with ``.`` between the parts of its path.
+_LEAF_NAME = re.compile(r"[A-Za-z0-9_]+(\.[A-Za-z0-9_]+)*")
+
+
+def _leaf_name(path) -> str:
+    """The name of a pytree leaf from its key path: the keys joined by ``.`` (``w1``, ``effects.hard_iron``)."""
+    return ".".join(str(getattr(k, "name", getattr(k, "key", getattr(k, "idx", k)))) for k in path)
+
+
+def param_arrays(params) -> dict[str, np.ndarray]:
+    """A params pytree's leaves as ``{leaf name: array}`` (:func:`_leaf_name`), in the pytree's order."""
+    return {_leaf_name(path): np.asarray(leaf) for path, leaf in jax.tree_util.tree_flatten_with_path(params)[0]}
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class FittedModel(abc.ABC):
-    """Base of every fitted model (abstract: a subclass implements :meth:`apply`).
+    """Base of every fitted model: the params pytree of its family and the meta of its fit.
 
     Attributes:
         config: the settings the fit used (JSON-able dict).
         data_hash: :func:`data_hash` of the training data.
         domain: training-domain ranges (:func:`sensor_domain` plus method-specific ones).
 
-    Subclasses add their parameters as ``np.ndarray`` fields (saved to the
-    ``.npz``) and labels as JSON fields, set ``KIND`` and ``UNITS`` and
-    implement :meth:`apply`.
+    A kind adds ``params: <PARAMS>`` (the pytree its ``PREDICT`` takes) and its meta fields: JSON values
+    (``str``, ``int``, ``float``, ``bool``, ``list``, ``dict``, ``None``) saved in the header, ``np.ndarray``
+    records saved in the ``.npz``. Class settings:
+
+    * ``KIND``, ``UNITS``: its name in the header and the units it states.
+    * ``PARAMS``: the params pytree class (a ``NamedTuple`` of arrays, or a dataclass registered with
+      ``jax.tree_util.register_dataclass`` whose static fields are settings of ``predict``).
+    * ``PREDICT``: the family's pure ``predict(params, x)``, batched as the kind's params are (over a leading
+      member axis where the params have one); :meth:`predict` applies it.
+    * ``INPUTS``: the frame columns that make ``x`` (:meth:`inputs`).
+    * ``MAY_BE_EMPTY``, ``NAN_OK``: arrays (leaf or field names) that may be empty or hold NaN.
+    * ``OLDEST_SCHEMA``, ``REFIT``: the oldest schema of this kind's files that is read, and what to do
+      with an older one (one line, e.g. the command that refits it).
     """
 
     KIND: ClassVar[str] = ""
     UNITS: ClassVar[dict] = {}
-    #: Arrays that may legitimately be empty (e.g. the parameters of a model with no effect).
+    PARAMS: ClassVar[type | None] = None
+    PREDICT: ClassVar[Callable | None] = None
+    INPUTS: ClassVar[tuple] = ()
     MAY_BE_EMPTY: ClassVar[tuple] = ()
-    #: Arrays that may hold NaN (e.g. an interval no row could calibrate).
     NAN_OK: ClassVar[tuple] = ()
+    OLDEST_SCHEMA: ClassVar[int] = 1
+    REFIT: ClassVar[str] = "refit it"
 
     config: dict
     data_hash: str
@@ -155,15 +200,44 @@ class FittedModel(abc.ABC):
         knows); a :class:`ModelError` line each. :func:`read_model` has already checked every field's type,
         every array (numeric, finite, bounded) and the domain. The base has nothing more to check."""
 
+    @classmethod
+    def params_like(cls, fields: dict) -> Any:
+        """The skeleton of this kind's params from its meta (``fields``: the header's JSON values): a
+        ``PARAMS`` pytree whose leaves are placeholders (their paths name the arrays to read) and whose static
+        fields are the meta's settings. The default suits a ``NamedTuple`` of arrays; a kind with static
+        settings or dict-valued leaves builds its own, raising :class:`ModelError` (one line) where the meta
+        cannot make one."""
+        return cls.PARAMS(*[0] * len(cls.PARAMS._fields))
+
+    def inputs(self, frame: pd.DataFrame) -> np.ndarray:
+        """``x``: the frame's :attr:`INPUTS` columns, (N, len(INPUTS)) float64, checked present and finite."""
+        return frame_values(frame, self.INPUTS, f"{self.KIND} model")
+
+    def predict(self, x):
+        """``PREDICT(params, x)``: the family's forward pass with this model's params (what the study scored)."""
+        return type(self).PREDICT(self.params, x)
+
     # ---------------------------------------------------------------- files
     def _split_fields(self) -> tuple[dict, dict]:
-        arrays, plain = {}, {}
+        """``(arrays, plain)``: the arrays to save (params leaves, then array fields) and the JSON fields."""
+        arrays = {} if self.PARAMS is None else param_arrays(self.params)
+        plain = {}
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
+            if self.PARAMS is not None and f.name == "params":
+                continue
             if isinstance(v, np.ndarray):
+                if f.name in arrays:
+                    raise ValueError(f"{self.KIND}: field {f.name!r} has the name of a params leaf")
                 arrays[f.name] = v
             else:
                 plain[f.name] = v
+        if self.PARAMS is not None:
+            like = self.params_like(json.loads(json.dumps(plain, default=_json_default)))
+            if jax.tree_util.tree_structure(like) != jax.tree_util.tree_structure(self.params):
+                raise ValueError(f"{self.KIND}: the params' structure or settings differ from those its meta "
+                                 f"describes ({jax.tree_util.tree_structure(self.params)} vs "
+                                 f"{jax.tree_util.tree_structure(like)}); a saved model would not load as it is")
         return arrays, plain
 
     def header(self) -> dict:
@@ -212,202 +286,6 @@ def _json_default(v):
     raise TypeError(f"not JSON-serialisable: {type(v).__name__}")
 
 
-def model_files(path) -> list[Path]:
-    """The model header files (``*.json`` with a model header) at ``path`` (a file or a run directory)."""
-    p = Path(path)
-    if p.is_dir():
-        return sorted(q for q in p.glob("*.json") if q.is_file() and _is_model_header(q))
-    if p.suffix == ".npz":
-        p = p.with_suffix(".json")
-    return [p]
-
-
-def _is_model_header(p: Path) -> bool:
-    try:
-        head = json.loads(read_text_bounded(p, MAX_HEADER_BYTES, "a model header"))
-    except (DataError, ValueError, RecursionError):
-        return False
-    return isinstance(head, dict) and "schema_version" in head and "kind" in head and "arrays" in head
-
-
-# ------------------------------------------------------------------ reading a model, checked
-#: Largest model header (.json) read, bytes.
-MAX_HEADER_BYTES = 4 << 20
-#: Largest array of a model, bytes (declared in the .npy header; checked before it is read).
-MAX_ARRAY_BYTES = 64 << 20
-#: Largest total of a model's arrays, bytes.
-MAX_ARRAYS_BYTES = 256 << 20
-#: Largest magnitude of a fitted parameter: beyond it a parameter is not a fit (1e300 overflows every
-#: product to inf); the largest fitted values are fields in nT (~1e5) and RELM output weights (~1e4).
-MAX_PARAMETER = 1e12
-#: Array dtypes a model may hold: float, signed and unsigned integers, bool.
-ARRAY_KINDS = "fiub"
-
-
-def _local_name(name, where: str, what: str) -> str:
-    """A file name inside the model's (or run's) own directory: no directory part, no ``..``."""
-    if not isinstance(name, str) or not name or name in (".", "..") or "/" in name or "\\" in name \
-            or "\x00" in name or Path(name).is_absolute():
-        raise ModelError(f"{where}: {what} must be a file name in the same directory, got {str(name)[:80]!r}")
-    return name
-
-
-def run_model_path(run_dir) -> Path:
-    """The main model of a run directory: the first of its ``run.json``'s ``models``, which must name a
-    file in that directory (no path, no ``..``, no symbolic link out of it)."""
-    run_dir = Path(run_dir)
-    rec = run_dir / "run.json"
-    try:
-        run = json.loads(read_text_bounded(rec, MAX_HEADER_BYTES, "a run record (run.json)"))
-    except DataError as e:
-        raise ModelError(str(e)) from None
-    except (ValueError, RecursionError) as e:
-        raise ModelError(f"{rec}: not a run record (invalid JSON: {type(e).__name__})") from None
-    models = run.get("models") if isinstance(run, dict) else None
-    if not isinstance(models, list) or not models:
-        raise ModelError(f"{rec}: 'models' must be a non-empty list of the run's model files")
-    name = _local_name(models[0], str(rec), "models[0]")
-    path = run_dir / name
-    try:
-        inside = path.resolve().parent == run_dir.resolve()
-    except (OSError, RuntimeError):
-        inside = False
-    if not inside:
-        raise ModelError(f"{rec}: models[0] {name!r} leads out of the run directory (a symbolic link); refused")
-    return path
-
-
-def _resolve(path) -> Path:
-    """The header path of ``path`` (a header, an .npz, a stem, a run directory or a directory with one model)."""
-    p = Path(path)
-    if p.is_dir():
-        if (p / "run.json").exists() or (p / "run.json").is_symlink():  # a pipe or a directory there is refused
-            return run_model_path(p)
-        found = model_files(p)
-        if not found:
-            raise ModelError(f"{p}: a directory with no saved model (*.json model header); name a model file")
-        if len(found) > 1:
-            raise ModelError(f"{p}: {len(found)} models in this directory ({', '.join(q.name for q in found)}); "
-                             f"name one file")
-        return found[0]
-    if p.suffix != ".json":
-        p = p.with_suffix(".json") if p.suffix == ".npz" else p.with_name(p.name + ".json")
-    return p
-
-
-def _read_header(p: Path) -> dict:
-    try:
-        text = read_text_bounded(p, MAX_HEADER_BYTES, "a model header (.json)")
-    except DataError as e:
-        raise ModelError(str(e) if p.exists() or p.is_symlink() else f"{p}: model file not found") from None
-    try:
-        head = json.loads(text, parse_constant=lambda c: _raise(ModelError(f"{p}: {c} in the model header")))
-    except (ValueError, RecursionError) as e:
-        if isinstance(e, ModelError):
-            raise
-        raise ModelError(f"{p}: not a model file (not a JSON header: {type(e).__name__})") from None
-    if not isinstance(head, dict) or not {"schema_version", "kind", "arrays", "fields"} <= set(head):
-        raise ModelError(f"{p}: not a model file (no schema_version/kind/arrays/fields header)")
-    ver = head["schema_version"]
-    if not isinstance(ver, int) or isinstance(ver, bool) or ver < 1:
-        raise ModelError(f"{p}: not a model file (schema_version {ver!r})")
-    if ver > SCHEMA_VERSION:
-        raise ModelError(f"{p}: written by model schema version {ver}, newer than this icgo's {SCHEMA_VERSION} "
-                         f"(package {str(head.get('package_version', '?'))[:40]}); upgrade icgo")
-    if not isinstance(head["fields"], dict):
-        raise ModelError(f"{p}: 'fields' must be a JSON object, got {type(head['fields']).__name__}")
-    shapes = head.get("array_shapes")
-    if shapes is not None and not (isinstance(shapes, dict) and all(
-            isinstance(v, list) and all(isinstance(d, int) and not isinstance(d, bool) and d >= 0 for d in v)
-            for v in shapes.values())):
-        raise ModelError(f"{p}: 'array_shapes' must map array names to lists of sizes")
-    return head
-
-
-def _raise(e):
-    raise e
-
-
-def _read_arrays(npz: Path, names: list[str], shapes: dict | None, where: str) -> dict:
-    """The arrays ``names`` of a model's ``.npz``, each checked from its .npy header before it is read.
-
-    Only the model's own members are opened; any other member of the archive (a huge one included)
-    is never read. A member's dtype must be numeric (:data:`ARRAY_KINDS`), its size under
-    :data:`MAX_ARRAY_BYTES` and consistent with the archive's size for it, its shape the header's.
-    """
-    if not npz.exists() and not npz.is_symlink():
-        raise ModelError(f"{npz}: the model's array file is missing (named by {where})")
-    try:
-        st = npz.stat()
-    except OSError as e:
-        raise ModelError(f"{npz}: cannot read the model's arrays ({e.strerror})") from None
-    import stat as _stat
-
-    if not _stat.S_ISREG(st.st_mode):
-        raise ModelError(f"{npz}: the model's array file is not a regular file")
-    arrays, total = {}, 0
-    try:
-        with zipfile.ZipFile(npz) as z:
-            members = {i.filename: i for i in z.infolist()}
-            for name in names:
-                info = members.get(f"{name}.npy")
-                if info is None:
-                    continue
-                with z.open(info) as fh:
-                    version = np.lib.format.read_magic(fh)
-                    read_header = {(1, 0): np.lib.format.read_array_header_1_0,
-                                   (2, 0): np.lib.format.read_array_header_2_0}.get(version)
-                    if read_header is None:
-                        raise ValueError(f"npy format version {version}")
-                    shape, fortran, dtype = read_header(fh)
-                    if dtype.kind not in ARRAY_KINDS or dtype.hasobject or dtype.fields is not None:
-                        raise ModelError(f"{npz}: array {name!r} has dtype {dtype}; a model's arrays are real "
-                                         f"numbers or integers")
-                    count = int(np.prod(shape, dtype=object))
-                    nbytes = count * dtype.itemsize
-                    if nbytes > MAX_ARRAY_BYTES or total + nbytes > MAX_ARRAYS_BYTES:
-                        raise ModelError(f"{npz}: array {name!r} declares shape {tuple(shape)} "
-                                         f"({nbytes / 2**20:.0f} MiB), over the {MAX_ARRAY_BYTES >> 20} MiB limit of "
-                                         f"a model array")
-                    if info.file_size < nbytes:
-                        raise ModelError(f"{npz}: array {name!r} declares shape {tuple(shape)} but holds only "
-                                         f"{info.file_size} bytes (a truncated or edited file)")
-                    if shapes is not None and name in shapes and list(shape) != list(shapes[name]):
-                        raise ModelError(f"{npz}: array {name!r} has shape {tuple(shape)}, the header says "
-                                         f"{tuple(shapes[name])}")
-                    data = fh.read(nbytes)
-                    if len(data) != nbytes:
-                        raise ModelError(f"{npz}: array {name!r} is cut short (a truncated file)")
-                    a = np.frombuffer(data, dtype=dtype).reshape(shape, order="F" if fortran else "C")
-                    arrays[name] = a.astype(dtype.newbyteorder("="))  # a writable copy in native byte order
-                    total += nbytes
-    except ModelError:
-        raise
-    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError, ValueError, KeyError, TypeError,
-            NotImplementedError, RuntimeError, zlib.error) as e:
-        why = str(e).splitlines()[0][:100] if str(e) else ""
-        raise ModelError(f"{npz}: model arrays unreadable ({type(e).__name__}{': ' + why if why else ''})") from None
-    return arrays
-
-
-def _field_types(cls) -> dict[str, tuple[str, ...]]:
-    """Field name -> the type names of its annotation (``"np.ndarray | None"`` -> ``("np.ndarray", "None")``)."""
-    return {f.name: tuple(t.strip() for t in str(f.type).split("|")) for f in dataclasses.fields(cls)}
-
-
-def _plain_ok(v, types: tuple[str, ...]) -> bool:
-    import math
-
-    for t in types:
-        if (t == "None" and v is None) or (t == "str" and isinstance(v, str)) \
-                or (t == "bool" and isinstance(v, bool)) or (t == "list" and isinstance(v, list)) \
-                or (t == "dict" and isinstance(v, dict)) \
-                or (t == "int" and isinstance(v, int) and not isinstance(v, bool)) \
-                or (t == "float" and isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)):
-            return True
-    return False
-
-
 def need_shape(a, shape: tuple, name: str) -> None:
     """ModelError unless ``a`` has ``shape`` (None in ``shape`` matches any size)."""
     got = np.shape(a)
@@ -422,93 +300,90 @@ def need(cond: bool, message: str) -> None:
         raise ModelError(message)
 
 
-def check_domain(domain, where: str) -> None:
-    """A training domain: quantity -> ``[low, high]`` finite numbers with low <= high, or a count (int >= 0)."""
-    import math
-
-    if not isinstance(domain, dict):
-        raise ModelError(f"{where}: 'domain' must be a JSON object, got {type(domain).__name__}")
-    for k, v in domain.items():
-        if isinstance(v, int) and not isinstance(v, bool) and v >= 0:
-            continue
-        ok = (isinstance(v, list) and len(v) == 2
-              and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)
-              and v[0] <= v[1])
-        if not ok:
-            raise ModelError(f"{where}: training domain {k!r} must be [low, high] (finite numbers, low <= high), "
-                             f"got {str(v)[:60]}")
-
-
-def check_array(a: np.ndarray, name: str, where: str, *, may_be_empty: bool = False, nan_ok: bool = False) -> None:
-    """A model array: real numbers (no NaN/inf unless ``nan_ok``), at most :data:`MAX_PARAMETER` in magnitude."""
-    if a.size == 0 and not may_be_empty:
-        raise ModelError(f"{where}: array {name!r} is empty")
-    if a.dtype.kind == "f":
-        finite = np.isfinite(a)
-        if not nan_ok and not finite.all():
-            raise ModelError(f"{where}: array {name!r} holds NaN or inf ({int((~finite).sum())} of {a.size} values)")
-        mag = np.abs(a[finite].astype(np.float64))
-        if np.any(mag > MAX_PARAMETER):
-            raise ModelError(f"{where}: array {name!r} holds values beyond +/-{MAX_PARAMETER:g} (largest "
-                             f"{mag.max():.3g}); not a fitted model")
-    elif a.dtype.kind in "iu" and a.size and np.abs(a.astype(np.float64)).max() > MAX_PARAMETER:
-        raise ModelError(f"{where}: array {name!r} holds integers beyond +/-{MAX_PARAMETER:g}")
-
-
 def read_model(path, kinds: dict) -> FittedModel:
     """Load a model saved by :meth:`FittedModel.save`, every part checked.
 
     Checks, each a one-line :class:`ModelError` naming the file: the header (a JSON object of at
-    most :data:`MAX_HEADER_BYTES`, a known schema and kind, ``fields`` of the kind's types, a training
-    domain of finite ranges), the array file (a zip archive; only the kind's arrays are read, each
-    checked from its .npy header for dtype, size (:data:`MAX_ARRAY_BYTES`) and shape before it is
-    read, then for NaN/inf and magnitude), and the kind's own consistency (:meth:`FittedModel.validate`:
-    shapes that agree, scales > 0, names it knows).
+    most :data:`~icgo.models.reading.MAX_HEADER_BYTES`, a known schema and kind, a schema the kind still
+    reads, meta ``fields`` of the kind's types, a training domain of finite ranges), the params' skeleton
+    rebuilt from the meta (:meth:`FittedModel.params_like`), the array file (a zip archive; only the
+    skeleton's leaves and the kind's array fields are read, each checked from its .npy header for dtype,
+    size (:data:`~icgo.models.reading.MAX_ARRAY_BYTES`) and shape before it is read, then for NaN/inf and
+    magnitude; nothing is unpickled), and the kind's own consistency (:meth:`FittedModel.validate`: shapes
+    that agree, scales > 0, names it knows).
 
     Args:
         path: the ``.json`` header, the ``.npz``, the stem, a run directory (its ``run.json``'s first
             model) or a directory holding exactly one model.
         kinds: KIND -> model class (:data:`icgo.models.registry.MODEL_KINDS`).
     """
-    p = _resolve(path)
-    head = _read_header(p)
+    p = header_path(path)
+    head = read_header(p, SCHEMA_VERSION)
     kind = head["kind"]
     cls = kinds.get(kind) if isinstance(kind, str) else None
     if cls is None:
         raise ModelError(f"{p}: unknown model kind {str(kind)[:60]!r}; known: {sorted(kinds)}")
-    npz = p.with_name(_local_name(head["arrays"], str(p), "'arrays'"))
-    types = _field_types(cls)
+    if head["schema_version"] < cls.OLDEST_SCHEMA:
+        raise ModelError(f"{p}: a {kind} file of model schema {head['schema_version']}, a layout this icgo no longer "
+                         f"reads (it reads schema {cls.OLDEST_SCHEMA} on); {cls.REFIT}")
+    npz = p.with_name(local_name(head["arrays"], str(p), "'arrays'"))
+    types = field_types(cls)
+    if cls.PARAMS is not None:
+        types.pop("params")
     fields = head["fields"]
-    array_names = [n for n, t in types.items() if "np.ndarray" in t]
     unknown = sorted(set(fields) - set(types))
     if unknown:
         raise ModelError(f"{p}: model of kind {kind!r} has unknown field(s) {unknown[:5]}")
     defaults = {f.name for f in dataclasses.fields(cls)
                 if f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING}
-    arrays = _read_arrays(npz, array_names, head.get("array_shapes"), str(p))
     kwargs = {}
-    for name, t in types.items():
-        if name in array_names:
-            if name in arrays:
-                check_array(arrays[name], name, str(npz), may_be_empty=name in cls.MAY_BE_EMPTY,
-                            nan_ok=name in cls.NAN_OK)
-                kwargs[name] = arrays[name]
-            elif name in fields:
-                if fields[name] is not None or "None" not in t:
-                    raise ModelError(f"{p}: {name!r} must be an array in {npz.name}"
-                                     + (" or null" if "None" in t else "") + f", got {str(fields[name])[:40]!r}")
-                kwargs[name] = None
-            elif name not in defaults:
-                raise ModelError(f"{p}: model of kind {kind!r} lacks array {name!r} in {npz.name}")
+    for name, t in types.items():  # the JSON values; arrays below
+        if "np.ndarray" in t:
             continue
         if name not in fields:
             if name in defaults:
                 continue
             raise ModelError(f"{p}: model of kind {kind!r} lacks field {name!r}")
-        if not _plain_ok(fields[name], t):
+        if not plain_ok(fields[name], t):
             raise ModelError(f"{p}: field {name!r} must be {' or '.join(t)}, got {str(fields[name])[:60]!r}")
         kwargs[name] = fields[name]
     check_domain(kwargs["domain"], str(p))
+    leaves, skeleton = [], None
+    if cls.PARAMS is not None:
+        try:
+            like = cls.params_like(fields)
+            leaves, skeleton = jax.tree_util.tree_flatten_with_path(like)
+        except ModelError as e:
+            raise ModelError(f"{p}: {e}") from None
+        except (TypeError, ValueError, IndexError, KeyError, AttributeError) as e:
+            raise ModelError(f"{p}: the meta of this {kind} model describes no params ({type(e).__name__}: "
+                             f"{one_line(e)})") from None
+    leaf_names = [_leaf_name(path) for path, _ in leaves]
+    bad = [n for n in leaf_names if not _LEAF_NAME.fullmatch(n)]
+    if bad:
+        raise ModelError(f"{p}: params leaf name {bad[0][:60]!r} is not a plain name (letters, digits, _ and .)")
+    field_arrays = [n for n, t in types.items() if "np.ndarray" in t]
+    arrays = read_arrays(npz, leaf_names + field_arrays, head.get("array_shapes"), str(p))
+    for name in leaf_names + field_arrays:
+        if name in arrays:
+            check_array(arrays[name], name, str(npz), may_be_empty=name in cls.MAY_BE_EMPTY,
+                        nan_ok=name in cls.NAN_OK)
+    missing = [n for n in leaf_names if n not in arrays]
+    if missing:
+        raise ModelError(f"{p}: model of kind {kind!r} lacks array {missing[0]!r} in {npz.name}")
+    if skeleton is not None:
+        kwargs["params"] = jax.tree_util.tree_unflatten(skeleton, [arrays[n] for n in leaf_names])
+    for name in field_arrays:
+        t = types[name]
+        if name in arrays:
+            kwargs[name] = arrays[name]
+        elif name in fields:
+            if fields[name] is not None or "None" not in t:
+                raise ModelError(f"{p}: {name!r} must be an array in {npz.name}"
+                                 + (" or null" if "None" in t else "") + f", got {str(fields[name])[:40]!r}")
+            kwargs[name] = None
+        elif name not in defaults:
+            raise ModelError(f"{p}: model of kind {kind!r} lacks array {name!r} in {npz.name}")
     try:
         model = cls(**kwargs)
         model.validate()
@@ -517,11 +392,6 @@ def read_model(path, kinds: dict) -> FittedModel:
     except (TypeError, ValueError, IndexError, KeyError) as e:
         raise ModelError(f"{p}: inconsistent model of kind {kind!r} ({type(e).__name__}: {one_line(e)})") from None
     return model
-
-
-def one_line(e: BaseException) -> str:
-    text = str(e).strip()
-    return text.splitlines()[0][:160] if text else type(e).__name__
 
 
 #: Overshoots of the training range smaller than these are not reported (units of each quantity):

@@ -19,9 +19,10 @@ def plt_agg():
     return plt
 
 
-def save_figure(fig, path, title: str, dpi: int = 120) -> None:
-    """Title, lay out, write and close a figure."""
-    fig.suptitle(title)
+def save_figure(fig, path, title: str | None, dpi: int = 120) -> None:
+    """Title (None: none), lay out, write and close a figure."""
+    if title is not None:
+        fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=dpi)
     plt.close(fig)
@@ -96,4 +97,49 @@ def error_by_condition(table: pd.DataFrame, title: str = "Raw azimuth error per 
     ax.legend()
     ax.grid(alpha=0.3, axis="y")
     fig.tight_layout()
+    return fig
+
+
+def residual_vs_toolface(panels):
+    """Magnetometer residual components (measured - predicted, nT) against toolface, one row of panels per set
+    (not yet laid out: :func:`save_figure` does it).
+
+    Args:
+        panels: ``(name, toolface deg (n,), residual (n, 3) nT of bx, by, bz)`` per row (e.g. before and after a
+            model; stations to draw only).
+    Returns:
+        matplotlib Figure.
+    """
+    fig, axes = plt.subplots(len(panels), 3, figsize=(12, 3 * len(panels)), sharex=True, squeeze=False)
+    for row, (name, toolface, resid) in enumerate(panels):
+        T = np.mod(toolface, 360)
+        for j, c in enumerate("xyz"):
+            ax = axes[row, j]
+            ax.plot(T, resid[:, j], ".", ms=3)
+            ax.axhline(0, color="k", lw=0.5)
+            ax.set_title(f"b{c} residual, {name}")
+            ax.set_ylabel("nT")
+            if row == len(panels) - 1:
+                ax.set_xlabel("toolface (deg)")
+    return fig
+
+
+def gap_per_step(table: pd.DataFrame):
+    """Held-out gap after each step of a model search: RMS magnetometer residual (nT) and RMS azimuth error (deg)
+    (not yet laid out: :func:`save_figure` does it).
+
+    Args:
+        table: one row per model, columns ``model`` (its name), ``mag_rms_nT`` and ``azimuth_rms_deg``.
+    Returns:
+        matplotlib Figure.
+    """
+    fig, ax = plt.subplots(1, 2, figsize=(10, 3.8))
+    x = np.arange(len(table))
+    ax[0].bar(x, table["mag_rms_nT"])
+    ax[0].set_ylabel("held-out RMS magnetometer residual (nT)")
+    ax[1].bar(x, table["azimuth_rms_deg"], color="C1")
+    ax[1].set_ylabel("held-out RMS azimuth error (deg)")
+    for a in ax:
+        a.set_xticks(x, table["model"], rotation=20, ha="right", fontsize=8)
+        a.set_yscale("log")
     return fig

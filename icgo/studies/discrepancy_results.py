@@ -16,8 +16,8 @@ import jax
 import numpy as np
 
 from icgo.discrepancy.config import WorkflowConfig
-from icgo.discrepancy.fit import correct
 from icgo.discrepancy.identifiability import separability
+from icgo.discrepancy.inversion import physics_params, predict
 from icgo.discrepancy.search import Result, run_workflow
 from icgo.discrepancy.stations import DESIGNS, hidden_stations, select_stations, simulate, stations_from_recording
 from icgo.physics import effects as _fx
@@ -86,7 +86,7 @@ class LabCasingStudy(NamedTuple):
     Attributes:
         result: the workflow on the training rows.
         error_raw: standard formula on the raw data. error_model: the fitted
-            physics model inverted (:func:`~icgo.discrepancy.fit.correct`).
+            physics model inverted (:func:`icgo.discrepancy.inversion.predict`).
         error_methods: ICGO study method -> its compensated error (repeat 0).
         error_msa: MSA only (repeat 0).
         truth_effects: effects the simulation injected besides the casing.
@@ -128,7 +128,7 @@ def lab_casing_study(config: WorkflowConfig = WorkflowConfig(), seed: int = 0) -
     itr = np.array([pos[r] for r in rows_train])
     ite = np.array([pos[r] for r in rows_test])
     res = run_workflow(select_stations(st_all, itr), config)
-    a_corr = correct(res, st_all.G[ite], st_all.B[ite]).azimuth
+    a_corr = predict(physics_params(res), np.hstack([st_all.G[ite], st_all.B[ite]])).azimuth
     err = np.asarray(angle_diff(np.asarray(a_corr), st_all.azimuth[ite]))
     err_raw = np.asarray(angle_diff(np.asarray(azimuth_from_gv(st_all.G[ite], st_all.B[ite])), st_all.azimuth[ite]))
     test = p0[p0["split"] == "test"]

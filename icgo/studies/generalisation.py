@@ -10,8 +10,8 @@ the methods are paired repeat by repeat) and scored on the members' test rows:
   wavelet and the three-stage ICGO), all through :mod:`icgo.studies.icgo_relm`;
 * ``physics``: the 12-parameter magnetometer model with an earth-fixed external
   field, fitted by the discrepancy engine on the member's training rows
-  (:func:`icgo.models.discrepancy.fit_members`) and inverted per station on
-  its test rows.
+  (:func:`icgo.discrepancy.fit.fit_members`) and inverted per station on its test rows
+  (:func:`icgo.discrepancy.inversion.predict`).
 
 Per (cell, method, repeat): MAE / RMSE / R^2 over the repeat's test rows (fold
 protocols pool the folds: every row is predicted by the fold that held it out)
@@ -167,10 +167,11 @@ def _physics(data, config: GeneralisationConfig, protocol: str, key) -> tuple[li
     """Metric rows of the physics baseline in one cell (members as the ICGO-RELM study builds them), and its
     QC record on the cell's QC stations (:func:`_qc_stations`) that repeat 0 tests, corrected by the member
     that tested each."""
+    from icgo.discrepancy.fit import fit_members
+    from icgo.discrepancy.inversion import predict
     from icgo.discrepancy.stations import stations_from_recording
     from icgo.io import recording as icgo_io
     from icgo.maths.metrics import azimuth_metrics
-    from icgo.models.discrepancy import fit_members
     from icgo.physics.frames import azimuth_from_gv
     from icgo.studies.icgo_relm import filtered
 
@@ -181,17 +182,18 @@ def _physics(data, config: GeneralisationConfig, protocol: str, key) -> tuple[li
         rows = pd.concat([rows, filtered(data.target, cfg)[0]])
     mem = _splits.members(protocol, rows, key, cfg.ids(), cfg.train_fraction, n_source)
     source = icgo_io.validate(rows.iloc[:n_source].reset_index(drop=True), data.meta, source="physics baseline")
-    models = fit_members(stations_from_recording(source), mem.train[:, :n_source])
+    members = fit_members(stations_from_recording(source), mem.train[:, :n_source])
     a_true = rows["azimuth_deg"].to_numpy(float)
-    est = np.tile(a_true, (len(models), 1))  # rows a member does not test keep weight 0
+    sensors = rows[["gx", "gy", "gz", "bx", "by", "bz"]].to_numpy(float)
+    est = np.tile(a_true, (len(members), 1))  # rows a member does not test keep weight 0
     b_after = np.full((len(rows), 3), np.nan)
-    for m, model in enumerate(models):
+    for m, params in enumerate(members):
         sel = mem.test[m] > 0
-        out = model.apply(rows[sel])
-        est[m, sel] = out["azimuth_compensated"].to_numpy(float)
+        inv = predict(params, sensors[sel])
+        est[m, sel] = np.asarray(inv.azimuth)
         if mem.repeat[m] == cfg.ids()[0]:
-            b_after[sel] = out[list(CORRECTED_B)].to_numpy(float)
-    G, B = rows[["gx", "gy", "gz"]].to_numpy(float), rows[["bx", "by", "bz"]].to_numpy(float)
+            b_after[sel] = np.asarray(inv.b_corrected)
+    G, B = sensors[:, :3], sensors[:, 3:]
     err_raw = np.asarray(angle_diff(np.asarray(azimuth_from_gv(G, B)), a_true))
     out = []
     for r in cfg.ids():

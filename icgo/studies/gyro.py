@@ -12,15 +12,18 @@ seeds per trained method (mean +/- sample std over seeds, ddof 1):
 
 * ``raw``: the instrument's computed azimuth (patent eq. 7);
 * ``table``: the prior-art error table over (I, A), toolface ignored, bilinear
-  (:class:`icgo.models.network.LookupTableModel`);
+  (:mod:`icgo.methods.lookup_table`; :class:`icgo.models.network.LookupTableModel`);
 * the network variants of ``variants`` (patent eqs. 8-12, :mod:`icgo.methods.nets`; all
   seeds of one variant train in one jitted, vmapped call;
   :class:`icgo.models.network.GyroNetwork`);
-* ``relm`` / ``icgo_relm``: RELM (ICGO paper eqs. 8-9, :mod:`icgo.methods.relm`) on the
+* ``relm`` / ``icgo_relm``: RELM (ICGO paper eqs. 8-9, :mod:`icgo.methods.gyro_relm`) on the
   encoded (I, T, computed A) with random hidden weights, or with hidden
   weights searched by ``relm.optimizer`` (CGO with the three-stage 4th-seed
   mutation by default) on the training-only RELM fitness
   (:class:`icgo.models.network.GyroRELM`).
+
+Every method is scored through its family's pure ``predict(params, x)`` on the test sets' measured angles
+(:func:`predict_all`), the function its saved model applies.
 
 Also: error vs number of turntable points (:func:`points_sweep`) and the
 ``target=azimuth`` seam at north (:func:`seam_rows`).
@@ -46,8 +49,8 @@ from icgo.core.errors import SettingError
 from icgo.core.settings import is_int, is_real, need
 from icgo.datasets import protocols as datasets
 from icgo.maths import metrics, stats
-from icgo.methods import nets, relm
-from icgo.models.network import GyroNetwork, GyroRELM, LookupTableModel, turntable_domain, turntable_hash
+from icgo.methods import gyro_relm, lookup_table, nets, relm
+from icgo.models.network import ANGLE_COLUMNS, GyroNetwork, GyroRELM, LookupTableModel, turntable_domain, turntable_hash
 from icgo.optim.cgo import CGO
 from icgo.optim.registry import get
 from icgo.physics.frames import angle_diff
@@ -371,8 +374,11 @@ def seam_rows(method, preds, f: pd.DataFrame, band) -> dict:
 
 
 def predict_all(model, tests: dict) -> dict:
-    """``{test: model.members(frame)}``, (S, N) compensated azimuth per test set."""
-    return {k: model.members(f) for k, f in tests.items()}
+    """``{test: (S, N) compensated azimuth, deg}``: the model's ``predict`` (its family's pure forward pass on its
+    params, :meth:`icgo.models.format.FittedModel.predict`) on each test set's measured angles ((1, N) for the
+    table)."""
+    return {k: np.atleast_2d(np.asarray(model.predict(f[list(ANGLE_COLUMNS)].to_numpy(float))))
+            for k, f in tests.items()}
 
 
 # ==================================================================== methods
@@ -380,11 +386,10 @@ def fit_table(tcfg: TableConfig, train: pd.DataFrame, config: dict) -> LookupTab
     """The lookup table from the turntable points (nominal I, A; error ``A_true - A_raw``)."""
     err = azimuth_errors(train["azimuth_raw_deg"], train["azimuth_deg"])
     tf = tcfg.toolface
-    t = nets.lookup_table_fit(train["inclination_deg"], train["azimuth_deg"], err, toolface_deg=train["toolface_deg"],
-                              at_toolface_deg=None if tf == "mean" else float(tf))
+    t = lookup_table.fit(train["inclination_deg"], train["azimuth_deg"], err, toolface_deg=train["toolface_deg"],
+                         at_toolface_deg=None if tf == "mean" else float(tf))
     return LookupTableModel(config=dict(config), data_hash=turntable_hash(train), domain=turntable_domain(train),
-                            toolface=tf, inc_nodes=np.asarray(t.inc_nodes), az_nodes=np.asarray(t.az_nodes),
-                            error=np.asarray(t.error))
+                            toolface=tf, params=lookup_table.LookupTable(*(np.asarray(a) for a in t)))
 
 
 def fit_network(variant: str, ncfg: nets.NetConfig, keys, train: pd.DataFrame, config: dict):
@@ -397,78 +402,34 @@ def fit_network(variant: str, ncfg: nets.NetConfig, keys, train: pd.DataFrame, c
     return GyroNetwork.from_fit(variant, ncfg, res, train, config), secs
 
 
-def relm_fit_data(rc: RelmConfig, keys, X, T):
-    """Per-seed RELM fitness data (:class:`icgo.methods.relm.FitData`) on all training points.
-
-    Inputs are standardised with the training statistics (:func:`icgo.methods.relm.standardize_stats`);
-    the folds of ``rc.fitness`` are drawn from each seed's key.
-
-    Returns:
-        (FitData with leading axis S, theta keys (S, 2)).
-    """
-    S = keys.shape[0]
-    w = jnp.ones(X.shape[0])
-    k_theta, k_fold = jax.vmap(lambda k: jax.random.split(k, 2))(keys).transpose(1, 0, 2)
-    mean, std = relm.standardize_stats(X, w)
-    Xs = relm.standardize(X, mean, std)
-    fw, sw = jax.vmap(lambda k: relm.fold_weights(k, w, rc.fitness))(k_fold)
-    data = relm.FitData(jnp.broadcast_to(Xs, (S,) + Xs.shape), jnp.broadcast_to(T, (S,) + T.shape), fw, sw)
-    return data, k_theta
-
-
-def search_theta(rc: RelmConfig, keys, data: relm.FitData, n_in: int):
-    """Hidden weights searched by ``rc.optimizer`` on the training RELM fitness, all seeds in one call.
-
-    Returns:
-        (theta (S, (n_in + 1) L), best fitness (S,) deg).
-    """
-    from icgo.optim import run_batch
-
-    L, lo, hi = int(rc.hidden), *(float(x) for x in rc.theta_bounds)
-    D = relm.n_params(L, n_in)
-    configs = rc.search_configs()
-    aux = relm.SearchData(data, np.full(keys.shape[:1], float(rc.lam), data.X.dtype), L)
-    res = run_batch(get(rc.optimizer), relm.search_fitness, (np.full(D, lo), np.full(D, hi)), keys,
-                    int(rc.pop_size), int(rc.iterations), configs=configs, aux=aux)
-    if configs is not None:  # one value on the side-by-side axis: drop that axis
-        res = jax.tree_util.tree_map(lambda x: x[0], res)
-    return res.best_x, res.best_f
-
-
-def random_theta(rc: RelmConfig, k_theta, data: relm.FitData, n_in: int):
-    """Plain RELM: theta ~ U(theta_bounds) per seed and its training fitness; ((S, D), (S,))."""
-    L, lo, hi = int(rc.hidden), *(float(x) for x in rc.theta_bounds)
-    theta = jax.vmap(lambda k: relm.random_theta(k, L, (), lo, hi, n_inputs=n_in))(k_theta)
-    best_f = jax.vmap(lambda th, d: relm.fitness(th[None], d, float(rc.lam), L)[0])(theta, data)
-    return theta, best_f
-
-
 def fit_relm(rc: RelmConfig, keys, train: pd.DataFrame, optimized: bool, config: dict):
     """Plain RELM or ICGO-RELM on the encoded (I, T, A_raw); target = wrapped error ``A_true - A_raw``.
 
-    Hidden weights per seed are random (``optimized=False``) or searched
-    (:func:`search_theta`); the output weights are the ridge solution (eq. 9) on
-    all training points (:func:`icgo.methods.relm.fit_unchecked`).
+    Hidden weights per seed are random (``optimized=False``) or searched by ``rc.optimizer``
+    (:func:`icgo.methods.gyro_relm.search_theta`); the output weights are the ridge solution (eq. 9) on
+    all training points (:func:`icgo.methods.gyro_relm.refit`).
 
     Returns:
         (GyroRELM, seconds incl. compilation).
     """
-    L, lam = int(rc.hidden), float(rc.lam)
+    L, lam, bounds = int(rc.hidden), float(rc.lam), tuple(float(x) for x in rc.theta_bounds)
     i, t, a, at = _cols(train)
     X = jnp.asarray(nets.encode_inputs(i, t, a, rc.encoding))
     T = jnp.asarray(azimuth_errors(a, at))
-    w = jnp.ones(X.shape[0])
     t0 = time.perf_counter()
-    data, k_theta = relm_fit_data(rc, keys, X, T)
-    theta, best_f = (search_theta(rc, keys, data, X.shape[1]) if optimized
-                     else random_theta(rc, k_theta, data, X.shape[1]))
-    fitted = jax.vmap(lambda th: relm.fit_unchecked(th, X, T, lam, w, L))(theta)
-    jax.block_until_ready(fitted.beta)
+    data, k_theta = gyro_relm.fit_data(keys, X, T, rc.fitness)
+    if optimized:
+        theta, best_f = gyro_relm.search_theta(keys, data, L, lam, bounds, get(rc.optimizer), rc.search_configs(),
+                                               int(rc.pop_size), int(rc.iterations))
+    else:
+        theta, best_f = gyro_relm.random_theta(k_theta, data, L, lam, bounds)
+    params = gyro_relm.refit(theta, X, T, lam, L, rc.encoding)
+    jax.block_until_ready(params.beta)
     secs = time.perf_counter() - t0
+    params = jax.tree.map(np.asarray, params)
     model = GyroRELM(config=dict(config), data_hash=turntable_hash(train), domain=turntable_domain(train),
                      method="icgo_relm" if optimized else "relm", encoding=rc.encoding, hidden=L, lam=lam,
-                     theta=np.asarray(fitted.theta), beta=np.asarray(fitted.beta), mean=np.asarray(fitted.mean),
-                     std=np.asarray(fitted.std), train_fitness=np.asarray(best_f))
+                     params=params, train_fitness=np.asarray(best_f))
     return model, secs
 
 
