@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test test-all test-slurm figures bench optimizers misma gyro discrepancy generalisation calibration dataset-figures venv clean
+.PHONY: run test test-all test-slurm figures bench optimizers misma gyro discrepancy generalisation calibration dataset-figures docs venv clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -45,6 +45,9 @@ discrepancy: $(STAMP)
 	$(BIN)/python -m experiments.discrepancy study=hidden
 	$(BIN)/python -m experiments.discrepancy study=devices max_effects=4
 	$(BIN)/python -m experiments.discrepancy study=lab_casing
+
+docs: $(STAMP)
+	$(BIN)/python -m experiments.docs
 
 dataset-figures: $(STAMP)
 	$(BIN)/python -m experiments.dataset_figures
