@@ -2,9 +2,12 @@
 protocol, stamped on every Markdown table and every figure title by :mod:`experiments.figures`; and the table's
 protocol line (command, repeats, split, seeds, test: :func:`icgo.reporting.protocol.protocol_line`) from the same runs.
 
-The stamp of the output being built is held in a context variable set by :func:`stamping` around each builder, so
-the builders' ``_write`` and :func:`save` calls stamp without passing it along. A run's settings are read from the
-resolved ``config.yaml`` of its run directory (every run of ``experiments.run`` writes one).
+The runs of the output being built are held in a context variable set by :func:`stamping` around each builder: the
+runs it was started with, and every run whose rows the builder then reads (:func:`use`, called by
+:class:`experiments.figures.Runs` when it hands out a run's rows). So each table's stamp and protocol line describe the
+runs its numbers come from, not every run collected, and the builders' ``_write`` and :func:`save` calls stamp
+without passing it along. A run's settings are read from the resolved ``config.yaml`` of its run directory (every run
+of ``experiments.run`` writes one).
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ from pathlib import Path
 #: The ICGO paper's protocol: population 30, 100 iterations, repeats of a random 7:3 split.
 PAPER_POP, PAPER_ITERATIONS = 30, 100
 
-_CURRENT: contextvars.ContextVar[dict | None] = contextvars.ContextVar("stamp", default=None)
+_CURRENT: contextvars.ContextVar[list | None] = contextvars.ContextVar("stamp", default=None)
 
 
 def run_settings(run_dir: Path) -> dict:
@@ -101,17 +104,30 @@ def _split_and_seeds(settings: list[dict]) -> dict:
 
 @contextlib.contextmanager
 def stamping(settings: list[dict]):
-    """Within the block, :func:`note` and :func:`title` give the stamp of runs with these settings."""
-    token = _CURRENT.set(describe(settings))
+    """Within the block, :func:`note`, :func:`protocol` and :func:`title` give the stamp of runs with these settings
+    and of every run :func:`use` adds."""
+    token = _CURRENT.set(list(settings))
     try:
         yield
     finally:
         _CURRENT.reset(token)
 
 
+def use(settings: list[dict]) -> None:
+    """Add runs the output being built reads (no effect outside :func:`stamping`; a run already there counts once)."""
+    runs = _CURRENT.get()
+    if runs is not None:
+        runs.extend(s for s in settings if s not in runs)
+
+
+def _current() -> dict | None:
+    runs = _CURRENT.get()
+    return describe(runs) if runs is not None else None
+
+
 def note() -> str:
     """The stamp line for a Markdown table (empty outside :func:`stamping`)."""
-    s = _CURRENT.get()
+    s = _current()
     return s["text"] if s else ""
 
 
@@ -121,13 +137,13 @@ def protocol(command: str, test: str, repeats: str | None = None, split: str | N
     seeds from the runs it is made from (within :func:`stamping`), unless given."""
     from icgo.reporting.protocol import protocol_line
 
-    s = _CURRENT.get() or _split_and_seeds([])
+    s = _current() or _split_and_seeds([])
     return protocol_line(command, repeats or s["repeats"], split or s["split"], seeds or s["seeds"], test)
 
 
 def title(text: str) -> str:
     """A figure title with the stamp's short form on a second line."""
-    s = _CURRENT.get()
+    s = _current()
     return f"{text}\n[{s['short']}]" if s and s["short"] else text
 
 

@@ -202,22 +202,29 @@ class Runs:
             else:
                 df = pd.concat(frames, ignore_index=True)
                 newest = df.groupby(self.KEY)["run_order"].transform("max")
-                self._cache[name] = df[df["run_order"] == newest].drop(columns="run_order")
+                self._cache[name] = df[df["run_order"] == newest]
         return self._cache[name]
+
+    def _rows(self, df: pd.DataFrame) -> pd.DataFrame:
+        """The rows a builder reads, their runs added to the output's stamp (:func:`experiments._stamp.use`)."""
+        if "run_order" not in df:
+            return df
+        _stamp.use([_stamp.run_settings(self.runs[int(i)]["dir"]) for i in sorted(df["run_order"].unique())])
+        return df.drop(columns="run_order")
 
     def metrics(self, dataset="lab_casing", split="test", seed=0) -> pd.DataFrame:
         df = self._table("metrics")
         if df.empty:
-            return df
-        return df[(df.dataset == dataset) & (df.split == split) & (df.seed == seed)]
+            return self._rows(df)
+        return self._rows(df[(df.dataset == dataset) & (df.split == split) & (df.seed == seed)])
 
     def convergence(self, dataset="lab_casing", seed=0) -> pd.DataFrame:
         df = self._table("convergence")
-        return df if df.empty else df[(df.dataset == dataset) & (df.seed == seed)]
+        return self._rows(df if df.empty else df[(df.dataset == dataset) & (df.seed == seed)])
 
     def predictions(self, dataset="lab_casing", seed=0) -> pd.DataFrame:
         df = self._table("predictions")
-        return df if df.empty else df[(df.dataset == dataset) & (df.seed == seed)]
+        return self._rows(df if df.empty else df[(df.dataset == dataset) & (df.seed == seed)])
 
 
 #: What the builder now running lacks (set per builder by :func:`build`, filled by :func:`_have`).
@@ -1104,8 +1111,9 @@ def build(dirs, out: Path) -> dict:
                                                       if str(r.get("label") or "").startswith(SWEEP_PREFIX)})
     sched, mutations = sweeps.split_label(SCHEDULES_LABEL)[0], sweeps.split_label(*MUTATIONS_LABELS)[0]
     ablation = sweeps.split_label(ABLATION_LABEL)[0]
-    # each output: its builder and the runs it is made from (their budget, repeats and dtype stamp it)
-    calls = {name: (lambda fn=fn: fn(runs, out), runs) for name, fn in BUILDERS.items()}
+    # each output: its builder and the runs it is made from beyond those whose rows it reads from the pooled runs
+    # (Runs hands those to the stamp as it reads them): their budget, repeats and dtype stamp it
+    calls = {name: (lambda fn=fn: fn(runs, out), Runs(None, [])) for name, fn in BUILDERS.items()}
     calls |= {name: (lambda name=name: sweep_conditions.build(sweeps, out, name, _LACKING.get()),
                      sweeps.split_label(*sweep_conditions.OUTPUTS[name])[0]) for name in sweep_conditions.OUTPUTS}
     calls |= {"sweep_mutations": (lambda: sweep_mutations(runs, mutations, out), mutations),

@@ -154,3 +154,30 @@ def test_run_help_lists_the_groups_not_apply(flag):
                        cwd=F.Path(F.__file__).resolve().parent.parent)
     assert r.returncode == 0 and "config groups" in r.stdout and "strategy    all, chaos" in r.stdout
     assert "apply" not in r.stdout.split("examples:")[0]
+
+
+def test_each_table_is_stamped_from_its_own_runs(tmp_path):
+    """Table 4 (one split of well_conditions) and Table 3 (10 repeats of lab_casing) collected together: each
+    stamp and protocol line names only the runs its numbers come from."""
+    rng = np.random.default_rng(5)
+    cgo = [f"cgo-{s}" for s in S5]
+    lab = tmp_path / "m" / "table3"
+    _run_dir(lab, _metrics(cgo, rng), conv=_conv(cgo), pred=_pred(cgo, rng))
+    _config(lab, pop=30, iterations=100, repeats=10)
+    az = tuple(r[1] for r in F.PAPER["table4"])
+    well = tmp_path / "m" / "table4"
+    m, p = _metrics(cgo, rng), _pred(cgo, rng, azimuths=az, n=4)
+    _run_dir(well, m[m.repeat == 0], dataset="well_conditions", pred=p[p.repeat == 0],
+             extra={"n_repeats": 1, "repeat_ids": [0]})
+    _config(well, pop=30, iterations=100, repeats=1)
+    for d, name in ((lab, "lab_casing"), (well, "well_conditions")):
+        cfg = yaml.safe_load((d / "config.yaml").read_text())
+        (d / "config.yaml").write_text(yaml.safe_dump(cfg | {"dataset": {"name": name, "seed": 0}}))
+    out = tmp_path / "r"
+    done = F.build([tmp_path / "m"], out)
+    assert done["table3"] is True and done["table4"] is True
+    t4, t3 = (out / "table4.md").read_text(), (out / "table3.md").read_text()
+    assert "Run settings: population 30 x 100 iterations, 1 repeat(s) per run, search dtype" in t4
+    assert "10 repeat(s)" not in t4 and "data: well_conditions with noise seed 0;" in t4
+    assert "Run settings: population 30 x 100 iterations, 10 repeat(s) per run, search dtype" in t3
+    assert "1 repeat(s)" not in t3 and "data: lab_casing with noise seed 0;" in t3
