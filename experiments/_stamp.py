@@ -54,14 +54,17 @@ def describe(settings: list[dict]) -> dict:
         return {"text": "", "short": "", "paper": False, **_split_and_seeds(settings)}
     paper = all(p == PAPER_POP and (it == PAPER_ITERATIONS or ev is not None) for p, it, ev, _, _ in seen) and all(
         s.get("protocol") in (None, "random") for s in settings)
+    from icgo.reporting.protocol import settings_line
+
     parts = []
     for p, it, ev, dt, n in seen:
         budget = f"population {p} x {it} iterations" if ev is None else f"population {p}, {ev} fitness evaluations"
-        parts.append(f"{budget}, {n} repeat(s) per run, search dtype {dt}")
-    text = ("Run settings: " + "; ".join(parts) + ". "
-            + ("The paper's protocol (population 30 x 100 iterations)." if paper else
-               "NOT the paper's protocol (population 30 x 100 iterations): compare with the paper's numbers only "
-               "as a smoke check."))
+        parts.append((budget, f"{n} repeat(s) per run", f"search dtype {dt}"))
+    text = settings_line("; ".join(", ".join(x) for x in parts[:-1]) + ("; " if len(parts) > 1 else "")
+                         + parts[-1][0], parts[-1][1], parts[-1][2],
+                         "The paper's protocol (population 30 x 100 iterations)." if paper else
+                         "NOT the paper's protocol (population 30 x 100 iterations): compare with the paper's numbers "
+                         "only as a smoke check.")
     p, it, ev, _, n = seen[0]
     short = (f"{p} x {it if ev is None else str(ev) + ' evals'}, {n} repeat(s)" + ("" if len(seen) == 1 else ", mixed")
              + ("" if paper else ": NOT the paper's protocol"))

@@ -80,7 +80,16 @@ def markdown(rec: dict, config, seconds: dict) -> str:
         "were fixed before the first run",
         f"paired Wilcoxon signed-rank (two-sided) of each cell's best method against every other method of the "
         f"cell, Holm over the cell's tests (one family per cell); `*` at Holm p < {ALPHA:g}")
-    lines = ["# Generalisation: every method under every protocol", "", line, "",
+    from icgo.reporting.protocol import settings_line
+
+    paper = (config.pop_size, config.iterations) == (30, 100)
+    stamp = settings_line(
+        f"population {config.pop_size} x {config.iterations} iterations, L = {config.hidden} hidden units",
+        f"{config.n_repeats} repeats per cell", f"search dtype {StudyConfig().dtype}",
+        ("The paper's population and iterations (30 x 100)" if paper else
+         "NOT the paper's population and iterations (30 x 100)")
+        + "; only the random 7:3 cells are the paper's split, the others are this project's protocols.")
+    lines = ["# Generalisation: every method under every protocol", "", line, "", stamp, "",
              f"Azimuth MAE (deg) on the test rows, mean +/- std over {config.n_repeats} repeats (fold protocols: "
              "each repeat a full pass, every row predicted by the fold that held it out). Best of each column in "
              f"bold; `*` = different from the best at Holm-adjusted p < {ALPHA:g}; `=` = not significantly "

@@ -116,6 +116,26 @@ def protocol(config) -> str:
         "contrasts (one family per variant) and over the gyro sweep's cells (one family)")
 
 
+def settings(config) -> str:
+    """The stamp line of every MISMA table (:func:`icgo.reporting.protocol.settings_line`): the searches' budget
+    against the paper's Table 3 (population 30, 2051 iterations, box 128 / -68 uT)."""
+    from icgo.reporting.protocol import settings_line
+    from icgo.reporting.published import MISMA
+
+    sim, real, paper = config.simulated, config.real, MISMA["table3"]
+    same = (sim.pop_size, sim.n_iter) == (paper["pop_size"], paper["n_iter"])
+    box = ("the paper's box" if sim.misma.bounds == "paper" else
+           f"the box around U (`simulated.misma.bounds={sim.misma.bounds}`), not the paper's "
+           f"{paper['upper_uT']:g} / {paper['lower_uT']:g} uT, which has its own row")
+    return settings_line(
+        f"population {sim.pop_size} x {sim.n_iter} iterations per simulated search; real devices: {real.misma_iter} "
+        "iterations per MISMA run", f"{sim.repeats} search repeats per row, {real.misma_repeats} MISMA runs per "
+        "real-device fit", "float64 searches",
+        ("The paper's population and iterations (its Table 3)" if same else
+         f"NOT the paper's population and iterations ({paper['pop_size']} x {paper['n_iter']}, its Table 3)")
+        + f"; {box}; simulated runs, not the paper's field data.")
+
+
 def paper_table(summary: list[dict]) -> list[str]:
     """The MISMA paper's field values (:data:`icgo.reporting.published.MISMA`) beside ours, per variant."""
     import pandas as pd
@@ -151,7 +171,7 @@ def summary_lines(result, config=None) -> list[str]:
 
     lines = ["# MISMA study", "", "Command: `python -m experiments.misma` (config `conf/misma.yaml`).", ""]
     if config is not None:
-        lines += [protocol(config), ""]
+        lines += [protocol(config), "", settings(config), ""]
     if "simulated" in result.summary:
         lines += ["## rotating_drill: MISMA vs SMA (same run)", "",
                   result.records["simulated"].to_markdown(floatfmt=".4g"), "",
@@ -200,7 +220,8 @@ def write_results(result, composed: dict, out: Path, models_dir: Path | None, co
     for name, plot in result.plots.items():
         params = result.records[f"params_{name}"]
         params.to_csv(out / f"misma_params_{name}.csv", index=False)
-        head = f"# MISMA: recovered vs true parameters ({name})\n\n" + (protocol(config) + "\n\n" if config else "")
+        head = f"# MISMA: recovered vs true parameters ({name})\n\n" + (
+            protocol(config) + "\n\n" + settings(config) + "\n\n" if config else "")
         (out / f"misma_params_{name}.md").write_text(head + params.to_markdown(index=False, floatfmt=".5g") + "\n")
         result.records[f"modulus_{name}"].to_csv(out / f"misma_modulus_{name}.csv")
         result.records[f"fair_{name}"].to_csv(out / f"misma_fair_{name}.csv", index=False)
