@@ -113,7 +113,9 @@ def protocol(config) -> str:
         f"MISMA PRNGKey({config.seed + 7}); the trajectory and the coordinates were chosen on seed {dev} "
         f"(docs/misma.md), which is not reported here{held}",
         "paired Wilcoxon signed-rank (two-sided) on the per-repeat mean |azimuth error|, Holm over each variant's "
-        "contrasts (one family per variant) and over the gyro sweep's cells (one family)")
+        f"contrasts (one family per variant), over the headline MISMA-vs-SMA test of the {len(sim.variants)} "
+        f"variants (one family) and over the gyro sweep's {len(sim.variants) * len(sim.gyro.sweep)} cells "
+        "(every variant x grade: one family)")
 
 
 def settings(config) -> str:
@@ -175,6 +177,10 @@ def summary_lines(result, config=None) -> list[str]:
     if "simulated" in result.summary:
         lines += ["## rotating_drill: MISMA vs SMA (same run)", "",
                   result.records["simulated"].to_markdown(floatfmt=".4g"), "",
+                  "`p_MISMA_vs_SMA`: paired Wilcoxon signed-rank (two-sided) of MISMA against the standard SMA on the "
+                  "per-repeat mean |azimuth error| at the stops; `p_MISMA_vs_SMA_holm`: Holm over the variants (one "
+                  "family); `MISMA_vs_SMA`: MISMA's error lower or higher than SMA's at Holm p < 0.05 (median paired "
+                  "difference), else no significant difference.", "",
                   *paper_table(result.summary["simulated"])]
         for s in result.summary["simulated"]:
             name = s["variant"]
@@ -185,7 +191,7 @@ def summary_lines(result, config=None) -> list[str]:
                       "Paired Wilcoxon tests (per-repeat mean |azimuth error|, Holm-adjusted within the variant):", "",
                       result.records[f"tests_{name}"].to_markdown(index=False, floatfmt=".3g"), "",
                       "Convergence (iterations to the worse of the two median final fitness values, a level both "
-                      "reach): " + "; ".join(f"{k}: {c['median_iters_a']:.0f} vs {c['median_iters_b']:.0f} "
+                      "reach): " + "; ".join(f"{k}: {c['median_iters_a']:g} vs {c['median_iters_b']:g} "
                                              f"iterations ({c['faster_pct']:.1f} % faster; reached {c['reached_a']} "
                                              f"and {c['reached_b']} repeats)" for k, c in s["convergence"].items()), "",
                       f"Baselines, mean |azimuth error| at the stops, variant {name}: "
@@ -199,7 +205,10 @@ def summary_lines(result, config=None) -> list[str]:
     if "gyro_sweep" in result.records:
         lines += ["## Gyro grade (MISMA with J_gyro vs without; errors and noise of the simulated gyro x factor)", "",
                   "Command: `python -m experiments.misma` (`simulated.gyro.sweep`). `reference_error_deg_rms`: angle "
-                  "between the truly corrected field and M_omega at the window samples.", "",
+                  "between the truly corrected field and M_omega at the window samples. `p`: paired Wilcoxon of MISMA "
+                  "with J_gyro against MISMA without it (the same repeat keys); `p_holm`: Holm over every row of this "
+                  "table (one family); `J_gyro`: the error with the term lower or higher at Holm p < 0.05 (median "
+                  "paired difference `MISMA_gyro_az_err_median_diff_deg`), else no significant difference.", "",
                   result.records["gyro_sweep"].to_markdown(index=False, floatfmt=".4g"), ""]
     if "real" in result.summary:
         from icgo.methods.cal_sanity import limits_sentence

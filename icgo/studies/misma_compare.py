@@ -7,6 +7,8 @@ reading, its objective (the gyro term J_gyro). Each row below changes one of
 them; every row runs the same ``repeats`` keys (common random numbers), so
 rows are compared repeat by repeat with the paired Wilcoxon test
 (:func:`icgo.maths.stats.wilcoxon_paired`, Holm-adjusted within a variant).
+The headline test (MISMA against the standard SMA, :func:`headline_tests`) and the
+gyro-grade sweep (:func:`sweep_family`) are each one family over every variant.
 
 Boxes (all (12,) in parameter units: ``R^-1`` dimensionless, ``b`` in nT):
 ``prior`` (SMA's prior knowledge), ``U`` (MISMA's box around the modulus fit),
@@ -186,4 +188,36 @@ def paired_tests(pairs: list, errors: dict) -> pd.DataFrame:
     df = pd.DataFrame(recs)
     if len(df):
         df["p_holm"] = stats.holm(df["p"].to_numpy())
+    return df
+
+
+def _effect_word(lower: bool, p_holm: float, alpha: float = 0.05) -> str:
+    return ("lower" if lower else "higher") if p_holm < alpha else "no significant difference"
+
+
+def headline_tests(summaries: list[dict], errors: list[dict]) -> None:
+    """MISMA against the standard SMA on each variant: paired Wilcoxon on the per-repeat mean |azimuth error| at the
+    stops, Holm over the variants (one family: the headline table's). Adds ``p_MISMA_vs_SMA``,
+    ``p_MISMA_vs_SMA_holm`` and ``MISMA_vs_SMA`` ("lower", "higher" or "no significant difference", MISMA's error
+    against SMA's) to each variant's summary, in place.
+
+    Args:
+        summaries: the variants' summaries (dicts), in order.
+        errors: per variant ``{"MISMA": (R,), "SMA": (R,)}`` errors (deg), paired by repeat.
+    """
+    p = [stats.wilcoxon_paired(e["MISMA"], e["SMA"]).p_value for e in errors]
+    for s, e, pv, ph in zip(summaries, errors, p, stats.holm(np.asarray(p)) if p else []):
+        s.update({"p_MISMA_vs_SMA": float(pv), "p_MISMA_vs_SMA_holm": float(ph),
+                  "MISMA_vs_SMA": _effect_word(float(np.median(e["MISMA"] - e["SMA"])) < 0, float(ph))})
+
+
+def sweep_family(df: pd.DataFrame) -> pd.DataFrame:
+    """The gyro-grade sweep's cells (every variant x grade) as one Holm family: ``p_holm`` over all of them and
+    ``J_gyro`` ("lower", "higher" or "no significant difference": MISMA's error with the gyro term against without)."""
+    if not len(df):
+        return df
+    df = df.copy()
+    df["p_holm"] = stats.holm(df["p"].to_numpy())
+    df["J_gyro"] = [_effect_word(bool(lower), float(ph)) for lower, ph in
+                    zip(df["MISMA_gyro_az_err_median_diff_deg"] < 0, df["p_holm"])]
     return df
