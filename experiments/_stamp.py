@@ -83,6 +83,8 @@ def _values(settings: list[dict], key: str) -> list:
 
 def _split_and_seeds(settings: list[dict]) -> dict:
     """The protocol line's repeats, split and seeds fields for runs with these settings."""
+    from icgo.reporting.choices import LAMBDA
+
     def listed(key, unknown="not recorded"):
         v = _values(settings, key)
         return ", ".join(str(x) for x in v) if v else unknown
@@ -99,8 +101,8 @@ def _split_and_seeds(settings: list[dict]) -> dict:
             parts.append(f"{protocol} (docs/generalisation.md)")
     seeds = (f"data: {listed('dataset', 'the data set')} with noise seed {listed('data_seed')}; repeat k: split and "
              f"search key fold_in(PRNGKey({listed('split_seed')}), k), the same for every method (paired repeats). "
-             "No setting was chosen on these seeds' test rows (lambda: lab_casing seed 1, study seed 100, "
-             "docs/relm_study.md; the tuned RELM chooses on validation rows inside each training set)")
+             f"No setting was chosen on these seeds' test rows ({LAMBDA.sentence()}; the tuned RELM chooses on "
+             "validation rows inside each training set)")
     return {"repeats": f"{repeats} per run (paired: the same splits and keys for every method)",
             "split": "; ".join(parts), "seeds": seeds}
 
