@@ -668,9 +668,10 @@ def sweep_mutations(pooled: Runs, sweep: Runs, out: Path) -> bool:
     of three-stage vs the single strategy (Holm over the readings), and the
     order of the four strategies by mean MAE against the paper's.
     """
-    from icgo.maths.stats import holm, wilcoxon_paired
+    from icgo.maths.stats import wilcoxon_paired
     from icgo.optim.cgo import CGOConfig
     from icgo.reporting import records as R
+    from icgo.reporting.families import holm_once
 
     m = pooled.metrics()
     base = {s: m[m.method == f"cgo-{s}"].set_index("repeat")["mae"] for s in STRATEGIES4 if f"cgo-{s}" in set(m.method)}
@@ -707,9 +708,7 @@ def sweep_mutations(pooled: Runs, sweep: Runs, out: Path) -> bool:
     # readings whose two columns are the same numbers (the three `amplitude none` rows and the paper's literal
     # reading: without the amplitude the dilation has no effect) are one test: Holm counts it once
     distinct = list(dict.fromkeys(df["_pair"]))
-    adjusted = dict(zip(distinct, holm(np.array([df.loc[df["_pair"] == k, "p three-stage vs single"].iloc[0]
-                                                 for k in distinct]))))
-    df["p Holm"] = [adjusted[k] for k in df["_pair"]]
+    df["p Holm"] = holm_once(df["p three-stage vs single"], df["_pair"])
     same = [g["reading"].tolist() for _, g in df.groupby("_pair", sort=False) if len(g) > 1]
     df = df.drop(columns="_pair").sort_values("reading").reset_index(drop=True)
     hits = df[df["paper's order by mean"]]["reading"].tolist()

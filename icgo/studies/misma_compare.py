@@ -30,6 +30,7 @@ from icgo.maths import stats
 from icgo.optim import base
 from icgo.optim.registry import get
 from icgo.optim.sma import SMAConfig
+from icgo.reporting.families import effect_word
 
 OBJECTIVES = {"mag": "magnetometer + accelerometer (eqs. 5-8)", "mag+gyro": "eqs. 5-8 + J_gyro (M_omega)"}
 
@@ -191,10 +192,6 @@ def paired_tests(pairs: list, errors: dict) -> pd.DataFrame:
     return df
 
 
-def _effect_word(lower: bool, p_holm: float, alpha: float = 0.05) -> str:
-    return ("lower" if lower else "higher") if p_holm < alpha else "no significant difference"
-
-
 def headline_tests(summaries: list[dict], errors: list[dict]) -> None:
     """MISMA against the standard SMA on each variant: paired Wilcoxon on the per-repeat mean |azimuth error| at the
     stops, Holm over the variants (one family: the headline table's). Adds ``p_MISMA_vs_SMA``,
@@ -208,7 +205,7 @@ def headline_tests(summaries: list[dict], errors: list[dict]) -> None:
     p = [stats.wilcoxon_paired(e["MISMA"], e["SMA"]).p_value for e in errors]
     for s, e, pv, ph in zip(summaries, errors, p, stats.holm(np.asarray(p)) if p else []):
         s.update({"p_MISMA_vs_SMA": float(pv), "p_MISMA_vs_SMA_holm": float(ph),
-                  "MISMA_vs_SMA": _effect_word(float(np.median(e["MISMA"] - e["SMA"])) < 0, float(ph))})
+                  "MISMA_vs_SMA": effect_word(float(np.median(e["MISMA"] - e["SMA"])), float(ph))})
 
 
 def sweep_family(df: pd.DataFrame) -> pd.DataFrame:
@@ -218,6 +215,6 @@ def sweep_family(df: pd.DataFrame) -> pd.DataFrame:
         return df
     df = df.copy()
     df["p_holm"] = stats.holm(df["p"].to_numpy())
-    df["J_gyro"] = [_effect_word(bool(lower), float(ph)) for lower, ph in
-                    zip(df["MISMA_gyro_az_err_median_diff_deg"] < 0, df["p_holm"])]
+    df["J_gyro"] = [effect_word(float(d), float(ph)) for d, ph in
+                    zip(df["MISMA_gyro_az_err_median_diff_deg"], df["p_holm"])]
     return df
