@@ -28,6 +28,7 @@ test-slurm: $(STAMP)
 
 figures: $(STAMP)
 	$(BIN)/python -m experiments.figures
+	$(BIN)/python -m experiments.fig9_seeds
 
 bench: $(STAMP)
 	$(BIN)/python -m experiments.bench

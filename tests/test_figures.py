@@ -460,3 +460,39 @@ def test_fig9_ablation_rows_against_the_default_cgo(tmp_path):
     assert t.loc[rows[0], "training RMSE - default, median (deg)"] == pytest.approx(
         round(float((last(runs["one"]) - base).median()), 4))
     assert "Protocol: command: `make figures`" in (out / "fig9_ablation.md").read_text()
+
+
+def test_fig9_ablation_tests_every_cgo_row_against_pso_and_ga_and_names_the_controls(tmp_path):
+    """The second family: each CGO row's final training RMSE against PSO-RELM's and GA-RELM's (Holm over all of
+    them, scipy recomputed); a control run with another population is labelled by it, and every row says the
+    evaluations its runs spent."""
+    import yaml
+
+    rng = np.random.default_rng(12)
+    methods = ["pso", "ga", "cgo-original"]
+    conv = _conv(methods)
+    _run_dir(tmp_path / "m" / "fig9", _metrics(methods, rng), conv=conv, label="fig9")
+    (tmp_path / "m" / "fig9" / "config.yaml").write_text(yaml.safe_dump({"budget": {"pop_size": 30}}))
+    ctrl = _conv(["cgo-original"]).assign(best_fitness=lambda d: d.best_fitness * 0.3 + 1e-3 * d.repeat,
+                                          evals=lambda d: 40 + 120 * d.iteration)
+    d = tmp_path / "m" / "ctrl"
+    _run_dir(d, _metrics(["cgo-original"], rng), conv=ctrl, label=F.ABLATION_LABEL,
+             extra={"optimizer_params": {"variant": "paper", "fourth_seed": False}})
+    (d / "config.yaml").write_text(yaml.safe_dump({"budget": {"pop_size": 40}}))
+    out = tmp_path / "r"
+    assert F.build([tmp_path / "m"], out)["fig9_ablation"] is True
+    t = pd.read_csv(out / "fig9_ablation.csv").set_index("configuration")
+    row = "CGO-RELM, fourth_seed False, population 40"
+    assert t.loc[row, "evaluations per run"] == 40 + 120 * 5 and t.loc["PSO-RELM", "evaluations per run"] == 8 + 32 * 5
+    last = lambda c: c.sort_values("iteration").groupby("repeat").best_fitness.last()  # noqa: E731
+    fit = {m: last(conv[conv.method == m]) for m in methods} | {row: last(ctrl)}
+    cgo = ["cgo-original", row]
+    p = [st.wilcoxon(fit[c], fit[peer]).pvalue for c in cgo for peer in ("pso", "ga")]
+    holm = _holm_by_hand(p)
+    md = (out / "fig9_ablation.md").read_text()
+    table = md.split("one family); lower than both")[1]
+    peer_rows = [ln for ln in table.splitlines() if ln.startswith("| CGO-RELM")]
+    assert len(peer_rows) == 2
+    cells = [c.strip() for c in peer_rows[1].split("|")[1:-1]]
+    np.testing.assert_allclose([float(cells[2]), float(cells[5])], holm[2:], rtol=1e-3)
+    assert cells[3] == ("lower" if holm[2] < 0.05 else "no significant difference")

@@ -106,15 +106,15 @@ def test_a_sweep_level_missing_a_method_keeps_its_column_and_names_the_job(tmp_p
 
 
 def test_plan_counts_jobs_and_prints_an_eta(monkeypatch, capsys, tmp_path):
-    assert [F.plan_jobs(p, o) for _, p, o in F.PLAN] == [1, 1, 1, 2, 3, 5, 6, 3, 1, 20, 20, 20, 1, 8]
+    assert [F.plan_jobs(p, o) for _, p, o in F.PLAN] == [1, 1, 1, 2, 3, 5, 6, 3, 1, 20, 20, 20, 1, 13]
     clock = iter(range(0, 10_000, 10))
     monkeypatch.setattr(F.time, "perf_counter", lambda: float(next(clock)))
     monkeypatch.setattr(F.subprocess, "call", lambda *a, **k: 0)
     F.run_plan(tmp_path, None)
     lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("[")]
     assert len(lines) == 14 and lines[0].startswith("[1/14] table3: 1 job(s); elapsed 0:10, ETA after the first")
-    # after table3 (1 job; 40 s of the fake clock so far): 91 jobs left at 40 s per job
-    assert lines[1] == "[2/14] table1: 1 job(s); elapsed 0:40, ETA 1:00:40"
+    # after table3 (1 job; 40 s of the fake clock so far): 96 jobs left at 40 s per job
+    assert lines[1] == "[2/14] table1: 1 job(s); elapsed 0:40, ETA 1:04:00"
 
 
 def test_one_set_of_names():
