@@ -77,6 +77,48 @@ def write(changed: dict[Path, str]) -> None:
                 (stage / doc.name).write_text(changed[doc])
 
 
+def suggest(doc: Path, results: Path, limit: int = 3) -> list[str]:
+    """For each untraced number of ``doc``, up to ``limit`` cells of the results files it cites (or of any results
+    CSV when it cites none) that hold it at its written precision, as ready marker expressions."""
+    import re
+
+    from icgo.reporting.prose import untraced
+    from icgo.reporting.render import Sources
+
+    text = Path(doc).read_text()
+    src = Sources(results)
+    tables = {}
+    for f in sorted(results.rglob("*.csv")):
+        rel = str(f.relative_to(results))
+        try:
+            rows = src.csv(rel)
+        except Exception:  # noqa: BLE001  (an unreadable file suggests nothing)
+            continue
+        tables[rel] = rows
+    lines = text.splitlines()
+    out = []
+    for u in untraced(text, results):
+        if not u.number or not re.fullmatch(r"[-+]?\d+(\.\d+)?(e[-+]?\d+)?", u.number, re.I):
+            out.append(f"{_name(doc)}:{u.line}: {u.number!r}: no suggestion")
+            continue
+        cited = set(re.findall(r"results/([\w./-]+\.csv)", lines[u.line - 1])) if u.line <= len(lines) else set()
+        q, digits = float(u.number), len(u.number.split(".")[1]) if "." in u.number else 0
+        hits = []
+        for rel, rows in tables.items():
+            if cited and rel not in cited:
+                continue
+            for i, r in enumerate(rows):
+                for c, v in r.items():
+                    for scale, fmt in ((1, f".{digits}f"), (100, f".{digits}f")):
+                        if isinstance(v, (int, float)) and abs(scale * v - q) <= 0.5 * 10 ** -digits * (1 + 1e-9):
+                            key = next(iter(r))
+                            hits.append(f'{{{"100 * " if scale == 100 else ""}csv("{rel}")[{i}]["{c}"]:{fmt}}}'
+                                        f"  ({key} = {r[key]!r})")
+        out.append(f"{_name(doc)}:{u.line}: {u.number!r}: " + ("; ".join(hits[:limit]) or "no cell holds it")
+                   + (f" (+{len(hits) - limit} more)" if len(hits) > limit else ""))
+    return out
+
+
 def _name(doc) -> str:
     try:
         return str(Path(doc).resolve().relative_to(ROOT))
@@ -94,6 +136,8 @@ def main(argv=None) -> int:
                                                              "results/)")
     ap.add_argument("--check", action="store_true", help="write nothing; exit 1 on any stale value, failing marker, "
                                                          "false claim or untraced result number")
+    ap.add_argument("--suggest", action="store_true", help="write nothing; for each untraced number, the results "
+                                                           "cells that hold it (to write its marker)")
     a = ap.parse_args(argv)
     results = Path(a.results)
     if not results.is_dir():
@@ -102,6 +146,10 @@ def main(argv=None) -> int:
     for d in docs:
         if not d.is_file() or d.suffix != ".md":
             raise SettingError(f"{str(d)!r}: not a Markdown file")
+    if a.suggest:
+        for d in docs:
+            print("\n".join(suggest(d, results)))
+        return 0
     if a.check:
         problems = check(docs, results)
         for p in problems:

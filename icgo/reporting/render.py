@@ -29,7 +29,8 @@ functions below: no attributes, no other names. Sources (paths relative to the r
   0)``).
 
 Helpers: ``num(s)`` (the first number in ``"0.0295 +/- 0.0021"``), ``sd(s)`` (the number after ``+/-``), ``col(rows,
-name)`` (one column of a list of rows), ``where(rows, **equal)`` (the rows whose columns equal the values), ``abs``,
+name)`` (one column of a list of rows), ``where(rows, **equal)`` (the rows whose columns equal the values),
+``join(values, sep, spec)`` (formatted and joined), ``items(d)`` (a dict's pairs), ``abs``,
 ``min``, ``max``, ``sum``, ``len``, ``round``, ``sorted``, ``any``, ``all``, ``mean``, ``median``. A value that
 renders as NaN or infinity is an error, never written.
 """
@@ -221,7 +222,17 @@ def where(rows, **equal):
     return [r for r in rows if all(r.get(k) == v for k, v in equal.items())]
 
 
-HELPERS = {"num": num, "sd": sd, "col": col, "where": where, "abs": abs, "min": min, "max": max, "sum": sum,
+def join(values, sep: str = ", ", spec: str = "") -> str:
+    """``values`` formatted with ``spec`` and joined by ``sep`` (``join([0.2781, 0.38], "/", ".3f")``)."""
+    return sep.join(format(v, spec) for v in values)
+
+
+def items(mapping) -> list:
+    """The ``(key, value)`` pairs of a dict (a JSON object), in order."""
+    return list(dict(mapping).items())
+
+
+HELPERS = {"num": num, "sd": sd, "col": col, "where": where, "join": join, "items": items, "abs": abs, "min": min, "max": max, "sum": sum,
            "len": len, "round": round, "sorted": sorted, "any": any, "all": all, "mean": statistics.fmean,
            "median": statistics.median}
 #: Every name a marker may call.
@@ -255,8 +266,8 @@ def compile_expression(source: str):
 def evaluate(source: str, names: dict):
     """The value of ``source`` over ``names`` (no builtins besides them)."""
     code = compile_expression(source)
-    try:
-        return eval(code, {"__builtins__": {}}, names)  # noqa: S307  (checked by compile_expression)
+    try:  # names as globals, so that comprehensions (a scope of their own) see them too
+        return eval(code, {**names, "__builtins__": {}})  # noqa: S307  (checked by compile_expression)
     except RenderError:
         raise
     except NameError as e:
