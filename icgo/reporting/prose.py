@@ -11,8 +11,9 @@ are *not* marked, so that a quoted result cannot drift from its table unnoticed.
   value of some results file: a quoted result that names no source.
 
 Not counted: code spans and fenced code (settings and commands), HTML comments, link targets, references
-("Table 4", "eq. 15", "section 3.3", "Fig. 9"), and the numbers of a unit that declares itself a development
-measurement with ``<!--development: how it was measured-->`` (it must then cite no results file: rule 6 of
+("Table 4", "eq. 15", "section 3.3", "Fig. 9"), the significance level where a sentence states it ("p < 0.05"),
+and the numbers of a development measurement: a unit holding ``<!--development: how it was measured-->``, or every
+unit from such a comment to ``<!--/development-->`` (they must then cite no results file: rule 6 of
 docs/reporting.md). The papers' values are rendered too (``paper(...)``), so they are traced to
 :mod:`icgo.reporting.published`.
 """
@@ -29,6 +30,10 @@ from icgo.reporting.render import VALUE
 #: Files of results/ whose numbers count as results (the data files the tables are made of).
 RESULT_SUFFIXES = (".md", ".csv", ".json")
 DEVELOPMENT = re.compile(r"<!--development:.*?-->", re.S)
+#: A development region: from a ``<!--development: ...-->`` comment to ``<!--/development-->``.
+DEVELOPMENT_REGION = re.compile(r"<!--development:.*?-->.*?<!--/development-->", re.S)
+#: The significance level where a sentence states it ("Holm p < 0.05", "below 0.05"): a setting, not a quote.
+_LEVEL = re.compile(r"(?:\bp\s*<=?\s*|\bbelow\s+|\bat\s+)0\.05\b(?![\d.])")
 _FENCE = re.compile(r"^(```|~~~).*?^\1[^\n]*$", re.S | re.M)
 _COMMENT = re.compile(r"<!--.*?-->", re.S)
 _CODE = re.compile(r"(`+)(?!`).*?(?<!`)\1(?!`)", re.S)
@@ -132,11 +137,12 @@ def untraced(text: str, results: Path, values: list[float] | None = None) -> lis
     values = result_values(results) if values is None else values
     masked = _blank(text, _FENCE)
     masked = _blank(masked, VALUE)  # rendered values are traced
+    regions = [(m.start(), m.end()) for m in DEVELOPMENT_REGION.finditer(masked)]
     out = []
     for a, b in units(masked):
         raw = masked[a:b]
-        development = DEVELOPMENT.search(raw)
-        body = _blank(_blank(_blank(_blank(raw, _COMMENT), _CODE), _LINK), _REFERENCE)
+        development = DEVELOPMENT.search(raw) or any(s <= a < e for s, e in regions)
+        body = _blank(_blank(_blank(_blank(_blank(raw, _COMMENT), _CODE), _LINK), _REFERENCE), _LEVEL)
         marked = "<!--=" in text[a:b] or "<!--?" in raw or "<!--let" in raw
         cites = bool(cite.search(_blank(raw, _COMMENT)))
         line0 = text.count("\n", 0, a) + 1

@@ -15,9 +15,9 @@ the document true without hand edits. The markers are HTML comments, invisible w
 * A **claim** is an expression that must be true: a regenerated table that turns the order or the verdict a sentence
   states fails rendering at that sentence, instead of leaving the sentence false.
 
-Expressions are Python expressions restricted to literals, names (``let`` names and the functions below),
-arithmetic, comparisons, ``and``/``or``/``not``, ``a if c else b``, subscripts, comprehensions and calls of the
-functions below: no attributes, no other names. Sources (paths relative to the results directory):
+Expressions are Python expressions restricted to literals (f-strings included), names (``let`` names and the
+functions below), arithmetic, comparisons, ``and``/``or``/``not``, ``a if c else b``, subscripts, comprehensions and
+calls of the functions below: no attributes, no other names. Sources (paths relative to the results directory):
 
 * ``csv(file, key=None)``: the rows of a CSV file as dicts (numbers parsed), or with ``key`` (a column or a tuple of
   columns) a dict from the key's values to the rows (a repeated key is an error);
@@ -31,7 +31,8 @@ functions below: no attributes, no other names. Sources (paths relative to the r
 Helpers: ``num(s)`` (the first number in ``"0.0295 +/- 0.0021"``), ``sd(s)`` (the number after ``+/-``), ``col(rows,
 name)`` (one column of a list of rows), ``where(rows, **equal)`` (the rows whose columns equal the values),
 ``join(values, sep, spec)`` (formatted and joined), ``items(d)`` (a dict's pairs), ``abs``,
-``min``, ``max``, ``sum``, ``len``, ``round``, ``sorted``, ``any``, ``all``, ``mean``, ``median``. A value that
+``min``, ``max``, ``sum``, ``len``, ``round``, ``sorted``, ``set``, ``list``, ``int``, ``float``, ``any``, ``all``,
+``mean``, ``median``. A value that
 renders as NaN or infinity is an error, never written.
 """
 
@@ -233,8 +234,8 @@ def items(mapping) -> list:
 
 
 HELPERS = {"num": num, "sd": sd, "col": col, "where": where, "join": join, "items": items, "abs": abs, "min": min, "max": max, "sum": sum,
-           "len": len, "round": round, "sorted": sorted, "any": any, "all": all, "mean": statistics.fmean,
-           "median": statistics.median}
+           "len": len, "round": round, "sorted": sorted, "set": set, "list": list, "int": int, "float": float,
+           "any": any, "all": all, "mean": statistics.fmean, "median": statistics.median}
 #: Every name a marker may call.
 FUNCTIONS = (*HELPERS, "csv", "md", "table", "js", "text", "paper")
 
@@ -244,7 +245,7 @@ _ALLOWED = (ast.Expression, ast.Constant, ast.Name, ast.Load, ast.Store, ast.Lis
             ast.Add, ast.Sub, ast.Mult, ast.Div, ast.FloorDiv, ast.Mod, ast.Pow, ast.UnaryOp, ast.USub, ast.UAdd,
             ast.Not, ast.BoolOp, ast.And, ast.Or, ast.Compare, ast.Eq, ast.NotEq, ast.Lt, ast.LtE, ast.Gt, ast.GtE,
             ast.In, ast.NotIn, ast.IfExp, ast.Subscript, ast.Slice, ast.Call, ast.keyword, ast.ListComp,
-            ast.GeneratorExp, ast.comprehension)
+            ast.GeneratorExp, ast.comprehension, ast.JoinedStr, ast.FormattedValue)
 
 
 def compile_expression(source: str):
