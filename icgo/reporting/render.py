@@ -28,7 +28,7 @@ calls of the functions below: no attributes, no other names. Sources (paths rela
 * ``paper(name, *keys)``: a published value of :mod:`icgo.reporting.published` (``paper("ICGO", "table1", "relm",
   0)``).
 
-Helpers: ``num(s)`` (the first number in ``"0.0295 +/- 0.0021"``), ``sd(s)`` (the number after ``+/-``), ``col(rows,
+Helpers: ``num(s)`` (the first number in ``"0.0295 +/- 0.0021"``), ``nums(s)`` (all of them), ``sd(s)`` (the number after ``+/-``), ``col(rows,
 name)`` (one column of a list of rows), ``where(rows, **equal)`` (the rows whose columns equal the values),
 ``join(values, sep, spec)`` (formatted and joined), ``items(d)`` (a dict's pairs), ``abs``,
 ``min``, ``max``, ``sum``, ``len``, ``round``, ``sorted``, ``set``, ``list``, ``int``, ``float``, ``any``, ``all``,
@@ -200,6 +200,11 @@ def num(s):
     return float(m.group(0))
 
 
+def nums(s) -> list[float]:
+    """Every number in ``s``, in order (``"0.857 (4.389)"`` -> [0.857, 4.389])."""
+    return [float(x) for x in _NUMBER.findall(str(s))]
+
+
 def sd(s):
     """The number after ``+/-`` in ``s`` (``"0.0295 +/- 0.0021"`` -> 0.0021)."""
     m = re.search(r"\+/-\s*(" + _NUMBER.pattern + ")", str(s))
@@ -233,7 +238,7 @@ def items(mapping) -> list:
     return list(dict(mapping).items())
 
 
-HELPERS = {"num": num, "sd": sd, "col": col, "where": where, "join": join, "items": items, "abs": abs, "min": min, "max": max, "sum": sum,
+HELPERS = {"num": num, "nums": nums, "sd": sd, "col": col, "where": where, "join": join, "items": items, "abs": abs, "min": min, "max": max, "sum": sum,
            "len": len, "round": round, "sorted": sorted, "set": set, "list": list, "int": int, "float": float,
            "any": any, "all": all, "mean": statistics.fmean, "median": statistics.median}
 #: Every name a marker may call.
