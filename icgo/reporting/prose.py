@@ -25,7 +25,7 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-from icgo.reporting.render import VALUE
+from icgo.reporting.render import CODE_SPAN, FENCE, VALUE
 
 #: Files of results/ whose numbers count as results (the data files the tables are made of).
 RESULT_SUFFIXES = (".md", ".csv", ".json")
@@ -34,9 +34,7 @@ DEVELOPMENT = re.compile(r"<!--development:.*?-->", re.S)
 DEVELOPMENT_REGION = re.compile(r"<!--development:.*?-->.*?<!--/development-->", re.S)
 #: The significance level where a sentence states it ("Holm p < 0.05", "below 0.05"): a setting, not a quote.
 _LEVEL = re.compile(r"(?:\bp\s*<=?\s*|\bbelow\s+|\bat\s+)0\.05\b(?![\d.])")
-_FENCE = re.compile(r"^(```|~~~).*?^\1[^\n]*$", re.S | re.M)
 _COMMENT = re.compile(r"<!--.*?-->", re.S)
-_CODE = re.compile(r"(`+)(?!`).*?(?<!`)\1(?!`)", re.S)
 _LINK = re.compile(r"\]\([^)]*\)|https?://\S+")
 _REFERENCE = re.compile(r"(?i)\b(?:sections?|eqs?\.|equations?|figs?\.|figures?|tables?|steps?|item)\s*\(?"
                         r"\d+(?:\.\d+)*[a-z]?(?:\s*(?:-|,|and|to)\s*\d+(?:\.\d+)*)*")
@@ -135,15 +133,17 @@ def untraced(text: str, results: Path, values: list[float] | None = None) -> lis
     cite = re.compile(r"results/|(?<![\w.-])(?:" + "|".join(re.escape(n) for n in sorted(names, key=len,
                                                                                             reverse=True)) + r")(?!\w)")
     values = result_values(results) if values is None else values
-    masked = _blank(text, _FENCE)
+    masked = _blank(text, FENCE)
+    uncoded = _blank(masked, CODE_SPAN)  # a marker or a declaration in a code span is an example
     masked = _blank(masked, VALUE)  # rendered values are traced
-    regions = [(m.start(), m.end()) for m in DEVELOPMENT_REGION.finditer(masked)]
+    regions = [(m.start(), m.end()) for m in DEVELOPMENT_REGION.finditer(uncoded)]
     out = []
     for a, b in units(masked):
         raw = masked[a:b]
-        development = DEVELOPMENT.search(raw) or any(s <= a < e for s, e in regions)
-        body = _blank(_blank(_blank(_blank(_blank(raw, _COMMENT), _CODE), _LINK), _REFERENCE), _LEVEL)
-        marked = "<!--=" in text[a:b] or "<!--?" in raw or "<!--let" in raw
+        active = uncoded[a:b]
+        development = DEVELOPMENT.search(active) or any(s <= a < e for s, e in regions)
+        body = _blank(_blank(_blank(_blank(_blank(raw, _COMMENT), CODE_SPAN), _LINK), _REFERENCE), _LEVEL)
+        marked = any(x in active for x in ("<!--=", "<!--?", "<!--let"))
         cites = bool(cite.search(_blank(raw, _COMMENT)))
         line0 = text.count("\n", 0, a) + 1
         where = lambda m, g=0: line0 + body.count("\n", 0, m.start(g))  # noqa: E731

@@ -53,6 +53,9 @@ VALUE = re.compile(r"<!--=(?P<template>.*?)-->(?P<rendered>.*?)<!--/-->", re.S)
 LET = re.compile(r"<!--let\s+(?P<name>[A-Za-z]\w*)\s*=(?P<let>.*?)-->", re.S)
 CLAIM = re.compile(r"<!--\?(?P<claim>.*?)-->", re.S)
 MARKER = re.compile("|".join(p.pattern for p in (VALUE, LET, CLAIM)), re.S)
+#: Fenced code blocks and inline code spans: a marker written there is an example, never rendered.
+FENCE = re.compile(r"^(```|~~~).*?^\1[^\n]*$", re.S | re.M)
+CODE_SPAN = re.compile(r"(`+)(?!`).*?(?<!`)\1(?!`)", re.S)
 _NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 
 
@@ -361,8 +364,11 @@ def render_text(text: str, results: Path, doc: str = "<doc>") -> tuple[str, list
     document order, so a ``let`` applies to the markers after it.
     """
     names = Sources(results).functions()
+    code = [(c.start(), c.end()) for pat in (FENCE, CODE_SPAN) for c in pat.finditer(text)]
     out, problems, end = [], [], 0
     for m in MARKER.finditer(text):
+        if any(a <= m.start() < b for a, b in code):
+            continue
         out.append(text[end:m.start()])
         end = m.end()
         try:
