@@ -13,8 +13,8 @@ are *not* marked, so that a quoted result cannot drift from its table unnoticed.
 Not counted: code spans and fenced code (settings and commands), HTML comments, link targets, references
 ("Table 4", "eq. 15", "section 3.3", "Fig. 9"), the significance level where a sentence states it ("p < 0.05"),
 and the numbers of a development measurement: a unit holding ``<!--development: how it was measured-->``, or every
-unit from such a comment to ``<!--/development-->`` (they must then cite no results file: rule 6 of
-docs/reporting.md). The papers' values are rendered too (``paper(...)``), so they are traced to
+unit from ``<!--development-begin: how it was measured-->`` to ``<!--development-end-->`` (they must then cite no
+results file: rule 6 of docs/reporting.md). The papers' values are rendered too (``paper(...)``), so they are traced to
 :mod:`icgo.reporting.published`.
 """
 
@@ -30,8 +30,8 @@ from icgo.reporting.render import CODE_SPAN, FENCE, VALUE
 #: Files of results/ whose numbers count as results (the data files the tables are made of).
 RESULT_SUFFIXES = (".md", ".csv", ".json")
 DEVELOPMENT = re.compile(r"<!--development:.*?-->", re.S)
-#: A development region: from a ``<!--development: ...-->`` comment to ``<!--/development-->``.
-DEVELOPMENT_REGION = re.compile(r"<!--development:.*?-->.*?<!--/development-->", re.S)
+#: A development region: from a ``<!--development-begin: ...-->`` comment to ``<!--development-end-->``.
+DEVELOPMENT_REGION = re.compile(r"<!--development-begin:.*?-->.*?<!--development-end-->", re.S)
 #: The significance level where a sentence states it ("Holm p < 0.05", "below 0.05"): a setting, not a quote.
 _LEVEL = re.compile(r"(?:\bp\s*<=?\s*|\bbelow\s+|\bat\s+)0\.05\b(?![\d.])")
 _COMMENT = re.compile(r"<!--.*?-->", re.S)

@@ -30,7 +30,7 @@ calls of the functions below: no attributes, no other names. Sources (paths rela
 
 Helpers: ``num(s)`` (the first number in ``"0.0295 +/- 0.0021"``), ``nums(s)`` (all of them), ``sd(s)`` (the number after ``+/-``), ``col(rows,
 name)`` (one column of a list of rows), ``where(rows, **equal)`` (the rows whose columns equal the values),
-``join(values, sep, spec)`` (formatted and joined), ``items(d)`` (a dict's pairs), ``abs``,
+``join(values, sep, spec)`` (formatted and joined), ``split(s, sep)``, ``items(d)`` (a dict's pairs), ``abs``,
 ``min``, ``max``, ``sum``, ``len``, ``round``, ``sorted``, ``set``, ``list``, ``int``, ``float``, ``any``, ``all``,
 ``mean``, ``median``. A value that
 renders as NaN or infinity is an error, never written.
@@ -236,12 +236,17 @@ def join(values, sep: str = ", ", spec: str = "") -> str:
     return sep.join(format(v, spec) for v in values)
 
 
+def split(s: str, sep: str) -> list[str]:
+    """``s`` split at every ``sep``."""
+    return str(s).split(sep)
+
+
 def items(mapping) -> list:
     """The ``(key, value)`` pairs of a dict (a JSON object), in order."""
     return list(dict(mapping).items())
 
 
-HELPERS = {"num": num, "nums": nums, "sd": sd, "col": col, "where": where, "join": join, "items": items, "abs": abs, "min": min, "max": max, "sum": sum,
+HELPERS = {"num": num, "nums": nums, "sd": sd, "col": col, "where": where, "join": join, "split": split, "items": items, "abs": abs, "min": min, "max": max, "sum": sum,
            "len": len, "round": round, "sorted": sorted, "set": set, "list": list, "int": int, "float": float,
            "any": any, "all": all, "mean": statistics.fmean, "median": statistics.median}
 #: Every name a marker may call.
