@@ -188,7 +188,9 @@ def summary_lines(result, config=None) -> list[str]:
             lines += [f"### One contribution at a time ({name}; {len(fair)} searches on the same repeat keys)", "",
                       f"MISMA reported above = `{s['MISMA_row']}` ({s['MISMA_box']}); SMA = the standard SMA "
                       f"({s['SMA_box']}).", "", fair.to_markdown(index=False, floatfmt=".4g"), "",
-                      "Paired Wilcoxon tests (per-repeat mean |azimuth error|, Holm-adjusted within the variant):", "",
+                      "Paired Wilcoxon tests (per-repeat mean |azimuth error|, Holm-adjusted within the variant; "
+                      "`b_vs_a`: b's error lower or higher than a's at Holm p < 0.05, by the median paired "
+                      "difference):", "",
                       result.records[f"tests_{name}"].to_markdown(index=False, floatfmt=".3g"), "",
                       "Convergence (iterations to the worse of the two median final fitness values, a level both "
                       "reach): " + "; ".join(f"{k}: {c['median_iters_a']:g} vs {c['median_iters_b']:g} "

@@ -195,3 +195,17 @@ def test_the_headline_test_and_the_gyro_sweep_are_one_holm_family_each():
     np.testing.assert_allclose(out["p_holm"], _holm_by_hand(cells["p"].to_numpy()))
     assert out["p_holm"].iloc[-1] == pytest.approx(0.039) and out["J_gyro"].iloc[-1] == "higher"
     assert set(out["J_gyro"].iloc[:-1]) == {"no significant difference"}
+
+
+def test_contrast_tests_say_which_way_each_change_moves_the_error():
+    from scipy.stats import wilcoxon
+
+    rng = np.random.default_rng(1)
+    a, b, c = misma_compare.SMA_U, misma_compare.MISMA_U, misma_compare.MISMA_U_OMEGA
+    errors = {a: rng.normal(1.7, 0.1, 10), b: rng.normal(0.5, 0.05, 10)}
+    errors[c] = errors[b] + rng.normal(0.0, 0.01, 10)
+    df = misma_compare.paired_tests([("ops", a, b), ("gyro", b, c)], errors)
+    p = [wilcoxon(errors[a], errors[b]).pvalue, wilcoxon(errors[b], errors[c]).pvalue]
+    np.testing.assert_allclose(df["p_holm"], _holm_by_hand(np.array(p)), rtol=1e-12)
+    assert df["median_b_minus_a_deg"].iloc[0] == pytest.approx(float(np.median(errors[b] - errors[a])))
+    assert df["b_vs_a"].tolist() == ["lower", "no significant difference"]

@@ -179,16 +179,19 @@ def fair_table(runs: dict, scores: dict, boxes_used: dict) -> pd.DataFrame:
 
 
 def paired_tests(pairs: list, errors: dict) -> pd.DataFrame:
-    """Paired Wilcoxon (two-sided) on per-repeat errors for each contrast, Holm-adjusted together."""
+    """Paired Wilcoxon (two-sided) on per-repeat errors for each contrast a -> b, Holm-adjusted together; ``b_vs_a``:
+    the change's effect on the error (:func:`icgo.reporting.families.effect_word` of the median of b - a)."""
     recs = []
     for name, a, b in pairs:
         if a in errors and b in errors:
             t = stats.wilcoxon_paired(errors[a], errors[b])
             recs.append({"contrast": name, "a": a.label, "b": b.label, "mean_a_deg": float(errors[a].mean()),
-                         "mean_b_deg": float(errors[b].mean()), "p": t.p_value})
+                         "mean_b_deg": float(errors[b].mean()),
+                         "median_b_minus_a_deg": float(np.median(errors[b] - errors[a])), "p": t.p_value})
     df = pd.DataFrame(recs)
     if len(df):
         df["p_holm"] = stats.holm(df["p"].to_numpy())
+        df["b_vs_a"] = [effect_word(d, p) for d, p in zip(df["median_b_minus_a_deg"], df["p_holm"])]
     return df
 
 
