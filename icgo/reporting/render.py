@@ -21,8 +21,9 @@ calls of the functions below: no attributes, no other names. Sources (paths rela
 
 * ``csv(file, key=None)``: the rows of a CSV file as dicts (numbers parsed), or with ``key`` (a column or a tuple of
   columns) a dict from the key's values to the rows (a repeated key is an error);
-* ``md(file, n=0, key=None)``: the ``n``-th Markdown table of a results file, the same way (``**bold**`` removed);
-* ``table(file, n=0)``: the ``n``-th Markdown table of a results file, verbatim (to include a table whole);
+* ``md(file, n=0, key=None, having=None)``: the ``n``-th Markdown table of a results file (of those with a column
+  ``having``, when given), the same way (``**bold**`` removed);
+* ``table(file, n=0, having=None)``: that table verbatim (to include a table whole);
 * ``js(file)``: a JSON file's value;
 * ``text(file, pattern)``: group 1 of the one match of a regular expression in a results file (numbers parsed);
 * ``paper(name, *keys)``: a published value of :mod:`icgo.reporting.published` (``paper("ICGO", "table1", "relm",
@@ -30,7 +31,7 @@ calls of the functions below: no attributes, no other names. Sources (paths rela
 
 Helpers: ``num(s)`` (the first number in ``"0.0295 +/- 0.0021"``), ``nums(s)`` (all of them), ``sd(s)`` (the number after ``+/-``), ``col(rows,
 name)`` (one column of a list of rows), ``where(rows, **equal)`` (the rows whose columns equal the values),
-``join(values, sep, spec)`` (formatted and joined), ``split(s, sep)``, ``items(d)`` (a dict's pairs), ``abs``,
+``join(values, sep, spec)`` (formatted and joined), ``lines(rows)`` (joined by newlines), ``split(s, sep)``, ``items(d)`` (a dict's pairs), ``abs``,
 ``min``, ``max``, ``sum``, ``len``, ``round``, ``sorted``, ``set``, ``list``, ``int``, ``float``, ``any``, ``all``,
 ``mean``, ``median``. A value that
 renders as NaN or infinity is an error, never written.
@@ -145,19 +146,22 @@ class Sources:
         rows = [{k: _value(v if v is not None else "") for k, v in r.items()} for r in reader]
         return _keyed(rows, key, f"results/{file}")
 
-    def md(self, file: str, n: int = 0, key=None):
-        lines = self._table_lines(file, n)
+    def md(self, file: str, n: int = 0, key=None, having: str | None = None):
+        lines = self._table_lines(file, n, having)
         head = _cells(lines[0])
         rows = [dict(zip(head, (_value(c) for c in _cells(line)))) for line in lines[2:]]
         return _keyed(rows, key, f"results/{file} table {n}")
 
-    def table(self, file: str, n: int = 0) -> str:
-        return "\n".join(self._table_lines(file, n))
+    def table(self, file: str, n: int = 0, having: str | None = None) -> str:
+        return "\n".join(self._table_lines(file, n, having))
 
-    def _table_lines(self, file: str, n: int) -> list[str]:
+    def _table_lines(self, file: str, n: int, having: str | None = None) -> list[str]:
         tables = _md_tables(self._read(file))
+        if having is not None:
+            tables = [t for t in tables if having in _cells(t[0])]
         if not 0 <= n < len(tables):
-            raise RenderError(f"results/{file}: no Markdown table {n} (it has {len(tables)})")
+            what = f" with a column {having!r}" if having is not None else ""
+            raise RenderError(f"results/{file}: no Markdown table {n}{what} (it has {len(tables)})")
         return tables[n]
 
     def js(self, file: str):
@@ -236,6 +240,11 @@ def join(values, sep: str = ", ", spec: str = "") -> str:
     return sep.join(format(v, spec) for v in values)
 
 
+def lines(rows) -> str:
+    """``rows`` joined by newlines (Markdown table rows built in a marker)."""
+    return "\n".join(str(r) for r in rows)
+
+
 def split(s: str, sep: str) -> list[str]:
     """``s`` split at every ``sep``."""
     return str(s).split(sep)
@@ -246,7 +255,7 @@ def items(mapping) -> list:
     return list(dict(mapping).items())
 
 
-HELPERS = {"num": num, "nums": nums, "sd": sd, "col": col, "where": where, "join": join, "split": split, "items": items, "abs": abs, "min": min, "max": max, "sum": sum,
+HELPERS = {"num": num, "nums": nums, "sd": sd, "col": col, "where": where, "join": join, "lines": lines, "split": split, "items": items, "abs": abs, "min": min, "max": max, "sum": sum,
            "len": len, "round": round, "sorted": sorted, "set": set, "list": list, "int": int, "float": float,
            "any": any, "all": all, "mean": statistics.fmean, "median": statistics.median}
 #: Every name a marker may call.

@@ -169,7 +169,8 @@ def fair_table(runs: dict, scores: dict, boxes_used: dict) -> pd.DataFrame:
     for row, rr in runs.items():
         sc = scores[row]
         e = sc.err
-        out.append({"algorithm": row.algorithm, "box": boxes_used[row.box], "coordinates": row.coords,
+        out.append({"row": row.label, "algorithm": row.algorithm, "box": boxes_used[row.box],
+                    "coordinates": row.coords,
                     "objective": OBJECTIVES[row.objective], "az_err_mean_deg": float(e.mean()),
                     "az_err_std_deg": float(e.std(ddof=1)) if len(e) > 1 else 0.0, "az_err_max_deg": float(e.max()),
                     "params_within_median": float(np.median(sc.within)),
