@@ -4,7 +4,7 @@
 are *not* marked, so that a quoted result cannot drift from its table unnoticed. A number needs a marker when
 
 * it stands in a **result unit**: a paragraph, list item or table that cites a file of ``results/`` (by path or by
-  its file name) or holds a marker. There every decimal number, every count of the form "N of M", every integer
+  its file name) or holds a marker (in a table whose rows cite results files, each row is a unit of its own). There every decimal number, every count of the form "N of M", every integer
   with ``%``, a time unit (``s``, ``min``, ``h``) or a ratio sign (``x``, ``times``) and every ``p =`` value must be
   rendered; or
 * anywhere else, it is a decimal of three or more significant digits that equals (at its written precision) a
@@ -137,8 +137,18 @@ def untraced(text: str, results: Path, values: list[float] | None = None) -> lis
     uncoded = _blank(masked, CODE_SPAN)  # a marker or a declaration in a code span is an example
     masked = _blank(masked, VALUE)  # rendered values are traced
     regions = [(m.start(), m.end()) for m in DEVELOPMENT_REGION.finditer(uncoded)]
-    out = []
+    spans = []
     for a, b in units(masked):
+        rows = masked[a:b].splitlines(keepends=True)
+        if rows and rows[0].lstrip().startswith("|") and any(cite.search(_blank(r, _COMMENT)) for r in rows):
+            pos = a  # a table whose rows cite results files: each row is a unit (it quotes its own file)
+            for r in rows:
+                spans.append((pos, pos + len(r)))
+                pos += len(r)
+        else:
+            spans.append((a, b))
+    out = []
+    for a, b in spans:
         raw = masked[a:b]
         active = uncoded[a:b]
         development = DEVELOPMENT.search(active) or any(s <= a < e for s, e in regions)
