@@ -532,8 +532,10 @@ def fig9_ablation(pooled: Runs, ablation: Runs, out: Path) -> bool:
     Per configuration: the evaluations a run spends, the final best training RMSE (the search's own objective,
     training rows only) and the test MAE. Three families of paired Wilcoxon tests, each Holm-adjusted
     (:func:`icgo.reporting.families.paired_family`): every ablation row against the default CGO-RELM on the training
-    RMSE, the same on the test MAE, and every CGO row (the default included) against PSO-RELM and against GA-RELM on
-    the training RMSE. It explains the order of Fig. 9; no default is chosen from it.
+    RMSE, the same on the test MAE, and the default CGO-RELM against PSO-RELM and against GA-RELM on the training
+    RMSE. The ablation rows are not tested against PSO and GA (that family would be too large for 10 repeats); the
+    notes name the rows whose mean is below both, untested. It explains the order of Fig. 9; no default is chosen
+    from it.
     """
     from icgo.optim.cgo import CGOConfig
     from icgo.reporting import records as R
@@ -568,9 +570,8 @@ def fig9_ablation(pooled: Runs, ablation: Runs, out: Path) -> bool:
         rows_ablation.append(label)
     fit = paired_family([(lab, cols[lab][0], cols[base][0]) for lab in rows_ablation]).set_index("label")
     mae = paired_family([(lab, cols[lab][1], cols[base][1]) for lab in rows_ablation]).set_index("label")
-    cgo_rows = [base] + rows_ablation
-    vs = paired_family([((lab, peer), cols[lab][0], cols[peer][0]) for lab in cgo_rows for peer in peers])
-    vs = vs.set_index("label")
+    # the question of Fig. 9's order: does the default CGO-RELM end at a higher training RMSE than each peer?
+    vs = paired_family([(peer, cols[base][0], cols[peer][0]) for peer in peers]).set_index("label")
     rows = []
     for label, (f, e, n_ev) in cols.items():
         row = {"configuration": label, "evaluations per run": n_ev if n_ev is not None else np.nan,
@@ -582,22 +583,13 @@ def fig9_ablation(pooled: Runs, ablation: Runs, out: Path) -> bool:
                         "p test MAE (Holm)": mae.loc[label, "p_holm"]})
         rows.append(row)
     df = pd.DataFrame(rows)
-    peer_rows = []
-    for label in cgo_rows:
-        row = {"configuration": label}
-        for peer in peers:
-            r = vs.loc[[(label, peer)]].iloc[0]
-            row.update({f"training RMSE - {peer}, median (deg)": round(r["median_diff"], 4),
-                        f"p vs {peer} (Holm)": r["p_holm"], f"vs {peer}": r["result"]})
-        peer_rows.append(row)
-    peer_df = pd.DataFrame(peer_rows)
+    below = [lab.removeprefix("CGO-RELM, ") for lab in rows_ablation
+             if cols[lab][0].mean() < min(cols[peer][0].mean() for peer in peers)]
 
     def listed(frame, word):
         names = [lab for lab in frame.index if frame.loc[lab, "result"] == word]
         return ", ".join(f"`{lab.removeprefix('CGO-RELM, ')}`" for lab in names) or "none"
 
-    both = {w: [lab.removeprefix("CGO-RELM, ") for lab in cgo_rows
-                if all(vs.loc[[(lab, p)]].iloc[0]["result"] == w for p in peers)] for w in ("lower", "higher")}
     notes = ["Evaluations per run: each run's own count (its convergence record); PSO-RELM and GA-RELM spend one "
              "evaluation per member and iteration, CGO four (three without the 4th seed). The training RMSE is the "
              "search's own objective on the training rows; the test MAE is reported beside it. Each CGO row changes "
@@ -615,19 +607,22 @@ def fig9_ablation(pooled: Runs, ablation: Runs, out: Path) -> bool:
              f"the final training RMSE is lower for {listed(fit, 'lower')}, higher for {listed(fit, 'higher')}, and "
              f"not significantly different for {listed(fit, 'no significant difference')}.",
              "",
-             f"Final training RMSE of every CGO row against PSO-RELM's and GA-RELM's (paired Wilcoxon, Holm over the "
-             f"{len(vs)} tests, one family); lower than both: "
-             f"{', '.join(f'`{x}`' for x in both['lower']) or 'none'}; higher than both: "
-             f"{', '.join(f'`{x}`' for x in both['higher']) or 'none'}:", "",
-             peer_df.to_markdown(index=False, floatfmt=".4g"), "",
+             "The default CGO-RELM's final training RMSE against PSO-RELM's and GA-RELM's (paired Wilcoxon, Holm "
+             f"over these {len(vs)} tests, one family):", "",
+             vs.reset_index().rename(columns={"label": "against", "median_diff": "median CGO-RELM - it (deg)",
+                                              "p_holm": "p (Holm)", "result": "CGO-RELM's training RMSE"})
+             .to_markdown(index=False, floatfmt=".4g"), "",
+             "The ablation rows are not tested against PSO-RELM and GA-RELM (a family of every row against both "
+             f"would be {2 * len(rows_ablation)} tests, more than 10 paired repeats can separate). Rows with a lower mean "
+             "final training RMSE than both PSO-RELM's and GA-RELM's (not tested against PSO/GA): "
+             + (", ".join(f"`{x}`" for x in below) or "none") + ".", "",
              f"These rest on {_one_draw(m)}. This table explains the order of Fig. 9; it chooses nothing: the "
              "defaults stay the paper's reading (docs/optimizers.md).", _floor_note()]
     _write(df, out, "fig9_ablation", "Why CGO-RELM is last in Fig. 9: CGO with one option changed (lab_casing)",
            notes, _stamp.protocol(commands("fig9_ablation"), f"paired Wilcoxon signed-rank (two-sided); three "
                                   f"families, each Holm-adjusted: the {len(fit)} ablation rows against the default "
-                                  f"CGO-RELM on the final training RMSE, the same on the test MAE, and the "
-                                  f"{len(cgo_rows)} CGO rows against PSO-RELM and GA-RELM on the final training RMSE "
-                                  f"({len(vs)} tests)"))
+                                  "CGO-RELM on the final training RMSE, the same on the test MAE, and the default "
+                                  f"CGO-RELM against PSO-RELM and GA-RELM on the final training RMSE ({len(vs)} tests)"))
     return True
 
 
