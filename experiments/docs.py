@@ -44,7 +44,8 @@ def check(docs, results: Path) -> list[str]:
     for doc in docs:
         text = Path(doc).read_text()
         lines += [str(p) for p in stale(text, results, _name(doc))]
-        lines += [f"{_name(doc)}:{line}: cites {c}, which does not exist" for line, c in missing_citations(text, results)]
+        lines += [f"{_name(doc)}:{line}: cites {c}, which does not exist"
+                  for line, c in missing_citations(text, results)]
         if Path(doc).name not in PENDING:
             lines += [f"{_name(doc)}:{u.line}: {u.number!r} {u.why}" for u in untraced(text, results, values)]
     return lines

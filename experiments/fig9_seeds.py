@@ -44,7 +44,8 @@ def markdown(table, cfg, seconds: float, command: str) -> str:
         "# Fig. 9's CGO-RELM searches: how often each seed improves on its parent and is selected", "", line, "",
         stamp, "", table.to_markdown(index=False, floatfmt=".3g"), "",
         "Seeds 1-3: eqs. 12-14; seed 4: the 4th seed (eq. 15 in the default). A trial is one seed of one member in one "
-        f"iteration ({cfg.pop_size} members x {cfg.iterations} iterations x {cfg.n_repeats} repeats per configuration); "
+        f"iteration ({cfg.pop_size} members x {cfg.iterations} iterations x {cfg.n_repeats} repeats per "
+        "configuration); "
         "`improved`: its training RMSE is below its parent's; `chosen`: the greedy selection kept it (it replaced its "
         "parent). The runs are the study's searches: each ends at the final training RMSE of the study's run with "
         "the same settings (tests/test_cgo_seeds.py).",

@@ -425,7 +425,8 @@ def fig9(runs: Runs, out: Path) -> bool:
     test = (f"paired Wilcoxon signed-rank (two-sided) on test MAE, CGO-RELM against each, Holm over the {len(tests)} "
             "tests" if len(tests) else "none (fewer than 2 repeats)")
     _write(df, out, "fig9", "Fig. 9: RELM tuned by PSO, GA and CGO (test split, mean +/- std over repeats)",
-           _fig9_notes(tests, runs.convergence(), methods, df, runs.settings(), _one_draw(m)) + [R2_NOTE, _floor_note()],
+           _fig9_notes(tests, runs.convergence(), methods, df, runs.settings(), _one_draw(m))
+           + [R2_NOTE, _floor_note()],
            _stamp.protocol(commands("fig9"), test))
     plt = plt_agg()
     fig, axes = plt.subplots(1, 3, figsize=(11, 3.4))
@@ -613,7 +614,8 @@ def fig9_ablation(pooled: Runs, ablation: Runs, out: Path) -> bool:
                                               "p_holm": "p (Holm)", "result": "CGO-RELM's training RMSE"})
              .to_markdown(index=False, floatfmt=".4g"), "",
              "The ablation rows are not tested against PSO-RELM and GA-RELM (a family of every row against both "
-             f"would be {2 * len(rows_ablation)} tests, more than 10 paired repeats can separate). Rows with a lower mean "
+             f"would be {2 * len(rows_ablation)} tests, more than 10 paired repeats can separate). Rows with a lower "
+             "mean "
              "final training RMSE than both PSO-RELM's and GA-RELM's (not tested against PSO/GA): "
              + (", ".join(f"`{x}`" for x in below) or "none") + ".", "",
              f"These rest on {_one_draw(m)}. This table explains the order of Fig. 9; it chooses nothing: the "
@@ -622,7 +624,8 @@ def fig9_ablation(pooled: Runs, ablation: Runs, out: Path) -> bool:
            notes, _stamp.protocol(commands("fig9_ablation"), f"paired Wilcoxon signed-rank (two-sided); three "
                                   f"families, each Holm-adjusted: the {len(fit)} ablation rows against the default "
                                   "CGO-RELM on the final training RMSE, the same on the test MAE, and the default "
-                                  f"CGO-RELM against PSO-RELM and GA-RELM on the final training RMSE ({len(vs)} tests)"))
+                                  "CGO-RELM against PSO-RELM and GA-RELM on the final training RMSE "
+                                  f"({len(vs)} tests)"))
     return True
 
 
@@ -750,7 +753,8 @@ def sweep_mutations(pooled: Runs, sweep: Runs, out: Path) -> bool:
                          round(float((w["three"] - w["single"]).median()), 4),
                      "p three-stage vs single": wilcoxon_paired(w["three"], w["single"]).p_value,
                      "order by mean MAE (untested)": " < ".join(LABEL[s] for s in order),
-                     "paper's order by mean": order == paper, "_pair": tuple(w[["three", "single"]].to_numpy().ravel())})
+                     "paper's order by mean": order == paper,
+                     "_pair": tuple(w[["three", "single"]].to_numpy().ravel())})
     df = pd.DataFrame(rows)
     # readings whose two columns are the same numbers (the three `amplitude none` rows and the paper's literal
     # reading: without the amplitude the dilation has no effect) are one test: Holm counts it once

@@ -98,7 +98,8 @@ def markdown(rec: dict, config, seconds: dict) -> str:
              "each repeat a full pass, every row predicted by the fold that held it out). The first of each column "
              f"by mean is in bold when it differs from every other method at Holm-adjusted p < {ALPHA:g} (the best), "
              "else marked \"first by mean\" (not separable from the methods marked `=`); `*` = different from the "
-             f"first at Holm-adjusted p < {ALPHA:g}; `=` = not significantly different. Budget: population {config.pop_size}, {config.iterations} iterations, L = {config.hidden} "
+             f"first at Holm-adjusted p < {ALPHA:g}; `=` = not significantly different. Budget: population "
+             f"{config.pop_size}, {config.iterations} iterations, L = {config.hidden} "
              f"hidden units, search dtype `{StudyConfig().dtype}` (the ICGO-RELM study's default; every reported "
              "number is the float64 refit).", ""]
     from icgo.reporting.published import ICGO_LAB_MAE

@@ -52,10 +52,11 @@ def test_sources_json_regex_markdown_tables_and_the_papers_values(results):
 
 
 @pytest.mark.parametrize("expr, why", [
-    ('__import__("os")', "not allowed"), ("open('x')", "NameError|name 'open'"), ("T.keys()", "only named functions"), ("T.x", "Attribute"),
-    ("lambda: 1", "Lambda"), ('csv("../secret.csv")', "relative to the results"), ('csv("none.csv")', "no such file"),
-    ('text("t.md", r"MAE")', "no group"), ('text("t.md", r"(\\d)")', "matches"), ('md("t.md", 3)', "no Markdown table 3"),
-    ('csv("t.csv", key="x")', "no column 'x'"), ('paper("ICGO", "table9")', "no entry 'table9'"), ("1 +", "not an expr"),
+    ('__import__("os")', "not allowed"), ("open('x')", "NameError|name 'open'"), ("T.keys()", "only named functions"),
+    ("T.x", "Attribute"), ("lambda: 1", "Lambda"), ('csv("../secret.csv")', "relative to the results"),
+    ('csv("none.csv")', "no such file"), ('text("t.md", r"MAE")', "no group"), ('text("t.md", r"(\\d)")', "matches"),
+    ('md("t.md", 3)', "no Markdown table 3"), ('csv("t.csv", key="x")', "no column 'x'"),
+    ('paper("ICGO", "table9")', "no entry 'table9'"), ("1 +", "not an expr"),
 ])
 def test_a_marker_that_cannot_be_read_is_one_line_naming_it(results, expr, why):
     names = __import__("icgo.reporting.render", fromlist=["Sources"]).Sources(results).functions()
@@ -69,8 +70,8 @@ def test_a_failing_marker_or_a_false_claim_keeps_the_text_and_is_reported(result
     new, problems = render_text(doc, results, "d.md")
     assert new == doc
     assert [(p.line, p.message.split(":")[0]) for p in problems] == [
-        (1, "'csv(\"t.csv\")[0][\"nope\"]'"), (2, "claim no longer holds"), (3, "'--' inside a marker ends the HTML "
-                                                                               "comment early in some Markdown renderers"),
+        (1, "'csv(\"t.csv\")[0][\"nope\"]'"), (2, "claim no longer holds"),
+        (3, "'--' inside a marker ends the HTML comment early in some Markdown renderers"),
         (4, "'0.0/1e-400'")]
 
 

@@ -205,7 +205,8 @@ def test_generalisation_table_bolds_only_a_separable_first_and_says_what_lambda_
     from icgo.studies.generalisation import GeneralisationConfig
 
     res = Path(__file__).resolve().parents[1] / "results"
-    rec = {"metrics": pd.read_csv(res / "generalisation.csv"), "coverage": pd.read_csv(res / "generalisation_coverage.csv"),
+    rec = {"metrics": pd.read_csv(res / "generalisation.csv"),
+           "coverage": pd.read_csv(res / "generalisation_coverage.csv"),
            "tests": pd.read_csv(res / "generalisation_tests.csv"), "qc": pd.read_csv(res / "generalisation_qc.csv"),
            "noise_floor": pd.DataFrame({"dataset": ["lab_casing"] * 3 + ["well_conditions"] * 2,
                                         "protocol": ["random", "leave_azimuth_out", "transfer", "random",

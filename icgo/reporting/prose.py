@@ -4,9 +4,9 @@
 are *not* marked, so that a quoted result cannot drift from its table unnoticed. A number needs a marker when
 
 * it stands in a **result unit**: a paragraph, list item or table that cites a file of ``results/`` (by path or by
-  its file name) or holds a marker (in a table whose rows cite results files, each row is a unit of its own). There every decimal number, every count of the form "N of M", every integer
-  with ``%``, a time unit (``s``, ``min``, ``h``) or a ratio sign (``x``, ``times``) and every ``p =`` value must be
-  rendered; or
+  its file name) or holds a marker (in a table whose rows cite results files, each row is a unit of its own). There
+  every decimal number, every count of the form "N of M", every integer with ``%``, a time unit (``s``, ``min``,
+  ``h``) or a ratio sign (``x``, ``times``) and every ``p =`` value must be rendered; or
 * anywhere else, it is a decimal of three or more significant digits that equals (at its written precision) a
   value of some results file: a quoted result that names no source.
 
@@ -14,8 +14,8 @@ Not counted: code spans and fenced code (settings and commands), HTML comments, 
 ("Table 4", "eq. 15", "section 3.3", "Fig. 9"), the significance level where a sentence states it ("p < 0.05"),
 and the numbers of a development measurement: a unit holding ``<!--development: how it was measured-->``, or every
 unit from ``<!--development-begin: how it was measured-->`` to ``<!--development-end-->`` (they must then cite no
-results file: rule 6 of docs/reporting.md). The papers' values are rendered too (``paper(...)``), so they are traced to
-:mod:`icgo.reporting.published`.
+results file: rule 6 of docs/reporting.md). The papers' values are rendered too (``paper(...)``), so they are traced
+to :mod:`icgo.reporting.published`.
 """
 
 from __future__ import annotations
@@ -66,7 +66,8 @@ def units(text: str) -> list[tuple[int, int]]:
         s = line.strip()
         is_table = s.startswith("|")
         new_item = bool(re.match(r"\s*([-*+] |\d+\. )", line)) and not prev.lstrip().startswith("|")
-        breaks = not s or s.startswith("#") or new_item or (start is not None and is_table != prev.strip().startswith("|"))
+        switch = start is not None and is_table != prev.strip().startswith("|")
+        breaks = not s or s.startswith("#") or new_item or switch
         if breaks and start is not None:
             spans.append((start, pos))
             start = None

@@ -29,12 +29,12 @@ calls of the functions below: no attributes, no other names. Sources (paths rela
 * ``paper(name, *keys)``: a published value of :mod:`icgo.reporting.published` (``paper("ICGO", "table1", "relm",
   0)``).
 
-Helpers: ``num(s)`` (the first number in ``"0.0295 +/- 0.0021"``), ``nums(s)`` (all of them), ``sd(s)`` (the number after ``+/-``), ``col(rows,
-name)`` (one column of a list of rows), ``where(rows, **equal)`` (the rows whose columns equal the values),
-``join(values, sep, spec)`` (formatted and joined), ``lines(rows)`` (joined by newlines), ``split(s, sep)``, ``items(d)`` (a dict's pairs), ``abs``,
-``min``, ``max``, ``sum``, ``len``, ``round``, ``sorted``, ``set``, ``list``, ``int``, ``float``, ``any``, ``all``,
-``mean``, ``median``. A value that
-renders as NaN or infinity is an error, never written.
+Helpers: ``num(s)`` (the first number in ``"0.0295 +/- 0.0021"``), ``nums(s)`` (all of them), ``sd(s)`` (the number
+after ``+/-``), ``col(rows, name)`` (one column of a list of rows), ``where(rows, **equal)`` (the rows whose columns
+equal the values), ``join(values, sep, spec)`` (formatted and joined), ``lines(rows)`` (joined by newlines),
+``split(s, sep)``, ``items(d)`` (a dict's pairs), ``abs``, ``min``, ``max``, ``sum``, ``len``, ``round``,
+``sorted``, ``set``, ``list``, ``int``, ``float``, ``any``, ``all``, ``mean``, ``median``. A value that renders as NaN
+or infinity is an error, never written.
 """
 
 from __future__ import annotations
@@ -255,9 +255,10 @@ def items(mapping) -> list:
     return list(dict(mapping).items())
 
 
-HELPERS = {"num": num, "nums": nums, "sd": sd, "col": col, "where": where, "join": join, "lines": lines, "split": split, "items": items, "abs": abs, "min": min, "max": max, "sum": sum,
-           "len": len, "round": round, "sorted": sorted, "set": set, "list": list, "int": int, "float": float,
-           "any": any, "all": all, "mean": statistics.fmean, "median": statistics.median}
+HELPERS = {"num": num, "nums": nums, "sd": sd, "col": col, "where": where, "join": join, "lines": lines,
+           "split": split, "items": items, "abs": abs, "min": min, "max": max, "sum": sum, "len": len, "round": round,
+           "sorted": sorted, "set": set, "list": list, "int": int, "float": float, "any": any, "all": all,
+           "mean": statistics.fmean, "median": statistics.median}
 #: Every name a marker may call.
 FUNCTIONS = (*HELPERS, "csv", "md", "table", "js", "text", "paper")
 

@@ -108,7 +108,8 @@ def rates_table(runs: dict[str, SeedRates], last: float = 0.5) -> pd.DataFrame:
                          f"improved % (last {tail.stop - tail.start} iterations)":
                              100 * float(r.improved[:, tail, k].mean()),
                          "chosen % (run)": 100 * float(r.chosen[:, :, k].mean()),
-                         f"chosen % (last {tail.stop - tail.start} iterations)": 100 * float(r.chosen[:, tail, k].mean()),
+                         f"chosen % (last {tail.stop - tail.start} iterations)":
+                             100 * float(r.chosen[:, tail, k].mean()),
                          "final training RMSE, mean (deg)": float(r.best_f.mean())})
     return pd.DataFrame(rows)
 
