@@ -115,3 +115,20 @@ def test_make_docs_renders_in_place_all_or_nothing(results, tmp_path, capsys):
     good.write_text(good.read_text() + "\nAlso 406.6 s.\n")
     assert D.main([str(good), "--results", str(results), "--check"]) == 1
     assert "good.md:3: '406.6' equals a value in results/" in capsys.readouterr().out
+
+
+def test_markers_in_code_are_examples_and_tables_are_found_by_their_columns(results):
+    doc = ("Example: `<!--= {csv(\"t.csv\")[0][\"ours\"]} -->x<!--/-->` and `<!--? 1 > 2 -->`.\n\n"
+           "```\n<!--= {js(\"s.json\")[\"nope\"]} -->y<!--/-->\n```\n\n"
+           "Real: <!--= {md(\"t.md\", key=\"method\", having=\"p (Holm)\")[\"b\"][\"p\"]} -->?<!--/-->.\n")
+    new, problems = render_text(doc, results)
+    assert problems == [] and new == doc.replace("-->?<!--/-->", "-->0.1055<!--/-->")
+    assert untraced(new, results) == []
+
+
+def test_a_development_region_is_not_checked_but_may_not_cite_results(results):
+    doc = ("<!--development-begin: timed by hand-->\nIt took 74.8 s.\n\nAnd 0.0731 once.\n<!--development-end-->\n\n"
+           "Then 0.0731 again.\n")
+    assert [(u.line, u.number) for u in untraced(doc, results)] == [(7, "0.0731")]
+    bad = "<!--development-begin: x-->\nsee results/t.csv\n<!--development-end-->\n"
+    assert [u.line for u in untraced(bad, results)] == [1]
