@@ -78,9 +78,12 @@ class Problem:
 
 # ------------------------------------------------------------------------------------------------ the sources
 def _value(cell: str):
-    """A table cell as a number when it is one, else the stripped text without Markdown bold."""
+    """A table cell as a number (or a bool for ``True``/``False``) when it is one, else the stripped text without
+    Markdown bold."""
     s = cell.strip()
     s = s[2:-2] if s.startswith("**") and s.endswith("**") and len(s) > 4 else s
+    if s in ("True", "False"):
+        return s == "True"
     try:
         return int(s)
     except ValueError:
