@@ -132,3 +132,9 @@ def test_a_development_region_is_not_checked_but_may_not_cite_results(results):
     assert [(u.line, u.number) for u in untraced(doc, results)] == [(7, "0.0731")]
     bad = "<!--development-begin: x-->\nsee results/t.csv\n<!--development-end-->\n"
     assert [u.line for u in untraced(bad, results)] == [1]
+
+
+def test_a_table_after_a_paragraph_that_quotes_results_is_a_result_unit(results):
+    doc = ("The means (`results/t.csv`):\n\n| method | MAE |\n|---|---|\n| ours | 0.04 |\n\n"
+           "A figure (`results/t.png`):\n\n| setting | value |\n|---|---|\n| step | 0.5 |\n")
+    assert [(u.line, u.number) for u in untraced(doc, results)] == [(5, "0.04")]

@@ -4,7 +4,8 @@
 are *not* marked, so that a quoted result cannot drift from its table unnoticed. A number needs a marker when
 
 * it stands in a **result unit**: a paragraph, list item or table that cites a file of ``results/`` (by path or by
-  its file name) or holds a marker (in a table whose rows cite results files, each row is a unit of its own). There
+  its file name) or holds a marker, or a table right after such a paragraph (in a table whose rows cite results
+  files, each row is a unit of its own). There
   every decimal number, every count of the form "N of M", every integer with ``%``, a time unit (``s``, ``min``,
   ``h``) or a ratio sign (``x``, ``times``) and every ``p =`` value must be rendered; or
 * anywhere else, it is a decimal of three or more significant digits that equals (at its written precision) a
@@ -130,9 +131,10 @@ def _significant(q: str) -> int:
 def untraced(text: str, results: Path, values: list[float] | None = None) -> list[Untraced]:
     """The result numbers of a Markdown document that no marker renders (see the module docstring)."""
     results = Path(results)
-    names = {p.name for p in results.rglob("*") if p.is_file()}
-    cite = re.compile(r"results/|(?<![\w.-])(?:" + "|".join(re.escape(n) for n in sorted(names, key=len,
-                                                                                            reverse=True)) + r")(?!\w)")
+    names = {p.name for p in results.iterdir() if p.is_file()}  # a bare file name cites a file of results/ itself
+    cite = re.compile(r"results/[\w./<>*{},-]*|(?<![\w.-])(?:" + "|".join(
+        re.escape(n) for n in sorted(names, key=len, reverse=True)) + r")(?!\w)")
+    numbers_file = re.compile(r"\.(?:md|csv|json)\b|results/[\w<>*{},-]*/?(?![\w.])")
     values = result_values(results) if values is None else values
     masked = _blank(text, FENCE)
     uncoded = _blank(masked, CODE_SPAN)  # a marker or a declaration in a code span is an example
@@ -148,14 +150,19 @@ def untraced(text: str, results: Path, values: list[float] | None = None) -> lis
                 pos += len(r)
         else:
             spans.append((a, b))
-    out = []
+    out, before = [], False  # before: the unit just before is a paragraph that quotes results
     for a, b in spans:
         raw = masked[a:b]
         active = uncoded[a:b]
         development = DEVELOPMENT.search(active) or any(s <= a < e for s, e in regions)
         body = _blank(_blank(_blank(_blank(_blank(raw, _COMMENT), CODE_SPAN), _LINK), _REFERENCE), _LEVEL)
         marked = any(x in active for x in ("<!--=", "<!--?", "<!--let"))
-        cites = bool(cite.search(_blank(raw, _COMMENT)))
+        cited = [m.group(0) for m in cite.finditer(_blank(raw, _COMMENT))]
+        cites = bool(cited)
+        is_table = raw.lstrip().startswith("|")
+        cites = cites or (is_table and before)  # a table of numbers the paragraph before it introduces
+        if not is_table:
+            before = not development and (marked or any(numbers_file.search(c) for c in cited))
         line0 = text.count("\n", 0, a) + 1
         where = lambda m, g=0: line0 + body.count("\n", 0, m.start(g))  # noqa: E731
         if development:
