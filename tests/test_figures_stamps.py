@@ -181,3 +181,29 @@ def test_each_table_is_stamped_from_its_own_runs(tmp_path):
     assert "10 repeat(s)" not in t4 and "data: well_conditions with noise seed 0;" in t4
     assert "Run settings: population 30 x 100 iterations, 10 repeat(s) per run, search dtype" in t3
     assert "1 repeat(s)" not in t3 and "data: lab_casing with noise seed 0;" in t3
+
+
+def test_every_fig9_ablation_option_composes_into_a_valid_cgo_config():
+    """Each +cgo_ablation option of the preset composes and builds its CGOConfig; the controls drop the 4th seed, the
+    second with 40 members so that it spends the default's 120 evaluations per iteration."""
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from experiments._entry import CONF_DIR
+    from icgo.optim import get
+
+    sweep = yaml.safe_load((CONF_DIR / "experiment" / "fig9_cgo_ablation.yaml").read_text())
+    options = sweep["hydra"]["sweeper"]["params"]["+cgo_ablation"].split(",")
+    assert sorted(options) == sorted(p.stem for p in (CONF_DIR / "cgo_ablation").glob("*.yaml"))
+    cgo = get("cgo")
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        for opt in options:
+            cfg = compose("config", ["experiment=fig9_cgo_ablation", f"+cgo_ablation={opt}"])
+            params = OmegaConf.to_container(cfg.optimizer.params)
+            c = cgo.make_config(**params)
+            first, per = cgo.evals(cfg.budget.pop_size, c)
+            if opt.startswith("no_fourth"):
+                assert not c.fourth_seed and per == 3 * cfg.budget.pop_size
+            else:
+                assert c.fourth_seed and per == 4 * cfg.budget.pop_size == 120
+    assert cgo.evals(40, cgo.make_config(fourth_seed=False))[1] == 120
