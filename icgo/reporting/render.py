@@ -15,6 +15,9 @@ the document true without hand edits. The markers are HTML comments, invisible w
 * A **claim** is an expression that must be true: a regenerated table that turns the order or the verdict a sentence
   states fails rendering at that sentence, instead of leaving the sentence false.
 
+A marker may not contain ``--`` (it would end the HTML comment early in some Markdown renderers): a table built in a
+marker writes its rule as ``| - | - |``. Markers inside code spans and fenced blocks are examples, never rendered.
+
 Expressions are Python expressions restricted to literals (f-strings included), names (``let`` names and the
 functions below), arithmetic, comparisons, ``and``/``or``/``not``, ``a if c else b``, subscripts, comprehensions and
 calls of the functions below: no attributes, no other names. Sources (paths relative to the results directory):
