@@ -1,7 +1,7 @@
 """Result values in Markdown, rendered from the files of ``results/``: ``make docs`` fills them, a test keeps them.
 
 A document marks each value it quotes with the expression that reads it; rendering replaces the text between the
-markers with the value read now, so a regenerated ``results/`` followed by :func:`render_file` (``make docs``) leaves
+markers with the value read now, so a regenerated ``results/`` followed by :func:`render_text` (``make docs``) leaves
 the document true without hand edits. The markers are HTML comments, invisible where the Markdown is shown::
 
     <!--= {T["MAE (deg)"]["CGO-RELM (ours)"]} -->0.0404 +/- 0.0041<!--/-->   a value (a template, below)
@@ -431,8 +431,3 @@ def stale(text: str, results: Path, doc: str = "<doc>") -> list[Problem]:
                                         f"stale: {a.group('rendered').strip()[:60]!r}, the results give "
                                         f"{b.group('rendered').strip()[:60]!r} (make docs)"))
     return problems
-
-
-def render_file(path: Path, results: Path) -> tuple[str, list[Problem]]:
-    """The rendered text of the document at ``path`` and its problems (the file is not written)."""
-    return render_text(Path(path).read_text(), results, str(path))
