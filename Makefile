@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test test-all test-slurm figures bench optimizers misma gyro discrepancy generalisation calibration dataset-figures venv clean
+.PHONY: run test test-all test-slurm figures bench optimizers misma gyro discrepancy generalisation calibration dataset-figures docs venv clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -29,6 +29,7 @@ test-slurm: $(STAMP)
 
 figures: $(STAMP)
 	$(BIN)/python -m experiments.figures
+	$(BIN)/python -m experiments.fig9_seeds
 
 bench: $(STAMP)
 	$(BIN)/python -m experiments.bench
@@ -46,6 +47,9 @@ discrepancy: $(STAMP)
 	$(BIN)/python -m experiments.discrepancy study=hidden
 	$(BIN)/python -m experiments.discrepancy study=devices max_effects=4
 	$(BIN)/python -m experiments.discrepancy study=lab_casing
+
+docs: $(STAMP)
+	$(BIN)/python -m experiments.docs
 
 dataset-figures: $(STAMP)
 	$(BIN)/python -m experiments.dataset_figures

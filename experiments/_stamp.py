@@ -2,9 +2,12 @@
 protocol, stamped on every Markdown table and every figure title by :mod:`experiments.figures`; and the table's
 protocol line (command, repeats, split, seeds, test: :func:`icgo.reporting.protocol.protocol_line`) from the same runs.
 
-The stamp of the output being built is held in a context variable set by :func:`stamping` around each builder, so
-the builders' ``_write`` and :func:`save` calls stamp without passing it along. A run's settings are read from the
-resolved ``config.yaml`` of its run directory (every run of ``experiments.run`` writes one).
+The runs of the output being built are held in a context variable set by :func:`stamping` around each builder: the
+runs it was started with, and every run whose rows the builder then reads (:func:`use`, called by
+:class:`experiments.figures.Runs` when it hands out a run's rows). So each table's stamp and protocol line describe the
+runs its numbers come from, not every run collected, and the builders' ``_write`` and :func:`save` calls stamp
+without passing it along. A run's settings are read from the resolved ``config.yaml`` of its run directory (every run
+of ``experiments.run`` writes one).
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ from pathlib import Path
 #: The ICGO paper's protocol: population 30, 100 iterations, repeats of a random 7:3 split.
 PAPER_POP, PAPER_ITERATIONS = 30, 100
 
-_CURRENT: contextvars.ContextVar[dict | None] = contextvars.ContextVar("stamp", default=None)
+_CURRENT: contextvars.ContextVar[list | None] = contextvars.ContextVar("stamp", default=None)
 
 
 def run_settings(run_dir: Path) -> dict:
@@ -51,14 +54,17 @@ def describe(settings: list[dict]) -> dict:
         return {"text": "", "short": "", "paper": False, **_split_and_seeds(settings)}
     paper = all(p == PAPER_POP and (it == PAPER_ITERATIONS or ev is not None) for p, it, ev, _, _ in seen) and all(
         s.get("protocol") in (None, "random") for s in settings)
+    from icgo.reporting.protocol import settings_line
+
     parts = []
     for p, it, ev, dt, n in seen:
         budget = f"population {p} x {it} iterations" if ev is None else f"population {p}, {ev} fitness evaluations"
-        parts.append(f"{budget}, {n} repeat(s) per run, search dtype {dt}")
-    text = ("Run settings: " + "; ".join(parts) + ". "
-            + ("The paper's protocol (population 30 x 100 iterations)." if paper else
-               "NOT the paper's protocol (population 30 x 100 iterations): compare with the paper's numbers only "
-               "as a smoke check."))
+        parts.append((budget, f"{n} repeat(s) per run", f"search dtype {dt}"))
+    text = settings_line("; ".join(", ".join(x) for x in parts[:-1]) + ("; " if len(parts) > 1 else "")
+                         + parts[-1][0], parts[-1][1], parts[-1][2],
+                         "The paper's protocol (population 30 x 100 iterations)." if paper else
+                         "NOT the paper's protocol (population 30 x 100 iterations): compare with the paper's numbers "
+                         "only as a smoke check.")
     p, it, ev, _, n = seen[0]
     short = (f"{p} x {it if ev is None else str(ev) + ' evals'}, {n} repeat(s)" + ("" if len(seen) == 1 else ", mixed")
              + ("" if paper else ": NOT the paper's protocol"))
@@ -77,6 +83,8 @@ def _values(settings: list[dict], key: str) -> list:
 
 def _split_and_seeds(settings: list[dict]) -> dict:
     """The protocol line's repeats, split and seeds fields for runs with these settings."""
+    from icgo.reporting.choices import LAMBDA
+
     def listed(key, unknown="not recorded"):
         v = _values(settings, key)
         return ", ".join(str(x) for x in v) if v else unknown
@@ -93,25 +101,38 @@ def _split_and_seeds(settings: list[dict]) -> dict:
             parts.append(f"{protocol} (docs/generalisation.md)")
     seeds = (f"data: {listed('dataset', 'the data set')} with noise seed {listed('data_seed')}; repeat k: split and "
              f"search key fold_in(PRNGKey({listed('split_seed')}), k), the same for every method (paired repeats). "
-             "No setting was chosen on these seeds' test rows (lambda: lab_casing seed 1, study seed 100, "
-             "docs/relm_study.md; the tuned RELM chooses on validation rows inside each training set)")
+             f"No setting was chosen on these seeds' test rows ({LAMBDA.sentence()}; the tuned RELM chooses on "
+             "validation rows inside each training set)")
     return {"repeats": f"{repeats} per run (paired: the same splits and keys for every method)",
             "split": "; ".join(parts), "seeds": seeds}
 
 
 @contextlib.contextmanager
 def stamping(settings: list[dict]):
-    """Within the block, :func:`note` and :func:`title` give the stamp of runs with these settings."""
-    token = _CURRENT.set(describe(settings))
+    """Within the block, :func:`note`, :func:`protocol` and :func:`title` give the stamp of runs with these settings
+    and of every run :func:`use` adds."""
+    token = _CURRENT.set(list(settings))
     try:
         yield
     finally:
         _CURRENT.reset(token)
 
 
+def use(settings: list[dict]) -> None:
+    """Add runs the output being built reads (no effect outside :func:`stamping`; a run already there counts once)."""
+    runs = _CURRENT.get()
+    if runs is not None:
+        runs.extend(s for s in settings if s not in runs)
+
+
+def _current() -> dict | None:
+    runs = _CURRENT.get()
+    return describe(runs) if runs is not None else None
+
+
 def note() -> str:
     """The stamp line for a Markdown table (empty outside :func:`stamping`)."""
-    s = _CURRENT.get()
+    s = _current()
     return s["text"] if s else ""
 
 
@@ -121,13 +142,13 @@ def protocol(command: str, test: str, repeats: str | None = None, split: str | N
     seeds from the runs it is made from (within :func:`stamping`), unless given."""
     from icgo.reporting.protocol import protocol_line
 
-    s = _CURRENT.get() or _split_and_seeds([])
+    s = _current() or _split_and_seeds([])
     return protocol_line(command, repeats or s["repeats"], split or s["split"], seeds or s["seeds"], test)
 
 
 def title(text: str) -> str:
     """A figure title with the stamp's short form on a second line."""
-    s = _CURRENT.get()
+    s = _current()
     return f"{text}\n[{s['short']}]" if s and s["short"] else text
 
 

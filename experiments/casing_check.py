@@ -93,12 +93,14 @@ def main(argv=None) -> int:
     from icgo.io.files import staged_results
 
     at_lab = df[(df.distance_m == 1.0) & (df.model == "pole_pair")].iloc[0]
-    from icgo.reporting.protocol import protocol_line
+    from icgo.reporting.protocol import protocol_line, settings_line
 
     md = ["# Casing model cross-check: icgo's pole pair vs magpylib's magnetised tube", "",
           protocol_line("`python -m experiments.casing_check`", "1 (deterministic fields, no noise)",
                         "none: the two models' fields at the same sensor positions",
                         "the station positions of lab_casing(seed 0)", "none: a deterministic comparison"), "",
+          settings_line("no search or fit (closed-form fields)", "one evaluation per position", "float64",
+                        "No published protocol: the paper gives the casing's size and distance, not its field."), "",
           "`python -m experiments.casing_check` (magpylib "
           f"{__import__('magpylib').__version__}). Field of the lab casing (3 m x 150 mm tube, wall 9 mm, "
           f"M = {datasets.LAB_CASING.magnetization_A_m:g} A/m axial) at every lab_casing station "

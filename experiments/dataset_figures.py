@@ -79,11 +79,13 @@ def lab_casing_figures(out: Path, seed: int):
 
 def _protocol(seed: int, split: str) -> str:
     """The protocol line of a data-set table (:func:`icgo.reporting.protocol.protocol_line`)."""
-    from icgo.reporting.protocol import protocol_line
+    from icgo.reporting.protocol import protocol_line, settings_line
 
     return protocol_line("`make dataset-figures` (`python -m experiments.dataset_figures`)",
                          "1 (one simulated draw)", split, f"data noise seed {seed}",
-                         "none: a description of the simulated data beside the paper's values")
+                         "none: a description of the simulated data beside the paper's values") + "\n\n" + \
+        settings_line("no search or fit (the simulated data as drawn)", "one draw", "float64",
+                      "The paper's measurement plan (its Figs. 6-7, Table 4), simulated: not its measured data.")
 
 
 def well_conditions_table(out: Path, seed: int):

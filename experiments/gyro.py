@@ -167,6 +167,20 @@ def protocol(config, data, test_sets: str) -> str:
         "the patent gives no accuracy figure to put beside ours")
 
 
+def settings(config) -> str:
+    """The stamp line of every gyro table (:func:`icgo.reporting.protocol.settings_line`)."""
+    from icgo.reporting.protocol import settings_line
+
+    n, r = config.net, config.relm
+    relm = (f"; RELM search: population {r.pop_size} x {r.iterations} iterations ({r.optimizer}, {r.strategy})"
+            if r.enabled else "")
+    return settings_line(f"networks {'-'.join(map(str, n.hidden))}: {n.optimizer}, up to {n.epochs} epochs (early "
+                         f"stopping, patience {n.patience}), batch {n.batch_size} (variants as listed){relm}",
+                         f"{config.n_seeds} seeds per trained method", "float64",
+                         "No published protocol: the patent describes the network and the turntable plan but gives "
+                         "no training budget and no accuracy.")
+
+
 def write_results(result, data, config, out: Path, models_dir: Path | None) -> None:
     """Tables and figures into ``out`` (``gyro_*``), the fitted models into ``models_dir``."""
     out.mkdir(parents=True, exist_ok=True)
@@ -176,7 +190,7 @@ def write_results(result, data, config, out: Path, models_dir: Path | None) -> N
     methods["train_s"] = methods["method"].map(result.summary["train_seconds"])
     write_table(methods[METHOD_COLUMNS + ["train_s"]], out / "gyro_methods",
                 "Gyro inclinometer: azimuth RMSE (deg) on attitudes off the training grid",
-                protocol(config, data, both) + "\n\n"
+                protocol(config, data, both) + "\n\n" + settings(config) + "\n\n"
                 f"Trained on the patent's turntable plan ({len(data.train)} points); {config.n_seeds} seeds "
                 "per trained method (mean +/- std over seeds, one run). `train_s`: wall time of one "
                 "vmapped call for all seeds, including compilation (one run on a shared machine: a rough figure). "
@@ -184,6 +198,7 @@ def write_results(result, data, config, out: Path, models_dir: Path | None) -> N
     band = float(config.seam.band_deg)
     write_table(result.records["seam"], out / "gyro_seam", "The 0/360 seam: RMSE near north vs elsewhere",
                 protocol(config, data, f"turntable_random ({len(data.tests['random'])} attitudes)") + "\n\n"
+                + settings(config) + "\n\n"
                 f"Random test set; 'north' = |true azimuth| < {band:g} deg. ratio = north / elsewhere.")
     seam_preds = {m: p["random"] for m, p in result.predictions.items() if m in SEAM_FIGURE_METHODS}
     seam_preds["raw"] = result.predictions["raw"]["random"]
@@ -193,6 +208,7 @@ def write_results(result, data, config, out: Path, models_dir: Path | None) -> N
         write_table(result.records["points"][POINT_COLUMNS], out / "gyro_points",
                     "Azimuth RMSE (deg) vs number of turntable points",
                     protocol(config, data, both + " (the 30-deg plan's test sets for every point count)") + "\n\n"
+                    + settings(config) + "\n\n"
                     f"network = variant `{config.sweep.variant}`, {config.n_seeds} seeds (mean +/- std); "
                     "inclinations as the patent; test sets fixed (30-deg plan's between-grid set).")
         fig_points(result.records["points"], out / "gyro_points.png")

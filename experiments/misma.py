@@ -113,7 +113,29 @@ def protocol(config) -> str:
         f"MISMA PRNGKey({config.seed + 7}); the trajectory and the coordinates were chosen on seed {dev} "
         f"(docs/misma.md), which is not reported here{held}",
         "paired Wilcoxon signed-rank (two-sided) on the per-repeat mean |azimuth error|, Holm over each variant's "
-        "contrasts (one family per variant) and over the gyro sweep's cells (one family)")
+        f"contrasts (one family per variant), over the headline MISMA-vs-SMA test of the {len(sim.variants)} "
+        f"variants (one family) and over the gyro sweep's {len(sim.variants) * len(sim.gyro.sweep)} cells "
+        "(every variant x grade: one family)")
+
+
+def settings(config) -> str:
+    """The stamp line of every MISMA table (:func:`icgo.reporting.protocol.settings_line`): the searches' budget
+    against the paper's Table 3 (population 30, 2051 iterations, box 128 / -68 uT)."""
+    from icgo.reporting.protocol import settings_line
+    from icgo.reporting.published import MISMA
+
+    sim, real, paper = config.simulated, config.real, MISMA["table3"]
+    same = (sim.pop_size, sim.n_iter) == (paper["pop_size"], paper["n_iter"])
+    box = ("the paper's box" if sim.misma.bounds == "paper" else
+           f"the box around U (`simulated.misma.bounds={sim.misma.bounds}`), not the paper's "
+           f"{paper['upper_uT']:g} / {paper['lower_uT']:g} uT, which has its own row")
+    return settings_line(
+        f"population {sim.pop_size} x {sim.n_iter} iterations per simulated search; real devices: {real.misma_iter} "
+        "iterations per MISMA run", f"{sim.repeats} search repeats per row, {real.misma_repeats} MISMA runs per "
+        "real-device fit", "float64 searches",
+        ("The paper's population and iterations (its Table 3)" if same else
+         f"NOT the paper's population and iterations ({paper['pop_size']} x {paper['n_iter']}, its Table 3)")
+        + f"; {box}; simulated runs, not the paper's field data.")
 
 
 def paper_table(summary: list[dict]) -> list[str]:
@@ -151,10 +173,14 @@ def summary_lines(result, config=None) -> list[str]:
 
     lines = ["# MISMA study", "", "Command: `python -m experiments.misma` (config `conf/misma.yaml`).", ""]
     if config is not None:
-        lines += [protocol(config), ""]
+        lines += [protocol(config), "", settings(config), ""]
     if "simulated" in result.summary:
         lines += ["## rotating_drill: MISMA vs SMA (same run)", "",
                   result.records["simulated"].to_markdown(floatfmt=".4g"), "",
+                  "`p_MISMA_vs_SMA`: paired Wilcoxon signed-rank (two-sided) of MISMA against the standard SMA on the "
+                  "per-repeat mean |azimuth error| at the stops; `p_MISMA_vs_SMA_holm`: Holm over the variants (one "
+                  "family); `MISMA_vs_SMA`: MISMA's error lower or higher than SMA's at Holm p < 0.05 (median paired "
+                  "difference), else no significant difference.", "",
                   *paper_table(result.summary["simulated"])]
         for s in result.summary["simulated"]:
             name = s["variant"]
@@ -162,10 +188,12 @@ def summary_lines(result, config=None) -> list[str]:
             lines += [f"### One contribution at a time ({name}; {len(fair)} searches on the same repeat keys)", "",
                       f"MISMA reported above = `{s['MISMA_row']}` ({s['MISMA_box']}); SMA = the standard SMA "
                       f"({s['SMA_box']}).", "", fair.to_markdown(index=False, floatfmt=".4g"), "",
-                      "Paired Wilcoxon tests (per-repeat mean |azimuth error|, Holm-adjusted within the variant):", "",
+                      "Paired Wilcoxon tests (per-repeat mean |azimuth error|, Holm-adjusted within the variant; "
+                      "`b_vs_a`: b's error lower or higher than a's at Holm p < 0.05, by the median paired "
+                      "difference):", "",
                       result.records[f"tests_{name}"].to_markdown(index=False, floatfmt=".3g"), "",
                       "Convergence (iterations to the worse of the two median final fitness values, a level both "
-                      "reach): " + "; ".join(f"{k}: {c['median_iters_a']:.0f} vs {c['median_iters_b']:.0f} "
+                      "reach): " + "; ".join(f"{k}: {c['median_iters_a']:g} vs {c['median_iters_b']:g} "
                                              f"iterations ({c['faster_pct']:.1f} % faster; reached {c['reached_a']} "
                                              f"and {c['reached_b']} repeats)" for k, c in s["convergence"].items()), "",
                       f"Baselines, mean |azimuth error| at the stops, variant {name}: "
@@ -179,7 +207,10 @@ def summary_lines(result, config=None) -> list[str]:
     if "gyro_sweep" in result.records:
         lines += ["## Gyro grade (MISMA with J_gyro vs without; errors and noise of the simulated gyro x factor)", "",
                   "Command: `python -m experiments.misma` (`simulated.gyro.sweep`). `reference_error_deg_rms`: angle "
-                  "between the truly corrected field and M_omega at the window samples.", "",
+                  "between the truly corrected field and M_omega at the window samples. `p`: paired Wilcoxon of MISMA "
+                  "with J_gyro against MISMA without it (the same repeat keys); `p_holm`: Holm over every row of this "
+                  "table (one family); `J_gyro`: the error with the term lower or higher at Holm p < 0.05 (median "
+                  "paired difference `MISMA_gyro_az_err_median_diff_deg`), else no significant difference.", "",
                   result.records["gyro_sweep"].to_markdown(index=False, floatfmt=".4g"), ""]
     if "real" in result.summary:
         from icgo.methods.cal_sanity import limits_sentence
@@ -200,7 +231,8 @@ def write_results(result, composed: dict, out: Path, models_dir: Path | None, co
     for name, plot in result.plots.items():
         params = result.records[f"params_{name}"]
         params.to_csv(out / f"misma_params_{name}.csv", index=False)
-        head = f"# MISMA: recovered vs true parameters ({name})\n\n" + (protocol(config) + "\n\n" if config else "")
+        head = f"# MISMA: recovered vs true parameters ({name})\n\n" + (
+            protocol(config) + "\n\n" + settings(config) + "\n\n" if config else "")
         (out / f"misma_params_{name}.md").write_text(head + params.to_markdown(index=False, floatfmt=".5g") + "\n")
         result.records[f"modulus_{name}"].to_csv(out / f"misma_modulus_{name}.csv")
         result.records[f"fair_{name}"].to_csv(out / f"misma_fair_{name}.csv", index=False)

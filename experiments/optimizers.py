@@ -105,7 +105,7 @@ def markdown(res, argv) -> list[str]:
     n_cgo, n_pso = (iterations_for_budget(a, cfg.pop_size, cfg.budget) for a in (CGO, PSO))
     fmt = lambda v: f"{v:.3g}"  # noqa: E731
     n_cells = len(names) * len(cfg.dims)
-    from icgo.reporting.protocol import protocol_line
+    from icgo.reporting.protocol import protocol_line, settings_line
 
     command = f"`.venv/bin/python -m experiments.optimizers {' '.join(argv) if argv else ''}`".replace(" `", "`")
     lines = ["# Optimizer study: icgo.optim vs mealpy 3.x at equal evaluation budget", "",
@@ -119,6 +119,10 @@ def markdown(res, argv) -> list[str]:
                            "compared here were set from the papers' readings, not from these runs (docs/optimizers.md)",
                            f"Wilcoxon rank-sum (two-sided), Holm over each row's {n_cells} cells (one family per "
                            f"algorithm); `+`/`-` only at Holm p < {cfg.alpha:g}"),
+             "",
+             settings_line(f"population {cfg.pop_size}, {cfg.budget} fitness evaluations per run", f"{cfg.runs} runs "
+                           "per cell", "float64 (ours and mealpy's numpy)", "No published protocol: the study compares "
+                           "implementations at one budget, not the papers' results."),
              "",
              f"Functions: {', '.join(names)} (shifted + rotated with the CEC 2017 data, `icgo.optim.benchmarks`), "
              f"box [-100, 100]^D, D in {list(cfg.dims)}; {cfg.runs} runs per cell; population {cfg.pop_size}; "

@@ -307,9 +307,36 @@ def test_mutation_readings_sweep_names_each_reading_and_checks_the_paper_order(r
     t = pd.read_csv(out / "sweep_mutations.csv").set_index("reading")
     assert set(t.index) == {"wavelet zeta 1, amplitude none", "Gaussian sigma 0.2 (0.1 of the box width)"}
     wav = t.loc["wavelet zeta 1, amplitude none"]
-    assert wav["order by MAE"].startswith("three-stage < wavelet")
-    assert not t.loc["Gaussian sigma 0.2 (0.1 of the box width)", "paper's order"]
+    assert wav["order by mean MAE (untested)"].startswith("three-stage < wavelet")
+    assert not t.loc["Gaussian sigma 0.2 (0.1 of the box width)", "paper's order by mean"]
     assert 0 <= wav["p Holm"] <= 1
+
+
+def test_readings_with_identical_columns_are_one_holm_test(runs_dir, tmp_path):
+    """Two readings that give the same numbers (wavelet without the amplitude at two zetas) are one test: Holm over
+    the distinct tests, the shared p adjusted once."""
+    rng = np.random.default_rng(9)
+    same = _metrics(["cgo-wavelet", "cgo-three_stage"], rng, {"cgo-wavelet": 0.04, "cgo-three_stage": 0.05})
+    for zeta in (1.0, 2.0):
+        _run_dir(runs_dir / "m" / f"wav{zeta}", same, label="sweep_wavelet",
+                 extra={"strategies": ["wavelet", "three_stage"],
+                        "optimizer_params": {"variant": "paper", "wavelet_zeta": zeta, "wavelet_amplitude": "none"}})
+    _run_dir(runs_dir / "m" / "sig", _metrics(["cgo-gaussian", "cgo-three_stage"], rng,
+                                              {"cgo-gaussian": 0.05, "cgo-three_stage": 0.03}),
+             label="sweep_sigma", extra={"strategies": ["gaussian", "three_stage"],
+                                         "optimizer_params": {"variant": "paper", "sigma": 0.2}})
+    out = tmp_path / "results"
+    assert F.build([runs_dir / "m"], out)["sweep_mutations"]
+    t = pd.read_csv(out / "sweep_mutations.csv").set_index("reading")
+    raw = t["p three-stage vs single"]
+    w1, w2, g = (t.index.get_loc(r) for r in ("wavelet zeta 1, amplitude none", "wavelet zeta 2, amplitude none",
+                                               "Gaussian sigma 0.2 (0.1 of the box width)"))
+    assert raw.iloc[w1] == raw.iloc[w2]
+    want = _holm_by_hand([raw.iloc[w1], raw.iloc[g]])
+    np.testing.assert_allclose(t["p Holm"].iloc[[w1, w2, g]], [want[0], want[0], want[1]], rtol=1e-12)
+    md = (out / "sweep_mutations.md").read_text()
+    assert "Holm over the 2 distinct tests" in md
+    assert "wavelet zeta 1, amplitude none, wavelet zeta 2, amplitude none" in md
 
 
 def test_an_unknown_sweep_never_replaces_the_paper_runs(runs_dir, tmp_path):
@@ -340,8 +367,8 @@ def test_paper_literal_run_is_one_reading_with_every_strategy_from_it(runs_dir, 
     t = pd.read_csv(out / "sweep_mutations.csv")
     row = t[t.reading.str.startswith("the paper's literal readings")].iloc[0]
     assert "amplitude none" in row["reading"]
-    assert row["order by MAE"] == "chaotic < Gaussian < wavelet < three-stage"  # from this run, not Table 3
-    assert not row["paper's order"]
+    assert row["order by mean MAE (untested)"] == "chaotic < Gaussian < wavelet < three-stage"  # this run's
+    assert not row["paper's order by mean"]
 
 
 def _condition_runs(root: Path, label: str, key: str, levels, rng, best_at):
@@ -434,3 +461,46 @@ def test_fig9_ablation_rows_against_the_default_cgo(tmp_path):
     assert t.loc[rows[0], "training RMSE - default, median (deg)"] == pytest.approx(
         round(float((last(runs["one"]) - base).median()), 4))
     assert "Protocol: command: `make figures`" in (out / "fig9_ablation.md").read_text()
+
+
+def test_fig9_ablation_tests_the_default_against_pso_and_ga_and_names_the_controls(tmp_path):
+    """The third family: the default CGO-RELM's final training RMSE against PSO-RELM's and GA-RELM's (Holm over
+    the 2, scipy recomputed); a control run with another population is labelled by it, every row says the
+    evaluations its runs spent, and the rows below both peers by mean are named as untested."""
+    import yaml
+
+    rng = np.random.default_rng(12)
+    methods = ["pso", "ga", "cgo-original"]
+    conv = _conv(methods)
+    _run_dir(tmp_path / "m" / "fig9", _metrics(methods, rng), conv=conv, label="fig9")
+    (tmp_path / "m" / "fig9" / "config.yaml").write_text(yaml.safe_dump({"budget": {"pop_size": 30}}))
+    ctrl = _conv(["cgo-original"]).assign(best_fitness=lambda d: d.best_fitness * 0.3 + 1e-3 * d.repeat,
+                                          evals=lambda d: 40 + 120 * d.iteration)
+    d = tmp_path / "m" / "ctrl"
+    _run_dir(d, _metrics(["cgo-original"], rng), conv=ctrl, label=F.ABLATION_LABEL,
+             extra={"optimizer_params": {"variant": "paper", "fourth_seed": False}})
+    (d / "config.yaml").write_text(yaml.safe_dump({"budget": {"pop_size": 40}}))
+    out = tmp_path / "r"
+    assert F.build([tmp_path / "m"], out)["fig9_ablation"] is True
+    t = pd.read_csv(out / "fig9_ablation.csv").set_index("configuration")
+    row = "CGO-RELM, fourth_seed False, population 40"
+    assert t.loc[row, "evaluations per run"] == 40 + 120 * 5 and t.loc["PSO-RELM", "evaluations per run"] == 8 + 32 * 5
+    last = lambda c: c.sort_values("iteration").groupby("repeat").best_fitness.last()  # noqa: E731
+    fit = {m: last(conv[conv.method == m]) for m in methods}
+    holm = _holm_by_hand([st.wilcoxon(fit["cgo-original"], fit[peer]).pvalue for peer in ("pso", "ga")])
+    md = (out / "fig9_ablation.md").read_text()
+    peer_rows = [ln for ln in md.splitlines() if ln.startswith(("| PSO-RELM ", "| GA-RELM "))][-2:]
+    got = [float(ln.split("|")[5]) for ln in peer_rows]
+    np.testing.assert_allclose(got, holm, rtol=1e-3)
+    below = last(ctrl).mean() < min(fit["pso"].mean(), fit["ga"].mean())
+    assert ("(not tested against PSO/GA): `fourth_seed False, population 40`." in md) == below
+
+
+def test_table4_note_gives_the_ratio_of_the_near_vertical_errors_from_the_table():
+    t = pd.DataFrame({"inclination (deg)": [0.594, 1.8, 60.0, 90.0, 135.0, 150.0],
+                      "compensated mean ours": [0.7805, 0.4536, 0.0836, 0.1001, 0.0773, 0.0915],
+                      "noise floor MAE": [0.7812, 0.2337, 0.0252, 0.0198, 0.0197, 0.0259]})
+    note = F._table4_high_inclination(t)
+    assert "stays 3.3-5.1 times its noise floor" in note
+    assert f"means are {0.4536 / 0.1001:.1f}-{0.7805 / 0.0773:.1f} times those at I >= 60 deg" in note  # 4.5-10.1
+    assert "ten times" not in note and "cause" not in note

@@ -106,15 +106,15 @@ def test_a_sweep_level_missing_a_method_keeps_its_column_and_names_the_job(tmp_p
 
 
 def test_plan_counts_jobs_and_prints_an_eta(monkeypatch, capsys, tmp_path):
-    assert [F.plan_jobs(p, o) for _, p, o in F.PLAN] == [1, 1, 1, 2, 3, 5, 6, 3, 1, 20, 20, 20, 1, 8]
+    assert [F.plan_jobs(p, o) for _, p, o in F.PLAN] == [1, 1, 1, 2, 3, 5, 6, 3, 1, 20, 20, 20, 1, 13]
     clock = iter(range(0, 10_000, 10))
     monkeypatch.setattr(F.time, "perf_counter", lambda: float(next(clock)))
     monkeypatch.setattr(F.subprocess, "call", lambda *a, **k: 0)
     F.run_plan(tmp_path, None)
     lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("[")]
     assert len(lines) == 14 and lines[0].startswith("[1/14] table3: 1 job(s); elapsed 0:10, ETA after the first")
-    # after table3 (1 job; 40 s of the fake clock so far): 91 jobs left at 40 s per job
-    assert lines[1] == "[2/14] table1: 1 job(s); elapsed 0:40, ETA 1:00:40"
+    # after table3 (1 job; 40 s of the fake clock so far): 96 jobs left at 40 s per job
+    assert lines[1] == "[2/14] table1: 1 job(s); elapsed 0:40, ETA 1:04:00"
 
 
 def test_one_set_of_names():
@@ -154,3 +154,56 @@ def test_run_help_lists_the_groups_not_apply(flag):
                        cwd=F.Path(F.__file__).resolve().parent.parent)
     assert r.returncode == 0 and "config groups" in r.stdout and "strategy    all, chaos" in r.stdout
     assert "apply" not in r.stdout.split("examples:")[0]
+
+
+def test_each_table_is_stamped_from_its_own_runs(tmp_path):
+    """Table 4 (one split of well_conditions) and Table 3 (10 repeats of lab_casing) collected together: each
+    stamp and protocol line names only the runs its numbers come from."""
+    rng = np.random.default_rng(5)
+    cgo = [f"cgo-{s}" for s in S5]
+    lab = tmp_path / "m" / "table3"
+    _run_dir(lab, _metrics(cgo, rng), conv=_conv(cgo), pred=_pred(cgo, rng))
+    _config(lab, pop=30, iterations=100, repeats=10)
+    az = tuple(r[1] for r in F.PAPER["table4"])
+    well = tmp_path / "m" / "table4"
+    m, p = _metrics(cgo, rng), _pred(cgo, rng, azimuths=az, n=4)
+    _run_dir(well, m[m.repeat == 0], dataset="well_conditions", pred=p[p.repeat == 0],
+             extra={"n_repeats": 1, "repeat_ids": [0]})
+    _config(well, pop=30, iterations=100, repeats=1)
+    for d, name in ((lab, "lab_casing"), (well, "well_conditions")):
+        cfg = yaml.safe_load((d / "config.yaml").read_text())
+        (d / "config.yaml").write_text(yaml.safe_dump(cfg | {"dataset": {"name": name, "seed": 0}}))
+    out = tmp_path / "r"
+    done = F.build([tmp_path / "m"], out)
+    assert done["table3"] is True and done["table4"] is True
+    t4, t3 = (out / "table4.md").read_text(), (out / "table3.md").read_text()
+    assert "Run settings: population 30 x 100 iterations, 1 repeat(s) per run, search dtype" in t4
+    assert "10 repeat(s)" not in t4 and "data: well_conditions with noise seed 0;" in t4
+    assert "Run settings: population 30 x 100 iterations, 10 repeat(s) per run, search dtype" in t3
+    assert "1 repeat(s)" not in t3 and "data: lab_casing with noise seed 0;" in t3
+
+
+def test_every_fig9_ablation_option_composes_into_a_valid_cgo_config():
+    """Each +cgo_ablation option of the preset composes and builds its CGOConfig; the controls drop the 4th seed, the
+    second with 40 members so that it spends the default's 120 evaluations per iteration."""
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from experiments._entry import CONF_DIR
+    from icgo.optim import get
+
+    sweep = yaml.safe_load((CONF_DIR / "experiment" / "fig9_cgo_ablation.yaml").read_text())
+    options = sweep["hydra"]["sweeper"]["params"]["+cgo_ablation"].split(",")
+    assert sorted(options) == sorted(p.stem for p in (CONF_DIR / "cgo_ablation").glob("*.yaml"))
+    cgo = get("cgo")
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        for opt in options:
+            cfg = compose("config", ["experiment=fig9_cgo_ablation", f"+cgo_ablation={opt}"])
+            params = OmegaConf.to_container(cfg.optimizer.params)
+            c = cgo.make_config(**params)
+            first, per = cgo.evals(cfg.budget.pop_size, c)
+            if opt.startswith("no_fourth"):
+                assert not c.fourth_seed and per == 3 * cfg.budget.pop_size
+            else:
+                assert c.fourth_seed and per == 4 * cfg.budget.pop_size == 120
+    assert cgo.evals(40, cgo.make_config(fourth_seed=False))[1] == 120

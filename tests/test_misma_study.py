@@ -165,3 +165,47 @@ def test_entry_point_writes_tables_figures_and_models(tmp_path):
     back = load_model(tmp_path / "models" / "short_misma.json")
     frame = datasets.rotating_drill(0, duration_s=600.0).frame
     pd.testing.assert_frame_equal(back.apply(frame), res.models["short_misma"].apply(frame), check_exact=True)
+
+
+def _holm_by_hand(p):
+    order, out, running = np.argsort(p), np.empty(len(p)), 0.0
+    for rank, i in enumerate(order):
+        running = max(running, min(1.0, (len(p) - rank) * p[i]))
+        out[i] = running
+    return out
+
+
+def test_the_headline_test_and_the_gyro_sweep_are_one_holm_family_each():
+    """MISMA vs SMA over the variants, and every (variant, grade) cell of the gyro sweep, each Holm-adjusted as one
+    family (scipy's paired Wilcoxon, Holm written out); the verdict words follow the adjusted p and the sign."""
+    from scipy.stats import wilcoxon
+
+    rng = np.random.default_rng(0)
+    errors = [{"MISMA": rng.normal(0.3, 0.05, 10), "SMA": rng.normal(4.0, 0.5, 10)},
+              {"MISMA": rng.normal(6.0, 1.0, 10), "SMA": rng.normal(6.1, 1.0, 10)}]
+    sums = [{"variant": "a"}, {"variant": "b"}]
+    misma_compare.headline_tests(sums, errors)
+    p = np.array([wilcoxon(e["MISMA"], e["SMA"]).pvalue for e in errors])
+    np.testing.assert_allclose([s["p_MISMA_vs_SMA"] for s in sums], p, rtol=1e-12)
+    np.testing.assert_allclose([s["p_MISMA_vs_SMA_holm"] for s in sums], _holm_by_hand(p), rtol=1e-12)
+    assert [s["MISMA_vs_SMA"] for s in sums] == ["lower", "no significant difference"]
+    cells = pd.DataFrame({"variant": ["a"] * 5 + ["b"] * 5, "p": [0.5, 0.4, 0.3, 0.2, 0.1, 1.0, 0.9, 0.8, 0.6, 0.0039],
+                          "MISMA_gyro_az_err_median_diff_deg": [-0.1] * 9 + [3.5]})
+    out = misma_compare.sweep_family(cells)
+    np.testing.assert_allclose(out["p_holm"], _holm_by_hand(cells["p"].to_numpy()))
+    assert out["p_holm"].iloc[-1] == pytest.approx(0.039) and out["J_gyro"].iloc[-1] == "higher"
+    assert set(out["J_gyro"].iloc[:-1]) == {"no significant difference"}
+
+
+def test_contrast_tests_say_which_way_each_change_moves_the_error():
+    from scipy.stats import wilcoxon
+
+    rng = np.random.default_rng(1)
+    a, b, c = misma_compare.SMA_U, misma_compare.MISMA_U, misma_compare.MISMA_U_OMEGA
+    errors = {a: rng.normal(1.7, 0.1, 10), b: rng.normal(0.5, 0.05, 10)}
+    errors[c] = errors[b] + rng.normal(0.0, 0.01, 10)
+    df = misma_compare.paired_tests([("ops", a, b), ("gyro", b, c)], errors)
+    p = [wilcoxon(errors[a], errors[b]).pvalue, wilcoxon(errors[b], errors[c]).pvalue]
+    np.testing.assert_allclose(df["p_holm"], _holm_by_hand(np.array(p)), rtol=1e-12)
+    assert df["median_b_minus_a_deg"].iloc[0] == pytest.approx(float(np.median(errors[b] - errors[a])))
+    assert df["b_vs_a"].tolist() == ["lower", "no significant difference"]

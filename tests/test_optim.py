@@ -181,6 +181,7 @@ def test_evaluate_maps_nan_to_inf():
     ("cgo", "variant", ["matlab", "mealpy"]), ("cgo", "selection", ["truncation"]),
     ("cgo", "bound_mode", ["midpoint", "random"]), ("cgo", "dims", ["all", "one"]),
     ("cgo", "original_uniform", [True]), ("cgo", "wavelet_bounded", [True]), ("cgo", "chaos_guard", [False]),
+    ("cgo", "alpha", ["dimension", "mealpy"]), ("cgo", "seed_form", ["matlab"]), ("cgo", "fourth_seed", [False]),
     ("ga", "crossover", ["blend"]), ("ga", "survivors", ["generational"]), ("misma", "p_mode", ["sma"]),
 ])
 def test_every_static_option_traces(name, field, values):
@@ -306,7 +307,7 @@ def test_static_fields_select_code():
             str(p[0].name) for p, _ in jax.tree_util.tree_flatten_with_path(cfg)[0]}
 
     assert {"variant", "selection", "bound_mode", "dims", "original_uniform", "wavelet_bounded",
-            "chaos_guard", "overrides"} <= static(CGOConfig())
+            "chaos_guard", "alpha", "seed_form", "fourth_seed", "overrides"} <= static(CGOConfig())
     assert "strategy" not in static(CGOConfig()) and "sigma" not in static(CGOConfig())
     assert {"crossover", "survivors", "tournament", "n_elite"} <= static(GAConfig())
     with pytest.raises(ValueError, match=r"configs\[1\] differs from configs\[0\] in \['selection', 'overrides'\]"):
@@ -367,6 +368,48 @@ def test_cgo_selection_greedy_and_truncation():
     assert all(pool[tuple(x)] == v for x, v in zip(tx, tf))  # each survivor keeps its own fitness
     assert [CGOConfig.matlab().selection, CGOConfig.paper().selection, CGOConfig.mealpy().selection] == [
         "truncation", "greedy", "greedy"]
+
+
+def test_a_cgo_variant_is_only_its_preset_of_options():
+    """The MATLAB variant's run equals the paper variant with every MATLAB setting asked for one by one (per-dimension
+    alpha, its seeds 2-3, a uniform 4th seed, truncation): bitwise, so each difference is an option of its own."""
+    alike = CGOConfig.paper(alpha="dimension", seed_form="matlab", original_uniform=True, selection="truncation")
+    assert alike.overrides == ("alpha", "original_uniform", "seed_form", "selection")
+    a = run(get("cgo"), target, BOUNDS, KEYS[0], P, 20, config=CGOConfig.matlab(), aux=row(0))
+    b = run(get("cgo"), target, BOUNDS, KEYS[0], P, 20, config=alike, aux=row(0))
+    np.testing.assert_array_equal(np.asarray(a.curve), np.asarray(b.curve))
+    np.testing.assert_array_equal(np.asarray(a.best_x), np.asarray(b.best_x))
+
+
+@pytest.mark.parametrize("selection", ["greedy", "truncation"])
+def test_cgo_without_the_fourth_seed_and_the_seed_outcomes(selection):
+    """fourth_seed=False: three seeds per member and iteration (3 P evaluations), the budget converts with it; each
+    iteration's SeedOutcome agrees with the selection it describes (a chosen seed is in the next population, an
+    improved one beat its parent)."""
+    from icgo.optim.cgo import advance
+
+    cfg = CGOConfig.paper(fourth_seed=False, selection=selection)
+    r = run(get("cgo"), target, BOUNDS, KEYS[1], P, 15, config=cfg, aux=row(1))
+    assert int(r.n_evals) == P + 3 * P * 15
+    assert get("cgo").evals(P, cfg) == (P, 3 * P) and get("cgo").evals(P, CGOConfig()) == (P, 4 * P)
+    assert int(run(get("cgo"), target, BOUNDS, KEYS[1], P, max_evals=P + 3 * P * 7, config=cfg, aux=row(1)).n_evals) \
+        == P + 3 * P * 7
+    opt = bind(get("cgo"), target, BOUNDS, P, cfg)
+    s = opt.init(KEYS[2], row(1))
+    for t, k in enumerate(jax.random.split(KEYS[3], 6)):
+        nxt, out = advance(s, k, t, 6, target)
+        assert out.improved.shape == out.chosen.shape == (P, 3)
+        step = opt.step(s, k, t, 6)
+        np.testing.assert_array_equal(np.asarray(nxt.pop), np.asarray(step.pop))  # advance is the step
+        kept = {tuple(np.round(x, 12)) for x in np.asarray(nxt.pop)}
+        parents = {tuple(np.round(x, 12)) for x in np.asarray(s.pop)}
+        if selection == "greedy":  # a chosen seed replaced its parent, and only an improving one can be chosen
+            assert not np.any(np.asarray(out.chosen) & ~np.asarray(out.improved))
+            assert np.asarray(out.chosen).any(axis=1).sum() == sum(tuple(np.round(x, 12)) not in parents
+                                                                  for x in np.asarray(nxt.pop))
+        else:
+            assert np.asarray(out.chosen).sum() == sum(x not in parents for x in kept)
+        s = nxt
 
 
 def test_cgo_bound_repair_modes():

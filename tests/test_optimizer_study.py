@@ -314,3 +314,5 @@ def test_entry_point_writes_the_three_files(tmp_path, monkeypatch):
     assert list(cells.columns) == list(res.records["cells"].columns) and len(cells) == len(res.records["cells"])
     md = (tmp_path / "optimizers.md").read_text()
     assert md.startswith("# Optimizer study") and "mealpy was not run" in md and "## D = 2" in md
+    assert f"Run settings: population {cfg.pop_size}, {cfg.budget} fitness evaluations per run, {cfg.runs} runs per " \
+           "cell, float64" in md

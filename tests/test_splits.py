@@ -191,3 +191,40 @@ def test_every_protocol_is_described_with_its_own_fraction():
         assert splits.describe(protocol, 0.7).startswith("test rows: ")
     with pytest.raises(ValueError, match="bogus"):
         splits.describe("bogus", 0.7)
+
+
+def test_generalisation_table_bolds_only_a_separable_first_and_says_what_lambda_was_chosen_on():
+    """The table rebuilt from the committed records: a column's first by mean is bold only when every other method
+    differs from it at Holm p < 0.05 (the transfer column's is not); the seeds line says the transfer target is the
+    noise draw lambda was chosen on; the stamp line is there."""
+    from pathlib import Path
+
+    import pandas as pd
+
+    from experiments.generalisation import markdown
+    from icgo.reporting.choices import LAMBDA
+    from icgo.reporting.protocol import parse_protocols
+    from icgo.studies.generalisation import GeneralisationConfig
+
+    res = Path(__file__).resolve().parents[1] / "results"
+    rec = {"metrics": pd.read_csv(res / "generalisation.csv"),
+           "coverage": pd.read_csv(res / "generalisation_coverage.csv"),
+           "tests": pd.read_csv(res / "generalisation_tests.csv"), "qc": pd.read_csv(res / "generalisation_qc.csv"),
+           "noise_floor": pd.DataFrame({"dataset": ["lab_casing"] * 3 + ["well_conditions"] * 2,
+                                        "protocol": ["random", "leave_azimuth_out", "transfer", "random",
+                                                     "leave_condition_out"], "mae": [0.0237] * 3 + [0.184] * 2})}
+    config = GeneralisationConfig()
+    md = markdown(rec, config, {"lab_casing/random": 1.0})
+    table = md.split("| method |")[1].split("\n\n")[0]
+    wavelet = next(line for line in table.splitlines() if line.startswith("| ICGO-RELM (wavelet) |"))
+    cells = [c.strip() for c in wavelet.split("|")[2:-1]]
+    t = rec["tests"]
+    for cell, (d, p) in zip(cells, [("lab_casing", "random"), ("lab_casing", "leave_azimuth_out"),
+                                    ("lab_casing", "transfer")]):
+        separable = (t[(t.dataset == d) & (t.protocol == p)]["p_holm"] < 0.05).all()
+        assert cell.startswith("**") == bool(separable) and cell.endswith("(first by mean)") != bool(separable), cell
+    assert not (t[(t.dataset == "lab_casing") & (t.protocol == "transfer")]["p_holm"] < 0.05).all()
+    seeds = parse_protocols(md)[0]["seeds"]
+    assert config.transfer.seed == LAMBDA.seed and "the transfer column is scored on the draw lambda was chosen on" \
+        in seeds and "Nothing here was chosen" not in md
+    assert "Run settings: population 30 x 100 iterations, L = 30 hidden units, 10 repeats per cell" in md

@@ -19,7 +19,7 @@ from icgo.discrepancy.identifiability import Degeneracy, Separability
 from icgo.discrepancy.search import FOLD_SEED, MAX_ROUNDS, Result, Step, gap_table
 from icgo.physics import effects as _fx
 from icgo.physics.qc import qc_sentence
-from icgo.reporting.protocol import protocol_line
+from icgo.reporting.protocol import protocol_line, settings_line
 
 
 # ============================================================ sentences
@@ -187,6 +187,7 @@ def report_markdown(res: Result, label: str, truth=None, qc=None, protocol: str 
     protocol line (:func:`icgo.reporting.protocol.protocol_line`), under the title when given.
     """
     lines = [f"# Discrepancy report: {label}", ""] + ([protocol, ""] if protocol else [])
+    lines += [workflow_settings(res.config, "one workflow run on these data"), ""]
     lines += [f"**Verdict:** {verdict(res)}", "", "## Noise", "",
              "| noise per axis | magnetometer (nT) | accelerometer (mg) |", "|---|---|---|",
              (f"| assumed (`sigma_b_nT`, `sigma_g`; the fits' weights) | {res.config.sigma_b_nT:g} | "
@@ -286,6 +287,14 @@ def _selection_test(config) -> str:
             "for their number")
 
 
+def workflow_settings(config, runs: str, search: str = "") -> str:
+    """The stamp line of a workflow table (:func:`icgo.reporting.protocol.settings_line`): the fits' budget, the runs
+    each number comes from, the dtype; no source gives a protocol for this workflow."""
+    return settings_line(f"{search}Levenberg-Marquardt {config.n_iter} iterations per fit, up to {config.max_effects} "
+                         f"effects added, {config.k_folds} folds", runs, "float64 fits",
+                         "No published protocol: the workflow is this project's (docs/discrepancy.md).")
+
+
 def _folds(config) -> str:
     return (f"{config.k_folds}-fold held-out score (each station held out once, the model fitted on the other "
             f"folds; fold permutation PRNGKey({FOLD_SEED}))")
@@ -380,6 +389,7 @@ def hidden_study_markdown(study) -> str:
         pairs, unobs = separability_cells(sep)
         designs.append(f"| {dz} | {pairs} | {unobs} |")
     return "\n".join(["# Discrepancy workflow: hidden-effect study", "", hidden_protocol(study), "",
+                      workflow_settings(study.config, f"one workflow run per row ({study.n_stations} stations)"), "",
                       f"Simulated: seed {study.seed}, {study.n_stations} stations, random attitudes, "
                       f"{_noise_words(study.config)}, magnitudes typical x U(0.5, 1.5).", ""] + rows +
                      ["", "## Which effects a design cannot separate (Jacobian canonical correlations)", ""] + designs)
@@ -400,6 +410,7 @@ def devices_study_markdown(runs, config) -> str:
                     f"{g0.azimuth_rms_deg:.2f} -> {g1.azimuth_rms_deg:.2f} | {cell} | {'-' if est is None else est.model} |")
     return "\n".join([f"# Discrepancy workflow on the {len(runs)} real circuitpython-mag-cal devices", "",
                       devices_protocol(runs, config), "",
+                      workflow_settings(config, f"one workflow run per device ({len(runs)} devices)"), "",
                       ("No reference attitude: each group's "
                        "direction and the field magnitude/dip are nuisances; the azimuth spread is the held-out RMS "
                        f"deviation from the group's fitted direction. Noise assumed {config.sigma_b_nT} nT / "
@@ -422,7 +433,12 @@ def lab_casing_study_markdown(study) -> str:
     truth = {k: np.round(v, 5).tolist() for k, v in study.truth_effects.items()}
     named = "; ".join(f"{s.name} = {np.round(s.params, 5).tolist()} ± {np.round(s.stderr, 5).tolist()} {s.units}"
                       + ("" if s.separable else f" (not separable from {list(s.equivalent)})") for s in res.steps)
+    c = study.icgo_config
     return "\n".join(["# Discrepancy workflow on lab_casing vs ICGO-RELM", "", lab_casing_protocol(study), "",
+                      workflow_settings(study.result.config, "one split (repeat 0), one run of each method",
+                                        f"ICGO-RELM: population {c.pop_size} x {c.iterations} iterations ("
+                                        + ("the paper's" if (c.pop_size, c.iterations) == (30, 100) else
+                                           "NOT the paper's 30 x 100") + f"), search dtype {c.dtype}; workflow: "), "",
                       f"Seed {study.seed}. The workflow is fitted on the ICGO study's training rows of repeat 0 only; "
                       "both are scored on its test rows.", "",
                       f"**Verdict (training rows):** {verdict(res)}", "",

@@ -8,9 +8,11 @@ schedule (see :mod:`icgo.optim.mutation`). Four fitness evaluations per seed
 per iteration.
 
 Three variants, each built by its factory ``CGOConfig.paper()`` (the
-defaults), ``CGOConfig.matlab()``, ``CGOConfig.mealpy()``; the static
-``variant`` field picks the code path and the factory sets the variant's
-other fields (:data:`VARIANT_SETTINGS`). ``CGO.axis`` is ``"strategy"``: a
+defaults), ``CGOConfig.matlab()``, ``CGOConfig.mealpy()``; the factory sets
+the variant's fields (:data:`VARIANT_SETTINGS`: the alpha forms, the seed
+2/3 formulas, the selection, the die, the mean group, the 4th seed of
+``original``), so each difference between the variants is also an option of
+its own. ``CGO.axis`` is ``"strategy"``: a
 study runs 4th-seed strategies side by side with
 ``run_batch(configs=CGO.axis_configs(config, strategies))``.
 
@@ -38,13 +40,18 @@ study runs 4th-seed strategies side by side with
   (mealpy draws k in {0..D-1}, so k = 0 spends an evaluation on X_i itself).
 
 All new seeds are clipped to the bounds (``bound_mode`` offers two other repairs).
+``fourth_seed=False`` drops the 4th seed (three seeds, three evaluations per
+member and iteration): the control of the Fig. 9 ablation. :func:`advance`
+is one step together with what happened to each seed (:class:`SeedOutcome`:
+did it improve on its parent, was it selected), for the diagnostic that
+counts them (:mod:`icgo.studies.cgo_seeds`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 from functools import partial
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -56,15 +63,22 @@ from icgo.optim.base import Algorithm, State, evaluate, first_state, uniform_pop
 VARIANTS = ("paper", "matlab", "mealpy")
 SELECTIONS = ("greedy", "truncation")
 BOUND_MODES = ("clip", "midpoint", "random")
+#: Step sizes alpha of seeds 1-3: one scalar per seed from the original CGO's four forms, the same forms per
+#: dimension (the MATLAB code), or mealpy's three fixed forms.
+ALPHAS = ("seed", "dimension", "mealpy")
+#: Seeds 2 and 3: eqs. 13-14 as printed (``paper``) or the MATLAB code's operands (``matlab``).
+SEED_FORMS = ("paper", "matlab")
 
-#: What each variant sets besides its code path: the published setting that
-#: ``CGOConfig.paper() / .matlab() / .mealpy()`` fill in.
+#: What each variant sets: the published setting that ``CGOConfig.paper() / .matlab() / .mealpy()`` fill in.
 VARIANT_SETTINGS = {
-    "paper": {"selection": "greedy", "bg_low": 1, "mg_size": 0, "original_uniform": False},
-    "matlab": {"selection": "truncation", "bg_low": 1, "mg_size": 0, "original_uniform": True},
-    "mealpy": {"selection": "greedy", "bg_low": 0, "mg_size": 3, "original_uniform": False},
+    "paper": {"selection": "greedy", "bg_low": 1, "mg_size": 0, "original_uniform": False, "alpha": "seed",
+              "seed_form": "paper"},
+    "matlab": {"selection": "truncation", "bg_low": 1, "mg_size": 0, "original_uniform": True, "alpha": "dimension",
+               "seed_form": "matlab"},
+    "mealpy": {"selection": "greedy", "bg_low": 0, "mg_size": 3, "original_uniform": False, "alpha": "mealpy",
+               "seed_form": "paper"},
 }
-VARIANT_FIELDS = ("selection", "bg_low", "mg_size", "original_uniform")
+VARIANT_FIELDS = ("selection", "bg_low", "mg_size", "original_uniform", "alpha", "seed_form")
 
 
 def _scalar(v) -> bool:
@@ -96,7 +110,8 @@ def _flag(name, value):
          data_fields=["strategy", "bg_low", "mg_size", "step_scale", "sigma", "mu", "wavelet_g", "wavelet_zeta",
                       "stage_bounds", "stage_order"],
          meta_fields=["variant", "selection", "dims", "original_uniform", "wavelet_bounded", "bound_mode",
-                      "chaos_guard", "wavelet_stage_clock", "wavelet_amplitude", "overrides"])
+                      "chaos_guard", "wavelet_stage_clock", "wavelet_amplitude", "alpha", "seed_form", "fourth_seed",
+                      "overrides"])
 @dataclasses.dataclass(frozen=True)
 class CGOConfig:
     """CGO hyperparameters: data fields are traced (and may be vmapped), static fields select code.
@@ -116,8 +131,8 @@ class CGOConfig:
         strategy: 4th-seed strategy (data), name or index into ``mutation.STRATEGIES``
             (0 original, 1 chaos, 2 gaussian, 3 wavelet, 4 three_stage); the
             axis a study runs side by side (``CGO.axis``).
-        variant: ``paper``, ``matlab`` or ``mealpy`` (static; picks the alpha
-            forms and the seed 2/3 formulas, see the module docstring).
+        variant: ``paper``, ``matlab`` or ``mealpy`` (static; the preset of
+            :data:`VARIANT_FIELDS`, see the module docstring).
         selection: ``greedy`` (best of X_i and its 4 seeds) or ``truncation``
             (best N of the N + 4N pool) (static). By variant: truncation for
             ``matlab``, greedy otherwise.
@@ -152,6 +167,17 @@ class CGOConfig:
         bound_mode: out-of-box coordinates of a new seed are ``clip``-ped (both
             reference codes), set to the ``midpoint`` of the parent and the
             violated bound, or redrawn uniformly in the box (``random``) (static).
+        alpha: step sizes of seeds 1-3 (static, :data:`ALPHAS`): ``seed`` (one
+            scalar per seed and member, from the original CGO's four forms),
+            ``dimension`` (the same forms per dimension) or ``mealpy`` (rand,
+            2 rand, 1 + rand rand). By variant: seed, dimension, mealpy.
+        seed_form: seeds 2 and 3 (static, :data:`SEED_FORMS`): ``paper``
+            (eqs. 13-14, ``GB + a(b X - g MG)``, ``MG + a(b X - g GB)``) or
+            ``matlab`` (``GB + a(b MG - g X)``, ``MG + a(b GB - g X)``). By
+            variant: matlab for ``matlab``, paper otherwise.
+        fourth_seed: spawn the 4th seed (static; default True). False leaves
+            three seeds per member (3 evaluations per member and iteration):
+            a control, not a reading of the paper.
         overrides: the variant fields deliberately set away from the variant's
             setting (static, sorted names; filled in by the factories).
     """
@@ -175,6 +201,9 @@ class CGOConfig:
     wavelet_stage_clock: bool = False
     wavelet_amplitude: str = "ling"
     bound_mode: str = "clip"
+    alpha: str = "seed"
+    seed_form: str = "paper"
+    fourth_seed: bool = True
     overrides: tuple = ()
 
     def __post_init__(self):
@@ -184,6 +213,9 @@ class CGOConfig:
         _choice("dims mode", self.dims, mut.DIM_MODES)
         _choice("bound_mode", self.bound_mode, BOUND_MODES)
         _choice("wavelet_amplitude", self.wavelet_amplitude, mut.WAVELET_AMPLITUDES)
+        _choice("alpha", self.alpha, ALPHAS)
+        _choice("seed_form", self.seed_form, SEED_FORMS)
+        set_("fourth_seed", _flag("fourth_seed", self.fourth_seed))
         set_("original_uniform", _flag("original_uniform", self.original_uniform))
         set_("wavelet_bounded", _flag("wavelet_bounded", self.wavelet_bounded))
         set_("chaos_guard", _flag("chaos_guard", self.chaos_guard))
@@ -311,31 +343,62 @@ def repair(key, S, parent, lb, ub, mode: str = "clip") -> jax.Array:
     return jnp.clip(S, lb, ub)
 
 
+def _chosen(f, fs, selection: str):
+    """Which candidates the selection keeps: greedy, the index j in [parent, seeds] of each member's best (P,);
+    truncation, the indices of the best P of the pool [parents, seed 1 of every member, seed 2, ...] (P,)."""
+    if selection == "greedy":
+        return jnp.argmin(jnp.concatenate([f[:, None], fs], axis=1), axis=1)
+    return jnp.argsort(jnp.concatenate([f, fs.T.reshape(-1)]), stable=True)[:f.shape[0]]
+
+
 def select(X, f, seeds, fs, selection: str = "greedy"):
     """The next population from the parents and their seeds.
 
     Args:
         X: parents, shape (P, D); f: their fitness, (P,).
-        seeds: the 4 new seeds of each parent, (P, 4, D); fs: their fitness, (P, 4).
+        seeds: the K new seeds of each parent (4, or 3 without the 4th seed), (P, K, D); fs: their fitness, (P, K).
         selection: static, ``greedy`` (each X_i is replaced by the best of
-            itself and its 4 seeds) or ``truncation`` (the best P of the
-            P + 4P pool, ascending; a stable sort keeps parents first on ties).
+            itself and its K seeds) or ``truncation`` (the best P of the
+            P + KP pool, ascending; a stable sort keeps parents first on ties).
 
     Returns:
         ``(new_X (P, D), new_f (P,))``.
     """
     _choice("selection", selection, SELECTIONS)
-    P, D = X.shape
+    P, K, D = seeds.shape
+    j = _chosen(f, fs, selection)
     if selection == "greedy":
-        cand = jnp.concatenate([X[:, None], seeds], axis=1)  # (P, 5, D)
+        cand = jnp.concatenate([X[:, None], seeds], axis=1)  # (P, K + 1, D)
         cand_f = jnp.concatenate([f[:, None], fs], axis=1)
-        j = jnp.argmin(cand_f, axis=1)
         return (jnp.take_along_axis(cand, j[:, None, None], axis=1)[:, 0],
                 jnp.take_along_axis(cand_f, j[:, None], axis=1)[:, 0])
     pool_f = jnp.concatenate([f, fs.T.reshape(-1)])
-    order = jnp.argsort(pool_f, stable=True)[:P]
-    pool = jnp.concatenate([X, jnp.transpose(seeds, (1, 0, 2)).reshape(4 * P, D)])
-    return pool[order], pool_f[order]
+    pool = jnp.concatenate([X, jnp.transpose(seeds, (1, 0, 2)).reshape(K * P, D)])
+    return pool[j], pool_f[j]
+
+
+class SeedOutcome(NamedTuple):
+    """What happened to each seed of one iteration, shape (P, K) each (K = 4, or 3 without the 4th seed).
+
+    Attributes:
+        improved: the seed's fitness is below its parent's.
+        chosen: the selection kept the seed (greedy: it replaced its parent; truncation: it is among the best P).
+    """
+
+    improved: jax.Array
+    chosen: jax.Array
+
+
+def seed_outcome(f, fs, selection: str = "greedy") -> SeedOutcome:
+    """:class:`SeedOutcome` of seeds with fitness ``fs`` (P, K) spawned by parents with fitness ``f`` (P,)."""
+    P, K = fs.shape
+    j = _chosen(f, fs, selection)
+    if selection == "greedy":
+        chosen = (j[:, None] - 1) == jnp.arange(K)[None, :]
+    else:
+        kept = jnp.zeros(P + K * P, bool).at[j].set(True)
+        chosen = kept[P:].reshape(K, P).T
+    return SeedOutcome(fs < f[:, None], chosen)
 
 
 def _init(key, fitness, lb, ub, pop_size, config, aux) -> State:
@@ -345,7 +408,15 @@ def _init(key, fitness, lb, ub, pop_size, config, aux) -> State:
     return first_state(fitness, lb, ub, pop, config, aux, chaos)
 
 
-def _step(state: State, key, t, T, fitness) -> State:
+def advance(state: State, key, t, T, fitness) -> tuple[State, SeedOutcome]:
+    """One CGO iteration (eqs. 12-18, then the selection) and what happened to each of its seeds.
+
+    Args:
+        state: the optimizer state; key: this iteration's PRNG key; t, T: iteration and run length;
+        fitness: ``fitness(pop, aux) -> (P,)``.
+    Returns:
+        (the next state, :class:`SeedOutcome` of this iteration's seeds).
+    """
     cfg: CGOConfig = state.ctx.config
     lb, ub, aux = state.ctx.lb, state.ctx.ub, state.ctx.aux
     X, f = state.pop, state.fit
@@ -354,37 +425,45 @@ def _step(state: State, key, t, T, fitness) -> State:
 
     GB = state.best_x[None, :]
     MG = mean_groups(ks[0], X, cfg.mg_size)
-    if cfg.variant == "mealpy":
+    if cfg.alpha == "mealpy":
         alpha = _alphas_mealpy(ks[1], P, X.dtype)
     else:
-        alpha = _alphas(ks[1], P, D if cfg.variant == "matlab" else 1, X.dtype)
+        alpha = _alphas(ks[1], P, D if cfg.alpha == "dimension" else 1, X.dtype)
     bg = jax.random.randint(ks[2], (P, 6, 1), cfg.bg_low, cfg.bg_low + 2).astype(X.dtype)
     a1, a2, a3 = alpha[:, 0], alpha[:, 1], alpha[:, 2]
     b1, g1, b2, g2, b3, g3 = (bg[:, j] for j in range(6))
 
     S1 = X + a1 * (b1 * GB - g1 * MG)  # eq. 12
-    if cfg.variant == "matlab":
+    if cfg.seed_form == "matlab":
         S2 = GB + a2 * (b2 * MG - g2 * X)
         S3 = MG + a3 * (b3 * GB - g3 * X)
     else:
         S2 = GB + a2 * (b2 * X - g2 * MG)  # eq. 13
         S3 = MG + a3 * (b3 * X - g3 * GB)  # eq. 14
-    eff = mut.effective_strategy(cfg.strategy, t, T, cfg.stage_bounds, cfg.stage_order)
-    mask = mut.dims_mask(ks[3], (P, D), cfg.dims)
-    t_m, T_m = mut.stage_clock(cfg.strategy, t, T, cfg.stage_bounds) if cfg.wavelet_stage_clock else (t, T)
-    S4 = mut.mutate(ks[4], X, mask, state.extra, eff, t_m, T_m, lb, ub, cfg)  # eqs. 15-18
-
-    seeds = repair(ks[6], jnp.stack([S1, S2, S3, S4], axis=1), X[:, None], lb, ub, cfg.bound_mode)  # (P, 4, D)
-    fs = evaluate(fitness, seeds.reshape(4 * P, D), aux).reshape(P, 4)
+    new = [S1, S2, S3]
+    if cfg.fourth_seed:
+        eff = mut.effective_strategy(cfg.strategy, t, T, cfg.stage_bounds, cfg.stage_order)
+        mask = mut.dims_mask(ks[3], (P, D), cfg.dims)
+        t_m, T_m = mut.stage_clock(cfg.strategy, t, T, cfg.stage_bounds) if cfg.wavelet_stage_clock else (t, T)
+        new.append(mut.mutate(ks[4], X, mask, state.extra, eff, t_m, T_m, lb, ub, cfg))  # eqs. 15-18
+    K = len(new)
+    seeds = repair(ks[6], jnp.stack(new, axis=1), X[:, None], lb, ub, cfg.bound_mode)  # (P, K, D)
+    fs = evaluate(fitness, seeds.reshape(K * P, D), aux).reshape(P, K)
 
     new_X, new_f = select(X, f, seeds, fs, cfg.selection)
     chaos = mut.logistic_step(ks[5], state.extra, cfg.mu, cfg.chaos_guard)
     best_x, best_f = update_best(state.best_x, state.best_f, new_X, new_f)
-    return State(new_X, new_f, best_x, best_f, state.n_evals + 4 * P, chaos, state.ctx)
+    return (State(new_X, new_f, best_x, best_f, state.n_evals + K * P, chaos, state.ctx),
+            seed_outcome(f, fs, cfg.selection))
+
+
+def _step(state: State, key, t, T, fitness) -> State:
+    return advance(state, key, t, T, fitness)[0]
 
 
 def _evals(pop_size: int, config) -> tuple[int, int]:
-    return pop_size, 4 * pop_size
+    seeds = 4 if config is None or config.fourth_seed else 3
+    return pop_size, seeds * pop_size
 
 
 CGO = Algorithm("cgo", CGOConfig, _init, _step, _evals, axis="strategy", config_factory=CGOConfig.build)

@@ -3,6 +3,8 @@
 * :func:`protocol_line`: the one line that says how a table was made: the command that regenerates it,
   the repeats, the split, the seeds and the statistical test (and its family for Holm's adjustment).
   :func:`parse_protocols` reads those lines back (``tests/test_reporting.py`` checks every table has one).
+* :func:`settings_line`: the stamp of a table: the budget, repeats and dtype of the runs its numbers come from, and
+  whether that is the published protocol (``tests/test_reporting.py`` checks every table has one).
 * :func:`comparison`: the only wording a table uses to call one method better than another: Holm-adjusted
   p below :data:`ALPHA` *and* the effect size beside it; otherwise "no significant difference".
 """
@@ -19,6 +21,8 @@ ALPHA = 0.05
 PROTOCOL_FIELDS = ("command", "repeats", "split", "seeds", "test")
 
 _PREFIX = "Protocol: "
+#: How a table's stamp line starts.
+SETTINGS_PREFIX = "Run settings: "
 _FIELD = re.compile(r"(?:^|; )(" + "|".join(PROTOCOL_FIELDS) + r"): ")
 
 
@@ -39,6 +43,22 @@ def protocol_line(command: str, repeats: str, split: str, seeds: str, test: str)
         if re.search(r"; (" + "|".join(PROTOCOL_FIELDS) + r"): ", str(v)):
             raise ValueError(f"protocol_line: {k} contains another field's label: {v!r}")
     return _PREFIX + "; ".join(f"{k}: {str(v).strip()}" for k, v in values.items())
+
+
+def settings_line(budget: str, repeats: str, dtype: str, paper: str) -> str:
+    """``Run settings: <budget>, <repeats>, <dtype>. <paper>`` (one Markdown line): the stamp of a table, from the
+    runs its numbers come from.
+
+    Args:
+        budget: what each search or fit was given (population x iterations, evaluations, steps, epochs).
+        repeats: how many repeats (seeds, runs) each number pools.
+        dtype: the floating-point type the search or fit ran in.
+        paper: whether these are the published protocol's settings, which ones differ, or that the source gives none.
+    """
+    for k, v in (("budget", budget), ("repeats", repeats), ("dtype", dtype), ("paper", paper)):
+        if not str(v).strip():
+            raise ValueError(f"settings_line: {k} is empty")
+    return f"{SETTINGS_PREFIX}{budget.strip()}, {repeats.strip()}, {dtype.strip()}. {paper.strip()}"
 
 
 def parse_protocols(text: str) -> list[dict]:

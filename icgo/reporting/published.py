@@ -37,7 +37,9 @@ ICGO_LAB_MAE = {"relm": (0.5111, "Table 1, one split"), "cgo-original": (0.0516,
 #: MISMA paper (Yang, Cai), section 3: the field runs at a coal mine in Jiaozuo (4 200 samples at 1 s, a stop every
 #: 300 s), mean absolute azimuth error (deg) at the static survey points against the reference azimuth.
 MISMA = {
-    # Fig. 10, a section with strong magnetic interference: SMA "up to 23.59", MISMA "within 2.81" (raw not given)
+    # Fig. 10, a section with strong magnetic interference: the mean absolute error of SMA "reaches 23.59" (平均值可達)
+    # and MISMA's mean "stays within 2.81" (平均值保持在...以內); both are means over the static points, each said
+    # with a bound word, not the peak of an error curve (raw not given)
     "fig10": {"raw": None, "sma": 23.59, "misma": 2.81},
     # Fig. 11, a more ordinary section: the first 2 static points, and the remaining ones
     "fig11_first2": {"raw": 32.46, "sma": 16.54, "misma": 2.37},

@@ -550,6 +550,7 @@ class VariantResult(NamedTuple):
     fair: pd.DataFrame
     tests: pd.DataFrame
     sweep: pd.DataFrame
+    headline_errors: dict  # {"MISMA": (R,), "SMA": (R,)} per-repeat errors of the headline rows (deg)
 
 
 def _variant_models(name, p: Problem, res, U, x12, scfg) -> dict:
@@ -607,7 +608,8 @@ def gyro_sweep(name: str, ds: datasets.Dataset, scfg: SimulatedConfig, key, no_g
     """MISMA with the gyro term at each gyro grade of ``scfg.gyro.sweep`` against MISMA without it (item 4).
 
     Same repeat keys as :func:`search`, so each grade is paired with the
-    no-gyro row repeat by repeat (Wilcoxon, Holm over the grades).
+    no-gyro row repeat by repeat (Wilcoxon; Holm over every variant's grades together:
+    :func:`icgo.studies.misma_compare.sweep_family`).
 
     Args:
         no_gyro_errors: (R,) per-repeat static |azimuth error| of MISMA without the gyro term (deg).
@@ -639,12 +641,9 @@ def gyro_sweep(name: str, ds: datasets.Dataset, scfg: SimulatedConfig, key, no_g
                      "MISMA_no_gyro_az_err_mean_deg": float(np.mean(no_gyro_errors)),
                      "params_within_median": float(np.median(within)), "repeats_all_12_within": int((within == 12).sum()),
                      **{f"median_repeat_{k}": v for k, v in physics.items()},
+                     "MISMA_gyro_az_err_median_diff_deg": float(np.median(err - no_gyro_errors)),
                      "p": stats.wilcoxon_paired(err, no_gyro_errors).p_value})
-    df = pd.DataFrame(recs)
-    if len(df):
-        df["p_holm"] = stats.holm(df["p"].to_numpy())
-        df["gyro_helps"] = (df["MISMA_gyro_az_err_mean_deg"] < df["MISMA_no_gyro_az_err_mean_deg"]) & (df["p_holm"] < 0.05)
-    return df
+    return pd.DataFrame(recs)
 
 
 def simulated_variant(name: str, ds: datasets.Dataset, scfg: SimulatedConfig, key) -> VariantResult:
@@ -719,7 +718,7 @@ def simulated_variant(name: str, ds: datasets.Dataset, scfg: SimulatedConfig, ke
                         "MISMA": static_azimuth_error(p, x_med["MISMA"])})
     sweep = gyro_sweep(name, ds, scfg, key, errors[mag_misma]) if scfg.gyro.sweep else pd.DataFrame()
     return VariantResult(summary, params, modulus_table(moduli, p.ref_nT), plot,
-                         _variant_models(name, p, res, U_mod, x12, scfg), fair, tests, sweep)
+                         _variant_models(name, p, res, U_mod, x12, scfg), fair, tests, sweep, az)
 
 
 def simulated_table(summaries: list) -> pd.DataFrame:
@@ -772,20 +771,22 @@ def run(data: MismaData | None, config: MismaConfig, key) -> MismaResult:
     data = load_data(config) if data is None else data
     records, models, summary, plots = {}, {}, {}, {}
     if config.simulated.enabled:
-        sims, sweeps = [], []
+        sims, sweeps, head = [], [], []
         for name in config.simulated.variants:
             log.info("[simulated] rotating_drill variant %r ...", name)
             v = simulated_variant(name, data.simulated[name], config.simulated, offset_key(key, 1))
             sims.append(v.summary)
+            head.append(v.headline_errors)
             records[f"params_{name}"], records[f"modulus_{name}"] = v.params, v.modulus
             records[f"fair_{name}"], records[f"tests_{name}"] = v.fair, v.tests
             sweeps.append(v.sweep)
             plots[name] = v.plot
             models.update(v.models)
+        compare.headline_tests(sims, head)
         summary["simulated"] = sims
         records["simulated"] = simulated_table(sims)
         if config.simulated.gyro.sweep:
-            records["gyro_sweep"] = pd.concat(sweeps, ignore_index=True)
+            records["gyro_sweep"] = compare.sweep_family(pd.concat(sweeps, ignore_index=True))
     if config.real.enabled:
         log.info("[real] circuitpython-mag-cal devices ...")
         df, real_models = real_study(data.devices, config.real, offset_key(key, 7))

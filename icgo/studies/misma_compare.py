@@ -7,6 +7,8 @@ reading, its objective (the gyro term J_gyro). Each row below changes one of
 them; every row runs the same ``repeats`` keys (common random numbers), so
 rows are compared repeat by repeat with the paired Wilcoxon test
 (:func:`icgo.maths.stats.wilcoxon_paired`, Holm-adjusted within a variant).
+The headline test (MISMA against the standard SMA, :func:`headline_tests`) and the
+gyro-grade sweep (:func:`sweep_family`) are each one family over every variant.
 
 Boxes (all (12,) in parameter units: ``R^-1`` dimensionless, ``b`` in nT):
 ``prior`` (SMA's prior knowledge), ``U`` (MISMA's box around the modulus fit),
@@ -28,6 +30,7 @@ from icgo.maths import stats
 from icgo.optim import base
 from icgo.optim.registry import get
 from icgo.optim.sma import SMAConfig
+from icgo.reporting.families import effect_word
 
 OBJECTIVES = {"mag": "magnetometer + accelerometer (eqs. 5-8)", "mag+gyro": "eqs. 5-8 + J_gyro (M_omega)"}
 
@@ -166,7 +169,8 @@ def fair_table(runs: dict, scores: dict, boxes_used: dict) -> pd.DataFrame:
     for row, rr in runs.items():
         sc = scores[row]
         e = sc.err
-        out.append({"algorithm": row.algorithm, "box": boxes_used[row.box], "coordinates": row.coords,
+        out.append({"row": row.label, "algorithm": row.algorithm, "box": boxes_used[row.box],
+                    "coordinates": row.coords,
                     "objective": OBJECTIVES[row.objective], "az_err_mean_deg": float(e.mean()),
                     "az_err_std_deg": float(e.std(ddof=1)) if len(e) > 1 else 0.0, "az_err_max_deg": float(e.max()),
                     "params_within_median": float(np.median(sc.within)),
@@ -176,14 +180,45 @@ def fair_table(runs: dict, scores: dict, boxes_used: dict) -> pd.DataFrame:
 
 
 def paired_tests(pairs: list, errors: dict) -> pd.DataFrame:
-    """Paired Wilcoxon (two-sided) on per-repeat errors for each contrast, Holm-adjusted together."""
+    """Paired Wilcoxon (two-sided) on per-repeat errors for each contrast a -> b, Holm-adjusted together; ``b_vs_a``:
+    the change's effect on the error (:func:`icgo.reporting.families.effect_word` of the median of b - a)."""
     recs = []
     for name, a, b in pairs:
         if a in errors and b in errors:
             t = stats.wilcoxon_paired(errors[a], errors[b])
             recs.append({"contrast": name, "a": a.label, "b": b.label, "mean_a_deg": float(errors[a].mean()),
-                         "mean_b_deg": float(errors[b].mean()), "p": t.p_value})
+                         "mean_b_deg": float(errors[b].mean()),
+                         "median_b_minus_a_deg": float(np.median(errors[b] - errors[a])), "p": t.p_value})
     df = pd.DataFrame(recs)
     if len(df):
         df["p_holm"] = stats.holm(df["p"].to_numpy())
+        df["b_vs_a"] = [effect_word(d, p) for d, p in zip(df["median_b_minus_a_deg"], df["p_holm"])]
+    return df
+
+
+def headline_tests(summaries: list[dict], errors: list[dict]) -> None:
+    """MISMA against the standard SMA on each variant: paired Wilcoxon on the per-repeat mean |azimuth error| at the
+    stops, Holm over the variants (one family: the headline table's). Adds ``p_MISMA_vs_SMA``,
+    ``p_MISMA_vs_SMA_holm`` and ``MISMA_vs_SMA`` ("lower", "higher" or "no significant difference", MISMA's error
+    against SMA's) to each variant's summary, in place.
+
+    Args:
+        summaries: the variants' summaries (dicts), in order.
+        errors: per variant ``{"MISMA": (R,), "SMA": (R,)}`` errors (deg), paired by repeat.
+    """
+    p = [stats.wilcoxon_paired(e["MISMA"], e["SMA"]).p_value for e in errors]
+    for s, e, pv, ph in zip(summaries, errors, p, stats.holm(np.asarray(p)) if p else []):
+        s.update({"p_MISMA_vs_SMA": float(pv), "p_MISMA_vs_SMA_holm": float(ph),
+                  "MISMA_vs_SMA": effect_word(float(np.median(e["MISMA"] - e["SMA"])), float(ph))})
+
+
+def sweep_family(df: pd.DataFrame) -> pd.DataFrame:
+    """The gyro-grade sweep's cells (every variant x grade) as one Holm family: ``p_holm`` over all of them and
+    ``J_gyro`` ("lower", "higher" or "no significant difference": MISMA's error with the gyro term against without)."""
+    if not len(df):
+        return df
+    df = df.copy()
+    df["p_holm"] = stats.holm(df["p"].to_numpy())
+    df["J_gyro"] = [effect_word(float(d), float(ph)) for d, ph in
+                    zip(df["MISMA_gyro_az_err_median_diff_deg"], df["p_holm"])]
     return df
