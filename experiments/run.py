@@ -84,6 +84,7 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
             return None
         E.fail_line(e)
     try:
+        devices = E.start_devices()  # before JAX's backend starts: jax.distributed, the CPU's host devices
         scfg = C.study_config(cfg)  # every check before any computation (imports the study, JAX with it)
         C.progress_enabled(cfg.progress)
         timings["import_s"] = time.perf_counter() - t0

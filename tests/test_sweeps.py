@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 
 from hydra_plugins.icgo_launcher._core import resolve_workers
-from icgo.studies.workers import xla_flags
+from icgo.core.devices import xla_flags
 
 ROOT = Path(__file__).resolve().parents[1]
 APP = ROOT / "tests" / "sweep_app" / "app.py"

@@ -38,7 +38,7 @@ from hydra.core.utils import JobReturn, JobStatus, configure_log, filter_overrid
 from omegaconf import OmegaConf, open_dict
 
 from icgo.core.settings import interrupts_raise
-from icgo.studies.workers import xla_flags
+from icgo.core.devices import xla_flags
 
 log = logging.getLogger(__name__)
 

@@ -19,8 +19,8 @@ Pipeline, per repeat (one PRNG key each, ``fold_in(PRNGKey(seed), repeat_id)``):
 Test rows never steer anything: MSA, standardisation, fitness and output
 weights see them only with zero weight. Stages 2-6 run as three jitted calls:
 ``_prepare`` (mapped over repeats: split, MSA, features), a host-side MSA
-observability check, the optimizer's runner (:func:`icgo.optim.run_batch`,
-one call vmapped over repeats and CGO strategies), then ``score_all`` (refit
+observability check, the optimizer's runner (:func:`icgo.studies.sharding.run_grid`,
+one program over repeats and CGO strategies, sharded over the devices), then ``score_all`` (refit
 vmapped over strategies and mapped over repeats; predictions by
 :func:`icgo.methods.compensation.predict`, the forward pass the saved model
 applies; metrics).
@@ -46,7 +46,7 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
-from icgo.core.execution import ACCELERATOR_KERNEL, CPU_KERNEL, ExecutionPlan, execution_plan
+from icgo.core.execution import ACCELERATOR_KERNEL, CPU_KERNEL, ExecutionPlan, check_devices_setting
 from icgo.maths.metrics import azimuth_metrics
 from icgo.maths.stats import mean_std_table
 from icgo.methods import msa as _msa
@@ -56,7 +56,7 @@ from icgo.optim.cgo import CGO
 from icgo.physics.frames import angle_diff, azimuth_from_gv, wrap360
 from icgo.physics.qc import measured_dip_deg
 from icgo.studies import splits as _splits
-from icgo.studies import timing, workers
+from icgo.studies import sharding, timing
 from icgo.studies.protocol import Study
 
 REQUIRED_COLUMNS = ("gx", "gy", "gz", "bx", "by", "bz", "azimuth_deg")
@@ -82,12 +82,10 @@ class StudyConfig:
         seed: base seed; repeat k uses key ``fold_in(PRNGKey(seed), k)``.
         repeat_ids: run only these repeat ids (e.g. ``(3,)`` to rerun repeat 3
             alone); None = ``range(n_repeats)``.
-        workers: processes the search is split over by strategies x repeats (:mod:`icgo.studies.workers`,
-            :func:`search_grid`: one per core, XLA on one thread each, bitwise the one-process result) on a CPU;
-            None (default) = one per available core when the search is large
-            (:data:`icgo.core.execution.AUTO_MIN_WORK`) and no fitness wrapper (progress
-            bar) is given, else 1. Only the random protocol's searches split. On an
-            accelerator always 1 (:meth:`execution`).
+        devices: the most devices the search's strategies x repeats members are sharded over (one program,
+            :mod:`icgo.studies.sharding`); None (default) = every device of the backend (a CPU's host devices,
+            one per core of the job: :func:`icgo.core.devices.use_host_devices`). Bitwise the one-device result
+            on a CPU (:meth:`execution`).
         protocol: the split (:data:`icgo.studies.splits.PROTOCOLS`): ``random`` (paper),
             ``leave_azimuth_out``, ``leave_condition_out`` or ``transfer`` (needs
             ``SurveyData.target``, the second instrument's survey).
@@ -138,7 +136,7 @@ class StudyConfig:
 
     n_repeats: int = 10
     seed: int = 0
-    workers: int | None = None
+    devices: int | None = None
     repeat_ids: tuple | None = None
     protocol: str = "random"
     train_fraction: float = 0.7
@@ -175,11 +173,8 @@ class StudyConfig:
         need(is_int(self.n_repeats) and self.n_repeats >= 1, "n_repeats",
              f"must be an integer >= 1, got {self.n_repeats!r} (repeats)")
         need(is_int(self.seed) and self.seed >= 0, "seed", f"must be an integer >= 0, got {self.seed!r}")
-        need(self.workers is None or (is_int(self.workers) and self.workers >= 1), "workers",
-             f"must be None (one per core for a large search) or an integer >= 1, got {self.workers!r}")
-        need(self.workers in (None, 1) or (self.protocol == "random" and self.optimizer is not None), "workers",
-             f"{self.workers} splits a search over processes, which only the random protocol's searches do "
-             f"(protocol {self.protocol!r}, optimizer {self.optimizer!r}); use workers=1 or null")
+        need(self.devices is None or (is_int(self.devices) and self.devices >= 1), "devices",
+             f"must be None (every device) or an integer >= 1, got {self.devices!r}")
         need(self.repeat_ids is None or (len(self.repeat_ids) >= 1 and all(is_int(i) and i >= 0 for i in self.repeat_ids)),
              "repeat_ids", f"must be None or a non-empty tuple of integers >= 0, got {self.repeat_ids!r}")
         need(self.protocol in _splits.PROTOCOLS, "protocol",
@@ -246,32 +241,21 @@ class StudyConfig:
             need(is_int(self.max_evals) and self.max_evals >= 1, "max_evals",
                  f"must be an integer >= 1, got {self.max_evals!r}")
 
-    def execution(self, n_rows: int, backend: str | None = None, cores: int | None = None) -> ExecutionPlan:
-        """How the search runs for a survey of ``n_rows`` rows (:func:`icgo.core.execution.execution_plan`).
-
-        On a CPU: the cache-chunked kernel, and one process unless the random protocol with an
-        optimizer: then ``workers``, or for None one per available core when the search is large
-        enough to pay for starting them. On an accelerator: the batched kernel in one process.
+    def execution(self, n_rows: int = 0, backend: str | None = None, cores: int | None = None,
+                  cells: int | None = None) -> ExecutionPlan:
+        """How the search runs (:func:`icgo.core.execution.execution_plan`): its members (methods x ``cells``,
+        default the repeats) sharded over the backend's devices (``devices``); no search (plain RELM): one device.
 
         Args:
-            n_rows: the survey's rows. backend: the JAX backend (default ``jax.default_backend()``).
-            cores: CPU cores the job may use (default: its affinity mask).
+            n_rows: the survey's rows (kept for callers that plan per data set; the plan does not depend on it).
+            backend: the JAX backend (default ``jax.default_backend()``). cores: CPU cores the job may use
+                (default: its affinity mask). cells: (world, repeat) cells (default: the repeats).
         """
-        if backend is None:
-            backend = jax.default_backend()
-        cores = len(workers.available_cores()) if cores is None else cores
-        if self.optimizer is None or self.protocol != "random":
-            return execution_plan(backend, cores, 1)
-        from icgo.optim import get
-
-        n_methods, n_repeats = len(self.strategies) if get(self.optimizer).axis else 1, len(self.ids())
-        n_train = int(round(self.train_fraction * n_rows))
-        plan = execution_plan(backend, cores, self.workers, n_methods * n_repeats, search_work(self, n_train))
-        a, b = search_grid(n_methods, n_repeats, plan.workers)
-        if a * b < plan.workers:
-            plan = plan._replace(workers=a * b, why=f"{plan.why}; the {n_methods} x {n_repeats} (methods x repeats) "
-                                                    f"grid cut into {a} x {b} blocks")
-        return plan
+        check_devices_setting(None if self.devices is None else int(self.devices))
+        members = 0
+        if self.optimizer is not None:
+            members = len(self.method_names()) * (len(self.ids()) if cells is None else int(cells))
+        return sharding.plan(backend, members, self.devices, cores)
 
     def ids(self) -> tuple:
         """The repeat ids this config runs."""
@@ -551,79 +535,14 @@ def _train_rows(data, n_train, padded):
     return jax.vmap(lambda d: _relm.train_rows(d, n_train, padded))(data)
 
 
-def search_work(cfg: StudyConfig, n_train_rows: int) -> float:
-    """Row-evaluations of the search (fitness evaluations x training rows x methods x repeats), roughly."""
-    from icgo.optim import get, iterations_for_budget
-
-    alg = get(cfg.optimizer)
-    config = alg.config_cls() if cfg.optimizer_config is None else cfg.optimizer_config
-    first, per = alg.evals(cfg.pop_size, config)
-    iters = cfg.iterations if cfg.max_evals is None else iterations_for_budget(alg, cfg.pop_size, cfg.max_evals, config)
-    methods = len(cfg.method_names())
-    return float(first + per * iters) * n_train_rows * methods * len(cfg.ids())
-
-
-def search_block(cfg: StudyConfig, prep: Prepared) -> tuple:
-    """:func:`search` of one block (``cfg.strategies`` x the members of ``prep``) with the CPU kernel: a
-    worker process's job (:class:`icgo.studies.workers.Workers`); its progress goes to the parent
-    (:func:`icgo.studies.workers.progress_sink`)."""
-    return search(cfg, jax.tree_util.tree_map(jnp.asarray, prep), kernel=CPU_KERNEL, progress=workers.progress_sink())
-
-
-def search_grid(n_methods: int, n_repeats: int, n_workers: int) -> tuple[int, int]:
-    """How to cut the methods x repeats grid of a search into at most ``n_workers`` rectangular blocks:
-    (parts of the methods, parts of the repeats), the smallest largest block first (the critical path),
-    then the fewest blocks (each costs a process), then the most repeat parts."""
-    def key(ab):
-        a, b = ab
-        return (-(-n_methods // a)) * (-(-n_repeats // b)), a * b, -b
-
-    return min(((a, b) for a in range(1, n_methods + 1) for b in range(1, n_repeats + 1) if a * b <= n_workers),
-               key=key)
-
-
-def search_in_workers(pool: workers.Workers, cfg: StudyConfig, prep: Prepared, progress=None) -> tuple:
-    """:func:`search` split over the worker processes of ``pool`` (random protocol: one member per repeat).
-
-    The methods x repeats grid is cut into blocks (:func:`search_grid`); block (strategies ``s``,
-    repeats ``r``) is ``search_block`` of ``cfg`` with those strategies and repeat ids, on the
-    members' prepared arrays.
-
-    Returns:
-        (thetas (S, R, D), curves (S, R, T), evals (S, R, T)) as numpy arrays in ``cfg``'s order, and the
-        workers' timings (:meth:`icgo.studies.workers.Workers.run`).
-    """
-    from icgo.optim import get
-
-    ids = np.asarray(cfg.ids())
-    n_methods = len(cfg.strategies) if get(cfg.optimizer).axis else 1
-    a, b = search_grid(n_methods, len(ids), len(pool.procs))
-    blocks = [(m, r) for m in np.array_split(np.arange(n_methods), a) for r in np.array_split(np.arange(len(ids)), b)]
-    host = jax.tree_util.tree_map(np.asarray, prep)
-    payloads, labels = [], []
-    for m, r in blocks:
-        block_cfg = dataclasses.replace(cfg, repeat_ids=tuple(int(i) for i in ids[r]), workers=1,
-                                        **({"strategies": tuple(cfg.strategies[i] for i in m)} if a > 1 else {}))
-        payloads.append((block_cfg, jax.tree_util.tree_map(lambda x, r=r: x[r], host)))
-        labels.append(f"repeats {ids[r[0]]}-{ids[r[-1]]}" + (f", strategies {list(block_cfg.strategies)}" if a > 1
-                                                             else ""))
-    results, timings = pool.run(payloads, labels, progress=progress, weights=[m.size * r.size for m, r in blocks])
-    out = []
-    for i in range(3):
-        shape = (n_methods, len(ids)) + results[0][i].shape[2:]
-        full = np.empty(shape, results[0][i].dtype)
-        for (m, r), res in zip(blocks, results):
-            full[np.ix_(m, r)] = res[i]
-        out.append(full)
-    return (*out, timings)
-
-
-def search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None, kernel: str = CPU_KERNEL, progress=None):
+def search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None, kernel: str = CPU_KERNEL, progress=None,
+           devices=None):
     """Hidden parameters per (method, repeat): (S, R, D), curves (S, R, T), evals (S, R, T).
 
-    One jitted call (:func:`icgo.optim.run_batch`: ``lax.scan`` over iterations, ``vmap`` over repeats
-    and strategies); ``kernel`` (:meth:`StudyConfig.execution`) chooses the fitness kernel (:func:`search_kernel`);
-    ``progress``: see :func:`icgo.optim.base.run_batch`.
+    One program (:func:`icgo.studies.sharding.run_grid`: ``lax.scan`` over iterations, the strategies x repeats
+    members sharded over ``devices`` (default every device), vmapped on each); ``kernel``
+    (:meth:`StudyConfig.execution`) chooses the fitness kernel (:func:`search_kernel`); ``progress``: see
+    :func:`icgo.optim.sharded.run_members`.
     """
     D = _relm.n_params(cfg.hidden)
     R = prep.key.shape[0]
@@ -631,7 +550,7 @@ def search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None, kernel: str = CP
     if cfg.optimizer is None:
         theta, f = _plain(prep.key, prep.data, cfg.lam, cfg.hidden, float(low), float(high), _plain_dtype(cfg))
         return theta[None], f[None, :, None], jnp.ones((1, R, 1), jnp.int32)
-    from icgo.optim import get, run_batch
+    from icgo.optim import get
 
     bounds = (np.full(D, low), np.full(D, high))
     alg = get(cfg.optimizer)
@@ -640,12 +559,10 @@ def search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None, kernel: str = CP
     aux = sk.aux(train_rows(prep) if sk.train_rows else prep.data, np.full(R, cfg.lam, prep.data.X.dtype),
                  cfg.hidden)
     fitness = _relm.search_fitness if wrap_fitness is None else wrap_fitness(_relm.search_fitness)
-    res = run_batch(get(cfg.optimizer), fitness, bounds, prep.key,
-                    cfg.pop_size, cfg.iterations, max_evals=cfg.max_evals,
-                    config=None if configs else cfg.optimizer_config, configs=configs, aux=aux, progress=progress)
-    if configs is None:
-        res = jax.tree_util.tree_map(lambda x: x[None], res)
-    return res.best_x, res.curve, res.evals_curve
+    res = sharding.run_grid(alg, fitness, bounds, prep.key, cfg.pop_size, cfg.iterations, max_evals=cfg.max_evals,
+                            config=None if configs else cfg.optimizer_config, configs=configs, aux=aux,
+                            devices=devices, progress=progress)
+    return jnp.asarray(res.best_x), jnp.asarray(res.curve), jnp.asarray(res.evals_curve)
 
 
 # ----------------------------------------------------------------- checking
@@ -753,10 +670,10 @@ def run_study(frame: pd.DataFrame, config: StudyConfig | None = None, metadata: 
             ``search``; ``score``: refit and metrics; ``tables``) its wall seconds ``<stage>_s`` and the
             part spent compiling or loading programs ``<stage>_compile_s`` (:mod:`icgo.studies.timing`);
             ``execution``: the plan run (:meth:`StudyConfig.execution`, with the fitness function's
-            name and the dtype); ``workers``: per worker process its timings, or None.
-        progress: optional ``progress(done, total)`` called on the host as the search's iterations complete,
-            in this process or summed over its worker processes (:func:`icgo.optim.base.run_batch`); it never
-            enters the compiled programs, so they stay in the compilation cache.
+            name and the dtype).
+        progress: optional ``progress(done, total)`` called on the host as the search's iterations complete
+            (:func:`icgo.optim.sharded.run_members`); it never enters the compiled programs, so they stay in
+            the compilation cache.
     Returns:
         StudyResult.
     Raises:
@@ -792,31 +709,17 @@ def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None,
 
     t0 = time.perf_counter()
     stages = timing.Stages()
-    plan = cfg.execution(len(frame))
-    if wrap_fitness is not None and cfg.workers is None and plan.workers > 1:
-        plan = plan._replace(workers=1, why=f"{plan.why}; 1 process: the fitness wrapper (progress bar) follows it")
-    n_workers = plan.workers
-    if n_workers > 1 and wrap_fitness is not None:
-        raise ValueError(f"study: workers={cfg.workers} runs the search in other processes, which a fitness "
-                         "wrapper (progress bar) cannot follow; use workers=1 (or null) with it")
-    pool = workers.Workers(search_block, n_workers) if n_workers > 1 else None  # they start while we prepare
-    worker_times = None
-    try:
-        with stages("prepare"):
-            prep, mem = prepare(rows, G, B, a_true, cfg, base_key, reference, n_source)
-            prep, mem, cfg, excluded = exclude_failed_repeats(prep, mem, cfg, reference)
-            jax.block_until_ready(prep)
-        tuning = None
-        if cfg.tune:
-            cfg, tuning = _tune(cfg, prep, rows_per_fit(cfg, mem))
-        with stages("search"):
-            if pool is not None:
-                thetas, curve, evals, worker_times = search_in_workers(pool, cfg, prep, progress)
-            else:
-                thetas, curve, evals = jax.block_until_ready(search(cfg, prep, wrap_fitness, plan.kernel, progress))
-    finally:
-        if pool is not None:
-            pool.close()
+    with stages("prepare"):
+        prep, mem = prepare(rows, G, B, a_true, cfg, base_key, reference, n_source)
+        prep, mem, cfg, excluded = exclude_failed_repeats(prep, mem, cfg, reference)
+        jax.block_until_ready(prep)
+    tuning = None
+    if cfg.tune:
+        cfg, tuning = _tune(cfg, prep, rows_per_fit(cfg, mem))
+    plan = cfg.execution(cells=len(mem.repeat))
+    with stages("search"):
+        thetas, curve, evals = jax.block_until_ready(search(cfg, prep, wrap_fitness, plan.kernel, progress,
+                                                            sharding.plan_devices(plan)))
     check_search(np.asarray(curve), cfg.method_names(), [f"{r}" if cfg.protocol not in _splits.FOLD_PROTOCOLS
                                                           else f"{r}, {mem.fold_label[f]}"
                                                           for r, f in zip(mem.repeat, mem.fold)])
@@ -830,8 +733,7 @@ def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None,
     if timings is not None:
         kernel = f"icgo.methods.relm.{search_kernel(cfg.dtype, cfg.fitness, plan.kernel).name}" \
             if cfg.optimizer is not None else "icgo.methods.relm.fitness (plain RELM, no search)"
-        timings.update(stages.times, execution={**plan._asdict(), "fitness": kernel, "dtype": cfg.dtype},
-                       workers=worker_times)
+        timings.update(stages.times, execution={**plan._asdict(), "fitness": kernel, "dtype": cfg.dtype})
     return res._replace(tuning=tuning, excluded=excluded)
 
 
