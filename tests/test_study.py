@@ -239,7 +239,8 @@ def test_wrap_fitness_sees_every_search_call(frame):
     cfg = study.StudyConfig(optimizer="pso", n_repeats=2, hidden=10, pop_size=6, iterations=4, seed=2)
     study.run_study(frame, cfg, wrap_fitness=wrap)
     jax.effects_barrier()
-    assert len(calls) == 4 + 1  # initial population + one call per iteration, for the whole batch
+    shards = cfg.execution().devices  # each device's block of members calls the fitness on its own
+    assert len(calls) == (4 + 1) * shards  # initial population + one call per iteration, per block
 
 
 def test_a_search_that_never_found_a_finite_fitness_is_a_failed_run():

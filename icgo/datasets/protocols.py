@@ -24,8 +24,10 @@ Magnitudes and their physical justification: docs/datasets.md.
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Any, Mapping, NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pandas as pd
@@ -250,19 +252,34 @@ def lab_casing(
     )
 
 
+def _hashable(casing):
+    """A casing whose array fields are tuples (a static argument of :func:`_station_fields`), or None."""
+    if casing is None:
+        return None
+    return casing._replace(**{k: tuple(np.ravel(v).tolist()) for k, v in casing._asdict().items()
+                              if isinstance(v, (np.ndarray, list, tuple))})
+
+
+@partial(jax.jit, static_argnames=("casing",))
+def _station_fields(A, I, T, total_field_nT, dip_deg, gravity_g, casing, pivot_ned, lever_tool, effects):
+    """The noise-free measured (G, B) at every station and the casing field (NED, nT): one compiled program
+    (the persistent compilation cache then loads it in one read, not one per array operation)."""
+    C = F.tool_to_earth(A, I, T)
+    pos = ins.sensor_positions_ned(pivot_ned, lever_tool, A, I, T)
+    b_cas = ins.casing_field_ned(pos, casing) if casing is not None else jnp.zeros_like(pos)
+    B = jnp.einsum("nji,nj->ni", C, F.field_vector_ned(total_field_nT, dip_deg, 0.0) + b_cas)
+    G = jnp.einsum("nji,j->ni", C, F.gravity_vector_ned(gravity_g))
+    return (*ins.measure_g_b(G, B, C, effects), b_cas)
+
+
 def _station_survey(name, seed, A, I, T, total_field_nT, dip_deg, gravity_g, casing, pivot_ned, lever_tool,
                     effects, n_samples, accel_noise_g, mag_noise_nT, spike_prob, spike_nT, outlier_sigma,
                     extra_truth=None, extra_cols=None) -> Dataset:
     """Static stations near a casing: ideal sensors + casing + effects + averaged noise + 3-sigma filter."""
-    A, I, T = jnp.asarray(A), jnp.asarray(I), jnp.asarray(T)
-    C = F.tool_to_earth(A, I, T)
-    earth = F.field_vector_ned(total_field_nT, dip_deg, 0.0)
-    pos = ins.sensor_positions_ned(pivot_ned, lever_tool, A, I, T)
-    b_cas = ins.casing_field_ned(pos, casing) if casing is not None else jnp.zeros_like(pos)
-    B_ned = earth + b_cas
-    B = jnp.einsum("nji,nj->ni", C, B_ned)
-    G = jnp.einsum("nji,j->ni", C, F.gravity_vector_ned(float(gravity_g)))
-    Gm, Bm = ins.measure_g_b(G, B, C, effects)
+    Gm, Bm, b_cas = _station_fields(np.asarray(A, float), np.asarray(I, float), np.asarray(T, float),
+                                    float(total_field_nT), float(dip_deg), float(gravity_g), _hashable(casing),
+                                    np.asarray(pivot_ned, float), np.asarray(lever_tool, float),
+                                    {k: np.asarray(v, float) for k, v in effects.items()})
     g_mean, b_mean, spiked = _sample_sensors(seed, Gm, Bm, n_samples, accel_noise_g, mag_noise_nT, spike_prob, spike_nT)
     g_mean, b_mean, spiked = _np(g_mean), _np(b_mean), np.asarray(spiked)
     n = g_mean.shape[0]
