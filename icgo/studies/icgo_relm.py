@@ -539,29 +539,40 @@ def search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None, kernel: str = CP
            devices=None):
     """Hidden parameters per (method, repeat): (S, R, D), curves (S, R, T), evals (S, R, T).
 
-    One program (:func:`icgo.studies.sharding.run_grid`: ``lax.scan`` over iterations, the strategies x repeats
-    members sharded over ``devices`` (default every device), vmapped on each); ``kernel``
-    (:meth:`StudyConfig.execution`) chooses the fitness kernel (:func:`search_kernel`); ``progress``: see
-    :func:`icgo.optim.sharded.run_members`.
+    Plain RELM (no optimizer): one random theta per repeat. Else :func:`search_cells` of the members' keys and
+    training data (:func:`search_aux`); ``kernel`` (:meth:`StudyConfig.execution`) chooses the fitness kernel
+    (:func:`search_kernel`).
     """
-    D = _relm.n_params(cfg.hidden)
-    R = prep.key.shape[0]
-    low, high = cfg.theta_bounds
     if cfg.optimizer is None:
+        low, high = cfg.theta_bounds
         theta, f = _plain(prep.key, prep.data, cfg.lam, cfg.hidden, float(low), float(high), _plain_dtype(cfg))
-        return theta[None], f[None, :, None], jnp.ones((1, R, 1), jnp.int32)
+        return theta[None], f[None, :, None], jnp.ones((1, prep.key.shape[0], 1), jnp.int32)
+    return search_cells(cfg, prep.key, search_aux(cfg, prep, kernel), wrap_fitness, progress, devices)
+
+
+def search_aux(cfg: StudyConfig, prep: Prepared, kernel: str) -> _relm.SearchData:
+    """The search's data for each member of ``prep`` (leading axis: its members): the rows the fitness kernel of
+    ``kernel`` reads (gathered training rows or the row-weighted FitData), lambda and the precisions."""
+    sk = search_kernel(cfg.dtype, cfg.fitness, kernel)
+    return sk.aux(train_rows(prep) if sk.train_rows else prep.data,
+                  np.full(prep.key.shape[0], cfg.lam, prep.data.X.dtype), cfg.hidden)
+
+
+def search_cells(cfg: StudyConfig, keys, aux, wrap_fitness=None, progress=None, devices=None):
+    """Every method on every cell (``keys`` (C, 2), ``aux`` leading axis C: :func:`search_aux`), as one program
+    (:func:`icgo.studies.sharding.run_grid`: ``lax.scan`` over iterations, the methods x cells members sharded over
+    ``devices``, default every device, vmapped on each): (S, C, D) thetas, (S, C, T) curves and evaluations.
+    ``progress``: see :func:`icgo.optim.sharded.run_members`."""
     from icgo.optim import get
 
-    bounds = (np.full(D, low), np.full(D, high))
+    low, high = cfg.theta_bounds
+    D = _relm.n_params(cfg.hidden)
     alg = get(cfg.optimizer)
     configs = alg.axis_configs(cfg.optimizer_config, cfg.strategies) if alg.axis else None
-    sk = search_kernel(cfg.dtype, cfg.fitness, kernel)
-    aux = sk.aux(train_rows(prep) if sk.train_rows else prep.data, np.full(R, cfg.lam, prep.data.X.dtype),
-                 cfg.hidden)
     fitness = _relm.search_fitness if wrap_fitness is None else wrap_fitness(_relm.search_fitness)
-    res = sharding.run_grid(alg, fitness, bounds, prep.key, cfg.pop_size, cfg.iterations, max_evals=cfg.max_evals,
-                            config=None if configs else cfg.optimizer_config, configs=configs, aux=aux,
-                            devices=devices, progress=progress)
+    res = sharding.run_grid(alg, fitness, (np.full(D, low), np.full(D, high)), keys, cfg.pop_size, cfg.iterations,
+                            max_evals=cfg.max_evals, config=None if configs else cfg.optimizer_config,
+                            configs=configs, aux=aux, devices=devices, progress=progress)
     return jnp.asarray(res.best_x), jnp.asarray(res.curve), jnp.asarray(res.evals_curve)
 
 
@@ -692,7 +703,27 @@ def filtered(frame: pd.DataFrame, cfg: StudyConfig):
     return frame[kept], G[kept], B[kept], a[kept], kept
 
 
-def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None, timings=None, progress=None) -> StudyResult:
+class Staged(NamedTuple):
+    """A study up to its search (:func:`stage`): the filtered rows, the checked members and their prepared arrays.
+
+    ``cfg`` holds the repeats kept (``repeat_ids``) and, with ``tune``, the chosen cell; ``n_source``: transfer's
+    source rows (the target's follow), else all rows."""
+
+    cfg: StudyConfig
+    rows: pd.DataFrame
+    kept: np.ndarray
+    G: np.ndarray
+    B: np.ndarray
+    a_true: np.ndarray
+    n_source: int
+    mem: _splits.Members
+    prep: Prepared
+    excluded: tuple
+    tuning: Any
+
+
+def stage(frame, cfg: StudyConfig, metadata, base_key, target=None, stages=None) -> Staged:
+    """Filter, split, MSA and features of every member, the failed repeats left out, plain RELM tuned."""
     if (cfg.protocol == "transfer") != (target is not None):
         raise ValueError("study: protocol 'transfer' needs the second instrument's survey (target) and no other "
                          f"protocol takes one; got protocol {cfg.protocol!r} with"
@@ -706,9 +737,7 @@ def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None,
     reference = _reference(cfg, metadata)
     if cfg.msa_model == "biases_scales" and reference is None:
         raise ValueError("study: msa_model='biases_scales' needs msa_reference='known'")
-
-    t0 = time.perf_counter()
-    stages = timing.Stages()
+    stages = timing.Stages() if stages is None else stages
     with stages("prepare"):
         prep, mem = prepare(rows, G, B, a_true, cfg, base_key, reference, n_source)
         prep, mem, cfg, excluded = exclude_failed_repeats(prep, mem, cfg, reference)
@@ -716,25 +745,46 @@ def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None,
     tuning = None
     if cfg.tune:
         cfg, tuning = _tune(cfg, prep, rows_per_fit(cfg, mem))
-    plan = cfg.execution(cells=len(mem.repeat))
-    with stages("search"):
-        thetas, curve, evals = jax.block_until_ready(search(cfg, prep, wrap_fitness, plan.kernel, progress,
-                                                            sharding.plan_devices(plan)))
+    return Staged(cfg, rows, kept, G, B, a_true, n_source, mem, prep, excluded, tuning)
+
+
+def finish(st: Staged, thetas, curve, evals, t0: float, stages) -> StudyResult:
+    """The searched members checked, refitted and scored, and the study's tables (``t0``: its start, for the wall
+    time; ``stages``: the :class:`icgo.studies.timing.Stages` that time it)."""
+    cfg, mem = st.cfg, st.mem
     check_search(np.asarray(curve), cfg.method_names(), [f"{r}" if cfg.protocol not in _splits.FOLD_PROTOCOLS
                                                           else f"{r}, {mem.fold_label[f]}"
                                                           for r, f in zip(mem.repeat, mem.fold)])
     with stages("score"):
-        scored = jax.block_until_ready(score_all(thetas, prep, G, B, a_true, cfg.lam, cfg.hidden,
+        scored = jax.block_until_ready(score_all(thetas, st.prep, st.G, st.B, st.a_true, cfg.lam, cfg.hidden,
                                                  cfg.features == "raw"))
     wall = time.perf_counter() - t0
-    prep = prep._replace(data=None)  # the features (members x rows x 6) are done with: free them before the tables
+    prep = st.prep._replace(data=None)  # the features (members x rows x 6) are done with: free them before the tables
     with stages("tables"):
-        res = _collect(cfg, rows, kept, a_true, G, B, n_source, mem, prep, thetas, scored, curve, evals, wall)
+        res = _collect(cfg, st.rows, st.kept, st.a_true, st.G, st.B, st.n_source, mem, prep, thetas, scored, curve,
+                       evals, wall)
+    return res._replace(tuning=st.tuning, excluded=st.excluded)
+
+
+def execution_record(cfg: StudyConfig, plan: ExecutionPlan) -> dict:
+    """run.json's ``execution``: the plan, the fitness function that ran and the dtype."""
+    kernel = f"icgo.methods.relm.{search_kernel(cfg.dtype, cfg.fitness, plan.kernel).name}" \
+        if cfg.optimizer is not None else "icgo.methods.relm.fitness (plain RELM, no search)"
+    return {**plan._asdict(), "fitness": kernel, "dtype": cfg.dtype}
+
+
+def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None, timings=None, progress=None) -> StudyResult:
+    t0 = time.perf_counter()
+    stages = timing.Stages()
+    st = stage(frame, cfg, metadata, base_key, target, stages)
+    plan = st.cfg.execution(cells=len(st.mem.repeat))
+    with stages("search"):
+        thetas, curve, evals = jax.block_until_ready(search(st.cfg, st.prep, wrap_fitness, plan.kernel, progress,
+                                                            sharding.plan_devices(plan)))
+    res = finish(st, thetas, curve, evals, t0, stages)
     if timings is not None:
-        kernel = f"icgo.methods.relm.{search_kernel(cfg.dtype, cfg.fitness, plan.kernel).name}" \
-            if cfg.optimizer is not None else "icgo.methods.relm.fitness (plain RELM, no search)"
-        timings.update(stages.times, execution={**plan._asdict(), "fitness": kernel, "dtype": cfg.dtype})
-    return res._replace(tuning=tuning, excluded=excluded)
+        timings.update(stages.times, execution=execution_record(st.cfg, plan))
+    return res
 
 
 def _tune(cfg: StudyConfig, prep: Prepared, n_fit: int):
