@@ -40,7 +40,7 @@ STUDY_ALIASES = {"fitness.mode": "fitness", "optimizer.name": "optimizer", "stra
                  "dtype": "dtype", "devices": "devices"}
 #: Keys read by the entry point itself (not StudyConfig fields), per node; "" = top level.
 ENTRY_KEYS = {"": ("dataset", "optimizer", "strategy", "schedule", "progress", "figures", "label", "jax_cache_dir",
-                   "overwrite", *STUDY_NODES, "dtype", "devices"),
+                   "overwrite", *STUDY_NODES, "dtype", "devices", "worlds"),
               "optimizer": ("name", "params"), "strategy": ("names",), "schedule": ("bounds", "order", "clock")}
 #: Keys of the study nodes that the entry point reads itself (not StudyConfig fields): the transfer target.
 STUDY_NODE_ENTRY_KEYS = ("split.target",)

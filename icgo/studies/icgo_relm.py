@@ -550,11 +550,12 @@ def search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None, kernel: str = CP
     return search_cells(cfg, prep.key, search_aux(cfg, prep, kernel), wrap_fitness, progress, devices)
 
 
-def search_aux(cfg: StudyConfig, prep: Prepared, kernel: str) -> _relm.SearchData:
+def search_aux(cfg: StudyConfig, prep: Prepared, kernel: str, capacity: int | None = None) -> _relm.SearchData:
     """The search's data for each member of ``prep`` (leading axis: its members): the rows the fitness kernel of
-    ``kernel`` reads (gathered training rows or the row-weighted FitData), lambda and the precisions."""
+    ``kernel`` reads (gathered training rows, ``capacity`` of them when given, or the row-weighted FitData),
+    lambda and the precisions."""
     sk = search_kernel(cfg.dtype, cfg.fitness, kernel)
-    return sk.aux(train_rows(prep) if sk.train_rows else prep.data,
+    return sk.aux(train_rows(prep, capacity) if sk.train_rows else prep.data,
                   np.full(prep.key.shape[0], cfg.lam, prep.data.X.dtype), cfg.hidden)
 
 
@@ -707,7 +708,8 @@ class Staged(NamedTuple):
     """A study up to its search (:func:`stage`): the filtered rows, the checked members and their prepared arrays.
 
     ``cfg`` holds the repeats kept (``repeat_ids``) and, with ``tune``, the chosen cell; ``n_source``: transfer's
-    source rows (the target's follow), else all rows."""
+    source rows (the target's follow), else all rows; ``capacity``: None, or the rows G, B, a_true and ``prep`` are
+    padded to (:func:`prepare`)."""
 
     cfg: StudyConfig
     rows: pd.DataFrame
@@ -720,10 +722,12 @@ class Staged(NamedTuple):
     prep: Prepared
     excluded: tuple
     tuning: Any
+    capacity: int | None = None
 
 
-def stage(frame, cfg: StudyConfig, metadata, base_key, target=None, stages=None) -> Staged:
-    """Filter, split, MSA and features of every member, the failed repeats left out, plain RELM tuned."""
+def stage(frame, cfg: StudyConfig, metadata, base_key, target=None, stages=None, capacity=None) -> Staged:
+    """Filter, split, MSA and features of every member (rows padded to ``capacity``: :func:`prepare`), the failed
+    repeats left out, plain RELM tuned."""
     if (cfg.protocol == "transfer") != (target is not None):
         raise ValueError("study: protocol 'transfer' needs the second instrument's survey (target) and no other "
                          f"protocol takes one; got protocol {cfg.protocol!r} with"
@@ -739,13 +743,15 @@ def stage(frame, cfg: StudyConfig, metadata, base_key, target=None, stages=None)
         raise ValueError("study: msa_model='biases_scales' needs msa_reference='known'")
     stages = timing.Stages() if stages is None else stages
     with stages("prepare"):
-        prep, mem = prepare(rows, G, B, a_true, cfg, base_key, reference, n_source)
+        prep, mem = prepare(rows, G, B, a_true, cfg, base_key, reference, n_source, capacity)
         prep, mem, cfg, excluded = exclude_failed_repeats(prep, mem, cfg, reference)
         jax.block_until_ready(prep)
     tuning = None
     if cfg.tune:
         cfg, tuning = _tune(cfg, prep, rows_per_fit(cfg, mem))
-    return Staged(cfg, rows, kept, G, B, a_true, n_source, mem, prep, excluded, tuning)
+    if capacity is not None:
+        G, B, a_true = pad_rows(capacity, G, B, a_true)
+    return Staged(cfg, rows, kept, G, B, a_true, n_source, mem, prep, excluded, tuning, capacity)
 
 
 def finish(st: Staged, thetas, curve, evals, t0: float, stages) -> StudyResult:
@@ -760,9 +766,15 @@ def finish(st: Staged, thetas, curve, evals, t0: float, stages) -> StudyResult:
                                                  cfg.features == "raw"))
     wall = time.perf_counter() - t0
     prep = st.prep._replace(data=None)  # the features (members x rows x 6) are done with: free them before the tables
+    G, B, a_true = st.G, st.B, st.a_true
+    if st.capacity is not None:  # the padded rows dropped: every table holds the data set's own rows
+        n = len(st.kept.nonzero()[0])
+        G, B, a_true = G[:n], B[:n], a_true[:n]
+        prep = prep._replace(train=prep.train[:, :n], test=prep.test[:, :n], target=prep.target[:, :n])
+        scored = scored._replace(a_msa=scored.a_msa[..., :n], pred=scored.pred[..., :n], a_comp=scored.a_comp[..., :n])
     with stages("tables"):
-        res = _collect(cfg, st.rows, st.kept, st.a_true, st.G, st.B, st.n_source, mem, prep, thetas, scored, curve,
-                       evals, wall)
+        res = _collect(cfg, st.rows, st.kept, a_true, G, B, st.n_source, mem, prep, thetas, scored, curve, evals,
+                       wall)
     return res._replace(tuning=st.tuning, excluded=st.excluded)
 
 
@@ -813,7 +825,7 @@ def _tune(cfg: StudyConfig, prep: Prepared, n_fit: int):
 
 
 def prepare(rows: pd.DataFrame, G, B, a_true, cfg: StudyConfig, base_key, reference=None,
-            n_source: int | None = None) -> tuple[Prepared, _splits.Members]:
+            n_source: int | None = None, capacity: int | None = None) -> tuple[Prepared, _splits.Members]:
     """The members of ``cfg.protocol`` and their prepared arrays (split, MSA, features), checked.
 
     Args:
@@ -823,6 +835,8 @@ def prepare(rows: pd.DataFrame, G, B, a_true, cfg: StudyConfig, base_key, refere
         cfg: StudyConfig. base_key: the study's PRNG key.
         reference: (3,) known reference field or None (station mean).
         n_source: transfer only: the source's row count (the target's rows follow).
+        capacity: None, or the rows every array is padded to (copies of the last row, weight 0 in every mask), so
+            that data sets of other sizes share the programs (:mod:`icgo.studies.worlds`).
     Returns:
         (:class:`Prepared` with a leading member axis, :class:`icgo.studies.splits.Members`).
     """
@@ -830,17 +844,30 @@ def prepare(rows: pd.DataFrame, G, B, a_true, cfg: StudyConfig, base_key, refere
         rows = pd.DataFrame(index=pd.RangeIndex(len(a_true)))
     mem = _splits.members(cfg.protocol, rows, base_key, cfg.ids(), cfg.train_fraction, n_source)
     _check_config(cfg, mem)
-    prep = _prepare(jnp.asarray(mem.keys), jnp.asarray(mem.train), jnp.asarray(mem.test), jnp.asarray(G),
+    train, test = mem.train, mem.test
+    if capacity is not None:
+        G, B, a_true = pad_rows(capacity, G, B, a_true)
+        train, test = (np.pad(np.asarray(x), ((0, 0), (0, int(capacity) - x.shape[1]))) for x in (train, test))
+    prep = _prepare(jnp.asarray(mem.keys), jnp.asarray(train), jnp.asarray(test), jnp.asarray(G),
                     jnp.asarray(B), jnp.asarray(a_true), reference, msa_model=cfg.msa_model,
                     msa_iter=cfg.msa_iterations, features=cfg.features, mode=cfg.fitness,
                     val_fraction=float(cfg.val_fraction), k_folds=int(cfg.k_folds))
     return prep, mem
 
 
-def train_rows(prep: Prepared):
+def pad_rows(capacity: int, *arrays) -> tuple:
+    """Each (N, ...) array padded to ``capacity`` rows with copies of its last row (finite; their weights are 0)."""
+    return tuple(np.pad(np.asarray(x), [(0, int(capacity) - len(x))] + [(0, 0)] * (np.ndim(x) - 1), mode="edge")
+                 for x in arrays)
+
+
+def train_rows(prep: Prepared, capacity: int | None = None):
     """The fast fitness's data (:class:`icgo.methods.relm.TrainRows`, leading member axis): each member's training
-    rows gathered, padded with weight-0 rows where members have different numbers of them."""
+    rows gathered, padded with weight-0 rows where members have different numbers of them (or, with ``capacity``,
+    always padded to that many rows)."""
     n_train = np.asarray(prep.train).sum(axis=1).astype(int)
+    if capacity is not None:
+        return _train_rows(prep.data, int(capacity), True)
     return _train_rows(prep.data, int(n_train.max()), bool(n_train.min() != n_train.max()))
 
 
