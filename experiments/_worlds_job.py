@@ -122,7 +122,7 @@ def summary(result, cfg: DictConfig, info: dict):
         md += [f"**{len(excluded)} repeat(s) excluded (their MSA failed): "
                + "; ".join(f"world {w} repeat {r}: {why}" for w, r, why in excluded[:10]) + "**", ""]
     md += ["## Each world (mean over its repeats, test split)", "",
-           per.to_markdown(index=False, floatfmt=".4f"), "",
+           per.astype({"world": str}).to_markdown(index=False, floatfmt=".4f"), "",
            f"Wall time of the study: {result.wall_time_s:.1f} s (compile included); whole job "
            f"{info['total_time_s']:.1f} s."]
     return per, pooled, md

@@ -154,7 +154,7 @@ def markdown_tests(tests: pd.DataFrame) -> list[str]:
     """The tests as Markdown lines: the table (without the id columns) and one sentence per test."""
     if tests.empty:
         return ["No test over worlds: fewer than 2 worlds hold the compared methods."]
-    table = tests.drop(columns=["a", "b", "verdict"]).to_markdown(index=False, floatfmt=".4g")
+    table = tests.drop(columns=["a", "b", "verdict"]).to_markdown(index=False, floatfmt=".4g")  # a metric column stays
     return [table, "", *(f"- {v}" for v in tests["verdict"])]
 
 
