@@ -252,6 +252,12 @@ def lab_casing(
     )
 
 
+def _wrap360(angle_deg) -> np.ndarray:
+    """:func:`icgo.physics.frames.wrap360` in numpy (host-side, no compiled program)."""
+    w = np.mod(np.asarray(angle_deg, float), 360.0)
+    return np.where(w >= 360.0, 0.0, w)
+
+
 def _hashable(casing):
     """A casing whose array fields are tuples (a static argument of :func:`_station_fields`), or None."""
     if casing is None:
@@ -292,7 +298,7 @@ def _station_survey(name, seed, A, I, T, total_field_nT, dip_deg, gravity_g, cas
     station = np.arange(n)
     extra = {k: np.asarray(v)[keep] for k, v in (extra_cols or {}).items()}
     frame = _contract_frame(station[keep], g_mean[keep], b_mean[keep], _np(A)[keep], _np(I)[keep],
-                            _np(F.wrap360(T))[keep], extra)
+                            _wrap360(T)[keep], extra)
     meta = {
         "name": name, "seed": int(seed), "total_field_nT": float(total_field_nT), "dip_deg": float(dip_deg),
         "declination_deg": 0.0, "gravity_g": float(gravity_g), "azimuth_reference": "magnetic",

@@ -354,12 +354,12 @@ def sigma_filter(G, B, azimuth_true, n_sigma: float = 3.0):
     gn = np.linalg.norm(G, axis=1)
     bn = np.linalg.norm(B, axis=1)
     dip = measured_dip_deg(G, B)
+    err = np.asarray(_raw_errors(G, B, a)[1])
     keep = np.ones(len(a), bool)
     for q in (gn, bn, dip):
         s = q.std()
         if s > 0:
             keep &= np.abs(q - q.mean()) <= n_sigma * s
-    err = np.asarray(angle_diff(np.asarray(azimuth_from_gv(G, B)), a))
     # groups of equal azimuth by one stable sort (O(N log N) for any number of groups); each group's rows
     # keep their order, so its mean and std are those of err[group mask]
     az = np.round(a, 6)
@@ -373,6 +373,13 @@ def sigma_filter(G, B, azimuth_true, n_sigma: float = 3.0):
         if s > 0:
             keep[g] &= np.abs(e - e.mean()) <= n_sigma * s
     return keep
+
+
+#: The host-side filter's and tables' raw azimuth errors and metrics, one compiled program each (not one per array
+#: operation).
+_table_metrics = jax.jit(azimuth_metrics)
+_raw_errors = jax.jit(lambda G, B, a: (azimuth_from_gv(G, B), angle_diff(azimuth_from_gv(G, B), a)))
+_errors = jax.jit(angle_diff)
 
 
 # ------------------------------------------------------------------ stages
@@ -955,8 +962,7 @@ def _collect(cfg, rows, kept, a_true, G, B, n_source, mem: _splits.Members, prep
     target = np.asarray(prep.target)
     a_msa = np.asarray(scored.a_msa[0])  # every strategy of a repeat shares its MSA
     a_comp = np.asarray(scored.a_comp)
-    a_raw = np.asarray(azimuth_from_gv(G, B))
-    err_raw = np.asarray(angle_diff(a_raw, a_true))
+    a_raw, err_raw = (np.asarray(x) for x in _raw_errors(G, B, a_true))
     one_member = len(mem.fold_label) == 1  # random / transfer: the jitted per-member metrics are the repeat's
     # a repeat's members side by side, repeats in ``ids`` order: (..., M, N) -> (..., R, F N), so that every
     # repeat's metrics over its pooled folds come from one batched call (not one call per repeat)
@@ -972,13 +978,13 @@ def _collect(cfg, rows, kept, a_true, G, B, n_source, mem: _splits.Members, prep
     per_split = {}
     for split, mask in (("test", test), ("train", train)):
         w = pooled(mask.astype(float))
-        per_method = {"raw": azimuth_metrics(a_true_p, np.broadcast_to(np.tile(a_raw, F), w.shape), err_raw_p, w),
-                      "msa": azimuth_metrics(a_true_p, pooled(a_msa), err_raw_p, w)}
+        per_method = {"raw": _table_metrics(a_true_p, np.broadcast_to(np.tile(a_raw, F), w.shape), err_raw_p, w),
+                      "msa": _table_metrics(a_true_p, pooled(a_msa), err_raw_p, w)}
         if one_member:
             m = scored.test if split == "test" else scored.train
             per_method |= {name: type(m)(*(np.asarray(v)[s][order] for v in m)) for s, name in enumerate(methods)}
         else:
-            m = azimuth_metrics(a_true_p, pooled(a_comp), pooled(target), w)
+            m = _table_metrics(a_true_p, pooled(a_comp), pooled(target), w)
             per_method |= {name: type(m)(*(np.asarray(v)[s] for v in m)) for s, name in enumerate(methods)}
         per_split[split] = {name: {k: np.asarray(v, dtype=float) for k, v in m._asdict().items()}
                             for name, m in per_method.items()}
@@ -1006,7 +1012,7 @@ def _collect(cfg, rows, kept, a_true, G, B, n_source, mem: _splits.Members, prep
         "azimuth_true": np.tile(a_true, S * M), "azimuth_raw": np.tile(a_raw, S * M),
         "azimuth_msa": np.tile(a_msa.ravel(), S), "error_msa": np.tile(target.ravel(), S),
         "predicted_error": np.asarray(scored.pred).ravel(), "azimuth_compensated": a_comp.ravel(),
-        "error_compensated": np.asarray(angle_diff(a_comp, a_true[None, None])).ravel()}, copy=False)
+        "error_compensated": np.asarray(_errors(a_comp, a_true[None, None])).ravel()}, copy=False)
     if "toolface_deg" in rows.columns:
         predictions.insert(6, "toolface_deg", np.tile(rows["toolface_deg"].to_numpy(), S * M))
     if cfg.protocol == "transfer":
