@@ -55,14 +55,14 @@ def kernel_rates(sd, plan_kernel: str, batches=BATCHES, reps: int = 3) -> dict:
     """
     from experiments.bench_kernels import HIDDEN, LAM, best_time, population, slice_tree
     from icgo.core.execution import ACCELERATOR_KERNEL, CPU_KERNEL
-    from icgo.methods import relm
+    from icgo.methods import relm, search_fitness
     from icgo.studies import icgo_relm as study
 
     rows, fit = slice_tree(sd.compact, 0), slice_tree(sd.fit, 0)
     out = {}
     for kernel in (plan_kernel, CPU_KERNEL if plan_kernel == ACCELERATOR_KERNEL else ACCELERATOR_KERNEL):
         aux = study.search_kernel("float32_features", "train", kernel).aux(rows, jnp.asarray(LAM), HIDDEN)
-        f = jax.jit(relm.search_fitness)
+        f = jax.jit(search_fitness.search_fitness)
         out[kernel] = {}
         for P in batches if kernel == plan_kernel else [b for b in batches if b <= 1200]:
             pop = population(jax.random.PRNGKey(P), P)
@@ -70,7 +70,7 @@ def kernel_rates(sd, plan_kernel: str, batches=BATCHES, reps: int = 3) -> dict:
             print(f"  {kernel} kernel, batch {P:,}: {out[kernel][P]:,.0f} evals/s", file=sys.stderr, flush=True)
     pop = population(jax.random.PRNGKey(7), 120)
     aux = study.search_kernel("float32_features", "train", plan_kernel).aux(rows, jnp.asarray(LAM), HIDDEN)
-    out["max_rel_diff"] = float(jnp.max(jnp.abs(relm.search_fitness(pop, aux) / relm.fitness(pop, fit, LAM, HIDDEN)
+    out["max_rel_diff"] = float(jnp.max(jnp.abs(search_fitness.search_fitness(pop, aux) / relm.fitness(pop, fit, LAM, HIDDEN)
                                                 - 1)))
     return out
 

@@ -173,7 +173,7 @@ def test_tiny_cgo_study_train_kernel_batched_equals_alone(frame, dtype, rtol):
     import jax.numpy as jnp
 
     from icgo.core.execution import ACCELERATOR_KERNEL, CPU_KERNEL
-    from icgo.methods import relm
+    from icgo.methods import relm, search_fitness
 
     cfg = study.StudyConfig(optimizer="cgo", strategies=("original", "three_stage"), n_repeats=2,
                             hidden=10, pop_size=6, iterations=3, seed=5, dtype=dtype)
@@ -190,12 +190,12 @@ def test_tiny_cgo_study_train_kernel_batched_equals_alone(frame, dtype, rtol):
     for kernel in (CPU_KERNEL, ACCELERATOR_KERNEL):
         sk = study.search_kernel(dtype, "train", kernel)
         assert sk.train_rows
-        f = relm.search_fitness(pop, sk.aux(rows, jnp.asarray(1e-3), 10))
+        f = search_fitness.search_fitness(pop, sk.aux(rows, jnp.asarray(1e-3), 10))
         np.testing.assert_allclose(np.asarray(f), ref, rtol=rtol)
 
 
 def test_a_lambda_sweep_compiles_the_search_once(frame):
-    """lam travels as data (:class:`icgo.methods.relm.SearchData`): a search at another ridge lambda reuses
+    """lam travels as data (:class:`icgo.methods.search_fitness.SearchData`): a search at another ridge lambda reuses
     the compiled search and minimises the float64 fitness at that lambda."""
     import jax
 

@@ -46,7 +46,7 @@ from icgo.core.errors import SettingError
 from icgo.core.settings import is_int, is_real, need
 from icgo.datasets import protocols as datasets
 from icgo.maths import metrics, stats
-from icgo.methods import nets, relm
+from icgo.methods import nets, relm, search_fitness
 from icgo.models.network import GyroNetwork, GyroRELM, LookupTableModel, turntable_domain, turntable_hash
 from icgo.optim.cgo import CGO
 from icgo.optim.registry import get
@@ -427,8 +427,8 @@ def search_theta(rc: RelmConfig, keys, data: relm.FitData, n_in: int):
     L, lo, hi = int(rc.hidden), *(float(x) for x in rc.theta_bounds)
     D = relm.n_params(L, n_in)
     configs = rc.search_configs()
-    aux = relm.SearchData(data, np.full(keys.shape[:1], float(rc.lam), data.X.dtype), L)
-    res = run_batch(get(rc.optimizer), relm.search_fitness, (np.full(D, lo), np.full(D, hi)), keys,
+    aux = search_fitness.SearchData(data, np.full(keys.shape[:1], float(rc.lam), data.X.dtype), L)
+    res = run_batch(get(rc.optimizer), search_fitness.search_fitness, (np.full(D, lo), np.full(D, hi)), keys,
                     int(rc.pop_size), int(rc.iterations), configs=configs, aux=aux)
     if configs is not None:  # one value on the side-by-side axis: drop that axis
         res = jax.tree_util.tree_map(lambda x: x[0], res)

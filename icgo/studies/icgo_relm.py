@@ -52,6 +52,7 @@ from icgo.maths.stats import mean_std_table
 from icgo.methods import msa as _msa
 from icgo.methods import relm as _relm
 from icgo.methods.compensation import RELMParams, predict
+from icgo.methods.search_fitness import SearchData, search_fitness
 from icgo.optim.cgo import CGO
 from icgo.physics.frames import angle_diff, azimuth_from_gv, wrap360
 from icgo.physics.qc import measured_dip_deg
@@ -426,31 +427,34 @@ def _prepare(keys, train, test, G, B, a_true, reference, *, msa_model, msa_iter,
 
 class SearchKernel(NamedTuple):
     """The search's fitness kernel: its name in :mod:`icgo.methods.relm` (one of
-    :data:`icgo.methods.relm.SEARCH_KERNELS`), whether it reads the gathered training rows (:func:`train_rows`)
-    or the row-weighted FitData, and its precisions (:class:`icgo.methods.relm.SearchData`)."""
+    :data:`icgo.methods.search_fitness.SEARCH_KERNELS`), whether it reads the gathered training rows (:func:`train_rows`)
+    or the row-weighted FitData, and its precisions (:class:`icgo.methods.search_fitness.SearchData`)."""
 
     name: str
     train_rows: bool
     feature_dtype: str
     solve_dtype: str
 
-    def aux(self, rows, lam, hidden: int) -> _relm.SearchData:
-        """The optimizer's ``aux`` for :func:`icgo.methods.relm.search_fitness`: ``rows`` (TrainRows or FitData)
+    def aux(self, rows, lam, hidden: int) -> SearchData:
+        """The optimizer's ``aux`` for :func:`icgo.methods.search_fitness.search_fitness`: ``rows`` (TrainRows or FitData)
         and ``lam`` (an array with the rows' leading axes: (R,) for a search, () for one repeat) as data."""
-        return _relm.SearchData(rows, lam, int(hidden), self.name, self.feature_dtype, self.solve_dtype)
+        return SearchData(rows, lam, int(hidden), self.name, self.feature_dtype, self.solve_dtype)
 
 
 def search_kernel(dtype: str, fitness: str, kernel: str) -> SearchKernel:
     """The fitness kernel a search runs for a precision (:data:`PRECISIONS`), fitness mode and backend kernel.
 
-    ``kernel`` :data:`icgo.core.execution.ACCELERATOR_KERNEL`: :func:`icgo.methods.relm.gram_train_fitness`
-    (train mode, gathered rows) or :func:`icgo.methods.relm.gram_fitness`. CPU: the train-mode kernel
+    ``kernel`` :data:`icgo.core.execution.ACCELERATOR_KERNEL`: the fused kernel
+    :func:`icgo.methods.relm_fused.fused_train_fitness` (train mode with float32 features: the default),
+    :func:`icgo.methods.relm.gram_train_fitness` (train mode, other precisions) or :func:`icgo.methods.relm.gram_fitness`. CPU: the train-mode kernel
     :func:`icgo.methods.relm.train_fitness` for ``fitness="train"`` with a float64 solve, else the
     row-weighted :func:`icgo.methods.relm.fitness` (float64; float32 for ``dtype="float32"``).
     """
     features, solve = PRECISIONS[dtype]
     train = fitness == "train"
     if kernel == ACCELERATOR_KERNEL:
+        if train and (features, solve) == ("float32", "float64"):
+            return SearchKernel("fused_train_fitness", True, features, solve)
         return SearchKernel("gram_train_fitness" if train else "gram_fitness", train, features, solve)
     if kernel != CPU_KERNEL:
         raise ValueError(f"study: unknown search kernel {kernel!r}")
@@ -557,7 +561,7 @@ def search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None, kernel: str = CP
     return search_cells(cfg, prep.key, search_aux(cfg, prep, kernel), wrap_fitness, progress, devices)
 
 
-def search_aux(cfg: StudyConfig, prep: Prepared, kernel: str, capacity: int | None = None) -> _relm.SearchData:
+def search_aux(cfg: StudyConfig, prep: Prepared, kernel: str, capacity: int | None = None) -> SearchData:
     """The search's data for each member of ``prep`` (leading axis: its members): the rows the fitness kernel of
     ``kernel`` reads (gathered training rows, ``capacity`` of them when given, or the row-weighted FitData),
     lambda and the precisions."""
@@ -577,7 +581,7 @@ def search_cells(cfg: StudyConfig, keys, aux, wrap_fitness=None, progress=None, 
     D = _relm.n_params(cfg.hidden)
     alg = get(cfg.optimizer)
     configs = alg.axis_configs(cfg.optimizer_config, cfg.strategies) if alg.axis else None
-    fitness = _relm.search_fitness if wrap_fitness is None else wrap_fitness(_relm.search_fitness)
+    fitness = search_fitness if wrap_fitness is None else wrap_fitness(search_fitness)
     res = sharding.run_grid(alg, fitness, (np.full(D, low), np.full(D, high)), keys, cfg.pop_size, cfg.iterations,
                             max_evals=cfg.max_evals, config=None if configs else cfg.optimizer_config,
                             configs=configs, aux=aux, devices=devices, progress=progress)
@@ -787,9 +791,11 @@ def finish(st: Staged, thetas, curve, evals, t0: float, stages) -> StudyResult:
 
 def execution_record(cfg: StudyConfig, plan: ExecutionPlan) -> dict:
     """run.json's ``execution``: the plan, the fitness function that ran and the dtype."""
-    kernel = f"icgo.methods.relm.{search_kernel(cfg.dtype, cfg.fitness, plan.kernel).name}" \
-        if cfg.optimizer is not None else "icgo.methods.relm.fitness (plain RELM, no search)"
-    return {**plan._asdict(), "fitness": kernel, "dtype": cfg.dtype}
+    if cfg.optimizer is None:
+        return {**plan._asdict(), "fitness": "icgo.methods.relm.fitness (plain RELM, no search)", "dtype": cfg.dtype}
+    name = search_kernel(cfg.dtype, cfg.fitness, plan.kernel).name
+    module = "relm_fused" if name == "fused_train_fitness" else "relm"
+    return {**plan._asdict(), "fitness": f"icgo.methods.{module}.{name}", "dtype": cfg.dtype}
 
 
 def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None, timings=None, progress=None) -> StudyResult:
