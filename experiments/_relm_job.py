@@ -315,7 +315,8 @@ def progress_enabled(setting, accelerator: bool = False) -> bool:
 def run_with_progress(frame, scfg, meta, progress, desc: str, target=None, timings: dict | None = None):
     """``icgo.studies.icgo_relm.run_study`` with a progress bar over the optimizer's iterations (:class:`Progress`).
 
-    The bar follows the search's iterations on the host (``run_study(progress=...)``); without an optimizer (plain RELM), or on an accelerator under
+    The bar follows the search's iterations on the host (``run_study(progress=...)``); without an optimizer (plain
+    RELM), or on an accelerator under
     ``progress=auto``, there is no bar. ``progress``: the ``progress`` setting (:func:`progress_enabled`).
     ``timings``: see ``run_study``. Prints the execution plan (``search: ...``).
     """

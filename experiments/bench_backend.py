@@ -332,7 +332,8 @@ def report(res: dict) -> str:
         lines.append(f"| study, {p['repeats']:,} repeats x 5 strategies | {what} |")
     curve = res.get("devices_curve") or {}
     for p in curve.get("cpu", []):
-        lines.append(f"| Table 3's search ({p['members']} members, {res['curve_size'][1]} iterations) on {p['devices']} CPU "
+        lines.append(f"| Table 3's search ({p['members']} members, {res['curve_size'][1]} iterations) on "
+                     f"{p['devices']} CPU "
                      f"host device(s) of {curve['cpu_cores']} core(s) | {p['run_s']:.2f} s, {p['evals_per_s']:,.0f} "
                      f"evals/s |")
     for p in curve.get("accelerator") or []:

@@ -26,9 +26,8 @@ Non-finite fitness values are returned as +inf.
 
 from __future__ import annotations
 
-import dataclasses
 from functools import partial
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp

@@ -33,7 +33,8 @@ class SearchData:
     own jit cache compiles once per setting).
 
     Attributes:
-        rows: :class:`icgo.methods.relm.TrainRows` (the ``*train_fitness`` kernels) or :class:`icgo.methods.relm.FitData`.
+        rows: :class:`icgo.methods.relm.TrainRows` (the ``*train_fitness`` kernels) or
+            :class:`icgo.methods.relm.FitData`.
         lam: ridge lambda, () per repeat.
         hidden: L.
         kernel: one of :data:`SEARCH_KERNELS`.

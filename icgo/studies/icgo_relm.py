@@ -427,7 +427,8 @@ def _prepare(keys, train, test, G, B, a_true, reference, *, msa_model, msa_iter,
 
 class SearchKernel(NamedTuple):
     """The search's fitness kernel: its name in :mod:`icgo.methods.relm` (one of
-    :data:`icgo.methods.search_fitness.SEARCH_KERNELS`), whether it reads the gathered training rows (:func:`train_rows`)
+    :data:`icgo.methods.search_fitness.SEARCH_KERNELS`), whether it reads the gathered training rows
+    (:func:`train_rows`)
     or the row-weighted FitData, and its precisions (:class:`icgo.methods.search_fitness.SearchData`)."""
 
     name: str
@@ -436,7 +437,8 @@ class SearchKernel(NamedTuple):
     solve_dtype: str
 
     def aux(self, rows, lam, hidden: int) -> SearchData:
-        """The optimizer's ``aux`` for :func:`icgo.methods.search_fitness.search_fitness`: ``rows`` (TrainRows or FitData)
+        """The optimizer's ``aux`` for :func:`icgo.methods.search_fitness.search_fitness`: ``rows`` (TrainRows or
+        FitData)
         and ``lam`` (an array with the rows' leading axes: (R,) for a search, () for one repeat) as data."""
         return SearchData(rows, lam, int(hidden), self.name, self.feature_dtype, self.solve_dtype)
 
@@ -446,7 +448,8 @@ def search_kernel(dtype: str, fitness: str, kernel: str) -> SearchKernel:
 
     ``kernel`` :data:`icgo.core.execution.ACCELERATOR_KERNEL`: the fused kernel
     :func:`icgo.methods.relm_fused.fused_train_fitness` (train mode with float32 features: the default),
-    :func:`icgo.methods.relm.gram_train_fitness` (train mode, other precisions) or :func:`icgo.methods.relm.gram_fitness`. CPU: the train-mode kernel
+    :func:`icgo.methods.relm.gram_train_fitness` (train mode, other precisions) or
+    :func:`icgo.methods.relm.gram_fitness`. CPU: the train-mode kernel
     :func:`icgo.methods.relm.train_fitness` for ``fitness="train"`` with a float64 solve, else the
     row-weighted :func:`icgo.methods.relm.fitness` (float64; float32 for ``dtype="float32"``).
     """
@@ -798,7 +801,8 @@ def execution_record(cfg: StudyConfig, plan: ExecutionPlan) -> dict:
     return {**plan._asdict(), "fitness": f"icgo.methods.{module}.{name}", "dtype": cfg.dtype}
 
 
-def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None, timings=None, progress=None) -> StudyResult:
+def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None, timings=None,
+         progress=None) -> StudyResult:
     t0 = time.perf_counter()
     stages = timing.Stages()
     st = stage(frame, cfg, metadata, base_key, target, stages)
