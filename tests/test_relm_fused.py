@@ -68,20 +68,22 @@ def test_the_default_is_tf32_with_two_refinements():
 
 
 def test_bounded_memory_blocks_and_groups_agree():
-    """Blocks of 7 rows (last one padded) and member groups of one: the same fitness within 1e-9 relative."""
+    """Blocks of 7 rows (last one padded) and member groups of one: the same fitness within 1e-6 relative (the float32
+    sums of another block size; 2e-8 measured on jax 0.11.2, 1e-15 on 0.12.0.1)."""
     pop, fit, rows = _rows(padded=True)
     whole = np.asarray(F.fused_train_fitness(pop, rows, 1e-3, HIDDEN, block_rows=1024))
     small = F.fused_train_fitness(pop, rows, 1e-3, HIDDEN, block_rows=7)
-    np.testing.assert_allclose(np.asarray(small), whole, rtol=1e-9)
+    np.testing.assert_allclose(np.asarray(small), whole, rtol=1e-6)
     pops = jnp.stack([pop, pop * 0.5, pop[::-1]])
     grouped = jax.vmap(lambda p: F.fused_train_fitness(p, rows, 1e-3, HIDDEN, block_rows=7,
                                                        block_elements=pop.shape[0] * 7 * HIDDEN))(pops)
-    np.testing.assert_allclose(np.asarray(grouped[0]), np.asarray(small), rtol=1e-13)
+    np.testing.assert_allclose(np.asarray(grouped[0]), np.asarray(small), rtol=1e-6)
 
 
 def test_batch_members_equal_calls_alone_under_nested_vmap():
-    """Strategies x repeats under two vmaps is one batch; each member equals its call alone to 1e-13 relative (the
-    row blocks are fixed, so only the order XLA gives a batched product's sums may differ with the batch size)."""
+    """Strategies x repeats under two vmaps is one batch; each member equals its call alone to 1e-6 relative (the
+    row blocks are fixed, so only the order XLA gives a batched float32 product's sums may differ with the batch
+    size: 1e-16 measured on jax 0.12.0.1, 1e-8 on 0.11.2)."""
     pop, fit, rows = _rows()
     pops = jnp.stack([jnp.stack([pop, pop * 0.7]), jnp.stack([pop * 1.3, pop[::-1]])])       # (S=2, R=2, P, D)
     rows2 = jax.tree_util.tree_map(lambda x: jnp.stack([x, x * 1.01]), rows)
@@ -90,7 +92,7 @@ def test_batch_members_equal_calls_alone_under_nested_vmap():
     for s in range(2):
         for r in range(2):
             alone = F.fused_train_fitness(pops[s, r], jax.tree_util.tree_map(lambda x: x[r], rows2), 1e-3, HIDDEN)
-            np.testing.assert_allclose(np.asarray(out[s, r]), np.asarray(alone), rtol=1e-13)
+            np.testing.assert_allclose(np.asarray(out[s, r]), np.asarray(alone), rtol=1e-6)
 
 
 def test_round_mantissa_is_bfloat16_and_tf32_rounding():
