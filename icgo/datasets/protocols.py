@@ -31,7 +31,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pandas as pd
-from scipy.signal import lfilter
 
 from icgo.datasets import instruments as ins
 from icgo.physics import frames as F
@@ -652,6 +651,8 @@ def rotating_drill(
     # Stick-slip: OU process on the relative rate, 20 s time constant, unit variance.
     a = np.exp(-dt / 20.0)
     eps = r_ou.standard_normal(n)
+    from scipy.signal import lfilter  # here, not at import: scipy.signal costs 1.4 s, and only this drift needs it
+
     ou = lfilter([np.sqrt(1.0 - a * a)], [1.0, -a], eps)  # x_k = a x_{k-1} + sqrt(1-a^2) e_k
     rate_deg_s = np.where(static, 0.0, rotation_rpm * 6.0 * (1.0 + rpm_variation * ou))
     T = np.mod(r_t0.uniform(0.0, 360.0) + np.cumsum(rate_deg_s) * dt, 360.0)
