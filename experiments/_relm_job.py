@@ -323,7 +323,7 @@ def run_with_progress(frame, scfg, meta, progress, desc: str, target=None, timin
     from icgo.core.execution import is_accelerator
     from icgo.studies import icgo_relm as study
 
-    plan = scfg.execution(len(frame))
+    plan = scfg.execution()
     enable = progress_enabled(progress, is_accelerator(plan.backend))
     print(f"search: {plan.why}")  # information, on stdout: stderr is for the one error or interruption line
     if not enable or scfg.optimizer is None:

@@ -271,7 +271,7 @@ def backend_check(budget_s: float = BUDGET_S, mealpy_runs: int = 5, front: bool 
     print(head, file=sys.stderr, flush=True)
     out["headline"] = head
     sd = study_data(10)
-    plan = study.StudyConfig(strategies=STRATEGIES).execution(sd.n_rows)
+    plan = study.StudyConfig(strategies=STRATEGIES).execution()
     out["plan"] = plan._asdict()
     print(f"  plan for Table 3: {plan.why}", file=sys.stderr, flush=True)
     rates = kernel_rates(sd, plan.kernel, batches)

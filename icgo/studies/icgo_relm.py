@@ -242,13 +242,12 @@ class StudyConfig:
             need(is_int(self.max_evals) and self.max_evals >= 1, "max_evals",
                  f"must be an integer >= 1, got {self.max_evals!r}")
 
-    def execution(self, n_rows: int = 0, backend: str | None = None, cores: int | None = None,
+    def execution(self, backend: str | None = None, cores: int | None = None,
                   cells: int | None = None) -> ExecutionPlan:
         """How the search runs (:func:`icgo.core.execution.execution_plan`): its members (methods x ``cells``,
         default the repeats) sharded over the backend's devices (``devices``); no search (plain RELM): one device.
 
         Args:
-            n_rows: the survey's rows (kept for callers that plan per data set; the plan does not depend on it).
             backend: the JAX backend (default ``jax.default_backend()``). cores: CPU cores the job may use
                 (default: its affinity mask). cells: (world, repeat) cells (default: the repeats).
         """
