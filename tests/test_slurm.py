@@ -73,8 +73,11 @@ def test_sweeps_through_a_one_node_slurm_cluster(tmp_path):
                              capture_output=True, text=True, timeout=600)
         assert run.returncode == 0, run.stderr[-3000:]
         rec = json.loads((sweep / "0" / "run.json").read_text())
-        assert rec["execution"]["processes"] == 2 and rec["execution"]["devices"] == 2, rec["execution"]
-        assert rec["devices"]["distributed"]["cluster"] == "slurm"
+        # each process has one host device per core of its affinity mask (this cluster binds no cores to a task:
+        # task/none, so both see the node's); the search spans both processes' devices
+        assert rec["execution"]["processes"] == 2, rec["execution"]
+        assert rec["execution"]["devices"] == min(2 * rec["devices"]["host_devices"], 10), rec["execution"]
+        assert rec["devices"]["distributed"]["cluster"] == "slurm" and rec["devices"]["distributed"]["num_processes"] == 2
 
         # 2. scancel one running job: it costs only itself, the report names it
         sweep = tmp_path / "cancel"
