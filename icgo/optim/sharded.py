@@ -70,6 +70,10 @@ def _replicated(tree, mesh: Mesh):
     return jax.tree_util.tree_map(lambda x: _global(np.asarray(x), mesh, P()), tree)
 
 
+#: Every (whole run, first state, chunk) triple :func:`_programs` has built, for :func:`compiled_programs`.
+_BUILT: list = []
+
+
 @functools.lru_cache(maxsize=None)
 def _programs(alg: Algorithm, fitness, pop_size: int, n_iter: int, by_config: bool, mesh: Mesh, step: int):
     """(whole run, first state, ``step`` iterations from a start): jitted ``shard_map`` programs over ``mesh``'s
@@ -92,13 +96,16 @@ def _programs(alg: Algorithm, fitness, pop_size: int, n_iter: int, by_config: bo
         return jax.vmap(functools.partial(steps_one, alg, fitness, n_iter), in_axes=(0, None, 0))(state, ts, keys)
 
     spec = (m, r, r, m if by_config else r, m)
-    return (jax.jit(jax.shard_map(whole, in_specs=spec, **kw)), jax.jit(jax.shard_map(first, in_specs=spec, **kw)),
-            jax.jit(jax.shard_map(chunk, in_specs=(m, r, m), **kw)))
+    built = (jax.jit(jax.shard_map(whole, in_specs=spec, **kw)), jax.jit(jax.shard_map(first, in_specs=spec, **kw)),
+             jax.jit(jax.shard_map(chunk, in_specs=(m, r, m), **kw)))
+    _BUILT.append(built)
+    return built
 
 
 def compiled_programs() -> int:
-    """How many sharded runners this process has built (one per algorithm, fitness, shapes and mesh)."""
-    return _programs.cache_info().currsize
+    """How many programs the sharded runners have compiled in this process (one per algorithm, fitness, mesh and
+    input shapes; a new ridge lambda, key or data of the same shapes compiles nothing)."""
+    return sum(f._cache_size() for built in _BUILT for f in built)
 
 
 def run_members(alg: Algorithm, fitness, bounds, keys, pop_size: int, n_iter: int | None = None, *,
