@@ -46,7 +46,7 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
-from icgo.core.execution import ACCELERATOR_KERNEL, CPU_KERNEL, ExecutionPlan, check_devices_setting
+from icgo.core.execution import ACCELERATOR_KERNEL, CPU_KERNEL, ExecutionPlan
 from icgo.maths.metrics import azimuth_metrics
 from icgo.maths.stats import mean_std_table
 from icgo.methods import msa as _msa
@@ -251,11 +251,10 @@ class StudyConfig:
             backend: the JAX backend (default ``jax.default_backend()``). cores: CPU cores the job may use
                 (default: its affinity mask). cells: (world, repeat) cells (default: the repeats).
         """
-        check_devices_setting(None if self.devices is None else int(self.devices))
         members = 0
         if self.optimizer is not None:
             members = len(self.method_names()) * (len(self.ids()) if cells is None else int(cells))
-        return sharding.plan(backend, members, self.devices, cores)
+        return sharding.plan(backend, members, None if self.devices is None else int(self.devices), cores)
 
     def ids(self) -> tuple:
         """The repeat ids this config runs."""
