@@ -151,7 +151,7 @@ def test_sweep_results_table_beside_the_report(tmp_path):
                    "first (worlds)": "12 of 30"}]).to_csv(d / "worlds_pooled.csv", index=False)
     t = _sweep.results_table(tmp_path, [{"num": 3, "overrides": ["optimizer=pso"], "dir": "3", "status": "ok"}])
     assert t.iloc[0][["method", "repeats", "MAE (deg)", "R^2"]].tolist() == ["PSO-RELM", "30 worlds x 10",
-                                                                            "0.0370 +/- 0.0025", "0.99"]
+                                                                            "0.0370 +/- 0.0025", 0.99]
 
 
 @pytest.mark.parametrize("flag", ["--help", "-h"])
