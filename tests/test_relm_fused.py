@@ -68,7 +68,8 @@ def test_the_default_is_tf32_with_two_refinements():
 
 
 def test_bounded_memory_blocks_and_groups_agree():
-    """Blocks of 7 rows (last one padded) and member groups of one: the same fitness within 1e-6 relative (the float32
+    """Blocks of 7 rows (last one padded), member groups of one and a population cut into parts: the same fitness
+    within 1e-6 relative (the float32
     sums of another block size; 2e-8 measured on jax 0.11.2, 1e-15 on 0.12.0.1)."""
     pop, fit, rows = _rows(padded=True)
     whole = np.asarray(F.fused_train_fitness(pop, rows, 1e-3, HIDDEN, block_rows=1024))
@@ -78,6 +79,9 @@ def test_bounded_memory_blocks_and_groups_agree():
     grouped = jax.vmap(lambda p: F.fused_train_fitness(p, rows, 1e-3, HIDDEN, block_rows=7,
                                                        block_elements=pop.shape[0] * 7 * HIDDEN))(pops)
     np.testing.assert_allclose(np.asarray(grouped[0]), np.asarray(small), rtol=1e-6)
+    # a population larger than one block allows: cut into parts of 2 thetas (4 parts of the 8)
+    parts = F.fused_train_fitness(pop, rows, 1e-3, HIDDEN, block_rows=7, block_elements=2 * 7 * HIDDEN)
+    np.testing.assert_allclose(np.asarray(parts), np.asarray(small), rtol=1e-6)
 
 
 def test_batch_members_equal_calls_alone_under_nested_vmap():

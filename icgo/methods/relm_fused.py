@@ -4,8 +4,8 @@ For every theta of a batch (members x population) and its member's gathered trai
 (:class:`icgo.methods.relm.TrainRows`), the training RMSE of the ridge fit, computed in passes over blocks of
 :data:`BLOCK_ROWS` rows (``lax.scan``); a block's hidden outputs ``H = sigmoid(Xa W)`` (eq. 8) exist only inside
 its step, so no member's H is ever held for more than one block, and the batch is cut into groups of members run
-one after another (``lax.map``) when one block of the whole batch would exceed :data:`BLOCK_ELEMENTS` hidden
-outputs: any batch runs in bounded memory.
+one after another (``lax.map``), a population larger than a block allows into parts, when one block of the whole
+batch would exceed :data:`BLOCK_ELEMENTS` hidden outputs: any batch runs in bounded memory.
 
 1. **Gram pass.** Per block b: its column means ``m_b`` (float64), the Gram of its centred columns
    ``Hc_b^T Hc_b`` on the matrix units at ``gram`` precision (float32 products accumulated in float32 over the
@@ -128,9 +128,17 @@ def _group_rmse(pop, Xa, T, w, lam, hidden: int, gram: str, refine: int, block_r
 
 def _batched(pop, Xa, T, w, lam, hidden: int, gram: str, refine: int, block_rows: int, block_elements: int):
     """:func:`_group_rmse` of a batch (B, P, D) in groups of members that keep one block within ``block_elements``
-    hidden outputs (``lax.map`` over the groups; a batch of one group runs as one)."""
-    B, P, _ = pop.shape
+    hidden outputs (``lax.map`` over the groups; a batch of one group runs as one). A population whose one block
+    alone exceeds it is first cut into parts, each part a member of its own (its rows repeated)."""
+    B, P, D = pop.shape
     rows = min(block_rows, Xa.shape[1])
+    if P * rows * hidden > block_elements:
+        part = max(1, block_elements // (rows * hidden))
+        k = -(-P // part)
+        pop = jnp.concatenate([pop, jnp.broadcast_to(pop[:, :1], (B, k * part - P, D))], axis=1)
+        out = _batched(pop.reshape(B * k, part, D), *(jnp.repeat(a, k, axis=0) for a in (Xa, T, w, lam)), hidden,
+                       gram, refine, block_rows, block_elements)
+        return out.reshape(B, k * part)[:, :P]
     group = max(1, block_elements // (P * rows * hidden))
     if B <= group:
         return _group_rmse(pop, Xa, T, w, lam, hidden, gram, refine, rows)
