@@ -96,6 +96,11 @@ def check_hydra_dirs(args: list[str]) -> str | None:
     return None
 
 
+#: Settings that no longer exist -> what replaced them (named in the one-line error for an override of one).
+RENAMED_KEYS = {"workers": "use devices=N (the search is one program sharded over N devices: a CPU's cores as host "
+                           "devices, docs/performance.md) or leave devices=null for every device"}
+
+
 def check_plain_overrides(args: list[str], config_name: str, conf_dir: Path = CONF_DIR) -> str | None:
     """One-line error for an override ``key=value`` (no ``+``) whose key is not in the composed config.
 
@@ -140,6 +145,8 @@ def check_plain_overrides(args: list[str], config_name: str, conf_dir: Path = CO
     finally:
         GlobalHydra.instance().clear()
     for ov in plain:
+        if ov.key_or_group in RENAMED_KEYS and not _has_key(cfg, ov.key_or_group):
+            return f"setting {ov.key_or_group!r} was replaced: {RENAMED_KEYS[ov.key_or_group]}"
         if not _has_key(cfg, ov.key_or_group):
             where = (conf_dir / f"{config_name}.yaml").relative_to(CONF_DIR.parent)
             return (f"unknown setting {ov.key_or_group!r} in override {ov.input_line!r}: {where} (with the chosen "
@@ -178,6 +185,27 @@ def preflight(config_name: str, args: list[str] | None = None, conf_dir: Path = 
     if err:
         print(f"error: {err}", file=sys.stderr)
         raise SystemExit(EXIT_CONFIG)
+
+
+def start_devices() -> dict:
+    """Before JAX's backend starts: join a multi-process job (:func:`icgo.core.devices.start_distributed`, e.g. the
+    SLURM launcher's one process per node), then give the CPU backend one host device per core the job may use
+    (:func:`icgo.core.devices.use_host_devices`). Returns ``{"distributed": request or None, "host_devices": n}``."""
+    from icgo.core.devices import start_distributed, use_host_devices
+
+    try:
+        request = start_distributed()
+    except ValueError as e:  # a malformed ICGO_* variable: one line
+        raise SettingError(str(e)) from None
+    return {"distributed": request, "host_devices": use_host_devices()}
+
+
+def is_secondary_process() -> bool:
+    """True in every process of a multi-process job but the first: they compute with it, it alone writes."""
+    import sys as _sys
+
+    jax = _sys.modules.get("jax")
+    return jax is not None and jax.process_index() != 0
 
 
 def enable_jax_cache(path: str | None) -> None:

@@ -37,10 +37,10 @@ def _is_int(x) -> bool:
 STUDY_NODES = ("split", "msa", "model", "fitness", "budget")
 #: The keys whose field name follows neither rule.
 STUDY_ALIASES = {"fitness.mode": "fitness", "optimizer.name": "optimizer", "strategy.names": "strategies",
-                 "dtype": "dtype", "workers": "workers"}
+                 "dtype": "dtype", "devices": "devices"}
 #: Keys read by the entry point itself (not StudyConfig fields), per node; "" = top level.
 ENTRY_KEYS = {"": ("dataset", "optimizer", "strategy", "schedule", "progress", "figures", "label", "jax_cache_dir",
-                   "overwrite", *STUDY_NODES, "dtype", "workers"),
+                   "overwrite", *STUDY_NODES, "dtype", "devices", "worlds"),
               "optimizer": ("name", "params"), "strategy": ("names",), "schedule": ("bounds", "order", "clock")}
 #: Keys of the study nodes that the entry point reads itself (not StudyConfig fields): the transfer target.
 STUDY_NODE_ENTRY_KEYS = ("split.target",)
@@ -279,8 +279,8 @@ class Progress:
     """A tqdm bar over the search's iterations, fed by ``run_study(progress=...)`` between chunks of iterations.
 
     The study runs its search in a few jitted chunks and calls this on the host after each
-    (:func:`icgo.optim.base.run_batch`), also summed over worker processes; nothing enters the compiled
-    programs, so the compilation cache keeps them. The bar starts after the first chunk, i.e. after
+    (:func:`icgo.optim.sharded.run_members`); nothing enters the compiled programs, so the compilation
+    cache keeps them. The bar starts after the first chunk, i.e. after
     compiling (or loading) the program, so its rate and ETA measure the search alone.
     """
 
@@ -315,15 +315,15 @@ def progress_enabled(setting, accelerator: bool = False) -> bool:
 def run_with_progress(frame, scfg, meta, progress, desc: str, target=None, timings: dict | None = None):
     """``icgo.studies.icgo_relm.run_study`` with a progress bar over the optimizer's iterations (:class:`Progress`).
 
-    The bar follows the search's iterations on the host, in this process or summed over its worker processes
-    (``run_study(progress=...)``); without an optimizer (plain RELM), or on an accelerator under
+    The bar follows the search's iterations on the host (``run_study(progress=...)``); without an optimizer (plain
+    RELM), or on an accelerator under
     ``progress=auto``, there is no bar. ``progress``: the ``progress`` setting (:func:`progress_enabled`).
     ``timings``: see ``run_study``. Prints the execution plan (``search: ...``).
     """
     from icgo.core.execution import is_accelerator
     from icgo.studies import icgo_relm as study
 
-    plan = scfg.execution(len(frame))
+    plan = scfg.execution()
     enable = progress_enabled(progress, is_accelerator(plan.backend))
     print(f"search: {plan.why}")  # information, on stdout: stderr is for the one error or interruption line
     if not enable or scfg.optimizer is None:
@@ -370,7 +370,7 @@ def excluded_line(result) -> str | None:
 #: Files a failed attempt leaves in a run directory (replaced by the next run; they do not make the directory used).
 FAILURE_FILES = ("error.txt", FAILED)
 #: Settings that change how a run is executed, not what it computes: left out of :func:`config_hash`.
-RUNTIME_KEYS = ("overwrite", "progress", "jax_cache_dir", "workers")
+RUNTIME_KEYS = ("overwrite", "progress", "jax_cache_dir", "devices")
 
 
 def config_hash(container: dict) -> str:
@@ -545,7 +545,7 @@ def run_help() -> str:
     for g in STUDY_GROUPS:
         lines.append(f"  {g:<11} {', '.join(group_options(g))}  [{defaults.get(g) or 'none'}]")
     lines += ["", "other settings (KEY=VALUE): " + ", ".join(k for k in cfg if k not in ("defaults", "hydra")),
-              "  e.g. split.n_repeats=3 budget.iterations=50 dtype=... workers=2 progress=false overwrite=true",
+              "  e.g. split.n_repeats=3 budget.iterations=50 dtype=... devices=2 progress=false overwrite=true",
               "  your own recording: dataset=csv dataset.path=FILE.csv [dataset.columns.gx=Gx ...] (docs/data.md)", "",
               "examples:",
               "  python -m experiments.run strategy=three_stage           # make run",

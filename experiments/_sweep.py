@@ -148,13 +148,14 @@ def report(config: DictConfig, file=None) -> list[dict]:
 
 
 def results_table(sweep: Path, jobs: list[dict]):
-    """One row per finished job and method: the job, its overrides, and its summary (test MAE, RMSE, R^2); None
-    when no finished job has a ``summary.csv``."""
+    """One row per finished job and method: the job, its overrides, and its summary (test MAE, RMSE, R^2; a worlds
+    job's pooled over worlds, from ``worlds_pooled.csv``); None when no finished job has either file."""
     import pandas as pd
 
     rows = []
     for j in jobs:
-        f = sweep / j["dir"] / "summary.csv"
+        one, worlds = sweep / j["dir"] / "summary.csv", sweep / j["dir"] / "worlds_pooled.csv"  # a worlds job: pooled
+        f = one if one.is_file() else worlds
         if j["status"] != "ok" or not f.is_file():
             continue
         try:
@@ -162,9 +163,11 @@ def results_table(sweep: Path, jobs: list[dict]):
         except (OSError, ValueError):
             continue
         for _, r in s.iterrows():
-            rows.append({"job": j["num"], "overrides": " ".join(j["overrides"]) or "(none)", "method": r.get("label"),
-                         "repeats": r.get("n"), "MAE (deg)": r.get("MAE (deg)"), "RMSE (deg)": r.get("RMSE (deg)"),
-                         "R^2": r.get("R^2")})
+            n = r.get("n") if f is one else f"{r.get('worlds')} worlds x {r.get('repeats per world')}"
+            rows.append({"job": j["num"], "overrides": " ".join(j["overrides"]) or "(none)",
+                         "method": r.get("label") if f is one else r.get("name"), "repeats": n,
+                         "MAE (deg)": r.get("MAE (deg)"), "RMSE (deg)": r.get("RMSE (deg)"),
+                         "R^2": r.get("R^2") if f is one else r.get("R^2 of error")})
     return pd.DataFrame(rows) if rows else None
 
 

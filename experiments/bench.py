@@ -27,11 +27,11 @@ machine it runs on (the CPU kernels here; ``--gpu-check`` measures the backend i
 * ``table3_s`` (what a user runs, :func:`experiments.bench_user.front_door`):
   ``python -m experiments.run experiment=table3`` end to end in a fresh process
   with a warm compilation cache; ``table3_cold_s`` with an empty one; the same
-  table as a five-job sweep on 1 and 2 workers (``front_door``,
+  table as a five-job sweep on 1 and 2 launcher workers (``front_door``,
   ``sweep_workers_speedup``; the sweep's tables are checked bitwise against the
-  one-job run); ``table3_1_worker_s`` the one-job run with its search in one process
-  (``workers=1``; the default splits it over one process per core, :mod:`icgo.studies.workers`)
-  and ``study_workers_speedup`` the ratio; ``--skip-front-door``: ``table3_s`` is ``table3_kernel_s``;
+  one-job run); ``table3_1_device_s`` the one-job run with its search on one device
+  (``devices=1``; the default shards it over one host device per core, :mod:`icgo.optim.sharded`)
+  and ``study_devices_speedup`` the ratio; ``--skip-front-door``: ``table3_s`` is ``table3_kernel_s``;
   each single run's ``breakdown`` (:func:`experiments.bench_user.breakdown`: start, import, data, MSA,
   search, scoring, write, and the compile or cache-load part); ``like_for_like_s``
   (:func:`experiments.bench_user.like_for_like`): the front door run as mealpy's side is, 50 runs of
@@ -40,7 +40,7 @@ machine it runs on (the CPU kernels here; ``--gpu-check`` measures the backend i
   after a warm front-door run (Table 3 and like-for-like), and the ratios over the medians: both sides
   see the same stretch of a shared machine's load;
 * ``cores`` (``--cores 1,2``, :func:`experiments.bench_user.core_curve`): Table 3's front door with the
-  job's CPU affinity cut to that many cores (one search worker per core), cold and warm, with the
+  job's CPU affinity cut to that many cores (one host device per core), cold and warm, with the
   breakdown at each point;
 * ``mealpy_table3_s`` and ``speedup_vs_mealpy`` (vs ``table3_s``): the same study with mealpy 3.x
   ``OriginalCGO`` on the same data and the same RELM fitness in numpy
@@ -340,7 +340,7 @@ def main(argv=None) -> dict:
                         "and like-for-like), for the ratios on a machine whose load changes (default 1: one block)")
     p.add_argument("--skip-mealpy-parallel", action="store_true", help="skip mealpy's own parallel mode")
     p.add_argument("--skip-sweeps", action="store_true",
-                   help="front door: only the cold and warm runs (no workers=1 run, no five-job sweeps)")
+                   help="front door: only the cold and warm runs (no devices=1 run, no five-job sweeps)")
     p.add_argument("--skip-like-for-like", action="store_true",
                    help="skip the like-for-like front door (mealpy's CGO variant in float64, 50 runs)")
     a = p.parse_args(argv)
@@ -489,14 +489,14 @@ def main(argv=None) -> dict:
         row("Table 3 through the front door, cold compilation cache", fd["cold"]["wall_s"], "s",
             f"python -m experiments.run experiment=table3, fresh process, peak {fd['cold']['peak_rss_gb']:.2f} GB")
         row("Table 3 through the front door, warm cache (table3_s)", fd["warm"]["wall_s"], "s",
-            f"peak {fd['warm']['peak_rss_gb']:.2f} GB; workers=null (one search process per core)")
+            f"peak {fd['warm']['peak_rss_gb']:.2f} GB; devices=null (one host device per core)")
         if not a.skip_sweeps:
             out["sweep_workers_speedup"] = fd["sweep_1_worker"]["wall_s"] / fd["sweep_2_workers"]["wall_s"]
-            out["table3_1_worker_s"] = fd["warm_1_worker"]["wall_s"]
-            out["study_workers_speedup"] = out["table3_1_worker_s"] / out["table3_s"]
-            row("Table 3 through the front door, warm cache, workers=1", fd["warm_1_worker"]["wall_s"], "s",
-                _same_note(fd["max_abs_diff"]["warm_1_worker"]))
-            row("study speed-up, one search process per core / one", out["study_workers_speedup"], "x")
+            out["table3_1_device_s"] = fd["warm_1_device"]["wall_s"]
+            out["study_devices_speedup"] = out["table3_1_device_s"] / out["table3_s"]
+            row("Table 3 through the front door, warm cache, devices=1", fd["warm_1_device"]["wall_s"], "s",
+                _same_note(fd["max_abs_diff"]["warm_1_device"]))
+            row("study speed-up, one host device per core / one device", out["study_devices_speedup"], "x")
             for k, w in (("sweep_1_worker", 1), ("sweep_2_workers", 2)):
                 row(f"Table 3 as a 5-job sweep (one strategy each), {w} worker(s)", fd[k]["wall_s"], "s",
                     _same_note(fd["max_abs_diff"][k]))

@@ -8,9 +8,11 @@ and the GPU's stay unmeasured (never estimated).
 Measured, in order (:func:`backend_check`):
 
 1. the device, the backend and the study's execution plan for Table 3 (:meth:`icgo.studies.icgo_relm.StudyConfig.execution`);
-2. the plan's search kernel (``float32_features``) at batch 120, 1,200 and 60,000 (evaluations per second,
-   after compilation, best of a few calls), the other backend's kernel beside it at 120 and 1,200, and the
-   plan kernel's largest relative difference from the float64 library fitness (120 thetas);
+2. the plan's search kernel (``float32_features``; on an accelerator the fused kernel,
+   :mod:`icgo.methods.relm_fused`) at batch 120, 1,200 and 60,000 (evaluations per second, after compilation,
+   best of a few calls), the other kernels beside it at 120 and 1,200 (the CPU's cache-chunked kernel, and on an
+   accelerator the unfused batched-Gram kernel), and the plan kernel's largest relative difference from the
+   float64 library fitness (120 thetas);
 3. a 2048^2 matrix product in float32 (the backend's default precision) and float64, and ``flop_fraction``:
    kernel evals/s at batch 1,200 x :func:`experiments.bench_kernels.flops_per_eval` / the float32 rate;
 4. Table 3 through the front door (``python -m experiments.run experiment=table3``) in fresh processes,
@@ -20,7 +22,13 @@ Measured, in order (:func:`backend_check`):
    from the one before (its compile time, and its run time linear in repeats), would not fit in what is
    left of the budget is skipped and says so;
 6. mealpy's OriginalCGO on the numpy fitness, ``--mealpy-runs`` of the 50 Table 3 runs timed and scaled
-   to 50 (marked), and the ratio to the warm front door.
+   to 50 (marked), and the ratio to the warm front door;
+7. the devices curve (:func:`devices_curve`): Table 3's search (5 strategies x 10 repeats, ``CURVE_ITERATIONS``
+   iterations) as one program sharded over 1, 2, 4, 8 and 16 CPU host devices in one child process
+   (``JAX_PLATFORMS=cpu``, 16 host devices; on a 16-core GPU machine: its CPU), and on every device of the backend
+   when that is not the CPU;
+8. the study over 1, 10 and 100 worlds (:func:`worlds_scaling`: Table 3's study on that many independent
+   lab_casing worlds, every search in one sharded program), projected and skipped as the study points are.
 """
 
 from __future__ import annotations
@@ -31,11 +39,16 @@ import time
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 #: Wall seconds the check aims to stay under (the lent machine's 8 minutes, less a margin).
 BUDGET_S = 420.0
 BATCHES = (120, 1200, 60_000)
 STUDY_REPEATS = (1, 10, 100, 1000)
+#: Host-device counts of the devices curve, and the iterations of its search (Table 3's 100 cut, so five points
+#: fit the check's budget on a 2-core machine as on a 16-core one).
+CURVE_DEVICES, CURVE_ITERATIONS = (1, 2, 4, 8, 16), 20
+WORLDS = (1, 10, 100)
 
 
 def device_line() -> dict:
@@ -55,22 +68,27 @@ def kernel_rates(sd, plan_kernel: str, batches=BATCHES, reps: int = 3) -> dict:
     """
     from experiments.bench_kernels import HIDDEN, LAM, best_time, population, slice_tree
     from icgo.core.execution import ACCELERATOR_KERNEL, CPU_KERNEL
-    from icgo.methods import relm
+    from icgo.methods import relm, search_fitness
     from icgo.studies import icgo_relm as study
 
     rows, fit = slice_tree(sd.compact, 0), slice_tree(sd.fit, 0)
     out = {}
-    for kernel in (plan_kernel, CPU_KERNEL if plan_kernel == ACCELERATOR_KERNEL else ACCELERATOR_KERNEL):
-        aux = study.search_kernel("float32_features", "train", kernel).aux(rows, jnp.asarray(LAM), HIDDEN)
-        f = jax.jit(relm.search_fitness)
-        out[kernel] = {}
-        for P in batches if kernel == plan_kernel else [b for b in batches if b <= 1200]:
+    plan_sk = study.search_kernel("float32_features", "train", plan_kernel)
+    others = [study.search_kernel("float32_features", "train", CPU_KERNEL if plan_kernel == ACCELERATOR_KERNEL
+                                  else ACCELERATOR_KERNEL)]
+    if plan_kernel == ACCELERATOR_KERNEL:  # the unfused batched-Gram kernel beside the fused one
+        others.append(study.SearchKernel("gram_train_fitness", True, "float32", "float64"))
+    f = jax.jit(search_fitness.search_fitness)
+    for sk in (plan_sk, *others):
+        aux = sk.aux(rows, jnp.asarray(LAM), HIDDEN)
+        out[sk.name] = {}
+        for P in batches if sk is plan_sk else [b for b in batches if b <= 1200]:
             pop = population(jax.random.PRNGKey(P), P)
-            out[kernel][P] = P / best_time(f, pop, aux, reps=reps if P <= 1200 else 1)
-            print(f"  {kernel} kernel, batch {P:,}: {out[kernel][P]:,.0f} evals/s", file=sys.stderr, flush=True)
+            out[sk.name][P] = P / best_time(f, pop, aux, reps=reps if P <= 1200 else 1)
+            print(f"  {sk.name}, batch {P:,}: {out[sk.name][P]:,.0f} evals/s", file=sys.stderr, flush=True)
     pop = population(jax.random.PRNGKey(7), 120)
-    aux = study.search_kernel("float32_features", "train", plan_kernel).aux(rows, jnp.asarray(LAM), HIDDEN)
-    out["max_rel_diff"] = float(jnp.max(jnp.abs(relm.search_fitness(pop, aux) / relm.fitness(pop, fit, LAM, HIDDEN)
+    aux = plan_sk.aux(rows, jnp.asarray(LAM), HIDDEN)
+    out["max_rel_diff"] = float(jnp.max(jnp.abs(search_fitness.search_fitness(pop, aux) / relm.fitness(pop, fit, LAM, HIDDEN)
                                                 - 1)))
     return out
 
@@ -120,18 +138,123 @@ def study_scaling(repeats=STUDY_REPEATS, deadline: float = float("inf"), **confi
         compile_s = sum(timings[f"{s}_compile_s"] for s in ("prepare", "search", "score", "tables"))
         last = {"repeats": R, "wall_s": wall, "compile_s": compile_s, "run_s": wall - compile_s,
                 **{k: timings[k] for k in ("prepare_s", "search_s", "search_compile_s", "score_s", "tables_s")},
-                "workers": timings["execution"]["workers"], "kernel": timings["execution"]["kernel"]}
+                "devices": timings["execution"]["devices"], "kernel": timings["execution"]["kernel"]}
         out.append(last)
         print(f"  study, {R} repeats x 5 strategies: {wall:.1f} s ({compile_s:.1f} s compiling), search "
               f"{timings['search_s']:.1f} s", file=sys.stderr, flush=True)
     return out
 
 
+def search_rate(n_devices: int, repeats: int = 10, iterations: int = CURVE_ITERATIONS, reps: int = 2) -> dict:
+    """Table 3's search (5 strategies x ``repeats`` members, population 30) as one program sharded over the first
+    ``n_devices`` devices of the default backend, in this process: compile (the first call), then the best of
+    ``reps`` calls; returns ``{"devices", "members", "compile_s", "run_s", "evals_per_s"}``."""
+    from icgo.core.execution import ACCELERATOR_KERNEL, CPU_KERNEL
+    from icgo.datasets import protocols as datasets
+    from icgo.optim import STRATEGIES
+    from icgo.studies import icgo_relm as study
+
+    cfg = study.StudyConfig(strategies=STRATEGIES, n_repeats=repeats, iterations=iterations)
+    st = study.stage(datasets.lab_casing(0).frame, cfg, None, jax.random.PRNGKey(0))
+    kernel = CPU_KERNEL if jax.default_backend() == "cpu" else ACCELERATOR_KERNEL
+    devices = jax.devices()[:n_devices]
+    t = time.perf_counter()
+    out = jax.block_until_ready(study.search(st.cfg, st.prep, kernel=kernel, devices=devices))
+    compile_s = time.perf_counter() - t
+    best = float("inf")
+    for _ in range(reps):
+        t = time.perf_counter()
+        out = jax.block_until_ready(study.search(st.cfg, st.prep, kernel=kernel, devices=devices))
+        best = min(best, time.perf_counter() - t)
+    evals = float(np.asarray(out[2])[..., -1].sum())
+    return {"devices": n_devices, "members": int(np.asarray(out[2]).shape[0] * np.asarray(out[2]).shape[1]),
+            "compile_s": compile_s - best, "run_s": best, "evals_per_s": evals / best}
+
+
+def _curve_child(counts: str, out_path: str, repeats: int, iterations: int) -> None:
+    """The devices curve's child process (host devices set by its ``XLA_FLAGS``): one :func:`search_rate` per
+    count, written as JSON to ``out_path``."""
+    import json
+
+    res = []
+    for n in (int(x) for x in counts.split(",")):
+        res.append(search_rate(n, repeats, iterations))
+        print(f"  {n} host device(s): {res[-1]['run_s']:.2f} s, {res[-1]['evals_per_s']:,.0f} evals/s", file=sys.stderr,
+              flush=True)
+        with open(out_path, "w") as f:
+            json.dump(res, f)
+
+
+def devices_curve(counts=CURVE_DEVICES, timeout_s: float = 300.0, repeats: int = 10,
+                  iterations: int = CURVE_ITERATIONS) -> dict:
+    """Table 3's search sharded over 1, 2, 4, ... CPU host devices, in one child process that has
+    ``max(counts)`` of them (``JAX_PLATFORMS=cpu``, ``--xla_force_host_platform_device_count``), each point
+    :func:`search_rate`; on an accelerator also over 1 .. all of its devices in this process. Points past the
+    child's ``timeout_s`` are missing (the ones done are kept). Returns ``{"cpu": [...], "cpu_cores": n,
+    "accelerator": [...] or None}``."""
+    import json
+    import subprocess
+    import tempfile
+
+    from icgo.core.devices import HOST_DEVICE_FLAG, available_cores
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "curve.json")
+        flags = " ".join(f for f in os.environ.get("XLA_FLAGS", "").split() if not f.startswith(HOST_DEVICE_FLAG))
+        env = {**os.environ, "JAX_PLATFORMS": "cpu", "XLA_FLAGS": f"{flags} {HOST_DEVICE_FLAG}={max(counts)}".strip()}
+        code = (f"from experiments.bench_backend import _curve_child; "
+                f"_curve_child({','.join(map(str, counts))!r}, {path!r}, {repeats}, {iterations})")
+        try:
+            subprocess.run([sys.executable, "-c", code], env=env, timeout=timeout_s, check=False)
+        except subprocess.TimeoutExpired:
+            print(f"  devices curve: stopped after {timeout_s:.0f} s", file=sys.stderr, flush=True)
+        cpu = json.load(open(path)) if os.path.exists(path) else []
+    acc = None
+    if jax.default_backend() != "cpu":
+        n_all = len(jax.devices())
+        acc = [search_rate(n, repeats, iterations) for n in sorted({1, *(c for c in counts if c < n_all), n_all})]
+    return {"cpu": cpu, "cpu_cores": len(available_cores()), "accelerator": acc}
+
+
+def worlds_scaling(worlds=WORLDS, deadline: float = float("inf"), **config) -> list[dict]:
+    """Table 3's study on 1, 10, 100 independent worlds (lab_casing data seeds from 100), every world's search in
+    one sharded program (:func:`icgo.studies.worlds.run_worlds`); a point is skipped when its time projected from
+    the last one (compile as measured, the rest linear in worlds) would end past ``deadline``."""
+    from icgo.optim import STRATEGIES
+    from icgo.studies import icgo_relm as study
+    from icgo.studies import worlds as W
+
+    out, last = [], None
+    for n in worlds:
+        why = overrun(None if last is None else {"repeats": last["worlds"], "compile_s": last["compile_s"],
+                                                 "run_s": last["run_s"]}, n, deadline - time.perf_counter())
+        if why:
+            out.append({"worlds": n, "skipped": why.replace("repeats", "worlds")})
+            print(f"  {n} worlds: {out[-1]['skipped']}", file=sys.stderr, flush=True)
+            continue
+        cfg = study.StudyConfig(**{"strategies": STRATEGIES, **config})
+        t = time.perf_counter()
+        members = W.simulate("lab_casing", W.world_seeds(W.FIRST_REPORTED_SEED, n))
+        timings: dict = {}
+        W.run_worlds(members, cfg, timings=timings)
+        wall = time.perf_counter() - t
+        compile_s = sum(timings[f"{s}_compile_s"] for s in ("prepare", "search", "score", "tables"))
+        last = {"worlds": n, "wall_s": wall, "compile_s": compile_s, "run_s": wall - compile_s,
+                "search_s": timings["search_s"], "devices": timings["execution"]["devices"],
+                "members": timings["execution"]["members"]}
+        out.append(last)
+        print(f"  {n} worlds x 5 strategies x {cfg.n_repeats} repeats: {wall:.1f} s ({compile_s:.1f} s compiling), "
+              f"search {timings['search_s']:.1f} s", file=sys.stderr, flush=True)
+    return out
+
+
 def backend_check(budget_s: float = BUDGET_S, mealpy_runs: int = 5, front: bool = True, batches=BATCHES,
-                  repeats=STUDY_REPEATS, **config) -> dict:
+                  repeats=STUDY_REPEATS, curve=CURVE_DEVICES, worlds=WORLDS, curve_size=(10, CURVE_ITERATIONS),
+                  **config) -> dict:
     """Every measurement of the module docstring on this process's backend; returns them (JSON-able).
 
-    ``front``: False leaves the front door out; ``batches``, ``repeats``, ``config``: smaller sizes (a test).
+    ``front``: False leaves the front door out; ``batches``, ``repeats``, ``curve`` (host-device counts; empty:
+    no curve), ``curve_size`` (its repeats and iterations), ``worlds``, ``config``: smaller sizes (a test).
     """
     from experiments.bench_kernels import HIDDEN, flops_per_eval, matmul_gflops, run_mealpy, study_data
     from experiments.bench_user import front_door
@@ -148,14 +271,17 @@ def backend_check(budget_s: float = BUDGET_S, mealpy_runs: int = 5, front: bool 
     print(head, file=sys.stderr, flush=True)
     out["headline"] = head
     sd = study_data(10)
-    plan = study.StudyConfig(strategies=STRATEGIES).execution(sd.n_rows)
+    plan = study.StudyConfig(strategies=STRATEGIES).execution()
     out["plan"] = plan._asdict()
     print(f"  plan for Table 3: {plan.why}", file=sys.stderr, flush=True)
     rates = kernel_rates(sd, plan.kernel, batches)
     out["kernel_evals_per_s"] = {k: {str(b): v for b, v in r.items()} for k, r in rates.items() if k != "max_rel_diff"}
     out["max_rel_diff_vs_float64"] = rates["max_rel_diff"]
     out["matmul_gflops_f32"], out["matmul_gflops_f64"] = matmul_gflops("float32"), matmul_gflops("float64")
-    out["flop_fraction"] = rates[plan.kernel][max(b for b in batches if b <= 1200)] * flops_per_eval(sd.n_train, HIDDEN) / (out["matmul_gflops_f32"] * 1e9)
+    plan_name = study.search_kernel("float32_features", "train", plan.kernel).name
+    out["plan_fitness"] = plan_name
+    out["flop_fraction"] = (rates[plan_name][max(b for b in batches if b <= 1200)] * flops_per_eval(sd.n_train, HIDDEN)
+                            / (out["matmul_gflops_f32"] * 1e9))
     print(f"  matmul float32 {out['matmul_gflops_f32']:,.0f} GFLOP/s, float64 {out['matmul_gflops_f64']:,.0f}; "
           f"flop_fraction {out['flop_fraction']:.3g}", file=sys.stderr, flush=True)
     if front:
@@ -171,6 +297,10 @@ def backend_check(budget_s: float = BUDGET_S, mealpy_runs: int = 5, front: bool 
         print(f"  mealpy OriginalCGO: {mealpy_runs} of 50 runs timed, Table 3 scaled to {out['mealpy_table3_s']:.1f} s",
               file=sys.stderr, flush=True)
     out["study"] = study_scaling(repeats, deadline, **config)
+    out["curve_size"] = list(curve_size)
+    if curve:
+        out["devices_curve"] = devices_curve(curve, max(60.0, min(300.0, deadline - time.perf_counter())), *curve_size)
+    out["worlds"] = worlds_scaling(worlds, deadline, **config)
     out["check_s"] = time.perf_counter() - t0
     return out
 
@@ -200,5 +330,18 @@ def report(res: dict) -> str:
         what = (p.get("skipped") or p.get("error") or
                 f"{p['wall_s']:.1f} s ({p['compile_s']:.1f} s compiling; search {p['search_s']:.1f} s)")
         lines.append(f"| study, {p['repeats']:,} repeats x 5 strategies | {what} |")
+    curve = res.get("devices_curve") or {}
+    for p in curve.get("cpu", []):
+        lines.append(f"| Table 3's search ({p['members']} members, {res['curve_size'][1]} iterations) on "
+                     f"{p['devices']} CPU "
+                     f"host device(s) of {curve['cpu_cores']} core(s) | {p['run_s']:.2f} s, {p['evals_per_s']:,.0f} "
+                     f"evals/s |")
+    for p in curve.get("accelerator") or []:
+        lines.append(f"| Table 3's search on {p['devices']} {res['backend']} device(s) | {p['run_s']:.2f} s, "
+                     f"{p['evals_per_s']:,.0f} evals/s |")
+    for p in res.get("worlds", []):
+        what = (p.get("skipped") or f"{p['wall_s']:.1f} s ({p['compile_s']:.1f} s compiling; search "
+                                     f"{p['search_s']:.1f} s, {p['members']} members on {p['devices']} device(s))")
+        lines.append(f"| Table 3's study over {p['worlds']} world(s) | {what} |")
     lines.append(f"| the whole check | {res['check_s']:.0f} s |")
     return "\n".join(lines)

@@ -3,7 +3,7 @@
 * :func:`front_door`: ``python -m experiments.run experiment=table3`` end to end in a
   fresh process, with an empty (cold) and then a filled (warm) compilation cache; and
   Table 3 as a five-job sweep (one strategy per job) through the default launcher on
-  1 and on 2 workers.
+  1 and on 2 launcher workers (jobs at once).
 * :func:`measure`: any command in a child process (optionally on fewer cores), its wall time and
   peak memory; :func:`breakdown`: where a front-door run's time went, from its run.json;
 * :func:`core_curve`: Table 3's front door with the job's affinity cut to 1, 2, ... cores;
@@ -66,7 +66,7 @@ def measure(cmd: list[str], timeout: float | None = None, cpus: list[int] | None
 
     Peak memory is the command's own ``ru_maxrss`` (``os.wait4`` in a small launcher process, see
     :data:`_SHIM`), whatever the size of this process. ``cpus``: the child may run on these cores only
-    (its affinity mask, inherited by everything it starts: a study then plans one worker per core of it).
+    (its affinity mask, inherited by everything it starts: the job then gives the CPU one host device per core of it).
     """
     with tempfile.TemporaryDirectory() as tmp:
         log_path, rss_path = Path(tmp) / "log", Path(tmp) / "rss"
@@ -103,31 +103,26 @@ def breakdown(run_dir: Path, wall_s: float) -> dict:
     Keys (seconds): ``start`` (Python, Hydra and the interpreter's exit: the wall time outside the job),
     ``import`` (the study's modules, JAX with them), ``load_data``, ``msa`` (the split and the multi-station
     analysis), ``search``, ``scoring`` (refit, metrics, tables), ``write``; ``compile`` (of all of them: JAX
-    tracing and compiling or loading programs from the persistent cache; a worker's counted in its own
-    process), and per search worker process its ``import``, ``compile`` and ``run``.
+    tracing and compiling or loading programs from the persistent cache); ``execution``: the plan it ran.
     """
     import json
 
     run = json.loads((run_dir / "run.json").read_text())
     t = run["timings"]
-    workers = t.get("workers") or []
-    out = {"start": wall_s - run["total_time_s"] - t["write_s"], "import": t["import_s"], "load_data": t["load_data_s"],
-           "msa": t["prepare_s"], "search": t["search_s"], "scoring": t["score_s"] + t["tables_s"],
-           "write": t["write_s"],
-           "compile": sum(t[f"{s}_compile_s"] for s in ("prepare", "search", "score", "tables"))
-           + max([w["compile_s"] for w in workers], default=0.0),
-           "workers": [{k: w[k] for k in ("ready_s", "import_s", "compile_s", "run_s")} for w in workers],
-           "execution": run["execution"]}
-    return out
+    return {"start": wall_s - run["total_time_s"] - t["write_s"], "import": t["import_s"],
+            "load_data": t["load_data_s"], "msa": t["prepare_s"], "search": t["search_s"],
+            "scoring": t["score_s"] + t["tables_s"], "write": t["write_s"],
+            "compile": sum(t[f"{s}_compile_s"] for s in ("prepare", "search", "score", "tables")),
+            "execution": run["execution"]}
 
 
 def core_curve(cores: list[int], workdir=None, extra=()) -> list[dict]:
     """Table 3 through the front door with the job's CPU affinity cut to the first ``k`` cores, for each k.
 
     Each point runs twice into its own compilation cache: ``cold`` (it compiles) and ``warm`` (it loads
-    what the cold run compiled: the search blocks' shapes depend on the number of workers, so a cache
-    filled at another point would not hold them). With ``workers=null`` the study plans one worker
-    process per core it may use.
+    what the cold run compiled: the sharded search's program depends on the number of devices, so a cache
+    filled at another point would not hold it). The job gives the CPU one host device per core it may use
+    (:func:`icgo.core.devices.use_host_devices`), and the study shards its search over them.
 
     Returns:
         One dict per k: cores, cold and warm ``{wall_s, peak_rss_gb, breakdown}`` (:func:`breakdown`).
@@ -160,17 +155,17 @@ def front_door(workdir=None, extra=(), sweeps: bool = True) -> dict:
 
     Measured, in order, all with one compilation cache that starts empty:
     ``cold`` (the first run: compiles), ``warm`` (the same command again: the
-    cache holds its programs; its search on one worker process per core, the
-    default ``workers=null``), ``warm_1_worker`` (``workers=1``: one process),
-    then the five-job sweep ``strategy=<one each>``
-    on ``workers=1`` and ``workers=2`` (warm: the jobs load their programs from the cache).
+    cache holds its programs; its search sharded over one host device per core, the
+    default ``devices=null``), ``warm_1_device`` (``devices=1``: its search on one device),
+    then the five-job sweep ``strategy=<one each>`` through the default launcher
+    on ``hydra.launcher.workers=1`` and ``=2`` (jobs at once; each loads its programs from the cache).
 
     Args:
         workdir: where the run directories and the cache go (default: a temporary directory).
         extra: further overrides for every command (e.g. a smaller budget in a test).
         sweeps: False: only ``cold`` and ``warm``.
     Returns:
-        {name: {"wall_s", "peak_rss_gb", "rc"}} for cold, warm, warm_1_worker, sweep_1_worker, sweep_2_workers
+        {name: {"wall_s", "peak_rss_gb", "rc"}} for cold, warm, warm_1_device, sweep_1_worker, sweep_2_workers
         (the single runs with their :func:`breakdown`), and ``max_abs_diff``: per other run, the largest
         difference of its CGO metrics (test and train MAE, RMSE, R^2 as written) from ``warm``'s; 0 = bitwise.
     """
@@ -179,7 +174,7 @@ def front_door(workdir=None, extra=(), sweeps: bool = True) -> dict:
              f"strategy={','.join(TABLE3_STRATEGIES)}", "figures=false", "progress=false",
              f"jax_cache_dir={work / 'cache'}", *extra]
     cmds = {"cold": table3_command(work, "cold", extra), "warm": table3_command(work, "warm", extra),
-            "warm_1_worker": table3_command(work, "warm1", [*extra, "workers=1"]),
+            "warm_1_device": table3_command(work, "warm1", [*extra, "devices=1"]),
             "sweep_1_worker": sweep + ["hydra.launcher.workers=1", f"hydra.sweep.dir={work / 'sweep1'}"],
             "sweep_2_workers": sweep + ["hydra.launcher.workers=2", f"hydra.sweep.dir={work / 'sweep2'}"]}
     if not sweeps:
@@ -190,12 +185,12 @@ def front_door(workdir=None, extra=(), sweeps: bool = True) -> dict:
         if m["rc"] != 0:
             raise RuntimeError(f"front door {name} failed (exit {m['rc']}): {m['tail'].strip().splitlines()[-1:]}")
         out[name] = {k: m[k] for k in ("wall_s", "peak_rss_gb", "rc")}
-        if name in ("cold", "warm", "warm_1_worker"):
-            out[name]["breakdown"] = breakdown(work / {"warm_1_worker": "warm1"}.get(name, name), m["wall_s"])
+        if name in ("cold", "warm", "warm_1_device"):
+            out[name]["breakdown"] = breakdown(work / {"warm_1_device": "warm1"}.get(name, name), m["wall_s"])
         print(f"  front door {name}: {m['wall_s']:.1f} s, {m['peak_rss_gb']:.2f} GB", file=sys.stderr, flush=True)
     if sweeps:
         out["max_abs_diff"] = {name: _table_diff(work / "warm", work / d) for name, d in
-                               (("warm_1_worker", "warm1"), ("sweep_1_worker", "sweep1"),
+                               (("warm_1_device", "warm1"), ("sweep_1_worker", "sweep1"),
                                 ("sweep_2_workers", "sweep2"))}
     return out
 

@@ -2,7 +2,7 @@
 
 ``python -m experiments.roofline [--batch 1200] [--quick] [--out FILE.json]`` prints a Markdown
 table and, as its last line, one JSON object (also written to ``--out``). Run as a module it pins
-itself to one core with one XLA thread (:func:`icgo.studies.workers.xla_flags`, as the launcher's jobs,
+itself to one core with one XLA thread (:func:`icgo.core.devices.xla_flags`, as the launcher's jobs,
 set before JAX is imported); :mod:`experiments.bench` runs it in a child process for the same reason.
 
 Shape: the Table 3 study's repeat 0 (:func:`experiments.bench_kernels.study_data`): n = 407 training
@@ -60,7 +60,7 @@ from __future__ import annotations
 import os
 
 if __name__ == "__main__":  # one XLA thread on one core, set before JAX is imported
-    from icgo.studies.workers import xla_flags
+    from icgo.core.devices import xla_flags
 
     os.environ["XLA_FLAGS"] = xla_flags(1, os.environ.get("XLA_FLAGS", ""))
     try:

@@ -73,9 +73,13 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
         print(f"error: {outdir} already holds a complete run; choose another hydra.run.dir or pass overwrite=true "
               f"(the old run is then replaced whole)", file=sys.stderr)
         raise SystemExit(EXIT_CONFIG)
+    from experiments import _worlds_job as WJ
+
     timings = {}
+    worlds = cfg.get("worlds") is not None
     try:
         C.check_config(cfg)
+        WJ.check(cfg)
         C.run_output(outdir, overwrite=E.bool_setting(cfg, "overwrite"))
     except ValueError as e:
         if multirun:
@@ -84,16 +88,20 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
             return None
         E.fail_line(e)
     try:
+        devices = E.start_devices()  # before JAX's backend starts: jax.distributed, the CPU's host devices
         scfg = C.study_config(cfg)  # every check before any computation (imports the study, JAX with it)
         C.progress_enabled(cfg.progress)
         timings["import_s"] = time.perf_counter() - t0
         E.enable_jax_cache(cfg.jax_cache_dir)
-        t1 = time.perf_counter()
-        frame, meta, desc = C.load_data(cfg)
-        target = C.load_target(cfg)
-        timings["load_data_s"] = time.perf_counter() - t1
-        result = C.run_with_progress(frame, scfg, meta, cfg.progress, desc=f"{desc} {'/'.join(scfg.method_names())}",
-                                     target=target, timings=timings)
+        if worlds:
+            result, desc = WJ.run_study(cfg, scfg, timings)
+        else:
+            t1 = time.perf_counter()
+            frame, meta, desc = C.load_data(cfg)
+            target = C.load_target(cfg)
+            timings["load_data_s"] = time.perf_counter() - t1
+            result = C.run_with_progress(frame, scfg, meta, cfg.progress,
+                                         desc=f"{desc} {'/'.join(scfg.method_names())}", target=target, timings=timings)
     except ValueError as e:  # SettingError, DataError (icgo.core.errors), study/optimizer checks: one line each
         if multirun:
             E.write_failure(outdir, E.one_line(e), E.format_traceback(e))
@@ -115,8 +123,21 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
             "schedule": OmegaConf.to_container(cfg.schedule, resolve=True),
             "optimizer_params": OmegaConf.to_container(cfg.optimizer.params, resolve=True) if cfg.optimizer.name
             else None,
-            "execution": timings.pop("execution"), "timings": timings,
+            "execution": timings.pop("execution"), "timings": timings, "devices": devices,
             "total_time_s": time.perf_counter() - t0, **E.env_info()}
+    if E.is_secondary_process():  # a multi-process job: the first process writes the run directory
+        return None
+    if worlds:
+        try:
+            run = WJ.write_outputs(outdir, cfg, result, info)
+        except ValueError as e:  # OutputError: the previous run is intact
+            if multirun:
+                E.write_failure(outdir, E.one_line(e))
+                log.error("job failed: %s", E.one_line(e))
+                return None
+            E.fail_line(e)
+        WJ.print_summary(result, outdir, t0)
+        return run
     plot = None
     if cfg.figures:
         from experiments.figures import plot_study

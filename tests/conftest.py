@@ -18,6 +18,11 @@ os.environ["XDG_CACHE_HOME"] = str(Path(__file__).resolve().parents[1] / ".jax_c
 import jax  # noqa: E402
 
 import icgo  # noqa: F401, E402  (enables float64 before any test builds arrays)
+from icgo.core.devices import use_host_devices  # noqa: E402
+
+#: Host devices of every test process: the studies' searches are sharded over them (one sharded program), so the
+#: fast suite runs the multi-device path; tests that compare against one device take ``jax.devices()[:1]``.
+HOST_DEVICES = use_host_devices(2)
 
 _CACHE = Path(__file__).resolve().parents[1] / ".jax_cache"
 jax.config.update("jax_compilation_cache_dir", str(_CACHE))

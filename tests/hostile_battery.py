@@ -698,7 +698,7 @@ def run_cases() -> list[Case]:
             ("schedule.bounds", "5", "bounds"), ("schedule.bounds", "[0.9,0.1]", "bounds"),
             ("optimizer", "bogus", "optimizer"), ("strategy", "bogus", "strategy"), ("dataset", "bogus", "dataset"),
             ("+bogus", "1", "bogus"), ("bogus", "1", "bogus"), ("msa.model", "bogus", "msa"),
-            ("msa.iterations", "-5", "iterations"), ("dtype", "bogus", "dtype"), ("workers", "-1", "workers"),
+            ("msa.iterations", "-5", "iterations"), ("dtype", "bogus", "dtype"), ("devices", "-1", "devices"),
             ("fitness", "bogus", "fitness"), ("split", "bogus", "split"), ("dataset.seed", "abc", "seed"),
             ("dataset.condition", "9", "condition"), ("label", "[1,2]", "label"), ("split.target", "bogus",
                                                                                   "target"),

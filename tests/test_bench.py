@@ -74,14 +74,11 @@ def test_breakdown_splits_a_front_door_run_from_its_record(tmp_path):
 
     t = {"import_s": 1.0, "load_data_s": 2.0, "prepare_s": 3.0, "search_s": 4.0, "score_s": 0.5, "tables_s": 0.25,
          "write_s": 0.75, "prepare_compile_s": 1.0, "search_compile_s": 0.0, "score_compile_s": 0.1,
-         "tables_compile_s": 0.2, "workers": [{"ready_s": 1.5, "import_s": 1.2, "compile_s": 2.0, "run_s": 3.5,
-                                                "wait_s": 0.1}, {"ready_s": 1.6, "import_s": 1.3, "compile_s": 1.0,
-                                                                 "run_s": 3.0, "wait_s": 0.1}]}
-    (tmp_path / "run.json").write_text(json.dumps({"timings": t, "total_time_s": 11.0, "execution": {"workers": 2}}))
+         "tables_compile_s": 0.2}
+    (tmp_path / "run.json").write_text(json.dumps({"timings": t, "total_time_s": 11.0, "execution": {"devices": 2}}))
     b = bench_user.breakdown(tmp_path, wall_s=13.0)
     assert b["start"] == 13.0 - 11.0 - 0.75 and b["msa"] == 3.0 and b["scoring"] == 0.75 and b["write"] == 0.75
-    assert b["compile"] == 1.0 + 0.0 + 0.1 + 0.2 + 2.0  # the slowest worker's compile is on the critical path
-    assert [w["run_s"] for w in b["workers"]] == [3.5, 3.0] and b["execution"]["workers"] == 2
+    assert b["compile"] == 1.0 + 0.0 + 0.1 + 0.2 and b["execution"]["devices"] == 2
 
 
 def test_backend_check_skips_a_study_point_that_would_overrun_the_budget():
@@ -99,10 +96,14 @@ def test_gpu_check_runs_on_a_cpu_and_says_the_gpu_is_absent(capsys):
     from experiments.bench_backend import backend_check, report
 
     res = backend_check(budget_s=300, mealpy_runs=1, front=False, batches=(12, 24, 48), repeats=(1, 2, 10**6),
-                        strategies=("original",), hidden=6, pop_size=5, iterations=2)
+                        curve=(1, 2), curve_size=(2, 2), worlds=(1, 10**6), strategies=("original",), hidden=6,
+                        pop_size=5, iterations=2)
     assert not res["gpu_present"] and res["headline"].startswith("GPU absent") and "unmeasured" in res["headline"]
-    assert res["plan"]["kernel"] == "cache_chunked" and set(res["kernel_evals_per_s"]) == {"cache_chunked", "batched"}
-    assert list(res["kernel_evals_per_s"]["cache_chunked"]) == ["12", "24", "48"]
+    assert res["plan"]["kernel"] == "cache_chunked"
+    assert set(res["kernel_evals_per_s"]) == {"train_fitness", "fused_train_fitness"}
+    assert list(res["kernel_evals_per_s"]["train_fitness"]) == ["12", "24", "48"]
+    assert [p["devices"] for p in res["devices_curve"]["cpu"]] == [1, 2] and res["devices_curve"]["accelerator"] is None
+    assert res["worlds"][0]["worlds"] == 1 and "projected" in res["worlds"][1]["skipped"]
     assert res["max_rel_diff_vs_float64"] < 5e-6 and 0 < res["flop_fraction"] < 1
     assert [p["repeats"] for p in res["study"]] == [1, 2, 10**6] and all("wall_s" in p for p in res["study"][:2])
     assert "projected" in res["study"][2]["skipped"]

@@ -20,40 +20,53 @@ ACCELERATORS = ("gpu", "cuda", "rocm", "tpu", "METAL", "Metal", "neuron", " GPU 
 
 
 @pytest.mark.parametrize("backend", ("cpu", "CPU", " cpu"))
-def test_a_cpu_gets_the_cache_chunked_kernel_and_a_process_per_core(backend):
-    big = ex.AUTO_MIN_WORK
-    plan = ex.execution_plan(backend, cores=16, blocks=50, work=big)
-    assert (plan.backend, plan.kernel, plan.workers) == ("cpu", ex.CPU_KERNEL, 16)
-    assert "16" in plan.why and not ex.is_accelerator(backend)
-    assert ex.execution_plan(backend, 2, None, 10, big).workers == 2
-    assert ex.execution_plan(backend, 2, None, 10, big / 10).workers == 1     # not worth starting processes
-    assert ex.execution_plan(backend, 1, None, 10, big).workers == 1         # a job pinned to one core stays one
-    assert ex.execution_plan(backend, 2, 4, 3, big / 10).workers == 3        # never more than the blocks
-    assert ex.execution_plan(backend, 16, 1, 50, big).workers == 1
-    assert ex.execution_plan(backend, 16, None, 10, big).workers == 10
+def test_a_cpu_shards_the_members_over_its_host_devices(backend):
+    plan = ex.execution_plan(backend, available=16, members=50, cores=16)
+    assert (plan.backend, plan.kernel, plan.devices, plan.processes) == ("cpu", ex.CPU_KERNEL, 13, 1)
+    assert "one per core of the job's 16" in plan.why and "50 member(s) in 13 shard(s) of at most 4" in plan.why
+    assert not ex.is_accelerator(backend)
+    assert ex.execution_plan(backend, 2, 50).devices == 2
+    assert ex.execution_plan(backend, 2, 1).devices == 1                        # one member: one device
+    assert ex.execution_plan(backend, 2, 0).devices == 1 and "no search" in ex.execution_plan(backend, 2, 0).why
+    assert ex.execution_plan(backend, 16, 50, devices=4).devices == 4           # the setting caps it
+    assert ex.execution_plan(backend, 16, 50, devices=64).devices == 13         # never more than available
+    assert ex.execution_plan(backend, 16, 10).devices == 10
+    assert ex.execution_plan(backend, 4, 10, processes=2).processes == 2
+    assert "across 2 processes" in ex.execution_plan(backend, 4, 10, processes=2).why
 
 
 @pytest.mark.parametrize("backend", ACCELERATORS)
-@pytest.mark.parametrize("workers", (None, 1, 8))
-def test_an_accelerator_gets_the_batched_kernel_in_exactly_one_process(backend, workers):
-    plan = ex.execution_plan(backend, cores=16, workers=workers, blocks=50, work=1e12)
-    assert plan.kernel == ex.ACCELERATOR_KERNEL and plan.workers == 1 and ex.is_accelerator(backend)
+@pytest.mark.parametrize("devices", (None, 1, 8))
+def test_an_accelerator_gets_the_batched_kernel_over_its_devices(backend, devices):
+    plan = ex.execution_plan(backend, available=8, members=50, devices=devices)
+    assert plan.kernel == ex.ACCELERATOR_KERNEL and ex.is_accelerator(backend)
+    assert plan.devices == (1 if devices == 1 else 8)
     assert plan.backend == backend.strip().lower() and plan.backend in plan.why
-    assert ("8 processes" in plan.why) == (workers == 8)
-    cfg = study.StudyConfig(workers=workers, n_repeats=10)
-    assert cfg.execution(581, backend, cores=16).workers == 1
+
+
+def test_the_study_plans_methods_times_repeats_members():
+    from icgo.optim import STRATEGIES
+
+    table3 = study.StudyConfig(strategies=STRATEGIES)
+    plan = table3.execution(backend="cpu")
+    assert plan.members == 50 and plan.devices == min(len(jax.devices("cpu")), 50)
+    assert table3.execution(backend="cpu", cells=300).members == 5 * 300                    # worlds x repeats cells
+    assert dataclasses.replace(table3, optimizer=None).execution(backend="cpu").members == 0  # plain RELM: no search
+    assert dataclasses.replace(table3, devices=1).execution(backend="cpu").devices == 1
 
 
 @pytest.mark.parametrize("backend", ("", "  ", None, 3))
 def test_a_backend_without_a_name_is_refused(backend):
     with pytest.raises(ValueError, match="backend"):
-        ex.execution_plan(backend, 2)
+        ex.execution_plan(backend, 2, 10)
 
 
-def test_bad_workers_are_refused():
-    for w in (0, -1, 1.5, True):
-        with pytest.raises(ValueError, match="workers"):
-            ex.execution_plan("cpu", 2, w)
+def test_bad_devices_settings_are_refused():
+    for d in (0, -1, 1.5, True):
+        with pytest.raises(ValueError, match="devices"):
+            ex.execution_plan("cpu", 2, 10, devices=d)
+        with pytest.raises(ValueError, match="devices"):
+            study.StudyConfig(devices=d)
 
 
 # -------------------------------------------------------------- the accelerator kernel, run on the CPU

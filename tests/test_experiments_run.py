@@ -135,12 +135,13 @@ def test_run_writes_outputs_and_prints_table(small_csv, tmp_path, capsys):
     import jax
 
     ex = rec["execution"]
-    assert ex["backend"] == jax.default_backend() and ex["kernel"] == "cache_chunked" and ex["workers"] == 1
+    assert ex["backend"] == jax.default_backend() and ex["kernel"] == "cache_chunked"
+    assert ex["devices"] == min(len(jax.devices()), ex["members"]) and ex["members"] == 2 * 5 and ex["processes"] == 1
     assert ex["fitness"] == "icgo.methods.relm.train_fitness" and ex["dtype"] == "float32_features" and ex["why"]
     t = rec["timings"]
     for stage in ("prepare", "search", "score", "tables"):
         assert 0 <= t[f"{stage}_compile_s"] <= t[f"{stage}_s"]
-    assert t["import_s"] > 0 and t["load_data_s"] > 0 and t["write_s"] > 0 and t["workers"] is None
+    assert t["import_s"] > 0 and t["load_data_s"] > 0 and t["write_s"] > 0
     assert sum(t[f"{s}_s"] for s in ("import", "load_data", "prepare", "search", "score", "tables")) <= rec["total_time_s"]
     # survey QC of the raw stations, recomputed with numpy against the recording's reference field
     from icgo.io.recording import read_recording

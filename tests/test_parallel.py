@@ -1,20 +1,28 @@
-"""icgo.studies.workers: a study's search split over worker processes is bitwise the one-process search."""
+"""One sharded program: a study's search over 2 host devices is bitwise the one-device search (CPU kernel),
+uneven batches are padded, and the sharded runner equals the batched runner member for member."""
 
 from __future__ import annotations
 
 import dataclasses
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 import pytest
 
 import icgo  # noqa: F401  (float64)
+from icgo.optim import get, run_batch
+from icgo.optim.base import stack_configs
+from icgo.optim.sharded import balanced_devices, run_members
 from icgo.studies import icgo_relm as study
-from icgo.studies import workers as parallel
 from tests.test_study import sim_frame
 
 TINY = study.StudyConfig(optimizer="cgo", strategies=("original", "wavelet"), n_repeats=3, hidden=10, pop_size=6,
                          iterations=3, seed=2)
+
+needs_two = pytest.mark.skipif(len(jax.devices()) < 2, reason="needs 2 devices (tests/conftest.py sets 2 host "
+                                                               "devices on a CPU)")
 
 
 def _same(a, b):
@@ -27,64 +35,71 @@ def _same(a, b):
     pd.testing.assert_frame_equal(a.predictions, b.predictions)
 
 
-def test_workers_give_the_one_process_study_bitwise():
-    """Split by strategies (2 strategies x 3 repeats on 2 workers: blocks of 1 x 3) and by repeats (on 3 workers:
-    blocks of 2 x 1): bitwise the one-process study; the workers' timings are recorded."""
+@needs_two
+@pytest.mark.skipif(jax.default_backend() != "cpu", reason="bitwise across devices holds for the CPU kernel (members "
+                                                           "one after another); accelerators: within tolerance")
+def test_two_host_devices_give_the_one_device_study_bitwise():
+    """2 strategies x 3 repeats = 6 members in 2 shards of 3; then 1 x 3 = 3 members padded to 4 (uneven);
+    both bitwise the study on one device; the plan and the progress reports say what ran."""
     frame = sim_frame()
-    assert study.search_grid(2, 3, 2) == (2, 1) and study.search_grid(2, 3, 3) == (1, 3)
-    one = study.run_study(frame, dataclasses.replace(TINY, workers=1))
-    timings, ticks = {}, []
-    _same(one, study.run_study(frame, dataclasses.replace(TINY, workers=2), timings=timings,
-                               progress=lambda d, t: ticks.append((d, t))))
-    assert len(timings["workers"]) == 2 and timings["execution"]["workers"] == 2
-    # the workers' progress reaches the parent, summed over their blocks (weighted by strategies x repeats)
-    members = len(TINY.strategies) * TINY.n_repeats
-    total = ticks[-1][1]
-    assert ticks[-1] == (total, total) and all(t == total for _, t in ticks) and total % members == 0
-    assert total // members in (TINY.iterations, TINY.iterations + 1)
-    assert [d for d, _ in ticks] == sorted(d for d, _ in ticks)
-    assert all(w["run_s"] > 0 and w["import_s"] > 0 for w in timings["workers"])
-    _same(one, study.run_study(frame, dataclasses.replace(TINY, workers=3)))
+    one_t, two_t, ticks = {}, {}, []
+    one = study.run_study(frame, dataclasses.replace(TINY, devices=1), timings=one_t)
+    two = study.run_study(frame, TINY, timings=two_t, progress=lambda d, t: ticks.append((d, t)))
+    _same(one, two)
+    assert one_t["execution"]["devices"] == 1 and two_t["execution"]["devices"] == 2
+    assert two_t["execution"]["members"] == 6 and "6 member(s) in 2 shard(s) of at most 3" in two_t["execution"]["why"]
+    assert ticks[-1] == (TINY.iterations, TINY.iterations) and [d for d, _ in ticks] == sorted(d for d, _ in ticks)
+    uneven = dataclasses.replace(TINY, strategies=("wavelet",))
+    _same(study.run_study(frame, dataclasses.replace(uneven, devices=1)), study.run_study(frame, uneven))
 
 
-@pytest.mark.parametrize("n_methods, n_repeats, n_workers, grid", [
-    (5, 10, 1, (1, 1)), (5, 10, 2, (1, 2)), (5, 10, 4, (1, 4)), (5, 10, 10, (1, 10)), (5, 10, 16, (3, 5)),
-    (5, 10, 64, (5, 10)), (1, 10, 16, (1, 10)), (5, 1, 16, (5, 1)), (2, 3, 2, (2, 1)), (2, 3, 3, (1, 3))])
-def test_search_grid_keeps_the_largest_block_smallest(n_methods, n_repeats, n_workers, grid):
-    a, b = study.search_grid(n_methods, n_repeats, n_workers)
-    assert (a, b) == grid and a * b <= n_workers
-    largest = -(-n_methods // a) * -(-n_repeats // b)
-    # no other cut into at most n_workers blocks has a smaller largest block
-    assert all(-(-n_methods // x) * -(-n_repeats // y) >= largest
-               for x in range(1, n_methods + 1) for y in range(1, n_repeats + 1) if x * y <= n_workers)
-
-
-def test_execution_only_splits_the_random_protocols_searches_on_a_cpu():
-    from icgo.optim import STRATEGIES
-
-    table3 = study.StudyConfig(strategies=STRATEGIES)  # 5 strategies x 10 repeats x 12 030 evaluations x ~400 rows
-    assert study.search_work(table3, 407) == pytest.approx(5 * 10 * 30 * (1 + 4 * 100) * 407)
-    assert table3.execution(581).workers == min(len(parallel.available_cores()), 10)
-    assert table3.execution(581, "cpu", cores=16).workers == 15  # the 5 x 10 grid in 3 x 5 blocks
-    assert table3.execution(581, "gpu", cores=16).workers == 1
-    assert dataclasses.replace(table3, optimizer=None).execution(581, "cpu", 16).workers == 1
-    assert dataclasses.replace(table3, n_repeats=1).execution(581, "cpu", 16).workers == 1
-    assert study.StudyConfig(protocol="leave_azimuth_out").execution(581, "cpu", 16).workers == 1
-    with pytest.raises(ValueError, match="workers"):
-        study.StudyConfig(protocol="leave_azimuth_out", workers=2)
-    with pytest.raises(ValueError, match="workers"):
-        study.StudyConfig(workers=0)
-
-
-def test_a_progress_wrapper_keeps_auto_in_one_process_and_refuses_explicit_workers():
+@needs_two
+def test_a_fold_protocol_shards_too():
+    """leave_azimuth_out pads every member's training rows to the batch's largest count before sharding, so the
+    shapes (and the results) do not depend on the devices."""
     frame = sim_frame()
-    calls = []
+    cfg = dataclasses.replace(TINY, protocol="leave_azimuth_out", n_repeats=1, strategies=("original",))
+    _same(study.run_study(frame, dataclasses.replace(cfg, devices=1)), study.run_study(frame, cfg))
 
-    def wrap(f):
-        calls.append(1)
-        return f
 
-    with pytest.raises(ValueError, match="wrapper"):
-        study.run_study(frame, dataclasses.replace(TINY, workers=2), wrap_fitness=wrap)
-    res = study.run_study(frame, dataclasses.replace(TINY, n_repeats=1), wrap_fitness=wrap)
-    assert calls and np.isfinite(res.curves["best_fitness"]).all()
+@pytest.mark.parametrize("members, devices, used", [(50, 16, 13), (50, 2, 2), (3, 2, 2), (1, 16, 1), (10, 16, 10),
+                                                    (64, 16, 16), (0, 4, 1)])
+def test_balanced_devices_keep_the_largest_shard_smallest(members, devices, used):
+    n = balanced_devices(members, devices)
+    assert n == used and n <= devices
+    assert -(-max(members, 1) // n) == -(-max(members, 1) // devices)      # the largest shard as with every device
+
+
+@pytest.mark.parametrize("n_devices", [1, 2])
+@pytest.mark.parametrize("progress", [False, True])
+def test_the_sharded_runner_equals_the_batched_runner(n_devices, progress):
+    """run_members over (strategy, repeat) members == run_batch over strategies x repeats, bitwise, on 1 or 2
+    devices, in one program or in chunks of iterations with progress reports."""
+    if len(jax.devices()) < n_devices:
+        pytest.skip("needs 2 devices")
+    alg = get("cgo")
+    D, R = 5, 3
+    bounds = (np.full(D, -1.0), np.full(D, 1.0))
+    keys = jax.random.split(jax.random.PRNGKey(0), R)
+    aux = jnp.linspace(-0.5, 0.5, R)[:, None] * jnp.ones((R, D))
+
+    def f(pop, a):
+        return jnp.sum((pop - a) ** 2, axis=-1)
+
+    configs = alg.axis_configs(None, ("original", "wavelet"))
+    ref = run_batch(alg, f, bounds, keys, 8, 5, configs=configs, aux=aux)
+    s_idx, r_idx = np.repeat(np.arange(2), R), np.tile(np.arange(R), 2)
+    per_member = jax.tree_util.tree_map(lambda x: np.asarray(x)[s_idx], stack_configs(alg, configs))
+    ticks = []
+    out = run_members(alg, f, bounds, np.asarray(keys)[r_idx], 8, 5, configs=per_member, aux=np.asarray(aux)[r_idx],
+                      devices=jax.devices()[:n_devices], progress=(lambda d, t: ticks.append(d)) if progress else None)
+    for got, want in zip(out, ref):
+        np.testing.assert_array_equal(got.reshape(np.shape(want)), np.asarray(want))
+    assert ticks == ([1, 2, 3, 4, 5] if progress else [])
+
+
+def test_the_sharded_runner_refuses_misshapen_members():
+    alg = get("pso")
+    keys = np.asarray(jax.random.split(jax.random.PRNGKey(0), 3))
+    with pytest.raises(ValueError, match="leading axis 3"):
+        run_members(alg, lambda p, a: jnp.sum(p ** 2, -1), (np.zeros(2), np.ones(2)), keys, 4, 2, aux=np.zeros((2, 2)))

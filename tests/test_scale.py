@@ -69,8 +69,7 @@ def test_a_repeat_whose_msa_fails_is_left_out_and_named(tmp_path, capsys):
     with initialize_config_dir(config_dir=str(E.CONF_DIR), version_base="1.3"):
         cfg = compose(config_name="config", return_hydra_config=True,
                       overrides=["budget=smoke", "progress=false", "figures=false", "jax_cache_dir=null",
-                                 "dataset=csv", f"dataset.path={path}", f"split.n_repeats={n}", "model.hidden=4",
-                                 "workers=1"])
+                                 "dataset=csv", f"dataset.path={path}", f"split.n_repeats={n}", "model.hidden=4"])
     HydraConfig.instance().set_config(cfg)
     with open_dict(cfg):
         del cfg["hydra"]
@@ -103,14 +102,13 @@ def test_every_repeat_failing_stops_the_study_in_one_line():
     frame = datasets.lab_casing(0, toolface_step_deg=45.0).frame
     with pytest.raises(ValueError, match=r"^multi-station analysis \(repeat 0\): Levenberg-Marquardt did not "
                                          r"converge in 1 steps"):
-        S.run_study(frame, S.StudyConfig(n_repeats=3, msa_iterations=1, hidden=4, pop_size=4, iterations=1,
-                                         workers=1))
+        S.run_study(frame, S.StudyConfig(n_repeats=3, msa_iterations=1, hidden=4, pop_size=4, iterations=1))
 
 
 def test_a_thousand_repeat_smoke_study_completes():
     """1,000 repeats x 1 strategy at the smoke budget (population 8, 3 iterations) on a 104-row survey."""
     frame = datasets.lab_casing(0, toolface_step_deg=30.0).frame
-    cfg = S.StudyConfig(n_repeats=1000, hidden=8, pop_size=8, iterations=3, workers=1)
+    cfg = S.StudyConfig(n_repeats=1000, hidden=8, pop_size=8, iterations=3)
     t0 = time.perf_counter()
     res = S.run_study(frame, cfg)
     wall = time.perf_counter() - t0

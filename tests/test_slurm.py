@@ -63,6 +63,22 @@ def test_sweeps_through_a_one_node_slurm_cluster(tmp_path):
         assert _report(sweep) == [("ok", ""), ("ok", "")]
         assert all((sweep / d / "run.json").is_file() for d in ("0", "1"))
 
+        # 1b. one job as two SLURM tasks (one process per node on a real cluster; two on this one node): the
+        # processes join one JAX runtime (jax.distributed, from SLURM's variables), the search is sharded over both
+        # processes' devices, and only the first process writes the run directory
+        sweep = tmp_path / "distributed"
+        run = subprocess.run([sys.executable, "-m", "experiments.run", "-m", "strategy=chaos", "budget=smoke",
+                              "figures=false", "hydra/launcher=slurm", "hydra.launcher.tasks_per_node=2",
+                              f"hydra.sweep.dir={sweep}", f"jax_cache_dir={tmp_path / 'jax'}"], cwd=ROOT, env=env,
+                             capture_output=True, text=True, timeout=600)
+        assert run.returncode == 0, run.stderr[-3000:]
+        rec = json.loads((sweep / "0" / "run.json").read_text())
+        # each process has one host device per core of its affinity mask (this cluster binds no cores to a task:
+        # task/none, so both see the node's); the search spans both processes' devices
+        assert rec["execution"]["processes"] == 2, rec["execution"]
+        assert rec["execution"]["devices"] == min(2 * rec["devices"]["host_devices"], 10), rec["execution"]
+        assert rec["devices"]["distributed"]["cluster"] == "slurm" and rec["devices"]["distributed"]["num_processes"] == 2
+
         # 2. scancel one running job: it costs only itself, the report names it
         sweep = tmp_path / "cancel"
         sweep.mkdir()

@@ -122,6 +122,46 @@ def test_member_coverage_never_calibrates_on_the_members_own_test_rows():
     np.testing.assert_array_equal(n_cal, [10, 10])
 
 
+def _coverage_by_gathering(a_comp, a_true, train, heldout, test, pool, level):
+    """member_coverage's definition, one member at a time: gather its calibration values, take their quantile."""
+    from icgo.physics.frames import angle_diff
+
+    err = np.abs(np.asarray(angle_diff(a_comp, a_true[None, None])))
+    train, heldout, test = (np.asarray(x) > 0 for x in (train, heldout, test))
+    S, M, _ = err.shape
+    q, cov, n_cal = np.full((S, M), np.nan), np.full((S, M), np.nan), np.zeros(M, int)
+    for m in range(M):
+        others = (pool == pool[m]) & (np.arange(M) != m)
+        cal = heldout[others] & train[m][None]
+        n_cal[m] = cal.sum()
+        for s in range(S):
+            q[s, m] = conformal_quantile(err[s][others][cal], level)
+            if test[m].any():
+                cov[s, m] = np.mean(err[s, m, test[m]] <= q[s, m])
+    return q, cov, n_cal
+
+
+@pytest.mark.parametrize("pooled", [False, True])
+def test_member_coverage_equals_gathering_each_members_calibration_values(pooled):
+    """The sorted-once computation equals the per-member gather of the definition exactly: random splits of one pool
+    (more members than a chunk, ties in the errors) and fold-like groups; a member without calibration rows is NaN."""
+    from icgo.maths import conformal
+
+    rng = np.random.default_rng(4)
+    M, N, S = conformal.COVERAGE_CHUNK + 9, 40, 2
+    test = rng.random((M, N)) < 0.3
+    train = ~test
+    a_comp = np.round(rng.normal(0, 0.05, (S, M, N)), 3)                        # rounded: tied errors
+    pool = np.repeat(np.arange(M // 3 + 1), 3)[:M] if pooled else np.zeros(M, int)
+    if pooled:
+        pool[-1] = 10_000                                                        # alone in its group: no calibration
+    got = member_coverage(a_comp, np.zeros(N), train, test, test, pool, 0.9)
+    want = _coverage_by_gathering(a_comp, np.zeros(N), train, test, test, pool, 0.9)
+    for g, w in zip(got, want):
+        np.testing.assert_array_equal(g, w)
+    assert np.isnan(got[0][:, -1]).all() == pooled
+
+
 def test_leave_azimuth_out_study_pools_each_rows_held_out_prediction(lab):
     cfg = StudyConfig(protocol="leave_azimuth_out", optimizer="pso", n_repeats=2, hidden=8, pop_size=6,
                       iterations=3)

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import pytest
 
-from hydra_plugins.icgo_launcher._core import resolve_workers
-from icgo.studies.workers import xla_flags
+from hydra_plugins.icgo_launcher._core import resolve_workers, slot_cores
+from icgo.core.devices import xla_flags
 
 ROOT = Path(__file__).resolve().parents[1]
 APP = ROOT / "tests" / "sweep_app" / "app.py"
@@ -120,6 +120,15 @@ def test_a_bad_launcher_setting_is_one_line(tmp_path):
                                                            (3, 2, 8, 2)])
 def test_resolve_workers(workers, n_jobs, cpus, expect):
     assert resolve_workers(workers, n_jobs, cpus) == expect
+
+
+@pytest.mark.parametrize("cpus, workers, slots", [
+    (range(16), 3, [[0, 1, 2, 3, 4], [5, 6, 7, 8, 9], [10, 11, 12, 13, 14, 15]]), (range(2), 2, [[0], [1]]),
+    (range(2), 1, [[0, 1]]), ([4, 6, 9], 2, [[4], [6, 9]])])
+def test_the_cores_are_shared_out_among_the_worker_slots(cpus, workers, slots):
+    """Each slot a contiguous block of the cores (its job then has one host device per core of it)."""
+    got = [slot_cores(list(cpus), workers, k) for k in range(workers)]
+    assert got == slots and sorted(sum(got, [])) == sorted(cpus)
 
 
 @pytest.mark.parametrize("bad", [0, -1, 1.5, True, "2"])

@@ -10,8 +10,10 @@ starts the next one. The end-of-sweep report
 (:class:`experiments._sweep.FailureReport`) then lists every job.
 
 Each job's XLA runs on ``xla_threads`` threads; with one thread the job's
-process is also pinned to one core of its worker slot, so two workers on two
-cores do not oversubscribe them (measured in results/performance.md).
+process is also pinned to its worker slot's cores (the cores shared out among the
+slots: 16 cores and 3 workers give slots of 6, 5 and 5), so workers side by side
+do not oversubscribe them, and the job gives the CPU one host device per core of
+its slot (its search one program over them: docs/performance.md).
 
 Ctrl-C stops the sweep: the running jobs are terminated (their run
 directories are staged, so each is complete or absent), the report lists what
@@ -38,7 +40,7 @@ from hydra.core.utils import JobReturn, JobStatus, configure_log, filter_overrid
 from omegaconf import OmegaConf, open_dict
 
 from icgo.core.settings import interrupts_raise
-from icgo.studies.workers import xla_flags
+from icgo.core.devices import xla_flags
 
 log = logging.getLogger(__name__)
 
@@ -61,13 +63,20 @@ def _check_threads(threads: Any) -> None:
                          f"got {threads!r}")
 
 
-def _child(payload: bytes, conn, threads: int | None, core: int | None) -> None:
+def slot_cores(cpus: Sequence[int], workers: int, slot: int) -> list[int]:
+    """The cores of worker slot ``slot`` of ``workers``: ``cpus`` cut into that many contiguous blocks."""
+    n, k = len(cpus), max(1, min(int(workers), len(cpus)))
+    lo, hi = slot * n // k, (slot + 1) * n // k
+    return list(cpus[lo:hi])
+
+
+def _child(payload: bytes, conn, threads: int | None, cores: list[int] | None) -> None:
     """Entry point of a job's process: run one Hydra job and send back its JobReturn."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the launcher decides what Ctrl-C stops
     os.environ["XLA_FLAGS"] = xla_flags(threads, os.environ.get("XLA_FLAGS", ""))  # before JAX starts its backend
-    if core is not None:
+    if cores:
         try:
-            os.sched_setaffinity(0, {core})
+            os.sched_setaffinity(0, set(cores))
         except OSError:  # a container that forbids it: the thread flags still hold
             pass
     config, hydra_context, task_function, singleton_state = cloudpickle.loads(payload)
@@ -171,7 +180,7 @@ def launch(launcher, job_overrides: Sequence[Sequence[str]], initial_job_idx: in
                     recv, send = ctx.Pipe(duplex=False)
                     payload = cloudpickle.dumps((config, launcher.hydra_context, launcher.task_function, state))
                     proc = ctx.Process(target=_child, args=(payload, send, launcher.xla_threads,
-                                                            cpus[slot] if pin else None))
+                                                            slot_cores(cpus, workers, slot) if pin else None))
                     proc.start()
                     send.close()
                     running[idx] = dict(proc=proc, recv=recv, ret=None, overrides=overrides, config=config,

@@ -1,20 +1,18 @@
-"""How a batched search runs on the backend it finds: which fitness kernel, how many processes, and why.
+"""How a batched search runs on the backend it finds: which fitness kernel, over how many devices, and why.
 
-One set of defaults for every machine: the plan is a pure function of the JAX backend's name
-(``jax.default_backend()``: ``cpu``, ``gpu``, ``cuda``, ``rocm``, ``tpu``, ``METAL``, ...), the
-cores the job may use, the ``workers`` setting and the size of the search. Nothing here imports
+One program, one process per host: the search's batch (worlds x strategies x repeats, each member a whole
+population run) is laid out over the devices JAX sees (:mod:`icgo.optim.sharded`). The plan is a pure function of
+the backend's name (``jax.default_backend()``: ``cpu``, ``gpu``, ``cuda``, ``rocm``, ``tpu``, ``METAL``, ...), the
+devices it has, the processes of the job, the ``devices`` setting and the number of members. Nothing here imports
 JAX, so the plan can be made, printed and tested before a backend starts.
 
-* **CPU** (:data:`CPU_KERNEL`): the cache-chunked kernel (a chunk of thetas whose hidden outputs
-  stay in cache, batch members one after another: :func:`icgo.methods.relm.train_fitness`) and one
-  worker process per core the job may use, each on one XLA thread (measured: XLA's intra-op
-  threads add nothing at the fitness's shapes, two pinned processes keep their full rate each).
-* **Any accelerator** (:data:`ACCELERATOR_KERNEL`): the whole strategies x repeats x population
-  batch as batched matrix products, rows accumulated in blocks of bounded size
-  (:func:`icgo.methods.relm.gram_fitness`), inside the one jitted ``lax.scan`` over iterations (no
-  host round trip in the loop), and exactly one process: several processes opening one
-  accelerator fail (measured on a GPU: ``cuSolver internal error`` in each one's first program)
-  or share it with nothing gained.
+* **CPU** (:data:`CPU_KERNEL`): the cache-chunked kernel (a chunk of thetas whose hidden outputs stay in cache,
+  batch members one after another: :func:`icgo.methods.relm.train_fitness`) sharded over the host devices, one per
+  core the job may use (:func:`icgo.core.devices.use_host_devices`, set before the backend starts). A member's result
+  does not depend on the members beside it, so any device count gives the one-device result bitwise.
+* **Any accelerator** (:data:`ACCELERATOR_KERNEL`): the whole block of members on each device as batched matrix
+  products, rows accumulated in bounded blocks (:mod:`icgo.methods.relm_fused` for the paper's training fitness,
+  :func:`icgo.methods.relm.gram_fitness` for the others), sharded over every accelerator of the job.
 """
 
 from __future__ import annotations
@@ -23,12 +21,8 @@ from typing import NamedTuple
 
 #: The CPU kernel's name: cache-sized chunks of thetas (``lax.map``), batch members one after another.
 CPU_KERNEL = "cache_chunked"
-#: The accelerator kernel's name: the whole batch at once, rows accumulated in bounded blocks.
+#: The accelerator kernel's name: each device's whole block at once, rows accumulated in bounded blocks.
 ACCELERATOR_KERNEL = "batched"
-#: Estimated search work (fitness evaluations x training rows x methods x repeats) below which
-#: ``workers=None`` (auto) stays in one process on a CPU: starting a worker (importing JAX,
-#: loading its program) costs a few seconds, about 1e8 row-evaluations on one core here.
-AUTO_MIN_WORK = 1e8
 
 
 class ExecutionPlan(NamedTuple):
@@ -37,13 +31,17 @@ class ExecutionPlan(NamedTuple):
     Attributes:
         backend: the JAX backend's name, lower case (``cpu``, ``gpu``, ``tpu``, ``metal``, ...).
         kernel: :data:`CPU_KERNEL` or :data:`ACCELERATOR_KERNEL`.
-        workers: processes the search runs in (1 on an accelerator, always).
+        devices: devices the search's members are sharded over (1: one device).
+        processes: JAX processes of the job (``jax.distributed``; 1 for one process).
+        members: the search's batch members (independent runs), 0 without a search.
         why: one sentence saying why.
     """
 
     backend: str
     kernel: str
-    workers: int
+    devices: int
+    processes: int
+    members: int
     why: str
 
 
@@ -59,36 +57,43 @@ def normalise_backend(backend: str) -> str:
     return backend.strip().lower()
 
 
-def execution_plan(backend: str, cores: int, workers: int | None = None, blocks: int = 1,
-                   work: float = 0.0) -> ExecutionPlan:
-    """The kernel and the number of processes for a search on ``backend``.
+def check_devices_setting(devices) -> None:
+    """The ``devices`` setting: None (every device) or an integer >= 1; else one-line ValueError."""
+    if devices is not None and (isinstance(devices, bool) or not isinstance(devices, int) or devices < 1):
+        raise ValueError(f"execution plan: devices must be None (every device) or an integer >= 1, got {devices!r}")
+
+
+def execution_plan(backend: str, available: int, members: int, devices: int | None = None, processes: int = 1,
+                   cores: int | None = None) -> ExecutionPlan:
+    """The kernel and the devices for a search of ``members`` independent runs on ``backend``.
 
     Args:
         backend: the JAX backend's name (``jax.default_backend()``).
-        cores: CPU cores the job may use (its affinity mask: a launcher that pinned a job to one core
-            gives 1, so a sweep's jobs are never split again).
-        workers: the setting: None (auto) or an integer >= 1.
-        blocks: the most processes the search can be split into (its independent blocks).
-        work: the search's row-evaluations (fitness evaluations x training rows x methods x repeats).
+        available: devices the backend has, over every process of the job (``len(jax.devices())``).
+        members: the search's batch members (worlds x strategies x repeats); 0 or 1: one device.
+        devices: the setting: None (every available device) or the most to use.
+        processes: the job's JAX processes (``jax.process_count()``).
+        cores: CPU cores the job may use (its affinity mask), named in the sentence on a CPU; None: not named.
     Returns:
-        :class:`ExecutionPlan`.
+        :class:`ExecutionPlan`; ``devices`` is the fewest that keep the largest block of members as small as
+        with all of them (:func:`icgo.optim.sharded.balanced_devices`).
     """
     name = normalise_backend(backend)
-    if workers is not None and (isinstance(workers, bool) or int(workers) != workers or workers < 1):
-        raise ValueError(f"execution plan: workers must be None or an integer >= 1, got {workers!r}")
-    blocks, cores = max(1, int(blocks)), max(1, int(cores))
-    if name != "cpu":
-        asked = "" if workers in (None, 1) else f"; workers={workers} would open it from {workers} processes"
-        return ExecutionPlan(name, ACCELERATOR_KERNEL, 1,
-                             f"backend {name} is an accelerator: the whole batch as batched matrix products in one "
-                             f"process{asked}")
-    if workers is not None:
-        n = min(int(workers), blocks)
-        why = f"workers={workers}" + (f", capped at the search's {blocks} block(s)" if n < workers else "")
-    elif work < AUTO_MIN_WORK:
-        n, why = 1, f"a small search ({work:.2g} row-evaluations < {AUTO_MIN_WORK:.0e}) does not pay for a process"
+    check_devices_setting(devices)
+    available, members, processes = max(1, int(available)), max(0, int(members)), max(1, int(processes))
+    usable = available if devices is None else min(devices, available)
+    per = -(-max(members, 1) // usable)
+    n = -(-max(members, 1) // per)
+    where = "" if processes == 1 else f" across {processes} processes (jax.distributed)"
+    if name == "cpu":
+        kernel, what = CPU_KERNEL, "the cache-chunked kernel"
+        have = (f"{available} host device(s)" + (f", one per core of the job's {cores}" if cores == available
+                                                 else f" (the job may use {cores} core(s))" if cores else ""))
     else:
-        n = min(cores, blocks)
-        why = f"one process per available core ({cores})" + (f", capped at the search's {blocks} block(s)"
-                                                             if n < cores else "")
-    return ExecutionPlan(name, CPU_KERNEL, n, f"backend cpu: the cache-chunked kernel; {n} process(es): {why}")
+        kernel, what = ACCELERATOR_KERNEL, "batched matrix products in bounded row blocks"
+        have = f"{available} {name} device(s)"
+    if devices is not None and devices < available:
+        have += f", devices={devices}"
+    shards = (f"{members} member(s) in {n} shard(s) of at most {per}" if members else "no search")
+    return ExecutionPlan(name, kernel, n, processes, members,
+                         f"backend {name}: {what}; {have}{where}; {shards} (one sharded program)")

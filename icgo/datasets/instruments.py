@@ -152,11 +152,11 @@ def _check_casing(casing: Casing):
         raise ValueError(f"casing.model {casing.model!r}: choose 'pole_pair' or 'dipole_line'")
     if casing.length_m <= 0:
         raise ValueError(f"casing.length_m {casing.length_m}: must be > 0")
-    ax = jnp.asarray(casing.axis_ned, dtype=jnp.float64)
-    n = jnp.linalg.norm(ax)
-    if not float(n) > 0:
+    ax = np.asarray(casing.axis_ned, dtype=np.float64)  # numpy: the casing is a constant, also under jit
+    n = np.linalg.norm(ax)
+    if not n > 0:
         raise ValueError("casing.axis_ned: must be a non-zero vector")
-    return ax / n
+    return jnp.asarray(ax / n)
 
 
 def casing_field_ned(points_ned, casing: Casing):

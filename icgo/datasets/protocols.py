@@ -24,12 +24,13 @@ Magnitudes and their physical justification: docs/datasets.md.
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Any, Mapping, NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pandas as pd
-from scipy.signal import lfilter
 
 from icgo.datasets import instruments as ins
 from icgo.physics import frames as F
@@ -250,19 +251,40 @@ def lab_casing(
     )
 
 
+def _wrap360(angle_deg) -> np.ndarray:
+    """:func:`icgo.physics.frames.wrap360` in numpy (host-side, no compiled program)."""
+    w = np.mod(np.asarray(angle_deg, float), 360.0)
+    return np.where(w >= 360.0, 0.0, w)
+
+
+def _hashable(casing):
+    """A casing whose array fields are tuples (a static argument of :func:`_station_fields`), or None."""
+    if casing is None:
+        return None
+    return casing._replace(**{k: tuple(np.ravel(v).tolist()) for k, v in casing._asdict().items()
+                              if isinstance(v, (np.ndarray, list, tuple))})
+
+
+@partial(jax.jit, static_argnames=("casing",))
+def _station_fields(A, I, T, total_field_nT, dip_deg, gravity_g, casing, pivot_ned, lever_tool, effects):
+    """The noise-free measured (G, B) at every station and the casing field (NED, nT): one compiled program
+    (the persistent compilation cache then loads it in one read, not one per array operation)."""
+    C = F.tool_to_earth(A, I, T)
+    pos = ins.sensor_positions_ned(pivot_ned, lever_tool, A, I, T)
+    b_cas = ins.casing_field_ned(pos, casing) if casing is not None else jnp.zeros_like(pos)
+    B = jnp.einsum("nji,nj->ni", C, F.field_vector_ned(total_field_nT, dip_deg, 0.0) + b_cas)
+    G = jnp.einsum("nji,j->ni", C, F.gravity_vector_ned(gravity_g))
+    return (*ins.measure_g_b(G, B, C, effects), b_cas)
+
+
 def _station_survey(name, seed, A, I, T, total_field_nT, dip_deg, gravity_g, casing, pivot_ned, lever_tool,
                     effects, n_samples, accel_noise_g, mag_noise_nT, spike_prob, spike_nT, outlier_sigma,
                     extra_truth=None, extra_cols=None) -> Dataset:
     """Static stations near a casing: ideal sensors + casing + effects + averaged noise + 3-sigma filter."""
-    A, I, T = jnp.asarray(A), jnp.asarray(I), jnp.asarray(T)
-    C = F.tool_to_earth(A, I, T)
-    earth = F.field_vector_ned(total_field_nT, dip_deg, 0.0)
-    pos = ins.sensor_positions_ned(pivot_ned, lever_tool, A, I, T)
-    b_cas = ins.casing_field_ned(pos, casing) if casing is not None else jnp.zeros_like(pos)
-    B_ned = earth + b_cas
-    B = jnp.einsum("nji,nj->ni", C, B_ned)
-    G = jnp.einsum("nji,j->ni", C, F.gravity_vector_ned(float(gravity_g)))
-    Gm, Bm = ins.measure_g_b(G, B, C, effects)
+    Gm, Bm, b_cas = _station_fields(np.asarray(A, float), np.asarray(I, float), np.asarray(T, float),
+                                    float(total_field_nT), float(dip_deg), float(gravity_g), _hashable(casing),
+                                    np.asarray(pivot_ned, float), np.asarray(lever_tool, float),
+                                    {k: np.asarray(v, float) for k, v in effects.items()})
     g_mean, b_mean, spiked = _sample_sensors(seed, Gm, Bm, n_samples, accel_noise_g, mag_noise_nT, spike_prob, spike_nT)
     g_mean, b_mean, spiked = _np(g_mean), _np(b_mean), np.asarray(spiked)
     n = g_mean.shape[0]
@@ -275,7 +297,7 @@ def _station_survey(name, seed, A, I, T, total_field_nT, dip_deg, gravity_g, cas
     station = np.arange(n)
     extra = {k: np.asarray(v)[keep] for k, v in (extra_cols or {}).items()}
     frame = _contract_frame(station[keep], g_mean[keep], b_mean[keep], _np(A)[keep], _np(I)[keep],
-                            _np(F.wrap360(T))[keep], extra)
+                            _wrap360(T)[keep], extra)
     meta = {
         "name": name, "seed": int(seed), "total_field_nT": float(total_field_nT), "dip_deg": float(dip_deg),
         "declination_deg": 0.0, "gravity_g": float(gravity_g), "azimuth_reference": "magnetic",
@@ -629,6 +651,8 @@ def rotating_drill(
     # Stick-slip: OU process on the relative rate, 20 s time constant, unit variance.
     a = np.exp(-dt / 20.0)
     eps = r_ou.standard_normal(n)
+    from scipy.signal import lfilter  # here, not at import: scipy.signal costs 1.4 s, and only this drift needs it
+
     ou = lfilter([np.sqrt(1.0 - a * a)], [1.0, -a], eps)  # x_k = a x_{k-1} + sqrt(1-a^2) e_k
     rate_deg_s = np.where(static, 0.0, rotation_rpm * 6.0 * (1.0 + rpm_variation * ou))
     T = np.mod(r_t0.uniform(0.0, 360.0) + np.cumsum(rate_deg_s) * dt, 360.0)

@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from icgo.methods import relm
+from icgo.methods import relm, search_fitness
 from icgo.methods.nets import encode_inputs
 from icgo.physics.frames import wrap360
 
@@ -107,8 +107,8 @@ def search_theta(keys, data: relm.FitData, hidden: int, lam: float, bounds: tupl
     from icgo.optim import run_batch
 
     D = relm.n_params(hidden, data.X.shape[-1])
-    aux = relm.SearchData(data, np.full(keys.shape[:1], lam, data.X.dtype), hidden)
-    res = run_batch(optimizer, relm.search_fitness, (np.full(D, bounds[0]), np.full(D, bounds[1])), keys,
+    aux = search_fitness.SearchData(data, np.full(keys.shape[:1], lam, data.X.dtype), hidden)
+    res = run_batch(optimizer, search_fitness.search_fitness, (np.full(D, bounds[0]), np.full(D, bounds[1])), keys,
                     pop_size, iterations, configs=configs, aux=aux)
     if configs is not None:  # one value on the side-by-side axis: drop that axis
         res = jax.tree_util.tree_map(lambda x: x[0], res)

@@ -26,9 +26,8 @@ Non-finite fitness values are returned as +inf.
 
 from __future__ import annotations
 
-import dataclasses
 from functools import partial
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -764,53 +763,6 @@ def make_gram_fitness(lam: float, hidden: int, train: bool, feature_dtype: str =
     def f(pop, aux):
         return kernel(pop, aux, lam, hidden, feature_dtype, solve_dtype, block_elements)
     return f
-
-
-# ------------------------------------------------------------ the search's fitness
-#: The fitness kernels a search can run (:func:`search_fitness`), by their function's name here.
-SEARCH_KERNELS = ("fitness", "train_fitness", "gram_fitness", "gram_train_fitness")
-
-
-@partial(jax.tree_util.register_dataclass, data_fields=["rows", "lam"],
-         meta_fields=["hidden", "kernel", "feature_dtype", "solve_dtype"])
-@dataclasses.dataclass(frozen=True)
-class SearchData:
-    """One repeat's data for :func:`search_fitness` (the optimizer's ``aux``).
-
-    ``rows`` and ``lam`` are data (traced, vmapped over repeats), so one compiled search serves every
-    ridge lambda; the other fields select code and are static (part of the pytree's structure, so JAX's
-    own jit cache compiles once per setting).
-
-    Attributes:
-        rows: :class:`TrainRows` (kernels ``train_fitness``, ``gram_train_fitness``) or :class:`FitData`.
-        lam: ridge lambda, () per repeat.
-        hidden: L.
-        kernel: one of :data:`SEARCH_KERNELS`.
-        feature_dtype: precision of eq. (8) (``train_fitness``, ``gram_*``).
-        solve_dtype: precision of the solve and the RMSE (``fitness``: ``"float32"`` casts everything to
-            float32; ``gram_*``); ``train_fitness`` solves in float64 always.
-    """
-
-    rows: Any
-    lam: Any
-    hidden: int
-    kernel: str = "fitness"
-    feature_dtype: str = "float64"
-    solve_dtype: str = "float64"
-
-
-def search_fitness(pop, aux: SearchData):
-    """The fitness ``(P, 7 L) -> (P,)`` an optimizer calls with ``aux`` = :class:`SearchData`: the kernel it
-    names (:func:`fitness`, :func:`train_fitness`, :func:`gram_fitness` or :func:`gram_train_fitness`) on its
-    rows, lambda and precisions. A plain function, so every search passes the same static fitness."""
-    if aux.kernel == "train_fitness":
-        return train_fitness(pop, aux.rows, aux.lam, aux.hidden, feature_dtype=aux.feature_dtype)
-    if aux.kernel in ("gram_fitness", "gram_train_fitness"):
-        kernel = gram_train_fitness if aux.kernel == "gram_train_fitness" else gram_fitness
-        return kernel(pop, aux.rows, aux.lam, aux.hidden, aux.feature_dtype, aux.solve_dtype)
-    if aux.kernel != "fitness":
-        raise ValueError(f"unknown search kernel {aux.kernel!r}; choose one of {list(SEARCH_KERNELS)}")
-    return fitness(pop, aux.rows, aux.lam, aux.hidden, None if aux.solve_dtype == "float64" else aux.solve_dtype)
 
 
 def fold_weights(key, train_mask, mode: str = "train", val_fraction: float = 0.3, k_folds: int = 5):

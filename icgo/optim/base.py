@@ -367,7 +367,8 @@ def iterations_for_budget(alg: Algorithm, pop_size: int, max_evals: int, config=
     return n
 
 
-def _resolve_iters(alg, pop_size, n_iter, max_evals, config) -> int:
+def resolve_iterations(alg, pop_size, n_iter, max_evals, config) -> int:
+    """The static iteration count of a run: ``n_iter`` checked, or the iterations ``max_evals`` buys."""
     if (n_iter is None) == (max_evals is None):
         raise ValueError("give exactly one stop criterion: n_iter or max_evals")
     if max_evals is not None:
@@ -428,13 +429,13 @@ def _tree_differences(a, b) -> list[str]:
 # ----------------------------------------------------------------------------
 
 
-def _init_one(alg: Algorithm, fitness, pop_size: int, n_iter: int, key, lb, ub, config, aux):
+def init_one(alg: Algorithm, fitness, pop_size: int, n_iter: int, key, lb, ub, config, aux):
     """The first state and the ``n_iter`` step keys of one run."""
     k_init, k_run = jax.random.split(key)
     return alg.init_fn(k_init, fitness, lb, ub, pop_size, config, aux), jax.random.split(k_run, n_iter)
 
 
-def _steps_one(alg: Algorithm, fitness, n_iter: int, state, ts, keys):
+def steps_one(alg: Algorithm, fitness, n_iter: int, state, ts, keys):
     """Iterations ``ts`` (of ``n_iter``) of one run from ``state``: (state, (best_f, n_evals) per iteration)."""
 
     def body(s, xs):
@@ -445,20 +446,21 @@ def _steps_one(alg: Algorithm, fitness, n_iter: int, state, ts, keys):
     return lax.scan(body, state, (ts, keys))
 
 
-def _run_one(alg: Algorithm, fitness, pop_size: int, n_iter: int, key, lb, ub, config, aux) -> RunResult:
-    state, keys = _init_one(alg, fitness, pop_size, n_iter, key, lb, ub, config, aux)
-    state, (curve, evals) = _steps_one(alg, fitness, n_iter, state, jnp.arange(n_iter), keys)
+def run_one(alg: Algorithm, fitness, pop_size: int, n_iter: int, key, lb, ub, config, aux) -> RunResult:
+    """One whole run (:func:`init_one`, then every iteration by :func:`steps_one`): what the runners vmap."""
+    state, keys = init_one(alg, fitness, pop_size, n_iter, key, lb, ub, config, aux)
+    state, (curve, evals) = steps_one(alg, fitness, n_iter, state, jnp.arange(n_iter), keys)
     return RunResult(state.best_x, state.best_f, curve, evals, state.n_evals)
 
 
 @partial(jax.jit, static_argnums=(0, 1, 2, 3))
 def _run_jit(alg, fitness, pop_size, n_iter, key, lb, ub, config, aux):
-    return _run_one(alg, fitness, pop_size, n_iter, key, lb, ub, config, aux)
+    return run_one(alg, fitness, pop_size, n_iter, key, lb, ub, config, aux)
 
 
 @partial(jax.jit, static_argnums=(0, 1, 2, 3, 4))
 def _batch_jit(alg, fitness, pop_size, n_iter, by_config, keys, lb, ub, config, aux):
-    one = partial(_run_one, alg, fitness, pop_size, n_iter)
+    one = partial(run_one, alg, fitness, pop_size, n_iter)
     over_repeats = jax.vmap(one, in_axes=(0, None, None, None, 0))
     if not by_config:
         return over_repeats(keys, lb, ub, config, aux)
@@ -467,14 +469,14 @@ def _batch_jit(alg, fitness, pop_size, n_iter, by_config, keys, lb, ub, config, 
 
 @partial(jax.jit, static_argnums=(0, 1, 2, 3, 4))
 def _batch_init_jit(alg, fitness, pop_size, n_iter, by_config, keys, lb, ub, config, aux):
-    one = jax.vmap(partial(_init_one, alg, fitness, pop_size, n_iter), in_axes=(0, None, None, None, 0))
+    one = jax.vmap(partial(init_one, alg, fitness, pop_size, n_iter), in_axes=(0, None, None, None, 0))
     return jax.vmap(one, in_axes=(None, None, None, 0, None))(keys, lb, ub, config, aux) if by_config else \
         one(keys, lb, ub, config, aux)
 
 
 @partial(jax.jit, static_argnums=(0, 1, 2, 3))
 def _batch_steps_jit(alg, fitness, n_iter, by_config, state, ts, keys):
-    one = jax.vmap(partial(_steps_one, alg, fitness, n_iter), in_axes=(0, None, 0))
+    one = jax.vmap(partial(steps_one, alg, fitness, n_iter), in_axes=(0, None, 0))
     return jax.vmap(one, in_axes=(0, None, 0))(state, ts, keys) if by_config else one(state, ts, keys)
 
 
@@ -522,7 +524,7 @@ def run(alg: Algorithm, fitness: Fitness, bounds, key, pop_size: int, n_iter: in
     lb, ub = check_bounds(bounds)
     check_pop_size(pop_size)
     config = alg.config_cls() if config is None else config
-    n_iter = _resolve_iters(alg, pop_size, n_iter, max_evals, config)
+    n_iter = resolve_iterations(alg, pop_size, n_iter, max_evals, config)
     return _run_jit(alg, fitness, int(pop_size), n_iter, key, lb, ub, config, aux)
 
 
@@ -556,13 +558,13 @@ def run_batch(alg: Algorithm, fitness: Fitness, bounds, keys, pop_size: int, n_i
         if config is not None:
             raise ValueError("give config (one setting) or configs (S settings side by side), not both")
         stacked = stack_configs(alg, configs)
-        n_iters = {_resolve_iters(alg, pop_size, n_iter, max_evals, c) for c in configs}
+        n_iters = {resolve_iterations(alg, pop_size, n_iter, max_evals, c) for c in configs}
         if len(n_iters) != 1:
             raise ValueError(f"configs spend different evaluations per iteration ({sorted(n_iters)} iterations)")
         n_iter, config = n_iters.pop(), stacked
     else:
         config = alg.config_cls() if config is None else config
-        n_iter = _resolve_iters(alg, pop_size, n_iter, max_evals, config)
+        n_iter = resolve_iterations(alg, pop_size, n_iter, max_evals, config)
     keys = jnp.asarray(keys) if not isinstance(keys, jax.Array) else keys
     n_rep = keys.shape[0]
     if aux is not None:

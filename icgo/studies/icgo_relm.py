@@ -19,8 +19,8 @@ Pipeline, per repeat (one PRNG key each, ``fold_in(PRNGKey(seed), repeat_id)``):
 Test rows never steer anything: MSA, standardisation, fitness and output
 weights see them only with zero weight. Stages 2-6 run as three jitted calls:
 ``_prepare`` (mapped over repeats: split, MSA, features), a host-side MSA
-observability check, the optimizer's runner (:func:`icgo.optim.run_batch`,
-one call vmapped over repeats and CGO strategies), then ``score_all`` (refit
+observability check, the optimizer's runner (:func:`icgo.studies.sharding.run_grid`,
+one program over repeats and CGO strategies, sharded over the devices), then ``score_all`` (refit
 vmapped over strategies and mapped over repeats; predictions by
 :func:`icgo.methods.compensation.predict`, the forward pass the saved model
 applies; metrics).
@@ -46,17 +46,18 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
-from icgo.core.execution import ACCELERATOR_KERNEL, CPU_KERNEL, ExecutionPlan, execution_plan
+from icgo.core.execution import ACCELERATOR_KERNEL, CPU_KERNEL, ExecutionPlan
 from icgo.maths.metrics import azimuth_metrics
 from icgo.maths.stats import mean_std_table
 from icgo.methods import msa as _msa
 from icgo.methods import relm as _relm
 from icgo.methods.compensation import RELMParams, predict
+from icgo.methods.search_fitness import SearchData, search_fitness
 from icgo.optim.cgo import CGO
 from icgo.physics.frames import angle_diff, azimuth_from_gv, wrap360
 from icgo.physics.qc import measured_dip_deg
 from icgo.studies import splits as _splits
-from icgo.studies import timing, workers
+from icgo.studies import sharding, timing
 from icgo.studies.protocol import Study
 
 REQUIRED_COLUMNS = ("gx", "gy", "gz", "bx", "by", "bz", "azimuth_deg")
@@ -82,12 +83,10 @@ class StudyConfig:
         seed: base seed; repeat k uses key ``fold_in(PRNGKey(seed), k)``.
         repeat_ids: run only these repeat ids (e.g. ``(3,)`` to rerun repeat 3
             alone); None = ``range(n_repeats)``.
-        workers: processes the search is split over by strategies x repeats (:mod:`icgo.studies.workers`,
-            :func:`search_grid`: one per core, XLA on one thread each, bitwise the one-process result) on a CPU;
-            None (default) = one per available core when the search is large
-            (:data:`icgo.core.execution.AUTO_MIN_WORK`) and no fitness wrapper (progress
-            bar) is given, else 1. Only the random protocol's searches split. On an
-            accelerator always 1 (:meth:`execution`).
+        devices: the most devices the search's strategies x repeats members are sharded over (one program,
+            :mod:`icgo.studies.sharding`); None (default) = every device of the backend (a CPU's host devices,
+            one per core of the job: :func:`icgo.core.devices.use_host_devices`). Bitwise the one-device result
+            on a CPU (:meth:`execution`).
         protocol: the split (:data:`icgo.studies.splits.PROTOCOLS`): ``random`` (paper),
             ``leave_azimuth_out``, ``leave_condition_out`` or ``transfer`` (needs
             ``SurveyData.target``, the second instrument's survey).
@@ -138,7 +137,7 @@ class StudyConfig:
 
     n_repeats: int = 10
     seed: int = 0
-    workers: int | None = None
+    devices: int | None = None
     repeat_ids: tuple | None = None
     protocol: str = "random"
     train_fraction: float = 0.7
@@ -175,11 +174,8 @@ class StudyConfig:
         need(is_int(self.n_repeats) and self.n_repeats >= 1, "n_repeats",
              f"must be an integer >= 1, got {self.n_repeats!r} (repeats)")
         need(is_int(self.seed) and self.seed >= 0, "seed", f"must be an integer >= 0, got {self.seed!r}")
-        need(self.workers is None or (is_int(self.workers) and self.workers >= 1), "workers",
-             f"must be None (one per core for a large search) or an integer >= 1, got {self.workers!r}")
-        need(self.workers in (None, 1) or (self.protocol == "random" and self.optimizer is not None), "workers",
-             f"{self.workers} splits a search over processes, which only the random protocol's searches do "
-             f"(protocol {self.protocol!r}, optimizer {self.optimizer!r}); use workers=1 or null")
+        need(self.devices is None or (is_int(self.devices) and self.devices >= 1), "devices",
+             f"must be None (every device) or an integer >= 1, got {self.devices!r}")
         need(self.repeat_ids is None or (len(self.repeat_ids) >= 1 and all(is_int(i) and i >= 0 for i in self.repeat_ids)),
              "repeat_ids", f"must be None or a non-empty tuple of integers >= 0, got {self.repeat_ids!r}")
         need(self.protocol in _splits.PROTOCOLS, "protocol",
@@ -246,32 +242,19 @@ class StudyConfig:
             need(is_int(self.max_evals) and self.max_evals >= 1, "max_evals",
                  f"must be an integer >= 1, got {self.max_evals!r}")
 
-    def execution(self, n_rows: int, backend: str | None = None, cores: int | None = None) -> ExecutionPlan:
-        """How the search runs for a survey of ``n_rows`` rows (:func:`icgo.core.execution.execution_plan`).
-
-        On a CPU: the cache-chunked kernel, and one process unless the random protocol with an
-        optimizer: then ``workers``, or for None one per available core when the search is large
-        enough to pay for starting them. On an accelerator: the batched kernel in one process.
+    def execution(self, backend: str | None = None, cores: int | None = None,
+                  cells: int | None = None) -> ExecutionPlan:
+        """How the search runs (:func:`icgo.core.execution.execution_plan`): its members (methods x ``cells``,
+        default the repeats) sharded over the backend's devices (``devices``); no search (plain RELM): one device.
 
         Args:
-            n_rows: the survey's rows. backend: the JAX backend (default ``jax.default_backend()``).
-            cores: CPU cores the job may use (default: its affinity mask).
+            backend: the JAX backend (default ``jax.default_backend()``). cores: CPU cores the job may use
+                (default: its affinity mask). cells: (world, repeat) cells (default: the repeats).
         """
-        if backend is None:
-            backend = jax.default_backend()
-        cores = len(workers.available_cores()) if cores is None else cores
-        if self.optimizer is None or self.protocol != "random":
-            return execution_plan(backend, cores, 1)
-        from icgo.optim import get
-
-        n_methods, n_repeats = len(self.strategies) if get(self.optimizer).axis else 1, len(self.ids())
-        n_train = int(round(self.train_fraction * n_rows))
-        plan = execution_plan(backend, cores, self.workers, n_methods * n_repeats, search_work(self, n_train))
-        a, b = search_grid(n_methods, n_repeats, plan.workers)
-        if a * b < plan.workers:
-            plan = plan._replace(workers=a * b, why=f"{plan.why}; the {n_methods} x {n_repeats} (methods x repeats) "
-                                                    f"grid cut into {a} x {b} blocks")
-        return plan
+        members = 0
+        if self.optimizer is not None:
+            members = len(self.method_names()) * (len(self.ids()) if cells is None else int(cells))
+        return sharding.plan(backend, members, None if self.devices is None else int(self.devices), cores)
 
     def ids(self) -> tuple:
         """The repeat ids this config runs."""
@@ -370,12 +353,12 @@ def sigma_filter(G, B, azimuth_true, n_sigma: float = 3.0):
     gn = np.linalg.norm(G, axis=1)
     bn = np.linalg.norm(B, axis=1)
     dip = measured_dip_deg(G, B)
+    err = np.asarray(_raw_errors(G, B, a)[1])
     keep = np.ones(len(a), bool)
     for q in (gn, bn, dip):
         s = q.std()
         if s > 0:
             keep &= np.abs(q - q.mean()) <= n_sigma * s
-    err = np.asarray(angle_diff(np.asarray(azimuth_from_gv(G, B)), a))
     # groups of equal azimuth by one stable sort (O(N log N) for any number of groups); each group's rows
     # keep their order, so its mean and std are those of err[group mask]
     az = np.round(a, 6)
@@ -389,6 +372,13 @@ def sigma_filter(G, B, azimuth_true, n_sigma: float = 3.0):
         if s > 0:
             keep[g] &= np.abs(e - e.mean()) <= n_sigma * s
     return keep
+
+
+#: The host-side filter's and tables' raw azimuth errors and metrics, one compiled program each (not one per array
+#: operation).
+_table_metrics = jax.jit(azimuth_metrics)
+_raw_errors = jax.jit(lambda G, B, a: (azimuth_from_gv(G, B), angle_diff(azimuth_from_gv(G, B), a)))
+_errors = jax.jit(angle_diff)
 
 
 # ------------------------------------------------------------------ stages
@@ -435,31 +425,37 @@ def _prepare(keys, train, test, G, B, a_true, reference, *, msa_model, msa_iter,
 
 class SearchKernel(NamedTuple):
     """The search's fitness kernel: its name in :mod:`icgo.methods.relm` (one of
-    :data:`icgo.methods.relm.SEARCH_KERNELS`), whether it reads the gathered training rows (:func:`train_rows`)
-    or the row-weighted FitData, and its precisions (:class:`icgo.methods.relm.SearchData`)."""
+    :data:`icgo.methods.search_fitness.SEARCH_KERNELS`), whether it reads the gathered training rows
+    (:func:`train_rows`)
+    or the row-weighted FitData, and its precisions (:class:`icgo.methods.search_fitness.SearchData`)."""
 
     name: str
     train_rows: bool
     feature_dtype: str
     solve_dtype: str
 
-    def aux(self, rows, lam, hidden: int) -> _relm.SearchData:
-        """The optimizer's ``aux`` for :func:`icgo.methods.relm.search_fitness`: ``rows`` (TrainRows or FitData)
+    def aux(self, rows, lam, hidden: int) -> SearchData:
+        """The optimizer's ``aux`` for :func:`icgo.methods.search_fitness.search_fitness`: ``rows`` (TrainRows or
+        FitData)
         and ``lam`` (an array with the rows' leading axes: (R,) for a search, () for one repeat) as data."""
-        return _relm.SearchData(rows, lam, int(hidden), self.name, self.feature_dtype, self.solve_dtype)
+        return SearchData(rows, lam, int(hidden), self.name, self.feature_dtype, self.solve_dtype)
 
 
 def search_kernel(dtype: str, fitness: str, kernel: str) -> SearchKernel:
     """The fitness kernel a search runs for a precision (:data:`PRECISIONS`), fitness mode and backend kernel.
 
-    ``kernel`` :data:`icgo.core.execution.ACCELERATOR_KERNEL`: :func:`icgo.methods.relm.gram_train_fitness`
-    (train mode, gathered rows) or :func:`icgo.methods.relm.gram_fitness`. CPU: the train-mode kernel
+    ``kernel`` :data:`icgo.core.execution.ACCELERATOR_KERNEL`: the fused kernel
+    :func:`icgo.methods.relm_fused.fused_train_fitness` (train mode with float32 features: the default),
+    :func:`icgo.methods.relm.gram_train_fitness` (train mode, other precisions) or
+    :func:`icgo.methods.relm.gram_fitness`. CPU: the train-mode kernel
     :func:`icgo.methods.relm.train_fitness` for ``fitness="train"`` with a float64 solve, else the
     row-weighted :func:`icgo.methods.relm.fitness` (float64; float32 for ``dtype="float32"``).
     """
     features, solve = PRECISIONS[dtype]
     train = fitness == "train"
     if kernel == ACCELERATOR_KERNEL:
+        if train and (features, solve) == ("float32", "float64"):
+            return SearchKernel("fused_train_fitness", True, features, solve)
         return SearchKernel("gram_train_fitness" if train else "gram_fitness", train, features, solve)
     if kernel != CPU_KERNEL:
         raise ValueError(f"study: unknown search kernel {kernel!r}")
@@ -551,101 +547,46 @@ def _train_rows(data, n_train, padded):
     return jax.vmap(lambda d: _relm.train_rows(d, n_train, padded))(data)
 
 
-def search_work(cfg: StudyConfig, n_train_rows: int) -> float:
-    """Row-evaluations of the search (fitness evaluations x training rows x methods x repeats), roughly."""
-    from icgo.optim import get, iterations_for_budget
-
-    alg = get(cfg.optimizer)
-    config = alg.config_cls() if cfg.optimizer_config is None else cfg.optimizer_config
-    first, per = alg.evals(cfg.pop_size, config)
-    iters = cfg.iterations if cfg.max_evals is None else iterations_for_budget(alg, cfg.pop_size, cfg.max_evals, config)
-    methods = len(cfg.method_names())
-    return float(first + per * iters) * n_train_rows * methods * len(cfg.ids())
-
-
-def search_block(cfg: StudyConfig, prep: Prepared) -> tuple:
-    """:func:`search` of one block (``cfg.strategies`` x the members of ``prep``) with the CPU kernel: a
-    worker process's job (:class:`icgo.studies.workers.Workers`); its progress goes to the parent
-    (:func:`icgo.studies.workers.progress_sink`)."""
-    return search(cfg, jax.tree_util.tree_map(jnp.asarray, prep), kernel=CPU_KERNEL, progress=workers.progress_sink())
-
-
-def search_grid(n_methods: int, n_repeats: int, n_workers: int) -> tuple[int, int]:
-    """How to cut the methods x repeats grid of a search into at most ``n_workers`` rectangular blocks:
-    (parts of the methods, parts of the repeats), the smallest largest block first (the critical path),
-    then the fewest blocks (each costs a process), then the most repeat parts."""
-    def key(ab):
-        a, b = ab
-        return (-(-n_methods // a)) * (-(-n_repeats // b)), a * b, -b
-
-    return min(((a, b) for a in range(1, n_methods + 1) for b in range(1, n_repeats + 1) if a * b <= n_workers),
-               key=key)
-
-
-def search_in_workers(pool: workers.Workers, cfg: StudyConfig, prep: Prepared, progress=None) -> tuple:
-    """:func:`search` split over the worker processes of ``pool`` (random protocol: one member per repeat).
-
-    The methods x repeats grid is cut into blocks (:func:`search_grid`); block (strategies ``s``,
-    repeats ``r``) is ``search_block`` of ``cfg`` with those strategies and repeat ids, on the
-    members' prepared arrays.
-
-    Returns:
-        (thetas (S, R, D), curves (S, R, T), evals (S, R, T)) as numpy arrays in ``cfg``'s order, and the
-        workers' timings (:meth:`icgo.studies.workers.Workers.run`).
-    """
-    from icgo.optim import get
-
-    ids = np.asarray(cfg.ids())
-    n_methods = len(cfg.strategies) if get(cfg.optimizer).axis else 1
-    a, b = search_grid(n_methods, len(ids), len(pool.procs))
-    blocks = [(m, r) for m in np.array_split(np.arange(n_methods), a) for r in np.array_split(np.arange(len(ids)), b)]
-    host = jax.tree_util.tree_map(np.asarray, prep)
-    payloads, labels = [], []
-    for m, r in blocks:
-        block_cfg = dataclasses.replace(cfg, repeat_ids=tuple(int(i) for i in ids[r]), workers=1,
-                                        **({"strategies": tuple(cfg.strategies[i] for i in m)} if a > 1 else {}))
-        payloads.append((block_cfg, jax.tree_util.tree_map(lambda x, r=r: x[r], host)))
-        labels.append(f"repeats {ids[r[0]]}-{ids[r[-1]]}" + (f", strategies {list(block_cfg.strategies)}" if a > 1
-                                                             else ""))
-    results, timings = pool.run(payloads, labels, progress=progress, weights=[m.size * r.size for m, r in blocks])
-    out = []
-    for i in range(3):
-        shape = (n_methods, len(ids)) + results[0][i].shape[2:]
-        full = np.empty(shape, results[0][i].dtype)
-        for (m, r), res in zip(blocks, results):
-            full[np.ix_(m, r)] = res[i]
-        out.append(full)
-    return (*out, timings)
-
-
-def search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None, kernel: str = CPU_KERNEL, progress=None):
+def search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None, kernel: str = CPU_KERNEL, progress=None,
+           devices=None):
     """Hidden parameters per (method, repeat): (S, R, D), curves (S, R, T), evals (S, R, T).
 
-    One jitted call (:func:`icgo.optim.run_batch`: ``lax.scan`` over iterations, ``vmap`` over repeats
-    and strategies); ``kernel`` (:meth:`StudyConfig.execution`) chooses the fitness kernel (:func:`search_kernel`);
-    ``progress``: see :func:`icgo.optim.base.run_batch`.
+    Plain RELM (no optimizer): one random theta per repeat. Else :func:`search_cells` of the members' keys and
+    training data (:func:`search_aux`); ``kernel`` (:meth:`StudyConfig.execution`) chooses the fitness kernel
+    (:func:`search_kernel`).
     """
-    D = _relm.n_params(cfg.hidden)
-    R = prep.key.shape[0]
-    low, high = cfg.theta_bounds
     if cfg.optimizer is None:
+        low, high = cfg.theta_bounds
         theta, f = _plain(prep.key, prep.data, cfg.lam, cfg.hidden, float(low), float(high), _plain_dtype(cfg))
-        return theta[None], f[None, :, None], jnp.ones((1, R, 1), jnp.int32)
-    from icgo.optim import get, run_batch
+        return theta[None], f[None, :, None], jnp.ones((1, prep.key.shape[0], 1), jnp.int32)
+    return search_cells(cfg, prep.key, search_aux(cfg, prep, kernel), wrap_fitness, progress, devices)
 
-    bounds = (np.full(D, low), np.full(D, high))
+
+def search_aux(cfg: StudyConfig, prep: Prepared, kernel: str, capacity: int | None = None) -> SearchData:
+    """The search's data for each member of ``prep`` (leading axis: its members): the rows the fitness kernel of
+    ``kernel`` reads (gathered training rows, ``capacity`` of them when given, or the row-weighted FitData),
+    lambda and the precisions."""
+    sk = search_kernel(cfg.dtype, cfg.fitness, kernel)
+    return sk.aux(train_rows(prep, capacity) if sk.train_rows else prep.data,
+                  np.full(prep.key.shape[0], cfg.lam, prep.data.X.dtype), cfg.hidden)
+
+
+def search_cells(cfg: StudyConfig, keys, aux, wrap_fitness=None, progress=None, devices=None):
+    """Every method on every cell (``keys`` (C, 2), ``aux`` leading axis C: :func:`search_aux`), as one program
+    (:func:`icgo.studies.sharding.run_grid`: ``lax.scan`` over iterations, the methods x cells members sharded over
+    ``devices``, default every device, vmapped on each): (S, C, D) thetas, (S, C, T) curves and evaluations.
+    ``progress``: see :func:`icgo.optim.sharded.run_members`."""
+    from icgo.optim import get
+
+    low, high = cfg.theta_bounds
+    D = _relm.n_params(cfg.hidden)
     alg = get(cfg.optimizer)
     configs = alg.axis_configs(cfg.optimizer_config, cfg.strategies) if alg.axis else None
-    sk = search_kernel(cfg.dtype, cfg.fitness, kernel)
-    aux = sk.aux(train_rows(prep) if sk.train_rows else prep.data, np.full(R, cfg.lam, prep.data.X.dtype),
-                 cfg.hidden)
-    fitness = _relm.search_fitness if wrap_fitness is None else wrap_fitness(_relm.search_fitness)
-    res = run_batch(get(cfg.optimizer), fitness, bounds, prep.key,
-                    cfg.pop_size, cfg.iterations, max_evals=cfg.max_evals,
-                    config=None if configs else cfg.optimizer_config, configs=configs, aux=aux, progress=progress)
-    if configs is None:
-        res = jax.tree_util.tree_map(lambda x: x[None], res)
-    return res.best_x, res.curve, res.evals_curve
+    fitness = search_fitness if wrap_fitness is None else wrap_fitness(search_fitness)
+    res = sharding.run_grid(alg, fitness, (np.full(D, low), np.full(D, high)), keys, cfg.pop_size, cfg.iterations,
+                            max_evals=cfg.max_evals, config=None if configs else cfg.optimizer_config,
+                            configs=configs, aux=aux, devices=devices, progress=progress)
+    return jnp.asarray(res.best_x), jnp.asarray(res.curve), jnp.asarray(res.evals_curve)
 
 
 # ----------------------------------------------------------------- checking
@@ -753,10 +694,10 @@ def run_study(frame: pd.DataFrame, config: StudyConfig | None = None, metadata: 
             ``search``; ``score``: refit and metrics; ``tables``) its wall seconds ``<stage>_s`` and the
             part spent compiling or loading programs ``<stage>_compile_s`` (:mod:`icgo.studies.timing`);
             ``execution``: the plan run (:meth:`StudyConfig.execution`, with the fitness function's
-            name and the dtype); ``workers``: per worker process its timings, or None.
-        progress: optional ``progress(done, total)`` called on the host as the search's iterations complete,
-            in this process or summed over its worker processes (:func:`icgo.optim.base.run_batch`); it never
-            enters the compiled programs, so they stay in the compilation cache.
+            name and the dtype).
+        progress: optional ``progress(done, total)`` called on the host as the search's iterations complete
+            (:func:`icgo.optim.sharded.run_members`); it never enters the compiled programs, so they stay in
+            the compilation cache.
     Returns:
         StudyResult.
     Raises:
@@ -775,7 +716,30 @@ def filtered(frame: pd.DataFrame, cfg: StudyConfig):
     return frame[kept], G[kept], B[kept], a[kept], kept
 
 
-def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None, timings=None, progress=None) -> StudyResult:
+class Staged(NamedTuple):
+    """A study up to its search (:func:`stage`): the filtered rows, the checked members and their prepared arrays.
+
+    ``cfg`` holds the repeats kept (``repeat_ids``) and, with ``tune``, the chosen cell; ``n_source``: transfer's
+    source rows (the target's follow), else all rows; ``capacity``: None, or the rows G, B, a_true and ``prep`` are
+    padded to (:func:`prepare`)."""
+
+    cfg: StudyConfig
+    rows: pd.DataFrame
+    kept: np.ndarray
+    G: np.ndarray
+    B: np.ndarray
+    a_true: np.ndarray
+    n_source: int
+    mem: _splits.Members
+    prep: Prepared
+    excluded: tuple
+    tuning: Any
+    capacity: int | None = None
+
+
+def stage(frame, cfg: StudyConfig, metadata, base_key, target=None, stages=None, capacity=None) -> Staged:
+    """Filter, split, MSA and features of every member (rows padded to ``capacity``: :func:`prepare`), the failed
+    repeats left out, plain RELM tuned."""
     if (cfg.protocol == "transfer") != (target is not None):
         raise ValueError("study: protocol 'transfer' needs the second instrument's survey (target) and no other "
                          f"protocol takes one; got protocol {cfg.protocol!r} with"
@@ -789,50 +753,65 @@ def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None,
     reference = _reference(cfg, metadata)
     if cfg.msa_model == "biases_scales" and reference is None:
         raise ValueError("study: msa_model='biases_scales' needs msa_reference='known'")
+    stages = timing.Stages() if stages is None else stages
+    with stages("prepare"):
+        prep, mem = prepare(rows, G, B, a_true, cfg, base_key, reference, n_source, capacity)
+        prep, mem, cfg, excluded = exclude_failed_repeats(prep, mem, cfg, reference)
+        jax.block_until_ready(prep)
+    tuning = None
+    if cfg.tune:
+        cfg, tuning = _tune(cfg, prep, rows_per_fit(cfg, mem))
+    if capacity is not None:
+        G, B, a_true = pad_rows(capacity, G, B, a_true)
+    return Staged(cfg, rows, kept, G, B, a_true, n_source, mem, prep, excluded, tuning, capacity)
 
-    t0 = time.perf_counter()
-    stages = timing.Stages()
-    plan = cfg.execution(len(frame))
-    if wrap_fitness is not None and cfg.workers is None and plan.workers > 1:
-        plan = plan._replace(workers=1, why=f"{plan.why}; 1 process: the fitness wrapper (progress bar) follows it")
-    n_workers = plan.workers
-    if n_workers > 1 and wrap_fitness is not None:
-        raise ValueError(f"study: workers={cfg.workers} runs the search in other processes, which a fitness "
-                         "wrapper (progress bar) cannot follow; use workers=1 (or null) with it")
-    pool = workers.Workers(search_block, n_workers) if n_workers > 1 else None  # they start while we prepare
-    worker_times = None
-    try:
-        with stages("prepare"):
-            prep, mem = prepare(rows, G, B, a_true, cfg, base_key, reference, n_source)
-            prep, mem, cfg, excluded = exclude_failed_repeats(prep, mem, cfg, reference)
-            jax.block_until_ready(prep)
-        tuning = None
-        if cfg.tune:
-            cfg, tuning = _tune(cfg, prep, rows_per_fit(cfg, mem))
-        with stages("search"):
-            if pool is not None:
-                thetas, curve, evals, worker_times = search_in_workers(pool, cfg, prep, progress)
-            else:
-                thetas, curve, evals = jax.block_until_ready(search(cfg, prep, wrap_fitness, plan.kernel, progress))
-    finally:
-        if pool is not None:
-            pool.close()
+
+def finish(st: Staged, thetas, curve, evals, t0: float, stages) -> StudyResult:
+    """The searched members checked, refitted and scored, and the study's tables (``t0``: its start, for the wall
+    time; ``stages``: the :class:`icgo.studies.timing.Stages` that time it)."""
+    cfg, mem = st.cfg, st.mem
     check_search(np.asarray(curve), cfg.method_names(), [f"{r}" if cfg.protocol not in _splits.FOLD_PROTOCOLS
                                                           else f"{r}, {mem.fold_label[f]}"
                                                           for r, f in zip(mem.repeat, mem.fold)])
     with stages("score"):
-        scored = jax.block_until_ready(score_all(thetas, prep, G, B, a_true, cfg.lam, cfg.hidden,
+        scored = jax.block_until_ready(score_all(thetas, st.prep, st.G, st.B, st.a_true, cfg.lam, cfg.hidden,
                                                  cfg.features == "raw"))
     wall = time.perf_counter() - t0
-    prep = prep._replace(data=None)  # the features (members x rows x 6) are done with: free them before the tables
+    prep = st.prep._replace(data=None)  # the features (members x rows x 6) are done with: free them before the tables
+    G, B, a_true = st.G, st.B, st.a_true
+    if st.capacity is not None:  # the padded rows dropped: every table holds the data set's own rows
+        n = len(st.kept.nonzero()[0])
+        G, B, a_true = G[:n], B[:n], a_true[:n]
+        prep = prep._replace(train=prep.train[:, :n], test=prep.test[:, :n], target=prep.target[:, :n])
+        scored = scored._replace(a_msa=scored.a_msa[..., :n], pred=scored.pred[..., :n], a_comp=scored.a_comp[..., :n])
     with stages("tables"):
-        res = _collect(cfg, rows, kept, a_true, G, B, n_source, mem, prep, thetas, scored, curve, evals, wall)
+        res = _collect(cfg, st.rows, st.kept, a_true, G, B, st.n_source, mem, prep, thetas, scored, curve, evals,
+                       wall)
+    return res._replace(tuning=st.tuning, excluded=st.excluded)
+
+
+def execution_record(cfg: StudyConfig, plan: ExecutionPlan) -> dict:
+    """run.json's ``execution``: the plan, the fitness function that ran and the dtype."""
+    if cfg.optimizer is None:
+        return {**plan._asdict(), "fitness": "icgo.methods.relm.fitness (plain RELM, no search)", "dtype": cfg.dtype}
+    name = search_kernel(cfg.dtype, cfg.fitness, plan.kernel).name
+    module = "relm_fused" if name == "fused_train_fitness" else "relm"
+    return {**plan._asdict(), "fitness": f"icgo.methods.{module}.{name}", "dtype": cfg.dtype}
+
+
+def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None, timings=None,
+         progress=None) -> StudyResult:
+    t0 = time.perf_counter()
+    stages = timing.Stages()
+    st = stage(frame, cfg, metadata, base_key, target, stages)
+    plan = st.cfg.execution(cells=len(st.mem.repeat))
+    with stages("search"):
+        thetas, curve, evals = jax.block_until_ready(search(st.cfg, st.prep, wrap_fitness, plan.kernel, progress,
+                                                            sharding.plan_devices(plan)))
+    res = finish(st, thetas, curve, evals, t0, stages)
     if timings is not None:
-        kernel = f"icgo.methods.relm.{search_kernel(cfg.dtype, cfg.fitness, plan.kernel).name}" \
-            if cfg.optimizer is not None else "icgo.methods.relm.fitness (plain RELM, no search)"
-        timings.update(stages.times, execution={**plan._asdict(), "fitness": kernel, "dtype": cfg.dtype},
-                       workers=worker_times)
-    return res._replace(tuning=tuning, excluded=excluded)
+        timings.update(stages.times, execution=execution_record(st.cfg, plan))
+    return res
 
 
 def _tune(cfg: StudyConfig, prep: Prepared, n_fit: int):
@@ -861,7 +840,7 @@ def _tune(cfg: StudyConfig, prep: Prepared, n_fit: int):
 
 
 def prepare(rows: pd.DataFrame, G, B, a_true, cfg: StudyConfig, base_key, reference=None,
-            n_source: int | None = None) -> tuple[Prepared, _splits.Members]:
+            n_source: int | None = None, capacity: int | None = None) -> tuple[Prepared, _splits.Members]:
     """The members of ``cfg.protocol`` and their prepared arrays (split, MSA, features), checked.
 
     Args:
@@ -871,6 +850,8 @@ def prepare(rows: pd.DataFrame, G, B, a_true, cfg: StudyConfig, base_key, refere
         cfg: StudyConfig. base_key: the study's PRNG key.
         reference: (3,) known reference field or None (station mean).
         n_source: transfer only: the source's row count (the target's rows follow).
+        capacity: None, or the rows every array is padded to (copies of the last row, weight 0 in every mask), so
+            that data sets of other sizes share the programs (:mod:`icgo.studies.worlds`).
     Returns:
         (:class:`Prepared` with a leading member axis, :class:`icgo.studies.splits.Members`).
     """
@@ -878,17 +859,30 @@ def prepare(rows: pd.DataFrame, G, B, a_true, cfg: StudyConfig, base_key, refere
         rows = pd.DataFrame(index=pd.RangeIndex(len(a_true)))
     mem = _splits.members(cfg.protocol, rows, base_key, cfg.ids(), cfg.train_fraction, n_source)
     _check_config(cfg, mem)
-    prep = _prepare(jnp.asarray(mem.keys), jnp.asarray(mem.train), jnp.asarray(mem.test), jnp.asarray(G),
+    train, test = mem.train, mem.test
+    if capacity is not None:
+        G, B, a_true = pad_rows(capacity, G, B, a_true)
+        train, test = (np.pad(np.asarray(x), ((0, 0), (0, int(capacity) - x.shape[1]))) for x in (train, test))
+    prep = _prepare(jnp.asarray(mem.keys), jnp.asarray(train), jnp.asarray(test), jnp.asarray(G),
                     jnp.asarray(B), jnp.asarray(a_true), reference, msa_model=cfg.msa_model,
                     msa_iter=cfg.msa_iterations, features=cfg.features, mode=cfg.fitness,
                     val_fraction=float(cfg.val_fraction), k_folds=int(cfg.k_folds))
     return prep, mem
 
 
-def train_rows(prep: Prepared):
+def pad_rows(capacity: int, *arrays) -> tuple:
+    """Each (N, ...) array padded to ``capacity`` rows with copies of its last row (finite; their weights are 0)."""
+    return tuple(np.pad(np.asarray(x), [(0, int(capacity) - len(x))] + [(0, 0)] * (np.ndim(x) - 1), mode="edge")
+                 for x in arrays)
+
+
+def train_rows(prep: Prepared, capacity: int | None = None):
     """The fast fitness's data (:class:`icgo.methods.relm.TrainRows`, leading member axis): each member's training
-    rows gathered, padded with weight-0 rows where members have different numbers of them."""
+    rows gathered, padded with weight-0 rows where members have different numbers of them (or, with ``capacity``,
+    always padded to that many rows)."""
     n_train = np.asarray(prep.train).sum(axis=1).astype(int)
+    if capacity is not None:
+        return _train_rows(prep.data, int(capacity), True)
     return _train_rows(prep.data, int(n_train.max()), bool(n_train.min() != n_train.max()))
 
 
@@ -976,8 +970,7 @@ def _collect(cfg, rows, kept, a_true, G, B, n_source, mem: _splits.Members, prep
     target = np.asarray(prep.target)
     a_msa = np.asarray(scored.a_msa[0])  # every strategy of a repeat shares its MSA
     a_comp = np.asarray(scored.a_comp)
-    a_raw = np.asarray(azimuth_from_gv(G, B))
-    err_raw = np.asarray(angle_diff(a_raw, a_true))
+    a_raw, err_raw = (np.asarray(x) for x in _raw_errors(G, B, a_true))
     one_member = len(mem.fold_label) == 1  # random / transfer: the jitted per-member metrics are the repeat's
     # a repeat's members side by side, repeats in ``ids`` order: (..., M, N) -> (..., R, F N), so that every
     # repeat's metrics over its pooled folds come from one batched call (not one call per repeat)
@@ -993,13 +986,13 @@ def _collect(cfg, rows, kept, a_true, G, B, n_source, mem: _splits.Members, prep
     per_split = {}
     for split, mask in (("test", test), ("train", train)):
         w = pooled(mask.astype(float))
-        per_method = {"raw": azimuth_metrics(a_true_p, np.broadcast_to(np.tile(a_raw, F), w.shape), err_raw_p, w),
-                      "msa": azimuth_metrics(a_true_p, pooled(a_msa), err_raw_p, w)}
+        per_method = {"raw": _table_metrics(a_true_p, np.broadcast_to(np.tile(a_raw, F), w.shape), err_raw_p, w),
+                      "msa": _table_metrics(a_true_p, pooled(a_msa), err_raw_p, w)}
         if one_member:
             m = scored.test if split == "test" else scored.train
             per_method |= {name: type(m)(*(np.asarray(v)[s][order] for v in m)) for s, name in enumerate(methods)}
         else:
-            m = azimuth_metrics(a_true_p, pooled(a_comp), pooled(target), w)
+            m = _table_metrics(a_true_p, pooled(a_comp), pooled(target), w)
             per_method |= {name: type(m)(*(np.asarray(v)[s] for v in m)) for s, name in enumerate(methods)}
         per_split[split] = {name: {k: np.asarray(v, dtype=float) for k, v in m._asdict().items()}
                             for name, m in per_method.items()}
@@ -1027,7 +1020,7 @@ def _collect(cfg, rows, kept, a_true, G, B, n_source, mem: _splits.Members, prep
         "azimuth_true": np.tile(a_true, S * M), "azimuth_raw": np.tile(a_raw, S * M),
         "azimuth_msa": np.tile(a_msa.ravel(), S), "error_msa": np.tile(target.ravel(), S),
         "predicted_error": np.asarray(scored.pred).ravel(), "azimuth_compensated": a_comp.ravel(),
-        "error_compensated": np.asarray(angle_diff(a_comp, a_true[None, None])).ravel()}, copy=False)
+        "error_compensated": np.asarray(_errors(a_comp, a_true[None, None])).ravel()}, copy=False)
     if "toolface_deg" in rows.columns:
         predictions.insert(6, "toolface_deg", np.tile(rows["toolface_deg"].to_numpy(), S * M))
     if cfg.protocol == "transfer":

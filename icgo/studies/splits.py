@@ -32,9 +32,11 @@ fold f of repeat k uses ``fold_in(fold_in(key, k), f)``.
 from __future__ import annotations
 
 import dataclasses
+from functools import partial
 from typing import NamedTuple
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
@@ -61,12 +63,18 @@ class Members(NamedTuple):
     heldout: np.ndarray
 
 
-def _random_train(key, n_source: int, n_rows: int, n_train: int) -> np.ndarray:
-    """(N,) 0/1: the first n_train rows of a permutation of the source rows (the key's first split)."""
-    k_split = jax.random.split(key, 3)[0]
-    perm = np.asarray(jax.random.permutation(k_split, n_source))
-    m = np.zeros(n_rows)
-    m[perm[:n_train]] = 1.0
+@partial(jax.jit, static_argnames=("n_source",))
+def _permutations(base_key, repeat_ids, n_source: int):
+    """Per repeat id r: its key ``fold_in(base_key, r)`` and a permutation of the source rows drawn with that key's
+    first split (one compiled call for every repeat; each row is what the call for its repeat alone gives)."""
+    keys = jax.vmap(lambda r: jax.random.fold_in(base_key, r))(repeat_ids)
+    return keys, jax.vmap(lambda k: jax.random.permutation(jax.random.split(k, 3)[0], n_source))(keys)
+
+
+def _random_train(perm, n_rows: int, n_train: int) -> np.ndarray:
+    """(R, N) 0/1: per repeat the first n_train rows of its permutation of the source rows."""
+    m = np.zeros((perm.shape[0], n_rows))
+    np.put_along_axis(m, perm[:, :n_train], 1.0, axis=1)
     return m
 
 
@@ -115,9 +123,9 @@ def members(protocol: str, frame: pd.DataFrame, base_key, repeat_ids, train_frac
         ns = n if protocol == "random" else int(n_source)
         source = np.arange(n) < ns
         labels = ["all"]
-        for r in repeat_ids:
-            k = jax.random.fold_in(base_key, int(r))
-            t = _random_train(k, ns, n, int(round(train_fraction * ns)))
+        ks, perms = _permutations(base_key, jnp.asarray([int(r) for r in repeat_ids], jnp.uint32), ns)
+        trains = _random_train(np.asarray(perms), n, int(round(train_fraction * ns)))
+        for r, k, t in zip(repeat_ids, np.asarray(ks), trains):
             keys.append(k), rep.append(r), fold.append(0), train.append(t)
             held.append(source * (1.0 - t))
             test.append(held[-1] if protocol == "random" else (~source).astype(float))
