@@ -41,7 +41,6 @@ import pandas as pd
 
 from icgo.core.errors import DataError
 from icgo.core.settings import is_int, need
-from icgo.io.recording import MAG_CAL_DEVICE_TO_TOOL, UT_TO_NT
 from icgo.methods import calibration as cal
 from icgo.methods import joint, mag_relm
 from icgo.methods.cal_sanity import sanity
@@ -52,14 +51,13 @@ from icgo.models.calibration import MagCalibration, mag_calibration
 from icgo.optim import base
 from icgo.optim import misma as misma_opt
 from icgo.optim.registry import get
+from icgo.studies.calibration_peer import PEER_METHODS, peer_available, peer_rows
 from icgo.studies.protocol import Study
 
 log = logging.getLogger(__name__)
 
 #: Our methods, in table order.
 METHODS = ("ellipsoid", "twelve+axis", "misma+axis", "joint", "twelve+axis+relm")
-#: The peer's stages (circuitpython-mag-cal), in table order.
-PEER_METHODS = ("peer_ellipsoid", "peer_fit_to_axis", "peer_fit_non_linear")
 
 
 #: ``misma_bounds`` values (see :class:`CalibrationConfig`).
@@ -225,47 +223,6 @@ def fit_recording(G, B, groups, config: CalibrationConfig, key, header: dict, tr
         lin, method="twelve_relm", nl_hidden=nl.hidden, nl_out=nl.out, nl_activation=nl.activation,
         config={**lin.config, "relm_lambda_deg2": nl.lam, "relm_hidden": int(nl.hidden.shape[1]),
                 "relm_cv_deg2": nl.cv.tolist()})
-    return out
-
-
-def _device_frame(G, B):
-    """Tool frame -> mag_cal device frame (inverse of icgo.io.recording's permutation); mag in uT."""
-    perm = list(MAG_CAL_DEVICE_TO_TOOL)
-    gd, md = np.empty_like(G), np.empty_like(B)
-    gd[:, perm], md[:, perm] = G, B / UT_TO_NT
-    return gd, md
-
-
-def peer_available() -> bool:
-    """Whether circuitpython-mag-cal (``mag_cal``) can be imported."""
-    try:
-        import mag_cal  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
-def peer_rows(G, B, groups, train, score) -> list[dict]:
-    """circuitpython-mag-cal's pipeline fitted on ``train``: per stage its score on ``score`` and its sanity."""
-    from mag_cal import Calibration
-
-    gd, md = _device_frame(G, B)
-    ids = rolled_ids(groups)
-    fit_pairs = [(md[(groups == g) & train], gd[(groups == g) & train]) for g in ids if ((groups == g) & train).any()]
-    score_pairs = [(md[(groups == g) & score], gd[(groups == g) & score]) for g in ids if ((groups == g) & score).any()]
-    c = Calibration()
-    out = []
-
-    def stage(name):
-        s = sanity(c.grav.apply(gd), c.mag.apply(md), c.mag.transform)
-        out.append({"method": name, "score_deg": c.accuracy(score_pairs), **s.row()})
-
-    c.fit_ellipsoid(md[train], gd[train])
-    stage("peer_ellipsoid")
-    c.fit_to_axis(fit_pairs)
-    stage("peer_fit_to_axis")
-    c.fit_non_linear(fit_pairs)
-    stage("peer_fit_non_linear")
     return out
 
 
