@@ -79,7 +79,7 @@ def study_config(cfg: DictConfig):
 def load(cfg: DictConfig) -> dict:
     """name -> Recording with a checked ``group`` column, from ``data=`` (raises SettingError / DataError)."""
     from icgo.io import recording as io
-    from icgo.io.shots import read_shots
+    from icgo.studies.shots import read_shots
 
     data = cfg.data
     if data is None or str(data) == "":
@@ -199,7 +199,7 @@ def report(df, summ, recordings: dict, label: str, recs: dict, models: dict, pro
     """The Markdown report: the rolls, the recommendation, the scores (degenerate marked), the per-method summary;
     ``protocol_line`` (:func:`protocol`) under the title when given."""
     from icgo.methods.cal_sanity import limits_sentence
-    from icgo.methods.rolls import AXIS_TO_Z_DEG, MIN_SPAN_DEG, PLANE_TOL_B, PLANE_TOL_G
+    from icgo.physics.rolls import AXIS_TO_Z_DEG, MIN_SPAN_DEG, PLANE_TOL_B, PLANE_TOL_G
     from icgo.studies.calibration import wide
 
     lines = [f"# Magnetometer calibration: {label}", ""] + ([protocol_line, ""] if protocol_line else [])
@@ -211,7 +211,7 @@ def report(df, summ, recordings: dict, label: str, recs: dict, models: dict, pro
               (f"A roll: consecutive shots whose raw gravity and field each stay within {PLANE_TOL_G:g} g and "
                f"{PLANE_TOL_B:g} |B| of one plane (the pointing axis' components constant), turning about one axis "
                f"within {AXIS_TO_Z_DEG:g} deg of tool z shared by all rolls, over at least {MIN_SPAN_DEG:g} deg "
-               "(`icgo.methods.rolls`, docs/calibrate.md)."), ""]
+               "(`icgo.physics.rolls`, docs/calibrate.md)."), ""]
     for name, rec in recordings.items():
         lines += rolls_section(name, rec, models[name])
     lines += ["## Scores", "",

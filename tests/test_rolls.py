@@ -1,4 +1,5 @@
-"""Rolls found or given (icgo.methods.rolls, icgo.io.grouping) on real-looking files made from the bundled devices."""
+"""Rolls: what one is (icgo.physics.rolls), found (icgo.methods.rolls) or given (icgo.io.grouping), on real-looking
+files made from the bundled devices."""
 
 from __future__ import annotations
 
@@ -8,8 +9,9 @@ from mag_cal_files import INDUSTRIAL, device_attitudes, join, roll, singles, syn
 
 from icgo.core.errors import DataError, SettingError
 from icgo.io import recording as io
-from icgo.io.grouping import assign_groups, parse_groups
-from icgo.methods import rolls
+from icgo.io.grouping import check_given, groups_from_ranges, parse_groups
+from icgo.methods.rolls import find_rolls
+from icgo.physics import rolls
 from icgo.physics.frames import sensors_from_attitude
 
 PEER_GROUPS = np.r_[np.arange(8), [8] * 8, [9] * 8]
@@ -21,7 +23,7 @@ def test_bundled_rolls_are_plausible_and_merged_rolls_are_not():
     for name in io.mag_cal_devices():
         rec = io.load_mag_cal_device(name)
         G, B = rec.G, rec.B
-        found = rolls.find_rolls(G, B)
+        found = find_rolls(G, B)
         assert found.groups.tolist() == rec.frame.group.tolist() == PEER_GROUPS.tolist(), name
         for c in rolls.check_groups(G, B, PEER_GROUPS).values():
             assert c.ok, (name, c.reasons)
@@ -49,7 +51,7 @@ def test_two_consecutive_rolls_apart_along_the_pointing_axis_are_never_merged(se
         att = join(singles(name), roll(A[8:16].mean(), inc1), roll(A[8:16].mean(), inc2, start=30.0))
         for seed in range(3):
             G, B = synth(name, *att, noise_g=noise * INDUSTRIAL[0], noise_b_nT=noise * INDUSTRIAL[1], seed=seed)
-            found = rolls.find_rolls(G, B)
+            found = find_rolls(G, B)
             assert all(len(set(PEER_GROUPS[a:b])) == 1 for a, b in found.runs), (name, seed, found.runs)
             if noise <= 30:
                 assert found.runs == ((8, 16), (16, 24)), (name, seed, found.runs)
@@ -57,7 +59,7 @@ def test_two_consecutive_rolls_apart_along_the_pointing_axis_are_never_merged(se
             frame = io.validate(_frame(G, B, np.where(PEER_GROUPS >= 8, 8, PEER_GROUPS)), {},
                                 require_reference=False).frame
             with pytest.raises(DataError, match=r"group 8 \(shots 8-23\) is not a plausible roll: .*two rolls"):
-                assign_groups(frame, "column", "f.csv")
+                check_given(frame, frame.group.to_numpy(), "f.csv")
 
 
 def _frame(G, B, groups=None):
@@ -100,8 +102,8 @@ def test_a_roll_with_half_its_shots_pointing_elsewhere_is_refused_or_split():
     G, B = synth(name, A, I2, T)
     frame = io.validate(_frame(G, B, PEER_GROUPS), {}, require_reference=False).frame
     with pytest.raises(DataError, match=r"group 8 \(shots 8-15\) is not a plausible roll: it turns about an axis 3.1 deg from group 9"):
-        assign_groups(frame, "column", "shifted.csv")
-    found = rolls.find_rolls(G, B)
+        check_given(frame, frame.group.to_numpy(), "shifted.csv")
+    found = find_rolls(G, B)
     assert (16, 24) not in found.runs and (8, 16) in found.runs
 
 
@@ -123,10 +125,7 @@ def test_parse_groups_refuses_bad_ranges(spec, match):
 
 def test_given_ranges_make_the_groups_and_too_short_ranges_are_a_setting_error():
     rec = io.load_mag_cal_device("ai")
-    frame = rec.frame.drop(columns="group")
-    out, _ = assign_groups(frame, parse_groups("8-15,16-23"), "ai.csv")
-    assert out.group.tolist() == PEER_GROUPS.tolist()
+    station = rec.frame.station.to_numpy()
+    assert groups_from_ranges(station, parse_groups("8-15,16-23")).tolist() == PEER_GROUPS.tolist()
     with pytest.raises(SettingError, match="range 8-10 holds 3 shot"):
-        assign_groups(frame, parse_groups("8-10"), "ai.csv")
-    with pytest.raises(DataError, match="no 'group' column.*groups=auto"):
-        assign_groups(frame, None, "ai.csv")
+        groups_from_ranges(station, parse_groups("8-10"))

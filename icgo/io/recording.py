@@ -74,7 +74,7 @@ ROW_FACTOR_B = 10.0
 
 FIELD_KEYS = ("total_field_nT", "dip_deg", "declination_deg", "gravity_g")
 LOCATION_KEYS = ("latitude", "longitude", "altitude_km", "date")
-DESCRIPTIVE_KEYS = ("name", "source", "license", "description")
+DESCRIPTIVE_KEYS = ("name", "source", "license", "description", "instrument")
 KNOWN_META_KEYS = FIELD_KEYS + LOCATION_KEYS + DESCRIPTIVE_KEYS
 
 #: Standard gravity, m/s^2 per g.

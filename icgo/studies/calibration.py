@@ -24,7 +24,7 @@ split per rolled group (fit without it, score on it; one roll: its two interleav
 (:func:`icgo.methods.calibration.group_spread_deg`, deg) on the scored rolled groups. Every
 fit also gets its physical sanity on all shots (:func:`icgo.methods.cal_sanity.sanity`);
 a degenerate fit's score is withheld (NaN) and it is never counted as a win. Every group of a recording
-is checked to be a plausible roll first (:func:`icgo.methods.rolls.check_groups`); :func:`recommend`
+is checked to be a plausible roll first (:func:`icgo.physics.rolls.check_groups`); :func:`recommend`
 names the calibration to apply.
 """
 
@@ -46,7 +46,7 @@ from icgo.methods import joint, mag_relm
 from icgo.methods.cal_sanity import sanity
 from icgo.methods.calibration import MIN_ROLLED_SHOTS
 from icgo.methods.misma_objective import MismaObjective
-from icgo.methods.rolls import check_groups, rolled_ids
+from icgo.physics.rolls import check_groups, rolled_ids
 from icgo.models.calibration import MagCalibration, mag_calibration
 from icgo.optim import base
 from icgo.optim import misma as misma_opt
@@ -258,7 +258,7 @@ def evaluate(recordings: dict, config: CalibrationConfig, key) -> tuple[pd.DataF
         if bad:  # a group that is not a roll would be scored as one: never silently
             g, c = next(iter(bad.items()))
             raise DataError(f"{name}: group {g} is not a plausible roll: {'; '.join(c.reasons)} "
-                            "(icgo.methods.rolls; docs/calibrate.md)")
+                            "(icgo.physics.rolls; docs/calibrate.md)")
         for split, train, score in splits(groups):
             key, sub = jax.random.split(key)
             header = {"study": "calibration", "recording": name, "split": split, **dataclasses.asdict(config)}

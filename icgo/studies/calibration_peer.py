@@ -21,7 +21,7 @@ import numpy as np
 
 from icgo.io.recording import MAG_CAL_DEVICE_TO_TOOL, UT_TO_NT
 from icgo.methods.cal_sanity import sanity
-from icgo.methods.rolls import rolled_ids
+from icgo.physics.rolls import rolled_ids
 
 #: The peer's stages (circuitpython-mag-cal), in table order.
 PEER_METHODS = ("peer_ellipsoid", "peer_fit_to_axis", "peer_fit_non_linear")
