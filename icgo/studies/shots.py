@@ -18,12 +18,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from icgo.core.errors import DataError
 from icgo.io.recording import Recording
 from icgo.io.shots import read_shot_file
 from icgo.methods.grouping import by_data, by_layout, rolls_text
 
 
-def read_shots(path, mag_axes=None, grav_axes=None, groups=None, columns=None) -> Recording:
+def read_shots(path, mag_axes=None, grav_axes=None, groups=None, columns=None, max_shots: int | None = None) -> Recording:
     """A recording of grouped static shots with a ``group`` column and ``meta["grouping"]`` (module doc).
 
     Args:
@@ -31,12 +32,16 @@ def read_shots(path, mag_axes=None, grav_axes=None, groups=None, columns=None) -
         mag_axes, grav_axes: mounting strings (raw-layout JSON only), or None.
         groups: the ``groups=`` setting (:func:`icgo.io.grouping.parse_groups`), or None.
         columns: a column map for a CSV field export (:mod:`icgo.io.columns`), or None.
+        max_shots: refuse a recording of more shots before any search of its data (None: no limit).
     Raises:
         SettingError: a bad setting (exit 2). DataError: bad data (exit 1). Both one line.
     """
     f = read_shot_file(path, mag_axes, grav_axes, groups, columns)
     rec, src = f.recording, str(path)
     frame = rec.frame
+    if max_shots is not None and len(frame) > max_shots:
+        raise DataError(f"{src}: {len(frame)} shots; this door takes at most max_shots={max_shots} (its memory grows "
+                        "with them; docs/data.md): split the recording, or raise max_shots=")
     G = frame[["gx", "gy", "gz"]].to_numpy(np.float64)
     B = frame[["bx", "by", "bz"]].to_numpy(np.float64)
     station = frame["station"].to_numpy()

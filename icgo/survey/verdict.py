@@ -29,6 +29,8 @@ from icgo.reporting.records import RECOMMENDATION_KEYS
 
 #: ``apply``'s exit status when the survey is far outside the model's training domain (files still written).
 EXIT_OUT_OF_DOMAIN = 3
+#: ``calibrate``'s exit status when it recommends no calibration (report and calibrations still written).
+EXIT_NO_RECOMMENDATION = 4
 #: An overshoot of the training range beyond the larger of this and the range's own width is "far outside"
 #: (units of each quantity): ten times the noise-level tolerance of :data:`icgo.models.format.DOMAIN_TOLERANCE`.
 FAR_TOLERANCE = {k: 10.0 * v for k, v in DOMAIN_TOLERANCE.items()}
@@ -262,14 +264,16 @@ def run_verdict(*, maes: dict, selected: str, halfwidth_deg: float | None, cover
 
 # ---------------------------------------------------------------- calibrate
 def calibrate_verdict(*, recommendation: dict | None, n_models: int, n_degenerate: int, n_fits: int,
-                      run_dir: str, held_out: dict | None = None) -> Verdict:
+                      run_dir: str, held_out: dict | None = None, refused: str | None = None) -> Verdict:
     """The verdict of ``experiments.calibrate``.
 
     Args:
-        recommendation: the run record's ``recommendation`` (:data:`icgo.reporting.records.RECOMMENDATION_KEYS`), or None.
+        recommendation: the run record's ``recommendation`` (:data:`icgo.reporting.records.RECOMMENDATION_KEYS` and
+            the nested ``accuracy_deg`` / ``accuracy_spread_deg``), or None.
         n_models: calibrations saved. n_degenerate, n_fits: fits flagged degenerate by the sanity check, of all.
         run_dir: the run directory (its ``models/`` folder).
         held_out: method -> mean held-out score (deg) of its sound fits, named when there is no recommendation.
+        refused: why no calibration is recommended (the exit status is then :data:`EXIT_NO_RECOMMENDATION`).
     """
     qline = (f"{n_degenerate} of {n_fits} fits degenerate by the sanity check (dip spread, |B| spread, condition: "
              f"docs/calibrate.md); a degenerate fit is never recommended" if n_fits else "no fits")
@@ -277,24 +281,31 @@ def calibrate_verdict(*, recommendation: dict | None, n_models: int, n_degenerat
            "change of tool, mounting or nearby steel")
     if not recommendation:
         scores = {k: float(v) for k, v in (held_out or {}).items() if v is not None and math.isfinite(v)}
-        acc = "no recommendation in the run record; " + (
+        acc = ("no calibration recommended" + (f": {refused}" if refused else " in the run record") + "; " + (
             "mean held-out score of the sound fits: " + ", ".join(f"{k} {v:.3f} deg" for k, v in sorted(
-                scores.items(), key=lambda kv: kv[1])) if scores else "no sound fit was scored held out")
-        return Verdict(acc,
-                       dom, qline, f"no recommendation; {n_models} calibrations in {run_dir}/models/",
-                       f"python -m experiments.apply model={run_dir}/models/<calibration>.json data=<your survey.csv>",
-                       "n/a", 0, {"recommendation": None, "held_out": scores})
+                scores.items(), key=lambda kv: kv[1])) if scores else "no sound fit was scored held out"))
+        nxt = (f"fix what the report names (python -m experiments.calibrate data=<a new recording>), or apply one of "
+               f"{run_dir}/models/ knowing why none is recommended" if refused else
+               f"python -m experiments.apply model={run_dir}/models/<calibration>.json data=<your survey.csv>")
+        return Verdict(acc, dom, qline, f"none; {n_models} calibrations in {run_dir}/models/", nxt, "n/a",
+                       EXIT_NO_RECOMMENDATION if refused else 0,
+                       {"recommendation": None, "held_out": scores, "refused": refused})
     r = {k: recommendation.get(k) for k in RECOMMENDATION_KEYS}
-    acc = (f"held-out pointing spread {_f(r['held_out_deg'])} deg (the peer's accuracy metric, each rolled group "
-           f"scored by a fit without it)")
-    if r.get("spread_deg") is not None:
-        acc += f", spread over held-out groups {_f(r['spread_deg'])} deg"
+    nested, nested_se = recommendation.get("accuracy_deg"), recommendation.get("accuracy_spread_deg")
+    if nested is not None:
+        acc = (f"held-out pointing spread {_f(nested)} deg" + (f" +/- {_f(nested_se)}" if nested_se is not None else "")
+               + " (the peer's accuracy metric; nested: the choice made inside each held-out split's training shots, "
+               "scored on the shots it did not see)")
+    else:
+        acc = ("not estimated: no held-out split (one roll too short to halve); the in-sample pointing spread is "
+               f"{_f(r['held_out_deg'])} deg")
     winner = ("a clear winner" if r.get("clear_winner") else
-              f"not a clear winner: {r.get('runner_up')} is as good within the spread")
-    runner = f"; runner-up {r['runner_up']}" if r.get("runner_up") and r.get("clear_winner") else ""
-    model = f"{r['model']} ({r['method']}), chosen by {r['criterion']}: {winner}{runner}"
+              f"not a clear winner: {r.get('runner_up')} is as good within the spread" if r.get("runner_up") else
+              "the only sound method")
+    model = f"{r['model']} ({r['method']}), chosen by the rule: {r['criterion']}; {winner}"
     nxt = f"python -m experiments.apply model={run_dir} data=<your survey.csv>"  # the run's recommended model
-    return Verdict(acc, dom, qline, model, nxt, "n/a", 0, {"recommendation": r})
+    return Verdict(acc, dom, qline, model, nxt, "n/a", 0, {"recommendation": r, "accuracy_deg": nested,
+                                                          "accuracy_spread_deg": nested_se})
 
 
 def survey_verdict(res, model, frame, bands, *, out_csv: str, model_path: str, survey_path: str,
