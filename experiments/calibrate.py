@@ -226,7 +226,7 @@ def run(cfg: DictConfig, out: Path, config=None, keep=()) -> int:
     print(text)
     print(f"run directory: {out} ({len(models)} calibrations in models/; {time.perf_counter() - t0:.1f} s)")
     print(verdict.text())
-    refused = [f"{n}: {r['refused']}" for n, r in recs.items() if r["refused"]]
+    refused = [f"for {n}: {r['refused']}" for n, r in recs.items() if r["refused"]]
     if refused and not bundled:
         import sys
 

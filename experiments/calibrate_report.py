@@ -46,7 +46,8 @@ def figure(rec, models: dict, path: Path) -> None:
     ax[1].set(xlabel="shot", ylabel="dip (deg)", title="dip per shot (one field: flat)")
     ax[2].set(xlabel="shot", ylabel="|B| / mean", title="|B| per shot (one field: flat)")
     for a in ax:
-        a.legend(fontsize=7)
+        if a.get_legend_handles_labels()[0]:
+            a.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 

@@ -306,7 +306,7 @@ def evaluate(recordings: dict, config: CalibrationConfig, key, *, check: bool = 
             try:
                 fitted = fit_recording(G, B, groups, config, sub, header, train)
             except GeometryError as e:  # the fits refuse a geometry they cannot solve: say where, and what helps
-                raise GeometryError(f"{name}, {split}: {e} (the fits need shots in many "
+                raise GeometryError(f"{split}: {e} (the fits need shots in many "
                                     "orientations besides the rolls, e.g. the 8 single shots of the mag_cal "
                                     "procedure)") from None
             for m, c in fitted.items():
