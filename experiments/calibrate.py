@@ -230,7 +230,7 @@ def run(cfg: DictConfig, out: Path, config=None, keep=()) -> int:
     if refused and not bundled:
         import sys
 
-        print(f"error: no calibration recommended: {refused[0]} (report: {out / 'report.md'})", file=sys.stderr)
+        print(f"error: no calibration recommended {refused[0]} (report: {out / 'report.md'})", file=sys.stderr)
         return EXIT_NO_RECOMMENDATION
     return 0
 
