@@ -220,8 +220,7 @@ def run(cfg: DictConfig, out: Path, config=None, keep=()) -> int:
         atomic_write_texts([(res / "calibration_devices.md", text.replace(
                                 "# Magnetometer calibration:", "# Magnetometer calibration (`python -m experiments."
                                 "calibrate data=bundled`):")),
-                            (res / "calibration_devices.csv", calibration.outer_rows(df).drop(columns="outer")
-                             .to_csv(index=False, float_format="%.6g"))])
+                            (res / "calibration_devices.csv", df.to_csv(index=False, float_format="%.6g"))])
         print(f"wrote {res / 'calibration_devices.md'}")
     print(text)
     print(f"run directory: {out} ({len(models)} calibrations in models/; {time.perf_counter() - t0:.1f} s)")
