@@ -65,8 +65,9 @@ def _kind(mode: int) -> str:
     return "a special file"
 
 
-def read_bytes_bounded(path, limit: int, what: str) -> bytes:
-    """The bytes of a regular file of at most ``limit`` bytes, or a one-line DataError naming ``path``.
+def open_regular(path, limit: int, what: str):
+    """A regular file of at most ``limit`` bytes opened for binary reading (the caller closes it), or a one-line
+    DataError naming ``path``.
 
     The file is opened with ``O_NONBLOCK`` (a FIFO then opens at once instead of waiting for a
     writer) and checked with ``fstat`` on the open descriptor, so what is read is what was checked.
@@ -93,10 +94,20 @@ def read_bytes_bounded(path, limit: int, what: str) -> bytes:
         if st.st_size > limit:
             raise DataError(f"{src}: {st.st_size / MiB:.1f} MiB, over the {limit / MiB:g} MiB limit for {what} "
                             f"(docs/data.md)")
+        return os.fdopen(fd, "rb", buffering=1 << 20)
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def read_bytes_bounded(path, limit: int, what: str) -> bytes:
+    """The bytes of a regular file of at most ``limit`` bytes (:func:`open_regular`), or a one-line DataError."""
+    src = str(path)
+    with open_regular(path, limit, what) as f:
         chunks, total = [], 0
         while True:
             try:
-                b = os.read(fd, 1 << 20)
+                b = f.read(1 << 20)
             except OSError as e:
                 raise DataError(f"{src}: cannot read ({e.strerror or type(e).__name__})") from None
             if not b:
@@ -106,8 +117,6 @@ def read_bytes_bounded(path, limit: int, what: str) -> bytes:
                 raise DataError(f"{src}: over the {limit / MiB:g} MiB limit for {what} (docs/data.md)")
             chunks.append(b)
         return b"".join(chunks)
-    finally:
-        os.close(fd)
 
 
 def read_text_bounded(path, limit: int, what: str, encoding: str = "utf-8") -> str:

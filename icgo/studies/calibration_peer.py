@@ -8,8 +8,9 @@ numpy >= 2.5 returns ``numpy.linalg.eig`` results as complex arrays even when ev
 numpy 2.5.5 gives ``complex128`` for a real symmetric 3 x 3 matrix; older numpy gave ``float64``). The peer's
 ellipsoid fit (``mag_cal.sensor.Sensor.fit_ellipsoid``) takes ``eig`` of a symmetric matrix and then adds its
 complex transform into a real array (``align_along_axis``: a ``UFuncOutputCastingError``). :func:`peer_rows`
-therefore runs the peer with :func:`_real_eig`, which returns what numpy < 2.5 returned: the real parts when
-every imaginary part is exactly zero, the complex arrays otherwise. The peer's arithmetic is unchanged.
+therefore runs the peer inside :func:`peer_numpy`, whose ``numpy.linalg.eig`` returns what numpy < 2.5 returned:
+the real parts when every imaginary part is exactly zero, the complex arrays otherwise. The peer's arithmetic is
+unchanged.
 """
 
 from __future__ import annotations
@@ -45,7 +46,7 @@ def _real_eig(a):
 
 
 @contextlib.contextmanager
-def _peer_numpy():
+def peer_numpy():
     """The peer's ``mag_cal.sensor`` module sees ``numpy`` with :func:`_real_eig` as ``linalg.eig`` (module doc)."""
     from mag_cal import sensor
 
@@ -84,7 +85,7 @@ def peer_rows(G, B, groups, train, score) -> list[dict]:
     fit_pairs = [(md[(groups == g) & train], gd[(groups == g) & train]) for g in ids if ((groups == g) & train).any()]
     score_pairs = [(md[(groups == g) & score], gd[(groups == g) & score]) for g in ids if ((groups == g) & score).any()]
     out = []
-    with _peer_numpy():
+    with peer_numpy():
         c = Calibration()
 
         def stage(name):

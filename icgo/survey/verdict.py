@@ -12,9 +12,11 @@ their summary / meta / report), from the numbers of the run they just made:
 4. **model**: the model to use and why (a study's selected method, or the calibration recommendation);
 5. **next**: the exact command to run next.
 
-A survey far outside the training domain makes ``apply`` exit with :data:`EXIT_OUT_OF_DOMAIN` after
-writing its files (docs/qc.md, "The verdict"): the correction there is an extrapolation. Pure functions
-over numbers and small dicts; nothing here reads files.
+``apply`` exits with :data:`EXIT_OUT_OF_DOMAIN` after writing its files when the verdict says the result is
+not to be used as it stands (docs/qc.md, "The verdict"): the survey is far outside the training domain (the
+correction there is an extrapolation), the corrected field is not one earth field (the model belongs to
+another device), or the survey's reference angle looks like radians (its error metrics would be meaningless).
+Pure functions over numbers and small dicts; nothing here reads files.
 """
 
 from __future__ import annotations
@@ -27,7 +29,8 @@ import numpy as np
 from icgo.models.format import DOMAIN_TOLERANCE, domain_overshoots
 from icgo.reporting.records import RECOMMENDATION_KEYS
 
-#: ``apply``'s exit status when the survey is far outside the model's training domain (files still written).
+#: ``apply``'s exit status when its verdict says not to use the result as it stands (files still written): far
+#: outside the model's training domain, a model of another device, a reference in radians.
 EXIT_OUT_OF_DOMAIN = 3
 #: ``calibrate``'s exit status when it recommends no calibration (report and calibrations still written).
 EXIT_NO_RECOMMENDATION = 4
@@ -170,7 +173,7 @@ def qc_line(qc: dict | None, corrects_field: bool, *, after: str = "corrected", 
 def apply_verdict(*, model_kind: str, method: str | None, interval_deg: float | None, interval_level: float | None,
                   metrics: dict | None, covered: float | None, qc: dict | None, db_nT=None, ddip_deg=None,
                   bands=None, trained: dict | None, survey: dict | None, out_csv: str, model_path: str,
-                  survey_path: str, trajectory: dict | None = None) -> Verdict:
+                  survey_path: str, trajectory: dict | None = None, doubts: dict | None = None) -> Verdict:
     """The verdict of ``experiments.apply`` on one survey.
 
     Args:
@@ -181,7 +184,11 @@ def apply_verdict(*, model_kind: str, method: str | None, interval_deg: float | 
             bands: see :func:`qc_line`. trained, survey: domains (:func:`domain_status`). out_csv: the
             corrected file. model_path, survey_path: for the next command. trajectory: the bottom-hole
             summary of :func:`icgo.survey.trajectory.position_change` where the survey has measured depth.
+        doubts: :attr:`icgo.survey.apply.CorrectedSurvey.doubts`: ``other_device`` makes the status
+            ``"other device"`` (the model is not to be used here), ``reference_units`` makes it ``"reference in
+            doubt"`` (nothing is measured against that reference); both exit with :data:`EXIT_OUT_OF_DOMAIN`.
     """
+    doubts = doubts or {}
     status, phrases, over = domain_status(trained, survey)
     if interval_deg is not None and math.isfinite(interval_deg):
         acc = (f"azimuth within +/- {interval_deg:.3f} deg at {100 * interval_level:.0f} % per station (the model's "
@@ -190,7 +197,9 @@ def apply_verdict(*, model_kind: str, method: str | None, interval_deg: float | 
             acc += "; it does not hold outside the training domain"
     else:
         acc = f"no interval: a {model_kind} model carries none"
-    if metrics:
+    if "reference_units" in doubts:
+        acc += f"; NOT measured on this survey: {doubts['reference_units']}"
+    elif metrics:
         c, r = metrics["compensated"], metrics.get("raw")
         acc += (f"; measured on this survey: MAE {c['mae']:.3f} deg" + (f" (raw {r['mae']:.3f})" if r else "")
                 + (f", {100 * covered:.1f} % of stations inside the interval" if covered is not None else ""))
@@ -207,19 +216,34 @@ def apply_verdict(*, model_kind: str, method: str | None, interval_deg: float | 
     mline = f"{method or 'its only method'} of the {model_kind} model {model_path}" + (
         " (the study's selected method: lowest mean training RMSE over repeats, training rows only)"
         if model_kind == "relm_compensation" else "")
+    dline = domain_line(status, phrases, trained)
     if status == "far outside":
         mline = f"none for this survey: {mline} was trained elsewhere"
+    if "other_device" in doubts:
+        status = "other device"
+        dline = (f"NOT this model's device: {doubts['other_device']}. The corrected azimuths are not to be used "
+                 f"(exit status {EXIT_OUT_OF_DOMAIN})")
+        mline = f"none for this survey: {mline} does not fit this device"
+    elif "reference_units" in doubts and status != "far outside":
+        status = "reference in doubt"
     if status == "far outside":
         nxt = (f"train on data like this survey (with a reference attitude): python -m experiments.run dataset=csv "
                f"dataset.path={survey_path}; then apply that model")
+    elif status == "other device":
+        nxt = ("calibrate this device (python -m experiments.calibrate data=<its grouped shots>) or find its own model; "
+               "then apply that")
+    elif status == "reference in doubt":
+        nxt = f"convert the survey's reference angles to degrees, then apply again: python -m experiments.apply " \
+              f"model={model_path} data={survey_path}"
     else:
         nxt = f"use {out_csv} (azimuth_compensated" + (", azimuth_interval_deg" if interval_deg is not None else "") + ")"
     numbers = {"interval_deg": interval_deg, "interval_level": interval_level, "covered": covered,
                "mae": metrics["compensated"]["mae"] if metrics else None,
                "raw_mae": (metrics.get("raw") or {}).get("mae") if metrics else None,
-               "overshoot": over, "qc": qc, "trajectory": trajectory}
-    return Verdict(acc, domain_line(status, phrases, trained), qline, mline, nxt, status,
-                   EXIT_OUT_OF_DOMAIN if status == "far outside" else 0, numbers)
+               "overshoot": over, "qc": qc, "trajectory": trajectory, "doubts": doubts}
+    return Verdict(acc, dline, qline, mline, nxt, status,
+                   EXIT_OUT_OF_DOMAIN if status in ("far outside", "other device", "reference in doubt") else 0,
+                   numbers)
 
 
 # ---------------------------------------------------------------------- run
@@ -308,31 +332,31 @@ def calibrate_verdict(*, recommendation: dict | None, n_models: int, n_degenerat
                                                           "accuracy_spread_deg": nested_se})
 
 
-def survey_verdict(res, model, frame, bands, *, out_csv: str, model_path: str, survey_path: str,
+def survey_verdict(res, model, bands, *, out_csv: str, model_path: str, survey_path: str,
                    method: str | None = None) -> Verdict:
     """:func:`apply_verdict` from what :func:`icgo.survey.apply.correct_survey` returned.
 
     Args:
-        res: the :class:`icgo.survey.apply.CorrectedSurvey`. model: the fitted model. frame: the survey.
-        bands: the QC bands used. out_csv, model_path, survey_path: for the lines. method: the method applied.
+        res: the :class:`icgo.survey.apply.CorrectedSurvey` (its ``stations`` arrays and ``domain``). model: the
+            fitted model. bands: the QC bands used. out_csv, model_path, survey_path: for the lines. method: the
+            method applied.
     """
-    from icgo.models.format import sensor_domain
+    from icgo.physics.frames import angle_diff
 
-    t = res.table
-    have_gb = all(c in frame.columns for c in ("gx", "gy", "gz", "bx", "by", "bz"))
-    survey = sensor_domain(frame[["gx", "gy", "gz"]].to_numpy(float), frame[["bx", "by", "bz"]].to_numpy(float)) \
-        if have_gb else None
-    interval = float(t["azimuth_interval_deg"].iloc[0]) if "azimuth_interval_deg" in t.columns and len(t) else None
+    k = res.stations
+    interval = float(k["interval"][0]) if "interval" in k and len(k["interval"]) else None
     covered = None
-    if interval is not None and "error_compensated" in t.columns:
-        covered = float(np.mean(np.abs(t["error_compensated"].to_numpy(float)) <= t["azimuth_interval_deg"].to_numpy(float)))
-    db = t["corrected_db_nT"].to_numpy(float) if "corrected_db_nT" in t.columns else None
-    dd = t["corrected_ddip_deg"].to_numpy(float) if "corrected_ddip_deg" in t.columns else None
+    if interval is not None and "a_true" in k:
+        err = np.abs(np.asarray(angle_diff(k["a_comp"], k["a_true"])))
+        covered = float(np.mean(err <= k["interval"]))
+    survey = {q: res.domain[q] for q in ("inclination_deg", "g_norm_g", "b_norm_nT", "dip_deg") if q in res.domain}
     return apply_verdict(model_kind=model.KIND, method=method or getattr(model, "selected", None),
                          interval_deg=interval, interval_level=getattr(model, "interval_level", None),
-                         metrics=res.metrics, covered=covered, qc=res.qc, db_nT=db, ddip_deg=dd, bands=bands,
-                         trained=getattr(model, "domain", None), survey=survey, out_csv=out_csv,
-                         model_path=model_path, survey_path=survey_path, trajectory=res.trajectory)
+                         metrics=res.metrics, covered=covered, qc=res.qc, db_nT=k.get("db_nT"),
+                         ddip_deg=k.get("ddip_deg"), bands=bands, trained=getattr(model, "domain", None),
+                         survey=survey or None, out_csv=out_csv, model_path=model_path, survey_path=survey_path,
+                         trajectory={q: v for q, v in res.trajectory.items() if q != "table"} if res.trajectory else None,
+                         doubts=res.doubts)
 
 
 def from_dict(d: dict) -> Verdict:
