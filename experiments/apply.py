@@ -90,6 +90,8 @@ def run_apply(cfg: DictConfig, out_dir: Path, keep=()) -> dict:
     Raises:
         ValueError (ModelError, DataError, RecordError, SettingError, OutputError): one line.
     """
+    import pandas as pd
+
     from icgo.core.settings import config_from_mapping
     from icgo.io.files import Output, json_text
     from icgo.io.recording import column_map
@@ -125,10 +127,10 @@ def run_apply(cfg: DictConfig, out_dir: Path, keep=()) -> dict:
             parts.append(correct_rows(model, rec.frame, rec.field, method=cfg.method, bands=bands))
             if k == 1:  # streaming: the first chunk's table goes out now, every later one as it comes
                 parts[0].table.to_csv(out_csv, index=False, lineterminator="\n")
-                parts[0] = parts[0]._replace(table=parts[0].table.iloc[:0])
+                parts[0] = parts[0]._replace(table=pd.DataFrame())  # (not a slice: a slice keeps the table)
             if k >= 1:
                 parts[k].table.to_csv(out_csv, index=False, lineterminator="\n", header=False, mode="a")
-                parts[k] = parts[k]._replace(table=parts[k].table.iloc[:0])
+                parts[k] = parts[k]._replace(table=pd.DataFrame())
         streamed = len(parts) > 1
         res = summarise(model, merge_rows(parts) if streamed else parts[0], rec.field, positions_table=not streamed)
         if not streamed:  # one chunk: its table, positions included, is the file

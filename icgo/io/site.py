@@ -77,15 +77,15 @@ def site_reference(site: dict | None) -> Site | None:
             pass
         field = _number(site, "field", *SITE_FIELD_RANGE_NT, "nT", hint)
         return Site(dip, field, "given (site.dip, site.field)")
+    ranges = {"lat": (-90.0, 90.0, "deg"), "lon": (-180.0, 360.0, "deg"), "alt_km": (-12.0, 1000.0, "km")}
+    values = {k: _number(site, k, *r) for k, r in ranges.items() if k in site}  # what is given, checked first
     missing = [f"site.{k}" for k in ("lat", "lon", "date") if k not in site]
     if missing:
         raise SettingError("site", f"{', '.join(missing)} missing: the field model needs the latitude, longitude "
                                    "and date (or give site.dip= and site.field=)")
     from icgo.physics.field import FIELD_MODEL_YEARS, decimal_year, reference_field
 
-    lat = _number(site, "lat", -90.0, 90.0, "deg")
-    lon = _number(site, "lon", -180.0, 360.0, "deg")
-    alt = _number(site, "alt_km", -12.0, 1000.0, "km") if "alt_km" in site else 0.0
+    lat, lon, alt = values["lat"], values["lon"], values.get("alt_km", 0.0)
     try:
         year = decimal_year(site["date"] if isinstance(site["date"], str) else float(site["date"]))
     except (TypeError, ValueError):

@@ -227,7 +227,8 @@ def correct_rows(model: FittedModel, frame: pd.DataFrame, field=None, *, method:
         keep["azi_cor"] = out["azimuth_compensated"].to_numpy(float)
         if all(c in frame.columns for c in ("inclination_deg", "azimuth_deg")):
             keep["inc_ref"], keep["azi_ref"] = frame["inclination_deg"].to_numpy(float), frame["azimuth_deg"].to_numpy(float)
-    return Rows(table, keep, domain, qc)
+    # copies: a column taken from a frame is a view that would keep the whole frame (a streamed chunk) alive
+    return Rows(table, {name: np.array(v, dtype=float, copy=True) for name, v in keep.items()}, domain, qc)
 
 
 def merge_rows(parts: list[Rows]) -> Rows:
