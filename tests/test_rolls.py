@@ -129,3 +129,53 @@ def test_given_ranges_make_the_groups_and_too_short_ranges_are_a_setting_error()
     assert groups_from_ranges(station, parse_groups("8-15,16-23")).tolist() == PEER_GROUPS.tolist()
     with pytest.raises(SettingError, match="range 8-10 holds 3 shot"):
         groups_from_ranges(station, parse_groups("8-10"))
+
+
+def test_off_plane_shots_names_the_shots_of_another_roll():
+    # group 8 given as shots 8-15 plus the first 3 of the next roll: those 3 are named, nothing else
+    rec = io.load_mag_cal_device("ai")
+    G, B = rec.G[8:19], rec.B[8:19]
+    scale = float(np.median(np.linalg.norm(rec.B, axis=1)))
+    assert rolls.off_plane_shots(G, B, scale) == [8, 9, 10]
+    assert rolls.off_plane_shots(rec.G[8:16], rec.B[8:16], scale) == []
+
+
+def test_the_layout_is_checked_and_used_and_the_data_are_asked_for_a_second_opinion():
+    from icgo.methods.grouping import by_data, by_layout
+
+    rec = io.load_mag_cal_device("bh")
+    G, B, station = rec.G, rec.B, rec.frame.station.to_numpy()
+    g = by_layout(G, B, station, PEER_GROUPS, "the layout", "bh.json")
+    assert g.groups.tolist() == PEER_GROUPS.tolist() and g.record["data_suggest"] is None
+    assert g.record["disagreements"] == [] and g.notices == ("grouped by the the layout",)
+    # a layout one shot off (rolls 7-14, 15-22): used as given, the shots that disagree named, the data's rolls shown
+    off = np.r_[np.arange(7), [7] * 8, [8] * 8, [9]]
+    g = by_layout(G, B, station, off, "a layout", "bh.json")
+    assert g.groups.tolist() == off.tolist()
+    assert g.record["data_suggest"] == "rolls at shots 8-15; 16-23" and len(g.record["disagreements"]) == 2
+    assert "shots 7 leave its roll plane" in g.record["disagreements"][0]
+    d = by_data(G, B, station, "bh.json", layout=("a layout", off))
+    assert d.groups.tolist() == PEER_GROUPS.tolist() and d.record["layout_grouping"] == "rolls at shots 7-14; 15-22"
+
+
+def test_a_corrupt_shot_is_refused_by_the_reader_before_any_fit(tmp_path):
+    """One value of 1e300 (numpy's least squares on it never returned) is refused in one line naming the shot; the
+    ellipsoid fit itself refuses a reading it cannot square."""
+    import json
+    import time
+
+    from icgo.io.mag_cal_json import read_mag_cal_json
+    from icgo.methods.calibration import ellipsoid_fit
+
+    d = json.loads(io._mag_cal_dir().joinpath("ab.json").read_text())
+    d["shots"]["mag"][31] = 1e300  # shot 10's third component
+    path = tmp_path / "huge.json"
+    path.write_text(json.dumps(d))
+    t0 = time.perf_counter()
+    with pytest.raises(DataError, match=r"huge.json: shot 10: \|B\| = 1e\+300 uT while the median is 11\d uT") as e:
+        read_mag_cal_json(path)
+    assert time.perf_counter() - t0 < 5.0 and "inf" not in str(e.value) and "nan" not in str(e.value)
+    B = io.load_mag_cal_device("ab").B.copy()
+    B[10, 2] = 1e300
+    with pytest.raises(ValueError, match="too large to square"):
+        ellipsoid_fit(B, 1.0, check=False)

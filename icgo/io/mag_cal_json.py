@@ -160,8 +160,7 @@ def check_shots(G, B_uT, src: str) -> None:
         DataError: one line naming the first such shot (0-based, as ``station``).
     """
     for v, what, unit, factor in ((G, "|G|", "g", ROW_FACTOR_G), (B_uT, "|B|", "uT", ROW_FACTOR_B)):
-        top = float(np.max(np.abs(v))) or 1.0  # scaled, so that 1e300 squared does not overflow
-        norm = np.linalg.norm(v / top, axis=1) * top
+        norm = np.hypot(np.hypot(v[:, 0], v[:, 1]), v[:, 2])  # no square of 1e300 overflows here
         med = float(np.median(norm))
         off = (norm < med / factor) | (norm > med * factor)
         if off.any():
