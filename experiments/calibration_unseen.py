@@ -10,8 +10,8 @@ two files replaced): per variant the recommendation, its nested accuracy and eve
 goals (:mod:`icgo.studies.calibration_goals`) on the variants, beside the same goals on the 9 bundled devices
 read from ``results/calibration_devices.csv`` (``make calibration``), in a section of their own.
 
-Nothing in the door is tuned on these variants: the perturbations were fixed first, and the numbers are
-reported as they come (docs/calibrate.md, "Unseen devices").
+Nothing in the door is tuned on these variants, and the numbers are reported as they come (docs/calibrate.md,
+"Unseen devices": the perturbation sizes were revised once, after the first variant scored).
 """
 
 from __future__ import annotations
@@ -101,7 +101,8 @@ def main(argv=None) -> int:
                  "training shots split again for the nested choice",
                  f"variants from numpy generators seeded ({SEED}, variant, crc32(device)) "
                  "(`icgo.datasets.mag_cal_variants`); PRNGKey(" f"{SEED}) for MISMA; nothing in the door was chosen "
-                 "on these variants; the perturbation sizes were fixed before any was scored",
+                 "on these variants; the perturbation sizes were revised once, after the first variant scored had "
+                 "every fit degenerate and before any other was scored (docs/calibrate.md, Unseen devices)",
                  "none: no p-value; the goals are thresholds on means (docs/calibrate.md)"), "",
              "## Goals", ""]
     lines += summary_lines("Unseen devices (these variants)", goals(t))

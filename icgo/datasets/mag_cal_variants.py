@@ -21,9 +21,11 @@ of one family, drawn from its own seed:
   non-linearity together).
 
 The magnitudes are those of consumer MEMS sensors in a handheld instrument (the bundled devices' own ellipsoid
-fits: hard iron 0.95-1.5 times the field's radius, soft iron 2-4 % between the principal gains), fixed here
-before any variant was scored; nothing in the door is tuned on these variants (docs/calibrate.md, "Unseen
-devices").
+fits: hard iron 0.95-1.5 times the field's radius, soft iron 2-4 % between the principal gains). They were
+revised once: the first draft's field noise (0.1-0.4 % of the median |B|) and cubic term (scaled by the median
+|B|, up to 8 % of the field at the largest readings) made every fit of the first variant scored (ab_v0)
+degenerate, and were set to the values here before any other variant was scored. Nothing in the door is tuned
+on these variants (docs/calibrate.md, "Unseen devices").
 """
 
 from __future__ import annotations
