@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test test-all test-slurm figures bench optimizers misma gyro discrepancy generalisation calibration dataset-figures venv clean
+.PHONY: run test test-all test-slurm figures bench optimizers misma gyro discrepancy generalisation calibration calibration-unseen dataset-figures venv clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -57,3 +57,6 @@ generalisation: $(STAMP)
 
 calibration: $(STAMP)
 	$(BIN)/python -m experiments.calibrate data=bundled
+
+calibration-unseen: $(STAMP)
+	$(BIN)/python -m experiments.calibration_unseen
