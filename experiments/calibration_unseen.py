@@ -16,7 +16,6 @@ Nothing in the door is tuned on these variants, and the numbers are reported as 
 
 from __future__ import annotations
 
-import argparse
 import tempfile
 import time
 from pathlib import Path
@@ -47,6 +46,19 @@ def run_variants(peer: bool = False, devices=None, n: int | None = None):
     return df, {v.name: v for v in vs}, recs, time.perf_counter() - t0
 
 
+def _positive(text: str) -> int:
+    """``--variants``: an integer >= 1."""
+    import argparse
+
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {v}")
+    return v
+
+
 def _fmt(x, d=3):
     return "-" if x is None else f"{x:.{d}f}"
 
@@ -72,13 +84,13 @@ def summary_lines(title: str, s: dict) -> list[str]:
 
 
 def main(argv=None) -> int:
-    from icgo.core.settings import run_cli  # noqa: F401
+    from icgo.core.settings import ArgumentParser
 
-    ap = argparse.ArgumentParser(prog="python -m experiments.calibration_unseen", description=__doc__.splitlines()[0])
+    ap = ArgumentParser(prog="python -m experiments.calibration_unseen", description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=str(ROOT / "results"), help="results folder (shared: only its two files replaced)")
     ap.add_argument("--peer", action="store_true", help="run circuitpython-mag-cal side by side too (slower)")
     ap.add_argument("--devices", nargs="*", default=None, help="bundled devices to perturb (default: all 9)")
-    ap.add_argument("--variants", type=int, default=None, help="variants per device (default: N_VARIANTS)")
+    ap.add_argument("--variants", type=_positive, default=None, help="variants per device (default: N_VARIANTS)")
     a = ap.parse_args(argv)
     import pandas as pd
 
@@ -128,4 +140,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from icgo.core.settings import run_cli
+
+    raise SystemExit(run_cli(main))

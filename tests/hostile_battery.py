@@ -1003,6 +1003,11 @@ def argparse_cases() -> list[Case]:
     add(o, "out-file", ["--runs", "2", "--out", "{w}/f"], setup=write("f", "x"), says=("out",))
     add(o, "out-used", ["--runs", "2", "--out", "{w}/o"], setup=steps(write("o/x.md", "old\n"), remember("o")),
         says=("out",), check=unchanged("o"))
+    u = "experiments.calibration_unseen"
+    for args, says in ((["--variants", "0"], "variants"), (["--variants", "abc"], "variants"),
+                       (["--devices", "zz", "--variants", "1"], "zz"), (["--bogus"], "bogus")):
+        add(u, " ".join(args), args + ["--out", "{w}/o"], says=(says,), check=absent("o"))
+    add(u, "out-file", ["--devices", "ab", "--variants", "1", "--out", "{w}/f"], setup=write("f", "x"), says=("out",))
     for door, args, says in (("experiments.roofline", ["--out", "{w}/d"], "out"),
                              ("experiments.roofline", ["--out", "{w}/f/x"], "out"),
                              ("experiments.roofline", ["--batch", "0"], "batch"),
@@ -1149,7 +1154,8 @@ FAST_CASES = (
     "calibrate/raw-mag_axes=+x+x+z", "calibrate/used-run-dir", "discrepancy/data=mag_cal:../ok",
     "misma/real.enabled=maybe", "gyro/seed=abc", "figures/override-bogus", "generalisation/--n-repeats 0",
     "optimizers/--dims 0", "io/csv-fifo", "datasets/full-disk", "calibrate/json-fixture-1e300",
-    "apply/reference-in-radians", "apply/model-of-another-device", "datasets/two-data-sets-one-folder")
+    "apply/reference-in-radians", "apply/model-of-another-device", "datasets/two-data-sets-one-folder",
+    "calibration_unseen/--variants 0")
 
 
 def all_cases() -> list[Case]:

@@ -24,8 +24,9 @@ left-out shots' pointing spread about their own mean (the peer's metric, squared
 ``lambda`` minimises it over :data:`LAMBDAS` (:func:`roll_folds`). Training shots with no roll to leave out say
 nothing about the strength: the accelerometer is then held at its start (the largest strength), so the joint
 fit is ``twelve+axis`` until held-out shots show that freeing it generalises. All ``len(LAMBDAS) x (folds + 1)``
-fits run as one vmapped batch of :func:`icgo.maths.lsq.least_squares_fixed`, :data:`N_STEPS` steps from the
-start; the fold count is fixed per recording (unused folds weigh nothing), so a recording compiles once.
+fits run as vmapped batches of :func:`icgo.maths.lsq.least_squares_fixed` (one call per strength, so an
+interrupt is answered between them), :data:`N_STEPS` steps from the start; the fold count is fixed per
+recording (unused folds weigh nothing), so a recording compiles once.
 ``lambda`` is in rad^2 per unit of the penalty (a residual of 1 rad costs as much as one sigma of accelerometer
 error at ``lambda = 1``).
 """
@@ -183,9 +184,11 @@ def fit(G, B, groups, train, xg0, xm0, lambdas=LAMBDAS, n_steps: int = N_STEPS) 
     x0 = np.concatenate([np.asarray(xg0, np.float64), np.asarray(xm0, np.float64)])
     scale = np.concatenate([np.full(9, np.abs(x0[:9]).max()), np.full(3, 1.0 / np.abs(x0[:9]).max()),
                             np.full(9, np.abs(x0[12:21]).max()), np.full(3, 1.0 / np.abs(x0[12:21]).max())])
-    x, held, gap = _fit_batch(jnp.asarray(lambdas, jnp.float64), jnp.asarray(fit_w), jnp.asarray(held_w),
-                              jnp.asarray(x0 / scale), jnp.asarray(scale), jnp.asarray(G, jnp.float64),
-                              jnp.asarray(B, jnp.float64), jnp.asarray(rolls), n_steps=n_steps)
+    # one call per strength (all folds vmapped): Ctrl-C / SIGTERM are answered between them; one compilation
+    parts = [_fit_batch(jnp.asarray([lam], jnp.float64), jnp.asarray(fit_w), jnp.asarray(held_w),
+                        jnp.asarray(x0 / scale), jnp.asarray(scale), jnp.asarray(G, jnp.float64),
+                        jnp.asarray(B, jnp.float64), jnp.asarray(rolls), n_steps=n_steps) for lam in lambdas]
+    x, held, gap = (jnp.concatenate([p[i] for p in parts]) for i in (0, 1, 2))
     n_held = float(held_w.sum())
     if not np.all(np.isfinite(np.asarray(x[:, 0]))) or not np.all(np.isfinite(np.asarray(held))):
         raise ValueError("joint fit: a leave-one-roll-out fit is not finite")
