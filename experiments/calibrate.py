@@ -1,23 +1,26 @@
 """Calibration front door for a user's recording: ``conf/calibrate.yaml`` -> :mod:`icgo.studies.calibration`.
 
     python -m experiments.calibrate data=shots.csv                       # contract CSV with a group column
-    python -m experiments.calibrate data=device.json                     # circuitpython-mag-cal, fixture layout
+    python -m experiments.calibrate data=device.json                     # circuitpython-mag-cal: its layout's rolls
     python -m experiments.calibrate data=raw.json mag_axes=+x+y-z grav_axes=-y-x+z   # the raw layout
-    python -m experiments.calibrate data=device.json groups=[8-15,16-23]   # the rolls given (default: found)
+    python -m experiments.calibrate data=device.json groups=auto         # the rolls found in the data instead
+    python -m experiments.calibrate data=device.json site.lat=51.5 site.lon=-0.1 site.date=2024-06-01
     python -m experiments.calibrate data=bundled                         # the 9 bundled devices -> results/
 
-Reads the shots (:func:`icgo.io.shots.read_shots`: the rolls found from the data or given, each checked),
-fits every method (ellipsoid, 12-parameter least squares + axis, MISMA + axis, the
-regularised joint fit, least squares + axis + a RELM on the residual, the peer package side by
-side), scores each in-sample and held out, checks each for physical sanity, recommends one
-(:func:`icgo.studies.calibration.recommend`), and writes into the run
-directory ``report.md`` (the rolls, the scores, the recommendation), ``calibration.csv`` (every fit: score
-and sanity), ``calibration.json`` (the run's record, with ``recommendation``), one
-figure per recording and ``models/<recording>_<method>.json`` (the in-sample
-calibrations; ``python -m experiments.apply model=<run dir> data=...`` applies the recommended one). Files
-are staged and moved into place only when all are written; a used run directory is refused unless
+Reads the shots (:func:`icgo.studies.shots.read_shots`: a known layout's groups checked against the data, the
+rolls found where no layout is known, or groups given), fits every method (ellipsoid, 12-parameter least
+squares + axis, MISMA + axis, the regularised joint fit, least squares + axis + a RELM on the residual, the
+peer package side by side), scores each in-sample, held out and inside each held-out split, checks each for
+physical sanity and against the site, recommends one by a rule with its nested accuracy
+(:func:`icgo.studies.calibration_select.recommend`), and writes into the run directory ``report.md``
+(:mod:`experiments.calibrate_report`: the grouping, the rolls, the site, the scores, the recommendation),
+``calibration.csv`` (every fit: score, sanity, site), ``calibration.json`` (the run's record, with
+``recommendation``), one figure per recording and ``models/<recording>_<method>.json`` (the in-sample
+calibrations; ``python -m experiments.apply model=<run dir> data=...`` applies the recommended one). Files are
+staged and moved into place only when all are written; a used run directory is refused unless
 ``overwrite=true``. JAX's compilation cache is on (``jax_cache_dir``). A bad setting: one line, exit 2; bad
-data: one line, exit 1.
+data: one line, exit 1, nothing written; a recording with nothing to recommend: every file written, one line,
+exit 4.
 """
 
 from __future__ import annotations
