@@ -359,9 +359,9 @@ def ellipsoid_fit(B, ref_nT, G=None, check=True) -> np.ndarray:
     if check:
         check_orientations(G if G is not None else np.ones_like(B), B,
                            MIN_ORIENTATIONS_ELLIPSOID, "the ellipsoid fit")
-    s = np.median(np.linalg.norm(B, axis=1))
-    x, y, z = (B / s).T
     with np.errstate(over="ignore", invalid="ignore"):  # an overflow is refused just below
+        s = np.median(np.linalg.norm(B, axis=1))
+        x, y, z = (B / s).T
         D = np.stack([x * x, y * y, z * z, 2 * x * y, 2 * x * z, 2 * y * z, 2 * x, 2 * y, 2 * z], 1)
     if not np.all(np.isfinite(D)):  # LAPACK on inf hangs or fails: a reading far larger than the others
         raise ValueError("ellipsoid fit: a reading is too large to square (check the units of every shot)")
