@@ -202,10 +202,13 @@ def recommend(df, recording: str) -> dict:
                + (f" +/- {nested.spread_deg:.3f}" if nested.spread_deg is not None else "")
                + f" deg (nested: the rule applied inside each of {len(nested.per_split)} held-out split(s)' training "
                "shots, its choice scored on the held-out shots)")
+    other = "" if choice.runner_up is None else (
+        f", runner-up `{choice.runner_up}` {choice.candidates[choice.runner_up]:.3f} deg"
+        if choice.candidates[choice.runner_up] >= choice.mean_deg else
+        f"; `{choice.runner_up}` is lower there ({choice.candidates[choice.runner_up]:.3f} deg) but does not beat "
+        f"{BASELINE} by more than the standard error")
     sentence = (f"Apply `{choice.method}` (`{model}`): {acc}. Chosen on {what} by the rule: {choice.why}; its mean "
-                f"there {choice.mean_deg:.3f} deg (optimistic: chosen on those splits)"
-                + ("" if choice.runner_up is None else f", runner-up `{choice.runner_up}` "
-                   f"{choice.candidates[choice.runner_up]:.3f} deg") + ".")
+                f"there {choice.mean_deg:.3f} deg (optimistic: chosen on those splits){other}.")
     return {"model": model, "method": choice.method, "criterion": choice.why, "held_out_deg": choice.mean_deg,
             "spread_deg": choice.spread_deg, "clear_winner": choice.clear, "runner_up": choice.runner_up,
             "accuracy_deg": nested.mean_deg, "accuracy_spread_deg": nested.spread_deg,
