@@ -118,7 +118,7 @@ def test_fixture_files_in_the_layout_are_grouped_by_it_and_the_data_agree(tmp_pa
     assert "8 single shots, then rolls of 8" in rec.meta["description"]
 
 
-def test_a_count_outside_the_layout_has_its_rolls_found_from_the_data(tmp_path):
+def test_a_count_outside_the_layout_has_its_rolls_found_from_the_data(tmp_path, capsys):
     G, B = _device()
     path = tmp_path / "dev.json"
     write_fixture(path, G[:20], B[:20])  # 8 singles, one roll, 4 shots of a second: no known layout
@@ -127,6 +127,12 @@ def test_a_count_outside_the_layout_has_its_rolls_found_from_the_data(tmp_path):
     assert rec.meta["grouping"]["origin"] == "data" and rec.meta["grouping"]["layout"] is None
     assert rec.frame.group.tolist()[8:16] == [rec.frame.group.iloc[8]] * 8
     assert "no known layout (20 shots is not 8 + 8 k)" in rec.meta["description"]
+    # python -m icgo.io never searches: it reads the file, says so, and converts it without a group column
+    assert io_cli.main(["check", str(path)]) == 0 and "not grouped here" in capsys.readouterr().out
+    out = tmp_path / "dev.csv"
+    assert io_cli.main(["convert", str(path), "--out", str(out)]) == 0
+    assert "groups=auto finds the rolls" in capsys.readouterr().out
+    assert read_shots(out, groups="auto").frame.group.tolist() == rec.frame.group.tolist()
 
 
 def test_the_layout_is_used_where_the_data_disagree_and_both_groupings_are_named(tmp_path):

@@ -130,7 +130,11 @@ def convert(words: list[str], out: str | None, overwrite: bool) -> int:
         raise SettingError(f"convert: {held[0]} already exists; give --overwrite to replace it (and its pair)")
     shots = read_shot_file(paths[0], **settings)
     rec = shots.recording
-    write_recording(out, rec.frame, rec.meta)
+    grouped = "group" in rec.frame.columns
+    write_recording(out, rec.frame, rec.meta, require_reference=grouped)
+    if not grouped:
+        rec = rec._replace(notices=rec.notices + [f"{out} has no group column (no known layout, no groups given): "
+                                                  f"experiments.calibrate data={out} groups=auto finds the rolls"])
     print("\n".join(describe_shots(paths[0], shots) + [f"  notice: {n}" for n in rec.notices]
                     + [f"wrote {out} and {meta_path_for(out).name}"]))
     return 0
