@@ -23,9 +23,12 @@ Splits (:func:`splits`): in-sample (fit and score on every shot) and one held-ou
 split per rolled group (fit without it, score on it; one roll: its two interleaved halves). Score: the peer's metric
 (:func:`icgo.methods.calibration.group_spread_deg`, deg) on the scored rolled groups. Every
 fit also gets its physical sanity on all shots (:func:`icgo.methods.cal_sanity.sanity`);
-a degenerate fit's score is withheld (NaN) and it is never counted as a win. Every group of a recording
-is checked to be a plausible roll first (:func:`icgo.physics.rolls.check_groups`); :func:`recommend`
-names the calibration to apply.
+a degenerate fit's score is withheld (NaN) and it is never counted as a win, and its mean dip and |B|
+(:mod:`icgo.methods.cal_site`), checked against the site where it is known. Inside every held-out split the
+training shots are split again (:func:`held_out_splits`) for the nested accuracy of the recommendation
+(:func:`icgo.studies.calibration_select.recommend`). Every group of a recording is checked to be a plausible
+roll first (:func:`icgo.physics.rolls.check_groups`) unless its reader did (a layout's groups are kept where the
+data disagree, and named).
 """
 
 from __future__ import annotations
