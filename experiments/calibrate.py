@@ -32,7 +32,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from experiments._entry import enable_jax_cache, one_line, one_line_errors
-from icgo.core.errors import DataError, SettingError
+from icgo.core.errors import DataError, GroupingError, SettingError
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Settings of the entry point, not of the study (excluded from CalibrationConfig).
@@ -177,7 +177,10 @@ def run(cfg: DictConfig, out: Path, config=None, keep=()) -> int:
     bundled = str(cfg.data) == "bundled"
     if bundled:  # results/ checked now, not after the fits
         Output(results_path(cfg), setting="results_dir", shared=True).check()
-    recordings = load(cfg)
+    try:
+        recordings = load(cfg)
+    except GroupingError as e:  # the shots were read, but no groups can be made of them: the report says why
+        return refused_run(cfg, config, output, one_line(e), time.perf_counter() - t0)
     sites = sites_of(recordings, site)
     sites_given = {n: (s.dip_deg, s.field_nT) for n, s in sites.items() if s is not None}
     try:
@@ -235,6 +238,34 @@ def run(cfg: DictConfig, out: Path, config=None, keep=()) -> int:
         print(f"error: no calibration recommended {refused[0]} (report: {out / 'report.md'})", file=sys.stderr)
         return EXIT_NO_RECOMMENDATION
     return 0
+
+
+def refused_run(cfg: DictConfig, config, output, reason: str, seconds: float) -> int:
+    """The run directory of a recording whose shots were read but could not be grouped: ``report.md`` and
+    ``calibration.json`` with the reason (``"refused"``), an empty ``calibration.csv``; one line on stderr; exit 4."""
+    import sys
+
+    from experiments._entry import write_hydra_record
+    from icgo.core.settings import config_to_mapping
+    from icgo.io.files import json_text
+    from icgo.reporting.records import CALIBRATION_FILE
+    from icgo.survey.verdict import EXIT_NO_RECOMMENDATION, calibrate_verdict
+
+    verdict = calibrate_verdict(recommendation=None, n_models=0, n_degenerate=0, n_fits=0, run_dir=str(output.path),
+                                refused=reason)
+    text = (f"# Magnetometer calibration: {cfg.data}\n\n## Recommendation\n\n- No calibration recommended: the shots "
+            f"were read, but no rolls could be made of them: {reason}\n\n" + "\n".join(verdict.markdown()) + "\n")
+    record = {"kind": "calibration_run", "data": str(cfg.data), "config": config_to_mapping(config), "recordings": {},
+              "recommendations": {}, "recommendation": None, "refused": reason, "wall_time_s": seconds}
+    with output.staged(last=(CALIBRATION_FILE,)) as stage:
+        write_hydra_record(stage, cfg)
+        (stage / "report.md").write_text(text)
+        (stage / "calibration.csv").write_text("recording,split,outer,method,score_deg,degenerate,reasons\n")
+        (stage / CALIBRATION_FILE).write_text(json_text(record))
+    print(text)
+    print(verdict.text())
+    print(f"error: no calibration recommended: {reason} (report: {output.path / 'report.md'})", file=sys.stderr)
+    return EXIT_NO_RECOMMENDATION
 
 
 def report_refused(recordings: dict, label: str, recs: dict, chosen: dict, sites: dict) -> str:

@@ -509,6 +509,12 @@ def test_front_door_names_a_missing_mounting(tmp_path):
     write_raw(path, G, B, "-y+x+z", "+z-x-y", keys=False)
     out = _run_entry(tmp_path, f"data={path}", *FAST)
     err = out.stderr.strip()
-    assert out.returncode == 1 and len(err.splitlines()) == 1 and "probable cause: the mounting is not given" in err
+    assert out.returncode == 4 and len(err.splitlines()) == 1 and "probable cause: the mounting is not given" in err
+    # the shots were read: the run directory says why nothing is recommended
+    assert "probable cause: the mounting is not given" in (tmp_path / "run" / "report.md").read_text()
+    assert json.loads((tmp_path / "run" / "calibration.json").read_text())["recommendation"] is None
+    import shutil
+
+    shutil.rmtree(tmp_path / "run")
     out = _run_entry(tmp_path, f"data={path}", "mag_axes=-y+x+z", "grav_axes=+z-x-y", *FAST)
     assert out.returncode == 0, out.stderr

@@ -34,7 +34,7 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 
-from icgo.core.errors import DataError, SettingError
+from icgo.core.errors import DataError, GroupingError, SettingError
 from icgo.io.files import read_text_bounded
 from icgo.io.grouping import Layout, check_given, groups_from_ranges, layout_groups
 from icgo.io.recording import (
@@ -255,8 +255,9 @@ def read_mag_cal_json(path, mag_axes: str | None = None, grav_axes: str | None =
         group = groups_from_ranges(rec.frame["station"].to_numpy(), known.ranges)
         off = rolls_off_axis_deg(rec.G, rec.B, group)
         if off is not None:
-            fail(src, f"the {known.describe()}: its rolls turn about an axis {off:.0f} deg or more from the pointing "
-                      f"axis (tool z; at most {AXIS_TO_Z_DEG:g}): the mounting is not the device's; probable cause: "
-                      + (hint or "the mounting strings (mag_axes / grav_axes) are not this device's"))
+            raise GroupingError(f"{src}: the {known.describe()}: its rolls turn about an axis {off:.0f} deg or more "
+                                f"from the pointing axis (tool z; at most {AXIS_TO_Z_DEG:g}): the mounting is not the "
+                                "device's; probable cause: "
+                                + (hint or "the mounting strings (mag_axes / grav_axes) are not this device's"))
         return ShotFile(rec._replace(frame=rec.frame.assign(group=group)), "layout", known, hint)
     return ShotFile(rec, None, known, hint)

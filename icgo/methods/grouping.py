@@ -21,7 +21,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from icgo.core.errors import DataError
+from icgo.core.errors import GroupingError
 from icgo.methods.rolls import find_rolls
 from icgo.physics.rolls import (
     AXIS_TO_Z_DEG,
@@ -111,17 +111,17 @@ def by_data(G, B, station, source: str, layout: tuple | None = None, no_roll_hin
             over it), to name where the two differ; None otherwise.
         no_roll_hint: the probable cause to name when no roll is found.
     Raises:
-        DataError: the shots scatter too much to find rolls, or none is found (one line, with the cause).
+        GroupingError: the shots scatter too much to find rolls, or none is found (one line, with the cause).
     """
     G, B, station = (np.asarray(v) for v in (G, B, station))
     found = find_rolls(G, B)
     if found.too_noisy:
-        raise DataError(f"{source}: {found.too_noisy}; give the rolls (groups=[first-last,...])"
+        raise GroupingError(f"{source}: {found.too_noisy}; give the rolls (groups=[first-last,...])"
                         + ("" if layout is None else " or drop groups=auto (the layout's)"))
     if not found.runs:
         other = [f"shots {shot_ranges(station[a:b])} turn about an axis {c.axis_to_z_deg:.0f} deg from it"
                  for a, b, c in found.rejected if c.axis_to_z_deg > AXIS_TO_Z_DEG]
-        raise DataError(f"{source}: no roll about the pointing axis (tool z) found: no run of "
+        raise GroupingError(f"{source}: no roll about the pointing axis (tool z) found: no run of "
                         f"{MIN_ROLLED_SHOTS} or more consecutive shots turned about it (docs/calibrate.md, Rolls)"
                         + (f"; {', '.join(other)}" if other else "")
                         + (f"; probable cause: {no_roll_hint}" if no_roll_hint else
