@@ -73,8 +73,8 @@ def check_groups_size(rec, src: str, max_groups: int) -> None:
         raise DataError(f"{src}: no rolled group ({MIN_ROLLED_SHOTS} or more shots about one pointing direction, "
                         f"turned about it); calibration needs at least one")
     if rolled > max_groups:
-        raise DataError(f"{src}: {rolled} rolled groups; calibrate takes at most max_groups={max_groups} (its memory "
-                        "grows with them; docs/data.md): split the recording, or raise max_groups=")
+        raise DataError(f"{src}: {rolled} rolled groups; calibrate takes at most max_groups={max_groups} (its time and "
+                        "memory grow with them; docs/data.md): split the recording, or raise max_groups=")
 
 
 def study_config(cfg: DictConfig):

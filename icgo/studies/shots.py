@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from icgo.core.errors import DataError
+from icgo.io.grouping import groups_from_ranges
 from icgo.io.recording import Recording
 from icgo.io.shots import read_shot_file
 from icgo.methods.grouping import by_data, by_layout, rolls_text
@@ -34,14 +35,15 @@ def read_shots(path, mag_axes=None, grav_axes=None, groups=None, columns=None, m
         columns: a column map for a CSV field export (:mod:`icgo.io.columns`), or None.
         max_shots: refuse a recording of more shots before any search of its data (None: no limit).
     Raises:
-        SettingError: a bad setting (exit 2). DataError: bad data (exit 1). Both one line.
+        SettingError: a bad setting (exit 2). DataError: bad data (exit 1); GroupingError (a DataError): shots read
+        but no groups can be made of them. All one line.
     """
     f = read_shot_file(path, mag_axes, grav_axes, groups, columns)
     rec, src = f.recording, str(path)
     frame = rec.frame
     if max_shots is not None and len(frame) > max_shots:
-        raise DataError(f"{src}: {len(frame)} shots; this door takes at most max_shots={max_shots} (its memory grows "
-                        "with them; docs/data.md): split the recording, or raise max_shots=")
+        raise DataError(f"{src}: {len(frame)} shots; this door takes at most max_shots={max_shots} (its time and "
+                        "memory grow with them; docs/data.md): split the recording, or raise max_shots=")
     G = frame[["gx", "gy", "gz"]].to_numpy(np.float64)
     B = frame[["bx", "by", "bz"]].to_numpy(np.float64)
     station = frame["station"].to_numpy()
@@ -55,11 +57,7 @@ def read_shots(path, mag_axes=None, grav_axes=None, groups=None, columns=None, m
     if f.origin == "layout":
         g = by_layout(G, B, station, frame["group"].to_numpy(), f.layout.describe(), src)
     else:
-        layout = None
-        if f.layout is not None:
-            from icgo.io.grouping import groups_from_ranges
-
-            layout = (f.layout.describe(), groups_from_ranges(station, f.layout.ranges))
+        layout = None if f.layout is None else (f.layout.describe(), groups_from_ranges(station, f.layout.ranges))
         g = by_data(G, B, station, src, layout, f.hint)
     return rec._replace(frame=frame.assign(group=g.groups), meta={**rec.meta, "grouping": g.record},
                         notices=list(g.notices) + list(rec.notices))
