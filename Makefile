@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test test-all test-slurm figures bench optimizers misma gyro discrepancy generalisation calibration dataset-figures docs venv clean
+.PHONY: run test test-all test-slurm figures bench optimizers misma gyro discrepancy generalisation calibration calibration-unseen dataset-figures docs venv clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -62,3 +62,6 @@ generalisation: $(STAMP)
 
 calibration: $(STAMP)
 	$(BIN)/python -m experiments.calibrate data=bundled
+
+calibration-unseen: $(STAMP)
+	$(BIN)/python -m experiments.calibration_unseen

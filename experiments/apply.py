@@ -26,7 +26,8 @@ from omegaconf import DictConfig, OmegaConf
 from experiments._entry import CONF_DIR, bool_setting, hydra_keep, one_line_errors, write_hydra_record
 from icgo.core.errors import DataError
 
-KEYS = ("model", "data", "method", "require_meta", "out", "qc", "columns", "columns_file", "overwrite")
+KEYS = ("model", "data", "method", "require_meta", "out", "qc", "columns", "columns_file", "overwrite", "max_mb",
+        "stream_mb", "chunk_rows")
 
 
 def model_path(path: Path) -> Path:
@@ -62,6 +63,22 @@ def check_settings(cfg: DictConfig) -> None:
         raise SettingError(f"out={cfg.out!r}: must be a directory path or null")
     for k in ("require_meta", "overwrite"):
         bool_setting(cfg, k)
+    size_settings(cfg)
+
+
+def size_settings(cfg: DictConfig) -> tuple[int, int, int]:
+    """(max bytes, stream above bytes, rows per chunk) from ``max_mb``, ``stream_mb`` and ``chunk_rows``
+    (defaults in conf/apply/apply.yaml; docs/data.md)."""
+    from icgo.core.errors import SettingError
+    from icgo.core.settings import is_int
+
+    out = []
+    for k, scale in (("max_mb", 1 << 20), ("stream_mb", 1 << 20), ("chunk_rows", 1)):
+        v = cfg.get(k)
+        if not (is_int(v) and v >= 1):
+            raise SettingError(f"{k}={v!r}: must be an integer >= 1")
+        out.append(int(v) * scale)
+    return out[0], out[1], out[2]
 
 
 def run_apply(cfg: DictConfig, out_dir: Path, keep=()) -> dict:
@@ -73,12 +90,15 @@ def run_apply(cfg: DictConfig, out_dir: Path, keep=()) -> dict:
     Raises:
         ValueError (ModelError, DataError, RecordError, SettingError, OutputError): one line.
     """
+    import pandas as pd
+
     from icgo.core.settings import config_from_mapping
     from icgo.io.files import Output, json_text
-    from icgo.io.recording import column_map, read_recording
+    from icgo.io.recording import column_map
+    from icgo.io.stream import read_chunks
     from icgo.models.registry import load_model
     from icgo.physics.qc import QCBands
-    from icgo.survey.apply import correct_survey, output_columns_in
+    from icgo.survey.apply import correct_rows, merge_rows, output_columns_in, summarise
     from icgo.survey.verdict import survey_verdict
 
     check_settings(cfg)
@@ -89,26 +109,49 @@ def run_apply(cfg: DictConfig, out_dir: Path, keep=()) -> dict:
     model = load_model(mpath)
     data = Path(str(cfg.data)).expanduser()
     cmap = column_map(OmegaConf.to_container(cfg.columns) if cfg.get("columns") else None, cfg.get("columns_file"))
-    rec = read_recording(data, require_meta=cfg.require_meta, require_reference=False, columns=cmap)
-    held = output_columns_in(rec.frame.columns)
-    if held:
-        raise DataError(f"{data}: already holds the output columns of a correction ({', '.join(held[:4])}"
-                        f"{', ...' if len(held) > 4 else ''}): it is a corrected survey; apply the model to the "
-                        f"original survey (mixing two models' columns is refused)")
-    res = correct_survey(model, rec.frame, rec.field, method=cfg.method, bands=bands)
+    max_bytes, stream_above, chunk_rows = size_settings(cfg)
+    chunks = read_chunks(data, max_bytes=max_bytes, stream_above=stream_above, chunk_rows=chunk_rows,
+                         require_meta=cfg.require_meta, require_reference=False, columns=cmap)
     stem = data.stem
-    verdict = survey_verdict(res, model, rec.frame, bands, out_csv=str(out_dir / f"{stem}_corrected.csv"),
-                             model_path=str(mpath), survey_path=str(cfg.data), method=cfg.method)
-    meta = {"source": rec.source, "model": str(mpath), "model_kind": model.KIND,
-            "method": cfg.method if cfg.method is not None else getattr(model, "selected", None),
-            "model_data_hash": model.data_hash, "rows": int(len(res.table)), "metrics": res.metrics, "qc": res.qc,
-            "qc_bands": OmegaConf.to_container(cfg.qc, resolve=True),
-            "notices": list(rec.notices) + res.notices, "units": {"angles": "deg", "B": "nT", "G": "g"},
-            "trajectory": res.trajectory, "verdict": verdict.as_dict()}
-    if rec.field is not None:
-        meta.update({k: getattr(rec.field, k) for k in ("total_field_nT", "dip_deg", "declination_deg", "gravity_g")})
     with output.staged(last=(f"{stem}_corrected.meta.json",)) as stage:
-        res.table.to_csv(stage / f"{stem}_corrected.csv", index=False, lineterminator="\n")
+        out_csv, parts, notices, rec, n_rows = stage / f"{stem}_corrected.csv", [], [], None, 0
+        for k, rec in enumerate(chunks):  # a small survey is one chunk; a large one streams in bounded memory
+            if k == 0:
+                held = output_columns_in(rec.frame.columns)
+                if held:
+                    raise DataError(f"{data}: already holds the output columns of a correction ({', '.join(held[:4])}"
+                                    f"{', ...' if len(held) > 4 else ''}): it is a corrected survey; apply the model "
+                                    f"to the original survey (mixing two models' columns is refused)")
+            notices += rec.notices
+            n_rows += len(rec.frame)
+            parts.append(correct_rows(model, rec.frame, rec.field, method=cfg.method, bands=bands))
+            if k == 1:  # streaming: the first chunk's table goes out now, every later one as it comes
+                parts[0].table.to_csv(out_csv, index=False, lineterminator="\n")
+                parts[0] = parts[0]._replace(table=pd.DataFrame())  # (not a slice: a slice keeps the table)
+            if k >= 1:
+                parts[k].table.to_csv(out_csv, index=False, lineterminator="\n", header=False, mode="a")
+                parts[k] = parts[k]._replace(table=pd.DataFrame())
+        streamed = len(parts) > 1
+        res = summarise(model, merge_rows(parts) if streamed else parts[0], rec.field, positions_table=not streamed)
+        if not streamed:  # one chunk: its table, positions included, is the file
+            res.table.to_csv(out_csv, index=False, lineterminator="\n")
+        elif res.trajectory:
+            res.trajectory.pop("table").to_csv(stage / f"{stem}_positions.csv", index=False, lineterminator="\n")
+        verdict = survey_verdict(res, model, bands, out_csv=str(out_dir / f"{stem}_corrected.csv"),
+                                 model_path=str(mpath), survey_path=str(cfg.data), method=cfg.method)
+        meta = {"source": rec.source, "model": str(mpath), "model_kind": model.KIND,
+                "method": cfg.method if cfg.method is not None else getattr(model, "selected", None),
+                "model_data_hash": model.data_hash, "rows": n_rows,
+                "chunks": len(parts), "metrics": res.metrics, "qc": res.qc,
+                "qc_bands": OmegaConf.to_container(cfg.qc, resolve=True),
+                "notices": notices + res.notices, "doubts": res.doubts,
+                "units": {"angles": "deg", "B": "nT", "G": "g"},
+                "trajectory": res.trajectory, "verdict": verdict.as_dict()}
+        if streamed and res.trajectory:
+            meta["positions_file"] = f"{stem}_positions.csv"
+        if rec.field is not None:
+            meta.update({k: getattr(rec.field, k) for k in ("total_field_nT", "dip_deg", "declination_deg",
+                                                             "gravity_g")})
         (stage / f"{stem}_corrected.meta.json").write_text(json_text(meta))
         write_hydra_record(stage, cfg)
     return meta

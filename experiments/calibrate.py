@@ -1,46 +1,43 @@
 """Calibration front door for a user's recording: ``conf/calibrate.yaml`` -> :mod:`icgo.studies.calibration`.
 
     python -m experiments.calibrate data=shots.csv                       # contract CSV with a group column
-    python -m experiments.calibrate data=device.json                     # circuitpython-mag-cal, fixture layout
+    python -m experiments.calibrate data=device.json                     # circuitpython-mag-cal: its layout's rolls
     python -m experiments.calibrate data=raw.json mag_axes=+x+y-z grav_axes=-y-x+z   # the raw layout
-    python -m experiments.calibrate data=device.json groups=[8-15,16-23]   # the rolls given (default: found)
+    python -m experiments.calibrate data=device.json groups=auto         # the rolls found in the data instead
+    python -m experiments.calibrate data=device.json site.lat=51.5 site.lon=-0.1 site.date=2024-06-01
     python -m experiments.calibrate data=bundled                         # the 9 bundled devices -> results/
 
-Reads the shots (:func:`icgo.io.shots.read_shots`: the rolls found from the data or given, each checked),
-fits every method (ellipsoid, 12-parameter least squares + axis, MISMA + axis, the
-regularised joint fit, least squares + axis + a RELM on the residual, the peer package side by
-side), scores each in-sample and held out, checks each for physical sanity, recommends one
-(:func:`icgo.studies.calibration.recommend`), and writes into the run
-directory ``report.md`` (the rolls, the scores, the recommendation), ``calibration.csv`` (every fit: score
-and sanity), ``calibration.json`` (the run's record, with ``recommendation``), one
-figure per recording and ``models/<recording>_<method>.json`` (the in-sample
-calibrations; ``python -m experiments.apply model=<run dir> data=...`` applies the recommended one). Files
-are staged and moved into place only when all are written; a used run directory is refused unless
+Reads the shots (:func:`icgo.studies.shots.read_shots`: a known layout's groups checked against the data, the
+rolls found where no layout is known, or groups given), fits every method (ellipsoid, 12-parameter least
+squares + axis, MISMA + axis, the regularised joint fit, least squares + axis + a RELM on the residual, the
+peer package side by side), scores each in-sample, held out and inside each held-out split, checks each for
+physical sanity and against the site, recommends one by a rule with its nested accuracy
+(:func:`icgo.studies.calibration_select.recommend`), and writes into the run directory ``report.md``
+(:mod:`experiments.calibrate_report`: the grouping, the rolls, the site, the scores, the recommendation),
+``calibration.csv`` (every fit: score, sanity, site), ``calibration.json`` (the run's record, with
+``recommendation``), one figure per recording and ``models/<recording>_<method>.json`` (the in-sample
+calibrations; ``python -m experiments.apply model=<run dir> data=...`` applies the recommended one). Files are
+staged and moved into place only when all are written; a used run directory is refused unless
 ``overwrite=true``. JAX's compilation cache is on (``jax_cache_dir``). A bad setting: one line, exit 2; bad
-data: one line, exit 1.
+data: one line, exit 1, nothing written; a recording with nothing to recommend: every file written, one line,
+exit 4.
 """
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
 import hydra
-import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from experiments._entry import enable_jax_cache, one_line, one_line_errors
-from icgo.core.errors import DataError, SettingError
+from icgo.core.errors import DataError, GroupingError, SettingError
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Settings of the entry point, not of the study (excluded from CalibrationConfig).
-ENTRY_KEYS = ("data", "mag_axes", "grav_axes", "groups", "results_dir", "jax_cache_dir", "overwrite")
-#: Largest recording calibrated: its shots and its rolled groups (each group is one leave-one-group-out fold of
-#: every method, vmapped). Measured peak memory at both limits: 2.1 GB (docs/data.md); 2,000 shots in 250
-#: groups passed 24 GB.
-MAX_CAL_SHOTS = 400
-MAX_CAL_GROUPS = 50
+ENTRY_KEYS = ("data", "mag_axes", "grav_axes", "groups", "columns", "columns_file", "site", "max_shots",
+              "max_groups", "results_dir", "jax_cache_dir", "overwrite")
 #: Seed of the fits' PRNG key (split once per recording and split; MISMA is the only fit that draws from it).
 SEED = 0
 
@@ -51,20 +48,33 @@ def results_path(cfg: DictConfig) -> Path:
     return res if res.is_absolute() else ROOT / res
 
 
-def check_size(rec, src: str) -> None:
-    """DataError naming the file when a recording exceeds :data:`MAX_CAL_SHOTS` or :data:`MAX_CAL_GROUPS`."""
-    from icgo.methods.calibration import MIN_ROLLED_SHOTS
+def size_limits(cfg: DictConfig) -> tuple[int, int]:
+    """``(max_shots, max_groups)``: the largest recording calibrated, its shots and its rolled groups (each group
+    is one leave-one-group-out fold of every method, vmapped, and the inner splits refit every method inside
+    each held-out split). Defaults in conf/calibrate.yaml (docs/data.md: the memory measured at them)."""
+    from icgo.core.settings import is_int
 
-    n = len(rec.frame)
-    groups = rec.frame["group"].value_counts() if "group" in rec.frame.columns else None
-    rolled = 0 if groups is None else int((groups >= MIN_ROLLED_SHOTS).sum())
+    out = []
+    for k in ("max_shots", "max_groups"):
+        v = cfg.get(k)
+        if not (is_int(v) and v >= 1):
+            raise SettingError(f"{k}={v!r}: must be an integer >= 1")
+        out.append(int(v))
+    return out[0], out[1]
+
+
+def check_groups_size(rec, src: str, max_groups: int) -> None:
+    """DataError naming the file when a recording has no rolled group or more than ``max_groups``."""
+    from icgo.physics.rolls import MIN_ROLLED_SHOTS
+
+    counts = rec.frame["group"].value_counts() if "group" in rec.frame.columns else None
+    rolled = 0 if counts is None else int((counts >= MIN_ROLLED_SHOTS).sum())
     if rolled == 0:
         raise DataError(f"{src}: no rolled group ({MIN_ROLLED_SHOTS} or more shots about one pointing direction, "
                         f"turned about it); calibration needs at least one")
-    if n > MAX_CAL_SHOTS or rolled > MAX_CAL_GROUPS:
-        raise DataError(f"{src}: {n} shots in {rolled} rolled groups; calibrate takes at most {MAX_CAL_SHOTS} shots "
-                        f"and {MAX_CAL_GROUPS} rolled groups (its memory grows with both; docs/data.md): split the "
-                        f"recording")
+    if rolled > max_groups:
+        raise DataError(f"{src}: {rolled} rolled groups; calibrate takes at most max_groups={max_groups} (its time and "
+                        "memory grow with them; docs/data.md): split the recording, or raise max_groups=")
 
 
 def study_config(cfg: DictConfig):
@@ -76,10 +86,22 @@ def study_config(cfg: DictConfig):
     return config_from_mapping(CalibrationConfig, values, "conf/calibrate.yaml")
 
 
+def site_setting(cfg: DictConfig):
+    """The ``site.*`` settings as :class:`icgo.io.site.Site`, or None (SettingError on a bad or partial site)."""
+    from icgo.io.site import site_reference
+
+    site = cfg.get("site")
+    if site is not None and not OmegaConf.is_dict(site):
+        raise SettingError(f"site={site!r}: give site.lat= site.lon= site.date=, or site.dip= site.field=")
+    return site_reference(None if site is None else OmegaConf.to_container(site, resolve=True))
+
+
 def load(cfg: DictConfig) -> dict:
     """name -> Recording with a checked ``group`` column, from ``data=`` (raises SettingError / DataError)."""
     from icgo.io import recording as io
-    from icgo.io.shots import read_shots
+    from icgo.io.grouping import layout_groups
+    from icgo.methods.grouping import by_layout
+    from icgo.studies.shots import read_shots
 
     data = cfg.data
     if data is None or str(data) == "":
@@ -88,204 +110,114 @@ def load(cfg: DictConfig) -> dict:
     if not isinstance(data, str):
         raise SettingError(f"data={data!r}: must be a path (a contract CSV or a circuitpython-mag-cal JSON) or "
                            f"'bundled'")
+    max_shots, max_groups = size_limits(cfg)
     settings = {k: (OmegaConf.to_container(cfg[k]) if OmegaConf.is_list(cfg[k]) else cfg[k])
                 for k in ("mag_axes", "grav_axes", "groups")}
+    columns = io.column_map(OmegaConf.to_container(cfg.columns) if cfg.get("columns") else None,
+                            cfg.get("columns_file"))
     if data == "bundled":
-        if any(v is not None for v in settings.values()):
-            raise SettingError("mag_axes / grav_axes / groups apply to a file, not to data=bundled (the 9 devices' "
-                               "rolls are the peer's shots 8-15 and 16-23)")
-        return {name: io.load_mag_cal_device(name) for name in io.mag_cal_devices()}
-    rec = read_shots(data, **settings)
-    check_size(rec, data)
+        if any(v is not None for v in settings.values()) or columns:
+            raise SettingError("mag_axes / grav_axes / groups / columns apply to a file, not to data=bundled (the 9 "
+                               "devices are in the circuitpython-mag-cal layout: rolls at shots 8-15 and 16-23)")
+        out = {}
+        for name in io.mag_cal_devices():
+            rec = io.load_mag_cal_device(name)
+            g = by_layout(rec.G, rec.B, rec.frame["station"].to_numpy(), rec.frame["group"].to_numpy(),
+                          layout_groups("circuitpython-mag-cal", len(rec.frame)).describe(), name)
+            out[name] = rec._replace(meta={**rec.meta, "grouping": g.record}, notices=list(g.notices) + rec.notices)
+        return out
+    rec = read_shots(data, columns=columns or None, max_shots=max_shots, **settings)
+    check_groups_size(rec, data, max_groups)
     return {Path(data).stem: rec}
 
 
-def figure(rec, models: dict, path: Path) -> None:
-    """Per shot: pointing direction raw vs calibrated, dip and |B| per method (sound fits solid, degenerate dashed)."""
-    from matplotlib.figure import Figure  # not pyplot: no backend machinery, half the import time
+def sites_of(recordings: dict, site) -> dict:
+    """name -> Site: the ``site.*`` settings, else the recording's own reference field (a contract CSV's metadata:
+    total_field_nT and dip_deg, or its place and date), else None."""
+    from icgo.io.site import Site
 
-    from icgo.methods.calibration import pointing_directions
-    from icgo.physics.qc import measured_dip_deg
-    from icgo.studies.calibration import model_sanity
-
-    G, B = rec.G, rec.B
-    fig = Figure(figsize=(16, 4.5))
-    ax = fig.subplots(1, 3)
-
-    def direction(Gc, Bc):
-        d = pointing_directions(Gc, Bc)
-        return np.mod(np.degrees(np.arctan2(d[:, 1], d[:, 0])), 360.0), np.degrees(np.arcsin(np.clip(-d[:, 2], -1, 1)))
-
-    az, inc = direction(G, B)
-    ax[0].plot(az, inc, "kx", label="raw")
-    shots = np.arange(len(G))
-    for i, (m, c) in enumerate(models.items()):
-        Gc, Bc = c.corrected(G, B)
-        ls = "--" if model_sanity(c, G, B).degenerate else "-"
-        a, n = direction(Gc, Bc)
-        ax[0].plot(a, n, "o", ms=3, color=f"C{i}", label=m)
-        ax[1].plot(shots, measured_dip_deg(Gc, Bc), ls, marker=".", color=f"C{i}", label=m)
-        bn = np.linalg.norm(Bc, axis=1)
-        ax[2].plot(shots, bn / bn.mean(), ls, marker=".", color=f"C{i}", label=m)
-    ax[0].set(xlabel="azimuth of the pointing axis (deg, magnetic)", ylabel="inclination (deg)",
-              title="per-shot direction, raw and calibrated")
-    ax[1].set(xlabel="shot", ylabel="dip (deg)", title="dip per shot (one field: flat)")
-    ax[2].set(xlabel="shot", ylabel="|B| / mean", title="|B| per shot (one field: flat)")
-    for a in ax:
-        a.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-
-
-def rolls_section(name: str, rec, model) -> list[str]:
-    """The report's lines on one recording's groups: every roll (shots, pointing direction, roll span, how
-    far its shots leave the roll plane) and how the groups were made (the reader's notices)."""
-    from icgo.io.grouping import roll_table
-    from icgo.studies.calibration import roll_directions
-
-    t = roll_table(rec.frame).merge(roll_directions(model, rec.G, rec.B, rec.frame["group"].to_numpy()),
-                                    on="group", suffixes=("_raw", ""))
-    t = t.rename(columns={"inclination_deg_raw": "raw inclination (deg)", "azimuth_deg": "azimuth (deg, magnetic)",
-                          "inclination_deg": "inclination (deg)", "roll_span_deg": "roll span (deg)",
-                          "plane_g": "off plane G (g)", "plane_b": "off plane B (|B|)",
-                          "axis_to_z_deg": "axis to tool z (deg)", "spread_deg": "spread (deg)"})
-    n_single = int((rec.frame.groupby("group").size() < 2).sum())
-    lines = [(f"- `{name}`: {len(rec.frame)} shots, {len(t)} roll(s) and {n_single} single shot(s); "
-              f"{rec.meta.get('description', '')}")]
-    lines += [f"  - notice: {n}" for n in rec.notices]
-    lines += ["", f"Rolls of `{name}` (direction and spread after the recommended calibration, `{model.method}`):",
-              "", t.to_markdown(index=False, floatfmt=".4g"), ""]
-    return lines
-
-
-def protocol(df, config) -> str:
-    """The protocol line of ``data=bundled``'s table (:func:`icgo.reporting.protocol.protocol_line`), from
-    :func:`icgo.studies.calibration.evaluate`'s long table ``df`` and the run's ``config``."""
-    from icgo.core.settings import config_overrides
-    from icgo.reporting.protocol import protocol_line
-
-    extra = config_overrides(config)
-    command = ("`make calibration` (`python -m experiments.calibrate data=bundled`)" if not extra else
-               f"`python -m experiments.calibrate data=bundled {' '.join(extra)}`")
-    recordings = df["recording"].unique()
-    held = df.loc[df["split"] != "in-sample", ["recording", "split"]].drop_duplicates()
-    per_rec = held.groupby("recording").size().reindex(recordings, fill_value=0)
-    lo, hi = int(per_rec.min()), int(per_rec.max())
-    return protocol_line(
-        command,
-        f"one fit per recording, split and method (a score cell pools no repeats); `misma+axis` keeps the lowest "
-        f"fitness of {config.misma_repeats} MISMA runs (population {config.misma_pop}, {config.misma_iter} "
-        f"iterations) per fit; a recommendation's mean pools its recording's {lo if lo == hi else f'{lo}-{hi}'} "
-        f"held-out split(s); the per-method means pool the sound fits of all {len(recordings)} recordings "
-        f"({len(recordings)} in-sample and {len(held)} held-out fits per method), unpaired (each method's "
-        "degenerate fits are left out)",
-        "in-sample: fitted and scored on every shot of a recording; held out (`icgo.studies.calibration.splits`): "
-        "each rolled group left out of the fit in turn and scored alone (a recording with one roll: its "
-        "interleaved halves), the single shots always fitted; the joint fit's strength and the RELM's ridge are "
-        "chosen by leave-one-group-out inside each split's training shots; the recommendation ranks the sound "
-        "methods by the same held-out scores it reports (a selection: the winner's mean is optimistic)",
-        f"no data seed (the {len(recordings)} bundled recordings, real shots); PRNGKey({SEED}) split once per "
-        f"recording and split in table order, used only by MISMA (its {config.misma_repeats} runs split that key); "
-        "every other fit and the peer are deterministic. No device is kept back: the joint fit's staging was chosen "
-        "on these recordings' held-out means and the step counts checked on them (docs/calibrate.md); the sanity "
-        "limits were fixed before any device was scored",
-        "none: no p-value here; a recommendation's \"clear winner\" is a rule of thumb (its margin over the "
-        "runner-up exceeds the standard error of its held-out mean), not a significance test. The paired Wilcoxon "
-        "of `twelve+axis+relm` against the other methods over the held-out splits, Holm over those tests, is in "
-        "docs/calibrate.md (from calibration_devices.csv)")
-
-
-def report(df, summ, recordings: dict, label: str, recs: dict, models: dict, protocol_line: str | None = None) -> str:
-    """The Markdown report: the rolls, the recommendation, the scores (degenerate marked), the per-method summary;
-    ``protocol_line`` (:func:`protocol`) under the title when given."""
-    from icgo.methods.cal_sanity import limits_sentence
-    from icgo.methods.rolls import AXIS_TO_Z_DEG, MIN_SPAN_DEG, PLANE_TOL_B, PLANE_TOL_G
-    from icgo.studies.calibration import wide
-
-    lines = [f"# Magnetometer calibration: {label}", ""] + ([protocol_line, ""] if protocol_line else [])
-    lines += ["## Recommendation", ""]
-    lines += [f"- `{name}`: {r['sentence']}" for name, r in recs.items()]
-    lines += ["", "`python -m experiments.apply model=<this run directory> data=<survey.csv>` applies it"
-              + (" (the run holds several recordings: name one model file instead)" if len(recs) > 1 else "") + ".",
-              "", "## Shots and rolls", "",
-              (f"A roll: consecutive shots whose raw gravity and field each stay within {PLANE_TOL_G:g} g and "
-               f"{PLANE_TOL_B:g} |B| of one plane (the pointing axis' components constant), turning about one axis "
-               f"within {AXIS_TO_Z_DEG:g} deg of tool z shared by all rolls, over at least {MIN_SPAN_DEG:g} deg "
-               "(`icgo.methods.rolls`, docs/calibrate.md)."), ""]
+    out = {}
     for name, rec in recordings.items():
-        lines += rolls_section(name, rec, models[name])
-    lines += ["## Scores", "",
-              "Score: the peer's metric (circuitpython-mag-cal `accuracy`, deg: spread of the pointing direction "
-              "within each rolled group). In-sample: fitted and scored on every shot; held-out group g: fitted "
-              "without group g, scored on it. " + limits_sentence(), "",
-              wide(df).to_markdown(index=False), "",
-              "## Per method (means over the sound fits; maxima over all fits)", "",
-              summ.to_markdown(floatfmt=".3f"), ""]
-    return "\n".join(lines) + "\n"
-
-
-def record(cfg: DictConfig, config, recordings: dict, recs: dict, seconds: float) -> dict:
-    """The run's machine-readable record (``calibration.json``): settings, recordings and their rolls, and
-    the recommendation (``recommendation`` for a one-recording run, ``recommendations`` per recording)."""
-    from icgo.core.settings import config_to_mapping
-    from icgo.io.grouping import roll_table
-
-    out = {"kind": "calibration_run", "data": str(cfg.data), "config": config_to_mapping(config),
-           "recordings": {name: {"shots": int(len(rec.frame)), "description": rec.meta.get("description", ""),
-                                 "rolls": roll_table(rec.frame).to_dict(orient="records"),
-                                 "notices": list(rec.notices)} for name, rec in recordings.items()},
-           "recommendations": {n: {k: v for k, v in r.items() if k != "sentence"} for n, r in recs.items()},
-           "wall_time_s": seconds}
-    if len(recs) == 1:
-        out["recommendation"] = next(iter(out["recommendations"].values()))
+        f = rec.field
+        out[name] = site if site is not None else (
+            None if f is None else Site(f.dip_deg, f.total_field_nT, f"the recording's metadata ({f.origin})"))
     return out
 
 
-def run(cfg: DictConfig, out: Path, config=None, keep=()) -> None:
+def run(cfg: DictConfig, out: Path, config=None, keep=()) -> int:
     """Load, fit, score, check, recommend, and write the run directory (all or nothing: :class:`icgo.io.files.Output`;
-    a used directory is refused before anything is computed, unless ``overwrite=true``)."""
+    a used directory is refused before anything is computed, unless ``overwrite=true``).
+
+    Every recording that is read leaves its report, recommended or not: where no calibration can be recommended
+    (no sound fit, none consistent with the site, or shots whose geometry the fits refuse) the files are written
+    all the same, the one-line reason printed, and the status is
+    :data:`icgo.survey.verdict.EXIT_NO_RECOMMENDATION`.
+
+    Returns:
+        the exit status: 0, or :data:`icgo.survey.verdict.EXIT_NO_RECOMMENDATION`.
+    """
     t0 = time.perf_counter()
     enable_jax_cache(cfg.get("jax_cache_dir"))
     import jax
+    import pandas as pd
 
     import icgo  # noqa: F401  (float64)
     from experiments._entry import bool_setting, write_hydra_record
-    from icgo.io.files import Output
+    from experiments.calibrate_report import figure, protocol, record, report
+    from icgo.io.files import Output, json_text
     from icgo.reporting.records import CALIBRATION_FILE
     from icgo.studies import calibration
-    from icgo.survey.verdict import calibrate_verdict
+    from icgo.studies.calibration_select import recommend
+    from icgo.survey.verdict import EXIT_NO_RECOMMENDATION, calibrate_verdict
 
     config = study_config(cfg) if config is None else config
+    site = site_setting(cfg)
     output = Output(out, setting="hydra.run.dir", overwrite=bool_setting(cfg, "overwrite"), keep=keep,
                     writer="experiments.calibrate").check()
-    if str(cfg.data) == "bundled":  # results/ checked now, not after the fits
-        Output(results_path(cfg), setting="results_dir", shared=True).check()
-    recordings = load(cfg)
-    df, models = calibration.evaluate(recordings, config, jax.random.PRNGKey(SEED))
-    summ = calibration.summary(df)
-    try:
-        recs = {name: calibration.recommend(df, name) for name in recordings}
-    except ValueError as e:
-        raise DataError(str(e)) from None
-    chosen = {name: models[calibration.model_label(name, r["method"])] for name, r in recs.items()}
     bundled = str(cfg.data) == "bundled"
+    if bundled:  # results/ checked now, not after the fits
+        Output(results_path(cfg), setting="results_dir", shared=True).check()
+    try:
+        recordings = load(cfg)
+    except GroupingError as e:  # the shots were read, but no groups can be made of them: the report says why
+        return refused_run(cfg, config, output, one_line(e), time.perf_counter() - t0)
+    sites = sites_of(recordings, site)
+    sites_given = {n: (s.dip_deg, s.field_nT) for n, s in sites.items() if s is not None}
+    try:
+        df, models = calibration.evaluate(recordings, config, jax.random.PRNGKey(SEED), check=False, sites=sites_given)
+        recs = {name: recommend(df, name) for name in recordings}
+    except calibration.GeometryError as e:  # nothing could be fitted: the report says why
+        why = one_line(e)
+        df, models = pd.DataFrame(columns=["recording", "split", "outer", "method", "score_deg", "degenerate"]), {}
+        recs = {name: {"model": None, "method": None, "criterion": why, "held_out_deg": None, "spread_deg": None,
+                       "clear_winner": False, "runner_up": None, "accuracy_deg": None, "accuracy_spread_deg": None,
+                       "accuracy_splits": [], "refused": why,
+                       "sentence": f"No calibration recommended: the fits refuse the shots: {why}."}
+                for name in recordings}
+    summ = calibration.summary(df) if len(df) else pd.DataFrame()
+    chosen = {name: (models[calibration.model_label(name, r["method"])] if r["method"] else None)
+              for name, r in recs.items()}
     label = "the 9 bundled circuitpython-mag-cal devices" if bundled else str(cfg.data)
-    text = report(df, summ, recordings, label, recs, chosen, protocol(df, config) if bundled else None)
-    run_record = record(cfg, config, recordings, recs, time.perf_counter() - t0)
+    text = (report(df, summ, recordings, label, recs, chosen, sites, protocol(df, config, SEED) if bundled else None)
+            if len(df) else report_refused(recordings, label, recs, chosen, sites))
+    run_record = record(cfg, config, recordings, recs, sites, time.perf_counter() - t0)
+    outer = calibration.outer_rows(df) if len(df) else df
     verdict = calibrate_verdict(recommendation=run_record.get("recommendation"), n_models=len(models),
-                                run_dir=str(out), n_degenerate=int(df["degenerate"].sum()), n_fits=len(df),
-                                held_out=df[df["split"] != "in-sample"].groupby("method")["score_deg"].mean().to_dict())
+                                run_dir=str(out), n_degenerate=int(outer["degenerate"].astype(bool).sum()),
+                                n_fits=len(outer), refused=run_record.get("refused"),
+                                held_out=outer[outer["split"] != "in-sample"].groupby("method")["score_deg"]
+                                .mean().to_dict() if len(outer) else {})
     with output.staged(last=(CALIBRATION_FILE,)) as stage:  # the record last: a run directory with it is complete
         (stage / "models").mkdir()
         write_hydra_record(stage, cfg)
         (stage / "report.md").write_text(text + "\n" + "\n".join(verdict.markdown()) + "\n")
         df.to_csv(stage / "calibration.csv", index=False, float_format="%.6g")
         for name, rec in recordings.items():
-            figure(rec, {m: models[calibration.model_label(name, m)] for m in calibration.METHODS},
-                   stage / f"{name}.png")
+            figure(rec, {m: models[calibration.model_label(name, m)] for m in calibration.METHODS
+                         if calibration.model_label(name, m) in models}, stage / f"{name}.png")
         for label_, model in models.items():
             model.save(stage / "models" / label_)
-        (stage / CALIBRATION_FILE).write_text(json.dumps(run_record, indent=2, allow_nan=False) + "\n")
+        (stage / CALIBRATION_FILE).write_text(json_text(run_record))
     if bundled:
         from icgo.io.recording import atomic_write_texts
 
@@ -299,12 +231,60 @@ def run(cfg: DictConfig, out: Path, config=None, keep=()) -> None:
     print(text)
     print(f"run directory: {out} ({len(models)} calibrations in models/; {time.perf_counter() - t0:.1f} s)")
     print(verdict.text())
+    refused = [f"for {n}: {r['refused']}" for n, r in recs.items() if r["refused"]]
+    if refused and not bundled:
+        import sys
+
+        print(f"error: no calibration recommended {refused[0]} (report: {out / 'report.md'})", file=sys.stderr)
+        return EXIT_NO_RECOMMENDATION
+    return 0
+
+
+def refused_run(cfg: DictConfig, config, output, reason: str, seconds: float) -> int:
+    """The run directory of a recording whose shots were read but could not be grouped: ``report.md`` and
+    ``calibration.json`` with the reason (``"refused"``), an empty ``calibration.csv``; one line on stderr; exit 4."""
+    import sys
+
+    from experiments._entry import write_hydra_record
+    from icgo.core.settings import config_to_mapping
+    from icgo.io.files import json_text
+    from icgo.reporting.records import CALIBRATION_FILE
+    from icgo.survey.verdict import EXIT_NO_RECOMMENDATION, calibrate_verdict
+
+    verdict = calibrate_verdict(recommendation=None, n_models=0, n_degenerate=0, n_fits=0, run_dir=str(output.path),
+                                refused=reason)
+    text = (f"# Magnetometer calibration: {cfg.data}\n\n## Recommendation\n\n- No calibration recommended: the shots "
+            f"were read, but no rolls could be made of them: {reason}\n\n" + "\n".join(verdict.markdown()) + "\n")
+    record = {"kind": "calibration_run", "data": str(cfg.data), "config": config_to_mapping(config), "recordings": {},
+              "recommendations": {}, "recommendation": None, "refused": reason, "wall_time_s": seconds}
+    with output.staged(last=(CALIBRATION_FILE,)) as stage:
+        write_hydra_record(stage, cfg)
+        (stage / "report.md").write_text(text)
+        (stage / "calibration.csv").write_text("recording,split,outer,method,score_deg,degenerate,reasons\n")
+        (stage / CALIBRATION_FILE).write_text(json_text(record))
+    print(text)
+    print(verdict.text())
+    print(f"error: no calibration recommended: {reason} (report: {output.path / 'report.md'})", file=sys.stderr)
+    return EXIT_NO_RECOMMENDATION
+
+
+def report_refused(recordings: dict, label: str, recs: dict, chosen: dict, sites: dict) -> str:
+    """The report of a run where nothing could be fitted: the recommendation's refusal, the grouping and rolls."""
+    from experiments.calibrate_report import rolls_section
+
+    lines = [f"# Magnetometer calibration: {label}", "", "## Recommendation", ""]
+    lines += [f"- `{name}`: {r['sentence']}" for name, r in recs.items()]
+    lines += ["", "## Shots and rolls", ""]
+    for name, rec in recordings.items():
+        lines += rolls_section(name, rec, None)
+    return "\n".join(lines) + "\n"
 
 
 @hydra.main(config_path="../conf", config_name="calibrate", version_base="1.3")
 @one_line_errors
 def main(cfg: DictConfig) -> None:
-    """Hydra entry point; a bad setting exits 2, bad data exits 1, each with one line."""
+    """Hydra entry point; a bad setting exits 2, bad data exits 1, each with one line; a run that recommends no
+    calibration writes its report and exits :data:`icgo.survey.verdict.EXIT_NO_RECOMMENDATION` (4)."""
     from hydra.core.hydra_config import HydraConfig
 
     from experiments._entry import hydra_keep
@@ -313,7 +293,9 @@ def main(cfg: DictConfig) -> None:
         config = study_config(cfg)
     except ValueError as e:
         raise SettingError(one_line(e)) from None
-    run(cfg, Path(HydraConfig.get().runtime.output_dir), config, keep=hydra_keep())
+    rc = run(cfg, Path(HydraConfig.get().runtime.output_dir), config, keep=hydra_keep())
+    if rc:
+        raise SystemExit(rc)
 
 
 def cli() -> None:

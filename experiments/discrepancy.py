@@ -33,7 +33,8 @@ from icgo.core.settings import config_from_mapping
 from icgo.discrepancy import report
 from icgo.io import recording as icgo_io
 from icgo.io.files import Output
-from icgo.io.shots import is_json, read_shots
+from icgo.io.shots import is_json
+from icgo.studies.shots import read_shots
 from icgo.models.discrepancy import PhysicsModel, station_qc
 from icgo.physics.qc import qc_sentence
 from icgo.studies import discrepancy_results
@@ -55,7 +56,7 @@ def load_stations(spec: str, seed: int = 0, n: int = 240, design: str = "random"
     """Stations and a description from a ``data=`` value (see conf/discrepancy.yaml); ``columns``: the column map
     of a field export (:func:`icgo.io.recording.column_map`); ``shots``: the grouped-shot settings (``mag_axes``,
     ``grav_axes``, ``groups``) for a file of grouped shots (a circuitpython-mag-cal JSON, or a contract CSV
-    with ``groups=``; :func:`icgo.io.shots.read_shots`).
+    with ``groups=``; :func:`icgo.studies.shots.read_shots`).
     Returns (Stations, label, truth or None). Raises icgo.io.recording.DataError / ValueError.
     """
     spec = str(spec)

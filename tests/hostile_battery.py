@@ -63,7 +63,8 @@ class Case:
     name: str
     door: str
     argv: list
-    expect: str = "refuse"            # refuse | ok | interrupt | outside (apply: exit status 3)
+    expect: str = "refuse"            # refuse | ok | interrupt | outside (apply: exit status 3) | norecommend
+    #                                   (calibrate: report written, exit status 4)
     says: tuple = ()                  # words the error line must contain (case-insensitive)
     setup: Callable | None = None
     check: Callable | None = None
@@ -130,6 +131,36 @@ def build_assets(a: Path) -> None:
 
     mag, grav = triples(d["shots"]["mag"]), triples(d["shots"]["grav"])
     (a / "raw.json").write_text(json.dumps({"mag": mag.tolist(), "grav": grav.tolist()}))
+    # one corrupt value: finite, but 1e300 (numpy's least squares on it never returned)
+    huge = json.loads(json.dumps(d))
+    huge["shots"]["mag"][31] = 1e300
+    (a / "fixture_1e300.json").write_text(json.dumps(huge))
+    mag_huge = mag.copy()
+    mag_huge[10, 1] = 1e300
+    (a / "raw_1e300.json").write_text(json.dumps({"mag": mag_huge.tolist(), "grav": grav.tolist()}))
+    # the accelerometer's axes inconsistent with the magnetometer's (one sign wrong): one dip, not the site's
+    (a / "raw_bad_axes.json").write_text(json.dumps({"mag": mag.tolist(), "grav": (grav * [1, 1, -1]).tolist()}))
+    # the device's shots as a field export: other column names, a comment line
+    exp = rec.frame.rename(columns={"gx": "Gx", "gy": "Gy", "gz": "Gz", "bx": "Bx", "by": "By", "bz": "Bz",
+                                    "group": "Set"})
+    (a / "export.csv").write_text("# exported by a logger\n" + exp.to_csv(index=False))
+    # the survey's reference angles in radians
+    rad = s.assign(azimuth_deg=np.radians(s.azimuth_deg), inclination_deg=np.radians(s.inclination_deg))
+    write_recording(a / "survey_rad.csv", rad, meta)
+    # device ab's calibration (in nT) and device jd's shots: a model of another device
+    from icgo.methods.calibration import ellipsoid_fit
+    from icgo.models.calibration import mag_calibration
+
+    scale = float(np.median(np.linalg.norm(rec.B, axis=1)))
+    cal = mag_calibration("ellipsoid", ellipsoid_fit(rec.B, scale, rec.G), rec.G, rec.B, {})
+    cal.save(models / "ab_calibration")
+    write_recording(a / "jd_survey.csv", load_mag_cal_device("jd").frame.drop(columns="group"), {},
+                    require_reference=False)
+    # a longer survey (about 1.9 MB): streams with stream_mb=1
+    import pandas as pd
+
+    long = pd.concat([H.survey(600, seed=k) for k in range(20)], ignore_index=True)
+    write_recording(a / "long_survey.csv", long.assign(station=np.arange(len(long))), meta)
     (a / "ready").write_text("ok\n")
 
 
@@ -667,6 +698,21 @@ def apply_cases() -> list[Case]:
     # the domain and the device
     add("far-outside-domain", [M, "data={a}/far_survey.csv", "out={w}/out"], expect="outside",
         check=lambda w, a, r: None if "training domain" in r.stdout else "no notice of the training domain")
+    add("reference-in-radians", [M, "data={a}/survey_rad.csv", "out={w}/out"], expect="outside",
+        check=lambda w, a, r: None if "looks like radians" in r.stdout and json.loads(
+            (w / "out" / "survey_rad_corrected.meta.json").read_text())["verdict"]["status"] == "reference in doubt"
+        else "the verdict does not say the reference is in radians")
+    add("model-of-another-device", ["model={a}/models/ab_calibration.json", "data={a}/jd_survey.csv", "out={w}/out"],
+        expect="outside", check=lambda w, a, r: None if "NOT this model's device" in r.stdout
+        else "the verdict does not say the model belongs to another device")
+    # size: a limit given, a survey streamed in chunks
+    add("streamed", [M, "data={a}/long_survey.csv", "out={w}/out", "stream_mb=1", "chunk_rows=2000"], expect="ok",
+        check=lambda w, a, r: None if json.loads((w / "out" / "long_survey_corrected.meta.json").read_text())[
+            "chunks"] == 6 else "not streamed in 6 chunks")
+    add("max_mb=1", [M, "data={a}/long_survey.csv", "out={w}/out", "max_mb=1"], says=("long_survey.csv", "MiB"),
+        check=absent("out"))
+    for k in ("max_mb", "stream_mb", "chunk_rows"):
+        add(f"{k}=0", [M, S, "out={w}/out", f"{k}=0"], says=(k,), check=absent("out"))
     # interrupted
     for sig, label in ((signal.SIGINT, "ctrl-c"), (signal.SIGTERM, "sigterm")):
         add(label, [M, S, "out={w}/out"], expect="interrupt", signal_after=(sig, 1.5),
@@ -789,8 +835,7 @@ def calibrate_cases() -> list[Case]:
             ("pairs", j({"mag": [[1, 2]], "grav": [[0, 0, 1]]}), "d.json"),
             ("mismatched", write("d.json", lambda w, a: json.dumps({**good_raw(w, a), "grav": good_raw(w, a)["grav"][:5]})),
              "d.json"),
-            ("two-shots", write("d.json", lambda w, a: json.dumps({k: v[:2] for k, v in good_raw(w, a).items()})),
-             "d.json"),
+
             ("gauss", write("d.json", lambda w, a: json.dumps({"mag": [[c / 100 for c in t] for t in good_raw(w, a)[
                 "mag"]], "grav": good_raw(w, a)["grav"]})), "d.json"),
             ("nT", write("d.json", lambda w, a: json.dumps({"mag": [[c * 1000 for c in t] for t in good_raw(w, a)[
@@ -825,6 +870,28 @@ def calibrate_cases() -> list[Case]:
         if k == "results_dir":
             args = ["data=bundled"] + quick + [f"{k}={v}"]
         add(f"{k}={v}", args, says=(says,), fast=(k, v) == ("overwrite", "maybe"))
+    # shots that were read but cannot be grouped (2 shots: no layout, no roll): the report says why, exit 4
+    add("json-two-shots", ["data={w}/d.json"] + quick, setup=write("d.json", lambda w, a: json.dumps(
+        {k: v[:2] for k, v in good_raw(w, a).items()})), expect="norecommend", says=("d.json", "no roll"),
+        check=lambda w, a, r: None if "no roll" in (w / "cal" / "report.md").read_text() else "no report")
+    for label, asset in (("fixture-1e300", "fixture_1e300.json"), ("raw-1e300", "raw_1e300.json")):
+        add(f"json-{label}", ["data={w}/d.json"] + quick, setup=copy(asset, "d.json"), says=("d.json", "shot"),
+            timeout=60.0)
+    for k, v, says in (("site.lat", "100", "site.lat"), ("site.dip", "60", "site.field"),
+                       ("site.field", "50", "uT"), ("site.lat", "51", "site.lon"), ("site.dip", "abc", "site.dip"),
+                       ("max_shots", "10", "max_shots"), ("max_groups", "0", "max_groups"),
+                       ("columns.bogus", "X", "bogus")):
+        prefix = "+" if k == "columns.bogus" else ""
+        add(f"{k}={v}", ["data={a}/fixture.json"] + quick + [f"{prefix}{k}={v}"], says=(says,))
+    add("site.date=1990", ["data={a}/fixture.json"] + quick + ["site.lat=51", "site.lon=0", "site.date=1990-01-01"],
+        says=("site.date",))
+    add("columns-export", ["data={a}/export.csv", "columns.gx=Gx", "columns.gy=Gy", "columns.gz=Gz", "columns.bx=Bx",
+                           "columns.by=By", "columns.bz=Bz", "columns.group=Set"] + quick, expect="ok", timeout=900,
+        check=lambda w, a, r: None if (w / "cal" / "report.md").exists() else "no report")
+    add("inconsistent-axes-site", ["data={a}/raw_bad_axes.json", "site.dip=66.5", "site.field=49000"] + quick,
+        expect="norecommend", says=("no calibration recommended", "inconsistent"), timeout=900,
+        check=lambda w, a, r: None if "inconsistent axes or mounting" in (w / "cal" / "report.md").read_text()
+        else "the report does not say why")
     first = lambda w, a: (w / "cal").mkdir() or (w / "cal" / "report.md").write_text("old\n")  # noqa: E731
     add("used-run-dir", ["data={a}/fixture.json"] + quick, setup=steps(first, remember("cal")),
         says=("hydra.run.dir",), check=unchanged("cal"), fast=True)
@@ -937,6 +1004,11 @@ def argparse_cases() -> list[Case]:
     add(o, "out-file", ["--runs", "2", "--out", "{w}/f"], setup=write("f", "x"), says=("out",))
     add(o, "out-used", ["--runs", "2", "--out", "{w}/o"], setup=steps(write("o/x.md", "old\n"), remember("o")),
         says=("out",), check=unchanged("o"))
+    u = "experiments.calibration_unseen"
+    for args, says in ((["--variants", "0"], "variants"), (["--variants", "abc"], "variants"),
+                       (["--devices", "zz", "--variants", "1"], "zz"), (["--bogus"], "bogus")):
+        add(u, " ".join(args), args + ["--out", "{w}/o"], says=(says,), check=absent("o"))
+    add(u, "out-file", ["--devices", "ab", "--variants", "1", "--out", "{w}/f"], setup=write("f", "x"), says=("out",))
     for door, args, says in (("experiments.roofline", ["--out", "{w}/d"], "out"),
                              ("experiments.roofline", ["--out", "{w}/f/x"], "out"),
                              ("experiments.roofline", ["--batch", "0"], "batch"),
@@ -1052,10 +1124,16 @@ def datasets_cases() -> list[Case]:
     for label, out, setup, says in (("out-file", "{w}/f", write("f", "x"), "out"),
                                     ("out-under-file", "{w}/f/x", write("f", "x"), "out"),
                                     ("out-dev-null", "/dev/null", None, "out"),
-                                    ("out-proc", "/proc/x", None, "out"),
-                                    ("out-used", "{w}/o", steps(write("o/mine.csv", "x\n"), remember("o")), "out")):
-        add(label, ["lab_casing", "--out", out], setup=setup, says=(says,),
-            check=unchanged("o") if label == "out-used" else None, fast=label == "out-used")
+                                    ("out-proc", "/proc/x", None, "out")):
+        add(label, ["lab_casing", "--out", out], setup=setup, says=(says,))
+    add("out-holds-other-files", ["lab_casing", "--out", "{w}/o"], setup=write("o/mine.csv", "x\n"), expect="ok",
+        check=lambda w, a, r: None if (w / "o" / "mine.csv").read_text() == "x\n" and (w / "o" / "lab_casing.csv")
+        .exists() else "the other file changed, or the data set is missing")
+    add("two-data-sets-one-folder", ["turntable", "--out", "{w}/o"], expect="ok",
+        setup=lambda w, a: subprocess.run([PY, "-m", "icgo.datasets", "lab_casing", "--out", str(w / "o")], cwd=w,
+                                          env=_env(), capture_output=True, timeout=120),
+        check=lambda w, a, r: None if all((w / "o" / f"{n}.csv").exists() for n in ("lab_casing", "turntable"))
+        else "one data set is missing")
     add("ok", ["well_conditions", "--out", "{w}/o", "--seed", "1"], expect="ok")
     add("full-disk", ["lab_casing", "--out", "{w}/o"], fsize=FULL_DISK_BYTES, says=("o",),
         check=absent_or_complete("o", ("lab_casing.csv", "lab_casing.meta.json", "lab_casing.truth.json")),
@@ -1076,7 +1154,9 @@ FAST_CASES = (
     "apply/out-full-disk", "apply/ctrl-c", "run/model.lam=1e300", "calibrate/json-fifo",
     "calibrate/raw-mag_axes=+x+x+z", "calibrate/used-run-dir", "discrepancy/data=mag_cal:../ok",
     "misma/real.enabled=maybe", "gyro/seed=abc", "figures/override-bogus", "generalisation/--n-repeats 0",
-    "optimizers/--dims 0", "io/csv-fifo", "datasets/full-disk")
+    "optimizers/--dims 0", "io/csv-fifo", "datasets/full-disk", "calibrate/json-fixture-1e300",
+    "apply/reference-in-radians", "apply/model-of-another-device", "datasets/two-data-sets-one-folder",
+    "calibration_unseen/--variants 0")
 
 
 def all_cases() -> list[Case]:
@@ -1208,6 +1288,13 @@ def classify(case: Case, ran: _Ran) -> tuple[str, str]:
         return "traceback", f"killed by signal {-ran.rc}"
     if case.expect == "outside":  # apply far outside the training domain: its files, the verdict, exit status 3
         return ("clean", "") if ran.rc == 3 else ("unclear", f"rc {ran.rc} (expected 3): {(lines or ['?'])[-1][:160]}")
+    if case.expect == "norecommend":  # calibrate: its report and calibrations, one 'error:' line, exit status 4
+        if ran.rc != 4:
+            return "unclear", f"rc {ran.rc} (expected 4): {(lines or ['?'])[-1][:160]}"
+        errs = [x for x in lines if x.startswith("error:")]
+        if len(errs) != 1 or not all(x.lower() in errs[0].lower() for x in case.says):
+            return "unclear", f"not one 'error:' line naming {list(case.says)}: {' | '.join(lines)[:200]}"
+        return "clean", ""
     if ran.rc not in (0, 1, 2, 130):
         return "traceback", f"exit status {ran.rc}: {(lines or ['?'])[-1][:160]}"
     if case.expect == "interrupt":

@@ -162,19 +162,111 @@ def test_require_meta_takes_only_true_or_false(setup, tmp_path, value):
         run_apply(_cfg([f"model={path}", f"data={survey}", f"require_meta={value}"]), tmp_path / "o")
 
 
-def test_another_devices_calibration_is_said_in_a_notice():
-    """Device ab's ellipsoid calibration: its own shots give one earth field (no notice); device jd's do not."""
+def _ab_calibration():
+    """Device ab's ellipsoid calibration, in nT (a model of one device)."""
     from icgo.io.recording import load_mag_cal_device
     from icgo.methods.calibration import ellipsoid_fit
     from icgo.models.calibration import mag_calibration
-    from icgo.survey.apply import correct_survey
 
     ab = load_mag_cal_device("ab")
     scale = float(np.median(np.linalg.norm(ab.B, axis=1)))
     model = mag_calibration("ellipsoid", ellipsoid_fit(ab.B / scale, 1.0), ab.G, ab.B / scale, {},
                             field_scale_nT=scale)
-    model = dataclasses.replace(model, x_mag=np.r_[model.x_mag[:9], model.x_mag[9:] * scale], field_scale_nT=1.0)
-    own = correct_survey(model, ab.frame).notices
-    other = correct_survey(model, load_mag_cal_device("jd").frame).notices
-    assert not any("one earth field" in n for n in own), own
-    assert any("one earth field" in n for n in other), other
+    return dataclasses.replace(model, x_mag=np.r_[model.x_mag[:9], model.x_mag[9:] * scale], field_scale_nT=1.0)
+
+
+def test_another_devices_calibration_changes_the_verdict(tmp_path):
+    """Device ab's calibration: its own shots give one earth field; device jd's do not, and the verdict says not to
+    use the result (status, model and next lines, exit status 3), not only a notice."""
+    from icgo.io.recording import load_mag_cal_device
+    from icgo.survey.apply import correct_survey
+    from icgo.survey.verdict import EXIT_OUT_OF_DOMAIN
+
+    model = _ab_calibration()
+    own = correct_survey(model, load_mag_cal_device("ab").frame)
+    other = correct_survey(model, load_mag_cal_device("jd").frame)
+    assert not own.doubts and not any("one earth field" in n for n in own.notices)
+    assert "other_device" in other.doubts and any("one earth field" in n for n in other.notices)
+    path = model.save(tmp_path / "ab_cal")
+    for name in ("ab", "jd"):
+        write_recording(tmp_path / f"{name}.csv", load_mag_cal_device(name).frame.drop(columns="group"), {},
+                        require_reference=False)
+    meta = run_apply(_cfg([f"model={path}", f"data={tmp_path / 'jd.csv'}"]), tmp_path / "o_jd")
+    v = meta["verdict"]
+    assert v["status"] == "other device" and v["exit_code"] == EXIT_OUT_OF_DOMAIN
+    assert v["domain"].startswith("NOT this model's device") and v["model"].startswith("none for this survey")
+    assert "calibrate this device" in v["next"] and "IN the training domain" not in v["domain"]
+    own_meta = run_apply(_cfg([f"model={path}", f"data={tmp_path / 'ab.csv'}"]), tmp_path / "o_ab")
+    assert own_meta["verdict"]["status"] != "other device" and not own_meta["doubts"]
+
+
+def test_a_reference_in_radians_changes_the_verdict(setup, tmp_path):
+    """The survey's azimuth_deg and inclination_deg written in radians: no MAE reported as a result, the status says
+    the reference is in doubt, and the next step is to convert it (exit status 3)."""
+    from icgo.survey.apply import radians_doubt
+
+    _, _, path, survey = setup
+    rec = read_recording(survey)
+    rad = rec.frame.assign(azimuth_deg=np.radians(rec.frame.azimuth_deg), inclination_deg=np.radians(
+        rec.frame.inclination_deg))
+    write_recording(tmp_path / "rad.csv", rad, {k: v for k, v in rec.meta.items() if k in META_KEYS})
+    meta = run_apply(_cfg([f"model={path}", f"data={tmp_path / 'rad.csv'}"]), tmp_path / "o")
+    v = meta["verdict"]
+    assert v["status"] == "reference in doubt" and v["exit_code"] == 3
+    assert "NOT measured on this survey" in v["accuracy"] and "looks like radians" in v["accuracy"]
+    assert "MAE" not in v["accuracy"] and "convert the survey's reference angles" in v["next"]
+    assert "reference_units" in meta["doubts"]
+    # the same survey in degrees: no doubt; a survey heading north (azimuths 0-6 deg, in degrees) is not taken for
+    # radians: the model's own azimuth agrees with it read as degrees
+    assert run_apply(_cfg([f"model={path}", f"data={survey}"]), tmp_path / "o2")["verdict"]["status"] != \
+        "reference in doubt"
+    north = np.linspace(0.5, 6.0, 20)
+    assert radians_doubt(north, north + 0.2, "azimuth_deg") is None
+    assert "looks like radians" in radians_doubt(np.radians(north * 40), north * 40 + 0.3, "azimuth_deg")
+
+
+def test_a_large_survey_streams_and_gives_what_the_whole_survey_gives(setup, tmp_path):
+    """stream_mb=0 cannot be asked; the smallest streaming (a survey over 1 MiB, chunks of 500 rows) gives the same
+    corrected rows, metrics, QC and verdict as reading it whole; its positions go to their own file."""
+    _, _, path, _ = setup
+    new = datasets.lab_casing(6, toolface_step_deg=2.0)
+    frame = pd.concat([new.frame] * 6, ignore_index=True).assign(station=lambda f: np.arange(len(f)))
+    frame["md"] = 10.0 * np.arange(len(frame))
+    survey = tmp_path / "big.csv"
+    write_recording(survey, frame, {k: v for k, v in new.meta.items() if k in META_KEYS})
+    assert survey.stat().st_size > 1 << 20
+    whole = run_apply(_cfg([f"model={path}", f"data={survey}"]), tmp_path / "whole")
+    streamed = run_apply(_cfg([f"model={path}", f"data={survey}", "stream_mb=1", "chunk_rows=500"]),
+                         tmp_path / "streamed")
+    assert whole["chunks"] == 1 and streamed["chunks"] == -(-len(frame) // 500) and streamed["rows"] == len(frame)
+    a = pd.read_csv(tmp_path / "whole" / "big_corrected.csv")
+    b = pd.read_csv(tmp_path / "streamed" / "big_corrected.csv")
+    pos = pd.read_csv(tmp_path / "streamed" / "big_positions.csv")
+    pd.testing.assert_frame_equal(a[list(b.columns)], b)
+    pd.testing.assert_frame_equal(a[list(pos.columns)], pos)
+    for k in ("metrics", "qc", "doubts"):
+        assert whole[k] == streamed[k], k
+    assert whole["verdict"]["accuracy"] == streamed["verdict"]["accuracy"]
+    assert whole["trajectory"]["correction"] == pytest.approx(streamed["trajectory"]["correction"])
+    # a bad value in a later chunk is named by its row and line in the file
+    lines = survey.read_text().splitlines(keepends=True)
+    lines[1203] = lines[1203].replace(lines[1203].split(",")[1], "nan", 1)
+    (tmp_path / "bad.csv").write_text("".join(lines))
+    (tmp_path / "bad.meta.json").write_text((tmp_path / "big.meta.json").read_text())
+    with pytest.raises(ValueError, match=r"bad.csv, row 1203 \(line 1204\), column 'gx': NaN"):
+        run_apply(_cfg([f"model={path}", f"data={tmp_path / 'bad.csv'}", "stream_mb=1", "chunk_rows=500"]),
+                  tmp_path / "bad_out")
+    assert not (tmp_path / "bad_out").exists()
+    with pytest.raises(ValueError, match="over the 1 MiB limit"):
+        run_apply(_cfg([f"model={path}", f"data={survey}", "max_mb=1"]), tmp_path / "o3")
+    for k in ("max_mb", "stream_mb", "chunk_rows"):
+        with pytest.raises(ValueError, match=f"{k}=0: must be an integer >= 1"):
+            run_apply(_cfg([f"model={path}", f"data={survey}", f"{k}=0"]), tmp_path / "o4")
+
+
+def test_the_size_defaults_are_the_library_s():
+    from icgo.io import stream
+
+    cfg = _cfg(["model=x", "data=y"])
+    assert cfg.max_mb << 20 == stream.MAX_SURVEY_BYTES and cfg.stream_mb << 20 == stream.STREAM_ABOVE_BYTES
+    assert cfg.chunk_rows == stream.CHUNK_ROWS

@@ -106,8 +106,12 @@ def test_front_door_on_an_exported_device_and_apply_on_another(tmp_path):
     for name in ("report.md", "calibration.csv", "bh.png", "models/bh_twelve_axis.json", "models/bh_joint.json"):
         assert (run / name).is_file(), name
     fits = pd.read_csv(run / "calibration.csv")
-    assert set(fits.method) == set(C.METHODS) and set(fits.split) == {"in-sample", "held-out group 8",
-                                                                      "held-out group 9"}
+    outer = fits[fits.outer.isna()]
+    assert set(fits.method) == set(C.METHODS) and set(outer.split) == {"in-sample", "held-out group 8",
+                                                                       "held-out group 9"}
+    # inside each held-out split, its training shots split again (the nested choice): the other roll's halves
+    assert set(fits.loc[fits.outer == "held-out group 8", "split"]) == {
+        "held-out group 8 / held-out half of group 9 (odd shots)", "held-out group 8 / held-out half of group 9 (even shots)"}
     assert fits.loc[fits.degenerate, "score_deg"].isna().all()
     # the saved calibration applies to a second recording of the same family
     model = load_model(run / "models" / "bh_twelve_axis.json")
@@ -130,7 +134,7 @@ def test_front_door_on_a_raw_layout_json(tmp_path):
 
 @pytest.mark.parametrize("args,code,match", [
     ([], 2, "data= is required"),
-    (["data=bundled", "mag_axes=+x+y+z"], 2, "mag_axes / grav_axes / groups apply to a file"),
+    (["data=bundled", "mag_axes=+x+y+z"], 2, "mag_axes / grav_axes / groups / columns apply to a file"),
     ([f"data={io._mag_cal_dir().joinpath('ab.json')}", "groups=[8-15,12-20]"], 2, "groups ranges 8-15 and 12-20 overlap"),
     ([f"data={io._mag_cal_dir().joinpath('ab.json')}", "groups=[8-10]"], 2, "range 8-10 holds 3 shot(s)"),
     ([f"data={io._mag_cal_dir().joinpath('ab.json')}", "groups=[8-23]"], 1, "group 8 (shots 8-23) is not a plausible roll"),
@@ -147,14 +151,21 @@ def test_bad_settings_and_data_are_one_line(tmp_path, args, code, match):
     assert not (tmp_path / "run" / "report.md").exists()
 
 
-def test_rolls_alone_are_refused_with_a_hint(tmp_path):
+def test_rolls_alone_leave_a_report_with_the_reason_and_exit_4(tmp_path):
     rec = io.load_mag_cal_device("ee")
     csv = tmp_path / "rolls.csv"
     io.write_recording(csv, rec.frame.iloc[8:].reset_index(drop=True), {})
     out = _run_entry(tmp_path, f"data={csv}", *FAST)
     err = out.stderr.strip()
-    assert out.returncode == 1 and len(err.splitlines()) == 1, err
-    assert "rolls, in-sample: ellipsoid fit" in err and "many orientations" in err
+    assert out.returncode == 4 and len(err.splitlines()) == 1, err
+    assert "no calibration recommended for rolls: in-sample: ellipsoid fit" in err and "many orientations" in err
+    run = tmp_path / "run"
+    report = (run / "report.md").read_text()
+    assert "No calibration recommended: the fits refuse the shots" in report and "Rolls of `rolls`" in report
+    record = json.loads((run / "calibration.json").read_text())
+    assert record["recommendation"] is None and "many orientations" in record["refused"]
+    assert (run / "rolls.png").is_file() and (run / "calibration.csv").is_file()
+    assert not any(w in err + report for w in ("inf", "nan", "NaN"))
 
 
 def test_csv_without_groups_is_one_line(tmp_path):
@@ -328,38 +339,79 @@ def test_misma_bounds_option_reaches_the_search_and_is_recorded():
 
 
 def _fits_table(rows):
-    """A calibration table (the columns evaluate writes) from (split, method, score, degenerate) rows."""
-    return pd.DataFrame([{"recording": "r", "split": sp, "method": m, "score_deg": np.nan if d else sc,
-                          "degenerate": d} for sp, m, sc, d in rows])
+    """A calibration table (the columns evaluate writes) from (split, method, score, degenerate[, outer, site flag])
+    rows."""
+    out = []
+    for r in rows:
+        sp, m, sc, d = r[:4]
+        outer = r[4] if len(r) > 4 else ""
+        flag = r[5] if len(r) > 5 else False
+        out.append({"recording": "r", "split": sp, "outer": outer, "method": m, "score_deg": np.nan if d else sc,
+                    "degenerate": d, "site_flag": flag, "site_reason": "mean dip off" if flag else ""})
+    return pd.DataFrame(out)
 
 
-def test_recommend_picks_the_lowest_held_out_sound_method_and_says_when_it_is_not_clear():
+def test_the_rule_keeps_twelve_axis_unless_a_sound_method_beats_it_by_more_than_the_standard_error():
+    from icgo.studies.calibration_select import recommend
+
     rows = [("in-sample", "twelve+axis", 0.5, False), ("held-out group 8", "twelve+axis", 0.50, False),
             ("held-out group 9", "twelve+axis", 0.70, False),
             ("in-sample", "twelve+axis+relm", 0.2, False), ("held-out group 8", "twelve+axis+relm", 0.30, False),
-            ("held-out group 9", "twelve+axis+relm", 0.50, False),
+            ("held-out group 9", "twelve+axis+relm", 0.52, False),
             ("in-sample", "joint", 0.1, False), ("held-out group 8", "joint", 0.1, True),
             ("held-out group 9", "joint", 0.1, False)]
-    r = C.recommend(_fits_table(rows), "r")
-    # joint is best where it is sound but has a degenerate fit: never recommended
+    r = recommend(_fits_table(rows), "r")
+    # paired differences twelve+axis - relm: 0.20, 0.18 -> mean 0.19 > its standard error 0.01; joint (lowest where
+    # it is sound) has a degenerate fit: never recommended
     assert r["method"] == "twelve+axis+relm" and r["model"] == "models/r_twelve_axis_relm.json"
-    assert r["held_out_deg"] == pytest.approx(0.4) and r["runner_up"] == "twelve+axis"
-    assert r["spread_deg"] == pytest.approx(np.std([0.3, 0.5], ddof=1) / np.sqrt(2))  # 0.1
-    assert r["clear_winner"] and "a clear winner" in r["sentence"]  # margin 0.2 > 0.1
-    close = [(sp, m, sc + (0.15 if m == "twelve+axis+relm" and sp != "in-sample" else 0.0), d) for sp, m, sc, d in rows]
-    r = C.recommend(_fits_table(close), "r")
-    assert r["method"] == "twelve+axis+relm" and not r["clear_winner"] and "no clear winner" in r["sentence"]
-    # no held-out split: in-sample decides, never a clear winner
-    r = C.recommend(_fits_table([x for x in rows if x[0] == "in-sample" and x[1] != "joint"]), "r")
-    assert r["method"] == "twelve+axis+relm" and r["spread_deg"] is None and not r["clear_winner"]
-    assert "in-sample" in r["criterion"]
-    with pytest.raises(ValueError, match="every calibration method has a degenerate fit"):
-        C.recommend(_fits_table([("in-sample", "joint", 0.1, True)]), "r")
+    assert r["held_out_deg"] == pytest.approx(0.41) and r["runner_up"] == "twelve+axis"
+    assert r["spread_deg"] == pytest.approx(np.std([0.3, 0.52], ddof=1) / np.sqrt(2))
+    assert r["clear_winner"] and "beats twelve+axis by 0.190 deg" in r["criterion"]
+    # a lower mean that varies more than it gains (differences 0.30, -0.10: mean 0.10 < standard error 0.20)
+    noisy = [(sp, m, {"held-out group 8": 0.20, "held-out group 9": 0.80}.get(sp, sc) if m == "twelve+axis+relm"
+              else sc, d) for sp, m, sc, d in rows]
+    r = recommend(_fits_table(noisy), "r")
+    assert r["method"] == "twelve+axis" and "no other sound method beats it" in r["criterion"]
+    # no held-out split: the baseline, whatever the in-sample scores say; no accuracy estimate
+    r = recommend(_fits_table([x for x in rows if x[0] == "in-sample"]), "r")
+    assert r["method"] == "twelve+axis" and r["spread_deg"] is None and r["accuracy_deg"] is None
+    assert "no held-out split" in r["criterion"] and "accuracy not estimated" in r["sentence"]
+    # a fit inconsistent with the site is never recommended; with none sound, nothing is, and the reason says why
+    r = recommend(_fits_table([x + ("", x[1] == "twelve+axis+relm") for x in rows]), "r")
+    assert r["method"] == "twelve+axis"
+    r = recommend(_fits_table([("in-sample", "joint", 0.1, True), ("in-sample", "twelve+axis", 0.4, False, "", True)]),
+                  "r")
+    assert r["model"] is None and r["method"] is None and r["sentence"].startswith("No calibration recommended")
+    assert "twelve+axis: inconsistent with the site" in r["refused"] and "joint: a degenerate fit" in r["refused"]
+
+
+def test_the_accuracy_printed_is_nested_the_choice_made_inside_each_held_out_split():
+    from icgo.studies.calibration_select import recommend
+
+    outer = [("in-sample", "twelve+axis", 0.5, False), ("in-sample", "twelve+axis+relm", 0.2, False),
+             ("held-out group 8", "twelve+axis", 0.50, False), ("held-out group 8", "twelve+axis+relm", 0.30, False),
+             ("held-out group 9", "twelve+axis", 0.70, False), ("held-out group 9", "twelve+axis+relm", 0.52, False)]
+    # inside group 8's split the RELM wins clearly; inside group 9's it does not: the baseline is chosen there
+    inner = [("g8 / a", "twelve+axis", 0.6, False, "held-out group 8"), ("g8 / a", "twelve+axis+relm", 0.3, False,
+                                                                           "held-out group 8"),
+             ("g8 / b", "twelve+axis", 0.7, False, "held-out group 8"), ("g8 / b", "twelve+axis+relm", 0.41, False,
+                                                                           "held-out group 8"),
+             ("g9 / a", "twelve+axis", 0.6, False, "held-out group 9"), ("g9 / a", "twelve+axis+relm", 0.3, False,
+                                                                           "held-out group 9"),
+             ("g9 / b", "twelve+axis", 0.7, False, "held-out group 9"), ("g9 / b", "twelve+axis+relm", 0.9, False,
+                                                                           "held-out group 9")]
+    r = recommend(_fits_table(outer + inner), "r")
+    assert r["method"] == "twelve+axis+relm" and r["held_out_deg"] == pytest.approx(0.41)
+    assert [x["chosen"] for x in r["accuracy_splits"]] == ["twelve+axis+relm", "twelve+axis"]
+    # the nested estimate scores each split's own choice on that split: (0.30 + 0.70) / 2, not the chosen 0.41
+    assert r["accuracy_deg"] == pytest.approx(0.5) and r["accuracy_spread_deg"] == pytest.approx(0.2)
+    assert "expected accuracy 0.500 +/- 0.200 deg (nested" in r["sentence"]
 
 
 def test_the_bundled_table_states_its_protocol():
     """results/calibration_devices.md's protocol line, from a small fits table (no fit run): the counts come from
     the table, the command from the config (its non-default settings spelled out)."""
+    from experiments.calibrate_report import protocol, report
     from icgo.core.settings import config_overrides
     from icgo.reporting.protocol import PROTOCOL_FIELDS, parse_protocols
 
@@ -368,7 +420,7 @@ def test_the_bundled_table_states_its_protocol():
     df = pd.DataFrame([{"recording": r, "split": sp, "method": m, "score_deg": 0.1 * (i + 1), "degenerate": False,
                         "dip_spread_deg": 0.5, "b_spread_pct": 0.1, "cond": 1.01, "reasons": ""}
                        for r, sps in splits.items() for sp in sps for i, m in enumerate(C.METHODS)])
-    md = entry.report(df, C.summary(df), {}, "two recordings", {}, {}, entry.protocol(df, C.CalibrationConfig()))
+    md = report(df, C.summary(df), {}, "two recordings", {}, {}, {}, protocol(df, C.CalibrationConfig(), entry.SEED))
     (line,) = parse_protocols(md)
     assert md.splitlines()[2].startswith("Protocol: ") and set(line) == set(PROTOCOL_FIELDS)
     assert line["command"] == "`make calibration` (`python -m experiments.calibrate data=bundled`)"
@@ -382,11 +434,11 @@ def test_the_bundled_table_states_its_protocol():
     fast = C.CalibrationConfig(peer=False, misma_iter=3, misma_repeats=2)
     assert config_overrides(fast) == ["peer=false", "misma_iter=3", "misma_repeats=2"]
     assert config_overrides(C.CalibrationConfig()) == []
-    (line,) = parse_protocols(entry.protocol(df[df.recording == "a"], fast))
+    (line,) = parse_protocols(protocol(df[df.recording == "a"], fast, entry.SEED))
     assert line["command"] == "`python -m experiments.calibrate data=bundled peer=false misma_iter=3 misma_repeats=2`"
     assert "2 MISMA runs (population 30, 3 iterations)" in line["repeats"] and "2 held-out split(s)" in line["repeats"]
     # a run on a user's file has no protocol line (its command is not known here)
-    assert not parse_protocols(entry.report(df, C.summary(df), {}, "x.csv", {}, {}))
+    assert not parse_protocols(report(df, C.summary(df), {}, "x.csv", {}, {}, {}))
 
 
 def test_splits_of_one_roll_hold_out_its_interleaved_halves():
@@ -430,14 +482,15 @@ def test_front_door_on_a_16_shot_json_recommends_and_apply_uses_it(tmp_path):
     run = tmp_path / "run"
     record = json.loads((run / "calibration.json").read_text())
     r = record["recommendation"]
-    assert set(r) == {"model", "method", "criterion", "held_out_deg", "spread_deg", "clear_winner", "runner_up"}
+    assert set(r) >= {"model", "method", "criterion", "held_out_deg", "spread_deg", "clear_winner", "runner_up",
+                      "accuracy_deg", "accuracy_spread_deg", "accuracy_splits", "refused"}
     assert (run / r["model"]).is_file() and r["method"] in C.METHODS and isinstance(r["clear_winner"], bool)
     assert [x["shots"] for x in record["recordings"]["hj2_16"]["rolls"]] == ["8-15"]
     text = (run / "report.md").read_text()
     assert "## Recommendation" in text and f"Apply `{r['method']}`" in text and "held-out half of group 8" in text
     fits = pd.read_csv(run / "calibration.csv")
-    assert set(fits.split) == {"in-sample", "held-out half of group 8 (odd shots)",
-                               "held-out half of group 8 (even shots)"}
+    assert set(fits[fits.outer.isna()].split) == {"in-sample", "held-out half of group 8 (odd shots)",
+                                                  "held-out half of group 8 (even shots)"}
     survey = tmp_path / "survey.csv"
     io.write_recording(survey, io.load_mag_cal_device("hj2").frame.drop(columns="group"), {}, require_reference=False)
     applied = subprocess.run([sys.executable, "-m", "experiments.apply", f"model={run}", f"data={survey}",
@@ -456,6 +509,12 @@ def test_front_door_names_a_missing_mounting(tmp_path):
     write_raw(path, G, B, "-y+x+z", "+z-x-y", keys=False)
     out = _run_entry(tmp_path, f"data={path}", *FAST)
     err = out.stderr.strip()
-    assert out.returncode == 1 and len(err.splitlines()) == 1 and "probable cause: the mounting is not given" in err
+    assert out.returncode == 4 and len(err.splitlines()) == 1 and "probable cause: the mounting is not given" in err
+    # the shots were read: the run directory says why nothing is recommended
+    assert "probable cause: the mounting is not given" in (tmp_path / "run" / "report.md").read_text()
+    assert json.loads((tmp_path / "run" / "calibration.json").read_text())["recommendation"] is None
+    import shutil
+
+    shutil.rmtree(tmp_path / "run")
     out = _run_entry(tmp_path, f"data={path}", "mag_axes=-y+x+z", "grav_axes=+z-x-y", *FAST)
     assert out.returncode == 0, out.stderr

@@ -230,3 +230,21 @@ def test_joint_fit_finds_an_accelerometer_bias_when_free_and_keeps_its_start_whe
     np.testing.assert_allclose(strong.xg, xg0, atol=1e-6)
     both = joint.fit(G, B, groups, train, xg0, xm0, lambdas=(1e-8, 1e8), n_steps=60)
     assert both.lam == 1e-8 and both.cv[0] < both.cv[1]  # leave-one-group-out prefers the fit that removes it
+
+
+def test_the_joint_fit_leaves_out_rolls_inside_the_training_shots_only():
+    from icgo.methods.joint import roll_folds
+
+    groups = np.r_[np.arange(8), [8] * 8, [9] * 8]
+    every = np.ones(24, bool)
+    rolls, fit_w, held_w = roll_folds(groups, every)
+    assert rolls.shape == (2, 24) and fit_w.shape == held_w.shape == (2, 24)
+    assert held_w[0].astype(bool).tolist() == (groups == 8).tolist() and not (fit_w * held_w).any()
+    # group 9 held out by the calibration's split: inside its training shots, roll 8's halves (never a shot of 9)
+    train = groups != 9
+    _, fit_w, held_w = roll_folds(groups, train)
+    assert [np.flatnonzero(h).tolist() for h in held_w] == [[9, 11, 13, 15], [8, 10, 12, 14]]
+    assert not fit_w[:, groups == 9].any() and not held_w[:, groups == 9].any()
+    # half a roll left (4 shots): nothing to leave out, two empty folds (same shapes) and the strength held
+    _, fit_w, held_w = roll_folds(groups, (groups != 9) & ~np.isin(np.arange(24), [9, 11, 13, 15]))
+    assert held_w.sum() == 0 and fit_w.shape == (2, 24)

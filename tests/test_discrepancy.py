@@ -294,7 +294,8 @@ def test_a_json_recording_is_read_with_the_shots_settings(capsys, tmp_path):
     write_raw(path, G, B, "-y+x+z", "+z-x-y", keys=False)
     st, label, _ = load_stations(str(path), shots={"mag_axes": "-y+x+z", "grav_axes": "+z-x-y"})
     assert not st.has_reference and list(np.unique(st.group, return_counts=True)[1]) == [1] * 8 + [8, 8]
-    assert "rolls found from the data" in capsys.readouterr().out and "2 roll(s)" in label
+    assert "grouped by the circuitpython-mag-cal layout" in capsys.readouterr().out
+    assert "rolls at shots 8-15, 16-23" in label
     np.testing.assert_allclose(st.B, B, rtol=1e-12)
     cfg = OmegaConf.load(Path(__file__).parents[1] / "conf" / "discrepancy.yaml")
     cfg.pop("hydra")

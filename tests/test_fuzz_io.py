@@ -12,6 +12,7 @@ The fast suite runs a bounded number of examples (``FAST``); ``make test-all`` r
 from __future__ import annotations
 
 import json
+import re
 import math
 
 import numpy as np
@@ -340,17 +341,70 @@ LAYOUTS = st.one_of(
 
 
 def _check_layout(tmp_path_factory, doc):
-    from icgo.io.mag_cal_json import read_mag_cal_json
+    """The whole reading of a shots file (the layout, the groups, the search of the data where no layout is known)."""
+    from icgo.studies.shots import read_shots
 
     d = tmp_path_factory.mktemp("js")
     p = d / "dev.json"
     p.write_text(json.dumps(doc, allow_nan=True))
     try:
-        rec = read_mag_cal_json(p)
+        rec = read_shots(p)
     except io.DataError as e:
         assert str(e) and "\n" not in str(e) and "dev.json" in str(e), str(e)
         return
     assert np.isfinite(rec.frame[["gx", "gy", "gz", "bx", "by", "bz"]].to_numpy(float)).all()
+
+
+def _device_doc():
+    from icgo.io.recording import MAG_CAL_DEVICE_TO_TOOL, load_mag_cal_device
+
+    rec = load_mag_cal_device("ab")
+    inv = np.argsort(MAG_CAL_DEVICE_TO_TOOL)
+    return {"mag": (rec.B[:, inv] / 1000.0).tolist(), "grav": rec.G[:, inv].tolist()}
+
+
+_DEVICE = _device_doc()
+#: One value of a real 24-shot recording replaced by a hostile but finite number (1e300 hung the roll search).
+HOSTILE_VALUE = st.tuples(st.sampled_from(["mag", "grav"]), st.integers(0, 23), st.integers(0, 2),
+                          st.one_of(st.floats(allow_nan=False, allow_infinity=False, min_value=1e6),
+                                    st.floats(allow_nan=False, allow_infinity=False, max_value=-1e6),
+                                    st.floats(min_value=-1e-6, max_value=1e-6), st.just(1e300), st.just(-1e308)))
+
+
+def _check_hostile_value(tmp_path_factory, edit):
+    import time
+
+    from icgo.studies.shots import read_shots
+
+    key, shot, axis, value = edit
+    doc = json.loads(json.dumps(_DEVICE))
+    doc[key][shot][axis] = value
+    d = tmp_path_factory.mktemp("hv")
+    p = d / "dev.json"
+    p.write_text(json.dumps(doc))
+    t0 = time.perf_counter()
+    try:
+        rec = read_shots(p, mag_axes="+x+y+z")
+    except io.DataError as e:
+        msg = str(e)
+        assert "\n" not in msg and "dev.json" in msg, msg
+        assert not re.search(r"\b(inf|nan)\b", msg, re.I), msg  # say what is wrong, not a non-number
+        assert time.perf_counter() - t0 < 30.0, "the refusal took too long (a check after a heavy computation?)"
+        return
+    assert np.isfinite(rec.frame[["gx", "gy", "gz", "bx", "by", "bz"]].to_numpy(float)).all()
+
+
+@FAST
+@given(HOSTILE_VALUE)
+def test_a_hostile_value_in_a_real_recording_is_refused_first_and_in_words(tmp_path_factory, edit):
+    _check_hostile_value(tmp_path_factory, edit)
+
+
+@pytest.mark.slow
+@LONG
+@given(HOSTILE_VALUE)
+def test_a_hostile_value_in_a_real_recording_is_refused_first_and_in_words_long(tmp_path_factory, edit):
+    _check_hostile_value(tmp_path_factory, edit)
 
 
 @FAST

@@ -1,7 +1,7 @@
 """The hostile battery of every front door (tests/hostile_battery.py): each case's outcome must be ``clean``.
 
 The fast subset (``FAST_CASES``: every front door at least once, a few seconds each) runs in ``make test``;
-the whole battery (about 690 invocations) under ``-m slow``, or with its own summary table::
+the whole battery (about 716 invocations) under ``-m slow``, or with its own summary table::
 
     .venv/bin/python tests/hostile_battery.py --jobs 2
 """

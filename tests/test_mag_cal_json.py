@@ -1,4 +1,5 @@
-"""circuitpython-mag-cal JSON layouts (icgo.io.mag_cal_json) against the peer's own reader and axes."""
+"""circuitpython-mag-cal JSON layouts (icgo.io.mag_cal_json) against the peer's own reader and axes; the instrument's
+layout first, checked against the data (icgo.methods.grouping, icgo.studies.shots)."""
 
 from __future__ import annotations
 
@@ -13,7 +14,14 @@ from mag_cal.utils import read_fixture
 from icgo.core.errors import SettingError
 from icgo.io import __main__ as io_cli
 from icgo.io import recording as io
-from icgo.io.mag_cal_json import parse_axes, read_mag_cal_json
+from icgo.io.mag_cal_json import parse_axes
+from icgo.io.mag_cal_json import read_mag_cal_json as read_file
+from icgo.studies.shots import read_shots
+
+
+def read_mag_cal_json(path, **kw):
+    """The recording as read (its layout's groups or groups given), before any search of the data."""
+    return read_file(path, **kw).recording
 
 FIXTURE = io._mag_cal_dir().joinpath("ab.json")
 INV = np.argsort(io.MAG_CAL_DEVICE_TO_TOOL)  # tool -> device columns
@@ -48,7 +56,7 @@ def test_raw_layout_converts_axes_and_units_as_the_peer(tmp_path, mag_axes, grav
     rec = read_mag_cal_json(path, mag_axes=mag_axes, grav_axes=grav_axes)
     np.testing.assert_allclose(rec.B, dev.B, rtol=1e-12)
     np.testing.assert_allclose(rec.G, dev.G, rtol=1e-12, atol=1e-15)
-    assert rec.frame.group.tolist() == dev.frame.group.tolist()  # the rolls are found from the data
+    assert rec.frame.group.tolist() == dev.frame.group.tolist()  # the layout's
     assert "m/s^2 / 9.80665 -> g" in rec.meta["description"]
     # the strings may also come from the file itself
     path.write_text(json.dumps({**doc, "mag_axes": mag_axes, **({"grav_axes": grav_axes} if grav_axes else {})}))
@@ -96,26 +104,54 @@ def _device(name="jd"):
 
 
 @pytest.mark.parametrize("keep", [slice(0, 16), slice(None)])
-def test_fixture_files_of_any_length_find_their_rolls(tmp_path, keep):
+def test_fixture_files_in_the_layout_are_grouped_by_it_and_the_data_agree(tmp_path, keep):
     G, B = _device()
     path = tmp_path / "dev.json"
     write_fixture(path, G[keep], B[keep])
-    rec = read_mag_cal_json(path)
     n = len(G[keep])
-    assert len(rec.frame) == n and rec.frame.group.tolist() == (
-        list(range(8)) + [8] * 8 + ([9] * 8 if n == 24 else []))
-    assert f"{n} shots, {1 if n == 16 else 2} roll(s)" in rec.meta["description"]
+    expect = list(range(8)) + [8] * 8 + ([9] * 8 if n == 24 else [])
+    assert read_mag_cal_json(path).frame.group.tolist() == expect
+    rec = read_shots(path)
+    assert rec.frame.group.tolist() == expect
+    g = rec.meta["grouping"]
+    assert g["origin"] == "layout" and g["data_suggest"] is None and g["disagreements"] == []
+    assert "8 single shots, then rolls of 8" in rec.meta["description"]
 
 
-def test_a_fixture_file_with_one_roll_and_singles_after_it(tmp_path):
+def test_a_count_outside_the_layout_has_its_rolls_found_from_the_data(tmp_path, capsys):
+    G, B = _device()
+    path = tmp_path / "dev.json"
+    write_fixture(path, G[:20], B[:20])  # 8 singles, one roll, 4 shots of a second: no known layout
+    assert "group" not in read_mag_cal_json(path).frame.columns
+    rec = read_shots(path)
+    assert rec.meta["grouping"]["origin"] == "data" and rec.meta["grouping"]["layout"] is None
+    assert rec.frame.group.tolist()[8:16] == [rec.frame.group.iloc[8]] * 8
+    assert "no known layout (20 shots is not 8 + 8 k)" in rec.meta["description"]
+    # python -m icgo.io never searches: it reads the file, says so, and converts it without a group column
+    assert io_cli.main(["check", str(path)]) == 0 and "not grouped here" in capsys.readouterr().out
+    out = tmp_path / "dev.csv"
+    assert io_cli.main(["convert", str(path), "--out", str(out)]) == 0
+    assert "groups=auto finds the rolls" in capsys.readouterr().out
+    assert read_shots(out, groups="auto").frame.group.tolist() == rec.frame.group.tolist()
+
+
+def test_the_layout_is_used_where_the_data_disagree_and_both_groupings_are_named(tmp_path):
+    # one roll first, then the singles: 16 shots, so the layout says singles 0-7 and a roll 8-15
     name = "hj"
     A, I, T = device_attitudes(name)
-    att = join(roll(A[8:16].mean(), I[8:16].mean()), singles(name))
-    G, B = synth(name, *att)
+    G, B = synth(name, *join(roll(A[8:16].mean(), I[8:16].mean()), singles(name)))
     path = tmp_path / "one_roll.json"
     write_fixture(path, G, B)
-    rec = read_mag_cal_json(path)
-    assert rec.frame.group.tolist() == [8] * 8 + list(range(8))
+    rec = read_shots(path)
+    assert rec.frame.group.tolist() == list(range(8)) + [8] * 8  # the layout, used
+    g = rec.meta["grouping"]
+    assert g["used"] == "rolls at shots 8-15" and g["data_suggest"] == "rolls at shots 0-7"
+    assert len(g["disagreements"]) == 1 and g["disagreements"][0].startswith("group 8 (shots 8-15) is not a plausible roll")
+    assert any("the data suggest rolls at shots 0-7 (the layout: rolls at shots 8-15)" in n for n in rec.notices)
+    # groups=auto takes the data's, and names the layout's
+    auto = read_shots(path, groups="auto")
+    assert auto.frame.group.tolist() == [8] * 8 + list(range(8))
+    assert auto.meta["grouping"]["layout_grouping"] == "rolls at shots 8-15"
 
 
 def test_raw_layout_mounting_from_keys_or_settings_and_the_cause_when_missing(tmp_path, capsys):
@@ -128,7 +164,8 @@ def test_raw_layout_mounting_from_keys_or_settings_and_the_cause_when_missing(tm
     np.testing.assert_allclose(rec.B, B, rtol=1e-12)
     assert rec.frame.group.tolist() == list(range(8)) + [8] * 8 + [9] * 8
     np.testing.assert_array_equal(read_mag_cal_json(without, mag_axes=MOUNT[0], grav_axes=MOUNT[1]).B, rec.B)
-    with pytest.raises(io.DataError, match="probable cause: the mounting is not given") as e:
+    with pytest.raises(io.DataError, match="deg or more from the pointing axis.*probable cause: the mounting is not "
+                                           "given") as e:
         read_mag_cal_json(without)
     assert "\n" not in str(e.value)
     # the command line: the same settings, the same refusal (exit 1), a bad setting exit 2 naming itself
@@ -145,8 +182,6 @@ def test_raw_layout_mounting_from_keys_or_settings_and_the_cause_when_missing(tm
 
 
 def test_convert_writes_the_contract_and_every_reader_sees_the_same_groups(tmp_path, capsys):
-    from icgo.io.shots import read_shots
-
     G, B = _device("fb")
     src = tmp_path / "raw.json"
     write_raw(src, G, B, *MOUNT, keys=False)
@@ -155,8 +190,9 @@ def test_convert_writes_the_contract_and_every_reader_sees_the_same_groups(tmp_p
     assert io_cli.main(["convert", str(src), "--out", str(out), f"mag_axes={MOUNT[0]}", f"grav_axes={MOUNT[1]}"]) == 0
     assert "wrote" in capsys.readouterr().out
     back = read_shots(out)
-    ref = read_mag_cal_json(src, mag_axes=MOUNT[0], grav_axes=MOUNT[1])
+    ref = read_shots(src, mag_axes=MOUNT[0], grav_axes=MOUNT[1])
     pd.testing.assert_frame_equal(back.frame, ref.frame)
+    assert back.meta["grouping"]["origin"] == "column" and ref.meta["grouping"]["origin"] == "layout"
     assert back.meta["description"] == ref.meta["description"]
     assert io_cli.main(["check", str(out), "groups=column"]) == 0
     # bad uses: no --out, the input itself, not a CSV; nothing written

@@ -1,4 +1,5 @@
-"""Rolls found or given (icgo.methods.rolls, icgo.io.grouping) on real-looking files made from the bundled devices."""
+"""Rolls: what one is (icgo.physics.rolls), found (icgo.methods.rolls) or given (icgo.io.grouping), on real-looking
+files made from the bundled devices."""
 
 from __future__ import annotations
 
@@ -8,8 +9,9 @@ from mag_cal_files import INDUSTRIAL, device_attitudes, join, roll, singles, syn
 
 from icgo.core.errors import DataError, SettingError
 from icgo.io import recording as io
-from icgo.io.grouping import assign_groups, parse_groups
-from icgo.methods import rolls
+from icgo.io.grouping import check_given, groups_from_ranges, parse_groups
+from icgo.methods.rolls import find_rolls
+from icgo.physics import rolls
 from icgo.physics.frames import sensors_from_attitude
 
 PEER_GROUPS = np.r_[np.arange(8), [8] * 8, [9] * 8]
@@ -21,7 +23,7 @@ def test_bundled_rolls_are_plausible_and_merged_rolls_are_not():
     for name in io.mag_cal_devices():
         rec = io.load_mag_cal_device(name)
         G, B = rec.G, rec.B
-        found = rolls.find_rolls(G, B)
+        found = find_rolls(G, B)
         assert found.groups.tolist() == rec.frame.group.tolist() == PEER_GROUPS.tolist(), name
         for c in rolls.check_groups(G, B, PEER_GROUPS).values():
             assert c.ok, (name, c.reasons)
@@ -49,7 +51,7 @@ def test_two_consecutive_rolls_apart_along_the_pointing_axis_are_never_merged(se
         att = join(singles(name), roll(A[8:16].mean(), inc1), roll(A[8:16].mean(), inc2, start=30.0))
         for seed in range(3):
             G, B = synth(name, *att, noise_g=noise * INDUSTRIAL[0], noise_b_nT=noise * INDUSTRIAL[1], seed=seed)
-            found = rolls.find_rolls(G, B)
+            found = find_rolls(G, B)
             assert all(len(set(PEER_GROUPS[a:b])) == 1 for a, b in found.runs), (name, seed, found.runs)
             if noise <= 30:
                 assert found.runs == ((8, 16), (16, 24)), (name, seed, found.runs)
@@ -57,7 +59,7 @@ def test_two_consecutive_rolls_apart_along_the_pointing_axis_are_never_merged(se
             frame = io.validate(_frame(G, B, np.where(PEER_GROUPS >= 8, 8, PEER_GROUPS)), {},
                                 require_reference=False).frame
             with pytest.raises(DataError, match=r"group 8 \(shots 8-23\) is not a plausible roll: .*two rolls"):
-                assign_groups(frame, "column", "f.csv")
+                check_given(frame, frame.group.to_numpy(), "f.csv")
 
 
 def _frame(G, B, groups=None):
@@ -100,8 +102,8 @@ def test_a_roll_with_half_its_shots_pointing_elsewhere_is_refused_or_split():
     G, B = synth(name, A, I2, T)
     frame = io.validate(_frame(G, B, PEER_GROUPS), {}, require_reference=False).frame
     with pytest.raises(DataError, match=r"group 8 \(shots 8-15\) is not a plausible roll: it turns about an axis 3.1 deg from group 9"):
-        assign_groups(frame, "column", "shifted.csv")
-    found = rolls.find_rolls(G, B)
+        check_given(frame, frame.group.to_numpy(), "shifted.csv")
+    found = find_rolls(G, B)
     assert (16, 24) not in found.runs and (8, 16) in found.runs
 
 
@@ -123,10 +125,57 @@ def test_parse_groups_refuses_bad_ranges(spec, match):
 
 def test_given_ranges_make_the_groups_and_too_short_ranges_are_a_setting_error():
     rec = io.load_mag_cal_device("ai")
-    frame = rec.frame.drop(columns="group")
-    out, _ = assign_groups(frame, parse_groups("8-15,16-23"), "ai.csv")
-    assert out.group.tolist() == PEER_GROUPS.tolist()
+    station = rec.frame.station.to_numpy()
+    assert groups_from_ranges(station, parse_groups("8-15,16-23")).tolist() == PEER_GROUPS.tolist()
     with pytest.raises(SettingError, match="range 8-10 holds 3 shot"):
-        assign_groups(frame, parse_groups("8-10"), "ai.csv")
-    with pytest.raises(DataError, match="no 'group' column.*groups=auto"):
-        assign_groups(frame, None, "ai.csv")
+        groups_from_ranges(station, parse_groups("8-10"))
+
+
+def test_off_plane_shots_names_the_shots_of_another_roll():
+    # group 8 given as shots 8-15 plus the first 3 of the next roll: those 3 are named, nothing else
+    rec = io.load_mag_cal_device("ai")
+    G, B = rec.G[8:19], rec.B[8:19]
+    scale = float(np.median(np.linalg.norm(rec.B, axis=1)))
+    assert rolls.off_plane_shots(G, B, scale) == [8, 9, 10]
+    assert rolls.off_plane_shots(rec.G[8:16], rec.B[8:16], scale) == []
+
+
+def test_the_layout_is_checked_and_used_and_the_data_are_asked_for_a_second_opinion():
+    from icgo.methods.grouping import by_data, by_layout
+
+    rec = io.load_mag_cal_device("bh")
+    G, B, station = rec.G, rec.B, rec.frame.station.to_numpy()
+    g = by_layout(G, B, station, PEER_GROUPS, "the layout", "bh.json")
+    assert g.groups.tolist() == PEER_GROUPS.tolist() and g.record["data_suggest"] is None
+    assert g.record["disagreements"] == [] and g.notices == ("grouped by the the layout",)
+    # a layout one shot off (rolls 7-14, 15-22): used as given, the shots that disagree named, the data's rolls shown
+    off = np.r_[np.arange(7), [7] * 8, [8] * 8, [9]]
+    g = by_layout(G, B, station, off, "a layout", "bh.json")
+    assert g.groups.tolist() == off.tolist()
+    assert g.record["data_suggest"] == "rolls at shots 8-15; 16-23" and len(g.record["disagreements"]) == 2
+    assert "shots 7 leave its roll plane" in g.record["disagreements"][0]
+    d = by_data(G, B, station, "bh.json", layout=("a layout", off))
+    assert d.groups.tolist() == PEER_GROUPS.tolist() and d.record["layout_grouping"] == "rolls at shots 7-14; 15-22"
+
+
+def test_a_corrupt_shot_is_refused_by_the_reader_before_any_fit(tmp_path):
+    """One value of 1e300 (numpy's least squares on it never returned) is refused in one line naming the shot; the
+    ellipsoid fit itself refuses a reading it cannot square."""
+    import json
+    import time
+
+    from icgo.io.mag_cal_json import read_mag_cal_json
+    from icgo.methods.calibration import ellipsoid_fit
+
+    d = json.loads(io._mag_cal_dir().joinpath("ab.json").read_text())
+    d["shots"]["mag"][31] = 1e300  # shot 10's third component
+    path = tmp_path / "huge.json"
+    path.write_text(json.dumps(d))
+    t0 = time.perf_counter()
+    with pytest.raises(DataError, match=r"huge.json: shot 10: \|B\| = 1e\+300 uT while the median is 11\d uT") as e:
+        read_mag_cal_json(path)
+    assert time.perf_counter() - t0 < 5.0 and "inf" not in str(e.value) and "nan" not in str(e.value)
+    B = io.load_mag_cal_device("ab").B.copy()
+    B[10, 2] = 1e300
+    with pytest.raises(ValueError, match="too large to square"):
+        ellipsoid_fit(B, 1.0, check=False)

@@ -111,17 +111,27 @@ def test_run_verdict_numbers_are_the_studys(fitted):
     assert "nan" not in v1.accuracy and "+/-" not in v1.accuracy.split(";")[0]
 
 
-def test_calibrate_verdict_reads_the_recommendation():
-    rec = {"model": "dev_joint", "method": "joint", "criterion": "lowest mean held-out spread", "held_out_deg": 0.2871,
-           "spread_deg": 0.0412, "clear_winner": False, "runner_up": "twelve+axis"}
+def test_calibrate_verdict_prints_the_nested_accuracy_and_says_why_nothing_is_recommended():
+    rec = {"model": "dev_joint", "method": "joint", "criterion": "joint beats twelve+axis", "held_out_deg": 0.2871,
+           "spread_deg": 0.0412, "clear_winner": False, "runner_up": "twelve+axis", "accuracy_deg": 0.3512,
+           "accuracy_spread_deg": 0.0523}
     v = V.calibrate_verdict(recommendation=rec, n_models=5, n_degenerate=2, n_fits=24, run_dir="R")
-    assert "held-out pointing spread 0.287 deg" in v.accuracy and "0.041 deg" in v.accuracy
+    # the accuracy printed is the nested one, not the mean of the splits the method was chosen on
+    assert "held-out pointing spread 0.351 deg +/- 0.052" in v.accuracy and "nested" in v.accuracy
+    assert "0.287" not in v.accuracy
     assert "not a clear winner: twelve+axis" in v.model and "dev_joint (joint)" in v.model
-    assert v.next == "python -m experiments.apply model=R data=<your survey.csv>"
+    assert v.next == "python -m experiments.apply model=R data=<your survey.csv>" and v.exit_code == 0
     assert v.qc.startswith("2 of 24 fits degenerate")
+    short = V.calibrate_verdict(recommendation={**rec, "accuracy_deg": None, "accuracy_spread_deg": None},
+                                n_models=5, n_degenerate=2, n_fits=24, run_dir="R")
+    assert short.accuracy.startswith("not estimated: no held-out split")
     none = V.calibrate_verdict(recommendation=None, n_models=5, n_degenerate=0,
                                n_fits=3, run_dir="R", held_out={"joint": 0.31, "ellipsoid": float("nan")})
-    assert none.model.startswith("no recommendation") and "joint 0.310 deg" in none.accuracy
+    assert none.model.startswith("none") and "joint 0.310 deg" in none.accuracy and none.exit_code == 0
+    refused = V.calibrate_verdict(recommendation=None, n_models=5, n_degenerate=15, n_fits=15, run_dir="R",
+                                  refused="no sound calibration: every method has a degenerate fit")
+    assert refused.exit_code == V.EXIT_NO_RECOMMENDATION == 4
+    assert "no calibration recommended: no sound calibration" in refused.accuracy and "nan" not in refused.accuracy
 
 
 def test_qc_line_cases():

@@ -47,6 +47,11 @@ class DataError(IcgoError):
     """Bad input data (a recording, a JSON layout): one line naming the file, row and column."""
 
 
+class GroupingError(DataError):
+    """Shots that were read, but whose groups cannot be made (no roll found, too noisy to find one, rolls about
+    another axis than the pointing axis): the calibrate door writes its report with the reason (one line)."""
+
+
 class ModelError(IcgoError):
     """A bad model file, or a model that does not fit the survey it is applied to (one line)."""
 

@@ -1,8 +1,9 @@
 """``python -m icgo.datasets NAME --out DIR [--seed S] [--overwrite]``: write a simulated data set (CSV + meta + truth).
 
-``DIR`` is a directory of its own (:class:`icgo.io.files.Output`): the three files are written all at once
-or not at all, and a directory that already holds files is refused unless ``--overwrite`` (which then
-replaces its content whole).
+``DIR`` is a data folder (:class:`icgo.io.files.Output`, shared): the three files ``NAME.csv``,
+``NAME.meta.json`` and ``NAME.truth.json`` are written all at once or not at all, beside whatever the folder
+already holds (another data set written there stays), and files of the same names are refused unless
+``--overwrite`` (which replaces those three only).
 """
 
 from __future__ import annotations
@@ -36,12 +37,13 @@ def main(argv=None) -> int:
     """``python -m icgo.datasets NAME --out DIR [--seed S] [--overwrite]``."""
     p = ArgumentParser(prog="python -m icgo.datasets", description="Write a simulated data set (CSV + meta + truth).")
     p.add_argument("name", choices=sorted(DATASETS))
-    p.add_argument("--out", required=True, help="output directory (created if missing; refused if it holds files)")
+    p.add_argument("--out", required=True, help="output folder (created if missing; may hold other data sets)")
     p.add_argument("--seed", type=seed, default=0, help="noise seed (default 0)")
-    p.add_argument("--overwrite", action="store_true", help="replace a used --out directory whole")
+    p.add_argument("--overwrite", action="store_true", help="replace this data set's files in --out (others stay)")
     a = p.parse_args(argv)
-    output = Output(Path(a.out), setting="--out", overwrite=a.overwrite, writer=f"python -m icgo.datasets {a.name}",
-                    overwrite_hint="--overwrite").check()
+    output = Output(Path(a.out), setting="--out", overwrite=a.overwrite, shared=True,
+                    names=tuple(f"{a.name}{ext}" for ext in (".csv", ".meta.json", ".truth.json")),
+                    writer=f"python -m icgo.datasets {a.name}", overwrite_hint="--overwrite").check()
     ds = DATASETS[a.name](a.seed)
     with output.staged(last=(f"{a.name}.csv",)) as stage:
         write_dataset(ds, stage, a.name)

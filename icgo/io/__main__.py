@@ -6,10 +6,15 @@
 
 Settings are ``key=value`` words anywhere after the command (the keys of :data:`icgo.io.shots.SETTINGS`),
 the same keys the Hydra front doors take. A ``.json`` file is a circuitpython-mag-cal recording (either layout,
-:func:`icgo.io.shots.read_shots`); a CSV is checked against the data contract (``--columns MAP``: a JSON or YAML
-column map for a field export, :mod:`icgo.io.columns`), and with ``groups=`` also its groups. ``convert`` writes
-the contract CSV and its ``.meta.json`` (atomically, both or neither; an existing file is refused unless
-``--overwrite``) with the ``group`` column, so every front door that reads the contract can use the recording.
+:func:`icgo.io.shots.read_shot_file`); a CSV is checked against the data contract (``--columns MAP``: a JSON or
+YAML column map for a field export, :mod:`icgo.io.columns`), and with ``groups=`` also its groups. The groups
+printed are the ones known without searching the data: a layout's (each checked against the data: the groups
+and shots that disagree are named), a ``group`` column or shot ranges given (checked: refused when not rolls).
+Finding rolls in the data (``groups=auto``, or a recording in no known layout) is the calibrate and
+discrepancy doors' (:func:`icgo.studies.shots.read_shots`): here such a recording is read and left ungrouped.
+``convert`` writes the contract CSV and its ``.meta.json`` (atomically, both or neither; an existing file is
+refused unless ``--overwrite``) with the ``group`` column when the groups are known, so every front door that
+reads the contract can use the recording.
 ``export-mag-cal`` writes the bundled devices into a directory of its own (all files or none). Exit status: 0 ok,
 1 bad data (one line per bad file; the others are still checked), 2 a bad setting or usage (one line).
 """
@@ -35,7 +40,8 @@ from icgo.io.recording import (  # noqa: E402
     read_recording,
     write_recording,
 )
-from icgo.io.shots import SETTINGS, is_json, read_shots  # noqa: E402
+from icgo.io.shots import SETTINGS, is_json, read_shot_file  # noqa: E402
+from icgo.physics.rolls import group_findings  # noqa: E402
 
 
 def split_words(words: list[str]) -> tuple[list[str], dict]:
@@ -52,14 +58,28 @@ def split_words(words: list[str]) -> tuple[list[str], dict]:
     return paths, settings
 
 
-def describe_shots(p, rec) -> list[str]:
-    """The ``ok`` line of a file of grouped shots and one line per roll."""
-    lines = [(f"{p}: ok, {len(rec.frame)} shots, {rec.frame['group'].nunique()} groups; "
+def describe_shots(p, shots) -> list[str]:
+    """The ``ok`` line of a file of grouped shots (:class:`icgo.io.mag_cal_json.ShotFile`), one line per roll, and
+    for a layout's groups the ones the data disagree with."""
+    rec = shots.recording
+    if "group" not in rec.frame.columns:
+        how = ("groups=auto" if shots.layout is not None else
+               "no known layout, no group column")
+        return [f"{p}: ok, {len(rec.frame)} shots, not grouped here ({how}): experiments.calibrate and "
+                f"experiments.discrepancy find the rolls from the data, or give groups=[first-last,...]; "
+                f"{rec.meta.get('description', '')}"]
+    origin = {"layout": "by its layout", "column": "by its group column", "ranges": "by groups="}[shots.origin]
+    lines = [(f"{p}: ok, {len(rec.frame)} shots, {rec.frame['group'].nunique()} groups ({origin}); "
               f"{rec.meta.get('description', '')}")]
     for r in roll_table(rec.frame).itertuples():
         lines.append(f"  roll: group {r.group}, shots {r.shots} ({r.n}), raw inclination {r.inclination_deg:.1f} deg, "
                      f"roll span {r.roll_span_deg:.0f} deg, off its plane {r.plane_g:.4f} g / {r.plane_b:.4f} |B|, "
                      f"axis {r.axis_to_z_deg:.1f} deg from tool z")
+    if shots.origin == "layout":
+        f = rec.frame
+        lines += [f"  the data disagree with the layout: {x}" for x in group_findings(
+            f[["gx", "gy", "gz"]].to_numpy(float), f[["bx", "by", "bz"]].to_numpy(float), f["station"].to_numpy(),
+            f["group"].to_numpy()).values()]
     return lines
 
 
@@ -74,8 +94,9 @@ def check(words: list[str], columns: str | None = None) -> int:
     for p in paths:
         try:
             if is_json(p) or settings:
-                rec = read_shots(p, columns=cmap, **settings)
-                lines = describe_shots(p, rec)
+                shots = read_shot_file(p, columns=cmap, **settings)
+                rec = shots.recording
+                lines = describe_shots(p, shots)
             else:
                 rec = read_recording(p, columns=cmap)
                 f = rec.field
@@ -93,7 +114,8 @@ def check(words: list[str], columns: str | None = None) -> int:
 
 
 def convert(words: list[str], out: str | None, overwrite: bool) -> int:
-    """``FILE.json --out FILE.csv [settings]``: the contract CSV + ``.meta.json`` with the checked groups."""
+    """``FILE.json --out FILE.csv [settings]``: the contract CSV + ``.meta.json``, with the groups where they are known
+    (its ``instrument`` metadata lets a later reader group it by its layout)."""
     from icgo.io.recording import meta_path_for
 
     paths, settings = split_words(words)
@@ -106,9 +128,14 @@ def convert(words: list[str], out: str | None, overwrite: bool) -> int:
     held = [p for p in (Path(out), meta_path_for(out)) if p.exists() or p.is_symlink()]
     if held and not overwrite:
         raise SettingError(f"convert: {held[0]} already exists; give --overwrite to replace it (and its pair)")
-    rec = read_shots(paths[0], **settings)
-    write_recording(out, rec.frame, rec.meta)
-    print("\n".join(describe_shots(paths[0], rec) + [f"  notice: {n}" for n in rec.notices]
+    shots = read_shot_file(paths[0], **settings)
+    rec = shots.recording
+    grouped = "group" in rec.frame.columns
+    write_recording(out, rec.frame, rec.meta, require_reference=grouped)
+    if not grouped:
+        rec = rec._replace(notices=rec.notices + [f"{out} has no group column (no known layout, no groups given): "
+                                                  f"experiments.calibrate data={out} groups=auto finds the rolls"])
+    print("\n".join(describe_shots(paths[0], shots) + [f"  notice: {n}" for n in rec.notices]
                     + [f"wrote {out} and {meta_path_for(out).name}"]))
     return 0
 

@@ -15,8 +15,9 @@ full disk or Ctrl-C leaves the directory exactly as it was. Two kinds of output:
   new one is in place). It ends with :data:`MANIFEST`, the list of what the command wrote, and
   only a directory holding such a manifest (or a run record, ``run.json``) is ever replaced: a
   folder no icgo command wrote is refused even with ``overwrite``;
-* a *shared results folder* (``results/``): the command's files replace their namesakes all at
-  once; other files stay.
+* a *shared folder* (``results/``, a data folder of ``python -m icgo.datasets``): the command's files
+  replace their namesakes all at once; other files stay. Given the names it writes (``names``), it
+  refuses to replace existing namesakes unless ``overwrite`` is set.
 
 Problems with the place itself (a file where the directory should be, a read-only parent, a used
 directory) are :class:`~icgo.core.errors.SettingError` lines raised by :meth:`Output.check`, before
@@ -65,8 +66,9 @@ def _kind(mode: int) -> str:
     return "a special file"
 
 
-def read_bytes_bounded(path, limit: int, what: str) -> bytes:
-    """The bytes of a regular file of at most ``limit`` bytes, or a one-line DataError naming ``path``.
+def open_regular(path, limit: int, what: str):
+    """A regular file of at most ``limit`` bytes opened for binary reading (the caller closes it), or a one-line
+    DataError naming ``path``.
 
     The file is opened with ``O_NONBLOCK`` (a FIFO then opens at once instead of waiting for a
     writer) and checked with ``fstat`` on the open descriptor, so what is read is what was checked.
@@ -93,10 +95,20 @@ def read_bytes_bounded(path, limit: int, what: str) -> bytes:
         if st.st_size > limit:
             raise DataError(f"{src}: {st.st_size / MiB:.1f} MiB, over the {limit / MiB:g} MiB limit for {what} "
                             f"(docs/data.md)")
+        return os.fdopen(fd, "rb", buffering=1 << 20)
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def read_bytes_bounded(path, limit: int, what: str) -> bytes:
+    """The bytes of a regular file of at most ``limit`` bytes (:func:`open_regular`), or a one-line DataError."""
+    src = str(path)
+    with open_regular(path, limit, what) as f:
         chunks, total = [], 0
         while True:
             try:
-                b = os.read(fd, 1 << 20)
+                b = f.read(1 << 20)
             except OSError as e:
                 raise DataError(f"{src}: cannot read ({e.strerror or type(e).__name__})") from None
             if not b:
@@ -106,8 +118,6 @@ def read_bytes_bounded(path, limit: int, what: str) -> bytes:
                 raise DataError(f"{src}: over the {limit / MiB:g} MiB limit for {what} (docs/data.md)")
             chunks.append(b)
         return b"".join(chunks)
-    finally:
-        os.close(fd)
 
 
 def read_text_bounded(path, limit: int, what: str, encoding: str = "utf-8") -> str:
@@ -155,10 +165,12 @@ class Output:
         ignore: names that do not make a directory "used" and are replaced (a failed run's marker).
         writer: the command, recorded in the manifest.
         overwrite_hint: how to ask for a replacement, in the refusal (``overwrite=true``, ``--overwrite``).
+        names: for a shared folder, the files the command writes: existing ones are refused unless
+            ``overwrite`` (empty: namesakes are replaced, as in ``results/``).
     """
 
     def __init__(self, path, *, setting: str = "out", overwrite: bool = False, shared: bool = False, keep=(),
-                 ignore=(), writer: str = "", overwrite_hint: str = "overwrite=true"):
+                 ignore=(), writer: str = "", overwrite_hint: str = "overwrite=true", names=()):
         self.path = Path(path).expanduser()
         self.setting = setting
         self.overwrite = bool(overwrite)
@@ -167,6 +179,7 @@ class Output:
         self.ignore = frozenset(ignore)
         self.writer = writer
         self.hint = overwrite_hint
+        self.names = tuple(names)
 
     # -------------------------------------------------------------- before computing
     def content(self) -> list[str]:
@@ -194,6 +207,10 @@ class Output:
                     raise SettingError(f"{name} {where}, not a directory; give a directory")
                 break
         used = self.content()
+        held = [n for n in self.names if (p / n).exists() or (p / n).is_symlink()] if p.is_dir() else []
+        if self.shared and held and not self.overwrite:
+            raise SettingError(f"{name} already holds {', '.join(held)} (this command's files); choose another "
+                               f"directory, or pass {self.hint} to replace them (its other files stay)")
         if used and not self.shared:
             shown = ", ".join(used[:3]) + (f" and {len(used) - 3} more" if len(used) > 3 else "")
             if not self.overwrite:

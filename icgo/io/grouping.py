@@ -1,34 +1,74 @@
-"""Which shots of a recording share one true direction: the ``groups=`` setting, rolls found or given, checked.
+"""Which shots of a recording share one true direction: the ``groups=`` setting, the instrument's layout, given groups.
 
 Every front door that reads grouped static shots (``experiments.calibrate``, ``experiments.discrepancy``,
 ``python -m icgo.io check|convert``) takes one ``groups=`` setting (:func:`parse_groups`):
 
-* ``auto``: the rolls are found from the data (:func:`icgo.methods.rolls.find_rolls`); the default for a
-  circuitpython-mag-cal JSON;
-* ``column``: the recording's ``group`` column as given; the default for a contract CSV;
+* unset: a recording in a known instrument layout (:data:`LAYOUTS`, :func:`layout_groups`) is grouped by
+  its layout; a contract CSV by its ``group`` column; any other recording by the rolls found from the data;
+* ``auto``: the rolls found from the data (:mod:`icgo.methods.rolls`), whatever the layout;
+* ``column``: the recording's ``group`` column as given;
 * shot ranges ``[8-15,16-23]`` (or the string ``"8-15,16-23"``): each range of ``station`` values (both
   ends included) is one roll, every other shot its own group.
 
-Whatever their origin, every group of :data:`icgo.methods.calibration.MIN_ROLLED_SHOTS` or more shots must
-be a plausible roll (:func:`icgo.methods.rolls.check_roll`), else the recording is refused with one line
-naming the group, its shots and the criterion it fails (:func:`assign_groups`). A recording with no roll
-is refused with the probable cause.
+This module reads and makes groups; it does not search the data. Groups given (a column, ranges) must be
+plausible rolls (:func:`check_given`, against :mod:`icgo.physics.rolls`), else the recording is refused in one
+line naming the group, its shots and the criterion it fails; a layout's groups are checked and the shots
+that disagree named by :mod:`icgo.methods.grouping`, which also finds rolls where no layout is known.
 """
 
 from __future__ import annotations
 
 import re
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
 
 from icgo.core.errors import DataError, SettingError
-from icgo.methods import rolls
+from icgo.physics import rolls
 
 #: The named ``groups=`` modes.
 GROUP_MODES = ("auto", "column")
 _RANGE = re.compile(r"^\s*(\d+)\s*(?:-\s*(\d+))?\s*$")
 
+
+class Layout(NamedTuple):
+    """A known instrument layout of a recording: where its rolls are by the procedure that took it.
+
+    Attributes:
+        name: e.g. ``circuitpython-mag-cal``. rule: the procedure in words. ranges: ((first, last), ...) the
+        rolls' shot numbers, both ends included.
+    """
+
+    name: str
+    rule: str
+    ranges: tuple
+
+    def describe(self) -> str:
+        return f"{self.name} layout ({self.rule}: rolls at shots {', '.join(f'{a}-{b}' for a, b in self.ranges)})"
+
+
+#: Shots of the circuitpython-mag-cal procedure before its rolls (single shots in distinct orientations), and
+#: the shots per roll (mag_cal docs/howto.rst; ``read_fixture`` reads shots 8-15 and 16-23 of its 24).
+MAG_CAL_SINGLES = 8
+MAG_CAL_ROLL = 8
+#: The known layouts, by name: the rule in words (docs/calibrate.md, "Layouts").
+LAYOUTS = {"circuitpython-mag-cal": f"{MAG_CAL_SINGLES} single shots, then rolls of {MAG_CAL_ROLL}"}
+
+
+def layout_groups(name: str, n_shots: int) -> Layout | None:
+    """The layout of an ``n_shots`` recording of instrument ``name``, or None when the count does not fit it.
+
+    circuitpython-mag-cal: ``8 + 8 k`` shots (k >= 1; 24 is the procedure's two rolls) are 8 single shots,
+    then k rolls of 8 consecutive shots.
+    """
+    if name != "circuitpython-mag-cal":
+        return None
+    k, extra = divmod(n_shots - MAG_CAL_SINGLES, MAG_CAL_ROLL)
+    if n_shots <= MAG_CAL_SINGLES or extra:
+        return None
+    ranges = tuple((MAG_CAL_SINGLES + j * MAG_CAL_ROLL, MAG_CAL_SINGLES + (j + 1) * MAG_CAL_ROLL - 1) for j in range(k))
+    return Layout(name, LAYOUTS[name], ranges)
 
 def parse_groups(spec):
     """A ``groups=`` value -> ``"auto"``, ``"column"``, ``None`` (the reader's default) or ``((lo, hi), ...)``.
@@ -64,7 +104,7 @@ def parse_groups(spec):
     return tuple(out)
 
 
-def _groups_from_ranges(station: np.ndarray, ranges) -> np.ndarray:
+def groups_from_ranges(station: np.ndarray, ranges) -> np.ndarray:
     """(n,) group ids from station ranges: every shot outside them its own group, each range one group."""
     runs = []
     for lo, hi in ranges:
@@ -85,69 +125,35 @@ def _station_ids(frame: pd.DataFrame, groups, g) -> str:
     return rolls.shot_ranges(frame["station"].to_numpy()[np.asarray(groups) == g])
 
 
-def assign_groups(frame: pd.DataFrame, spec, source: str, *, default: str = "column",
-                  no_roll_hint: str = "") -> tuple[pd.DataFrame, list]:
-    """The frame with its ``group`` column set by ``spec`` and every roll checked.
+def check_given(frame: pd.DataFrame, groups, source: str, what: str = "the groups") -> None:
+    """Refuse groups given by the user (a ``group`` column, shot ranges) that are not plausible rolls.
 
     Args:
-        frame: contract frame (``station``, ``gx..gz`` g, ``bx..bz``; ``group`` for ``column``).
-        spec: a :func:`parse_groups` value (None: ``default``).
-        source: the file, for messages.
-        default: the mode when ``spec`` is None.
-        no_roll_hint: the probable cause to add when no roll is found (e.g. a mounting not given).
-    Returns:
-        (frame with an int64 ``group`` column, notices).
+        frame: contract frame (``station``, ``gx..gz`` g, ``bx..bz``). groups: (n,) group ids.
+        source: the file, for messages. what: how the groups were given, for the fix.
     Raises:
-        DataError: no ``group`` column for ``column``; no roll; a group that is not a plausible roll.
-        SettingError: a shot range that holds fewer shots than a roll needs.
+        DataError: one line naming the first bad group, its shots (those leaving its planes among them) and
+            the criteria it fails; or no roll among the groups.
     """
-    mode = default if spec is None else spec
     G = frame[["gx", "gy", "gz"]].to_numpy(np.float64)
     B = frame[["bx", "by", "bz"]].to_numpy(np.float64)
-    notices = []
-    if mode == "column":
-        if "group" not in frame.columns:
-            raise DataError(f"{source}: no 'group' column: give one (shots of one true direction share a group), "
-                            "or let icgo find the rolls (groups=auto), or give them (groups=[first-last,...])")
-        groups = frame["group"].to_numpy()
-    elif mode == "auto":
-        found = rolls.find_rolls(G, B)
-        groups = found.groups
-        if found.runs:
-            notices.append("rolls found from the data: " + "; ".join(
-                f"shots {_station_ids(frame, groups, groups[a])}" for a, _ in found.runs))
-        if found.too_noisy:
-            raise DataError(f"{source}: {found.too_noisy}; give the rolls (groups=[first-last,...])")
-        if not found.runs:
-            other = [f"shots {rolls.shot_ranges(frame['station'].to_numpy()[a:b])} turn about an axis "
-                     f"{c.axis_to_z_deg:.0f} deg from it" for a, b, c in found.rejected if c.axis_to_z_deg > rolls.AXIS_TO_Z_DEG]
-            raise DataError(f"{source}: no roll about the pointing axis (tool z) found: no run of "
-                            f"{rolls.MIN_ROLLED_SHOTS} or more consecutive shots turned about it (docs/calibrate.md, "
-                            "Rolls)" + (f"; {', '.join(other)}" if other else "")
-                            + (f"; probable cause: {no_roll_hint}" if no_roll_hint else
-                               "; give the rolls with groups=[first-last,...] if they are not in shot order"))
-        for a, b, c in found.rejected:
-            notices.append(f"shots {rolls.shot_ranges(frame['station'].to_numpy()[a:b])} turn together but are not "
-                           f"a roll about the pointing axis ({'; '.join(c.reasons)}): kept as single shots")
-    else:
-        groups = _groups_from_ranges(frame["station"].to_numpy(), mode)
-    bad = {g: c for g, c in rolls.check_groups(G, B, groups).items() if not c.ok}
+    bad = rolls.group_findings(G, B, frame["station"].to_numpy(), groups)
     if bad:
-        g, c = next(iter(bad.items()))
+        g, phrase = next(iter(bad.items()))
+        c = rolls.check_groups(G, B, groups)[g]
         two = " (two rolls in one group?)" if c.plane_g > rolls.PLANE_TOL_G or c.plane_b > rolls.PLANE_TOL_B else ""
-        fix = "fix the groups or let icgo find the rolls (groups=auto)" if mode != "auto" else "give groups="
-        raise DataError(f"{source}: group {g} (shots {_station_ids(frame, groups, g)}) is not a plausible roll: "
-                        f"{'; '.join(c.reasons)}{two}{'' if len(bad) == 1 else f'; {len(bad) - 1} more such group(s)'}"
-                        f"; {fix}")
+        raise DataError(f"{source}: {phrase}{two}"
+                        f"{'' if len(bad) == 1 else f'; {len(bad) - 1} more such group(s)'}"
+                        f"; fix {what} or let icgo find the rolls (groups=auto)")
     if not rolls.rolled_ids(groups):
         raise DataError(f"{source}: no roll ({rolls.MIN_ROLLED_SHOTS} or more shots about one pointing direction) "
-                        "among the groups" + (f"; probable cause: {no_roll_hint}" if no_roll_hint else ""))
-    return frame.assign(group=np.asarray(groups, np.int64)), notices
+                        f"among {what}")
 
 
 def roll_table(frame: pd.DataFrame) -> pd.DataFrame:
     """The rolls of a grouped frame, one row each: group, shots (station ranges), n, raw inclination (deg),
-    roll span (deg), out-of-plane distances of gravity (g) and field (x median |B|), roll axis vs tool z (deg)."""
+    roll span (deg), out-of-plane distances of gravity (g) and field (x median |B|), roll axis vs tool z (deg), and
+    the criteria it fails (:func:`icgo.physics.rolls.check_groups`; a layout's group may fail them)."""
     G = frame[["gx", "gy", "gz"]].to_numpy(np.float64)
     B = frame[["bx", "by", "bz"]].to_numpy(np.float64)
     groups = frame["group"].to_numpy()
@@ -155,5 +161,6 @@ def roll_table(frame: pd.DataFrame) -> pd.DataFrame:
     for g, c in rolls.check_groups(G, B, groups).items():
         rows.append({"group": int(g), "shots": _station_ids(frame, groups, g), "n": c.n,
                      "inclination_deg": c.inclination_deg, "roll_span_deg": c.span_deg, "plane_g": c.plane_g,
-                     "plane_b": c.plane_b, "axis_to_z_deg": c.axis_to_z_deg})
+                     "plane_b": c.plane_b, "axis_to_z_deg": c.axis_to_z_deg,
+                     "check": "; ".join(c.reasons) or "a plausible roll"})
     return pd.DataFrame(rows)

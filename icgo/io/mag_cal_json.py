@@ -11,9 +11,13 @@ Two layouts are read (``docs/calibrate.md``):
   and its sign, e.g. ``+x+y-z``), gravity in m/s^2 or g and field in uT. The strings
   come from the caller (a setting) or from the JSON (keys ``mag_axes`` / ``grav_axes``).
 
-In both, the rolls are found from the data (:func:`icgo.methods.rolls.find_rolls`) unless the caller
-gives them (``groups=``, :mod:`icgo.io.grouping`); every roll is checked, and a file without one is
-refused with the probable cause (for a raw file read with the default mounting: the mounting).
+Every shot is checked before anything is computed from it: finite numbers, the units of the whole file from its
+median (below), and every shot's |G| and |B| within a factor of those medians (:data:`icgo.io.recording.ROW_FACTOR_G`,
+:data:`icgo.io.recording.ROW_FACTOR_B`; a shot of 1e300 is refused here, naming the shot). Groups: a recording of
+``8 + 8 k`` shots is in the circuitpython-mag-cal layout (:func:`icgo.io.grouping.layout_groups`: 8 single shots,
+then rolls of 8) and gets the layout's groups; shot ranges given (``groups=``) replace them and are checked
+(:func:`icgo.io.grouping.check_given`). Checking a layout against the data and finding rolls where no layout is
+known are :mod:`icgo.methods.grouping`'s (composed by :mod:`icgo.studies.shots`).
 Units are converted and stated in the recording's ``description``: gravity to g
 (m/s^2 / 9.80665 when the median |G| is near 9.8), field uT -> nT (x 1000); a field that
 is not in uT (Gauss, nT) is refused with the factor. The device frame (X right, Y pointing, Z up)
@@ -25,15 +29,17 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
 
-from icgo.core.errors import DataError, SettingError
+from icgo.core.errors import DataError, GroupingError, SettingError
 from icgo.io.files import read_text_bounded
-from icgo.io.grouping import assign_groups
+from icgo.io.grouping import Layout, check_given, groups_from_ranges, layout_groups
 from icgo.io.recording import (
-    MAG_CAL_RUNS,
+    ROW_FACTOR_B,
+    ROW_FACTOR_G,
     STANDARD_GRAVITY,
     UT_TO_NT,
     Recording,
@@ -42,7 +48,7 @@ from icgo.io.recording import (
     fixture_shots,
     validate,
 )
-from icgo.methods.rolls import shot_ranges
+from icgo.physics.rolls import AXIS_TO_Z_DEG, rolls_off_axis_deg
 
 #: Largest JSON recording read (bytes; docs/data.md): ten times the largest recording calibrate takes.
 MAX_JSON_BYTES = 4 << 20
@@ -52,8 +58,30 @@ G_UNIT_BANDS = {"g": (0.5, 1.5), "m/s^2": (5.0, 15.0)}
 B_UT_BAND = (5.0, 500.0)
 #: Other field units recognised only to name them in the refusal: median |B| band in that unit, x to uT.
 B_OTHER_UNITS = {"Gauss": ((0.05, 5.0), 100.0), "nT": ((5000.0, 500000.0), 0.001)}
+#: The shot counts of the circuitpython-mag-cal layout, in words (icgo.io.grouping.layout_groups).
+LAYOUT_SHOTS_RULE = "8 + 8 k"
 #: Mounting assumed when neither the caller nor the file gives one (mag_cal's default).
 DEFAULT_AXES = "+X+Y+Z"
+#: The instrument whose recordings these are (the ``instrument`` metadata key; its layout: icgo.io.grouping).
+INSTRUMENT = "circuitpython-mag-cal"
+
+
+class ShotFile(NamedTuple):
+    """A recording of grouped shots as read, before any search of the data.
+
+    Attributes:
+        recording: the contract :class:`icgo.io.recording.Recording`; a ``group`` column when the groups are
+            known here (the layout's, or given), else none.
+        origin: where the ``group`` column came from: ``layout``, ``column`` (the file's), ``ranges``
+            (``groups=``), or None (no groups: to be found from the data).
+        layout: the recording's known layout, or None.
+        hint: the probable cause to name when no roll is found (a mounting not given), or "".
+    """
+
+    recording: Recording
+    origin: str | None
+    layout: Layout | None
+    hint: str = ""
 
 
 def parse_axes(axes: str, what: str, setting: bool = False) -> tuple[list[int], list[int]]:
@@ -122,21 +150,42 @@ def layout_of(d) -> str:
                     "\"grav\": [...]}} or the raw layout {\"mag\": [[x, y, z], ...], \"grav\": [[x, y, z], ...]}")
 
 
-def read_mag_cal_json(path, mag_axes: str | None = None, grav_axes: str | None = None, groups=None) -> Recording:
-    """A circuitpython-mag-cal JSON file (either layout) as a contract Recording with a checked ``group`` column.
+def check_shots(G, B_uT, src: str) -> None:
+    """Every shot's |G| and |B| within :data:`icgo.io.recording.ROW_FACTOR_G` / ``ROW_FACTOR_B`` of the median, so
+    that one corrupt or mis-scaled reading (1e300, a value in other units) is refused, named, before any fit.
+
+    Args:
+        G: (N, 3) gravity, g. B_uT: (N, 3) field, uT. src: the file.
+    Raises:
+        DataError: one line naming the first such shot (0-based, as ``station``).
+    """
+    for v, what, unit, factor in ((G, "|G|", "g", ROW_FACTOR_G), (B_uT, "|B|", "uT", ROW_FACTOR_B)):
+        norm = np.hypot(np.hypot(v[:, 0], v[:, 1]), v[:, 2])  # no square of 1e300 overflows here
+        med = float(np.median(norm))
+        off = (norm < med / factor) | (norm > med * factor)
+        if off.any():
+            i = int(np.argmax(off))
+            fail(src, f"shot {i}: {what} = {norm[i]:.4g} {unit} while the median is {med:.4g} {unit} "
+                      f"({int(off.sum())} shot(s) more than {factor:g}x off: a corrupt reading or one in other units)")
+
+
+def read_mag_cal_json(path, mag_axes: str | None = None, grav_axes: str | None = None, groups=None) -> ShotFile:
+    """A circuitpython-mag-cal JSON file (either layout) as a contract Recording, grouped by its layout or ``groups=``.
 
     Args:
         path: the JSON file.
         mag_axes, grav_axes: mounting strings for the raw layout (settings: override the file's keys;
             default ``+X+Y+Z``, grav default = mag, as mag_cal). Refused for the fixture layout,
             which is in the device frame already.
-        groups: a :func:`icgo.io.grouping.parse_groups` value; None = ``auto`` (rolls found from the data).
+        groups: a :func:`icgo.io.grouping.parse_groups` value: shot ranges (checked), ``auto`` or None (the
+            layout's groups where the shot count fits it; ``auto`` asks the caller to search the data, and the
+            layout is still returned to compare with), ``column`` (refused: a JSON has no group column).
     Returns:
-        Recording (station = shot index; no reference attitude, no field metadata); ``notices`` say
-        how the rolls were found.
+        :class:`ShotFile` (station = shot index; no reference attitude, no field metadata; ``instrument`` in the
+        metadata).
     Raises:
         SettingError: a bad ``mag_axes`` / ``grav_axes`` setting, axes for a fixture file, a bad shot range.
-        DataError: one line naming the file and what is wrong (no roll: with the probable cause).
+        DataError: one line naming the file and what is wrong.
     """
     src = str(path)
     for key, v in (("mag_axes", mag_axes), ("grav_axes", grav_axes)):
@@ -157,16 +206,17 @@ def read_mag_cal_json(path, mag_axes: str | None = None, grav_axes: str | None =
         if mag_axes is not None or grav_axes is not None:
             raise SettingError(f"mag_axes / grav_axes apply to the raw layout; {src} is a fixture-layout file, "
                                "in the device frame already: drop them")
-        G, B, fixed = fixture_shots(d, src)
+        G, B, _ = fixture_shots(d, src)
+        check_shots(G, B / UT_TO_NT, src)
         _field_to_nT(B / UT_TO_NT, src, "shots.mag")
         if _gravity_to_g(G, src, "shots.grav")[1] != "g":
             fail(src, "'shots.grav': the fixture layout holds gravity in g; this file's looks like m/s^2")
         g_unit, axes_note = "g", "device frame (fixture layout)"
     else:
-        fixed = None
         mag, grav = _triples(d["mag"], src, "mag"), _triples(d["grav"], src, "grav")
         if len(mag) != len(grav):
             fail(src, f"'mag' has {len(mag)} readings and 'grav' {len(grav)}: one of each per shot")
+        check_shots(grav, mag, src)
         from_file = {k: d.get(k) for k in ("mag_axes", "grav_axes")}
         ma = mag_axes if mag_axes is not None else from_file["mag_axes"]
         ga = grav_axes if grav_axes is not None else from_file["grav_axes"]
@@ -184,19 +234,30 @@ def read_mag_cal_json(path, mag_axes: str | None = None, grav_axes: str | None =
                      f"grav_axes {str(ga).upper()} (mag_cal Axes{'; default: none given' if hint else ''})")
     frame = pd.DataFrame({"station": np.arange(len(G)), "gx": G[:, 0], "gy": G[:, 1], "gz": G[:, 2],
                           "bx": B[:, 0], "by": B[:, 1], "bz": B[:, 2]})
-    frame, notices = assign_groups(frame, groups, src, default="auto", no_roll_hint=hint)
-    if fixed is not None and groups is None and frame["group"].tolist() != fixed.tolist():
-        notices.append("the rolls found differ from mag_cal read_fixture's shots "
-                       + ", ".join(f"{a}-{b - 1}" for a, b in MAG_CAL_RUNS))
-    group = frame["group"].to_numpy()
-    n_rolled = int(sum(np.sum(group == g) >= 2 for g in np.unique(group)))
+    known = layout_groups(INSTRUMENT, len(G))
     meta = {"name": str(d.get("name", Path(path).stem)) if isinstance(d, dict) else Path(path).stem,
-            "source": src,
+            "source": src, "instrument": INSTRUMENT,
             "description": f"circuitpython-mag-cal {layout} layout; {axes_note}; device axes (X right, Y pointing, "
                            f"Z up) -> tool (x, y, z) = (Z, X, Y); gravity {g_unit}"
                            + (" / 9.80665 -> g" if g_unit == "m/s^2" else "")
-                           + f"; field uT x 1000 -> nT; {len(group)} shots, {n_rolled} roll(s) "
-                           + "(" + "; ".join(f"shots {shot_ranges(np.flatnonzero(group == g))}"
-                                             for g in np.unique(group) if np.sum(group == g) >= 2) + ")"}
+                           + f"; field uT x 1000 -> nT; {len(G)} shots; "
+                           + (known.describe() if known else f"no known layout ({len(G)} shots is not "
+                                                                f"{LAYOUT_SHOTS_RULE})")}
     rec = validate(frame, meta, source=src, require_reference=False)
-    return rec._replace(notices=notices + rec.notices)
+    if groups == "column":
+        fail(src, "groups=column: a circuitpython-mag-cal JSON has no group column; drop groups= (the layout), or "
+                  "give groups=auto or shot ranges")
+    if isinstance(groups, tuple):
+        group = groups_from_ranges(rec.frame["station"].to_numpy(), groups)
+        check_given(rec.frame.assign(group=group), group, src, "the shot ranges (groups=)")
+        return ShotFile(rec._replace(frame=rec.frame.assign(group=group)), "ranges", known, hint)
+    if known is not None and groups != "auto":
+        group = groups_from_ranges(rec.frame["station"].to_numpy(), known.ranges)
+        off = rolls_off_axis_deg(rec.G, rec.B, group)
+        if off is not None:
+            raise GroupingError(f"{src}: the {known.describe()}: its rolls turn about an axis {off:.0f} deg or more "
+                                f"from the pointing axis (tool z; at most {AXIS_TO_Z_DEG:g}): the mounting is not the "
+                                "device's; probable cause: "
+                                + (hint or "the mounting strings (mag_axes / grav_axes) are not this device's"))
+        return ShotFile(rec._replace(frame=rec.frame.assign(group=group)), "layout", known, hint)
+    return ShotFile(rec, None, known, hint)

@@ -74,7 +74,7 @@ ROW_FACTOR_B = 10.0
 
 FIELD_KEYS = ("total_field_nT", "dip_deg", "declination_deg", "gravity_g")
 LOCATION_KEYS = ("latitude", "longitude", "altitude_km", "date")
-DESCRIPTIVE_KEYS = ("name", "source", "license", "description")
+DESCRIPTIVE_KEYS = ("name", "source", "license", "description", "instrument")
 KNOWN_META_KEYS = FIELD_KEYS + LOCATION_KEYS + DESCRIPTIVE_KEYS
 
 #: Standard gravity, m/s^2 per g.
@@ -546,7 +546,7 @@ def column_map(columns=None, columns_file=None, setting: str = "columns") -> dic
 
 
 def read_recording(csv_path, meta_path=None, *, require_meta: bool = True, require_reference: bool = True,
-                   columns=None, column_setting: str = "columns") -> Recording:
+                   columns=None, column_setting: str = "columns", max_bytes: int = MAX_CSV_BYTES) -> Recording:
     """Read and validate a contract CSV and its ``<name>.meta.json``.
 
     Args:
@@ -560,6 +560,8 @@ def read_recording(csv_path, meta_path=None, *, require_meta: bool = True, requi
             (:mod:`icgo.io.columns`; :func:`column_map` builds one from settings and a file).
         column_setting: how the caller names the column map, for the hints in errors
             (``columns``, ``dataset.columns``).
+        max_bytes: the largest file read (default :data:`MAX_CSV_BYTES`; a larger survey streams through
+            :func:`icgo.io.stream.read_chunks`).
     Returns:
         Recording; ``notices`` say which export columns were mapped and which units converted.
     Raises:
@@ -568,7 +570,7 @@ def read_recording(csv_path, meta_path=None, *, require_meta: bool = True, requi
     """
     csv_path = Path(csv_path)
     src = str(csv_path)
-    text = read_text_bounded(csv_path, MAX_CSV_BYTES, "a contract CSV")  # a FIFO, a device, a huge file: refused
+    text = read_text_bounded(csv_path, max_bytes, "a contract CSV")  # a FIFO, a device, a huge file: refused
     if text.strip() == "":
         fail(src, "empty file (no header, no rows)")
     cmap = export.check_column_map(columns, KNOWN_COLUMNS, column_setting)
@@ -576,18 +578,33 @@ def read_recording(csv_path, meta_path=None, *, require_meta: bool = True, requi
     text = prep.text
     if text.strip() == "":
         fail(src, "only comment lines (lines starting with #): no header, no rows")
-    opts = {"convert": prep.convert, "setting": column_setting}
-    notices: list[str] = []
-    typed = _read_fast(text, src, notices, require_reference, **opts)
-    if typed is None:
-        notices = []
-        typed = _read_exact(text, src, notices, require_reference, **opts)
+    typed, notices = parse_contract_text(text, src, require_reference, prep.convert, column_setting)
     notices[:0] = prep.notices
     if not text.endswith(("\n", "\r")):  # a cut-off write leaves no newline: say so, naming the last row
         notices.append(f"{src}: the file does not end with a newline; check that its last row (row {len(typed)}) "
                        f"is complete")
     del text
+    meta, field = read_meta(csv_path, meta_path, require_meta, notices)
+    return Recording(typed, meta, notices, field, src)
 
+
+def parse_contract_text(text: str, src: str, require_reference: bool, convert=None,
+                        setting: str = "columns") -> tuple[pd.DataFrame, list]:
+    """(checked frame, notices) of a contract CSV's text (comments blanked, header resolved: :mod:`icgo.io.columns`):
+    pandas' C parser where it can, the exact reader where it cannot (and to word every error)."""
+    notices: list[str] = []
+    typed = _read_fast(text, src, notices, require_reference, convert=convert, setting=setting)
+    if typed is None:
+        notices = []
+        typed = _read_exact(text, src, notices, require_reference, convert=convert, setting=setting)
+    return typed, notices
+
+
+def read_meta(csv_path, meta_path=None, require_meta: bool = True, notices: list | None = None):
+    """(metadata dict, reference field or None) of a CSV's ``<name>.meta.json`` (or ``meta_path``), checked.
+
+    A missing file reads as ``{}`` with a notice when ``require_meta`` is False. Raises DataError (one line)."""
+    notices = [] if notices is None else notices
     mpath = Path(meta_path) if meta_path is not None else meta_path_for(csv_path)
     msrc = str(mpath)
     if mpath.exists() and not mpath.is_file():
@@ -608,8 +625,7 @@ def read_recording(csv_path, meta_path=None, *, require_meta: bool = True, requi
             fail(msrc, f"invalid JSON at line {e.lineno}, column {e.colno}: {e.msg}")
         except RecursionError:
             fail(msrc, "metadata nested too deeply to read (the contract's metadata is a flat JSON object)")
-    field = _check_meta(meta, msrc, notices)
-    return Recording(typed, meta, notices, field, src)
+    return meta, _check_meta(meta, msrc, notices)
 
 
 #: A line longer than the csv module's field limit: the exact reader refuses it, so the fast one must not read it.

@@ -51,6 +51,7 @@ import numpy as np
 
 from icgo.maths.lsq import LSQResult, least_squares
 from icgo.physics.frames import angle_diff, azimuth_from_gv
+from icgo.physics.rolls import MIN_ROLLED_SHOTS
 
 N_PARAMS = 12
 #: Tool-frame directions closer than this (deg, in G and in B) count as one orientation.
@@ -59,8 +60,6 @@ DISTINCT_SEPARATION_DEG = 2.0
 MIN_ORIENTATIONS_12 = 12
 #: ... and the 9-coefficient ellipsoid (quadric) fit.
 MIN_ORIENTATIONS_ELLIPSOID = 9
-#: Smallest group treated as rolled about the pointing axis (axis alignment, joint fit, roll finding).
-MIN_ROLLED_SHOTS = 4
 
 
 # ----------------------------------------------------------------------- model
@@ -360,9 +359,12 @@ def ellipsoid_fit(B, ref_nT, G=None, check=True) -> np.ndarray:
     if check:
         check_orientations(G if G is not None else np.ones_like(B), B,
                            MIN_ORIENTATIONS_ELLIPSOID, "the ellipsoid fit")
-    s = np.median(np.linalg.norm(B, axis=1))
-    x, y, z = (B / s).T
-    D = np.stack([x * x, y * y, z * z, 2 * x * y, 2 * x * z, 2 * y * z, 2 * x, 2 * y, 2 * z], 1)
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflow is refused just below
+        s = np.median(np.linalg.norm(B, axis=1))
+        x, y, z = (B / s).T
+        D = np.stack([x * x, y * y, z * z, 2 * x * y, 2 * x * z, 2 * y * z, 2 * x, 2 * y, 2 * z], 1)
+    if not np.all(np.isfinite(D)):  # LAPACK on inf hangs or fails: a reading far larger than the others
+        raise ValueError("ellipsoid fit: a reading is too large to square (check the units of every shot)")
     sv = np.linalg.svd(D, compute_uv=False)
     if check and sv[-1] < 1e-9 * sv[0]:
         raise ValueError(

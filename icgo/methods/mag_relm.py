@@ -31,7 +31,7 @@ group (every single shot, every roll) is left out in turn, ``W`` fitted on the
 rest, and the same residuals evaluated on the left-out shots (the roll's spread
 about its own mean; a shot's dip and modulus against the fitting shots' field).
 The chosen ``lambda`` minimises their mean square over :data:`LAMBDAS`; all
-``len(LAMBDAS) x (groups + 1)`` fits run as one vmapped batch.
+``len(LAMBDAS) x (groups + 1)`` fits run as vmapped batches, one call per ridge (an interrupt is answered between them).
 
 Why not a closed-form fit: ``W`` fitted to fixed targets (the field at the group's
 mean azimuth and the median dip) with 12 random tanh units reaches 0.428 deg
@@ -189,8 +189,11 @@ def fit(G, b, groups, hidden=None, lambdas=LAMBDAS, train=None) -> MagRELM:
     # fold 0 fits every training shot (the final model); fold k >= 1 leaves group ids[k-1] out and scores it
     fit_w = np.array([train] + [train & (groups != g) for g in ids], np.float64)
     held_w = np.array([np.zeros(len(groups))] + [train & (groups == g) for g in ids], np.float64)
-    W, held = _fit_batch(jnp.asarray(lambdas, jnp.float64), jnp.asarray(fit_w), jnp.asarray(held_w), H, G, b,
-                         member, n_steps=N_STEPS)
+    # one call per ridge (all folds vmapped): each returns within a bounded time, so Ctrl-C / SIGTERM are
+    # answered between them, and a recording compiles once (the shape does not depend on the ridge)
+    parts = [_fit_batch(jnp.asarray([lam], jnp.float64), jnp.asarray(fit_w), jnp.asarray(held_w), H, G, b, member,
+                        n_steps=N_STEPS) for lam in lambdas]
+    W, held = (jnp.concatenate([p[i] for p in parts]) for i in (0, 1))
     cv = np.asarray(held[:, 1:].sum(1)) / int(train.sum())
     if not np.all(np.isfinite(cv)):
         raise ValueError("mag_relm.fit: a leave-one-group-out fit is not finite (shots with gravity along the field?)")

@@ -70,7 +70,7 @@ class MagCalibration(FittedModel):
 
     KIND = "mag_calibration"
     #: A calibration makes the field one earth field: its corrected |B| and dip are checked for spread over a
-    #: survey's stations (icgo.survey.apply.consistency_notice).
+    #: survey's stations (icgo.survey.apply.one_field_doubt).
     ONE_FIELD = True
     UNITS = {"x_mag": "R^-1 (1), b (nT)", "x_accel": "S (1), c (g)", "alignment": "1",
              "bx,by,bz": "nT", "gx,gy,gz": "g", "angles": "deg", "b_total_nT": "nT"}

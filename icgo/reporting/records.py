@@ -124,6 +124,9 @@ def recommended_model(run_dir) -> Path:
     except (OSError, UnicodeDecodeError, ValueError, RecursionError) as e:
         raise RecordError(f"{path}: unreadable calibration record ({type(e).__name__})") from None
     rec = run.get("recommendation") if isinstance(run, dict) else None
+    if isinstance(run, dict) and rec is None and isinstance(run.get("refused"), str):
+        raise RecordError(f"{path}: no calibration recommended ({run['refused'][:300]}); to apply one anyway, name its "
+                          f"file: model={Path(run_dir) / 'models'}/<calibration>.json")
     if not isinstance(rec, dict):
         several = run.get("recommendations") if isinstance(run, dict) else None
         names = ", ".join(str(r.get("model")) for r in several.values()) if isinstance(several, dict) else ""

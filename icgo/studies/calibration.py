@@ -23,9 +23,12 @@ Splits (:func:`splits`): in-sample (fit and score on every shot) and one held-ou
 split per rolled group (fit without it, score on it; one roll: its two interleaved halves). Score: the peer's metric
 (:func:`icgo.methods.calibration.group_spread_deg`, deg) on the scored rolled groups. Every
 fit also gets its physical sanity on all shots (:func:`icgo.methods.cal_sanity.sanity`);
-a degenerate fit's score is withheld (NaN) and it is never counted as a win. Every group of a recording
-is checked to be a plausible roll first (:func:`icgo.methods.rolls.check_groups`); :func:`recommend`
-names the calibration to apply.
+a degenerate fit's score is withheld (NaN) and it is never counted as a win, and its mean dip and |B|
+(:mod:`icgo.methods.cal_site`), checked against the site where it is known. Inside every held-out split the
+training shots are split again (:func:`held_out_splits`) for the nested accuracy of the recommendation
+(:func:`icgo.studies.calibration_select.recommend`). Every group of a recording is checked to be a plausible
+roll first (:func:`icgo.physics.rolls.check_groups`) unless its reader did (a layout's groups are kept where the
+data disagree, and named).
 """
 
 from __future__ import annotations
@@ -41,25 +44,24 @@ import pandas as pd
 
 from icgo.core.errors import DataError
 from icgo.core.settings import is_int, need
-from icgo.io.recording import MAG_CAL_DEVICE_TO_TOOL, UT_TO_NT
 from icgo.methods import calibration as cal
 from icgo.methods import joint, mag_relm
 from icgo.methods.cal_sanity import sanity
+from icgo.methods.cal_site import site_check, site_values
 from icgo.methods.calibration import MIN_ROLLED_SHOTS
 from icgo.methods.misma_objective import MismaObjective
-from icgo.methods.rolls import check_groups, rolled_ids
+from icgo.physics.rolls import check_groups, rolled_ids
 from icgo.models.calibration import MagCalibration, mag_calibration
 from icgo.optim import base
 from icgo.optim import misma as misma_opt
 from icgo.optim.registry import get
+from icgo.studies.calibration_peer import PEER_METHODS, peer_available, peer_rows
 from icgo.studies.protocol import Study
 
 log = logging.getLogger(__name__)
 
 #: Our methods, in table order.
 METHODS = ("ellipsoid", "twelve+axis", "misma+axis", "joint", "twelve+axis+relm")
-#: The peer's stages (circuitpython-mag-cal), in table order.
-PEER_METHODS = ("peer_ellipsoid", "peer_fit_to_axis", "peer_fit_non_linear")
 
 
 #: ``misma_bounds`` values (see :class:`CalibrationConfig`).
@@ -99,31 +101,41 @@ def model_label(recording: str, method: str) -> str:
     return f"{recording}_{method.replace('+', '_')}"
 
 
-def splits(groups) -> list[tuple]:
-    """(label, train mask, score mask): in-sample, then the held-out splits.
+def held_out_splits(groups, within=None, prefix: str = "") -> list[tuple]:
+    """(label, train mask, score mask) of the held-out splits of the shots ``within`` (default: all).
 
-    With two or more rolls, one split per roll held out (fit without it, score on it). With one roll of
-    at least 2 x MIN_ROLLED_SHOTS shots, its two interleaved halves are held out in turn (odd shots, then
-    even shots, in shot order: each half still spans the roll): a weaker test, since the fit sees the
-    other half of the same direction. With one shorter roll, in-sample only.
-    Raises ValueError (one line) when the recording has no rolled group.
+    With two or more rolls among them, one split per roll held out (fit without it, score on it). With one
+    roll of at least 2 x MIN_ROLLED_SHOTS of them, its two interleaved halves are held out in turn (odd shots,
+    then even shots, in shot order: each half still spans the roll): a weaker test, since the fit sees the
+    other half of the same direction. With one shorter roll (or none), no split. ``prefix`` starts the labels
+    (an inner split's names its outer split).
     """
     groups = np.asarray(groups)
-    ids = rolled_ids(groups)
-    if not ids:
-        raise ValueError(f"calibration: no rolled group (a group of {MIN_ROLLED_SHOTS} or more shots about one "
-                         "pointing direction); the group column has none")
-    allrows = np.ones(len(groups), bool)
-    out = [("in-sample", allrows, allrows)]
+    within = np.ones(len(groups), bool) if within is None else np.asarray(within, bool)
+    ids = [g for g in rolled_ids(groups) if (within & (groups == g)).sum() >= MIN_ROLLED_SHOTS]
     if len(ids) > 1:
-        out += [(f"held-out group {g}", groups != g, groups == g) for g in ids]
-    elif (groups == ids[0]).sum() >= 2 * MIN_ROLLED_SHOTS:
-        rows = np.flatnonzero(groups == ids[0])
+        return [(f"{prefix}held-out group {g}", within & (groups != g), within & (groups == g)) for g in ids]
+    out = []
+    if ids and (within & (groups == ids[0])).sum() >= 2 * MIN_ROLLED_SHOTS:
+        rows = np.flatnonzero(within & (groups == ids[0]))
         for half, name in ((rows[1::2], "odd"), (rows[0::2], "even")):
             score = np.zeros(len(groups), bool)
             score[half] = True
-            out.append((f"held-out half of group {ids[0]} ({name} shots)", ~score, score))
+            out.append((f"{prefix}held-out half of group {ids[0]} ({name} shots)", within & ~score, score))
     return out
+
+
+def splits(groups) -> list[tuple]:
+    """(label, train mask, score mask): in-sample, then the held-out splits (:func:`held_out_splits`).
+
+    Raises ValueError (one line) when the recording has no rolled group.
+    """
+    groups = np.asarray(groups)
+    if not rolled_ids(groups):
+        raise ValueError(f"calibration: no rolled group (a group of {MIN_ROLLED_SHOTS} or more shots about one "
+                         "pointing direction); the group column has none")
+    allrows = np.ones(len(groups), bool)
+    return [("in-sample", allrows, allrows)] + held_out_splits(groups)
 
 
 def misma_box(x_centre, x_lsq, field_scale_nT: float, matrix_halfwidth: float = 0.05,
@@ -228,47 +240,6 @@ def fit_recording(G, B, groups, config: CalibrationConfig, key, header: dict, tr
     return out
 
 
-def _device_frame(G, B):
-    """Tool frame -> mag_cal device frame (inverse of icgo.io.recording's permutation); mag in uT."""
-    perm = list(MAG_CAL_DEVICE_TO_TOOL)
-    gd, md = np.empty_like(G), np.empty_like(B)
-    gd[:, perm], md[:, perm] = G, B / UT_TO_NT
-    return gd, md
-
-
-def peer_available() -> bool:
-    """Whether circuitpython-mag-cal (``mag_cal``) can be imported."""
-    try:
-        import mag_cal  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
-def peer_rows(G, B, groups, train, score) -> list[dict]:
-    """circuitpython-mag-cal's pipeline fitted on ``train``: per stage its score on ``score`` and its sanity."""
-    from mag_cal import Calibration
-
-    gd, md = _device_frame(G, B)
-    ids = rolled_ids(groups)
-    fit_pairs = [(md[(groups == g) & train], gd[(groups == g) & train]) for g in ids if ((groups == g) & train).any()]
-    score_pairs = [(md[(groups == g) & score], gd[(groups == g) & score]) for g in ids if ((groups == g) & score).any()]
-    c = Calibration()
-    out = []
-
-    def stage(name):
-        s = sanity(c.grav.apply(gd), c.mag.apply(md), c.mag.transform)
-        out.append({"method": name, "score_deg": c.accuracy(score_pairs), **s.row()})
-
-    c.fit_ellipsoid(md[train], gd[train])
-    stage("peer_ellipsoid")
-    c.fit_to_axis(fit_pairs)
-    stage("peer_fit_to_axis")
-    c.fit_non_linear(fit_pairs)
-    stage("peer_fit_non_linear")
-    return out
-
-
 def group_score(model: MagCalibration, G, B, groups, score_mask) -> float:
     """The peer metric (deg) of a calibration on the rows of ``score_mask``."""
     Gc, Bc = model.corrected(G, B)
@@ -281,15 +252,39 @@ def model_sanity(model: MagCalibration, G, B):
     return sanity(Gc, Bc, np.asarray(model.x_mag[:9]).reshape(3, 3))
 
 
-def evaluate(recordings: dict, config: CalibrationConfig, key) -> tuple[pd.DataFrame, dict]:
-    """Every recording x split x method: score (NaN when degenerate) and sanity, long format.
+def site_row(model: MagCalibration, G, B, site=None) -> dict:
+    """The site columns of a calibration on shots (G, B): mean dip and |B| with their spreads
+    (:func:`icgo.methods.cal_site.site_values`) and, with ``site`` (dip deg, |B| nT), the check against it."""
+    Gc, Bc = model.corrected(G, B)
+    v = site_values(Gc, Bc, np.asarray(model.x_mag[:9]).reshape(3, 3))
+    row = {"dip_deg": v.dip_deg, "dip_std_deg": v.dip_std_deg, "field_nT": v.field_nT, "field_std_nT": v.field_std_nT,
+           "site_dip_off_deg": np.nan, "site_field_off_pct": np.nan, "site_flag": False, "site_reason": ""}
+    if site is not None:
+        c = site_check(v, *site)
+        row.update({"site_dip_off_deg": c.dip_off_deg, "site_field_off_pct": c.field_off_pct, "site_flag": c.flagged,
+                    "site_reason": c.reason})
+    return row
+
+
+def evaluate(recordings: dict, config: CalibrationConfig, key, *, check: bool = True,
+             sites: dict | None = None) -> tuple[pd.DataFrame, dict]:
+    """Every recording x split x method: score (NaN when degenerate), sanity and site values, long format.
+
+    Besides the in-sample and held-out splits (:func:`splits`, column ``outer`` empty), every held-out split's
+    training shots are split again (:func:`held_out_splits`, column ``outer`` naming the split they are inside):
+    our methods are fitted and scored there too, with sanity and site values judged on that outer split's
+    training shots only, so that :func:`recommend` can make its choice inside each outer split (nested).
 
     Args:
         recordings: name -> :class:`icgo.io.recording.Recording` with a ``group`` column.
         config: :class:`CalibrationConfig`. key: PRNG key (split once per fit).
+        check: refuse a group that is not a plausible roll (the front door checks and names them when it
+            reads the shots; a layout's groups are then kept even where the data disagree).
+        sites: name -> (dip deg, |B| nT) of the site a recording was taken at, or None (no site check).
     Returns:
-        (table with columns recording, split, method, score_deg, dip_spread_deg, b_spread_pct,
-        cond, degenerate, reasons; {"<recording>_<method>": in-sample calibration}).
+        (table with columns recording, split, outer, method, score_deg, dip_spread_deg, b_spread_pct, cond,
+        degenerate, reasons, dip_deg, dip_std_deg, field_nT, field_std_nT, site_dip_off_deg, site_field_off_pct,
+        site_flag, site_reason; {"<recording>_<method>": in-sample calibration}).
     """
     peer = config.peer and peer_available()
     if config.peer and not peer:
@@ -297,26 +292,34 @@ def evaluate(recordings: dict, config: CalibrationConfig, key) -> tuple[pd.DataF
     rows, models = [], {}
     for name, rec in recordings.items():
         G, B, groups = rec.G, rec.B, rec.frame["group"].to_numpy()
-        bad = {g: c for g, c in check_groups(G, B, groups).items() if not c.ok}
-        if bad:  # a group that is not a roll would be scored as one: never silently
-            g, c = next(iter(bad.items()))
-            raise DataError(f"{name}: group {g} is not a plausible roll: {'; '.join(c.reasons)} "
-                            "(icgo.methods.rolls; docs/calibrate.md)")
-        for split, train, score in splits(groups):
+        site = (sites or {}).get(name)
+        if check:
+            bad = {g: c for g, c in check_groups(G, B, groups).items() if not c.ok}
+            if bad:  # a group that is not a roll would be scored as one: never silently
+                g, c = next(iter(bad.items()))
+                raise DataError(f"{name}: group {g} is not a plausible roll: {'; '.join(c.reasons)} "
+                                "(icgo.physics.rolls; docs/calibrate.md)")
+        outer = splits(groups)
+        todo = [(split, train, score, "", np.ones(len(groups), bool)) for split, train, score in outer]
+        for split, train, _ in outer[1:]:
+            todo += [(s2, t2, sc2, split, train) for s2, t2, sc2 in held_out_splits(groups, train, f"{split} / ")]
+        for split, train, score, within, scope in todo:
             key, sub = jax.random.split(key)
             header = {"study": "calibration", "recording": name, "split": split, **dataclasses.asdict(config)}
             try:
                 fitted = fit_recording(G, B, groups, config, sub, header, train)
             except GeometryError as e:  # the fits refuse a geometry they cannot solve: say where, and what helps
-                raise ValueError(f"{name}, {split}: {e} (the fits need shots in many "
-                                 "orientations besides the rolls, e.g. the 8 single shots of the mag_cal "
-                                 "procedure)") from None
+                raise GeometryError(f"{split}: {e} (the fits need shots in many "
+                                    "orientations besides the rolls, e.g. the 8 single shots of the mag_cal "
+                                    "procedure)") from None
             for m, c in fitted.items():
-                s = model_sanity(c, G, B)
-                rows.append({"recording": name, "split": split, "method": m,
-                             "score_deg": group_score(c, G, B, groups, score), **s.row()})
-            if peer:
-                rows += [{"recording": name, "split": split, **r} for r in peer_rows(G, B, groups, train, score)]
+                s = model_sanity(c, G[scope], B[scope])
+                rows.append({"recording": name, "split": split, "outer": within, "method": m,
+                             "score_deg": group_score(c, G, B, groups, score), **s.row(),
+                             **site_row(c, G[scope], B[scope], site)})
+            if peer and not within:
+                rows += [{"recording": name, "split": split, "outer": "", **r}
+                         for r in peer_rows(G, B, groups, train, score)]
             if split == "in-sample":
                 models.update({model_label(name, m): c for m, c in fitted.items()})
             log.info("  %-6s %-18s %s", name, split, " ".join(
@@ -327,9 +330,15 @@ def evaluate(recordings: dict, config: CalibrationConfig, key) -> tuple[pd.DataF
     return df, models
 
 
+def outer_rows(df: pd.DataFrame) -> pd.DataFrame:
+    """The in-sample and held-out rows of :func:`evaluate`'s table (the inner splits left out)."""
+    return df[df["outer"].fillna("") == ""] if "outer" in df.columns else df
+
+
 def summary(df: pd.DataFrame) -> pd.DataFrame:
     """Per method: mean score in-sample and held out over the sound fits, how many fits were degenerate, and the
-    largest dip spread and condition number over all its fits (degenerate ones included)."""
+    largest dip spread and condition number over all its fits (degenerate ones included); inner splits left out."""
+    df = outer_rows(df)
     order = [m for m in METHODS + PEER_METHODS if m in set(df["method"])]
     out = []
     for m in order:
@@ -343,59 +352,13 @@ def summary(df: pd.DataFrame) -> pd.DataFrame:
 
 
 def wide(df: pd.DataFrame) -> pd.DataFrame:
-    """One row per recording and split, one column per method: the score (deg), or ``degenerate`` for a
-    fit the sanity check rejects (its reasons in the long table)."""
+    """One row per recording and split (inner splits left out), one column per method: the score (deg), or
+    ``degenerate`` for a fit the sanity check rejects (its reasons in the long table)."""
+    df = outer_rows(df)
     order = [m for m in METHODS + PEER_METHODS if m in set(df["method"])]
     cell = df.assign(cell=[("degenerate" if d else f"{s:.3f}") for s, d in zip(df["score_deg"], df["degenerate"])])
     out = cell.pivot(index=["recording", "split"], columns="method", values="cell")[order]
     return out.reindex(pd.unique(pd.MultiIndex.from_frame(df[["recording", "split"]]))).reset_index()
-
-
-def recommend(df: pd.DataFrame, recording: str) -> dict:
-    """The calibration to apply for one recording, and why (:func:`evaluate`'s table).
-
-    Among our methods (the ones saved as models) with no degenerate fit in any split, the lowest mean
-    held-out score; its uncertainty is the standard error of that mean over the held-out splits
-    (``spread_deg``). It is a **clear winner** when its margin over the runner-up exceeds that spread
-    (a rule of thumb over a few splits, not a significance test). Without a held-out split (one short
-    roll) the in-sample score decides and there is no clear winner.
-
-    Returns:
-        ``{"model", "method", "criterion", "held_out_deg", "spread_deg", "clear_winner", "runner_up",
-        "sentence"}``: ``model`` the file name relative to the run directory (``models/<label>.json``),
-        ``held_out_deg`` the deciding mean (in-sample when there is no held-out split), ``spread_deg`` its
-        standard error or None, ``runner_up`` a method or None, ``sentence`` the report's line.
-    Raises:
-        ValueError: every method has a degenerate fit.
-    """
-    g = df[(df["recording"] == recording) & df["method"].isin(METHODS)]
-    held = g[g["split"] != "in-sample"]
-    use = held if len(held) else g[g["split"] == "in-sample"]
-    sound = [m for m in METHODS if m in set(g["method"]) and not g.loc[g["method"] == m, "degenerate"].any()]
-    if not sound:
-        raise ValueError(f"{recording}: every calibration method has a degenerate fit (calibration.csv has the "
-                         "reasons); nothing to recommend")
-    scores = {m: use.loc[use["method"] == m, "score_deg"].to_numpy(np.float64) for m in sound}
-    ranked = sorted(sound, key=lambda m: (np.mean(scores[m]), METHODS.index(m)))
-    best, runner = ranked[0], (ranked[1] if len(ranked) > 1 else None)
-    n = len(scores[best])
-    mean = float(np.mean(scores[best]))
-    spread = float(np.std(scores[best], ddof=1) / np.sqrt(n)) if len(held) and n > 1 else None
-    margin = None if runner is None else float(np.mean(scores[runner]) - mean)
-    clear = bool(spread is not None and margin is not None and margin > spread)
-    what = f"mean held-out score over {n} held-out split(s)" if len(held) else "in-sample score (no held-out split)"
-    criterion = (f"lowest {what} among the methods with no degenerate fit"
-                 + ("" if runner is None else f"; margin over {runner} {margin:.3f} deg"
-                    + (f" vs the standard error {spread:.3f} deg" if spread is not None else "")))
-    verdict = ("a clear winner" if clear else "no clear winner" + ("" if runner is None else
-                                                                    f" ({runner} is within the spread)"))
-    sentence = (f"Apply `{best}` (`models/{model_label(recording, best)}.json`): {what} {mean:.3f}"
-                + (f" +/- {spread:.3f}" if spread is not None else "") + " deg, the lowest among the "
-                f"{len(sound)} method(s) with no degenerate fit"
-                + ("" if runner is None else f"; runner-up `{runner}` {mean + margin:.3f} deg") + f": {verdict}.")
-    return {"model": f"models/{model_label(recording, best)}.json", "method": best, "criterion": criterion,
-            "held_out_deg": mean, "spread_deg": spread, "clear_winner": clear, "runner_up": runner,
-            "sentence": sentence}
 
 
 def roll_directions(model: MagCalibration, G, B, groups) -> pd.DataFrame:

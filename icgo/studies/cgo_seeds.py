@@ -22,6 +22,7 @@ import pandas as pd
 
 from icgo.methods import msa as _msa
 from icgo.methods import relm as _relm
+from icgo.methods.search_fitness import search_fitness
 from icgo.optim.cgo import CGO, CGOConfig, advance
 from icgo.studies import icgo_relm
 
@@ -53,17 +54,14 @@ def search_setup(frame: pd.DataFrame, meta: dict, cfg: icgo_relm.StudyConfig, ke
     reference = _reference(cfg, meta)
     prep, mem = icgo_relm.prepare(rows, G, B, a_true, cfg, key, reference)
     prep, mem, cfg, _ = icgo_relm.exclude_failed_repeats(prep, mem, cfg, reference)
-    sk = icgo_relm.search_kernel(cfg.dtype, cfg.fitness, cfg.execution(len(frame)).kernel)
-    R = prep.key.shape[0]
-    aux = sk.aux(icgo_relm.train_rows(prep) if sk.train_rows else prep.data, np.full(R, cfg.lam, prep.data.X.dtype),
-                 cfg.hidden)
+    aux = icgo_relm.search_aux(cfg, prep, cfg.execution(cells=prep.key.shape[0]).kernel)
     D = _relm.n_params(cfg.hidden)
     low, high = cfg.theta_bounds
     return prep.key, aux, (np.full(D, float(low)), np.full(D, float(high)))
 
 
 def run_counted(keys, aux, bounds, pop_size: int, n_iter: int, config: CGOConfig,
-                fitness=_relm.search_fitness) -> SeedRates:
+                fitness=search_fitness) -> SeedRates:
     """CGO for every repeat (one jitted, vmapped ``lax.scan``), counting its seeds.
 
     Args:

@@ -52,30 +52,59 @@ SPREAD_MARGIN = {"b_rel": 0.02, "dip_deg": 1.0}
 ONE_FIELD_SPREAD = {"b_rel": 0.05, "dip_deg": 3.0}
 
 
-def consistency_notice(model: FittedModel, G, B_raw, B_corr, G_corr=None) -> str | None:
+def one_field_doubt(model: FittedModel, b_raw, dip_raw, b_corr, dip_corr) -> str | None:
     """One line when the model's corrected field is not one earth field over the survey's stations (see
-    :data:`SPREAD_MARGIN`, :data:`ONE_FIELD_SPREAD`), else None.
+    :data:`SPREAD_MARGIN`, :data:`ONE_FIELD_SPREAD`), else None: the model probably belongs to another device, and
+    the verdict says so (:func:`icgo.survey.verdict.apply_verdict`: not to be used as it stands).
 
     Args:
-        G: (N, 3) raw gravity, g. B_raw, B_corr: (N, 3) raw and corrected field, nT. G_corr: the model's
-            corrected gravity, if it corrects it (the dip after the model uses it).
+        b_raw, dip_raw: (N,) raw |B| (nT) and dip (deg) per station. b_corr, dip_corr: the same after the model
+            (the dip from the model's corrected gravity where it corrects it).
     """
-    from icgo.physics.qc import measured_dip_deg
-
-    if len(G) < 3:
+    if len(b_raw) < 3:
         return None
-
-    def spread(Gv, Bv):
-        bn = np.linalg.norm(Bv, axis=1)
-        return float(np.std(bn) / max(np.mean(bn), 1e-300)), float(np.std(measured_dip_deg(Gv, Bv)))
-
-    (b0, d0), (b1, d1) = spread(G, B_raw), spread(G if G_corr is None else G_corr, B_corr)
+    (b0, d0), (b1, d1) = _spreads(b_raw, dip_raw), _spreads(b_corr, dip_corr)
     worse = b1 > b0 + SPREAD_MARGIN["b_rel"] or d1 > d0 + SPREAD_MARGIN["dip_deg"]
     not_one = getattr(model, "ONE_FIELD", False) and (b1 > ONE_FIELD_SPREAD["b_rel"] or d1 > ONE_FIELD_SPREAD["dip_deg"])
     if worse or not_one:
         return (f"the corrected field is not one earth field over the survey's stations (|B| spread {100 * b0:.2g} % "
-                f"raw -> {100 * b1:.2g} % corrected, dip spread {d0:.3g} -> {d1:.3g} deg): the model may belong to "
-                f"another tool or device; check it before using the corrected azimuths")
+                f"raw -> {100 * b1:.2g} % corrected, dip spread {d0:.3g} -> {d1:.3g} deg): the model belongs to "
+                f"another tool or device, or this one changed since it was fitted")
+    return None
+
+
+def _spreads(bn, dip) -> tuple[float, float]:
+    """(relative std of |B|, std of the dip in deg) over stations: one earth field has both near 0."""
+    return float(np.std(bn) / max(np.mean(bn), 1e-300)), float(np.std(dip))
+
+
+#: A reference angle column "looks like radians" (:func:`radians_doubt`) when every value lies within
+#: [-RADIANS_MAX, RADIANS_MAX], the model's own angle is at least RADIANS_FAR_DEG (median) from it read as
+#: degrees, and read as radians it is at least RADIANS_RATIO times closer.
+RADIANS_MAX = 2.0 * np.pi + 1e-6
+RADIANS_FAR_DEG = 10.0
+RADIANS_RATIO = 3.0
+
+
+def radians_doubt(reference, estimate_deg, column: str) -> str | None:
+    """One line when a survey's reference angle (``azimuth_deg``, ``inclination_deg``) looks like radians, else None.
+
+    Args:
+        reference: (N,) the survey's reference column as given. estimate_deg: (N,) the same angle from the
+            survey's own sensors or the model (deg), to compare with. column: its name, for the line.
+    """
+    ref = np.asarray(reference, float)
+    est = np.asarray(estimate_deg, float)
+    ok = np.isfinite(ref) & np.isfinite(est)
+    ref, est = ref[ok], est[ok]
+    if ref.size < 3 or np.max(np.abs(ref)) > RADIANS_MAX:
+        return None
+    as_deg = float(np.median(np.abs(np.asarray(angle_diff(est, ref)))))
+    as_rad = float(np.median(np.abs(np.asarray(angle_diff(est, np.degrees(ref))))))
+    if as_deg >= RADIANS_FAR_DEG and as_rad * RADIANS_RATIO <= as_deg:
+        return (f"the survey's {column} looks like radians (every value within +/- 2 pi; the median difference "
+                f"from the survey's own angle is {as_deg:.1f} deg read as degrees, {as_rad:.2f} deg read as "
+                f"radians): convert {column} to degrees and apply again")
     return None
 
 
@@ -93,6 +122,12 @@ class CorrectedSurvey(NamedTuple):
         trajectory: where the survey has measured depth (``md``), the bottom-hole positions by minimum
             curvature from the raw and the corrected attitude and the change the correction makes
             (:func:`icgo.survey.trajectory.position_change`), else None.
+        doubts: what makes the result not usable as it stands, ``{kind: line}``: ``other_device`` (the
+            corrected field is not one earth field: :func:`one_field_doubt`), ``reference_units`` (a
+            reference angle that looks like radians: :func:`radians_doubt`; the metrics are then withheld).
+            The verdict changes with them (:func:`icgo.survey.verdict.apply_verdict`).
+        stations: the per-station arrays the verdict reads (:attr:`Rows.keep`). domain: the survey's ranges of
+            the model's domain quantities (:attr:`Rows.domain`).
     """
 
     table: pd.DataFrame
@@ -100,21 +135,34 @@ class CorrectedSurvey(NamedTuple):
     qc: dict | None
     notices: list
     trajectory: dict | None = None
+    doubts: dict = {}
+    stations: dict = {}
+    domain: dict = {}
 
 
-def correct_survey(model: FittedModel, frame: pd.DataFrame, field=None, *, method: str | None = None,
-                   bands: QCBands = QCBands()) -> CorrectedSurvey:
-    """Apply ``model`` to a survey and check the result.
+class Rows(NamedTuple):
+    """What :func:`correct_rows` gives for some stations of a survey.
 
-    Args:
-        model: any fitted model (:func:`icgo.models.registry.load_model`).
-        frame: the survey (data contract: gx, gy, gz in g, bx, by, bz in nT; optional
-            azimuth_deg, station, ...).
-        field: the survey's :class:`icgo.io.recording.ReferenceField` or None (no QC then).
-        method: for a model holding several methods, which one (None: its default).
-        bands: QC acceptance bands.
+    Attributes:
+        table: the stations' own columns, the model's output and, with a reference field, the QC columns.
+        keep: per-station arrays the survey-level summary needs (:func:`summarise`), a few floats per station:
+            reference and estimated angles, raw and corrected |B| and dip, QC deviations, positions' inputs.
+        domain: {quantity: [min, max]} of the stations (the model's domain quantities).
+        qc: {"raw": counts, "corrected": counts} of the stations, or None.
+    """
+
+    table: pd.DataFrame
+    keep: dict
+    domain: dict
+    qc: dict | None
+
+
+def correct_rows(model: FittedModel, frame: pd.DataFrame, field=None, *, method: str | None = None,
+                 bands: QCBands = QCBands()) -> Rows:
+    """The model applied to some stations of a survey, and what the survey-level checks need from them.
+
     Raises:
-        icgo.models.format.ModelError: one line, e.g. the survey lacks a column the model needs.
+        ModelError / DataError: one line (a model setting it lacks, a column it needs, a corrected survey).
     """
     if method is not None and not hasattr(model, "methods"):
         raise ModelError(f"method={method!r}: a {model.KIND} model holds one method; drop the method setting")
@@ -126,68 +174,137 @@ def correct_survey(model: FittedModel, frame: pd.DataFrame, field=None, *, metho
     _check_output(out, model)
     table = pd.concat([frame.reset_index(drop=True),
                        out.drop(columns=[c for c in out.columns if c in frame.columns])], axis=1)
-    notices = []
+    keep = {}
     have_gb = all(c in frame.columns for c in ("gx", "gy", "gz", "bx", "by", "bz"))
-    survey_domain = {k: [float(frame[k].min()), float(frame[k].max())] for k in model.domain
-                     if k in frame.columns and pd.api.types.is_numeric_dtype(frame[k]) and len(frame)}
+    domain = {k: [float(frame[k].min()), float(frame[k].max())] for k in model.domain
+              if k in frame.columns and pd.api.types.is_numeric_dtype(frame[k]) and len(frame)}
+    qc = None
     if have_gb:
+        from icgo.physics.qc import measured_dip_deg
+
         G = frame[["gx", "gy", "gz"]].to_numpy(float)
         B = frame[["bx", "by", "bz"]].to_numpy(float)
-        survey_domain.update(sensor_domain(G, B))
+        domain.update(sensor_domain(G, B))
+        keep["b_raw"], keep["dip_raw"] = np.linalg.norm(B, axis=1), measured_dip_deg(G, B)
         if all(c in out.columns for c in CORRECTED_B):
             g_cols = ["gx_corrected", "gy_corrected", "gz_corrected"]
-            line = consistency_notice(model, G, B, out[list(CORRECTED_B)].to_numpy(float),
-                                      out[g_cols].to_numpy(float) if all(c in out.columns for c in g_cols) else None)
-            if line:
-                notices.append(line)
-    notices += [f"outside the training domain: {n}" for n in domain_notices(model.domain, survey_domain)]
-    qc = None
-    if field is None or not have_gb:
-        notices.append("no reference field in the survey's metadata: no QC (give total_field_nT, dip_deg, "
-                       "gravity_g or the location and date)")
-    else:
-        raw = survey_qc(G, B, field.total_field_nT, field.dip_deg, field.gravity_g, bands, prefix="raw_")
-        table = pd.concat([table, raw.table], axis=1)
-        qc = {"raw": raw.counts}
-        if all(c in out.columns for c in CORRECTED_B):
-            cor = survey_qc(G, out[list(CORRECTED_B)].to_numpy(float), field.total_field_nT, field.dip_deg,
-                            field.gravity_g, bands, prefix="corrected_")
-            table = pd.concat([table, cor.table], axis=1)
-            qc["corrected"] = cor.counts
-    metrics = None
+            Bc = out[list(CORRECTED_B)].to_numpy(float)
+            Gc = out[g_cols].to_numpy(float) if all(c in out.columns for c in g_cols) else G
+            keep["b_corr"], keep["dip_corr"] = np.linalg.norm(Bc, axis=1), measured_dip_deg(Gc, Bc)
+        if field is not None:
+            raw = survey_qc(G, B, field.total_field_nT, field.dip_deg, field.gravity_g, bands, prefix="raw_")
+            table = pd.concat([table, raw.table], axis=1)
+            qc = {"raw": raw.counts}
+            if all(c in out.columns for c in CORRECTED_B):
+                cor = survey_qc(G, out[list(CORRECTED_B)].to_numpy(float), field.total_field_nT, field.dip_deg,
+                                field.gravity_g, bands, prefix="corrected_")
+                table = pd.concat([table, cor.table], axis=1)
+                qc["corrected"] = cor.counts
+                keep["db_nT"] = cor.table["corrected_db_nT"].to_numpy(float)
+                keep["ddip_deg"] = cor.table["corrected_ddip_deg"].to_numpy(float)
+    if "azimuth_interval_deg" in out.columns:
+        keep["interval"] = out["azimuth_interval_deg"].to_numpy(float)
     if "azimuth_deg" in frame.columns and "azimuth_compensated" in out.columns:
         a_true = frame["azimuth_deg"].to_numpy(float)
-        raw_col = "azimuth_raw" if "azimuth_raw" in out.columns else None
-        err_raw = (np.asarray(angle_diff(out[raw_col].to_numpy(float), a_true)) if raw_col
-                   else np.zeros(len(a_true)))
-        table["error_compensated"] = np.asarray(angle_diff(out["azimuth_compensated"].to_numpy(float), a_true))
-        metrics = {"compensated": _metrics(a_true, out["azimuth_compensated"].to_numpy(float), err_raw)}
-        if raw_col:
-            metrics["raw"] = _metrics(a_true, out[raw_col].to_numpy(float), err_raw)
+        keep["a_true"], keep["a_comp"] = a_true, out["azimuth_compensated"].to_numpy(float)
+        if "azimuth_raw" in out.columns:
+            keep["a_raw"] = out["azimuth_raw"].to_numpy(float)
+        table["error_compensated"] = np.asarray(angle_diff(keep["a_comp"], a_true))
+    if "inclination_deg" in frame.columns:
+        est = (out["inclination_compensated"].to_numpy(float) if "inclination_compensated" in out.columns else
+               np.degrees(np.arctan2(np.hypot(G[:, 0], G[:, 1]), G[:, 2])) if have_gb else None)
+        if est is not None:
+            keep["i_true"], keep["i_est"] = frame["inclination_deg"].to_numpy(float), est
+    if MD_COLUMN in frame.columns and have_gb and "azimuth_compensated" in out.columns:
+        from icgo.physics.frames import azimuth_from_gv, inclination_from_g
+
+        keep["md"] = frame[MD_COLUMN].to_numpy(float)
+        keep["inc_raw"] = np.asarray(inclination_from_g(G), float)
+        keep["azi_raw"] = (out["azimuth_raw"].to_numpy(float) if "azimuth_raw" in out.columns
+                           else np.asarray(azimuth_from_gv(G, B)))
+        keep["inc_cor"] = (out["inclination_compensated"].to_numpy(float) if "inclination_compensated" in out.columns
+                           else keep["inc_raw"])
+        keep["azi_cor"] = out["azimuth_compensated"].to_numpy(float)
+        if all(c in frame.columns for c in ("inclination_deg", "azimuth_deg")):
+            keep["inc_ref"], keep["azi_ref"] = frame["inclination_deg"].to_numpy(float), frame["azimuth_deg"].to_numpy(float)
+    # copies: a column taken from a frame is a view that would keep the whole frame (a streamed chunk) alive
+    return Rows(table, {name: np.array(v, dtype=float, copy=True) for name, v in keep.items()}, domain, qc)
+
+
+def merge_rows(parts: list[Rows]) -> Rows:
+    """Rows of consecutive stations as one (the tables left out: a streamed survey writes them as it goes)."""
+    keys = set().union(*(p.keep for p in parts)) if parts else set()
+    keep = {k: np.concatenate([p.keep[k] for p in parts]) for k in keys if all(k in p.keep for p in parts)}
+    domain = {}
+    for p in parts:
+        for k, (lo, hi) in p.domain.items():
+            domain[k] = [min(lo, domain[k][0]), max(hi, domain[k][1])] if k in domain else [lo, hi]
+    qc = None
+    if parts and all(p.qc for p in parts):
+        qc = {stage: {c: sum(p.qc[stage][c] for p in parts) for c in parts[0].qc[stage]} for stage in parts[0].qc}
+    return Rows(pd.DataFrame(), keep, domain, qc)
+
+
+def summarise(model: FittedModel, rows: Rows, field, *, positions_table: bool = True) -> CorrectedSurvey:
+    """The survey-level result of :func:`correct_rows`' output: metrics, QC, notices, doubts, trajectory.
+
+    ``positions_table``: add the positions to ``rows.table`` (False for a streamed survey, whose table is
+    written already: its positions are then returned in ``trajectory["table"]``).
+    """
+    k, table, notices, doubts = rows.keep, rows.table, [], {}
+    line = one_field_doubt(model, k["b_raw"], k["dip_raw"], k["b_corr"], k["dip_corr"]) if "b_corr" in k else None
+    if line:
+        doubts["other_device"] = line
+        notices.append(line)
+    notices += [f"outside the training domain: {n}" for n in domain_notices(model.domain, rows.domain)]
+    if rows.qc is None:
+        notices.append("no reference field in the survey's metadata: no QC (give total_field_nT, dip_deg, "
+                       "gravity_g or the location and date)" if field is None else
+                       "no gx..bz in the survey: no QC")
+    for col, t, e in (("azimuth_deg", "a_true", "a_comp"), ("inclination_deg", "i_true", "i_est")):
+        if t in k:
+            line = radians_doubt(k[t], k[e], col)
+            if line:
+                doubts["reference_units"] = line
+                notices.append(line)
+                break
+    metrics = None
+    if "a_true" in k:
+        err_raw = np.asarray(angle_diff(k["a_raw"], k["a_true"])) if "a_raw" in k else np.zeros(len(k["a_true"]))
+        metrics = {"compensated": _metrics(k["a_true"], k["a_comp"], err_raw)}
+        if "a_raw" in k:
+            metrics["raw"] = _metrics(k["a_true"], k["a_raw"], err_raw)
     else:
         notices.append("no reference azimuth (azimuth_deg) in the survey: no error metrics, QC only")
     trajectory = None
-    if MD_COLUMN in frame.columns and have_gb and "azimuth_compensated" in out.columns:
+    if "md" in k:
         try:
-            pos, trajectory = _positions(frame, out, G, B)
-            table = pd.concat([table, pos], axis=1)
+            pos, trajectory = position_change(k["md"], k["inc_raw"], k["azi_raw"], k["inc_cor"], k["azi_cor"],
+                                              k.get("inc_ref"), k.get("azi_ref"))
+            if positions_table:
+                table = pd.concat([table, pos], axis=1)
+            else:
+                trajectory = {**trajectory, "table": pos}
         except DataError as e:
             notices.append(f"no positions: {e}")
-    return CorrectedSurvey(table, metrics, qc, notices, trajectory)
+    return CorrectedSurvey(table, metrics, rows.qc, notices, trajectory, doubts, k, rows.domain)
 
 
-def _positions(frame: pd.DataFrame, out: pd.DataFrame, G, B):
-    """:func:`icgo.survey.trajectory.position_change` of a survey: raw attitude from its sensors (or the model's
-    ``azimuth_raw``), corrected from the model's output, the reference where the survey has one."""
-    from icgo.physics.frames import azimuth_from_gv, inclination_from_g
+def correct_survey(model: FittedModel, frame: pd.DataFrame, field=None, *, method: str | None = None,
+                   bands: QCBands = QCBands()) -> CorrectedSurvey:
+    """Apply ``model`` to a survey and check the result (:func:`correct_rows`, then :func:`summarise`).
 
-    inc_raw = np.asarray(inclination_from_g(G), float)
-    azi_raw = out["azimuth_raw"].to_numpy(float) if "azimuth_raw" in out.columns else np.asarray(azimuth_from_gv(G, B))
-    inc_cor = out["inclination_compensated"].to_numpy(float) if "inclination_compensated" in out.columns else inc_raw
-    ref = (frame["inclination_deg"].to_numpy(float), frame["azimuth_deg"].to_numpy(float)) if all(
-        c in frame.columns for c in ("inclination_deg", "azimuth_deg")) else (None, None)
-    return position_change(frame[MD_COLUMN].to_numpy(float), inc_raw, azi_raw, inc_cor,
-                           out["azimuth_compensated"].to_numpy(float), *ref)
+    Args:
+        model: any fitted model (:func:`icgo.models.registry.load_model`).
+        frame: the survey (data contract: gx, gy, gz in g, bx, by, bz in nT; optional
+            azimuth_deg, station, md, ...).
+        field: the survey's :class:`icgo.io.recording.ReferenceField` or None (no QC then).
+        method: for a model holding several methods, which one (None: its default).
+        bands: QC acceptance bands.
+    Raises:
+        icgo.models.format.ModelError: one line, e.g. the survey lacks a column the model needs.
+    """
+    return summarise(model, correct_rows(model, frame, field, method=method, bands=bands), field)
 
 
 def _check_output(out: pd.DataFrame, model: FittedModel) -> None:

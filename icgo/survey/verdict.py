@@ -12,9 +12,11 @@ their summary / meta / report), from the numbers of the run they just made:
 4. **model**: the model to use and why (a study's selected method, or the calibration recommendation);
 5. **next**: the exact command to run next.
 
-A survey far outside the training domain makes ``apply`` exit with :data:`EXIT_OUT_OF_DOMAIN` after
-writing its files (docs/qc.md, "The verdict"): the correction there is an extrapolation. Pure functions
-over numbers and small dicts; nothing here reads files.
+``apply`` exits with :data:`EXIT_OUT_OF_DOMAIN` after writing its files when the verdict says the result is
+not to be used as it stands (docs/qc.md, "The verdict"): the survey is far outside the training domain (the
+correction there is an extrapolation), the corrected field is not one earth field (the model belongs to
+another device), or the survey's reference angle looks like radians (its error metrics would be meaningless).
+Pure functions over numbers and small dicts; nothing here reads files.
 """
 
 from __future__ import annotations
@@ -27,8 +29,11 @@ import numpy as np
 from icgo.models.format import DOMAIN_TOLERANCE, domain_overshoots
 from icgo.reporting.records import RECOMMENDATION_KEYS
 
-#: ``apply``'s exit status when the survey is far outside the model's training domain (files still written).
+#: ``apply``'s exit status when its verdict says not to use the result as it stands (files still written): far
+#: outside the model's training domain, a model of another device, a reference in radians.
 EXIT_OUT_OF_DOMAIN = 3
+#: ``calibrate``'s exit status when it recommends no calibration (report and calibrations still written).
+EXIT_NO_RECOMMENDATION = 4
 #: An overshoot of the training range beyond the larger of this and the range's own width is "far outside"
 #: (units of each quantity): ten times the noise-level tolerance of :data:`icgo.models.format.DOMAIN_TOLERANCE`.
 FAR_TOLERANCE = {k: 10.0 * v for k, v in DOMAIN_TOLERANCE.items()}
@@ -168,7 +173,7 @@ def qc_line(qc: dict | None, corrects_field: bool, *, after: str = "corrected", 
 def apply_verdict(*, model_kind: str, method: str | None, interval_deg: float | None, interval_level: float | None,
                   metrics: dict | None, covered: float | None, qc: dict | None, db_nT=None, ddip_deg=None,
                   bands=None, trained: dict | None, survey: dict | None, out_csv: str, model_path: str,
-                  survey_path: str, trajectory: dict | None = None) -> Verdict:
+                  survey_path: str, trajectory: dict | None = None, doubts: dict | None = None) -> Verdict:
     """The verdict of ``experiments.apply`` on one survey.
 
     Args:
@@ -179,7 +184,11 @@ def apply_verdict(*, model_kind: str, method: str | None, interval_deg: float | 
             bands: see :func:`qc_line`. trained, survey: domains (:func:`domain_status`). out_csv: the
             corrected file. model_path, survey_path: for the next command. trajectory: the bottom-hole
             summary of :func:`icgo.survey.trajectory.position_change` where the survey has measured depth.
+        doubts: :attr:`icgo.survey.apply.CorrectedSurvey.doubts`: ``other_device`` makes the status
+            ``"other device"`` (the model is not to be used here), ``reference_units`` makes it ``"reference in
+            doubt"`` (nothing is measured against that reference); both exit with :data:`EXIT_OUT_OF_DOMAIN`.
     """
+    doubts = doubts or {}
     status, phrases, over = domain_status(trained, survey)
     if interval_deg is not None and math.isfinite(interval_deg):
         acc = (f"azimuth within +/- {interval_deg:.3f} deg at {100 * interval_level:.0f} % per station (the model's "
@@ -188,7 +197,9 @@ def apply_verdict(*, model_kind: str, method: str | None, interval_deg: float | 
             acc += "; it does not hold outside the training domain"
     else:
         acc = f"no interval: a {model_kind} model carries none"
-    if metrics:
+    if "reference_units" in doubts:
+        acc += f"; NOT measured on this survey: {doubts['reference_units']}"
+    elif metrics:
         c, r = metrics["compensated"], metrics.get("raw")
         acc += (f"; measured on this survey: MAE {c['mae']:.3f} deg" + (f" (raw {r['mae']:.3f})" if r else "")
                 + (f", {100 * covered:.1f} % of stations inside the interval" if covered is not None else ""))
@@ -205,19 +216,34 @@ def apply_verdict(*, model_kind: str, method: str | None, interval_deg: float | 
     mline = f"{method or 'its only method'} of the {model_kind} model {model_path}" + (
         " (the study's selected method: lowest mean training RMSE over repeats, training rows only)"
         if model_kind == "relm_compensation" else "")
+    dline = domain_line(status, phrases, trained)
     if status == "far outside":
         mline = f"none for this survey: {mline} was trained elsewhere"
+    if "other_device" in doubts:
+        status = "other device"
+        dline = (f"NOT this model's device: {doubts['other_device']}. The corrected azimuths are not to be used "
+                 f"(exit status {EXIT_OUT_OF_DOMAIN})")
+        mline = f"none for this survey: {mline} does not fit this device"
+    elif "reference_units" in doubts and status != "far outside":
+        status = "reference in doubt"
     if status == "far outside":
         nxt = (f"train on data like this survey (with a reference attitude): python -m experiments.run dataset=csv "
                f"dataset.path={survey_path}; then apply that model")
+    elif status == "other device":
+        nxt = ("calibrate this device (python -m experiments.calibrate data=<its grouped shots>) or find its own model; "
+               "then apply that")
+    elif status == "reference in doubt":
+        nxt = f"convert the survey's reference angles to degrees, then apply again: python -m experiments.apply " \
+              f"model={model_path} data={survey_path}"
     else:
         nxt = f"use {out_csv} (azimuth_compensated" + (", azimuth_interval_deg" if interval_deg is not None else "") + ")"
     numbers = {"interval_deg": interval_deg, "interval_level": interval_level, "covered": covered,
                "mae": metrics["compensated"]["mae"] if metrics else None,
                "raw_mae": (metrics.get("raw") or {}).get("mae") if metrics else None,
-               "overshoot": over, "qc": qc, "trajectory": trajectory}
-    return Verdict(acc, domain_line(status, phrases, trained), qline, mline, nxt, status,
-                   EXIT_OUT_OF_DOMAIN if status == "far outside" else 0, numbers)
+               "overshoot": over, "qc": qc, "trajectory": trajectory, "doubts": doubts}
+    return Verdict(acc, dline, qline, mline, nxt, status,
+                   EXIT_OUT_OF_DOMAIN if status in ("far outside", "other device", "reference in doubt") else 0,
+                   numbers)
 
 
 # ---------------------------------------------------------------------- run
@@ -262,14 +288,16 @@ def run_verdict(*, maes: dict, selected: str, halfwidth_deg: float | None, cover
 
 # ---------------------------------------------------------------- calibrate
 def calibrate_verdict(*, recommendation: dict | None, n_models: int, n_degenerate: int, n_fits: int,
-                      run_dir: str, held_out: dict | None = None) -> Verdict:
+                      run_dir: str, held_out: dict | None = None, refused: str | None = None) -> Verdict:
     """The verdict of ``experiments.calibrate``.
 
     Args:
-        recommendation: the run record's ``recommendation`` (:data:`icgo.reporting.records.RECOMMENDATION_KEYS`), or None.
+        recommendation: the run record's ``recommendation`` (:data:`icgo.reporting.records.RECOMMENDATION_KEYS` and
+            the nested ``accuracy_deg`` / ``accuracy_spread_deg``), or None.
         n_models: calibrations saved. n_degenerate, n_fits: fits flagged degenerate by the sanity check, of all.
         run_dir: the run directory (its ``models/`` folder).
         held_out: method -> mean held-out score (deg) of its sound fits, named when there is no recommendation.
+        refused: why no calibration is recommended (the exit status is then :data:`EXIT_NO_RECOMMENDATION`).
     """
     qline = (f"{n_degenerate} of {n_fits} fits degenerate by the sanity check (dip spread, |B| spread, condition: "
              f"docs/calibrate.md); a degenerate fit is never recommended" if n_fits else "no fits")
@@ -277,51 +305,58 @@ def calibrate_verdict(*, recommendation: dict | None, n_models: int, n_degenerat
            "change of tool, mounting or nearby steel")
     if not recommendation:
         scores = {k: float(v) for k, v in (held_out or {}).items() if v is not None and math.isfinite(v)}
-        acc = "no recommendation in the run record; " + (
+        acc = ("no calibration recommended" + (f": {refused}" if refused else " in the run record") + "; " + (
             "mean held-out score of the sound fits: " + ", ".join(f"{k} {v:.3f} deg" for k, v in sorted(
-                scores.items(), key=lambda kv: kv[1])) if scores else "no sound fit was scored held out")
-        return Verdict(acc,
-                       dom, qline, f"no recommendation; {n_models} calibrations in {run_dir}/models/",
-                       f"python -m experiments.apply model={run_dir}/models/<calibration>.json data=<your survey.csv>",
-                       "n/a", 0, {"recommendation": None, "held_out": scores})
+                scores.items(), key=lambda kv: kv[1])) if scores else "no sound fit was scored held out"))
+        nxt = (f"fix what the report names (python -m experiments.calibrate data=<a new recording>), or apply one of "
+               f"{run_dir}/models/ knowing why none is recommended" if refused else
+               f"python -m experiments.apply model={run_dir}/models/<calibration>.json data=<your survey.csv>")
+        return Verdict(acc, dom, qline, f"none; {n_models} calibrations in {run_dir}/models/", nxt, "n/a",
+                       EXIT_NO_RECOMMENDATION if refused else 0,
+                       {"recommendation": None, "held_out": scores, "refused": refused})
     r = {k: recommendation.get(k) for k in RECOMMENDATION_KEYS}
-    acc = (f"held-out pointing spread {_f(r['held_out_deg'])} deg (the peer's accuracy metric, each rolled group "
-           f"scored by a fit without it)")
-    if r.get("spread_deg") is not None:
-        acc += f", spread over held-out groups {_f(r['spread_deg'])} deg"
+    nested, nested_se = recommendation.get("accuracy_deg"), recommendation.get("accuracy_spread_deg")
+    if nested is not None:
+        acc = (f"held-out pointing spread {_f(nested)} deg" + (f" +/- {_f(nested_se)}" if nested_se is not None else "")
+               + " (the peer's accuracy metric; nested: the choice made inside each held-out split's training shots, "
+               "scored on the shots it did not see)")
+    else:
+        acc = ("not estimated: no held-out split (one roll too short to halve); the in-sample pointing spread is "
+               f"{_f(r['held_out_deg'])} deg")
     winner = ("a clear winner" if r.get("clear_winner") else
-              f"not a clear winner: {r.get('runner_up')} is as good within the spread")
-    runner = f"; runner-up {r['runner_up']}" if r.get("runner_up") and r.get("clear_winner") else ""
-    model = f"{r['model']} ({r['method']}), chosen by {r['criterion']}: {winner}{runner}"
+              f"not a clear winner: {r.get('runner_up')} is as good within the spread" if r.get("runner_up") else
+              "the only sound method")
+    model = f"{r['model']} ({r['method']}), chosen by the rule: {r['criterion']}; {winner}"
     nxt = f"python -m experiments.apply model={run_dir} data=<your survey.csv>"  # the run's recommended model
-    return Verdict(acc, dom, qline, model, nxt, "n/a", 0, {"recommendation": r})
+    return Verdict(acc, dom, qline, model, nxt, "n/a", 0, {"recommendation": r, "accuracy_deg": nested,
+                                                          "accuracy_spread_deg": nested_se})
 
 
-def survey_verdict(res, model, frame, bands, *, out_csv: str, model_path: str, survey_path: str,
+def survey_verdict(res, model, bands, *, out_csv: str, model_path: str, survey_path: str,
                    method: str | None = None) -> Verdict:
     """:func:`apply_verdict` from what :func:`icgo.survey.apply.correct_survey` returned.
 
     Args:
-        res: the :class:`icgo.survey.apply.CorrectedSurvey`. model: the fitted model. frame: the survey.
-        bands: the QC bands used. out_csv, model_path, survey_path: for the lines. method: the method applied.
+        res: the :class:`icgo.survey.apply.CorrectedSurvey` (its ``stations`` arrays and ``domain``). model: the
+            fitted model. bands: the QC bands used. out_csv, model_path, survey_path: for the lines. method: the
+            method applied.
     """
-    from icgo.models.format import sensor_domain
+    from icgo.physics.frames import angle_diff
 
-    t = res.table
-    have_gb = all(c in frame.columns for c in ("gx", "gy", "gz", "bx", "by", "bz"))
-    survey = sensor_domain(frame[["gx", "gy", "gz"]].to_numpy(float), frame[["bx", "by", "bz"]].to_numpy(float)) \
-        if have_gb else None
-    interval = float(t["azimuth_interval_deg"].iloc[0]) if "azimuth_interval_deg" in t.columns and len(t) else None
+    k = res.stations
+    interval = float(k["interval"][0]) if "interval" in k and len(k["interval"]) else None
     covered = None
-    if interval is not None and "error_compensated" in t.columns:
-        covered = float(np.mean(np.abs(t["error_compensated"].to_numpy(float)) <= t["azimuth_interval_deg"].to_numpy(float)))
-    db = t["corrected_db_nT"].to_numpy(float) if "corrected_db_nT" in t.columns else None
-    dd = t["corrected_ddip_deg"].to_numpy(float) if "corrected_ddip_deg" in t.columns else None
+    if interval is not None and "a_true" in k:
+        err = np.abs(np.asarray(angle_diff(k["a_comp"], k["a_true"])))
+        covered = float(np.mean(err <= k["interval"]))
+    survey = {q: res.domain[q] for q in ("inclination_deg", "g_norm_g", "b_norm_nT", "dip_deg") if q in res.domain}
     return apply_verdict(model_kind=model.KIND, method=method or getattr(model, "selected", None),
                          interval_deg=interval, interval_level=getattr(model, "interval_level", None),
-                         metrics=res.metrics, covered=covered, qc=res.qc, db_nT=db, ddip_deg=dd, bands=bands,
-                         trained=getattr(model, "domain", None), survey=survey, out_csv=out_csv,
-                         model_path=model_path, survey_path=survey_path, trajectory=res.trajectory)
+                         metrics=res.metrics, covered=covered, qc=res.qc, db_nT=k.get("db_nT"),
+                         ddip_deg=k.get("ddip_deg"), bands=bands, trained=getattr(model, "domain", None),
+                         survey=survey or None, out_csv=out_csv, model_path=model_path, survey_path=survey_path,
+                         trajectory={q: v for q, v in res.trajectory.items() if q != "table"} if res.trajectory else None,
+                         doubts=res.doubts)
 
 
 def from_dict(d: dict) -> Verdict:
