@@ -225,7 +225,9 @@ def _paragraph(doc: Path, marker: str) -> str:
 
 def test_calibrate_held_out_comparison():
     """docs/calibrate.md's held-out comparison of twelve+axis+relm, recomputed from results/calibration_devices.csv:
-    paired Wilcoxon over the splits where both fits are sound, Holm over the 5 comparisons."""
+    paired Wilcoxon over the splits where both fits are sound, Holm over the 5 comparisons. The means and counts are
+    rendered from the CSV (their markers read as the text they render); the p-values, which no results file holds,
+    are typed and checked here."""
     import pandas as pd
 
     from icgo.maths.stats import holm, wilcoxon_paired
@@ -240,13 +242,10 @@ def test_calibrate_held_out_comparison():
         rows.append((o, len(w), w.mean().to_numpy(), int((w["twelve+axis+relm"] < w[o]).sum()),
                      wilcoxon_paired(w["twelve+axis+relm"], w[o]).p_value))
     p_holm = holm([r[4] for r in rows])
-    text = " ".join(_paragraph(ROOT / "docs" / "calibrate.md", "checked by tests/test_reporting.py::"
-                                                                  "test_calibrate_held_out_comparison").split())
-    (o, n, means, lower, p), ph = rows[0], p_holm[0]
-    assert f"({n} splits) {means[0]:.3f} vs {means[1]:.3f} deg, lower on {lower} of {n}, p = {p:.2f}, Holm {ph:.2f}" \
-        in text
-    (o, n, means, lower, p), ph = rows[1], p_holm[1]
-    assert f"({n} splits) {means[0]:.3f} vs {means[1]:.3f}, lower on {lower} of {n}, p = {p:.2g}, Holm {ph:.2g}" in text
-    for (o, n, means, lower, p), ph in list(zip(rows, p_holm))[2:]:
-        assert f"p = {p:.2g}, Holm {ph:.2g}" in text, o
+    item = _paragraph(ROOT / "docs" / "calibrate.md", "checked by tests/test_reporting.py::"
+                                                      "test_calibrate_held_out_comparison")
+    text = " ".join(re.sub(r"<!--.*?-->", "", item, flags=re.S).split())
+    for (o, n, means, lower, p), ph in zip(rows, p_holm):
+        assert f"({n} splits) {means[0]:.3f} vs {means[1]:.3f}, lower on {lower} of {n}" in text, o
+        assert f"`{o.removeprefix('peer_')}` p = {p:.2g}, Holm {ph:.2g}" in text, o
     assert min(p_holm) >= ALPHA and "None is below 0.05 after Holm" in text
