@@ -163,7 +163,7 @@ def run(cfg: DictConfig, out: Path, config=None, keep=()) -> int:
 
     import icgo  # noqa: F401  (float64)
     from experiments._entry import bool_setting, write_hydra_record
-    from experiments.calibrate_report import figure, protocol, record, report
+    from experiments.calibrate_report import figure, protocol, record, report, settings
     from icgo.io.files import Output, json_text
     from icgo.reporting.records import CALIBRATION_FILE
     from icgo.studies import calibration
@@ -198,7 +198,8 @@ def run(cfg: DictConfig, out: Path, config=None, keep=()) -> int:
     chosen = {name: (models[calibration.model_label(name, r["method"])] if r["method"] else None)
               for name, r in recs.items()}
     label = "the 9 bundled circuitpython-mag-cal devices" if bundled else str(cfg.data)
-    text = (report(df, summ, recordings, label, recs, chosen, sites, protocol(df, config, SEED) if bundled else None)
+    text = (report(df, summ, recordings, label, recs, chosen, sites, protocol(df, config, SEED) if bundled else None,
+                   settings(config) if bundled else None)
             if len(df) else report_refused(recordings, label, recs, chosen, sites))
     run_record = record(cfg, config, recordings, recs, sites, time.perf_counter() - t0)
     outer = calibration.outer_rows(df) if len(df) else df

@@ -130,6 +130,23 @@ def site_section(df, name: str, site) -> list[str]:
     return lines + [pd.DataFrame(rows).to_markdown(index=False), ""]
 
 
+def settings(config) -> str:
+    """The stamp line of the calibration tables (:func:`icgo.reporting.protocol.settings_line`): each fit's budget
+    (the converging least squares, the joint fit's and the residual RELM's LM steps and strength grids, MISMA's
+    population x iterations x runs)."""
+    from icgo.methods import joint, mag_relm
+    from icgo.reporting.protocol import settings_line
+
+    return settings_line(
+        f"twelve and twelve+axis: converging Levenberg-Marquardt; joint: {joint.N_STEPS} LM steps x "
+        f"{len(joint.LAMBDAS)} strengths; twelve+axis+relm: {mag_relm.N_STEPS} LM steps x {len(mag_relm.LAMBDAS)} "
+        f"ridges; misma+axis: population {config.misma_pop} x {config.misma_iter} iterations",
+        f"one fit per recording, split and method ({config.misma_repeats} MISMA runs per fit, the lowest fitness kept)",
+        "float64 fits",
+        "No published protocol: the calibrate door is this project's (the MISMA paper calibrates online while "
+        "drilling, not from static shots).")
+
+
 def protocol(df, config, seed: int) -> str:
     """The protocol line of ``data=bundled``'s table (:func:`icgo.reporting.protocol.protocol_line`), from
     :func:`icgo.studies.calibration.evaluate`'s long table ``df``, the run's ``config`` and its key's seed."""
@@ -174,9 +191,10 @@ def protocol(df, config, seed: int) -> str:
 
 
 def report(df, summ, recordings: dict, label: str, recs: dict, models: dict, sites: dict,
-           protocol_line: str | None = None) -> str:
+           protocol_line: str | None = None, settings_line: str | None = None) -> str:
     """The Markdown report: the recommendation (or why there is none), the grouping and rolls, the site, the scores
-    (degenerate marked), the per-method summary; ``protocol_line`` under the title when given.
+    (degenerate marked), the per-method summary; ``protocol_line`` and the stamp ``settings_line`` under the title
+    when given.
 
     Args:
         models: recording name -> the recommended calibration, or None. sites: name -> Site or None.
@@ -185,7 +203,7 @@ def report(df, summ, recordings: dict, label: str, recs: dict, models: dict, sit
     from icgo.physics.rolls import AXIS_TO_Z_DEG, MIN_SPAN_DEG, PLANE_TOL_B, PLANE_TOL_G
     from icgo.studies.calibration import wide
 
-    lines = [f"# Magnetometer calibration: {label}", ""] + ([protocol_line, ""] if protocol_line else [])
+    lines = [f"# Magnetometer calibration: {label}", ""] + ([protocol_line, settings_line, ""] if protocol_line else [])
     lines += ["## Recommendation", ""]
     lines += [f"- `{name}`: {r['sentence']}" for name, r in recs.items()]
     if any(r["method"] for r in recs.values()):

@@ -95,7 +95,9 @@ def main(argv=None) -> int:
     import pandas as pd
 
     from icgo.io.files import Output
+    from experiments.calibrate_report import settings
     from icgo.reporting.protocol import protocol_line
+    from icgo.studies.calibration import CalibrationConfig
     from icgo.studies.calibration_goals import goals, goals_table
 
     out = Output(Path(a.out), setting="--out", shared=True).check()
@@ -115,7 +117,8 @@ def main(argv=None) -> int:
                  "(`icgo.datasets.mag_cal_variants`); PRNGKey(" f"{SEED}) for MISMA; nothing in the door was chosen "
                  "on these variants; the perturbation sizes were revised once, after the first variant scored had "
                  "every fit degenerate and before any other was scored (docs/calibrate.md, Unseen devices)",
-                 "none: no p-value; the goals are thresholds on means (docs/calibrate.md)"), "",
+                 "none: no p-value; the goals are thresholds on means (docs/calibrate.md)"),
+             settings(CalibrationConfig(peer=a.peer)), "",
              "## Goals", ""]
     lines += summary_lines("Unseen devices (these variants)", goals(t))
     bundled = Path(ROOT / "results" / "calibration_devices.csv")
