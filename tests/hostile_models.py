@@ -11,7 +11,9 @@ import pandas as pd
 
 from icgo.discrepancy.inversion import PhysicsParams
 from icgo.methods import gyro_relm, lookup_table, nets
+from icgo.methods import msa as _msa
 from icgo.methods import relm as _relm
+from icgo.methods.compensation import RELMParams
 from icgo.models.calibration import MagCalibration
 from icgo.models.discrepancy import PhysicsModel
 from icgo.models.format import sensor_domain
@@ -49,11 +51,14 @@ def models(seed: int = 0) -> dict:
     R, S, L = 2, 1, 4
     X = np.hstack([G, B])
     relm = RELMCompensation(**base, methods=["relm"], selected="relm", repeat_ids=[0, 1], hidden=L, lam=1e-3,
-                            features="raw", msa_bias=rng.normal(0, 50, (R, 3)), msa_scale=np.zeros((R, 3)),
-                            x_mean=np.tile(X.mean(0), (R, 1)), x_std=np.tile(X.std(0) + 1e-9, (R, 1)),
-                            theta=rng.uniform(-1, 1, (S, R, _relm.n_params(L))), beta=rng.normal(0, 0.1, (S, R, L)),
+                            features="raw",
+                            params=RELMParams(msa_bias=rng.normal(0, 50, (R, 3)), msa_scale=np.zeros((R, 3)),
+                                              x_mean=np.tile(X.mean(0), (R, 1)), x_std=np.tile(X.std(0) + 1e-9, (R, 1)),
+                                              theta=rng.uniform(-1, 1, (S, R, _relm.n_params(L))),
+                                              beta=rng.normal(0, 0.1, (S, R, L)), hidden=L, raw_features=True),
                             train_rmse=np.full((S, R), 0.2), interval_halfwidth=np.array([0.5]))
-    msa = MSAModel(**base, bias=rng.normal(0, 50, (R, 3)), scale=np.zeros((R, 3)), repeat_ids=[0, 1])
+    msa = MSAModel(**base, params=_msa.MSAParams(bias=rng.normal(0, 50, (R, 3)), scale=np.zeros((R, 3))),
+                   repeat_ids=[0, 1])
     cal = MagCalibration(**base, method="twelve", axis_aligned=False, field_scale_nT=1.0,
                          x_mag=np.r_[np.eye(3).ravel(), rng.normal(0, 100, 3)])
     cfg = nets.NetConfig()

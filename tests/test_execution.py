@@ -13,7 +13,7 @@ from conftest import relm_train_data
 
 import icgo  # noqa: F401  (float64)
 from icgo.core import execution as ex
-from icgo.methods import relm
+from icgo.methods import relm, relm_gram
 from icgo.studies import icgo_relm as study
 
 ACCELERATORS = ("gpu", "cuda", "rocm", "tpu", "METAL", "Metal", "neuron", " GPU ")
@@ -84,8 +84,8 @@ def test_gram_fitness_equals_the_float64_library_fitness(mode, scale, features, 
     and the same with blocks of a few rows and with the members split into groups (tiny memory bounds)."""
     pop, data, _ = _fold_data(mode, scale=scale)
     ref = np.asarray(relm.fitness(pop, data, 1e-3, 5))
-    for block in (relm.BLOCK_ELEMENTS, 8 * 5 * 24, 5 * relm.MIN_BLOCK_ROWS * 3):  # whole, 24-row blocks, groups of 3
-        got = relm.gram_fitness(pop, data, 1e-3, 5, features, block_elements=block)
+    for block in (relm_gram.BLOCK_ELEMENTS, 8 * 5 * 24, 5 * relm_gram.MIN_BLOCK_ROWS * 3):  # whole, 24-row blocks, groups of 3
+        got = relm_gram.gram_fitness(pop, data, 1e-3, 5, features, block_elements=block)
         assert got.dtype == jnp.float64
         np.testing.assert_allclose(np.asarray(got), ref, rtol=rtol)
 
@@ -96,7 +96,7 @@ def test_gram_train_fitness_on_gathered_rows_equals_the_library_and_the_cpu_kern
     rows = relm.train_rows(fit, int(mask.sum()) + (5 if padded else 0), padded=padded)
     ref = np.asarray(relm.fitness(pop, fit, 1e-3, 5))
     for features, rtol in (("float32", 5e-6), ("float64", 1e-9)):
-        got = np.asarray(relm.gram_train_fitness(pop, rows, 1e-3, 5, features))
+        got = np.asarray(relm_gram.gram_train_fitness(pop, rows, 1e-3, 5, features))
         np.testing.assert_allclose(got, ref, rtol=rtol)
         cpu = np.asarray(relm.train_fitness(pop, rows, 1e-3, 5, chunk=3, feature_dtype=features))
         np.testing.assert_allclose(got, cpu, rtol=2 * rtol)
@@ -104,7 +104,7 @@ def test_gram_train_fitness_on_gathered_rows_equals_the_library_and_the_cpu_kern
 
 def test_gram_fitness_in_float32_is_float32_within_the_float32_paths_tolerance():
     pop, data, _ = _fold_data("train")
-    got = relm.gram_fitness(pop, data, 1e-3, 5, "float32", "float32")
+    got = relm_gram.gram_fitness(pop, data, 1e-3, 5, "float32", "float32")
     assert got.dtype == jnp.float32
     np.testing.assert_allclose(np.asarray(got), np.asarray(relm.fitness(pop, data, 1e-3, 5)), rtol=1e-3)
 
@@ -112,7 +112,7 @@ def test_gram_fitness_in_float32_is_float32_within_the_float32_paths_tolerance()
 def test_gram_fitness_nonfinite_is_inf_never_nan():
     pop, data, _ = _fold_data("kfold")
     bad = pop.at[0, 0].set(jnp.nan).at[1].set(1e39)
-    f = np.asarray(relm.gram_fitness(bad, data, 1e-3, 5))
+    f = np.asarray(relm_gram.gram_fitness(bad, data, 1e-3, 5))
     assert f[0] == np.inf and not np.isnan(f).any() and np.isfinite(f[2:]).all()
 
 
@@ -125,9 +125,9 @@ def test_gram_fitness_under_nested_vmap_is_one_batch_equal_to_calls_alone():
                                          jnp.asarray(mask)[None]), int(mask.sum())) for k in range(3)]
     rows = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *fits)                  # 3 repeats
     pops = jnp.stack([jnp.stack([pop * (1 + 0.1 * s + 0.01 * r) for r in range(3)]) for s in range(2)])  # (2, 3, 8, D)
-    for block, features, rtol in ((relm.BLOCK_ELEMENTS, "float64", 1e-12), (5 * relm.MIN_BLOCK_ROWS * 5, "float64", 1e-12),
-                                  (relm.BLOCK_ELEMENTS, "float32", 1e-6)):
-        f = relm.make_gram_fitness(1e-3, 5, True, features, block_elements=block)
+    for block, features, rtol in ((relm_gram.BLOCK_ELEMENTS, "float64", 1e-12), (5 * relm_gram.MIN_BLOCK_ROWS * 5, "float64", 1e-12),
+                                  (relm_gram.BLOCK_ELEMENTS, "float32", 1e-6)):
+        f = relm_gram.make_gram_fitness(1e-3, 5, True, features, block_elements=block)
         both = jax.jit(jax.vmap(jax.vmap(f)))(pops, jax.tree_util.tree_map(lambda a: jnp.stack([a, a]), rows))
         strategies = jax.jit(jax.vmap(jax.vmap(f, in_axes=(0, 0)), in_axes=(0, None)))(pops, rows)
         for s in range(2):

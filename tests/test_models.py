@@ -56,15 +56,15 @@ def test_one_member_predicts_the_same_alone_or_among_others(fitted):
     import jax
     import jax.numpy as jnp
 
-    from icgo.methods.compensation import predict
+    from icgo.methods.compensation import members, predict
 
     frame, res = fitted
     model = res.model
-    params = model.params()
+    params = members(model.method_params())
+    assert params.hidden == model.hidden and params.raw_features
     v = jnp.asarray(frame[["gx", "gy", "gz", "bx", "by", "bz"]].to_numpy())
-    kw = dict(hidden=model.hidden, raw_features=True)
-    whole = predict(params, v[:, :3], v[:, 3:], **kw)
-    alone = predict(jax.tree_util.tree_map(lambda x: x[1:2], params), v[:700, :3], v[:700, 3:], **kw)
+    whole = predict(params, v)
+    alone = predict(jax.tree_util.tree_map(lambda x: x[1:2], params), v[:700])
     np.testing.assert_array_equal(np.asarray(alone.error), np.asarray(whole.error)[1:2, :700])
     np.testing.assert_array_equal(np.asarray(alone.a_msa), np.asarray(whole.a_msa)[1:2, :700])
 
@@ -72,11 +72,12 @@ def test_one_member_predicts_the_same_alone_or_among_others(fitted):
 def test_msa_model_applies_the_biases(fitted):
     frame, res = fitted
     m = res.msa_model
-    assert isinstance(m, MSAModel) and m.bias.shape == (3, 3)
+    assert isinstance(m, MSAModel) and m.params.bias.shape == (3, 3)
     out = m.apply(frame)
     B = frame[["bx", "by", "bz"]].to_numpy()
     np.testing.assert_allclose(out[["bx_corrected", "by_corrected", "bz_corrected"]].to_numpy(),
-                               B - m.bias.mean(axis=0), rtol=0, atol=1e-9)
+                               B - m.params.bias.mean(axis=0), rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(m.params.bias, res.model.params.msa_bias)  # one MSA, two artifacts
 
 
 def test_save_load_apply_is_bitwise(fitted, tmp_path):
@@ -270,16 +271,87 @@ def test_apply_in_row_blocks_is_bitwise_the_whole():
 
     import jax.numpy as jnp
 
-    from icgo.methods.compensation import predict
+    from icgo.methods.compensation import members, predict
 
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     import hostile_models
 
     model, survey = hostile_models.models()["relm_compensation"], hostile_models.survey(n=130)
     v = jnp.asarray(survey[["gx", "gy", "gz", "bx", "by", "bz"]].to_numpy())
-    kw = dict(hidden=model.hidden, raw_features=model.features == "raw")
-    whole = predict(model.params(), v[:, :3], v[:, 3:], **kw)
-    blocks = predict(model.params(), v[:, :3], v[:, 3:], block_rows=50, **kw)
+    whole = predict(members(model.method_params()), v)
+    blocks = predict(members(model.method_params()), v, block_rows=50)
     np.testing.assert_array_equal(np.asarray(blocks.error), np.asarray(whole.error))
     np.testing.assert_array_equal(np.asarray(blocks.a_msa), np.asarray(whole.a_msa))
     np.testing.assert_array_equal(model.members(survey)[1], np.asarray(whole.error))
+
+
+# ---------------------------------------------------------------- the one model pattern (RELM and MSA families)
+def test_the_saved_params_predict_what_the_study_scored(fitted):
+    """The model's predict (every method) on the study's rows IS the study's prediction table, bitwise; it jits
+    whole (up to XLA's fusion) and the MSA family's predict is the field the study's MSA corrected."""
+    import jax
+
+    from icgo.methods import compensation
+    from icgo.methods import msa as _msa
+
+    frame, res = fitted
+    kept = frame.iloc[np.flatnonzero(res.kept)].reset_index(drop=True)
+    x = res.model.inputs(kept)
+    out = res.model.predict(x)
+    S, R = len(res.model.methods), len(res.model.repeat_ids)
+    p = res.predictions
+    assert out.error.shape == (S, R, len(kept))
+    np.testing.assert_array_equal(np.asarray(out.error).ravel(), p.predicted_error.to_numpy())
+    np.testing.assert_array_equal(np.asarray(out.a_msa).ravel(), p.azimuth_msa.to_numpy())
+    jitted = jax.jit(compensation.predict_methods)(res.model.params, x)
+    np.testing.assert_allclose(np.asarray(jitted.error), np.asarray(out.error), rtol=0, atol=1e-9)
+    b_corr = np.asarray(res.msa_model.predict(x))                               # (R, N, 3)
+    np.testing.assert_array_equal(b_corr[1], np.asarray(_msa.predict(jax.tree.map(lambda a: a[1],
+                                                                                    res.msa_model.params), x)))
+    np.testing.assert_allclose(b_corr, x[None, :, 3:] - res.msa_model.params.bias[:, None], rtol=0, atol=1e-9)
+
+
+def test_fit_reproduces_the_studys_refit(fitted):
+    """compensation.fit (checked, one member) on a repeat's training rows, MSA and hidden weights gives the output
+    weights and statistics the study refitted for that repeat (the same ridge problem, eq. 9)."""
+    from icgo.methods import compensation
+
+    frame, res = fitted
+    kept = frame.iloc[np.flatnonzero(res.kept)].reset_index(drop=True)
+    x = res.model.inputs(kept)
+    params, p = res.model.params, res.predictions
+    for r, rid in enumerate(res.model.repeat_ids):
+        rows = p[p.repeat == rid].sort_values("row")
+        train = (rows.split == "train").to_numpy()
+        one = compensation.fit(params.theta[0, r], x, rows.error_msa.to_numpy(), res.model.lam, res.model.hidden,
+                               weights=train.astype(float), msa_bias=params.msa_bias[r],
+                               msa_scale=params.msa_scale[r], raw_features=True)
+        np.testing.assert_allclose(np.asarray(one.x_mean), params.x_mean[r], rtol=1e-12)
+        np.testing.assert_allclose(np.asarray(one.x_std), params.x_std[r], rtol=1e-12)
+        np.testing.assert_allclose(np.asarray(one.beta), params.beta[0, r], rtol=1e-7, atol=1e-9)
+
+
+LEGACY = __import__("pathlib").Path(__file__).resolve().parent / "data" / "models"
+
+
+@pytest.mark.parametrize("kind", ["relm_compensation", "msa"])
+def test_a_file_of_the_previous_layout_loads_and_applies_as_it_did(kind):
+    """Files written by the build before the RELM and MSA families had params pytrees (tests/data/models/README.md)
+    load through the generic path and apply as that build did (its outputs stored beside them)."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import hostile_models
+
+    model = load_model(LEGACY / f"{kind}.json")
+    survey = hostile_models.survey(n=40, seed=3)
+    with np.load(LEGACY / "expected_apply.npz") as z:
+        expected = {k: z[k] for k in z.files if k.startswith(f"{kind}.")}
+    methods = model.methods if kind == "relm_compensation" else [None]
+    assert len(expected) == len(methods) * len(model.apply(survey).columns)
+    for m in methods:
+        got = model.apply(survey, method=m) if m else model.apply(survey)
+        for c in got.columns:
+            np.testing.assert_allclose(got[c].to_numpy(), expected[f"{kind}.{m or ''}.{c}"], rtol=0, atol=1e-9,
+                                       err_msg=f"{m} {c}")

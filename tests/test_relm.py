@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import icgo  # noqa: F401  (float64)
-from icgo.methods import relm
+from icgo.methods import compensation, relm, relm_fit
 from icgo.physics import effects, frames
 
 L = 12
@@ -110,25 +110,35 @@ def test_fitness_nonfinite_is_inf_and_float32_path_agrees():
 
 
 def test_fit_predict_and_bad_inputs():
+    """compensation.fit of a RELM on the sensor values (no MSA) and its predict against a float64 numpy forward
+    pass; bad inputs refused one line each."""
     X, err = sensor_data()
     theta = relm.random_theta(jax.random.PRNGKey(6), L)
-    model = relm.fit(theta, X, err, 1e-3, L)
-    pred = np.asarray(relm.predict(model, X))
+    model = compensation.fit(theta, X, err, 1e-3, L)
+    out = compensation.predict(jax.tree.map(lambda a: a[None], model), jnp.asarray(X))
+    pred = np.asarray(out.error[0])
     assert np.sqrt(np.mean((pred - err) ** 2)) < np.std(err)
+    W, b = np.asarray(theta[:6 * L]).reshape(6, L), np.asarray(theta[6 * L:])
+    Xs = (X - X.mean(0)) / X.std(0)
+    H = 1.0 / (1.0 + np.exp(-(Xs @ W + b)))                                           # eq. (8)
+    beta = np.linalg.solve(H.T @ H + 1e-3 * np.eye(L), H.T @ err)                     # eq. (9)
+    np.testing.assert_allclose(np.asarray(model.beta), beta, rtol=1e-7)
+    np.testing.assert_allclose(pred, H @ beta, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(np.asarray(out.a_msa[0]), frames.azimuth_from_gv(X[:, :3], X[:, 3:]), atol=1e-9)
     with pytest.raises(ValueError, match="lambda"):
-        relm.fit(theta, X, err, 0.0, L)
+        compensation.fit(theta, X, err, 0.0, L)
     with pytest.raises(ValueError, match="hidden units"):
-        relm.fit(theta, X[:10], err[:10], 1e-3, L)
+        compensation.fit(theta, X[:10], err[:10], 1e-3, L)
     Xn = X.copy()
     Xn[7, 4] = np.nan
     with pytest.raises(ValueError, match="row 7, column 4"):
-        relm.fit(theta, Xn, err, 1e-3, L)
+        compensation.fit(theta, Xn, err, 1e-3, L)
     with pytest.raises(ValueError, match="targets"):
-        relm.fit(theta, X, err[:-1], 1e-3, L)
+        compensation.fit(theta, X, err[:-1], 1e-3, L)
     with pytest.raises(ValueError, match="features"):
-        relm.fit(theta, X[:, :5], err, 1e-3, L)
+        compensation.fit(theta, X[:, :5], err, 1e-3, L)
     with pytest.raises(ValueError, match="theta"):
-        relm.fit(theta[:-1], X, err, 1e-3, L)
+        compensation.fit(theta[:-1], X, err, 1e-3, L)
     with pytest.raises(ValueError, match="fitness mode"):
         relm.fold_weights(jax.random.PRNGKey(0), jnp.ones(5), "loo")
 
@@ -303,10 +313,10 @@ def test_row_blocked_refit_and_prediction_match_the_whole_matrix():
     Xs = relm.standardize(jnp.asarray(X), mean, std)
     H = relm.hidden_layer(theta, Xs, L)
     ref = relm.ridge_solve(H, jnp.asarray(err), 1e-3, jnp.asarray(w))
-    np.testing.assert_array_equal(np.asarray(relm.ridge_beta(theta, Xs, err, 1e-3, L, w)), np.asarray(ref))
-    beta = relm.ridge_beta(theta, Xs, err, 1e-3, L, w, row_block=64)
+    np.testing.assert_array_equal(np.asarray(relm_fit.ridge_beta(theta, Xs, err, 1e-3, L, w)), np.asarray(ref))
+    beta = relm_fit.ridge_beta(theta, Xs, err, 1e-3, L, w, row_block=64)
     np.testing.assert_allclose(np.asarray(beta), np.asarray(ref), rtol=1e-9, atol=1e-9 * np.abs(ref).max())
-    np.testing.assert_allclose(np.asarray(relm.predict_rows(theta, beta, Xs, L, row_block=64)),
+    np.testing.assert_allclose(np.asarray(relm_fit.predict_rows(theta, beta, Xs, L, row_block=64)),
                                np.asarray(H @ beta), rtol=0, atol=1e-12)
     blocks = relm.row_blocks(64, Xs, jnp.asarray(err))
     assert blocks[0].shape == (5, 64, 6) and blocks[1].shape == (5, 64)

@@ -12,7 +12,7 @@ JAX, so the plan can be made, printed and tested before a backend starts.
   does not depend on the members beside it, so any device count gives the one-device result bitwise.
 * **Any accelerator** (:data:`ACCELERATOR_KERNEL`): the whole block of members on each device as batched matrix
   products, rows accumulated in bounded blocks (:mod:`icgo.methods.relm_fused` for the paper's training fitness,
-  :func:`icgo.methods.relm.gram_fitness` for the others), sharded over every accelerator of the job.
+  :func:`icgo.methods.relm_gram.gram_fitness` for the others), sharded over every accelerator of the job.
 """
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from icgo.methods import relm, search_fitness
+from icgo.methods import relm, relm_fit, search_fitness
 from icgo.methods.nets import encode_inputs
 from icgo.physics.frames import wrap360
 
@@ -55,7 +55,8 @@ def predict(params: GyroRELMParams, angles):
         (N,) compensated azimuth, deg.
     """
     x = encode_inputs(angles[:, 0], angles[:, 1], angles[:, 2], params.encoding)
-    error = relm.predict(relm.RELM(params.theta, params.beta, params.mean, params.std), x)
+    error = relm_fit.predict_rows(params.theta, params.beta, relm.standardize(x, params.mean, params.std),
+                                  params.beta.shape[-1])
     return wrap360(angles[:, 2] + error)
 
 
@@ -117,7 +118,7 @@ def search_theta(keys, data: relm.FitData, hidden: int, lam: float, bounds: tupl
 
 def refit(theta, X, T, lam: float, hidden: int, encoding: str) -> GyroRELMParams:
     """The fitted RELMs of hidden weights ``theta`` (S, D): ridge output weights (eq. 9) and input statistics on
-    all training points (:func:`icgo.methods.relm.fit_unchecked`), as :class:`GyroRELMParams` with seed axis S."""
+    all training points (:func:`icgo.methods.relm_fit.fit_output`), as :class:`GyroRELMParams` with seed axis S."""
     w = jnp.ones(X.shape[0])
-    fitted = jax.vmap(lambda th: relm.fit_unchecked(th, X, T, lam, w, hidden))(theta)
-    return GyroRELMParams(*fitted, encoding=encoding)
+    beta, mean, std = jax.vmap(lambda th: relm_fit.fit_output(th, X, T, lam, w, hidden))(theta)
+    return GyroRELMParams(theta, beta, mean, std, encoding=encoding)

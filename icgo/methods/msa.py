@@ -133,6 +133,34 @@ def correct_field(B, bias, scale=None):
     return out
 
 
+class MSAParams(NamedTuple):
+    """A fitted MSA correction (a leading member axis on both arrays when batched).
+
+    Attributes:
+        bias: (3,) magnetometer biases eps, nT. scale: (3,) scale-factor errors s (zeros for the
+            bias-only models).
+    """
+
+    bias: jnp.ndarray
+    scale: jnp.ndarray
+
+
+def predict(params: MSAParams, x):
+    """The MSA-corrected field of eq. (2), ``(B - eps) / (1 + s)`` (:func:`correct_field`).
+
+    Args:
+        params: one correction (:class:`MSAParams`, no member axis).
+        x: (N, 6) sensor values Gx, Gy, Gz (g), Bx, By, Bz (nT); only the field is corrected.
+    Returns:
+        (N, 3) corrected field, nT.
+    """
+    return correct_field(x[:, 3:], params.bias, params.scale)
+
+
+#: :func:`predict` of M corrections (a leading member axis on the params) on the same rows: (M, N, 3) nT.
+predict_members = jax.jit(jax.vmap(predict, in_axes=(0, None)))
+
+
 def horizontal_vertical(G, B):
     """Eqs. (5)-(6): horizontal and vertical field components (nT) at each station.
 

@@ -155,7 +155,7 @@ def _batched(pop, Xa, T, w, lam, hidden: int, gram: str, refine: int, block_rows
 
 def _kernel(hidden: int, gram: str, refine: int, block_rows: int, block_elements: int):
     """The one-member entry ``(pop (P, D), Xa, T, w, lam) -> (P,)`` whose batching rules hand every vmap's axis to
-    :func:`_batched` as one batch (as :func:`icgo.methods.relm.gram_fitness` does)."""
+    :func:`_batched` as one batch (as :func:`icgo.methods.relm_gram.gram_fitness` does)."""
     args = (hidden, gram, refine, block_rows, block_elements)
 
     @jax.custom_batching.custom_vmap

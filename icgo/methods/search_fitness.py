@@ -2,7 +2,7 @@
 
 :func:`search_fitness` ``(pop, aux: SearchData) -> (P,)`` dispatches on ``aux.kernel`` (:data:`SEARCH_KERNELS`) to
 :func:`icgo.methods.relm.fitness` (row-weighted, any fold mode), :func:`icgo.methods.relm.train_fitness` (the CPU's
-cache-chunked training fitness), :func:`icgo.methods.relm.gram_fitness` / :func:`icgo.methods.relm.gram_train_fitness`
+cache-chunked training fitness), :func:`icgo.methods.relm_gram.gram_fitness` / :func:`icgo.methods.relm_gram.gram_train_fitness`
 (batched Gram sums) or :func:`icgo.methods.relm_fused.fused_train_fitness` (the fused accelerator kernel). Every
 search passes the same static fitness; the kernel, its precisions and L travel in the data's static fields.
 """
@@ -16,7 +16,8 @@ from typing import Any
 import jax
 
 from icgo.methods import relm_fused
-from icgo.methods.relm import fitness, gram_fitness, gram_train_fitness, train_fitness
+from icgo.methods.relm import fitness, train_fitness
+from icgo.methods.relm_gram import gram_fitness, gram_train_fitness
 
 #: The fitness kernels a search can run (:func:`search_fitness`), by their function's name.
 SEARCH_KERNELS = ("fitness", "train_fitness", "gram_fitness", "gram_train_fitness", "fused_train_fitness")

@@ -7,16 +7,17 @@ runs every member on a new survey and returns the ensemble: the circular mean
 of the members' compensated azimuths and their spread (sample std, deg), the
 per-station uncertainty of the compensation.
 
-Each member's forward pass is :func:`icgo.methods.compensation.predict` (the one the study
-scores with): MSA correction (eq. 2), standardised features, RELM (eq. 8), compensated azimuth
-``A_msa - H beta``.
+Both follow the one model pattern (:mod:`icgo.models.format`): :class:`RELMCompensation` holds an
+:class:`icgo.methods.compensation.RELMParams` and applies :func:`icgo.methods.compensation.predict_methods`,
+the forward pass the study scores with (MSA correction, eq. 2; standardised features; RELM, eq. 8;
+compensated azimuth ``A_msa - H beta``); :class:`MSAModel` holds an :class:`icgo.methods.msa.MSAParams` and
+applies :func:`icgo.methods.msa.predict_members` (eq. 2).
 """
 
 from __future__ import annotations
 
 import dataclasses
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pandas as pd
@@ -25,8 +26,8 @@ from icgo.core.errors import ModelError
 from icgo.maths.conformal import conformal_quantile
 from icgo.methods import msa as _msa
 from icgo.methods import relm as _relm
-from icgo.methods.compensation import RELMParams, predict
-from icgo.models.format import CORRECTED_B, FittedModel, frame_values, need, need_shape
+from icgo.methods.compensation import RELMParams, predict_methods
+from icgo.models.format import CORRECTED_B, FittedModel, need, need_shape
 from icgo.physics.frames import angle_diff, azimuth_from_gv, inclination_from_g, toolface_from_g, wrap360
 
 SENSORS = ("gx", "gy", "gz", "bx", "by", "bz")
@@ -100,26 +101,29 @@ class MSAModel(FittedModel):
     """Multi-station analysis alone: constant magnetometer biases (and scales) per repeat.
 
     Attributes:
-        bias: (R, 3) biases eps, nT. scale: (R, 3) scale errors s.
+        params: :class:`icgo.methods.msa.MSAParams` of the R members: bias (R, 3) biases eps, nT; scale (R, 3)
+            scale errors s.
         repeat_ids: the repeat id of each of the R members (a fold protocol has one member per repeat and fold).
     """
 
     KIND = "msa"
     UNITS = {"bias": "nT", "scale": "1", "gx,gy,gz": "g", "bx,by,bz": "nT", "angles": "deg"}
+    PARAMS = _msa.MSAParams
+    PREDICT = _msa.predict_members
+    INPUTS = SENSORS
 
-    bias: np.ndarray
-    scale: np.ndarray
+    params: _msa.MSAParams
     repeat_ids: list
 
     def validate(self) -> None:
         """R members: bias (R, 3), scale (R, 3) with 1 + s > 0, R repeat ids."""
-        _check_members(self.bias, self.scale, self.repeat_ids, "bias", "scale")
+        _check_members(self.params.bias, self.params.scale, self.repeat_ids, "bias", "scale")
 
     def apply(self, frame: pd.DataFrame) -> pd.DataFrame:
         """Per row: corrected field (ensemble mean, nT), MSA azimuth (ensemble) and its spread (deg)."""
-        v = frame_values(frame, SENSORS, "MSA model")
+        v = self.inputs(frame)
         G, B = v[:, :3], v[:, 3:]
-        B_corr = np.asarray(_msa_members(jnp.asarray(B), jnp.asarray(self.bias), jnp.asarray(self.scale)))
+        B_corr = np.asarray(self.predict(jnp.asarray(v)))
         a = np.asarray(azimuth_from_gv(G[None], B_corr))
         a_mean, spread = circular_mean_spread(a)
         Bm = B_corr.mean(axis=0)
@@ -137,11 +141,6 @@ def _check_members(bias, scale, repeat_ids, bname: str, sname: str) -> int:
     return R
 
 
-@jax.jit
-def _msa_members(B, bias, scale):
-    return jax.vmap(lambda b, s: _msa.correct_field(B, b, s))(bias, scale)
-
-
 @dataclasses.dataclass(frozen=True, eq=False)
 class RELMCompensation(FittedModel):
     """MSA + RELM azimuth compensation (plain RELM or optimizer-searched, one model per method and repeat).
@@ -151,10 +150,11 @@ class RELMCompensation(FittedModel):
         selected: the method :meth:`apply` uses by default: the one with the
             lowest mean training RMSE over repeats (training rows only).
         repeat_ids: the repeat id of each of the R members (a fold protocol has one member per repeat and fold).
-        hidden: RELM hidden units L. lam: ridge lambda. features: ``raw`` or ``msa``.
-        msa_bias, msa_scale: (R, 3) MSA biases (nT) and scale errors per repeat.
-        x_mean, x_std: (R, 6) input standardisation per repeat (g, nT).
-        theta: (S, R, 7 L) hidden weights and biases. beta: (S, R, L) output weights (deg).
+        hidden: RELM hidden units L. lam: ridge lambda. features: ``raw`` or ``msa``; ``hidden`` and
+            ``features`` are the params' static settings.
+        params: :class:`icgo.methods.compensation.RELMParams` of S methods x R repeats: msa_bias, msa_scale
+            (R, 3) MSA biases (nT) and scale errors per repeat; x_mean, x_std (R, 6) input standardisation per
+            repeat (g, nT); theta (S, R, 7 L) hidden weights and biases; beta (S, R, L) output weights (deg).
         train_rmse: (S, R) training RMSE of the refit (deg).
         interval_halfwidth: (S,) half-width (deg) of the conformal azimuth interval at
             :attr:`interval_level` (:func:`out_of_bag_halfwidth`).
@@ -164,6 +164,9 @@ class RELMCompensation(FittedModel):
     KIND = "relm_compensation"
     UNITS = {"msa_bias": "nT", "x_mean": "g,g,g,nT,nT,nT", "x_std": "g,g,g,nT,nT,nT", "beta": "deg",
              "train_rmse": "deg", "angles": "deg"}
+    PARAMS = RELMParams
+    PREDICT = predict_methods
+    INPUTS = SENSORS
 
     methods: list
     selected: str
@@ -171,17 +174,17 @@ class RELMCompensation(FittedModel):
     hidden: int
     lam: float
     features: str
-    msa_bias: np.ndarray
-    msa_scale: np.ndarray
-    x_mean: np.ndarray
-    x_std: np.ndarray
-    theta: np.ndarray
-    beta: np.ndarray
+    params: RELMParams
     train_rmse: np.ndarray
     interval_halfwidth: np.ndarray
     interval_level: float = INTERVAL_LEVEL
 
     NAN_OK = ("interval_halfwidth",)  # NaN: a method no row was out of bag for
+
+    @classmethod
+    def params_like(cls, fields: dict) -> RELMParams:
+        """Placeholder arrays with the ``hidden`` units and the ``features`` of ``fields``."""
+        return RELMParams(*[0] * 6, hidden=fields["hidden"], raw_features=fields["features"] == "raw")
 
     def validate(self) -> None:
         """S methods x R members: the shapes agree with ``hidden``, ``x_std`` > 0, names and settings known."""
@@ -193,30 +196,29 @@ class RELMCompensation(FittedModel):
         need(1 <= self.hidden <= MAX_HIDDEN, f"hidden must be 1 to {MAX_HIDDEN}, got {self.hidden}")
         need(0 < self.lam <= MAX_LAM, f"lam must be > 0 and at most {MAX_LAM:g}, got {self.lam}")
         need(0 < self.interval_level < 1, f"interval_level must be in (0, 1), got {self.interval_level}")
-        R = _check_members(self.msa_bias, self.msa_scale, self.repeat_ids, "msa_bias", "msa_scale")
+        p = self.params
+        R = _check_members(p.msa_bias, p.msa_scale, self.repeat_ids, "msa_bias", "msa_scale")
         L = self.hidden
-        for name, shape in (("x_mean", (R, 6)), ("x_std", (R, 6)), ("theta", (S, R, _relm.n_params(L))),
-                            ("beta", (S, R, L)), ("train_rmse", (S, R)), ("interval_halfwidth", (S,))):
-            need_shape(getattr(self, name), shape, name)
-        need(bool(np.all(self.x_std > 0)), "x_std must be > 0 (the inputs are divided by it)")
+        for name, a, shape in (("x_mean", p.x_mean, (R, 6)), ("x_std", p.x_std, (R, 6)),
+                               ("theta", p.theta, (S, R, _relm.n_params(L))), ("beta", p.beta, (S, R, L)),
+                               ("train_rmse", self.train_rmse, (S, R)),
+                               ("interval_halfwidth", self.interval_halfwidth, (S,))):
+            need_shape(a, shape, name)
+        need(bool(np.all(p.x_std > 0)), "x_std must be > 0 (the inputs are divided by it)")
 
-    def params(self, method: str | None = None) -> RELMParams:
-        """The R members of ``method`` (default :attr:`selected`) as :class:`icgo.methods.compensation.RELMParams`."""
+    def method_params(self, method: str | None = None) -> RELMParams:
+        """The params of one method (default :attr:`selected`): theta (1, R, 7 L), beta (1, R, L)."""
         method = self.selected if method is None else method
         if method not in self.methods:
             raise ModelError(f"method {method!r} is not in this model; it holds {self.methods}")
         s = self.methods.index(method)
-        return RELMParams(*(jnp.asarray(x) for x in (self.msa_bias, self.msa_scale, self.x_mean, self.x_std,
-                                                      self.theta[s], self.beta[s])))
+        return dataclasses.replace(self.params, theta=self.params.theta[s:s + 1], beta=self.params.beta[s:s + 1])
 
     def members(self, frame: pd.DataFrame, method: str | None = None):
         """Every repeat's (A_msa, predicted error) for one method: two (R, N) arrays, deg
-        (:func:`icgo.methods.compensation.predict`, the study's own forward pass)."""
-        params = self.params(method)
-        v = frame_values(frame, SENSORS, f"{self.KIND} model")
-        out = predict(params, jnp.asarray(v[:, :3]), jnp.asarray(v[:, 3:]), hidden=int(self.hidden),
-                      raw_features=self.features == "raw")
-        return np.asarray(out.a_msa), np.asarray(out.error)
+        (:func:`icgo.methods.compensation.predict_methods`, the study's own forward pass)."""
+        out = predict_methods(self.method_params(method), jnp.asarray(self.inputs(frame)))
+        return np.asarray(out.a_msa[0]), np.asarray(out.error[0])
 
     def apply(self, frame: pd.DataFrame, method: str | None = None) -> pd.DataFrame:
         """Compensated azimuth per row: ensemble over repeats of ``method`` (default :attr:`selected`).
@@ -231,11 +233,12 @@ class RELMCompensation(FittedModel):
             MSA-corrected field ``bx_corrected, by_corrected, bz_corrected`` (ensemble mean, nT).
         """
         a_msa, pred = self.members(frame, method)
-        v = frame_values(frame, SENSORS, f"{self.KIND} model")
+        v = self.inputs(frame)
         G, B = v[:, :3], v[:, 3:]
         a_comp, spread = circular_mean_spread(np.asarray(wrap360(a_msa - pred)))
         a_msa_mean, _ = circular_mean_spread(a_msa)
-        Bm = np.asarray(_msa_members(jnp.asarray(B), jnp.asarray(self.msa_bias), jnp.asarray(self.msa_scale))).mean(0)
+        msa = _msa.MSAParams(jnp.asarray(self.params.msa_bias), jnp.asarray(self.params.msa_scale))
+        Bm = np.asarray(_msa.predict_members(msa, jnp.asarray(v))).mean(0)
         return pd.DataFrame({**_attitude_columns(frame, G), "azimuth_raw": np.asarray(azimuth_from_gv(G, B)),
                              "azimuth_msa": a_msa_mean, "predicted_error": pred.mean(axis=0),
                              "azimuth_compensated": a_comp, "azimuth_spread_deg": spread,

@@ -22,8 +22,8 @@ weights see them only with zero weight. Stages 2-6 run as three jitted calls:
 observability check, the optimizer's runner (:func:`icgo.studies.sharding.run_grid`,
 one program over repeats and CGO strategies, sharded over the devices), then ``score_all`` (refit
 vmapped over strategies and mapped over repeats; predictions by
-:func:`icgo.methods.compensation.predict`, the forward pass the saved model
-applies; metrics).
+:func:`icgo.methods.compensation.predict_methods`, the forward pass the saved model
+applies to the same params; metrics).
 Repeat k of a batched run equals the same repeat run alone (``repeat_ids``).
 
 Fold protocols fit one member per (repeat, fold); a repeat's metrics pool its
@@ -51,7 +51,8 @@ from icgo.maths.metrics import azimuth_metrics
 from icgo.maths.stats import mean_std_table
 from icgo.methods import msa as _msa
 from icgo.methods import relm as _relm
-from icgo.methods.compensation import RELMParams, predict
+from icgo.methods import relm_fit
+from icgo.methods.compensation import RELMParams, predict_methods
 from icgo.methods.search_fitness import SearchData, search_fitness
 from icgo.optim.cgo import CGO
 from icgo.physics.frames import angle_diff, azimuth_from_gv, wrap360
@@ -131,7 +132,7 @@ class StudyConfig:
             cache-chunked :func:`icgo.methods.relm.train_fitness` for ``fitness="train"`` (float32
             Gram of centred features, float64 Cholesky and iterative refinement), the row-weighted
             :func:`icgo.methods.relm.fitness` otherwise (float64, or float32 for ``"float32"``);
-            on an accelerator :func:`icgo.methods.relm.gram_fitness`. The final refit and every
+            on an accelerator :func:`icgo.methods.relm_gram.gram_fitness`. The final refit and every
             reported number are float64 always. (Formerly ``fast`` and ``mixed``: refused with their new names.)
     """
 
@@ -446,8 +447,8 @@ def search_kernel(dtype: str, fitness: str, kernel: str) -> SearchKernel:
 
     ``kernel`` :data:`icgo.core.execution.ACCELERATOR_KERNEL`: the fused kernel
     :func:`icgo.methods.relm_fused.fused_train_fitness` (train mode with float32 features: the default),
-    :func:`icgo.methods.relm.gram_train_fitness` (train mode, other precisions) or
-    :func:`icgo.methods.relm.gram_fitness`. CPU: the train-mode kernel
+    :func:`icgo.methods.relm_gram.gram_train_fitness` (train mode, other precisions) or
+    :func:`icgo.methods.relm_gram.gram_fitness`. CPU: the train-mode kernel
     :func:`icgo.methods.relm.train_fitness` for ``fitness="train"`` with a float64 solve, else the
     row-weighted :func:`icgo.methods.relm.fitness` (float64; float32 for ``dtype="float32"``).
     """
@@ -475,28 +476,16 @@ class _Scored(NamedTuple):
     a_comp: jnp.ndarray     # (S, R, N) compensated azimuth, deg
     test: Any               # Metrics (S, R)
     train: Any              # Metrics (S, R)
-    beta: jnp.ndarray       # (S, R, L) output weights of the refit
+    params: RELMParams      # the fitted members (S strategies x R repeats) the saved model holds
 
 
 @functools.partial(jax.jit, static_argnames=("hidden",))
 def refit_all(thetas, prep: Prepared, lam, hidden):
     """Output weights beta (S, R, L) refitted on all training rows of each (strategy, repeat) (eq. 9; row blocks
     above :data:`icgo.methods.relm.ROW_BLOCK` rows, so memory does not grow with strategies x rows x hidden)."""
-    over_s = jax.vmap(lambda th, p: _relm.ridge_beta(th, p.data.X, p.target, lam, hidden, p.train), in_axes=(0, None))
+    over_s = jax.vmap(lambda th, p: relm_fit.ridge_beta(th, p.data.X, p.target, lam, hidden, p.train), in_axes=(0, None))
     # lax.map over repeats for bitwise batch-size independence (see _prepare).
     return jnp.swapaxes(jax.lax.map(lambda tp: over_s(*tp), (jnp.swapaxes(thetas, 0, 1), prep)), 0, 1)
-
-
-def fitted_params(thetas, betas, prep: Prepared) -> RELMParams:
-    """The S x R fitted members as one :class:`icgo.methods.compensation.RELMParams` of S R members
-    (strategy-major): every strategy of a repeat shares its MSA and standardisation."""
-    S, R = thetas.shape[:2]
-
-    def per_member(x):
-        return jnp.broadcast_to(x, (S, *x.shape)).reshape(S * R, *x.shape[1:])
-
-    return RELMParams(per_member(prep.msa.bias), per_member(prep.msa.scale), per_member(prep.x_mean),
-                      per_member(prep.x_std), thetas.reshape(S * R, -1), betas.reshape(S * R, -1))
 
 
 @jax.jit
@@ -514,22 +503,20 @@ def _metrics(a_comp, prep: Prepared, a_true):
 def score_all(thetas, prep: Prepared, G, B, a_true, lam, hidden: int, raw_features: bool) -> _Scored:
     """Refit, predict and score every (strategy, repeat).
 
-    The predictions come from :func:`icgo.methods.compensation.predict` on the members the study saves
-    (:func:`fitted_params`), the forward pass its artifact applies, so a saved model reproduces them bitwise.
+    The predictions come from :func:`icgo.methods.compensation.predict_methods` on the params the study saves
+    (:attr:`_Scored.params`), the forward pass its artifact applies, so a saved model reproduces them bitwise.
 
     Args:
         thetas: (S, R, 7 L) searched hidden weights. prep: the R repeats' :class:`Prepared`.
         G, B: (N, 3) the study's rows (g, nT). a_true: (N,) reference azimuth, deg.
         lam: ridge lambda. hidden: L. raw_features: the RELM reads (G, B), else (G, B_corr).
     """
-    betas = refit_all(thetas, prep, lam, hidden)
-    S, R = thetas.shape[:2]
-    out = predict(fitted_params(thetas, betas, prep), jnp.asarray(G), jnp.asarray(B), hidden=hidden,
-                  raw_features=raw_features)
-    a_msa, pred = (x.reshape(S, R, -1) for x in out)
+    params = RELMParams(prep.msa.bias, prep.msa.scale, prep.x_mean, prep.x_std, thetas,
+                        refit_all(thetas, prep, lam, hidden), int(hidden), bool(raw_features))
+    a_msa, pred = predict_methods(params, jnp.concatenate([jnp.asarray(G), jnp.asarray(B)], axis=1))
     a_comp = wrap360(a_msa - pred)
     test, train = _metrics(a_comp, prep, jnp.asarray(a_true))
-    return _Scored(a_msa, pred, a_comp, test, train, betas)
+    return _Scored(a_msa, pred, a_comp, test, train, params)
 
 
 @functools.partial(jax.jit, static_argnames=("hidden", "low", "high", "dtype"))
@@ -795,7 +782,8 @@ def execution_record(cfg: StudyConfig, plan: ExecutionPlan) -> dict:
     if cfg.optimizer is None:
         return {**plan._asdict(), "fitness": "icgo.methods.relm.fitness (plain RELM, no search)", "dtype": cfg.dtype}
     name = search_kernel(cfg.dtype, cfg.fitness, plan.kernel).name
-    module = "relm_fused" if name == "fused_train_fitness" else "relm"
+    module = {"fused_train_fitness": "relm_fused", "gram_fitness": "relm_gram", "gram_train_fitness": "relm_gram"}.get(
+        name, "relm")
     return {**plan._asdict(), "fitness": f"icgo.methods.{module}.{name}", "dtype": cfg.dtype}
 
 
@@ -1067,19 +1055,17 @@ def _fitted_models(cfg: StudyConfig, G, B, a_true, mem: _splits.Members, prep: P
     a_src = a_true[:len(G)]
     common = dict(data_hash=data_hash(G, B, a_src),
                   domain={**sensor_domain(G, B), "azimuth_deg": [float(np.min(a_src)), float(np.max(a_src))]})
-    bias, scale = np.asarray(prep.msa.bias), np.asarray(prep.msa.scale)
+    params = jax.tree_util.tree_map(np.asarray, scored.params)
     settings = {f.name: getattr(cfg, f.name) for f in dataclasses.fields(cfg) if f.name != "optimizer_config"}
     settings["optimizer_config"] = None if cfg.optimizer_config is None else repr(cfg.optimizer_config)
     relm = RELMCompensation(config=settings, methods=list(methods), selected=selected, repeat_ids=ids,
-                            hidden=int(cfg.hidden), lam=float(cfg.lam), features=cfg.features,
-                            msa_bias=bias, msa_scale=scale, x_mean=np.asarray(prep.x_mean),
-                            x_std=np.asarray(prep.x_std), theta=np.asarray(thetas), beta=np.asarray(scored.beta),
+                            hidden=int(cfg.hidden), lam=float(cfg.lam), features=cfg.features, params=params,
                             train_rmse=train_rmse,
                             interval_halfwidth=out_of_bag_halfwidth(np.asarray(scored.a_comp), a_true,
                                                                     mem.heldout == 0), **common)
     msa = MSAModel(config={"msa_model": cfg.msa_model, "msa_reference": cfg.msa_reference,
                            "train_fraction": cfg.train_fraction, "seed": cfg.seed, "protocol": cfg.protocol},
-                   bias=bias, scale=scale, repeat_ids=ids, **common)
+                   params=_msa.MSAParams(params.msa_bias, params.msa_scale), repeat_ids=ids, **common)
     return relm, msa
 
 
