@@ -1,238 +1,22 @@
-"""What every Hydra entry point shares: the command line checked before Hydra starts, one-line errors
-and exit statuses, JAX's compilation cache, results written all at once, failure markers.
-
-Nothing here imports JAX at module import (``icgo.core`` does not): the launchers may start worker
-processes after this module is imported, and JAX must be initialised inside the job, never forked.
-
-Errors the user can fix (a bad override, a missing data file) are raised as
-:class:`icgo.core.errors.SettingError` (or :class:`icgo.core.errors.DataError`), both one line; the entry
-point prints ``error: <line>`` and exits with :data:`EXIT_CONFIG` (2), before any computation.
-"""
+"""Transitional: the front-door helpers moved to :mod:`hydra_plugins.icgo_launcher.door`,
+:mod:`hydra_plugins.icgo_launcher.jobs`, :mod:`icgo.core.devices` and :mod:`icgo.io.files`; what is left here
+goes with the typed configs."""
 
 from __future__ import annotations
 
-import os
 import sys
-import traceback
 from pathlib import Path
 from typing import NoReturn
 
 from omegaconf import DictConfig, OmegaConf
 
+from hydra_plugins.icgo_launcher.door import (  # noqa: F401
+    CONF_DIR, EXIT_CONFIG, STUDY_GROUPS, check_overrides, check_plain_overrides, group_options, hydra_files,
+    hydra_keep, one_line_errors, preflight, write_hydra_record)
+from hydra_plugins.icgo_launcher.jobs import FAILED, format_traceback, one_line, previous_run, write_failure  # noqa: F401
+from icgo.core.devices import enable_jax_cache, env_info, is_secondary_process, start_devices  # noqa: F401
 from icgo.core.errors import SettingError
-
-#: Hydra config directory (absolute, so runs work from any working directory).
-CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
-#: Config groups of the study app whose options are checked before Hydra composes.
-STUDY_GROUPS = ("dataset", "model", "optimizer", "strategy", "schedule", "budget", "split", "fitness",
-                "experiment")
-#: Marker a failed multirun job leaves in its directory (one line: the error).
-FAILED = "FAILED"  # == icgo.reporting.records.FAILED_FILE (tests/test_experiments_run.py; no icgo import at module import)
-EXIT_CONFIG = 2
-
-
-def group_options(group: str, conf_dir: Path = CONF_DIR) -> list[str]:
-    """Names of the options of a config group (its ``*.yaml`` files)."""
-    return sorted(p.stem for p in (conf_dir / group).glob("*.yaml"))
-
-
-def check_overrides(args: list[str], groups=STUDY_GROUPS, conf_dir: Path = CONF_DIR) -> str | None:
-    """One-line error for an override that names an unknown group option, else None.
-
-    Handles ``group=a``, ``+group=a``, ``~group`` (ignored) and sweeps
-    ``group=a,b,c``; anything else is left to Hydra.
-
-    Args:
-        args: command-line arguments (without the program name).
-        groups: config groups to check.
-        conf_dir: the config directory.
-    Returns:
-        The error line, or None when every group override names an existing option.
-    """
-    for arg in args:
-        if arg.startswith("-") or "=" not in arg:
-            continue
-        key, value = arg.split("=", 1)
-        key = key.lstrip("+")
-        if key not in groups:
-            continue
-        options = group_options(key, conf_dir)
-        for v in value.split(","):
-            v = v.strip()
-            if v in ("null", "") and key == "experiment":
-                continue
-            if v not in options:
-                return f"unknown {key} {v!r} in override {arg!r}; choose one of: {', '.join(options)}"
-    return None
-
-
-#: Hydra's run-mode flags that take no value (moved in front of the overrides by :func:`preflight`).
-MULTIRUN_FLAGS = ("-m", "--multirun")
-#: Hydra's flags whose next argument is their value, not an override.
-VALUE_FLAGS = ("--config-path", "-cp", "--config-name", "-cn", "--config-dir", "-cd", "--experimental-rerun",
-               "--package", "-p", "--info", "-i")
-#: Overrides naming a directory Hydra creates before the task function runs.
-HYDRA_DIR_KEYS = ("hydra.run.dir", "hydra.sweep.dir")
-
-
-def check_hydra_dirs(args: list[str]) -> str | None:
-    """One-line error for a ``hydra.run.dir`` / ``hydra.sweep.dir`` that cannot be a directory, else None.
-
-    Hydra creates these before any entry-point code runs, and a failure there is
-    a traceback; so the directory is created here first (a value with an
-    interpolation, e.g. ``${now:...}``, is left to Hydra).
-    """
-    for arg in args:
-        key, sep, value = arg.lstrip("+").partition("=")
-        if not sep or key not in HYDRA_DIR_KEYS or "${" in value:
-            continue
-        p = Path(value).expanduser()
-        if p.exists() and not p.is_dir():
-            return f"{key} {value!r} is a file, not a directory; give a directory"
-        try:
-            p.mkdir(parents=True, exist_ok=True)
-        except OSError as e:
-            return f"{key} {value!r}: cannot create the directory ({e.strerror or type(e).__name__})"
-    return None
-
-
-#: Settings that no longer exist -> what replaced them (named in the one-line error for an override of one).
-RENAMED_KEYS = {"workers": "use devices=N (the search is one program sharded over N devices: a CPU's cores as host "
-                           "devices, docs/performance.md) or leave devices=null for every device"}
-
-
-def check_plain_overrides(args: list[str], config_name: str, conf_dir: Path = CONF_DIR) -> str | None:
-    """One-line error for an override ``key=value`` (no ``+``) whose key is not in the composed config.
-
-    Hydra refuses such an override itself, but with a six-line block and exit
-    status 1; this composes the config the way the entry point will (with the
-    command line's group choices, a sweep's first value) and names the key.
-    """
-    from hydra import compose, initialize_config_dir
-    from hydra.core.global_hydra import GlobalHydra
-    from hydra.core.override_parser.overrides_parser import OverridesParser
-    from hydra.core.override_parser.types import OverrideType
-
-    parser = OverridesParser.create()
-    candidates = [a for i, a in enumerate(args) if not a.startswith("-") and not (i and args[i - 1] in VALUE_FLAGS)]
-    for a in candidates:
-        try:
-            parser.parse_overrides([a])
-        except Exception as e:  # noqa: BLE001  (Hydra's grammar error: three lines and a URL otherwise)
-            why = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-            return (f"cannot read the override {a!r} ({why}); a value with special characters (=, ',', spaces, "
-                    f"brackets) goes in quotes: key='a=b'")
-    overrides = parser.parse_overrides(candidates)
-    groups, plain = [], []
-    for ov in overrides:
-        key = ov.key_or_group
-        if key.startswith("hydra") or (ov.type != OverrideType.CHANGE and not (conf_dir / key).is_dir()):
-            continue  # Hydra's own settings; an added or deleted key (the entry points refuse unknown ones)
-        if (conf_dir / key).is_dir():
-            value = next(iter(ov.sweep_string_iterator())) if ov.is_sweep_override() else ov.get_value_element_as_str()
-            prefix = {OverrideType.ADD: "+", OverrideType.FORCE_ADD: "++"}.get(ov.type, "")
-            groups.append(f"{prefix}{key}={value}")
-        else:
-            plain.append(ov)
-    if not plain:
-        return None
-    GlobalHydra.instance().clear()
-    try:
-        with initialize_config_dir(config_dir=str(conf_dir), version_base="1.3"):
-            cfg = compose(config_name=config_name, overrides=groups)
-    except Exception:  # a bad group choice: the entry point's own checks name it
-        return None
-    finally:
-        GlobalHydra.instance().clear()
-    for ov in plain:
-        if ov.key_or_group in RENAMED_KEYS and not _has_key(cfg, ov.key_or_group):
-            return f"setting {ov.key_or_group!r} was replaced: {RENAMED_KEYS[ov.key_or_group]}"
-        if not _has_key(cfg, ov.key_or_group):
-            where = (conf_dir / f"{config_name}.yaml").relative_to(CONF_DIR.parent)
-            return (f"unknown setting {ov.key_or_group!r} in override {ov.input_line!r}: {where} (with the chosen "
-                    f"groups) has no such key")
-    return None
-
-
-def _has_key(cfg, dotted: str) -> bool:
-    """Whether the composed config has the key ``a.b.c`` (a mandatory ``???`` value counts as present)."""
-    from omegaconf import ListConfig
-
-    node = cfg
-    for part in dotted.split("."):
-        if isinstance(node, DictConfig) and part in node.keys():
-            node = node._get_node(part)
-        elif isinstance(node, ListConfig) and part.isdigit() and int(part) < len(node):
-            node = node._get_node(int(part))
-        else:
-            return False
-    return True
-
-
-def preflight(config_name: str, args: list[str] | None = None, conf_dir: Path = CONF_DIR) -> None:
-    """Checks of a Hydra entry point's command line before Hydra starts; one line and exit 2 on a bad one.
-
-    Moves ``-m``/``--multirun`` in front of the overrides (Hydra's parser refuses
-    them after one), then :func:`check_hydra_dirs` and :func:`check_plain_overrides`.
-    Rewrites ``sys.argv`` when ``args`` is None.
-    """
-    argv = sys.argv[1:] if args is None else args
-    flags = [a for a in argv if a in MULTIRUN_FLAGS]
-    rest = [a for a in argv if a not in MULTIRUN_FLAGS]
-    if args is None:
-        sys.argv[1:] = flags + rest
-    err = check_hydra_dirs(rest) or check_plain_overrides(rest, config_name, conf_dir)
-    if err:
-        print(f"error: {err}", file=sys.stderr)
-        raise SystemExit(EXIT_CONFIG)
-
-
-def start_devices() -> dict:
-    """Before JAX's backend starts: join a multi-process job (:func:`icgo.core.devices.start_distributed`, e.g. the
-    SLURM launcher's one process per node), then give the CPU backend one host device per core the job may use
-    (:func:`icgo.core.devices.use_host_devices`). Returns ``{"distributed": request or None, "host_devices": n}``."""
-    from icgo.core.devices import start_distributed, use_host_devices
-
-    try:
-        request = start_distributed()
-    except ValueError as e:  # a malformed ICGO_* variable: one line
-        raise SettingError(str(e)) from None
-    return {"distributed": request, "host_devices": use_host_devices()}
-
-
-def is_secondary_process() -> bool:
-    """True in every process of a multi-process job but the first: they compute with it, it alone writes."""
-    import sys as _sys
-
-    jax = _sys.modules.get("jax")
-    return jax is not None and jax.process_index() != 0
-
-
-def enable_jax_cache(path: str | None) -> None:
-    """Turn on JAX's persistent compilation cache in ``path`` (None: leave it off).
-
-    Programs with host callbacks are never cached by JAX (the progress bar reports between compiled chunks,
-    so the study's programs are cached with or without it). JAX's warnings about a cache entry it could not
-    write or read are silenced (the run goes on; the entry is compiled again).
-    """
-    if not path:
-        return
-    import jax
-
-    p = Path(path).expanduser()
-    try:
-        p.mkdir(parents=True, exist_ok=True)
-    except OSError as e:  # a read-only file system, a file in the way
-        raise SettingError(f"jax_cache_dir {str(p)!r}: cannot create the cache directory ({e.strerror}); "
-                          f"set jax_cache_dir=null to run without the cache") from None
-    jax.config.update("jax_compilation_cache_dir", str(Path(path).expanduser()))
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-    import warnings
-
-    # a cache entry that cannot be written (a full disk) or read (cut short by an interrupted run) only costs a
-    # compilation: JAX warns and goes on, and the command's one error or interruption line stays the only one
-    warnings.filterwarnings("ignore", message=r"Error (writing|reading) persistent compilation cache entry",
-                            category=UserWarning)
+from icgo.io.files import RESULTS_DIR, results_output  # noqa: F401
 
 
 def fail_line(e: BaseException) -> NoReturn:
@@ -241,37 +25,6 @@ def fail_line(e: BaseException) -> NoReturn:
     from icgo.core.settings import error_status
 
     raise SystemExit(error_status(e) or EXIT_CONFIG)
-
-
-def one_line_errors(task):
-    """Decorator of a Hydra task function: a user's error becomes one line and an exit status, never a traceback.
-
-    ``ValueError`` (every :class:`~icgo.core.errors.IcgoError`), a disk's ``OSError`` and ``MemoryError``
-    are printed by :func:`icgo.core.settings.error_status` (exit 2 or 1); Hydra would print each with a
-    traceback. Numerical ``RuntimeWarning`` lines are not printed (a result that matters is checked and
-    raised as an error).
-    """
-    import functools
-
-    @functools.wraps(task)
-    def wrapper(cfg):
-        import logging
-        import warnings
-
-        from icgo.core.settings import error_status
-
-        # JAX's backend probe ("Unable to initialize backend 'tpu'") is noise on a terminal, not a second line.
-        logging.getLogger("jax._src.xla_bridge").setLevel(logging.WARNING)
-        warnings.simplefilter("ignore", RuntimeWarning)
-        try:
-            return task(cfg)
-        except (ValueError, OSError, MemoryError) as e:
-            rc = error_status(e)
-            if rc is None:
-                raise
-            raise SystemExit(rc) from None
-
-    return wrapper
 
 
 def guarded(main) -> None:
@@ -285,68 +38,12 @@ def guarded(main) -> None:
         raise SystemExit(rc)
 
 
-#: The repository's shared results folder: commands regenerate their own files in it (and leave the others).
-RESULTS_DIR = CONF_DIR.parent / "results"
-
-
-def results_output(out, *, overwrite: bool = False, writer: str = ""):
-    """The :class:`icgo.io.files.Output` of an argparse command's ``--out``, checked (one SettingError line).
-
-    The repository's ``results/`` (:data:`RESULTS_DIR`) is a shared folder: the command's files replace their
-    namesakes, the others stay. Any other directory is the command's own: refused when it already holds
-    files, unless ``--overwrite``, which replaces its content whole.
-    """
-    from icgo.io.files import Output
-
-    p = Path(out).expanduser()
-    try:
-        shared = p.resolve() == RESULTS_DIR.resolve()
-    except (OSError, RuntimeError):
-        shared = False
-    return Output(p, setting="--out", overwrite=overwrite, shared=shared, writer=writer,
-                  overwrite_hint="--overwrite").check()
-
-
 def bool_setting(cfg: DictConfig, key: str) -> bool:
     """The value of a true/false setting; anything else (``maybe``, ``'false'``, ``0``, null) is a SettingError."""
     v = OmegaConf.select(cfg, key)
     if not isinstance(v, bool):
         raise SettingError(f"{key}={v!r}: must be true or false")
     return v
-
-
-def hydra_keep() -> tuple[str, ...]:
-    """Names Hydra writes into the run directory of this job before the task runs (its job log), which an
-    output directory leaves alone."""
-    from hydra.core.hydra_config import HydraConfig
-
-    return (f"{HydraConfig.get().job.name}.log",)
-
-
-def hydra_files(cfg: DictConfig) -> dict[str, str]:
-    """Hydra's ``.hydra/`` record of this job (``config.yaml`` unresolved, ``hydra.yaml``, ``overrides.yaml``).
-
-    The configs set ``hydra.output_subdir: null``, so Hydra does not write it into the run directory
-    before the task runs (it would rewrite the record of the run a refused command was refused to
-    replace); the entry point stages it with its other files instead.
-    """
-    from hydra.core.hydra_config import HydraConfig
-
-    hc = HydraConfig.get()
-    return {"config.yaml": OmegaConf.to_yaml(cfg), "hydra.yaml": OmegaConf.to_yaml({"hydra": hc}),
-            "overrides.yaml": OmegaConf.to_yaml(hc.overrides.task)}
-
-
-def write_hydra_record(stage: Path, cfg: DictConfig) -> None:
-    """Write :func:`hydra_files` into ``stage/.hydra`` (nothing outside a Hydra job, e.g. a library call)."""
-    from hydra.core.hydra_config import HydraConfig
-
-    if not HydraConfig.initialized():
-        return
-    d = stage / ".hydra"
-    d.mkdir(exist_ok=True)
-    for name, text in hydra_files(cfg).items():
-        (d / name).write_text(text)
 
 
 def study_main(cfg: DictConfig, build_config, run) -> None:
@@ -367,38 +64,3 @@ def study_main(cfg: DictConfig, build_config, run) -> None:
         raise SystemExit(EXIT_CONFIG) from None
     logging.getLogger("icgo").setLevel(logging.INFO)
     run(cfg, Path(HydraConfig.get().runtime.output_dir) / "models", config)
-
-
-def previous_run(outdir: Path) -> dict | None:
-    """The run record of a complete previous run in ``outdir``, or None (no run, or an unreadable record)."""
-    from icgo.reporting import records as R
-
-    if not (outdir / R.RUN_FILE).is_file():
-        return None
-    try:
-        return R.read_run(outdir)
-    except R.RecordError:
-        return None
-
-
-def write_failure(outdir: Path, message: str, tb: str | None = None) -> None:
-    """Leave the FAILED marker (one line) and, for unexpected errors, the traceback."""
-    outdir.mkdir(parents=True, exist_ok=True)
-    (outdir / FAILED).write_text(message.strip().splitlines()[0] + "\n")
-    if tb:
-        (outdir / "error.txt").write_text(tb)
-
-
-def one_line(e: BaseException) -> str:
-    """First line of an exception message."""
-    text = str(e).strip()
-    return text.splitlines()[0] if text else type(e).__name__
-
-
-def format_traceback(e: BaseException) -> str:
-    return "".join(traceback.format_exception(type(e), e, e.__traceback__))
-
-
-def env_info() -> dict:
-    """Host facts recorded in run.json."""
-    return {"pid": os.getpid(), "cpu_count": os.cpu_count()}

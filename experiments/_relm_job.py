@@ -14,7 +14,8 @@ from pathlib import Path
 
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
-from experiments._entry import FAILED
+from hydra_plugins.icgo_launcher.jobs import (  # noqa: F401
+    FAILURE_FILES, cfg_hash, config_difference, config_hash, stored_config, stored_hash)
 from icgo.core.errors import SettingError
 
 
@@ -365,66 +366,6 @@ def excluded_line(result) -> str | None:
     from icgo.studies.icgo_relm import excluded_sentence
 
     return excluded_sentence(result.excluded, len(result.config.ids()) + len(result.excluded))
-
-
-#: Files a failed attempt leaves in a run directory (replaced by the next run; they do not make the directory used).
-FAILURE_FILES = ("error.txt", FAILED)
-#: Settings that change how a run is executed, not what it computes: left out of :func:`config_hash`.
-RUNTIME_KEYS = ("overwrite", "progress", "jax_cache_dir", "devices")
-
-
-def config_hash(container: dict) -> str:
-    """SHA-256 (hex) of a resolved config (a plain mapping, ``hydra`` node excluded) without :data:`RUNTIME_KEYS`:
-    the identity of what a run computes. A sweep re-run into its directory keeps a finished job only when the
-    hashes agree."""
-    import hashlib
-
-    core = {k: v for k, v in container.items() if k not in RUNTIME_KEYS and k != "hydra"}
-    return hashlib.sha256(json.dumps(core, sort_keys=True, default=str).encode()).hexdigest()
-
-
-def cfg_hash(cfg: DictConfig) -> str:
-    """:func:`config_hash` of a composed config."""
-    return config_hash(OmegaConf.to_container(cfg, resolve=True))
-
-
-def stored_config(outdir: Path) -> dict | None:
-    """The resolved config a finished run recorded (its ``config.yaml``), or None if unreadable."""
-    from icgo.reporting import records as R
-
-    try:
-        c = OmegaConf.to_container(OmegaConf.load(outdir / R.CONFIG_FILE), resolve=False)
-    except Exception:  # noqa: BLE001  (absent, not YAML: the run cannot be matched, so it is not kept)
-        return None
-    return c if isinstance(c, dict) else None
-
-
-def stored_hash(outdir: Path, run: dict) -> str | None:
-    """The config hash of a finished run: the one its run.json records, else that of its ``config.yaml``."""
-    h = run.get("config_sha256")
-    if isinstance(h, str):
-        return h
-    c = stored_config(outdir)
-    return None if c is None else config_hash(c)
-
-
-def config_difference(a: dict, b: dict, limit: int = 4) -> str:
-    """``key: a-value vs b-value`` for the first keys (dotted) where two configs differ (runtime keys ignored)."""
-    def flat(d, prefix=""):
-        out = {}
-        for k, v in d.items():
-            if not prefix and k in RUNTIME_KEYS:
-                continue
-            if isinstance(v, dict):
-                out.update(flat(v, f"{prefix}{k}."))
-            else:
-                out[f"{prefix}{k}"] = v
-        return out
-
-    fa, fb = flat(a), flat(b)
-    keys = sorted(k for k in set(fa) | set(fb) if fa.get(k, "<absent>") != fb.get(k, "<absent>"))
-    shown = [f"{k}: {fa.get(k, '<absent>')!r} there, {fb.get(k, '<absent>')!r} here" for k in keys[:limit]]
-    return "; ".join(shown) + (f"; and {len(keys) - limit} more" if len(keys) > limit else "")
 
 
 def run_output(outdir: Path, overwrite: bool):

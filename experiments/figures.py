@@ -1140,7 +1140,7 @@ def missing_jobs(dirs, failed) -> list[str]:
     overrides) and any other directory with a ``FAILED`` marker."""
     import json
 
-    from experiments._sweep import REPORT_FILE
+    from hydra_plugins.icgo_launcher.report import REPORT_FILE
 
     lines, named = [], set()
     for d in dirs:

@@ -22,7 +22,7 @@ from omegaconf import OmegaConf, open_dict
 
 from experiments import _entry as E
 from experiments import _relm_job as C
-from experiments import _sweep
+from hydra_plugins.icgo_launcher import report as sweep_report
 from experiments.run import run_job
 from icgo.optim.registry import get
 
@@ -261,7 +261,7 @@ def test_failed_multirun_job_leaves_marker_and_others_intact(tmp_path, capsys):
     with open_dict(cfg):
         cfg.hydra.overrides.task = ["split.n_repeats=2,-3,4"]   # the sweep as typed: jobs 0, 1, 2
     with pytest.raises(SystemExit) as e:
-        _sweep.FailureReport().on_multirun_end(cfg)
+        sweep_report.FailureReport().on_multirun_end(cfg)
     assert e.value.code == 1
     err = capsys.readouterr().err
     assert "3 job(s): 1 ok, 1 failed, 1 not run" in err
@@ -419,7 +419,7 @@ def test_a_sweep_rerun_with_another_config_is_refused_and_changes_nothing(small_
     """A kept job is matched by its config hash, never by its number: another strategy, or more repeats, in the
     job's directory is refused, and the finished run (its .hydra record included) is left byte for byte."""
     from experiments import _relm_job as J
-    from experiments._sweep import job_status
+    from hydra_plugins.icgo_launcher.report import job_status
 
     base = TINY + ["dataset=csv", f"dataset.path={small_csv}", "split.n_repeats=1"]
     first = run_job(_job_cfg(base + ["strategy=chaos"]), tmp_path / "0", multirun=True)

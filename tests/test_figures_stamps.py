@@ -9,7 +9,8 @@ import pandas as pd
 import pytest
 import yaml
 
-from experiments import _stamp, _sweep
+from experiments import _stamp
+from hydra_plugins.icgo_launcher import report as sweep_report
 from experiments import figures as F
 from experiments import sweep_conditions as SC
 from icgo.reporting.names import METHOD_NAMES, STRATEGY_NAMES, method_name
@@ -139,17 +140,17 @@ def test_sweep_results_table_beside_the_report(tmp_path):
     jobs = [{"num": 0, "overrides": ["strategy=chaos"], "dir": "0", "status": "ok", "reason": ""},
             {"num": 1, "overrides": ["strategy=wavelet"], "dir": "1", "status": "ok", "reason": ""},
             {"num": 2, "overrides": ["strategy=gaussian"], "dir": "2", "status": "failed", "reason": "x"}]
-    t = _sweep.results_table(tmp_path, jobs)
+    t = sweep_report.results_table(tmp_path, jobs)
     assert t["overrides"].tolist() == ["strategy=chaos", "strategy=wavelet"]
     assert t["MAE (deg)"].tolist() == ["0.0400 +/- 0.0010", "0.0300 +/- 0.0020"]
-    assert _sweep.results_table(tmp_path, jobs[2:]) is None
+    assert sweep_report.results_table(tmp_path, jobs[2:]) is None
     # a worlds job's row is its result pooled over worlds (worlds_pooled.csv)
     d = tmp_path / "3"
     d.mkdir()
     pd.DataFrame([{"method": "pso", "name": "PSO-RELM", "worlds": 30, "repeats per world": 10,
                    "MAE (deg)": "0.0370 +/- 0.0025", "RMSE (deg)": "0.05", "R^2 of error": "0.99",
                    "first (worlds)": "12 of 30"}]).to_csv(d / "worlds_pooled.csv", index=False)
-    t = _sweep.results_table(tmp_path, [{"num": 3, "overrides": ["optimizer=pso"], "dir": "3", "status": "ok"}])
+    t = sweep_report.results_table(tmp_path, [{"num": 3, "overrides": ["optimizer=pso"], "dir": "3", "status": "ok"}])
     assert t.iloc[0][["method", "repeats", "MAE (deg)", "R^2"]].tolist() == ["PSO-RELM", "30 worlds x 10",
                                                                             "0.0370 +/- 0.0025", 0.99]
 

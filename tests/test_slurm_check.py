@@ -1,12 +1,12 @@
-"""experiments.slurm_check: reading `sinfo` and refusing a request no node can hold (no cluster needed)."""
+"""hydra_plugins.icgo_launcher.slurm_check: reading `sinfo` and refusing a request no node can hold (no cluster needed)."""
 
 import stat
 import subprocess
 
 import pytest
 
-from experiments import slurm_check
-from experiments.slurm_check import cluster_offer, parse_sinfo, unschedulable
+from hydra_plugins.icgo_launcher import slurm_check
+from hydra_plugins.icgo_launcher.slurm_check import cluster_offer, parse_sinfo, unschedulable
 
 # `sinfo -h --exact -o '%P|%c|%m|%a'` as printed by scripts/slurm_cluster.sh's one-node cluster
 ONE_NODE = "debug*|2|21695|up\n"

@@ -7,7 +7,7 @@ Here each job is its own ``spawn`` process (never forked: JAX is initialised
 inside the job), so a dead process costs only its job: the launcher leaves the
 ``FAILED`` marker ("killed by signal SIGKILL ...") in the job's directory and
 starts the next one. The end-of-sweep report
-(:class:`experiments._sweep.FailureReport`) then lists every job.
+(:class:`hydra_plugins.icgo_launcher.report.FailureReport`) then lists every job.
 
 Each job's XLA runs on ``xla_threads`` threads; with one thread the job's
 process is also pinned to its worker slot's cores (the cores shared out among the
@@ -18,7 +18,7 @@ its slot (its search one program over them: docs/performance.md).
 Ctrl-C stops the sweep: the running jobs are terminated (their run
 directories are staged, so each is complete or absent), the report lists what
 ran, and the launcher exits with status 130. Re-running the sweep into its
-directory resumes it (finished jobs are kept; ``experiments.run``).
+directory resumes it (finished jobs are kept: :mod:`hydra_plugins.icgo_launcher.jobs`).
 """
 
 from __future__ import annotations
@@ -39,8 +39,10 @@ from hydra.core.singleton import Singleton
 from hydra.core.utils import JobReturn, JobStatus, configure_log, filter_overrides, run_job, setup_globals
 from omegaconf import OmegaConf, open_dict
 
-from icgo.core.settings import interrupts_raise
+from hydra_plugins.icgo_launcher import report
+from hydra_plugins.icgo_launcher.jobs import FAILED, one_line, previous_run, write_failure
 from icgo.core.devices import xla_flags
+from icgo.core.settings import interrupts_raise
 
 log = logging.getLogger(__name__)
 
@@ -111,18 +113,16 @@ def _signal_name(code: int) -> str:
 
 def _mark_dead(job_dir: Path, exitcode: int) -> str:
     """FAILED marker for a job whose process ended without a result (unless it left a complete run)."""
-    from experiments import _entry as C
-
-    if C.previous_run(job_dir) is not None:
+    if previous_run(job_dir) is not None:
         return "ok"
     if exitcode < 0:
         msg = (f"killed by {_signal_name(exitcode)}: the job's process died; re-run the sweep into its "
                f"directory to redo it")
     else:
-        if (job_dir / C.FAILED).is_file():
+        if (job_dir / FAILED).is_file():
             return "failed"
         msg = f"the job's process exited with status {exitcode} without a result"
-    C.write_failure(job_dir, msg)
+    write_failure(job_dir, msg)
     return "killed" if exitcode < 0 else "failed"
 
 
@@ -134,14 +134,12 @@ def _placeholder(config, overrides, job_dir: Path) -> JobReturn:
 
 def _settle(ret: JobReturn | None, config, overrides, job_dir: Path, exitcode: int) -> JobReturn:
     """The JobReturn the sweeper receives for a finished job process."""
-    from experiments import _entry as C
-
     if ret is None or exitcode != 0:
         status = _mark_dead(job_dir, exitcode)
         log.error("job %s %s", config.hydra.job.num, status)
         return _placeholder(config, overrides, job_dir)
     if ret.status == JobStatus.FAILED:  # the task raised past its own handler: record it, go on
-        C.write_failure(job_dir, f"{type(ret._return_value).__name__}: {C.one_line(ret._return_value)}")
+        write_failure(job_dir, f"{type(ret._return_value).__name__}: {one_line(ret._return_value)}")
         return _placeholder(config, overrides, job_dir)
     return ret
 
@@ -214,9 +212,7 @@ def launch(launcher, job_overrides: Sequence[Sequence[str]], initial_job_idx: in
                     job["proc"].kill()
                     job["proc"].join()
                 _mark_dead(job["dir"], job["proc"].exitcode if job["proc"].exitcode is not None else -signal.SIGTERM)
-            from experiments import _sweep
-
             print("interrupted (Ctrl-C): the running jobs were stopped", file=sys.stderr)
-            _sweep.report(launcher.config, file=sys.stderr)
+            report.report(launcher.config, file=sys.stderr)
             raise SystemExit(EXIT_INTERRUPTED) from None
     return [results[i] for i in sorted(results)]

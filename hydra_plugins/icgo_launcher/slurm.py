@@ -7,10 +7,10 @@ ends in ``[j.results()[0] for j in jobs]``:
   limit, out of memory) no longer raises out of the sweep: its directory gets
   the ``FAILED`` marker ("killed: SLURM job <id> ended CANCELLED ...") and the
   other jobs' results are collected; the end-of-sweep report
-  (:mod:`experiments._sweep`) then lists every job;
+  (:mod:`hydra_plugins.icgo_launcher.report`) then lists every job;
 * a request no node of the partition can hold (more CPUs or memory per job)
   fails before submission, in one line saying what the cluster offers
-  (:mod:`experiments.slurm_check`), instead of pending for ever.
+  (:mod:`hydra_plugins.icgo_launcher.slurm_check`), instead of pending for ever.
 """
 
 from __future__ import annotations
@@ -26,6 +26,9 @@ from omegaconf import OmegaConf
 
 from hydra_plugins.hydra_submitit_launcher.config import BaseQueueConf
 from hydra_plugins.hydra_submitit_launcher.submitit_launcher import SlurmLauncher
+from hydra_plugins.icgo_launcher.jobs import one_line, previous_run, write_failure
+from hydra_plugins.icgo_launcher.slurm_check import cluster_offer, unschedulable
+from icgo.core.settings import interrupts_raise
 
 log = logging.getLogger(__name__)
 
@@ -36,8 +39,6 @@ class IcgoSlurmLauncher(SlurmLauncher):
     """SlurmLauncher whose sweep loses only the jobs that died, and that refuses an unschedulable request."""
 
     def _check_request(self) -> None:
-        from experiments.slurm_check import cluster_offer, unschedulable
-
         p = self.params
         offer = cluster_offer(p.get("partition"))
         msg = unschedulable(p.get("cpus_per_task"), p.get("mem_gb"), p.get("partition"), offer,
@@ -47,7 +48,7 @@ class IcgoSlurmLauncher(SlurmLauncher):
             raise SystemExit(EXIT_CONFIG)
 
     def _executor(self):
-        import submitit
+        import submitit  # here, not at the top: Hydra imports this module at every start (its plugin scan)
 
         init_keys = {"submitit_folder", "max_num_timeout"}
         executor = submitit.AutoExecutor(cluster=self._EXECUTOR, folder=self.params["submitit_folder"],
@@ -59,14 +60,10 @@ class IcgoSlurmLauncher(SlurmLauncher):
         return executor
 
     def launch(self, job_overrides: Sequence[Sequence[str]], initial_job_idx: int) -> Sequence[JobReturn]:
-        from icgo.core.settings import interrupts_raise
-
         with interrupts_raise():  # Ctrl-C reaches submitit as KeyboardInterrupt, as before
             return self._launch(job_overrides, initial_job_idx)
 
     def _launch(self, job_overrides: Sequence[Sequence[str]], initial_job_idx: int) -> Sequence[JobReturn]:
-        from experiments import _entry as C
-
         self._check_request()
         sweep_dir = Path(str(self.config.hydra.sweep.dir))
         sweep_dir.mkdir(parents=True, exist_ok=True)
@@ -83,14 +80,14 @@ class IcgoSlurmLauncher(SlurmLauncher):
                 returns.append(job.results()[0])
                 continue
             except Exception as e:  # UncompletedJobError (cancelled, timed out, node lost) or FailedJobError
-                from submitit.core.utils import UncompletedJobError
+                from submitit.core.utils import UncompletedJobError  # (submitit: see _executor)
 
-                job_dir = sweep_dir / str(idx)  # the default hydra.sweep.subdir, as experiments._sweep reads it
+                job_dir = sweep_dir / str(idx)  # the default hydra.sweep.subdir, as the sweep report reads it
                 state = job.state
-                if C.previous_run(job_dir) is None:
+                if previous_run(job_dir) is None:
                     died = isinstance(e, UncompletedJobError)
-                    C.write_failure(job_dir, f"{'killed' if died else 'failed'}: SLURM job {job.job_id} ended {state} "
-                                             f"without a result ({type(e).__name__}: {C.one_line(e)})")
+                    write_failure(job_dir, f"{'killed' if died else 'failed'}: SLURM job {job.job_id} ended {state} "
+                                           f"without a result ({type(e).__name__}: {one_line(e)})")
                 log.error("job %d (SLURM %s) ended %s", idx, job.job_id, state)
             returns.append(JobReturn(overrides=overrides, cfg=None, hydra_cfg=None, working_dir=str(sweep_dir / str(idx)),
                                      task_name="", status=JobStatus.COMPLETED, _return_value=None))

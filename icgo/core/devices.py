@@ -14,6 +14,11 @@ Nothing here imports JAX at module import: the entry points call these before an
 from __future__ import annotations
 
 import os
+import sys
+import warnings
+from pathlib import Path
+
+from icgo.core.errors import SettingError
 
 #: The XLA flag that fixes the CPU backend's device count (read when the backend starts).
 HOST_DEVICE_FLAG = "--xla_force_host_platform_device_count"
@@ -120,7 +125,7 @@ def start_distributed(request: dict | None = None) -> dict | None:
     request = distributed_request() if request is None else request
     if request is None:
         return None
-    import jax
+    import jax  # (the module imports JAX only where a job starts it, see the module docstring)
 
     if jax.distributed.is_initialized():
         return request
@@ -130,3 +135,57 @@ def start_distributed(request: dict | None = None) -> dict | None:
         jax.distributed.initialize(coordinator_address=request["coordinator_address"],
                                    num_processes=request["num_processes"], process_id=request["process_id"])
     return request
+
+
+def start_devices() -> dict:
+    """Before JAX's backend starts: join a multi-process job (:func:`start_distributed`, e.g. the SLURM launcher's one
+    process per node), then give the CPU backend one host device per core the job may use
+    (:func:`use_host_devices`). Returns ``{"distributed": request or None, "host_devices": n}``.
+
+    Raises:
+        SettingError: a malformed ``ICGO_*`` variable (one line).
+    """
+    try:
+        request = start_distributed()
+    except ValueError as e:
+        raise SettingError(str(e)) from None
+    return {"distributed": request, "host_devices": use_host_devices()}
+
+
+def is_secondary_process() -> bool:
+    """True in every process of a multi-process job but the first: they compute with it, it alone writes."""
+    jax = sys.modules.get("jax")
+    return jax is not None and jax.process_index() != 0
+
+
+def enable_jax_cache(path: str | None) -> None:
+    """Turn on JAX's persistent compilation cache in ``path`` (None: leave it off).
+
+    Programs with host callbacks are never cached by JAX (the progress bar reports between compiled chunks,
+    so the study's programs are cached with or without it). JAX's warnings about a cache entry it could not
+    write or read are silenced (the run goes on; the entry is compiled again).
+
+    Raises:
+        SettingError: the directory cannot be created (one line naming ``jax_cache_dir``).
+    """
+    if not path:
+        return
+    import jax  # (the module imports JAX only where a job starts it, see the module docstring)
+
+    p = Path(path).expanduser()
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as e:  # a read-only file system, a file in the way
+        raise SettingError(f"jax_cache_dir {str(p)!r}: cannot create the cache directory ({e.strerror}); "
+                           f"set jax_cache_dir=null to run without the cache") from None
+    jax.config.update("jax_compilation_cache_dir", str(p))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    # a cache entry that cannot be written (a full disk) or read (cut short by an interrupted run) only costs a
+    # compilation: JAX warns and goes on, and the command's one error or interruption line stays the only one
+    warnings.filterwarnings("ignore", message=r"Error (writing|reading) persistent compilation cache entry",
+                            category=UserWarning)
+
+
+def env_info() -> dict:
+    """Host facts a run records: the process id and the CPU count."""
+    return {"pid": os.getpid(), "cpu_count": os.cpu_count()}

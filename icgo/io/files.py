@@ -377,3 +377,24 @@ def json_text(obj) -> str:
 def staged_results(out, last: str | None = None):
     """The files of a study into a shared results folder, all at once or none (:class:`Output`, ``shared``)."""
     return Output(out, setting="--out", shared=True).staged(last=(last,) if last else ())
+
+
+#: The repository's shared results folder (``results/`` beside ``icgo/``): the commands regenerate their own files
+#: in it and leave the others.
+RESULTS_DIR = Path(__file__).resolve().parents[2] / "results"
+
+
+def results_output(out, *, overwrite: bool = False, writer: str = "") -> Output:
+    """The :class:`Output` of a command's ``--out``, checked (one SettingError line).
+
+    The repository's ``results/`` (:data:`RESULTS_DIR`) is a shared folder: the command's files replace their
+    namesakes, the others stay. Any other directory is the command's own: refused when it already holds
+    files, unless ``--overwrite``, which replaces its content whole.
+    """
+    p = Path(out).expanduser()
+    try:
+        shared = p.resolve() == RESULTS_DIR.resolve()
+    except (OSError, RuntimeError):
+        shared = False
+    return Output(p, setting="--out", overwrite=overwrite, shared=shared, writer=writer,
+                  overwrite_hint="--overwrite").check()

@@ -16,7 +16,7 @@ from omegaconf import OmegaConf
 
 @hydra.main(version_base="1.3", config_path=".", config_name="config")
 def app(cfg) -> None:
-    from experiments._relm_job import config_hash
+    from hydra_plugins.icgo_launcher.jobs import config_hash
     from icgo.reporting import records as R
 
     hc = HydraConfig.get()

@@ -11,7 +11,7 @@ directory:
   held it before this sweep; a re-run never takes it for this job, and leaves
   it as it was: ``overwrite=true`` redoes the job). The configuration is
   matched by the hash of the job's resolved config
-  (:func:`experiments._relm_job.config_hash`), never by the job's number;
+  (:func:`hydra_plugins.icgo_launcher.jobs.config_hash`), never by the job's number;
 * ``killed``: a ``FAILED`` marker saying so, or a directory with neither a
   marker nor a run record (the job started and its process died);
 * ``failed``: any other ``FAILED`` marker (its one line is the reason);
@@ -21,7 +21,7 @@ The report is printed (stderr) and written to ``sweep_report.json`` in the
 sweep directory (atomically), beside the cross-job results table
 ``sweep_results.csv`` / ``.md``: one row per finished job and method, with the job's
 swept overrides and its test MAE / RMSE / R^2 (mean +/- std over repeats, from the
-job's ``summary.csv``). Like :mod:`experiments._entry`, nothing here imports JAX.
+job's ``summary.csv``). Nothing here imports JAX.
 """
 
 from __future__ import annotations
@@ -32,8 +32,14 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+from hydra.core.global_hydra import GlobalHydra
+from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.experimental.callback import Callback
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, open_dict
+
+from hydra_plugins.icgo_launcher.jobs import (FAILED, config_difference, config_hash, previous_run, stored_config,
+                                             stored_hash)
 
 REPORT_FILE = "sweep_report.json"
 #: The cross-job results table (``.csv`` and ``.md``) beside the report.
@@ -43,9 +49,6 @@ STATUSES = ("ok", "refused", "failed", "killed", "not run")
 
 def job_overrides(config: DictConfig) -> list[list[str]]:
     """Each job's overrides, in the basic sweeper's order (job number = position)."""
-    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
-    from hydra.core.override_parser.overrides_parser import OverridesParser
-
     params = OmegaConf.select(config, "hydra.sweeper.params") or {}
     args = [f"{k}={v}" for k, v in params.items()] + list(config.hydra.overrides.task)
     parsed = OverridesParser.create().parse_overrides(args)
@@ -55,13 +58,9 @@ def job_overrides(config: DictConfig) -> list[list[str]]:
 def job_config(config: DictConfig, overrides) -> dict | None:
     """The resolved task config (no ``hydra`` node) of one job, composed as the launcher composes it, or None
     outside a running Hydra application (a library call)."""
-    from hydra.core.global_hydra import GlobalHydra
-
     gh = GlobalHydra.instance()
     if not gh.is_initialized():
         return None
-    from omegaconf import open_dict
-
     job = gh.config_loader().load_sweep_config(config, list(overrides))
     with open_dict(job):
         del job["hydra"]  # as the task function receives it (Hydra's run_job drops it)
@@ -75,20 +74,17 @@ def job_status(job_dir: Path, expected: dict | None = None) -> tuple[str, str]:
         expected: the job's resolved config; a finished run of another config is ``refused``
             (None: any finished run is ``ok``).
     """
-    from experiments import _entry as C
-    from experiments import _relm_job as J
-
     if not job_dir.is_dir():
         return "not run", ""
-    run = C.previous_run(job_dir)
+    run = previous_run(job_dir)
     if run is not None:
-        if expected is None or J.stored_hash(job_dir, run) == J.config_hash(expected):
+        if expected is None or stored_hash(job_dir, run) == config_hash(expected):
             return "ok", ""
-        old = J.stored_config(job_dir)
-        diff = J.config_difference(old, expected) if old else "it records no readable config"
+        old = stored_config(job_dir)
+        diff = config_difference(old, expected) if old else "it records no readable config"
         return "refused", (f"the directory holds a finished run of another configuration ({diff}); left as it was: "
                            f"overwrite=true redoes the job, or choose another hydra.sweep.dir")
-    marker = job_dir / C.FAILED
+    marker = job_dir / FAILED
     if marker.is_file():
         reason = marker.read_text(errors="replace").strip()
         return ("killed" if reason.startswith("killed") else "failed"), reason
@@ -103,8 +99,6 @@ def statuses(config: DictConfig) -> list[dict]:
     for num, overrides in enumerate(job_overrides(config)):
         # The default subdir is the job number; another pattern is resolved per job as Hydra does.
         name = str(num) if subdir == "${hydra.job.num}" else _subdir(config, overrides, num)
-        from experiments._entry import previous_run
-
         finished = previous_run(sweep / name) is not None  # only then is the job's config needed (composing costs)
         status, reason = job_status(sweep / name, job_config(config, overrides) if finished else None)
         jobs.append({"num": num, "overrides": list(overrides), "dir": name, "status": status, "reason": reason})
@@ -150,7 +144,7 @@ def report(config: DictConfig, file=None) -> list[dict]:
 def results_table(sweep: Path, jobs: list[dict]):
     """One row per finished job and method: the job, its overrides, and its summary (test MAE, RMSE, R^2; a worlds
     job's pooled over worlds, from ``worlds_pooled.csv``); None when no finished job has either file."""
-    import pandas as pd
+    import pandas as pd  # here, not at the top: Hydra imports this module at every start (its plugin scan)
 
     rows = []
     for j in jobs:
@@ -172,7 +166,7 @@ def results_table(sweep: Path, jobs: list[dict]):
 
 
 class FailureReport(Callback):
-    """Hydra callback: after a multirun, report every job's status (:mod:`experiments._sweep`);
+    """Hydra callback: after a multirun, report every job's status (this module);
     exit with status 1 unless every job is ok."""
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
