@@ -203,7 +203,8 @@ def report(df, summ, recordings: dict, label: str, recs: dict, models: dict, sit
     from icgo.physics.rolls import AXIS_TO_Z_DEG, MIN_SPAN_DEG, PLANE_TOL_B, PLANE_TOL_G
     from icgo.studies.calibration import wide
 
-    lines = [f"# Magnetometer calibration: {label}", ""] + ([protocol_line, settings_line, ""] if protocol_line else [])
+    header = [line for line in (protocol_line, settings_line) if line]
+    lines = [f"# Magnetometer calibration: {label}", ""] + (header + [""] if header else [])
     lines += ["## Recommendation", ""]
     lines += [f"- `{name}`: {r['sentence']}" for name, r in recs.items()]
     if any(r["method"] for r in recs.values()):

@@ -15,18 +15,16 @@ from pathlib import Path
 # with the user's own runs going on beside it (a program read while another process wrote it crashed a worker).
 os.environ["XDG_CACHE_HOME"] = str(Path(__file__).resolve().parents[1] / ".jax_cache" / "xdg")
 
-import jax  # noqa: E402
-
 import icgo  # noqa: F401, E402  (enables float64 before any test builds arrays)
-from icgo.core.devices import use_host_devices  # noqa: E402
+from icgo.core.devices import enable_jax_cache, use_host_devices  # noqa: E402
 
 #: Host devices of every test process: the studies' searches are sharded over them (one sharded program), so the
 #: fast suite runs the multi-device path; tests that compare against one device take ``jax.devices()[:1]``.
 HOST_DEVICES = use_host_devices(2)
 
-_CACHE = Path(__file__).resolve().parents[1] / ".jax_cache"
-jax.config.update("jax_compilation_cache_dir", str(_CACHE))
-jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+# the two workers share one cache, locked (icgo.core.devices.CACHE_MAX_BYTES): a worker crashed in CI in a test that
+# passes alone, with the unlocked cache fresh and both workers writing to it; a torn entry is the suspected cause
+enable_jax_cache(str(Path(__file__).resolve().parents[1] / ".jax_cache"), min_compile_secs=0.5)
 
 
 def relm_train_data(n=60, hidden=5, seed=0, scale=1.0):

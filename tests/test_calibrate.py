@@ -411,7 +411,7 @@ def test_the_accuracy_printed_is_nested_the_choice_made_inside_each_held_out_spl
 def test_the_bundled_table_states_its_protocol():
     """results/calibration_devices.md's protocol line, from a small fits table (no fit run): the counts come from
     the table, the command from the config (its non-default settings spelled out)."""
-    from experiments.calibrate_report import protocol, report
+    from experiments.calibrate_report import protocol, report, settings
     from icgo.core.settings import config_overrides
     from icgo.reporting.protocol import PROTOCOL_FIELDS, parse_protocols
 
@@ -420,9 +420,11 @@ def test_the_bundled_table_states_its_protocol():
     df = pd.DataFrame([{"recording": r, "split": sp, "method": m, "score_deg": 0.1 * (i + 1), "degenerate": False,
                         "dip_spread_deg": 0.5, "b_spread_pct": 0.1, "cond": 1.01, "reasons": ""}
                        for r, sps in splits.items() for sp in sps for i, m in enumerate(C.METHODS)])
-    md = report(df, C.summary(df), {}, "two recordings", {}, {}, {}, protocol(df, C.CalibrationConfig(), entry.SEED))
+    md = report(df, C.summary(df), {}, "two recordings", {}, {}, {}, protocol(df, C.CalibrationConfig(), entry.SEED),
+                settings(C.CalibrationConfig(misma_pop=12)))
     (line,) = parse_protocols(md)
     assert md.splitlines()[2].startswith("Protocol: ") and set(line) == set(PROTOCOL_FIELDS)
+    assert md.splitlines()[3].startswith("Run settings: ") and "misma+axis: population 12 x 300 iterations" in md
     assert line["command"] == "`make calibration` (`python -m experiments.calibrate data=bundled`)"
     assert "4 MISMA runs (population 30, 300 iterations)" in line["repeats"]
     assert "its recording's 2-3 held-out split(s)" in line["repeats"]

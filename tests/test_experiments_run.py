@@ -447,6 +447,24 @@ def test_jax_cache_dir_that_cannot_be_created_is_one_line(tmp_path, capsys):
     assert e.value.code == E.EXIT_CONFIG and len(err) == 1 and "jax_cache_dir" in err[0] and "null" in err[0]
 
 
+def test_the_compilation_cache_is_locked_and_bounded(tmp_path):
+    """enable_jax_cache turns on JAX's lock around each cache read and write (a bound on its size does) and the
+    program compiled in a fresh process is written under that lock."""
+    script = (
+        "import sys, jax, jax.numpy as jnp\n"
+        "from icgo.core.devices import CACHE_MAX_BYTES, enable_jax_cache\n"
+        "enable_jax_cache(sys.argv[1])\n"
+        "jax.jit(lambda x: jnp.cumsum(x) * 2)(jnp.ones(5)).block_until_ready()\n"
+        "from jax._src import compilation_cache as cc\n"
+        "import filelock\n"
+        "c = cc._cache\n"
+        "assert c.eviction_enabled and c.max_size == CACHE_MAX_BYTES, (c.eviction_enabled, c.max_size)\n"
+        "assert isinstance(c.lock, filelock.BaseFileLock) and not isinstance(c.lock, filelock.SoftFileLock)\n")
+    subprocess.run([sys.executable, "-c", script, str(tmp_path)], check=True, timeout=300)
+    assert (tmp_path / ".lockfile").exists()
+    assert [p for p in tmp_path.iterdir() if p.name.endswith("-cache")]
+
+
 def test_split_options_compose_their_protocol_and_the_transfer_draw_defaults():
     """Each conf/split option sets its protocol; split=transfer's target equals icgo.studies.splits.TransferDraw()."""
     import dataclasses

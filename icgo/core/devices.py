@@ -158,8 +158,16 @@ def is_secondary_process() -> bool:
     return jax is not None and jax.process_index() != 0
 
 
-def enable_jax_cache(path: str | None) -> None:
-    """Turn on JAX's persistent compilation cache in ``path`` (None: leave it off).
+#: Size bound of the persistent compilation cache (bytes), least recently used entries evicted beyond it. Any bound
+#: turns on JAX's file lock (``filelock``) around each cache read and write: without one, JAX writes an entry in
+#: place, and a process reading it while another (a parallel sweep's job, the other test worker) writes it can be
+#: handed a torn program.
+CACHE_MAX_BYTES = 4 * 2**30
+
+
+def enable_jax_cache(path: str | None, min_compile_secs: float = 0.0) -> None:
+    """Turn on JAX's persistent compilation cache in ``path`` (None: leave it off), locked and bounded
+    (:data:`CACHE_MAX_BYTES`), caching every program that took at least ``min_compile_secs`` to compile.
 
     Programs with host callbacks are never cached by JAX (the progress bar reports between compiled chunks,
     so the study's programs are cached with or without it). JAX's warnings about a cache entry it could not
@@ -179,7 +187,8 @@ def enable_jax_cache(path: str | None) -> None:
         raise SettingError(f"jax_cache_dir {str(p)!r}: cannot create the cache directory ({e.strerror}); "
                            f"set jax_cache_dir=null to run without the cache") from None
     jax.config.update("jax_compilation_cache_dir", str(p))
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", min_compile_secs)
+    jax.config.update("jax_compilation_cache_max_size", CACHE_MAX_BYTES)
     # a cache entry that cannot be written (a full disk) or read (cut short by an interrupted run) only costs a
     # compilation: JAX warns and goes on, and the command's one error or interruption line stays the only one
     warnings.filterwarnings("ignore", message=r"Error (writing|reading) persistent compilation cache entry",
