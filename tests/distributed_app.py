@@ -31,6 +31,6 @@ timings = {}
 res = study.run_study(sim_frame(), cfg, timings=timings)
 if jax.process_index() == 0:
     test = res.metrics.query("split == 'test'").sort_values(["method", "repeat"])
-    np.savez(sys.argv[1], theta=res.model.theta, curve=res.curves["best_fitness"], mae=test.mae.to_numpy(),
+    np.savez(sys.argv[1], theta=res.model.params.theta, curve=res.curves["best_fitness"], mae=test.mae.to_numpy(),
              plan=json.dumps({**timings["execution"], "request": request, "devices_seen": len(jax.devices())}))
 jax.distributed.shutdown()

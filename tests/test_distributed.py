@@ -55,7 +55,7 @@ def test_two_local_processes_shard_the_search_and_give_the_one_process_study(tmp
     cfg = study.StudyConfig(optimizer="cgo", strategies=("original", "wavelet"), n_repeats=3, hidden=10, pop_size=6,
                             iterations=3, seed=2)
     one = study.run_study(sim_frame(), cfg)
-    np.testing.assert_array_equal(got["theta"], one.model.theta)
+    np.testing.assert_array_equal(got["theta"], one.model.params.theta)
     np.testing.assert_array_equal(got["curve"], one.curves["best_fitness"])
     np.testing.assert_array_equal(got["mae"], one.metrics.query("split == 'test'").sort_values(["method", "repeat"])
                                   .mae.to_numpy())

@@ -29,8 +29,8 @@ def _same(a, b):
     """Two studies' searches and scores are bitwise equal."""
     for name in ("best_fitness", "evals"):
         np.testing.assert_array_equal(a.curves[name], b.curves[name])
-    np.testing.assert_array_equal(a.model.theta, b.model.theta)
-    np.testing.assert_array_equal(a.model.beta, b.model.beta)
+    np.testing.assert_array_equal(a.model.params.theta, b.model.params.theta)
+    np.testing.assert_array_equal(a.model.params.beta, b.model.params.beta)
     pd.testing.assert_frame_equal(a.metrics, b.metrics)
     pd.testing.assert_frame_equal(a.predictions, b.predictions)
 

@@ -58,10 +58,11 @@ def test_a_complete_write_replaces_only_its_files_record_last(tmp_path, monkeypa
 
 def test_figures_entry_writes_through_the_staging(tmp_path, monkeypatch):
     """experiments.figures moves its tables in only when the build finished (a failing builder changes nothing)."""
-    from experiments import _entry, figures
+    from experiments import figures
+    from icgo.io import files
 
     out = tmp_path / "results"
-    monkeypatch.setattr(_entry, "RESULTS_DIR", out)  # the shared results folder
+    monkeypatch.setattr(files, "RESULTS_DIR", out)  # the shared results folder
     before = _previous(out)
 
     def boom(dirs, stage):

@@ -68,7 +68,7 @@ def test_a_world_of_a_worlds_run_is_that_world_alone(worlds_run):
     both = W.run_worlds(worlds, CFG)
     for w, res in zip(worlds, both.results):
         alone = W.run_worlds([w], CFG).results[0]
-        np.testing.assert_array_equal(alone.model.theta, res.model.theta)
+        np.testing.assert_array_equal(alone.model.params.theta, res.model.params.theta)
         np.testing.assert_array_equal(alone.curves["best_fitness"], res.curves["best_fitness"])
         pd.testing.assert_frame_equal(alone.metrics, res.metrics)
         one = S.run(S.SurveyData(w.frame, w.meta), CFG, W.world_key(CFG.seed, w.seed))
