@@ -145,3 +145,30 @@ def test_worlds_need_distinct_seeds_and_no_transfer():
         W.simulate("bogus", [1])
     with pytest.raises(ValueError, match=">= 1"):
         W.world_seeds(100, 0)
+
+
+@pytest.mark.parametrize("name,pairs", [
+    ("table3", [("cgo-three_stage", "cgo-wavelet"), ("cgo-three_stage", "cgo-chaos")]),
+    ("table1", [("cgo-original", "relm"), ("cgo-original", "relm-tuned")]),
+    ("fig9", [("cgo-original", "pso"), ("cgo-original", "ga")])])
+def test_the_committed_worlds_tables_from_their_per_world_rows(name, pairs):
+    """results/<name>_worlds.{csv,md} recomputed from its per-world rows: pooled mean +/- sample std, first in k of N
+    worlds, and the Wilcoxon signed-rank p of each pair (scipy, exact for 30 worlds without ties)."""
+    from pathlib import Path
+
+    res = Path(__file__).resolve().parents[1] / "results"
+    per = pd.read_csv(res / f"{name}_worlds_per_world.csv")
+    pooled = pd.read_csv(res / f"{name}_worlds.csv").set_index("method")
+    wide = per.pivot(index="world", columns="method", values="mae")[list(pooled.index)]
+    assert sorted(wide.index) == list(range(100, 130))
+    first = wide.idxmin(axis=1).value_counts()
+    for m, row in pooled.iterrows():
+        assert row["MAE (deg)"] == f"{wide[m].mean():.4f} +/- {wide[m].std(ddof=1):.4f}"
+        assert row["first (worlds)"] == f"{int(first.get(m, 0))} of 30"
+    md = (res / f"{name}_worlds.md").read_text()
+    names = dict(zip(pooled.index, pooled["name"]))
+    for a, b in pairs:
+        p = sps.wilcoxon(wide[a], wide[b]).pvalue
+        line = next(ln for ln in md.splitlines() if ln.startswith(f"| {names[a]} vs {names[b]} "))
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        assert float(cells[4]) == pytest.approx(p, rel=1e-3)
