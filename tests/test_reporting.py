@@ -77,7 +77,6 @@ def test_every_result_table_states_its_protocol(path):
 STAMP_PENDING = {
     "discrepancy_devices.md": "make discrepancy", "discrepancy_hidden.md": "make discrepancy",
     "discrepancy_lab_casing.md": "make discrepancy", "discrepancy_lab_casing_report/report.md": "make discrepancy",
-    "generalisation.md": "make generalisation",
 }
 
 
