@@ -72,26 +72,15 @@ def test_every_result_table_states_its_protocol(path):
         assert "`" in fields["command"], f"{path.relative_to(ROOT)}: the command is not a code span"
 
 
-#: Tables written before their command stamped them: the stamp comes with the command's next run (the writers are
-#: tested below). Remove a name once its table is regenerated.
-STAMP_PENDING = {
-    "discrepancy_devices.md": "make discrepancy", "discrepancy_hidden.md": "make discrepancy",
-    "discrepancy_lab_casing.md": "make discrepancy", "discrepancy_lab_casing_report/report.md": "make discrepancy",
-}
-
-
 @pytest.mark.parametrize("path", _result_tables(), ids=lambda p: str(p.relative_to(RESULTS)))
 def test_every_result_table_carries_the_stamp_of_its_runs(path):
     rel = str(path.relative_to(RESULTS))
     stamped = any(line.startswith(SETTINGS_PREFIX) for line in path.read_text().splitlines())
-    if rel in STAMP_PENDING:
-        assert not stamped, f"results/{rel} is stamped now: drop it from STAMP_PENDING"
-        return
     assert stamped, f"results/{rel}: no '{SETTINGS_PREFIX}...' line (icgo.reporting.protocol.settings_line)"
 
 
 def test_the_writers_stamp_their_tables():
-    """The stamp lines of the writers whose committed tables predate them (STAMP_PENDING)."""
+    """The stamp lines of the MISMA, gyro and discrepancy writers, from their default configs."""
     from experiments import gyro, misma
     from icgo.discrepancy.config import WorkflowConfig
     from icgo.discrepancy.report import workflow_settings
