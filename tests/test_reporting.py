@@ -29,6 +29,8 @@ EXEMPT = {
     "bench_cpu.md": "a benchmark (one run, ratios within it: docs/performance.md), not a method comparison",
     "bench_gpu_check_cpu.md": "a benchmark (the per-backend check, one run: docs/performance.md), not a method "
                               "comparison",
+    "bench_cpu_quiet.md": "a benchmark (Table 3's front door against mealpy in one run: results/performance.md), not a "
+                          "method comparison",
 }
 
 
