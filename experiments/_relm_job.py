@@ -68,7 +68,6 @@ def check_config(cfg: DictConfig) -> None:
         SettingError: one line naming the setting, its value and what is allowed.
     """
     from experiments._entry import bool_setting
-    from icgo.models.relm import MAX_LAM
 
     _unknown(cfg.keys(), ENTRY_KEYS[""], "")
     for node in ("optimizer", "strategy", "schedule", "dataset", *STUDY_NODES):
@@ -80,10 +79,6 @@ def check_config(cfg: DictConfig) -> None:
         bool_setting(cfg, key)
     _need(cfg.get("label") is None or isinstance(cfg.get("label"), str),
           f"label must be a name (a string) or null, got {cfg.get('label')!r}")
-    lam = OmegaConf.select(cfg, "model.lam")
-    _need(not isinstance(lam, (int, float)) or isinstance(lam, bool) or lam <= MAX_LAM,
-          f"model.lam={lam!r}: at most {MAX_LAM:g}; the ridge lambda is absolute, and far above that the RELM's "
-          f"output weights vanish and it returns MSA's azimuth unchanged (docs/reliability.md)")
     ds = cfg.dataset
     _need(ds.get("name") in DATASET_KEYS,
           f"dataset.name must be one of {sorted(DATASET_KEYS)}, got {ds.get('name')!r}")

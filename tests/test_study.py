@@ -305,3 +305,14 @@ def test_sigma_filter_groups_by_sorting_exactly_as_by_masks(frame):
     B = B + np.where(rng.random((len(a), 1)) < 0.02, 3000.0, 0.0)  # some outliers to drop
     for az in (a, np.where(rng.random(len(a)) < 0.5, a, rng.uniform(0, 360, len(a))), np.r_[-0.0, a[1:] * 0.0]):
         np.testing.assert_array_equal(study.sigma_filter(G, B, az), _sigma_filter_by_masks(G, B, az))
+
+
+@pytest.mark.parametrize("lam", [5e3, 1e300, 0.0, -1.0])
+def test_a_lambda_outside_what_a_model_may_carry_is_refused_at_construction(lam):
+    """The bound a saved model is read with (icgo.methods.relm.MAX_LAM) is the study config's own: a library
+    StudyConfig never runs a study whose model load_model would refuse."""
+    from icgo.methods import relm
+
+    with pytest.raises(SettingError, match=r"lam must be a number > 0 and at most 1000"):
+        study.StudyConfig(lam=lam)
+    assert study.StudyConfig(lam=relm.MAX_LAM).lam == relm.MAX_LAM

@@ -38,6 +38,10 @@ FITNESS_MODES = ("train", "validation", "kfold")
 #: The tuned plain-RELM baseline's grid: hidden units L and ridge lambda over six decades.
 TUNE_HIDDEN = (10, 20, 30, 50, 80, 120)
 TUNE_LAMBDA = (1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1)
+#: Largest ridge lambda a study or a model may carry. lambda is absolute (not scaled by the number of rows,
+#: docs/relm_study.md): at 1 the validation RMSE on lab_casing is already 1.5 x that at 1e-3, and far above
+#: 1e3 the output weights shrink to nothing and the RELM returns MSA's azimuth unchanged (docs/reliability.md).
+MAX_LAM = 1e3
 _STD_FLOOR = 1e-12
 #: Rows per block (rows) of the row-blocked paths: above this many rows the fitness (:func:`fitness`,
 #: :func:`train_fitness`), the refit and the prediction (:mod:`icgo.methods.relm_fit`) never hold the

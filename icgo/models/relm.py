@@ -33,10 +33,6 @@ from icgo.physics.frames import angle_diff, azimuth_from_gv, inclination_from_g,
 SENSORS = ("gx", "gy", "gz", "bx", "by", "bz")
 #: Input features of the RELM: the six raw sensor values (the paper) or G with the MSA-corrected field.
 FEATURES = ("raw", "msa")
-#: Largest ridge lambda a study or a model may carry. lambda is absolute (not scaled by the number of rows,
-#: docs/relm_study.md): at 1 the validation RMSE on lab_casing is already 1.5 x that at 1e-3, and far above
-#: 1e3 the output weights shrink to nothing and the RELM returns MSA's azimuth unchanged (docs/reliability.md).
-MAX_LAM = 1e3
 #: Largest number of hidden units of a loaded model.
 MAX_HIDDEN = 100_000
 
@@ -194,7 +190,7 @@ class RELMCompensation(FittedModel):
         need(self.selected in self.methods, f"selected {self.selected!r} is not one of the methods {self.methods}")
         need(self.features in FEATURES, f"features must be one of {FEATURES}, got {self.features!r}")
         need(1 <= self.hidden <= MAX_HIDDEN, f"hidden must be 1 to {MAX_HIDDEN}, got {self.hidden}")
-        need(0 < self.lam <= MAX_LAM, f"lam must be > 0 and at most {MAX_LAM:g}, got {self.lam}")
+        need(0 < self.lam <= _relm.MAX_LAM, f"lam must be > 0 and at most {_relm.MAX_LAM:g}, got {self.lam}")
         need(0 < self.interval_level < 1, f"interval_level must be in (0, 1), got {self.interval_level}")
         p = self.params
         R = _check_members(p.msa_bias, p.msa_scale, self.repeat_ids, "msa_bias", "msa_scale")

@@ -197,7 +197,10 @@ class StudyConfig:
              f"must be an integer >= 1, got {self.msa_iterations!r}")
         need(self.features in ("raw", "msa"), "features", f"must be 'raw' or 'msa', got {self.features!r}")
         need(is_int(self.hidden) and self.hidden >= 1, "hidden", f"must be an integer >= 1, got {self.hidden!r}")
-        need(is_real(self.lam) and self.lam > 0, "lam", f"must be a number > 0, got {self.lam!r} (ridge lambda)")
+        need(is_real(self.lam) and 0 < self.lam <= _relm.MAX_LAM, "lam",
+             f"must be a number > 0 and at most {_relm.MAX_LAM:g}, got {self.lam!r} (the ridge lambda is absolute: far "
+             f"above that the RELM's output weights vanish and it returns MSA's azimuth unchanged, "
+             f"docs/reliability.md)")
         need(self.fitness in _relm.FITNESS_MODES, "fitness",
              f"must be one of {list(_relm.FITNESS_MODES)}, got {self.fitness!r}")
         need(is_real(self.val_fraction) and 0.0 < self.val_fraction < 1.0, "val_fraction",
