@@ -18,7 +18,8 @@ import pytest
 
 import icgo  # noqa: F401  (float64)
 from icgo.core.errors import ModelError
-from icgo.models.format import SCHEMA_VERSION, FittedModel, need, need_shape, param_arrays, read_model
+from icgo.core.settings import need
+from icgo.models.format import SCHEMA_VERSION, FittedModel, need_shape, param_arrays, read_model
 
 
 class Scale(NamedTuple):
@@ -62,7 +63,7 @@ class ToyModel(FittedModel):
 
     def validate(self):
         M = np.shape(self.params.scale.gain)[0]
-        need(self.power in (1, 2), f"power must be 1 or 2, got {self.power}")
+        need(self.power in (1, 2), f"power must be 1 or 2, got {self.power}", error=ModelError)
         for name, a in param_arrays(self.params).items():
             need_shape(a, (M, 3, 3) if name == "rotation" else (M, 3), name)
 

@@ -11,13 +11,22 @@ import sys
 
 import numpy as np
 
-from icgo.core.errors import SettingError, SettingsError
+from icgo.core.errors import IcgoError, SettingError, SettingsError
 
 
-def need(cond: bool, field: str, problem: str) -> None:
-    """Raise :class:`~icgo.core.errors.SettingError` ``(field, problem)`` unless ``cond``."""
-    if not cond:
+def need(cond: bool, field: str, problem: str | None = None, *, error: type[IcgoError] = SettingError) -> None:
+    """The one check of the project: raise ``error`` unless ``cond``.
+
+    A config check reads ``need(cond, field, problem)`` and raises :class:`~icgo.core.errors.SettingError`
+    ``(field, problem)`` (entry points rename ``field`` to their own key); another kind of check names its
+    error, e.g. a model file's ``need(cond, message, error=ModelError)``, whose one line is ``field`` (with
+    ``problem`` appended when given).
+    """
+    if cond:
+        return
+    if error is SettingError:
         raise SettingError(field, problem)
+    raise error(field if problem is None else f"{field} {problem}")
 
 
 def is_int(x) -> bool:

@@ -31,9 +31,10 @@ import numpy as np
 import pandas as pd
 
 from icgo.core.errors import ModelError
+from icgo.core.settings import need
 from icgo.methods import calibration as cal
 from icgo.methods import mag_relm
-from icgo.models.format import CORRECTED_B, FittedModel, data_hash, frame_values, need, sensor_domain
+from icgo.models.format import CORRECTED_B, FittedModel, data_hash, frame_values, sensor_domain
 from icgo.physics.frames import azimuth_from_gv, inclination_from_g, toolface_from_g
 
 #: Methods a :class:`MagCalibration` may come from.
@@ -123,11 +124,11 @@ class MagCalibration(FittedModel):
             if x is not None:
                 M = np.asarray(x, np.float64)[:9].reshape(3, 3)
                 need(bool(np.linalg.cond(M) < self.MAX_CONDITION), f"{name}: its matrix is singular (condition "
-                                                                     f"{np.linalg.cond(M):.3g})")
+                                                                     f"{np.linalg.cond(M):.3g})", error=ModelError)
         if self.alignment is not None:
             Q = np.asarray(self.alignment, np.float64)
             need(bool(np.allclose(Q @ Q.T, np.eye(3), atol=1e-6) and np.linalg.det(Q) > 0),
-                 "alignment must be a rotation matrix (orthonormal, determinant +1)")
+                 "alignment must be a rotation matrix (orthonormal, determinant +1)", error=ModelError)
 
     def corrected_field(self, B) -> np.ndarray:
         """Corrected field in fit units (before alignment): eq. (4), (N, 3) -> (N, 3)."""

@@ -13,9 +13,10 @@ import dataclasses
 import numpy as np
 import pandas as pd
 
-from icgo.core.settings import config_to_mapping
+from icgo.core.errors import ModelError
+from icgo.core.settings import config_to_mapping, need
 from icgo.discrepancy import inversion
-from icgo.models.format import CORRECTED_B, FittedModel, data_hash, need, need_shape, sensor_domain
+from icgo.models.format import CORRECTED_B, FittedModel, data_hash, need_shape, sensor_domain
 from icgo.physics import effects as _fx
 from icgo.physics.frames import azimuth_from_gv, inclination_from_g, toolface_from_g
 from icgo.physics.qc import QCBands, survey_qc
@@ -61,22 +62,22 @@ class PhysicsModel(FittedModel):
         """One placeholder array per effect of ``fields["effects"]`` and the field, with the meta's settings."""
         effects = fields["effects"]
         need(all(isinstance(n, str) and n in _fx.EFFECTS for n in effects),
-             f"effects must be names of icgo.physics.effects ({', '.join(_fx.EFFECTS)}), got {str(effects)[:80]}")
+             f"effects must be names of icgo.physics.effects ({', '.join(_fx.EFFECTS)}), got {str(effects)[:80]}", error=ModelError)
         return inversion.PhysicsParams({n: 0 for n in effects}, 0, fields["sigma_b_nT"], fields["sigma_g"],
                                        fields.get("n_iter", inversion.N_ITER))
 
     def validate(self) -> None:
         """Known effects with their parameter counts, field (3,) with |F| > 0, noise > 0, a bounded n_iter."""
-        need(len(set(self.effects)) == len(self.effects), "effects must not repeat")
+        need(len(set(self.effects)) == len(self.effects), "effects must not repeat", error=ModelError)
         need(set(self.effects) == set(self.params.effects), f"effects {self.effects} are not the params' "
-                                                            f"{sorted(self.params.effects)}")
+                                                            f"{sorted(self.params.effects)}", error=ModelError)
         for n in self.effects:
             need_shape(self.params.effects[n], (_fx.EFFECTS[n].n_params,), f"effects.{n}")
         f = self.params.field
         need_shape(f, (3,), "field")
-        need(f[0] > 0 and abs(f[1]) <= 90, "field must be (total nT > 0, dip deg in [-90, 90], declination deg)")
-        need(self.sigma_b_nT > 0 and self.sigma_g > 0, "sigma_b_nT and sigma_g must be > 0")
-        need(1 <= self.n_iter <= self.MAX_ITER, f"n_iter must be 1 to {self.MAX_ITER}, got {self.n_iter}")
+        need(f[0] > 0 and abs(f[1]) <= 90, "field must be (total nT > 0, dip deg in [-90, 90], declination deg)", error=ModelError)
+        need(self.sigma_b_nT > 0 and self.sigma_g > 0, "sigma_b_nT and sigma_g must be > 0", error=ModelError)
+        need(1 <= self.n_iter <= self.MAX_ITER, f"n_iter must be 1 to {self.MAX_ITER}, got {self.n_iter}", error=ModelError)
 
     @classmethod
     def from_params(cls, params: inversion.PhysicsParams, effects, G, B, config: dict) -> "PhysicsModel":

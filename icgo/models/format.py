@@ -294,12 +294,6 @@ def need_shape(a, shape: tuple, name: str) -> None:
         raise ModelError(f"array {name!r} has shape {got}, expected {want}")
 
 
-def need(cond: bool, message: str) -> None:
-    """ModelError ``message`` unless ``cond`` (a kind's :meth:`FittedModel.validate`)."""
-    if not cond:
-        raise ModelError(message)
-
-
 def read_model(path, kinds: dict) -> FittedModel:
     """Load a model saved by :meth:`FittedModel.save`, every part checked.
 

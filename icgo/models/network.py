@@ -28,8 +28,9 @@ import numpy as np
 import pandas as pd
 
 from icgo.core.errors import ModelError
+from icgo.core.settings import need
 from icgo.methods import gyro_relm, lookup_table, nets
-from icgo.models.format import FittedModel, data_hash, need, need_shape
+from icgo.models.format import FittedModel, data_hash, need_shape
 from icgo.models.relm import circular_mean_spread
 
 #: Frame columns every gyro model reads (deg): the instrument's own attitude solution, the input ``x``.
@@ -59,7 +60,7 @@ def _net_config(net_config: dict) -> nets.NetConfig:
 def _seeds(a, name: str, tail: tuple) -> int:
     """S, the leading axis of ``a`` whose trailing shape must be ``tail`` (ModelError naming ``name``)."""
     S = np.shape(a)[0] if np.ndim(a) == 1 + len(tail) else -1
-    need(S >= 1, f"array {name!r} has shape {np.shape(a)}, expected (S, {', '.join(map(str, tail))})")
+    need(S >= 1, f"array {name!r} has shape {np.shape(a)}, expected (S, {', '.join(map(str, tail))})", error=ModelError)
     return S
 
 
@@ -136,7 +137,7 @@ class GyroNetwork(GyroModel):
         """S seeds: the weights' shapes follow ``net_config`` (hidden sizes, encoding), ``y_scale`` > 0."""
         cfg = self.netconfig()
         n = nets.n_inputs(cfg.encoding)
-        need(isinstance(self.variant, str), "variant must be a name")
+        need(isinstance(self.variant, str), "variant must be a name", error=ModelError)
         m1, m2 = cfg.hidden
         p = self.params
         S = _seeds(p.v, "v", (m2,))
@@ -147,7 +148,7 @@ class GyroNetwork(GyroModel):
                                ("train_loss", self.train_loss, (S, E)), ("val_loss", self.val_loss, (S, E)),
                                ("stopped_epoch", self.stopped_epoch, (S,))):
             need_shape(a, shape, name)
-        need(bool(np.all(p.y_scale > 0)), "y_scale must be > 0 (deg per output unit)")
+        need(bool(np.all(p.y_scale > 0)), "y_scale must be > 0 (deg per output unit)", error=ModelError)
 
     def netconfig(self) -> nets.NetConfig:
         """The :class:`icgo.methods.nets.NetConfig` the networks were trained with."""
@@ -186,16 +187,16 @@ class GyroRELM(GyroModel):
 
     def validate(self) -> None:
         """S seeds: theta (S, (n_in + 1) L), beta (S, L), mean and std (S, n_in) with std > 0."""
-        need(self.method in ("relm", "icgo_relm"), f"method must be relm or icgo_relm, got {self.method!r}")
-        need(self.encoding in nets.ENCODINGS, f"encoding must be one of {nets.ENCODINGS}, got {self.encoding!r}")
-        need(self.hidden >= 1, f"hidden must be >= 1, got {self.hidden}")
-        need(self.lam > 0, f"lam must be > 0, got {self.lam}")
+        need(self.method in ("relm", "icgo_relm"), f"method must be relm or icgo_relm, got {self.method!r}", error=ModelError)
+        need(self.encoding in nets.ENCODINGS, f"encoding must be one of {nets.ENCODINGS}, got {self.encoding!r}", error=ModelError)
+        need(self.hidden >= 1, f"hidden must be >= 1, got {self.hidden}", error=ModelError)
+        need(self.lam > 0, f"lam must be > 0, got {self.lam}", error=ModelError)
         n, L, p = nets.n_inputs(self.encoding), self.hidden, self.params
         S = _seeds(p.beta, "beta", (L,))
         for name, a, shape in (("theta", p.theta, (S, (n + 1) * L)), ("beta", p.beta, (S, L)), ("mean", p.mean, (S, n)),
                                ("std", p.std, (S, n)), ("train_fitness", self.train_fitness, (S,))):
             need_shape(a, shape, name)
-        need(bool(np.all(p.std > 0)), "std must be > 0 (the inputs are divided by it)")
+        need(bool(np.all(p.std > 0)), "std must be > 0 (the inputs are divided by it)", error=ModelError)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -226,7 +227,7 @@ class LookupTableModel(GyroModel):
         """Ascending nodes (inclination in [0, 180], azimuth in [0, 360)), the error table on them."""
         for name, hi in (("inc_nodes", 180.0), ("az_nodes", 360.0)):
             a = getattr(self.params, name)
-            need(np.ndim(a) == 1 and bool(np.all(np.diff(a) > 0)), f"{name} must be a 1-d ascending array")
-            need(bool(np.all((a >= 0) & (a <= hi))), f"{name} must lie in [0, {hi:g}] deg")
+            need(np.ndim(a) == 1 and bool(np.all(np.diff(a) > 0)), f"{name} must be a 1-d ascending array", error=ModelError)
+            need(bool(np.all((a >= 0) & (a <= hi))), f"{name} must lie in [0, {hi:g}] deg", error=ModelError)
         need(isinstance(self.toolface, str) and self.toolface == "mean" or not isinstance(self.toolface, str),
-             f"toolface must be 'mean' or a number (deg), got {self.toolface!r}")
+             f"toolface must be 'mean' or a number (deg), got {self.toolface!r}", error=ModelError)

@@ -23,11 +23,12 @@ import numpy as np
 import pandas as pd
 
 from icgo.core.errors import ModelError
+from icgo.core.settings import need
 from icgo.maths.conformal import conformal_quantile
 from icgo.methods import msa as _msa
 from icgo.methods import relm as _relm
 from icgo.methods.compensation import RELMParams, predict_methods
-from icgo.models.format import CORRECTED_B, FittedModel, need, need_shape
+from icgo.models.format import CORRECTED_B, FittedModel, need_shape
 from icgo.physics.frames import angle_diff, azimuth_from_gv, inclination_from_g, toolface_from_g, wrap360
 
 SENSORS = ("gx", "gy", "gz", "bx", "by", "bz")
@@ -130,10 +131,10 @@ class MSAModel(FittedModel):
 
 def _check_members(bias, scale, repeat_ids, bname: str, sname: str) -> int:
     R = len(repeat_ids)
-    need(R >= 1, "repeat_ids must list one id per member (at least one)")
+    need(R >= 1, "repeat_ids must list one id per member (at least one)", error=ModelError)
     need_shape(bias, (R, 3), bname)
     need_shape(scale, (R, 3), sname)
-    need(bool(np.all(1.0 + np.asarray(scale) > 0)), f"{sname} must be > -1 (the field is divided by 1 + s)")
+    need(bool(np.all(1.0 + np.asarray(scale) > 0)), f"{sname} must be > -1 (the field is divided by 1 + s)", error=ModelError)
     return R
 
 
@@ -186,12 +187,12 @@ class RELMCompensation(FittedModel):
         """S methods x R members: the shapes agree with ``hidden``, ``x_std`` > 0, names and settings known."""
         S = len(self.methods)
         need(S >= 1 and all(isinstance(m, str) for m in self.methods) and len(set(self.methods)) == S,
-             f"methods must be a list of distinct names, got {str(self.methods)[:80]}")
-        need(self.selected in self.methods, f"selected {self.selected!r} is not one of the methods {self.methods}")
-        need(self.features in FEATURES, f"features must be one of {FEATURES}, got {self.features!r}")
-        need(1 <= self.hidden <= MAX_HIDDEN, f"hidden must be 1 to {MAX_HIDDEN}, got {self.hidden}")
-        need(0 < self.lam <= _relm.MAX_LAM, f"lam must be > 0 and at most {_relm.MAX_LAM:g}, got {self.lam}")
-        need(0 < self.interval_level < 1, f"interval_level must be in (0, 1), got {self.interval_level}")
+             f"methods must be a list of distinct names, got {str(self.methods)[:80]}", error=ModelError)
+        need(self.selected in self.methods, f"selected {self.selected!r} is not one of the methods {self.methods}", error=ModelError)
+        need(self.features in FEATURES, f"features must be one of {FEATURES}, got {self.features!r}", error=ModelError)
+        need(1 <= self.hidden <= MAX_HIDDEN, f"hidden must be 1 to {MAX_HIDDEN}, got {self.hidden}", error=ModelError)
+        need(0 < self.lam <= _relm.MAX_LAM, f"lam must be > 0 and at most {_relm.MAX_LAM:g}, got {self.lam}", error=ModelError)
+        need(0 < self.interval_level < 1, f"interval_level must be in (0, 1), got {self.interval_level}", error=ModelError)
         p = self.params
         R = _check_members(p.msa_bias, p.msa_scale, self.repeat_ids, "msa_bias", "msa_scale")
         L = self.hidden
@@ -200,7 +201,7 @@ class RELMCompensation(FittedModel):
                                ("train_rmse", self.train_rmse, (S, R)),
                                ("interval_halfwidth", self.interval_halfwidth, (S,))):
             need_shape(a, shape, name)
-        need(bool(np.all(p.x_std > 0)), "x_std must be > 0 (the inputs are divided by it)")
+        need(bool(np.all(p.x_std > 0)), "x_std must be > 0 (the inputs are divided by it)", error=ModelError)
 
     def method_params(self, method: str | None = None) -> RELMParams:
         """The params of one method (default :attr:`selected`): theta (1, R, 7 L), beta (1, R, L)."""
