@@ -19,9 +19,8 @@ for CGO, over the strategies.
 Randomness: job ``j`` (position in :func:`jobs`) at dimension ``D`` uses the
 keys ``split(fold_in(key, 1000 D + j), F runs)``, function ``i`` run ``r`` taking
 key ``i runs + r`` (so a subset of functions draws other keys). A raw
-``PRNGKey(seed)`` is wrapped into a typed key first: ``key = PRNGKey(seed)``
-gives bit for bit the numbers of the former ``experiments.optimizers`` (which
-used ``jax.random.key(seed)``). The mealpy peer is seeded by its own rule:
+``PRNGKey(seed)`` is wrapped into a typed key first, so ``PRNGKey(seed)`` and
+``jax.random.key(seed)`` give bit for bit the same numbers. The mealpy peer is seeded by its own rule:
 run ``r`` uses ``seed=r`` (``key`` does not reach it).
 
 The mealpy peer (numpy, host-side; ``jobs`` > 1 runs it in joblib processes)
@@ -478,7 +477,7 @@ def run(data, config: OptimizerStudyConfig, key) -> OptimizerStudyResult:
         data: the suite, a tuple of names from :data:`icgo.optim.benchmarks.SPECS`, or None for
             :data:`icgo.optim.benchmarks.STUDY`; ``config.functions`` picks a subset.
         config: :class:`OptimizerStudyConfig`.
-        key: JAX PRNG key (typed or raw); ``PRNGKey(config.seed)`` reproduces the former script.
+        key: JAX PRNG key (typed or raw); ``PRNGKey(config.seed)`` and ``jax.random.key(config.seed)`` draw the same numbers.
     Returns:
         :class:`OptimizerStudyResult`.
     Raises:
@@ -520,7 +519,7 @@ def run(data, config: OptimizerStudyConfig, key) -> OptimizerStudyResult:
         for n, d, a, vals, evals in mp:
             peer_rows += [dict(dim=d, algorithm=f"mealpy {a}", function=n, run=r, error=v, evals=int(e))
                           for r, (v, e) in enumerate(zip(vals, evals))]
-        # our rows of dimension D, then the peer's rows of D (the former optimizers_runs.csv order)
+        # our rows of dimension D, then the peer's rows of D (the row order of results/optimizers_runs.csv)
         rows = [r for dim in config.dims for part in (rows, peer_rows) for r in part if r["dim"] == dim]
     runs = pd.DataFrame(rows, columns=["dim", "algorithm", "function", "run", "error", "evals"])
     cells = cell_table(runs, config.dims, names, config.alpha, chosen)
