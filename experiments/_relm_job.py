@@ -17,20 +17,12 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 from hydra_plugins.icgo_launcher.jobs import (  # noqa: F401
     FAILURE_FILES, cfg_hash, config_difference, config_hash, stored_config, stored_hash)
 from icgo.core.errors import SettingError
+from icgo.core.settings import is_int, need
 
 
-def _need(cond: bool, msg: str) -> None:
-    if not cond:
-        raise SettingError(msg)
-
-
-def _need_file(p: Path, key: str) -> None:
-    _need(p.exists(), f"{key} {str(p)!r}: file not found")
-    _need(p.is_file(), f"{key} {str(p)!r}: not a regular file (a directory, pipe or device); give a CSV file")
-
-
-def _is_int(x) -> bool:
-    return isinstance(x, int) and not isinstance(x, bool)
+def _check_file(p: Path, key: str) -> None:
+    need(p.exists(), f"{key} {str(p)!r}: file not found")
+    need(p.is_file(), f"{key} {str(p)!r}: not a regular file (a directory, pipe or device); give a CSV file")
 
 
 #: Config nodes whose keys are :class:`icgo.studies.icgo_relm.StudyConfig` fields: key ``k`` of node ``g`` is the
@@ -54,8 +46,8 @@ DATASET_KEYS = {"lab_casing": ("name", "seed", "kwargs"), "well_conditions": ("n
 
 def _unknown(keys, allowed, where: str) -> None:
     bad = sorted(set(keys) - set(allowed))
-    _need(not bad, f"unknown setting(s) {[f'{where}{k}' for k in bad]}; {where or 'the config'} "
-                   f"takes {sorted(allowed)}")
+    need(not bad, f"unknown setting(s) {[f'{where}{k}' for k in bad]}; {where or 'the config'} "
+                  f"takes {sorted(allowed)}")
 
 
 def check_config(cfg: DictConfig) -> None:
@@ -71,55 +63,55 @@ def check_config(cfg: DictConfig) -> None:
 
     _unknown(cfg.keys(), ENTRY_KEYS[""], "")
     for node in ("optimizer", "strategy", "schedule", "dataset", *STUDY_NODES):
-        _need(isinstance(cfg.get(node), DictConfig), f"{node} must be a group of settings (e.g. {node}.key=value), "
-                                                     f"got {cfg.get(node)!r}")
+        need(isinstance(cfg.get(node), DictConfig), f"{node} must be a group of settings (e.g. {node}.key=value), "
+                                                    f"got {cfg.get(node)!r}")
     for node in ("optimizer", "strategy", "schedule"):
         _unknown(cfg[node].keys(), ENTRY_KEYS[node], f"{node}.")
     for key in ("figures", "overwrite"):
         bool_setting(cfg, key)
-    _need(cfg.get("label") is None or isinstance(cfg.get("label"), str),
-          f"label must be a name (a string) or null, got {cfg.get('label')!r}")
+    need(cfg.get("label") is None or isinstance(cfg.get("label"), str),
+         f"label must be a name (a string) or null, got {cfg.get('label')!r}")
     ds = cfg.dataset
-    _need(ds.get("name") in DATASET_KEYS,
-          f"dataset.name must be one of {sorted(DATASET_KEYS)}, got {ds.get('name')!r}")
+    need(ds.get("name") in DATASET_KEYS,
+         f"dataset.name must be one of {sorted(DATASET_KEYS)}, got {ds.get('name')!r}")
     _unknown(ds.keys(), DATASET_KEYS[ds.name], "dataset.")
     if "seed" in DATASET_KEYS[ds.name]:
-        _need(_is_int(ds.get("seed")) and 0 <= ds.seed < 2**32, f"dataset.seed must be an integer 0 <= seed < 2**32, "
-                                                               f"got {ds.get('seed')!r}")
+        need(is_int(ds.get("seed")) and 0 <= ds.seed < 2**32, f"dataset.seed must be an integer 0 <= seed < 2**32, "
+                                                              f"got {ds.get('seed')!r}")
     if ds.name == "csv":
-        _need(OmegaConf.select(ds, "path", throw_on_missing=False) not in (None, "???"),
-              "dataset.path is required with dataset=csv (dataset.path=/path/to/file.csv)")
-        _need_file(Path(str(ds.path)).expanduser(), "dataset.path")
+        need(OmegaConf.select(ds, "path", throw_on_missing=False) not in (None, "???"),
+             "dataset.path is required with dataset=csv (dataset.path=/path/to/file.csv)")
+        _check_file(Path(str(ds.path)).expanduser(), "dataset.path")
         bool_setting(cfg, "dataset.require_meta")
     elif ds.name == "well_conditions":
         c = ds.condition
-        _need(c is None or (_is_int(c) and 0 <= c <= 5),
-              f"dataset.condition must be null or an integer 0-5 (Table 4 row), got {c!r}")
+        need(c is None or (is_int(c) and 0 <= c <= 5),
+             f"dataset.condition must be null or an integer 0-5 (Table 4 row), got {c!r}")
     target = OmegaConf.select(cfg, "split.target")
     protocol = OmegaConf.select(cfg, "split.protocol")
     if target is not None:
-        _need(isinstance(target, DictConfig), f"split.target must be a group of settings ({', '.join(TARGET_KEYS)}), "
-                                              f"got {target!r}")
-        _need(protocol == "transfer", f"split.target is read only by split.protocol=transfer (split=transfer); "
-                                      f"here split.protocol={protocol!r}, so it would do nothing")
+        need(isinstance(target, DictConfig), f"split.target must be a group of settings ({', '.join(TARGET_KEYS)}), "
+                                             f"got {target!r}")
+        need(protocol == "transfer", f"split.target is read only by split.protocol=transfer (split=transfer); "
+                                     f"here split.protocol={protocol!r}, so it would do nothing")
         _unknown(target.keys(), TARGET_KEYS, "split.target.")
         if target.get("path") is not None:
-            _need_file(Path(str(target.path)).expanduser(), "split.target.path")
+            _check_file(Path(str(target.path)).expanduser(), "split.target.path")
     elif protocol == "transfer":
-        _need(False, "split.protocol=transfer needs split.target (use split=transfer, which defines it)")
+        need(False, "split.protocol=transfer needs split.target (use split=transfer, which defines it)")
     b = cfg.schedule.get("bounds")
     b = list(b) if isinstance(b, ListConfig) else [b]
-    _need(len(b) == 2 and all(isinstance(x, (int, float)) for x in b) and 0.0 < b[0] < b[1] < 1.0,
-          f"schedule.bounds must be two fractions 0 < b1 < b2 < 1, got {b}")
-    _need(cfg.schedule.get("clock", "global") in ("global", "stage"),
-          f"schedule.clock must be global or stage, got {cfg.schedule.get('clock')!r}")
+    need(len(b) == 2 and all(isinstance(x, (int, float)) for x in b) and 0.0 < b[0] < b[1] < 1.0,
+         f"schedule.bounds must be two fractions 0 < b1 < b2 < 1, got {b}")
+    need(cfg.schedule.get("clock", "global") in ("global", "stage"),
+         f"schedule.clock must be global or stage, got {cfg.schedule.get('clock')!r}")
     if OmegaConf.select(cfg, "model.tune") is True:
         from icgo.studies.icgo_relm import StudyConfig
 
         for k in ("hidden", "lam"):
             default = StudyConfig.__dataclass_fields__[k].default
-            _need(cfg.model[k] == default, f"model.{k}={cfg.model[k]} has no effect with model.tune=true (the tuning "
-                                           f"grid chooses it); leave it at {default}")
+            need(cfg.model[k] == default, f"model.{k}={cfg.model[k]} has no effect with model.tune=true (the tuning "
+                                          f"grid chooses it); leave it at {default}")
 
 
 def study_settings(cfg: DictConfig) -> tuple[dict, dict]:
@@ -141,10 +133,10 @@ def study_settings(cfg: DictConfig) -> tuple[dict, dict]:
             if key in STUDY_NODE_ENTRY_KEYS:
                 continue
             field = STUDY_ALIASES.get(key) or (f"{node}_{k}" if f"{node}_{k}" in fields else k)
-            _need(field not in where, f"settings {where.get(field)!r} and {key!r} both map to the study field "
-                                      f"{field!r}")
-            _need(field in fields, f"unknown setting {key!r}: not a setting of the study "
-                                   f"(icgo.studies.icgo_relm.StudyConfig has {sorted(fields)})")
+            need(field not in where, f"settings {where.get(field)!r} and {key!r} both map to the study field "
+                                     f"{field!r}")
+            need(field in fields, f"unknown setting {key!r}: not a setting of the study "
+                                  f"(icgo.studies.icgo_relm.StudyConfig has {sorted(fields)})")
             values[field], where[field] = v, key
     for key, field in STUDY_ALIASES.items():
         if key not in where.values():

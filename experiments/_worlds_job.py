@@ -63,7 +63,7 @@ def load_worlds(cfg: DictConfig):
 
 def run_study(cfg: DictConfig, scfg, timings: dict):
     """Load the worlds and run them (:func:`icgo.studies.worlds.run_worlds`), with the plan line and a bar."""
-    from experiments import _relm_job as C
+    from experiments import _relm_job as relm_job
     from icgo.core.execution import is_accelerator
     from icgo.studies.worlds import run_worlds
 
@@ -73,8 +73,8 @@ def run_study(cfg: DictConfig, scfg, timings: dict):
     plan = scfg.execution(cells=len(worlds) * len(scfg.ids()))
     print(f"search: {plan.why}")
     bar = None
-    if C.progress_enabled(cfg.progress, is_accelerator(plan.backend)) and scfg.optimizer is not None:
-        bar = C.Progress(f"{desc} {'/'.join(scfg.method_names())}")
+    if relm_job.progress_enabled(cfg.progress, is_accelerator(plan.backend)) and scfg.optimizer is not None:
+        bar = relm_job.Progress(f"{desc} {'/'.join(scfg.method_names())}")
     try:
         return run_worlds(worlds, scfg, timings=timings, progress=bar), desc
     finally:
@@ -130,12 +130,12 @@ def summary(result, cfg: DictConfig, info: dict):
 
 def write_outputs(outdir: Path, cfg: DictConfig, result, info: dict) -> dict:
     """The run directory all at once (staged, run.json last: :func:`experiments._relm_job.write_outputs`' rule)."""
-    from experiments import _relm_job as C
+    from experiments import _relm_job as relm_job
     from experiments._entry import write_hydra_record
     from icgo.reporting import records as R
 
     t0 = time.perf_counter()
-    with C.run_output(outdir, overwrite=True).staged(last=(R.RUN_FILE,)) as stage:
+    with relm_job.run_output(outdir, overwrite=True).staged(last=(R.RUN_FILE,)) as stage:
         write_hydra_record(stage, cfg)
         (stage / R.CONFIG_FILE).write_text(OmegaConf.to_yaml(cfg, resolve=True))
         tags = {"label": info["label"], "dataset": info["dataset"], "condition": info["condition"],
@@ -155,7 +155,8 @@ def write_outputs(outdir: Path, cfg: DictConfig, result, info: dict) -> dict:
                "seed": result.config.seed, "wall_time_s": result.wall_time_s, "methods": methods,
                "n_evals": {m: int(v) for m, v in zip(methods, first.n_evals[:, 0])},
                "n_rows": [int(r.kept.sum()) for r in result.results], "n_repeats": result.config.n_repeats,
-               "repeat_ids": list(result.config.ids()), "models": [], "qc": None, "config_sha256": C.cfg_hash(cfg),
+               "repeat_ids": list(result.config.ids()), "models": [], "qc": None,
+               "config_sha256": relm_job.cfg_hash(cfg),
                "worlds": {"seeds": list(result.seeds), "development_seeds": result.development},
                "excluded_repeats": [{"world": w, "repeat": r, "reason": why} for w, r, why in result.excluded]}
         missing = [k for k in R.RUN_KEYS if k not in run]

@@ -51,20 +51,20 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
         SystemExit(2): a bad setting or data file outside a sweep (one line on stderr).
     """
     from experiments import _entry as E
-    from experiments import _relm_job as C
+    from experiments import _relm_job as relm_job
 
     t0 = time.perf_counter()
     previous = E.previous_run(outdir)
     if previous is not None and multirun and cfg.overwrite is not True:
         # Re-running a sweep into its directory resumes it: a finished job is kept only when it ran this
         # job's configuration (its hash); one of another configuration is refused, never taken for this job.
-        there = C.stored_hash(outdir, previous)
-        if there is not None and there == C.cfg_hash(cfg):
+        there = relm_job.stored_hash(outdir, previous)
+        if there is not None and there == relm_job.cfg_hash(cfg):
             log.info("kept the finished job in %s (overwrite=true reruns it)", outdir)
             (outdir / E.FAILED).unlink(missing_ok=True)
             return previous
-        old = C.stored_config(outdir)
-        diff = C.config_difference(old, OmegaConf.to_container(cfg, resolve=True)) if old else \
+        old = relm_job.stored_config(outdir)
+        diff = relm_job.config_difference(old, OmegaConf.to_container(cfg, resolve=True)) if old else \
             "it records no readable config"
         log.error("refused: %s holds a finished run of another configuration (%s); it is left as it was "
                   "(overwrite=true redoes the job, or choose another hydra.sweep.dir)", outdir, diff)
@@ -78,9 +78,9 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
     timings = {}
     worlds = cfg.get("worlds") is not None
     try:
-        C.check_config(cfg)
+        relm_job.check_config(cfg)
         WJ.check(cfg)
-        C.run_output(outdir, overwrite=E.bool_setting(cfg, "overwrite"))
+        relm_job.run_output(outdir, overwrite=E.bool_setting(cfg, "overwrite"))
     except ValueError as e:
         if multirun:
             E.write_failure(outdir, E.one_line(e))
@@ -89,18 +89,18 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
         E.fail_line(e)
     try:
         devices = E.start_devices()  # before JAX's backend starts: jax.distributed, the CPU's host devices
-        scfg = C.study_config(cfg)  # every check before any computation (imports the study, JAX with it)
-        C.progress_enabled(cfg.progress)
+        scfg = relm_job.study_config(cfg)  # every check before any computation (imports the study, JAX with it)
+        relm_job.progress_enabled(cfg.progress)
         timings["import_s"] = time.perf_counter() - t0
         E.enable_jax_cache(cfg.jax_cache_dir)
         if worlds:
             result, desc = WJ.run_study(cfg, scfg, timings)
         else:
             t1 = time.perf_counter()
-            frame, meta, desc = C.load_data(cfg)
-            target = C.load_target(cfg)
+            frame, meta, desc = relm_job.load_data(cfg)
+            target = relm_job.load_target(cfg)
             timings["load_data_s"] = time.perf_counter() - t1
-            result = C.run_with_progress(frame, scfg, meta, cfg.progress,
+            result = relm_job.run_with_progress(frame, scfg, meta, cfg.progress,
                                          desc=f"{desc} {'/'.join(scfg.method_names())}", target=target, timings=timings)
     except ValueError as e:  # SettingError, DataError (icgo.core.errors), study/optimizer checks: one line each
         if multirun:
@@ -147,17 +147,17 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
 
         plot = _plot
     try:
-        run = C.write_outputs(outdir, cfg, result, info, frame, meta, plot)
+        run = relm_job.write_outputs(outdir, cfg, result, info, frame, meta, plot)
     except ValueError as e:  # OutputError (a full disk, a read-only directory): the previous run is intact
         if multirun:
             E.write_failure(outdir, E.one_line(e))
             log.error("job failed: %s", E.one_line(e))
             return None
         E.fail_line(e)
-    table = C.summary_table(result).drop(columns=["method"])
+    table = relm_job.summary_table(result).drop(columns=["method"])
     print(f"\nICGO-RELM study on {desc}: test split, {len(result.config.ids())} repeats (mean +/- std)")
     print(table.to_markdown(index=False))
-    excluded = C.excluded_line(result)
+    excluded = relm_job.excluded_line(result)
     if excluded:
         print(excluded)
     print(f"outputs: {outdir}")

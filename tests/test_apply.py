@@ -14,7 +14,7 @@ import pytest
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 
-from experiments import _entry as C
+from experiments import _entry as entry
 from experiments.apply import run_apply
 from icgo.core.errors import ModelError
 from icgo.datasets import protocols as datasets
@@ -29,7 +29,7 @@ META_KEYS = ("total_field_nT", "dip_deg", "declination_deg", "gravity_g", "name"
 
 def _cfg(overrides):
     GlobalHydra.instance().clear()
-    with initialize_config_dir(config_dir=str(C.CONF_DIR / "apply"), version_base="1.3"):
+    with initialize_config_dir(config_dir=str(entry.CONF_DIR / "apply"), version_base="1.3"):
         return compose(config_name="apply", overrides=list(overrides))
 
 

@@ -24,7 +24,7 @@ from icgo.methods import calibration as cal
 from icgo.methods.cal_sanity import LIMITS, sanity
 from icgo.models.registry import load_model
 from icgo.physics.frames import sensors_from_attitude
-from icgo.studies import calibration as C
+from icgo.studies import calibration as cal_study
 
 ROOT = CONF_DIR.parent
 FAST = ["peer=false", "misma_iter=3", "misma_repeats=2", "misma_pop=6"]
@@ -37,7 +37,7 @@ def _compose(*overrides):
 
 def test_conf_yaml_equals_the_dataclass_defaults():
     composed = {k: v for k, v in OmegaConf.to_container(_compose(), resolve=True).items() if k not in entry.ENTRY_KEYS}
-    assert composed == config_to_mapping(C.CalibrationConfig())
+    assert composed == config_to_mapping(cal_study.CalibrationConfig())
     # the compilation cache is the study app's (conf/config.yaml), restated here and kept equal
     app = OmegaConf.load(CONF_DIR / "config.yaml")
     assert OmegaConf.load(CONF_DIR / "calibrate.yaml").jax_cache_dir == app.jax_cache_dir
@@ -75,7 +75,7 @@ def test_misma_box_is_in_data_units_and_contains_the_least_squares():
     xm = cal.ellipsoid_fit(B, 1.0, G)
     Gc = np.asarray(cal.correct(xg, G))
     x12 = cal.fit_twelve(Gc, B, 1.0, x0=xm)
-    lb, ub = C.misma_box(xm, x12, float(np.median(np.linalg.norm(B, axis=1))))
+    lb, ub = cal_study.misma_box(xm, x12, float(np.median(np.linalg.norm(B, axis=1))))
     assert np.all((lb < x12) & (x12 < ub))
     # the bias half-width is 2 % of the field in nT (hundreds of nT), not 2 % of 1.0
     assert np.all(ub[9:] - xm[9:] >= 0.02 * np.median(np.linalg.norm(B, axis=1)) - 1e-9)
@@ -84,10 +84,10 @@ def test_misma_box_is_in_data_units_and_contains_the_least_squares():
 
 def test_splits_hold_out_each_rolled_group():
     groups = io.load_mag_cal_device("ab").frame.group.to_numpy()
-    labels = [s[0] for s in C.splits(groups)]
+    labels = [s[0] for s in cal_study.splits(groups)]
     assert labels == ["in-sample", "held-out group 8", "held-out group 9"]
     with pytest.raises(ValueError, match="no rolled group"):
-        C.splits(np.arange(10))
+        cal_study.splits(np.arange(10))
 
 
 def _run_entry(tmp_path, *args):
@@ -107,7 +107,7 @@ def test_front_door_on_an_exported_device_and_apply_on_another(tmp_path):
         assert (run / name).is_file(), name
     fits = pd.read_csv(run / "calibration.csv")
     outer = fits[fits.outer.isna()]
-    assert set(fits.method) == set(C.METHODS) and set(outer.split) == {"in-sample", "held-out group 8",
+    assert set(fits.method) == set(cal_study.METHODS) and set(outer.split) == {"in-sample", "held-out group 8",
                                                                        "held-out group 9"}
     # inside each held-out split, its training shots split again (the nested choice): the other roll's halves
     assert set(fits.loc[fits.outer == "held-out group 8", "split"]) == {
@@ -314,11 +314,11 @@ def test_an_older_builds_relm_file_and_a_bad_activation_are_refused(tmp_path):
 
 def test_a_relm_calibration_saves_and_applies_bitwise(tmp_path):
     rec = io.load_mag_cal_device("ai")
-    fitted = C.fit_recording(rec.G, rec.B, rec.frame.group.to_numpy(), C.CalibrationConfig(peer=False, misma_iter=2,
-                             misma_repeats=1, misma_pop=6), jax.random.PRNGKey(0), {})
+    cfg = cal_study.CalibrationConfig(peer=False, misma_iter=2, misma_repeats=1, misma_pop=6)
+    fitted = cal_study.fit_recording(rec.G, rec.B, rec.frame.group.to_numpy(), cfg, jax.random.PRNGKey(0), {})
     model = fitted["twelve+axis+relm"]
     assert model.method == "twelve_relm" and model.nl_out.shape == (model.nl_hidden.shape[1], 3)
-    assert model.nl_activation == "gauss" and model.config["relm_lambda_deg2"] in C.mag_relm.LAMBDAS
+    assert model.nl_activation == "gauss" and model.config["relm_lambda_deg2"] in cal_study.mag_relm.LAMBDAS
     back = load_model(model.save(tmp_path / "ai_relm"))
     pd.testing.assert_frame_equal(back.apply(rec.frame), model.apply(rec.frame), check_exact=True)
     # without the residual part it is the linear calibration
@@ -329,13 +329,13 @@ def test_a_relm_calibration_saves_and_applies_bitwise(tmp_path):
 
 def test_misma_bounds_option_reaches_the_search_and_is_recorded():
     rec = io.load_mag_cal_device("ai")
-    cfg = C.CalibrationConfig(peer=False, misma_iter=2, misma_repeats=1, misma_pop=6, misma_bounds="paper")
-    fitted = C.fit_recording(rec.G, rec.B, rec.frame.group.to_numpy(), cfg, jax.random.PRNGKey(0), {})
+    cfg = cal_study.CalibrationConfig(peer=False, misma_iter=2, misma_repeats=1, misma_pop=6, misma_bounds="paper")
+    fitted = cal_study.fit_recording(rec.G, rec.B, rec.frame.group.to_numpy(), cfg, jax.random.PRNGKey(0), {})
     header = fitted["misma+axis"].config
     assert header["misma_box"].startswith("icgo.optim.misma.paper_bounds")
     assert header["misma_box_lb"][9:] == [-68_000.0] * 3 and header["misma_box_ub"][:9] == [128.0] * 9
     with pytest.raises(SettingError, match="misma_bounds must be one of around_lsq, paper"):
-        C.CalibrationConfig(misma_bounds="wide")
+        cal_study.CalibrationConfig(misma_bounds="wide")
 
 
 def _fits_table(rows):
@@ -419,9 +419,10 @@ def test_the_bundled_table_states_its_protocol():
               "b": ["in-sample", "held-out group 8", "held-out group 9", "held-out group 10"]}
     df = pd.DataFrame([{"recording": r, "split": sp, "method": m, "score_deg": 0.1 * (i + 1), "degenerate": False,
                         "dip_spread_deg": 0.5, "b_spread_pct": 0.1, "cond": 1.01, "reasons": ""}
-                       for r, sps in splits.items() for sp in sps for i, m in enumerate(C.METHODS)])
-    md = report(df, C.summary(df), {}, "two recordings", {}, {}, {}, protocol(df, C.CalibrationConfig(), entry.SEED),
-                settings(C.CalibrationConfig(misma_pop=12)))
+                       for r, sps in splits.items() for sp in sps for i, m in enumerate(cal_study.METHODS)])
+    md = report(df, cal_study.summary(df), {}, "two recordings", {}, {}, {},
+                protocol(df, cal_study.CalibrationConfig(), entry.SEED),
+                settings(cal_study.CalibrationConfig(misma_pop=12)))
     (line,) = parse_protocols(md)
     assert md.splitlines()[2].startswith("Protocol: ") and set(line) == set(PROTOCOL_FIELDS)
     assert md.splitlines()[3].startswith("Run settings: ") and "misma+axis: population 12 x 300 iterations" in md
@@ -433,23 +434,23 @@ def test_the_bundled_table_states_its_protocol():
     assert f"PRNGKey({entry.SEED})" in line["seeds"] and "the 2 bundled recordings" in line["seeds"]
     assert line["test"].startswith("none: no p-value here")
     # a run with other settings names them, so the line's command regenerates its table
-    fast = C.CalibrationConfig(peer=False, misma_iter=3, misma_repeats=2)
+    fast = cal_study.CalibrationConfig(peer=False, misma_iter=3, misma_repeats=2)
     assert config_overrides(fast) == ["peer=false", "misma_iter=3", "misma_repeats=2"]
-    assert config_overrides(C.CalibrationConfig()) == []
+    assert config_overrides(cal_study.CalibrationConfig()) == []
     (line,) = parse_protocols(protocol(df[df.recording == "a"], fast, entry.SEED))
     assert line["command"] == "`python -m experiments.calibrate data=bundled peer=false misma_iter=3 misma_repeats=2`"
     assert "2 MISMA runs (population 30, 3 iterations)" in line["repeats"] and "2 held-out split(s)" in line["repeats"]
     # a run on a user's file has no protocol line (its command is not known here)
-    assert not parse_protocols(report(df, C.summary(df), {}, "x.csv", {}, {}, {}))
+    assert not parse_protocols(report(df, cal_study.summary(df), {}, "x.csv", {}, {}, {}))
 
 
 def test_splits_of_one_roll_hold_out_its_interleaved_halves():
     groups = np.r_[np.arange(8), [8] * 8]
-    labels = [s[0] for s in C.splits(groups)]
+    labels = [s[0] for s in cal_study.splits(groups)]
     assert labels == ["in-sample", "held-out half of group 8 (odd shots)", "held-out half of group 8 (even shots)"]
-    _, train, score = C.splits(groups)[1]
+    _, train, score = cal_study.splits(groups)[1]
     assert score.tolist() == [False] * 8 + [False, True] * 4 and (train == ~score).all()
-    assert [s[0] for s in C.splits(np.r_[np.arange(8), [8] * 6])] == ["in-sample"]
+    assert [s[0] for s in cal_study.splits(np.r_[np.arange(8), [8] * 6])] == ["in-sample"]
 
 
 def test_apply_takes_the_model_a_calibrate_run_recommends(tmp_path):
@@ -486,7 +487,7 @@ def test_front_door_on_a_16_shot_json_recommends_and_apply_uses_it(tmp_path):
     r = record["recommendation"]
     assert set(r) >= {"model", "method", "criterion", "held_out_deg", "spread_deg", "clear_winner", "runner_up",
                       "accuracy_deg", "accuracy_spread_deg", "accuracy_splits", "refused"}
-    assert (run / r["model"]).is_file() and r["method"] in C.METHODS and isinstance(r["clear_winner"], bool)
+    assert (run / r["model"]).is_file() and r["method"] in cal_study.METHODS and isinstance(r["clear_winner"], bool)
     assert [x["shots"] for x in record["recordings"]["hj2_16"]["rolls"]] == ["8-15"]
     text = (run / "report.md").read_text()
     assert "## Recommendation" in text and f"Apply `{r['method']}`" in text and "held-out half of group 8" in text

@@ -21,7 +21,7 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import OmegaConf, open_dict
 
 from experiments import _entry as E
-from experiments import _relm_job as C
+from experiments import _relm_job as relm_job
 from hydra_plugins.icgo_launcher import report as sweep_report
 from experiments.run import run_job
 from icgo.optim.registry import get
@@ -69,7 +69,7 @@ def test_default_config_is_the_paper_protocol():
     assert (cfg.split.train_fraction, cfg.split.n_repeats, cfg.split.sigma_filter) == (0.7, 10, 3.0)
     assert (cfg.budget.pop_size, cfg.budget.iterations) == (30, 100)
     assert cfg.fitness.mode == "train"
-    s = C.study_config(cfg)
+    s = relm_job.study_config(cfg)
     assert s.strategies == ("three_stage",) and s.n_repeats == 10 and s.iterations == 100
     assert s.optimizer_config.stage_bounds == pytest.approx((1 / 3, 2 / 3))
 
@@ -78,18 +78,18 @@ def test_default_config_is_the_paper_protocol():
                                                    ("pct_20_50_30", (0.2, 0.7), (1, 2, 3)),
                                                    ("reversed", (1 / 3, 2 / 3), (3, 2, 1))])
 def test_schedule_reaches_the_cgo_config(schedule, bounds, order):
-    s = C.study_config(_compose([f"schedule={schedule}"]))
+    s = relm_job.study_config(_compose([f"schedule={schedule}"]))
     assert s.optimizer_config.stage_bounds == pytest.approx(bounds)
     assert tuple(s.optimizer_config.stage_order) == order  # chaos=1, gaussian=2, wavelet=3
 
 
 def test_budget_and_optimizer_groups():
-    s = C.study_config(_compose(["budget=evaluations", "optimizer=pso"]))
+    s = relm_job.study_config(_compose(["budget=evaluations", "optimizer=pso"]))
     assert (s.iterations, s.max_evals, s.optimizer) == (None, 12030, "pso")
-    assert C.study_config(_compose(["optimizer=none"])).optimizer is None
-    assert C.study_config(_compose(["strategy=all"])).strategies == (
+    assert relm_job.study_config(_compose(["optimizer=none"])).optimizer is None
+    assert relm_job.study_config(_compose(["strategy=all"])).strategies == (
         "original", "chaos", "gaussian", "wavelet", "three_stage")
-    assert C.study_config(_compose(["fitness=kfold"])).fitness == "kfold"
+    assert relm_job.study_config(_compose(["fitness=kfold"])).fitness == "kfold"
 
 
 @pytest.mark.parametrize("preset,check", [
@@ -307,7 +307,7 @@ def test_progress_comes_between_chunks_with_the_same_result_and_a_cached_program
 
 
 def test_progress_bar_starts_after_the_first_chunk(capsys):
-    bar = C.Progress("t")
+    bar = relm_job.Progress("t")
     assert bar.bar is None and "compiling or loading" in capsys.readouterr().err
     bar(2, 20)
     assert bar.bar.n == 2 and bar.bar.total == 20
@@ -323,7 +323,7 @@ def test_composed_default_equals_the_study_dataclass_defaults():
 
     from icgo.studies.icgo_relm import StudyConfig
 
-    cfg = C.study_config(_job_cfg([]))
+    cfg = relm_job.study_config(_job_cfg([]))
     default = StudyConfig()
     for f in dataclasses.fields(StudyConfig):
         if f.name == "optimizer_config":
@@ -340,7 +340,7 @@ def test_every_study_field_has_a_config_key():
 
     from icgo.studies.icgo_relm import StudyConfig
 
-    _, where = C.study_settings(_job_cfg([]))
+    _, where = relm_job.study_settings(_job_cfg([]))
     missing = {f.name for f in dataclasses.fields(StudyConfig)} - set(where) - {"repeat_ids", "optimizer_config"}
     assert not missing
 
@@ -473,7 +473,7 @@ def test_split_options_compose_their_protocol_and_the_transfer_draw_defaults():
 
     for option, protocol in (("paper", "random"), ("single", "random"), ("leave_azimuth_out", "leave_azimuth_out"),
                              ("leave_condition_out", "leave_condition_out"), ("transfer", "transfer")):
-        assert C.study_config(_job_cfg([f"split={option}"])).protocol == protocol
+        assert relm_job.study_config(_job_cfg([f"split={option}"])).protocol == protocol
     assert set(PROTOCOLS) == {"random", "leave_azimuth_out", "leave_condition_out", "transfer"}
     target = _job_cfg(["split=transfer"]).split.target
     assert target.path is None
@@ -499,5 +499,5 @@ def test_transfer_run_writes_coverage_and_tests_the_target_only(tmp_path):
                                                      ("pct_10_30_60", (0.1, 0.4), False),
                                                      ("own_clock", (1 / 3, 2 / 3), True)])
 def test_schedules_reach_the_cgo_config(schedule, bounds, clock):
-    oc = C.optimizer_config(_job_cfg(TINY + [f"schedule={schedule}"]))
+    oc = relm_job.optimizer_config(_job_cfg(TINY + [f"schedule={schedule}"]))
     assert oc.stage_bounds == pytest.approx(bounds) and oc.wavelet_stage_clock is clock
