@@ -386,9 +386,9 @@ def write_outputs(outdir: Path, cfg: DictConfig, result, info: dict, frame=None,
         The run.json dictionary.
     """
     from experiments._entry import write_hydra_record
-    from icgo.reporting import records as R
+    from icgo.reporting import records as run_records
 
-    with run_output(outdir, overwrite=True).staged(last=(R.RUN_FILE,)) as stage:
+    with run_output(outdir, overwrite=True).staged(last=(run_records.RUN_FILE,)) as stage:
         write_hydra_record(stage, cfg)
         run = _write_run_files(stage, cfg, result, info, frame, meta, plot, run_dir=outdir)
     return run
@@ -399,7 +399,7 @@ def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, m
     import numpy as np
 
     from icgo.physics.qc import qc_sentence
-    from icgo.reporting import records as R
+    from icgo.reporting import records as run_records
     from icgo.studies.splits import describe as describe_split
     from icgo.survey.apply import study_qc
     from icgo.survey.verdict import study_verdict
@@ -408,12 +408,12 @@ def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, m
     qc = None if frame is None else study_qc(frame[result.kept].reset_index(drop=True), meta, result.msa_model)
 
     outdir.mkdir(parents=True, exist_ok=True)
-    (outdir / R.CONFIG_FILE).write_text(OmegaConf.to_yaml(cfg, resolve=True))
+    (outdir / run_records.CONFIG_FILE).write_text(OmegaConf.to_yaml(cfg, resolve=True))
     tags = {"label": info["label"], "dataset": info["dataset"], "condition": info["condition"],
             "seed": result.config.seed}
     for name, df in result.records.items():
-        R.check_table(name, R.tag_table(df, tags), name).to_csv(outdir / f"{name}.csv", index=False,
-                                                                 float_format="%.10g")
+        checked = run_records.check_table(name, run_records.tag_table(df, tags), name)
+        checked.to_csv(outdir / f"{name}.csv", index=False, float_format="%.10g")
     table = summary_table(result)
     table.to_csv(outdir / "summary.csv", index=False)
     excluded = excluded_line(result)
@@ -442,7 +442,7 @@ def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, m
     methods = result.config.method_names()
     if "timings" in info:  # everything above, the run record's own few bytes aside
         info = {**info, "timings": {**info["timings"], "write_s": time.perf_counter() - t0}}
-    run = {**info, "records_version": R.RECORDS_VERSION, "status": "ok", "seed": result.config.seed,
+    run = {**info, "records_version": run_records.RECORDS_VERSION, "status": "ok", "seed": result.config.seed,
            "wall_time_s": result.wall_time_s, "methods": methods,
            "n_evals": {m: int(v) for m, v in zip(methods, np.asarray(result.n_evals)[:, 0])},
            "n_rows": int(result.kept.sum()), "n_repeats": result.config.n_repeats,
@@ -451,9 +451,9 @@ def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, m
     if result.tuning is not None:
         run["tuning"] = result.tuning
     run["verdict"] = verdict.as_dict()
-    missing = [k for k in R.RUN_KEYS if k not in run]
+    missing = [k for k in run_records.RUN_KEYS if k not in run]
     assert not missing, f"run record lacks {missing}"  # a writer bug, not a user error
-    (outdir / R.RUN_FILE).write_text(json.dumps(run, indent=2, default=str) + "\n")
+    (outdir / run_records.RUN_FILE).write_text(json.dumps(run, indent=2, default=str) + "\n")
     return run
 
 

@@ -89,14 +89,14 @@ def methods_compared(result) -> list[str]:
 
 def summary(result, cfg: DictConfig, info: dict):
     """(per-world table, pooled table, Markdown lines) of a worlds run."""
-    from icgo.reporting import worlds as R
+    from icgo.reporting import worlds as world_tables
     from icgo.studies.splits import describe as describe_split
     from icgo.studies.worlds import DEVELOPMENT_SEEDS
 
-    per = R.per_world(result.table("metrics"))
+    per = world_tables.per_world(result.table("metrics"))
     methods = methods_compared(result)
-    pooled = R.pooled(per, methods)
-    seeds = R.seeds_text(result.seeds)
+    pooled = world_tables.pooled(per, methods)
+    seeds = world_tables.seeds_text(result.seeds)
     dev = result.development
     md = [f"# ICGO-RELM study over {len(result.seeds)} worlds: {info['description']}", "",
           f"{describe_split(result.config.protocol, result.config.train_fraction).capitalize()}; "
@@ -105,18 +105,19 @@ def summary(result, cfg: DictConfig, info: dict):
           f"its repeats; the numbers below are mean +/- sample std over worlds. Optimizer "
           f"{cfg.optimizer.name or 'none (plain RELM)'}, strategies {list(cfg.strategy.names)}, population "
           f"{cfg.budget.pop_size}, iterations {cfg.budget.iterations}, max_evals {cfg.budget.max_evals}.", "",
-          (f"**Development seeds among these worlds: {R.seeds_text(dev)}** (choices were made on them; "
+          (f"**Development seeds among these worlds: {world_tables.seeds_text(dev)}** (choices were made on them; "
            "icgo.studies.worlds.DEVELOPMENT_SEEDS): do not report this run." if dev else
-           f"No world is a development seed (choices were made on data seeds {R.seeds_text(DEVELOPMENT_SEEDS)}; "
-           "icgo.studies.worlds.DEVELOPMENT_SEEDS)."), "",
+           "No world is a development seed (choices were made on data seeds "
+           f"{world_tables.seeds_text(DEVELOPMENT_SEEDS)}; icgo.studies.worlds.DEVELOPMENT_SEEDS)."), "",
           "## Pooled over worlds", "", pooled.to_markdown(index=False), ""]
     if len(methods) >= 2 and len(result.seeds) >= 2:
-        tests = R.first_against_rest(per, methods)
-        md += [R.rank_sentence(per, methods), "",
+        tests = world_tables.first_against_rest(per, methods)
+        md += [world_tables.rank_sentence(per, methods), "",
                f"Wilcoxon signed-rank over worlds (paired by world, per-world mean test MAE), the first by pooled "
-               f"mean against each other method, Holm over the {len(tests)} tests:", "", *R.markdown_tests(tests), ""]
+               f"mean against each other method, Holm over the {len(tests)} tests:", "",
+               *world_tables.markdown_tests(tests), ""]
     elif len(methods) >= 2:
-        md += [R.rank_sentence(per, methods), "", "No test over worlds: one world.", ""]
+        md += [world_tables.rank_sentence(per, methods), "", "No test over worlds: one world.", ""]
     excluded = result.excluded
     if excluded:
         md += [f"**{len(excluded)} repeat(s) excluded (their MSA failed): "
@@ -132,18 +133,18 @@ def write_outputs(outdir: Path, cfg: DictConfig, result, info: dict) -> dict:
     """The run directory all at once (staged, run.json last: :func:`experiments._relm_job.write_outputs`' rule)."""
     from experiments import _relm_job as relm_job
     from experiments._entry import write_hydra_record
-    from icgo.reporting import records as R
+    from icgo.reporting import records as run_records
 
     t0 = time.perf_counter()
-    with relm_job.run_output(outdir, overwrite=True).staged(last=(R.RUN_FILE,)) as stage:
+    with relm_job.run_output(outdir, overwrite=True).staged(last=(run_records.RUN_FILE,)) as stage:
         write_hydra_record(stage, cfg)
-        (stage / R.CONFIG_FILE).write_text(OmegaConf.to_yaml(cfg, resolve=True))
+        (stage / run_records.CONFIG_FILE).write_text(OmegaConf.to_yaml(cfg, resolve=True))
         tags = {"label": info["label"], "dataset": info["dataset"], "condition": info["condition"],
                 "seed": result.config.seed}
         for name in TABLES:
             df = result.table(name)
-            R.check_table(name, R.tag_table(df, tags), name).to_csv(stage / f"{name}.csv", index=False,
-                                                                     float_format="%.10g")
+            checked = run_records.check_table(name, run_records.tag_table(df, tags), name)
+            checked.to_csv(stage / f"{name}.csv", index=False, float_format="%.10g")
         per, pooled, md = summary(result, cfg, info)
         per.to_csv(stage / WORLDS_FILE, index=False, float_format="%.10g")
         pooled.to_csv(stage / POOLED_FILE, index=False)
@@ -151,7 +152,7 @@ def write_outputs(outdir: Path, cfg: DictConfig, result, info: dict) -> dict:
         methods = result.config.method_names()
         first = result.results[0]
         timings = {**info["timings"], "write_s": time.perf_counter() - t0}
-        run = {**info, "timings": timings, "records_version": R.RECORDS_VERSION, "status": "ok",
+        run = {**info, "timings": timings, "records_version": run_records.RECORDS_VERSION, "status": "ok",
                "seed": result.config.seed, "wall_time_s": result.wall_time_s, "methods": methods,
                "n_evals": {m: int(v) for m, v in zip(methods, first.n_evals[:, 0])},
                "n_rows": [int(r.kept.sum()) for r in result.results], "n_repeats": result.config.n_repeats,
@@ -159,25 +160,26 @@ def write_outputs(outdir: Path, cfg: DictConfig, result, info: dict) -> dict:
                "config_sha256": relm_job.cfg_hash(cfg),
                "worlds": {"seeds": list(result.seeds), "development_seeds": result.development},
                "excluded_repeats": [{"world": w, "repeat": r, "reason": why} for w, r, why in result.excluded]}
-        missing = [k for k in R.RUN_KEYS if k not in run]
+        missing = [k for k in run_records.RUN_KEYS if k not in run]
         assert not missing, f"run record lacks {missing}"  # a writer bug, not a user error
-        (stage / R.RUN_FILE).write_text(json.dumps(run, indent=2, default=str) + "\n")
+        (stage / run_records.RUN_FILE).write_text(json.dumps(run, indent=2, default=str) + "\n")
     return run
 
 
 def print_summary(result, outdir: Path, t0: float) -> None:
     """The pooled table, the ranking and where the files are, on stdout."""
-    from icgo.reporting import worlds as R
+    from icgo.reporting import worlds as world_tables
 
-    per = R.per_world(result.table("metrics"))
+    per = world_tables.per_world(result.table("metrics"))
     methods = methods_compared(result)
-    print(f"\nICGO-RELM study over {len(result.seeds)} worlds (data seeds {R.seeds_text(result.seeds)}), test split, "
+    print(f"\nICGO-RELM study over {len(result.seeds)} worlds (data seeds {world_tables.seeds_text(result.seeds)}), "
+          "test split, "
           f"mean +/- std over worlds of each world's mean over {len(result.config.ids())} repeats")
-    print(R.pooled(per, methods).drop(columns=["method"]).to_markdown(index=False))
+    print(world_tables.pooled(per, methods).drop(columns=["method"]).to_markdown(index=False))
     if len(methods) >= 2:
-        print(R.rank_sentence(per, methods))
+        print(world_tables.rank_sentence(per, methods))
     if result.development:
-        print(f"note: development seed(s) {R.seeds_text(result.development)} among the worlds (not for reporting)",
-              file=sys.stderr)
+        print(f"note: development seed(s) {world_tables.seeds_text(result.development)} among the worlds "
+              "(not for reporting)", file=sys.stderr)
     print(f"outputs: {outdir}")
     print(f"wall time: {time.perf_counter() - t0:.1f} s (study {result.wall_time_s:.1f} s incl. compile)")

@@ -222,7 +222,7 @@ def worlds_scaling(worlds=WORLDS, deadline: float = float("inf"), **config) -> l
     the last one (compile as measured, the rest linear in worlds) would end past ``deadline``."""
     from icgo.optim import STRATEGIES
     from icgo.studies import icgo_relm as study
-    from icgo.studies import worlds as W
+    from icgo.studies import worlds as worlds_study
 
     out, last = [], None
     for n in worlds:
@@ -234,9 +234,9 @@ def worlds_scaling(worlds=WORLDS, deadline: float = float("inf"), **config) -> l
             continue
         cfg = study.StudyConfig(**{"strategies": STRATEGIES, **config})
         t = time.perf_counter()
-        members = W.simulate("lab_casing", W.world_seeds(W.FIRST_REPORTED_SEED, n))
+        members = worlds_study.simulate("lab_casing", worlds_study.world_seeds(worlds_study.FIRST_REPORTED_SEED, n))
         timings: dict = {}
-        W.run_worlds(members, cfg, timings=timings)
+        worlds_study.run_worlds(members, cfg, timings=timings)
         wall = time.perf_counter() - t
         compile_s = sum(timings[f"{s}_compile_s"] for s in ("prepare", "search", "score", "tables"))
         last = {"worlds": n, "wall_s": wall, "compile_s": compile_s, "run_s": wall - compile_s,

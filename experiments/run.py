@@ -50,18 +50,18 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
     Raises:
         SystemExit(2): a bad setting or data file outside a sweep (one line on stderr).
     """
-    from experiments import _entry as E
+    from experiments import _entry as entry
     from experiments import _relm_job as relm_job
 
     t0 = time.perf_counter()
-    previous = E.previous_run(outdir)
+    previous = entry.previous_run(outdir)
     if previous is not None and multirun and cfg.overwrite is not True:
         # Re-running a sweep into its directory resumes it: a finished job is kept only when it ran this
         # job's configuration (its hash); one of another configuration is refused, never taken for this job.
         there = relm_job.stored_hash(outdir, previous)
         if there is not None and there == relm_job.cfg_hash(cfg):
             log.info("kept the finished job in %s (overwrite=true reruns it)", outdir)
-            (outdir / E.FAILED).unlink(missing_ok=True)
+            (outdir / entry.FAILED).unlink(missing_ok=True)
             return previous
         old = relm_job.stored_config(outdir)
         diff = relm_job.config_difference(old, OmegaConf.to_container(cfg, resolve=True)) if old else \
@@ -73,28 +73,28 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
         print(f"error: {outdir} already holds a complete run; choose another hydra.run.dir or pass overwrite=true "
               f"(the old run is then replaced whole)", file=sys.stderr)
         raise SystemExit(EXIT_CONFIG)
-    from experiments import _worlds_job as WJ
+    from experiments import _worlds_job as worlds_job
 
     timings = {}
     worlds = cfg.get("worlds") is not None
     try:
         relm_job.check_config(cfg)
-        WJ.check(cfg)
-        relm_job.run_output(outdir, overwrite=E.bool_setting(cfg, "overwrite"))
+        worlds_job.check(cfg)
+        relm_job.run_output(outdir, overwrite=entry.bool_setting(cfg, "overwrite"))
     except ValueError as e:
         if multirun:
-            E.write_failure(outdir, E.one_line(e))
-            log.error("job failed: %s", E.one_line(e))
+            entry.write_failure(outdir, entry.one_line(e))
+            log.error("job failed: %s", entry.one_line(e))
             return None
-        E.fail_line(e)
+        entry.fail_line(e)
     try:
-        devices = E.start_devices()  # before JAX's backend starts: jax.distributed, the CPU's host devices
+        devices = entry.start_devices()  # before JAX's backend starts: jax.distributed, the CPU's host devices
         scfg = relm_job.study_config(cfg)  # every check before any computation (imports the study, JAX with it)
         relm_job.progress_enabled(cfg.progress)
         timings["import_s"] = time.perf_counter() - t0
-        E.enable_jax_cache(cfg.jax_cache_dir)
+        entry.enable_jax_cache(cfg.jax_cache_dir)
         if worlds:
-            result, desc = WJ.run_study(cfg, scfg, timings)
+            result, desc = worlds_job.run_study(cfg, scfg, timings)
         else:
             t1 = time.perf_counter()
             frame, meta, desc = relm_job.load_data(cfg)
@@ -104,15 +104,15 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
                                          desc=f"{desc} {'/'.join(scfg.method_names())}", target=target, timings=timings)
     except ValueError as e:  # SettingError, DataError (icgo.core.errors), study/optimizer checks: one line each
         if multirun:
-            E.write_failure(outdir, E.one_line(e), E.format_traceback(e))
-            log.error("job failed: %s", E.one_line(e))
+            entry.write_failure(outdir, entry.one_line(e), entry.format_traceback(e))
+            log.error("job failed: %s", entry.one_line(e))
             return None
-        E.fail_line(e)
+        entry.fail_line(e)
     except Exception as e:
         if not multirun:
             raise
-        E.write_failure(outdir, f"{type(e).__name__}: {E.one_line(e)}", E.format_traceback(e))
-        log.error("job failed: %s: %s", type(e).__name__, E.one_line(e))
+        entry.write_failure(outdir, f"{type(e).__name__}: {entry.one_line(e)}", entry.format_traceback(e))
+        log.error("job failed: %s: %s", type(e).__name__, entry.one_line(e))
         return None
 
     info = {"label": cfg.label, "dataset": cfg.dataset.name,
@@ -124,19 +124,19 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
             "optimizer_params": OmegaConf.to_container(cfg.optimizer.params, resolve=True) if cfg.optimizer.name
             else None,
             "execution": timings.pop("execution"), "timings": timings, "devices": devices,
-            "total_time_s": time.perf_counter() - t0, **E.env_info()}
-    if E.is_secondary_process():  # a multi-process job: the first process writes the run directory
+            "total_time_s": time.perf_counter() - t0, **entry.env_info()}
+    if entry.is_secondary_process():  # a multi-process job: the first process writes the run directory
         return None
     if worlds:
         try:
-            run = WJ.write_outputs(outdir, cfg, result, info)
+            run = worlds_job.write_outputs(outdir, cfg, result, info)
         except ValueError as e:  # OutputError: the previous run is intact
             if multirun:
-                E.write_failure(outdir, E.one_line(e))
-                log.error("job failed: %s", E.one_line(e))
+                entry.write_failure(outdir, entry.one_line(e))
+                log.error("job failed: %s", entry.one_line(e))
                 return None
-            E.fail_line(e)
-        WJ.print_summary(result, outdir, t0)
+            entry.fail_line(e)
+        worlds_job.print_summary(result, outdir, t0)
         return run
     plot = None
     if cfg.figures:
@@ -150,10 +150,10 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
         run = relm_job.write_outputs(outdir, cfg, result, info, frame, meta, plot)
     except ValueError as e:  # OutputError (a full disk, a read-only directory): the previous run is intact
         if multirun:
-            E.write_failure(outdir, E.one_line(e))
-            log.error("job failed: %s", E.one_line(e))
+            entry.write_failure(outdir, entry.one_line(e))
+            log.error("job failed: %s", entry.one_line(e))
             return None
-        E.fail_line(e)
+        entry.fail_line(e)
     table = relm_job.summary_table(result).drop(columns=["method"])
     print(f"\nICGO-RELM study on {desc}: test split, {len(result.config.ids())} repeats (mean +/- std)")
     print(table.to_markdown(index=False))

@@ -55,11 +55,11 @@ def read_runs(dirs) -> dict[str, list[tuple[Path, dict]]]:
 
 def per_world(runs) -> tuple[pd.DataFrame, list[dict], list[int]]:
     """(per-world table of every run's methods, the runs' settings, the worlds' seeds)."""
-    from icgo.reporting import worlds as R
+    from icgo.reporting import worlds as world_tables
 
     parts, seeds = [], set()
     for d, run in runs:
-        parts.append(R.per_world(pd.read_csv(d / "metrics.csv")))
+        parts.append(world_tables.per_world(pd.read_csv(d / "metrics.csv")))
         seeds |= set(run["worlds"]["seeds"])
     per = pd.concat(parts, ignore_index=True).drop_duplicates(["world", "method"], keep="last")
     return per, [_stamp.run_settings(d) for d, _ in runs], sorted(seeds)
@@ -87,16 +87,16 @@ def _one_draw(name: str, results: Path) -> dict[str, float] | None:
 
 def changed_note(name: str, per: pd.DataFrame, methods, results: Path) -> str:
     """What the worlds say against the one-draw table: its order, and in how many worlds its first is first."""
-    from icgo.reporting import worlds as R
+    from icgo.reporting import worlds as world_tables
     from icgo.reporting.names import method_name
 
     one = _one_draw(name, results)
     if not one or not all(m in one for m in methods):
         return f"No one-draw `results/{name}.csv` with these methods to compare with."
     one_order = sorted(methods, key=lambda m: one[m])
-    order = R.order(per, methods)
-    firsts = R.first_counts(per, methods)
-    n = len(R.wide(per, methods))
+    order = world_tables.order(per, methods)
+    firsts = world_tables.first_counts(per, methods)
+    n = len(world_tables.wide(per, methods))
     same = one_order == order
     return (f"Against the one-draw result (`results/{name}.md`, data seed 0, a development seed): its order by mean "
             f"MAE was {' < '.join(method_name(m) for m in one_order)}; over {n} worlds the pooled order is "
@@ -105,7 +105,7 @@ def changed_note(name: str, per: pd.DataFrame, methods, results: Path) -> str:
 
 
 def _protocol(name: str, seeds, settings, test: str) -> str:
-    from icgo.reporting import worlds as R
+    from icgo.reporting import worlds as world_tables
     from icgo.reporting.protocol import protocol_line
     from icgo.studies.worlds import DEVELOPMENT_SEEDS
 
@@ -117,9 +117,9 @@ def _protocol(name: str, seeds, settings, test: str) -> str:
              "same worlds, splits and keys for every method)",
         "random 7:3 of each world's 3-sigma-filtered rows, a new permutation per repeat; fitted (search fitness, "
         "MSA, ridge) on the training rows only, scored on the test rows",
-        f"data: lab_casing noise seeds {R.seeds_text(seeds)} (one world each); world s, repeat k: split and search "
-        f"key fold_in(fold_in(PRNGKey(0), s), k). No world is a seed any choice was made on (development seeds "
-        f"{R.seeds_text(DEVELOPMENT_SEEDS)}: icgo.studies.worlds.DEVELOPMENT_SEEDS)", test)
+        f"data: lab_casing noise seeds {world_tables.seeds_text(seeds)} (one world each); world s, repeat k: split "
+        f"and search key fold_in(fold_in(PRNGKey(0), s), k). No world is a seed any choice was made on (development "
+        f"seeds {world_tables.seeds_text(DEVELOPMENT_SEEDS)}: icgo.studies.worlds.DEVELOPMENT_SEEDS)", test)
 
 
 def _write(out: Path, name: str, title: str, pooled: pd.DataFrame, per: pd.DataFrame, methods, notes, protocol,
@@ -147,30 +147,30 @@ def _with_paper(pooled: pd.DataFrame, paper: dict) -> pd.DataFrame:
 
 def table3(per, seeds, settings, out: Path, results: Path) -> None:
     from icgo.maths.stats import holm
-    from icgo.reporting import worlds as R
+    from icgo.reporting import worlds as world_tables
     from icgo.reporting.names import method_name
     from icgo.reporting.published import ICGO
 
     four = [f"cgo-{s}" for s in ("chaos", "gaussian", "wavelet", "three_stage")]
     methods = ["cgo-original", *four]
     paper = {f"cgo-{s}": f"{v[0][0]:.4f} +/- {v[0][1]:.4f}" for s, v in ICGO["table3"].items()}
-    pooled = _with_paper(R.pooled(per, methods), paper)
-    fr = [(k, R.friedman_over_worlds(per, four, k)) for k in ("mae", "rmse")]
+    pooled = _with_paper(world_tables.pooled(per, methods), paper)
+    fr = [(k, world_tables.friedman_over_worlds(per, four, k)) for k in ("mae", "rmse")]
     fr_holm = holm([t.p_value for _, t in fr])
-    wil = pd.concat([R.paired_tests(per, [("cgo-three_stage", m) for m in four[:-1]], k).assign(metric=k)
+    wil = pd.concat([world_tables.paired_tests(per, [("cgo-three_stage", m) for m in four[:-1]], k).assign(metric=k)
                      for k in ("mae", "rmse")], ignore_index=True)
     wil["p (Holm)"] = holm(wil["p"].to_numpy())  # one family: both metrics, as the one-draw Table 3
     from icgo.reporting.protocol import comparison
 
     wil["verdict"] = [comparison(method_name(r.a), method_name(r.b), r["p (Holm)"], r["median difference a - b"],
                                  family=len(wil)) + f" [{r.metric.upper()}]" for _, r in wil.iterrows()]
-    notes = [changed_note("table3", per, methods, results), "", R.rank_sentence(per, methods), "",
+    notes = [changed_note("table3", per, methods, results), "", world_tables.rank_sentence(per, methods), "",
              *(f"- Friedman over worlds of the 4 mutated strategies ({k.upper()}): chi2 = {t.statistic:.2f}, p = "
                f"{p:.3g} (Holm over the 2 Friedman tests); mean ranks: "
                + ", ".join(f"{method_name(m)} {t.mean_ranks[m]:.2f}" for m in four) + "."
                for (k, t), p in zip(fr, fr_holm)), "",
              f"Wilcoxon signed-rank over worlds (paired by world), three-stage against each single strategy, MAE and "
-             f"RMSE, Holm over the {len(wil)} tests:", "", *R.markdown_tests(wil)]
+             f"RMSE, Holm over the {len(wil)} tests:", "", *world_tables.markdown_tests(wil)]
     test = ("Friedman over worlds of the 4 mutated strategies (MAE, RMSE: Holm over these 2) and Wilcoxon signed-rank "
             f"over worlds of three-stage against each single strategy (MAE, RMSE: Holm over these {len(wil)})")
     _write(out, "table3", f"Table 3 over {len(seeds)} worlds: mean +/- std over worlds (test split)", pooled, per,
@@ -178,15 +178,15 @@ def table3(per, seeds, settings, out: Path, results: Path) -> None:
 
 
 def _pairs_table(name, title, methods, pairs, paper, per, seeds, settings, out, results) -> None:
-    from icgo.reporting import worlds as R
+    from icgo.reporting import worlds as world_tables
 
     methods = [m for m in methods if m in set(per["method"])]
     pairs = [(a, b) for a, b in pairs if a in methods and b in methods]
-    pooled = _with_paper(R.pooled(per, methods), paper)
-    tests = R.paired_tests(per, pairs)
-    notes = [changed_note(name, per, methods, results), "", R.rank_sentence(per, methods), "",
+    pooled = _with_paper(world_tables.pooled(per, methods), paper)
+    tests = world_tables.paired_tests(per, pairs)
+    notes = [changed_note(name, per, methods, results), "", world_tables.rank_sentence(per, methods), "",
              f"Wilcoxon signed-rank over worlds (paired by world, per-world mean test MAE), Holm over the {len(tests)} "
-             "tests:", "", *R.markdown_tests(tests)]
+             "tests:", "", *world_tables.markdown_tests(tests)]
     test = f"Wilcoxon signed-rank over worlds on test MAE, Holm over the {len(tests)} tests below"
     _write(out, name, title, pooled, per, methods, notes, _protocol(name, seeds, settings, test), settings)
 
