@@ -96,7 +96,7 @@ def test_example_runs_deterministically_with_records_and_models(name, runs, tmp_
 def test_generalisation_qc_counts_are_the_survey_qc_of_the_tested_stations(runs):
     from icgo.physics.qc import survey_qc
     from icgo.studies.generalisation import _qc_stations
-    from icgo.studies.icgo_relm import StudyConfig
+    from icgo.studies.icgo_relm_config import StudyConfig
 
     _, data, cfg, res, _ = runs("generalisation")
     qc = res.records["qc"]
