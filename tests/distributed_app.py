@@ -22,7 +22,7 @@ import numpy as np  # noqa: E402
 
 import icgo  # noqa: F401, E402
 from icgo.studies import icgo_relm as study  # noqa: E402
-from icgo.studies.icgo_relm_config import StudyConfig
+from icgo.studies.icgo_relm_config import StudyConfig  # noqa: E402
 from tests.test_study import sim_frame  # noqa: E402
 
 jax.config.update("jax_compilation_cache_dir", sys.argv[2])

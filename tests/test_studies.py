@@ -56,7 +56,7 @@ def test_default_config_is_valid_and_round_trips(name):
 
 
 def test_config_overrides_name_each_setting_off_its_default_in_hydras_syntax():
-    from icgo.studies.misma import MismaConfig
+    from icgo.studies.misma_config import MismaConfig
 
     cfg = MismaConfig()
     changed = dataclasses.replace(cfg, seed=cfg.seed + 1,

@@ -117,6 +117,7 @@ def _prepare(keys, train, test, G, B, a_true, reference, *, msa_model, msa_iter,
     # These stages are cheap; the search (the cost) is vmapped by the runner.
     return jax.lax.map(one, (keys, train.astype(G.dtype), test.astype(G.dtype)))
 
+
 def _check_config(cfg: StudyConfig, mem: _splits.Members) -> None:
     """The data-dependent checks (the settings validated themselves in ``StudyConfig.__post_init__``)."""
     if not isinstance(cfg, StudyConfig):
@@ -165,6 +166,8 @@ def frame_arrays(frame: pd.DataFrame):
 
 
 def reference_field(cfg: StudyConfig, metadata):
+    """The MSA's reference field: None for ``msa_reference="station_mean"``, else the (3,) field (nT) of the
+    metadata's ``total_field_nT`` and ``dip_deg``."""
     if cfg.msa_reference == "station_mean":
         return None
     md = metadata or {}

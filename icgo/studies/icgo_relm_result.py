@@ -83,6 +83,7 @@ class StudyResult(NamedTuple):
         """The fitted models by kind."""
         return {self.model.KIND: self.model, self.msa_model.KIND: self.msa_model}
 
+
 #: The tables' metrics and errors, one compiled program each (not one per array operation).
 _table_metrics = jax.jit(azimuth_metrics)
 _errors = jax.jit(angle_diff)
