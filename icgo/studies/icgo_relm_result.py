@@ -91,6 +91,15 @@ _errors = jax.jit(angle_diff)
 
 def collect(cfg, rows, kept, a_true, G, B, n_source, mem: _splits.Members, prep, thetas, scored, curve, evals,
             wall) -> StudyResult:
+    """The study's tables and fitted models, host-side, from its scored members.
+
+    Args:
+        cfg: the StudyConfig. rows: the filtered rows (DataFrame). kept: (N_in,) bool, the sigma filter's mask.
+        a_true: (N,) deg. G: (N, 3) g. B: (N, 3) nT. n_source: transfer's source rows (the target's follow).
+        mem: the members. prep: their :class:`icgo.studies.icgo_relm_prepare.Prepared` (features dropped).
+        thetas: (S, M, D) hidden weights. scored: :class:`icgo.studies.icgo_relm_score.Scored`.
+        curve, evals: (S, M, T) best-so-far fitness and evaluations. wall: wall time of the jitted stages, s.
+    """
     from icgo.maths.conformal import member_coverage
     from icgo.models.relm import INTERVAL_LEVEL
 
