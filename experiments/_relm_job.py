@@ -1,5 +1,5 @@
 """The ICGO-RELM job behind ``python -m experiments.run``: the composed config checked and mapped onto
-:class:`icgo.studies.icgo_relm.StudyConfig`, the data loaded, the progress bar, and the run directory written.
+:class:`icgo.studies.icgo_relm_config.StudyConfig`, the data loaded, the progress bar, and the run directory written.
 
 Like :mod:`experiments._entry`, nothing here imports JAX at module import; functions that need the
 library import it inside.
@@ -25,7 +25,7 @@ def _check_file(p: Path, key: str) -> None:
     need(p.is_file(), f"{key} {str(p)!r}: not a regular file (a directory, pipe or device); give a CSV file")
 
 
-#: Config nodes whose keys are :class:`icgo.studies.icgo_relm.StudyConfig` fields: key ``k`` of node ``g`` is the
+#: Config nodes whose keys are :class:`icgo.studies.icgo_relm_config.StudyConfig` fields: key ``k`` of node ``g`` is the
 #: field ``g_k`` if there is one (``msa.iterations`` -> ``msa_iterations``), else ``k``; except the aliases below.
 STUDY_NODES = ("split", "msa", "model", "fitness", "budget")
 #: The keys whose field name follows neither rule.
@@ -53,7 +53,7 @@ def _unknown(keys, allowed, where: str) -> None:
 def check_config(cfg: DictConfig) -> None:
     """Entry-point checks: no unknown key anywhere, and the data set settings.
 
-    The study's own settings are validated by :class:`icgo.studies.icgo_relm.StudyConfig`
+    The study's own settings are validated by :class:`icgo.studies.icgo_relm_config.StudyConfig`
     (one place); this checks what only the entry point reads.
 
     Raises:
@@ -106,7 +106,7 @@ def check_config(cfg: DictConfig) -> None:
     need(cfg.schedule.get("clock", "global") in ("global", "stage"),
          f"schedule.clock must be global or stage, got {cfg.schedule.get('clock')!r}")
     if OmegaConf.select(cfg, "model.tune") is True:
-        from icgo.studies.icgo_relm import StudyConfig
+        from icgo.studies.icgo_relm_config import StudyConfig
 
         for k in ("hidden", "lam"):
             default = StudyConfig.__dataclass_fields__[k].default
@@ -123,7 +123,7 @@ def study_settings(cfg: DictConfig) -> tuple[dict, dict]:
     """
     import dataclasses
 
-    from icgo.studies.icgo_relm import StudyConfig
+    from icgo.studies.icgo_relm_config import StudyConfig
 
     fields = {f.name for f in dataclasses.fields(StudyConfig)}
     values, where = {}, {}
@@ -136,7 +136,7 @@ def study_settings(cfg: DictConfig) -> tuple[dict, dict]:
             need(field not in where, f"settings {where.get(field)!r} and {key!r} both map to the study field "
                                      f"{field!r}")
             need(field in fields, f"unknown setting {key!r}: not a setting of the study "
-                                  f"(icgo.studies.icgo_relm.StudyConfig has {sorted(fields)})")
+                                  f"(icgo.studies.icgo_relm_config.StudyConfig has {sorted(fields)})")
             values[field], where[field] = v, key
     for key, field in STUDY_ALIASES.items():
         if key not in where.values():
@@ -147,12 +147,12 @@ def study_settings(cfg: DictConfig) -> tuple[dict, dict]:
 
 
 def study_config(cfg: DictConfig):
-    """:class:`icgo.studies.icgo_relm.StudyConfig` from a composed config (entry-point checks first).
+    """:class:`icgo.studies.icgo_relm_config.StudyConfig` from a composed config (entry-point checks first).
 
     Raises:
         SettingError: one line naming the config key (``split.n_repeats``), not the field.
     """
-    from icgo.studies.icgo_relm import StudyConfig
+    from icgo.studies.icgo_relm_config import StudyConfig
 
     check_config(cfg)
     values, where = study_settings(cfg)
@@ -349,8 +349,9 @@ def summary_table(result, split: str = "test"):
 
 
 def excluded_line(result) -> str | None:
-    """The sentence naming the repeats a study left out (:func:`icgo.studies.icgo_relm.excluded_sentence`), or None."""
-    from icgo.studies.icgo_relm import excluded_sentence
+    """The sentence naming the repeats a study left out (:func:`icgo.studies.icgo_relm_prepare.excluded_sentence`), or
+    None."""
+    from icgo.studies.icgo_relm_prepare import excluded_sentence
 
     return excluded_sentence(result.excluded, len(result.config.ids()) + len(result.excluded))
 

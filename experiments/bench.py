@@ -125,7 +125,8 @@ from icgo.datasets import protocols as datasets
 from icgo.methods import relm
 from icgo.optim import run_batch
 from icgo.optim.cgo import CGO
-from icgo.studies import icgo_relm as study
+from icgo.studies.icgo_relm_config import StudyConfig
+from icgo.studies.icgo_relm_score import score_all
 
 
 def run_roofline(batch: int, chunk: int, refine: int, quick: bool) -> dict:
@@ -172,8 +173,8 @@ def run_fast_study(sd: StudyData, strategies=STRATEGIES, pop_size=30, iterations
     compiled = _study_core.lower(*args).compile()
 
     def score(thetas):
-        return study.score_all(thetas, sd.prep, sd.G, sd.B, sd.a_true, LAM, HIDDEN,
-                               raw_features=study.StudyConfig().features == "raw")
+        return score_all(thetas, sd.prep, sd.G, sd.B, sd.a_true, LAM, HIDDEN,
+                         raw_features=StudyConfig().features == "raw")
 
     # the scoring's programs are compiled here (on placeholder weights), so run_s times the study's work only
     jax.block_until_ready(score(jnp.zeros((len(strategies), R, relm.n_params(HIDDEN)))))

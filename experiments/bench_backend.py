@@ -7,7 +7,7 @@ and the GPU's stay unmeasured (never estimated).
 
 Measured, in order (:func:`backend_check`):
 
-1. the device, the backend and the study's execution plan for Table 3 (:meth:`icgo.studies.icgo_relm.StudyConfig.execution`);
+1. the device, the backend and the study's execution plan for Table 3 (:meth:`icgo.studies.icgo_relm_config.StudyConfig.execution`);
 2. the plan's search kernel (``float32_features``; on an accelerator the fused kernel,
    :mod:`icgo.methods.relm_fused`) at batch 120, 1,200 and 60,000 (evaluations per second, after compilation,
    best of a few calls), the other kernels beside it at 120 and 1,200 (the CPU's cache-chunked kernel, and on an
@@ -69,15 +69,15 @@ def kernel_rates(sd, plan_kernel: str, batches=BATCHES, reps: int = 3) -> dict:
     from experiments.bench_kernels import HIDDEN, LAM, best_time, population, slice_tree
     from icgo.core.execution import ACCELERATOR_KERNEL, CPU_KERNEL
     from icgo.methods import relm, search_fitness
-    from icgo.studies import icgo_relm as study
+    from icgo.studies.icgo_relm_search import SearchKernel, search_kernel
 
     rows, fit = slice_tree(sd.compact, 0), slice_tree(sd.fit, 0)
     out = {}
-    plan_sk = study.search_kernel("float32_features", "train", plan_kernel)
-    others = [study.search_kernel("float32_features", "train", CPU_KERNEL if plan_kernel == ACCELERATOR_KERNEL
-                                  else ACCELERATOR_KERNEL)]
+    plan_sk = search_kernel("float32_features", "train", plan_kernel)
+    others = [search_kernel("float32_features", "train", CPU_KERNEL if plan_kernel == ACCELERATOR_KERNEL
+                            else ACCELERATOR_KERNEL)]
     if plan_kernel == ACCELERATOR_KERNEL:  # the unfused batched-Gram kernel beside the fused one
-        others.append(study.SearchKernel("gram_train_fitness", True, "float32", "float64"))
+        others.append(SearchKernel("gram_train_fitness", True, "float32", "float64"))
     f = jax.jit(search_fitness.search_fitness)
     for sk in (plan_sk, *others):
         aux = sk.aux(rows, jnp.asarray(LAM), HIDDEN)
@@ -111,16 +111,17 @@ def study_scaling(repeats=STUDY_REPEATS, deadline: float = float("inf"), **confi
 
     A point is skipped (``skipped``: why) when the previous point's time x the ratio of repeats would end
     past ``deadline`` (``time.perf_counter()``); a failing point records its one-line error and the rest go on.
-    ``config``: other :class:`icgo.studies.icgo_relm.StudyConfig` settings (smaller ones in a test).
+    ``config``: other :class:`icgo.studies.icgo_relm_config.StudyConfig` settings (smaller ones in a test).
     """
     from icgo.datasets import protocols as datasets
     from icgo.optim import STRATEGIES
     from icgo.studies import icgo_relm as study
+    from icgo.studies.icgo_relm_config import StudyConfig
 
     frame = datasets.lab_casing(0).frame
     out, last = [], None
     for R in repeats:
-        cfg = study.StudyConfig(**{"strategies": STRATEGIES, **config, "n_repeats": R})
+        cfg = StudyConfig(**{"strategies": STRATEGIES, **config, "n_repeats": R})
         why = overrun(last, R, deadline - time.perf_counter())
         if why:
             out.append({"repeats": R, "skipped": why})
@@ -153,18 +154,20 @@ def search_rate(n_devices: int, repeats: int = 10, iterations: int = CURVE_ITERA
     from icgo.datasets import protocols as datasets
     from icgo.optim import STRATEGIES
     from icgo.studies import icgo_relm as study
+    from icgo.studies.icgo_relm_config import StudyConfig
+    from icgo.studies.icgo_relm_search import search
 
-    cfg = study.StudyConfig(strategies=STRATEGIES, n_repeats=repeats, iterations=iterations)
+    cfg = StudyConfig(strategies=STRATEGIES, n_repeats=repeats, iterations=iterations)
     st = study.stage(datasets.lab_casing(0).frame, cfg, None, jax.random.PRNGKey(0))
     kernel = CPU_KERNEL if jax.default_backend() == "cpu" else ACCELERATOR_KERNEL
     devices = jax.devices()[:n_devices]
     t = time.perf_counter()
-    out = jax.block_until_ready(study.search(st.cfg, st.prep, kernel=kernel, devices=devices))
+    out = jax.block_until_ready(search(st.cfg, st.prep, kernel=kernel, devices=devices))
     compile_s = time.perf_counter() - t
     best = float("inf")
     for _ in range(reps):
         t = time.perf_counter()
-        out = jax.block_until_ready(study.search(st.cfg, st.prep, kernel=kernel, devices=devices))
+        out = jax.block_until_ready(search(st.cfg, st.prep, kernel=kernel, devices=devices))
         best = min(best, time.perf_counter() - t)
     evals = float(np.asarray(out[2])[..., -1].sum())
     return {"devices": n_devices, "members": int(np.asarray(out[2]).shape[0] * np.asarray(out[2]).shape[1]),
@@ -221,8 +224,8 @@ def worlds_scaling(worlds=WORLDS, deadline: float = float("inf"), **config) -> l
     one sharded program (:func:`icgo.studies.worlds.run_worlds`); a point is skipped when its time projected from
     the last one (compile as measured, the rest linear in worlds) would end past ``deadline``."""
     from icgo.optim import STRATEGIES
-    from icgo.studies import icgo_relm as study
     from icgo.studies import worlds as worlds_study
+    from icgo.studies.icgo_relm_config import StudyConfig
 
     out, last = [], None
     for n in worlds:
@@ -232,7 +235,7 @@ def worlds_scaling(worlds=WORLDS, deadline: float = float("inf"), **config) -> l
             out.append({"worlds": n, "skipped": why.replace("repeats", "worlds")})
             print(f"  {n} worlds: {out[-1]['skipped']}", file=sys.stderr, flush=True)
             continue
-        cfg = study.StudyConfig(**{"strategies": STRATEGIES, **config})
+        cfg = StudyConfig(**{"strategies": STRATEGIES, **config})
         t = time.perf_counter()
         members = worlds_study.simulate("lab_casing", worlds_study.world_seeds(worlds_study.FIRST_REPORTED_SEED, n))
         timings: dict = {}
@@ -259,7 +262,8 @@ def backend_check(budget_s: float = BUDGET_S, mealpy_runs: int = 5, front: bool 
     from experiments.bench_kernels import HIDDEN, flops_per_eval, matmul_gflops, run_mealpy, study_data
     from experiments.bench_user import front_door
     from icgo.optim import STRATEGIES
-    from icgo.studies import icgo_relm as study
+    from icgo.studies.icgo_relm_config import StudyConfig
+    from icgo.studies.icgo_relm_search import search_kernel
 
     t0 = time.perf_counter()
     deadline = t0 + budget_s
@@ -271,14 +275,14 @@ def backend_check(budget_s: float = BUDGET_S, mealpy_runs: int = 5, front: bool 
     print(head, file=sys.stderr, flush=True)
     out["headline"] = head
     sd = study_data(10)
-    plan = study.StudyConfig(strategies=STRATEGIES).execution()
+    plan = StudyConfig(strategies=STRATEGIES).execution()
     out["plan"] = plan._asdict()
     print(f"  plan for Table 3: {plan.why}", file=sys.stderr, flush=True)
     rates = kernel_rates(sd, plan.kernel, batches)
     out["kernel_evals_per_s"] = {k: {str(b): v for b, v in r.items()} for k, r in rates.items() if k != "max_rel_diff"}
     out["max_rel_diff_vs_float64"] = rates["max_rel_diff"]
     out["matmul_gflops_f32"], out["matmul_gflops_f64"] = matmul_gflops("float32"), matmul_gflops("float64")
-    plan_name = study.search_kernel("float32_features", "train", plan.kernel).name
+    plan_name = search_kernel("float32_features", "train", plan.kernel).name
     out["plan_fitness"] = plan_name
     out["flop_fraction"] = (rates[plan_name][max(b for b in batches if b <= 1200)] * flops_per_eval(sd.n_train, HIDDEN)
                             / (out["matmul_gflops_f32"] * 1e9))

@@ -17,14 +17,16 @@ import numpy as np
 import icgo  # noqa: F401  (enables float64)
 from icgo.datasets import protocols as datasets
 from icgo.methods import relm
-from icgo.studies import icgo_relm as study
+from icgo.studies.icgo_relm_config import PRECISIONS, StudyConfig
+from icgo.studies.icgo_relm_prepare import frame_arrays, prepare, sigma_filter
+from icgo.studies.icgo_relm_search import train_rows
 
 HIDDEN = 30
 LAM = 1e-3
 N_INPUTS = relm.N_INPUTS
 STRATEGIES = ("original", "chaos", "gaussian", "wavelet", "three_stage")
 #: Feature dtype of the study's default search kernel (``StudyConfig.dtype``): what the benchmark's study path runs.
-FEATURES = study.PRECISIONS[study.StudyConfig().dtype][0]
+FEATURES = PRECISIONS[StudyConfig().dtype][0]
 
 
 # --------------------------------------------------------------------------- flops
@@ -78,7 +80,7 @@ class StudyData(NamedTuple):
     compact: relm.TrainRows  # training rows only (fast kernel)
     n_train: int
     n_rows: int
-    prep: object            # study.Prepared, for scoring
+    prep: object            # icgo_relm_prepare.Prepared, for scoring
     a_true: np.ndarray
     G: np.ndarray           # (N, 3) g
     B: np.ndarray           # (N, 3) nT
@@ -91,12 +93,12 @@ def study_data(n_repeats: int, seed: int = 0, dataset_seed: int = 0, tile: int =
         n_repeats: repeats (splits). seed: study seed. dataset_seed: simulator seed.
         tile: repeat the data set ``tile`` times (data-size scaling rows).
     """
-    cfg = study.StudyConfig(n_repeats=n_repeats, seed=seed)
-    G, B, a = study.frame_arrays(datasets.lab_casing(dataset_seed).frame)
-    kept = study.sigma_filter(G, B, a, cfg.sigma_filter)
+    cfg = StudyConfig(n_repeats=n_repeats, seed=seed)
+    G, B, a = frame_arrays(datasets.lab_casing(dataset_seed).frame)
+    kept = sigma_filter(G, B, a, cfg.sigma_filter)
     G, B, a = (np.tile(x[kept], (tile, 1)) if x.ndim == 2 else np.tile(x[kept], tile) for x in (G, B, a))
-    prep, _ = study.prepare(None, G, B, a, cfg, jax.random.PRNGKey(seed))
-    rows = study.train_rows(prep)
+    prep, _ = prepare(None, G, B, a, cfg, jax.random.PRNGKey(seed))
+    rows = train_rows(prep)
     return StudyData(prep.data, rows, int(rows.T.shape[1]), len(a), prep, a, G, B)
 
 

@@ -68,7 +68,7 @@ def main(argv=None) -> int:
     from icgo.datasets import protocols
     from icgo.optim.cgo import CGOConfig
     from icgo.studies import cgo_seeds
-    from icgo.studies.icgo_relm import StudyConfig
+    from icgo.studies.icgo_relm_config import StudyConfig
 
     if a.repeats is not None and a.repeats < 2:
         raise SettingError(f"--repeats {a.repeats}: must be >= 2")

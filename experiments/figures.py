@@ -354,7 +354,7 @@ def _tuned_note(runs: Runs, m: pd.DataFrame, others) -> str:
     t = m[m.method == "relm-tuned"]["mae"].mean()
     parts = [f"{method_name(o)}: mean MAE {100 * (m[m.method == o]['mae'].mean() / t - 1):+.1f} %" for o in others]
     from icgo.methods.relm import TUNE_HIDDEN, TUNE_LAMBDA
-    from icgo.studies.icgo_relm import StudyConfig
+    from icgo.studies.icgo_relm_config import StudyConfig
 
     d = StudyConfig()
     return (f"Tuned RELM (`model.tune=true fitness=validation optimizer=none`): hidden L and lambda chosen on "
@@ -699,7 +699,7 @@ def sweep_schedules(pooled: Runs, sched: Runs, out: Path) -> bool:
 def _reading(params: dict) -> str:
     """The mutation reading a sweep run used, from its optimizer params (the rest at CGOConfig's defaults)."""
     from icgo.optim.cgo import CGOConfig
-    from icgo.studies.icgo_relm import StudyConfig
+    from icgo.studies.icgo_relm_config import StudyConfig
 
     d = CGOConfig()
     if "sigma" in params:
@@ -1234,7 +1234,7 @@ def plot_study(result, path: Path, title: str = "") -> None:
     """The run directory's figure: convergence, test error before/after, per-repeat MAE.
 
     Args:
-        result: :class:`icgo.studies.icgo_relm.StudyResult`.
+        result: :class:`icgo.studies.icgo_relm_result.StudyResult`.
         path: PNG path.
         title: figure title.
     """

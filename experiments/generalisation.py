@@ -64,7 +64,7 @@ def markdown(rec: dict, config, seconds: dict) -> str:
     from icgo.maths.stats import format_mean_std, mean_std
     from icgo.reporting.choices import LAMBDA
     from icgo.reporting.protocol import ALPHA, protocol_line
-    from icgo.studies.icgo_relm import StudyConfig
+    from icgo.studies.icgo_relm_config import StudyConfig
 
     m, cov, tests, floor = rec["metrics"], rec["coverage"], rec["tests"], rec["noise_floor"]
     cells = list(dict.fromkeys(zip(m["dataset"], m["protocol"])))

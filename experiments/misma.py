@@ -30,9 +30,9 @@ ENTRY_KEYS = ("out_dir",)
 
 
 def study_config(cfg: DictConfig):
-    """:class:`icgo.studies.misma.MismaConfig` from a composed config (unknown keys refused, one line)."""
+    """:class:`icgo.studies.misma_config.MismaConfig` from a composed config (unknown keys refused, one line)."""
     from icgo.core.settings import config_from_mapping
-    from icgo.studies.misma import MismaConfig
+    from icgo.studies.misma_config import MismaConfig
 
     values = {k: v for k, v in OmegaConf.to_container(cfg, resolve=True).items() if k not in ENTRY_KEYS}
     return config_from_mapping(MismaConfig, values, "conf/misma.yaml")
@@ -95,7 +95,7 @@ def _sweep_plot(sweep, out: Path) -> None:
 def protocol(config) -> str:
     """The summary's protocol line (:func:`icgo.reporting.protocol.protocol_line`)."""
     from icgo.reporting.protocol import protocol_line
-    from icgo.studies.misma import DEVELOPMENT_SEEDS
+    from icgo.studies.misma_config import DEVELOPMENT_SEEDS
 
     sim, real = config.simulated, config.real
     dev = ", ".join(map(str, DEVELOPMENT_SEEDS))

@@ -22,11 +22,12 @@ import numpy as np  # noqa: E402
 
 import icgo  # noqa: F401, E402
 from icgo.studies import icgo_relm as study  # noqa: E402
+from icgo.studies.icgo_relm_config import StudyConfig  # noqa: E402
 from tests.test_study import sim_frame  # noqa: E402
 
 jax.config.update("jax_compilation_cache_dir", sys.argv[2])
-cfg = study.StudyConfig(optimizer="cgo", strategies=("original", "wavelet"), n_repeats=3, hidden=10, pop_size=6,
-                        iterations=3, seed=2)
+cfg = StudyConfig(optimizer="cgo", strategies=("original", "wavelet"), n_repeats=3, hidden=10, pop_size=6,
+                  iterations=3, seed=2)
 timings = {}
 res = study.run_study(sim_frame(), cfg, timings=timings)
 if jax.process_index() == 0:

@@ -22,6 +22,7 @@ from icgo.io.recording import read_recording, write_recording
 from icgo.models.format import SCHEMA_VERSION
 from icgo.physics.qc import QCBands
 from icgo.studies import icgo_relm
+from icgo.studies.icgo_relm_config import StudyConfig
 
 ROOT = Path(__file__).resolve().parent.parent
 META_KEYS = ("total_field_nT", "dip_deg", "declination_deg", "gravity_g", "name")
@@ -38,7 +39,7 @@ def setup(tmp_path_factory):
     """A small fitted ICGO-RELM model saved to disk, and a new lab_casing draw written as a survey."""
     tmp = tmp_path_factory.mktemp("apply")
     res = icgo_relm.run_study(datasets.lab_casing(0, toolface_step_deg=30.0).frame,
-                              icgo_relm.StudyConfig(optimizer="pso", n_repeats=2, hidden=8, pop_size=6, iterations=3))
+                              StudyConfig(optimizer="pso", n_repeats=2, hidden=8, pop_size=6, iterations=3))
     model = res.model.save(tmp / "relm_compensation")
     new = datasets.lab_casing(5, toolface_step_deg=30.0)
     survey = tmp / "survey.csv"

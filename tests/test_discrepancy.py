@@ -539,7 +539,7 @@ def test_the_study_tables_state_their_protocol(small_result, tmp_path, monkeypat
     from experiments.discrepancy import main_body
     from icgo.reporting.protocol import PROTOCOL_FIELDS, parse_protocols
     from icgo.studies import discrepancy_results as R
-    from icgo.studies.icgo_relm import StudyConfig
+    from icgo.studies.icgo_relm_config import StudyConfig
 
     res = small_result
     err = np.array([0.5, -0.25, 0.125, -1.0])

@@ -14,7 +14,9 @@ from conftest import relm_train_data
 import icgo  # noqa: F401  (float64)
 from icgo.core import execution as ex
 from icgo.methods import relm, relm_gram
-from icgo.studies import icgo_relm as study
+from icgo.studies.icgo_relm_config import StudyConfig
+from icgo.studies.icgo_relm_prepare import frame_arrays, prepare
+from icgo.studies.icgo_relm_search import search
 
 ACCELERATORS = ("gpu", "cuda", "rocm", "tpu", "METAL", "Metal", "neuron", " GPU ")
 
@@ -47,7 +49,7 @@ def test_an_accelerator_gets_the_batched_kernel_over_its_devices(backend, device
 def test_the_study_plans_methods_times_repeats_members():
     from icgo.optim import STRATEGIES
 
-    table3 = study.StudyConfig(strategies=STRATEGIES)
+    table3 = StudyConfig(strategies=STRATEGIES)
     plan = table3.execution(backend="cpu")
     assert plan.members == 50 and plan.devices == min(len(jax.devices("cpu")), 50)
     assert table3.execution(backend="cpu", cells=300).members == 5 * 300                    # worlds x repeats cells
@@ -66,7 +68,7 @@ def test_bad_devices_settings_are_refused():
         with pytest.raises(ValueError, match="devices"):
             ex.execution_plan("cpu", 2, 10, devices=d)
         with pytest.raises(ValueError, match="devices"):
-            study.StudyConfig(devices=d)
+            StudyConfig(devices=d)
 
 
 # -------------------------------------------------------------- the accelerator kernel, run on the CPU
@@ -155,12 +157,12 @@ def test_no_recompilation_per_repeat(kernel):
     """The search of other repeats (same shapes) reuses the compiled program, on either kernel."""
     from tests.test_study import sim_frame
 
-    cfg = study.StudyConfig(optimizer="cgo", strategies=("original", "wavelet"), n_repeats=4, hidden=6,
-                            pop_size=5, iterations=2, seed=1)
-    G, B, a = study.frame_arrays(sim_frame())
+    cfg = StudyConfig(optimizer="cgo", strategies=("original", "wavelet"), n_repeats=4, hidden=6,
+                      pop_size=5, iterations=2, seed=1)
+    G, B, a = frame_arrays(sim_frame())
     key = jax.random.PRNGKey(0)
-    preps = [study.prepare(None, G, B, a, dataclasses.replace(cfg, repeat_ids=ids), key)[0] for ids in ((0, 1), (2, 3))]
-    jax.block_until_ready(study.search(cfg, preps[0], kernel=kernel))
+    preps = [prepare(None, G, B, a, dataclasses.replace(cfg, repeat_ids=ids), key)[0] for ids in ((0, 1), (2, 3))]
+    jax.block_until_ready(search(cfg, preps[0], kernel=kernel))
     count = _compiles()
-    out = jax.block_until_ready(study.search(cfg, preps[1], kernel=kernel))
+    out = jax.block_until_ready(search(cfg, preps[1], kernel=kernel))
     assert count[0] == 0 and np.isfinite(np.asarray(out[1])).all()

@@ -318,10 +318,10 @@ def test_progress_bar_starts_after_the_first_chunk(capsys):
 
 # ------------------------------------------------------------ one source of defaults
 def test_composed_default_equals_the_study_dataclass_defaults():
-    """`python -m experiments.run` with no override is icgo.studies.icgo_relm.StudyConfig() field by field (dtype=float32_features)."""
+    """`python -m experiments.run` with no override is icgo.studies.icgo_relm_config.StudyConfig() field by field (dtype=float32_features)."""
     import dataclasses
 
-    from icgo.studies.icgo_relm import StudyConfig
+    from icgo.studies.icgo_relm_config import StudyConfig
 
     cfg = relm_job.study_config(_job_cfg([]))
     default = StudyConfig()
@@ -338,7 +338,7 @@ def test_every_study_field_has_a_config_key():
     """No StudyConfig field is unreachable from the command line (except those an entry point sets)."""
     import dataclasses
 
-    from icgo.studies.icgo_relm import StudyConfig
+    from icgo.studies.icgo_relm_config import StudyConfig
 
     _, where = relm_job.study_settings(_job_cfg([]))
     missing = {f.name for f in dataclasses.fields(StudyConfig)} - set(where) - {"repeat_ids", "optimizer_config"}

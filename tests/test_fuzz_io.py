@@ -24,7 +24,7 @@ from hypothesis import strategies as st
 import icgo  # noqa: F401
 from icgo.core.errors import SettingError
 from icgo.io import recording as io
-from icgo.studies.icgo_relm import StudyConfig
+from icgo.studies.icgo_relm_config import StudyConfig
 
 # The fast suite is derandomized (the same examples every run: CI stays deterministic); the long
 # runs of make test-all draw new examples each time, to find what the fixed ones miss.

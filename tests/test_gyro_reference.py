@@ -14,8 +14,9 @@ from icgo.methods import calibration as cal
 from icgo.methods.gyro_reference import fit_to_reference, gyro_reference, gyro_term, reference_at
 from icgo.physics import frames as F
 from icgo.physics.strapdown import gyro_rates_from_attitude, relative_rotations, rot_exp, rot_log
-from icgo.studies import misma
 from icgo.studies import misma_compare as compare
+from icgo.studies.misma_config import GyroConfig, MismaSearchConfig
+from icgo.studies.misma_simulated import PARAM_NAMES, grade_dataset, identifiability
 
 STRAIGHT = {"inclination_start_deg": 88.0, "inclination_end_deg": 86.5, "azimuth_start_deg": 120.0,
             "azimuth_end_deg": 124.0}
@@ -127,16 +128,16 @@ def test_near_straight_hole_stays_unidentifiable_with_a_perfect_gyro():
     G, B = fr[["gx", "gy", "gz"]].to_numpy(), fr[["bx", "by", "bz"]].to_numpy()
     x_true = np.asarray(cal.params_from_error_model(np.asarray(ds.truth["R"]), np.asarray(ds.truth["b_nT"])))
     ref_nT = ds.meta["total_field_nT"]
-    sv_mag, _ = misma.identifiability(G, B, ref_nT, x_true)
-    sv_gyro, v = misma.identifiability(G, B, ref_nT, x_true, (ref, B[ref.index]))
+    sv_mag, _ = identifiability(G, B, ref_nT, x_true)
+    sv_gyro, v = identifiability(G, B, ref_nT, x_true, (ref, B[ref.index]))
     assert sv_gyro[-1] < 1e-2 and sv_mag[-1] < 1e-2
-    top2 = {misma.PARAM_NAMES[i] for i in np.argsort(-np.abs(v))[:2]}
+    top2 = {PARAM_NAMES[i] for i in np.argsort(-np.abs(v))[:2]}
     assert top2 == {"Rinv_33", "b_z_nT"}
     # the curving hole, by contrast, is well conditioned with the gyro term
     dc = _perfect()
     rc = _reference(dc)
     Gc, Bc = dc.frame[["gx", "gy", "gz"]].to_numpy(), dc.frame[["bx", "by", "bz"]].to_numpy()
-    sv_c, _ = misma.identifiability(Gc, Bc, ref_nT, x_true, (rc, Bc[rc.index]))
+    sv_c, _ = identifiability(Gc, Bc, ref_nT, x_true, (rc, Bc[rc.index]))
     assert sv_c[-1] > 20 * sv_gyro[-1]
 
 
@@ -162,7 +163,7 @@ def test_gyro_reference_bad_input_one_line():
     ("misma", {"bounds": "wide"}, "simulated.misma.bounds must be one of around_u, paper"),
 ])
 def test_gyro_and_bounds_settings_fail_in_one_line(section, value, needle):
-    cls = {"gyro": misma.GyroConfig, "misma": misma.MismaSearchConfig}[section]
+    cls = {"gyro": GyroConfig, "misma": MismaSearchConfig}[section]
     with pytest.raises(SettingError, match=needle.replace(".", r"\.")):
         cls(**value)
 
@@ -191,7 +192,7 @@ def test_gyro_grade_factor_scales_every_error():
                                              tuple(tuple(map(float, r)) for r in v) for v in g])
     z = g.scaled(0.0)
     assert all(np.all(np.asarray(v) == 0) for v in z)
-    ds = misma.grade_dataset(datasets.rotating_drill(0, duration_s=600.0), {"duration_s": 600.0}, 0.0)
+    ds = grade_dataset(datasets.rotating_drill(0, duration_s=600.0), {"duration_s": 600.0}, 0.0)
     assert ds.truth["gyro_noise_deg_h"] == 0.0 and np.all(np.asarray(ds.truth["gyro"]["bias_deg_h"]) == 0)
     # the magnetometer data do not depend on the gyro grade
     np.testing.assert_array_equal(ds.frame[["bx", "by", "bz"]].to_numpy(),

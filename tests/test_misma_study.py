@@ -21,6 +21,8 @@ from icgo.methods import calibration as cal
 from icgo.models.calibration import MagCalibration
 from icgo.models.registry import load_model
 from icgo.studies import calibration, misma, misma_compare
+from icgo.studies.misma_config import MismaConfig
+from icgo.studies.misma_simulated import prior_box
 from icgo.studies.registry import STUDIES
 
 #: A short drilling run (600 s: two stops), 2 repeats of 5 iterations, one real device, no peer package.
@@ -35,12 +37,12 @@ def _compose(*overrides):
 
 def test_registered():
     s = STUDIES["misma"]
-    assert s is misma.STUDY and s.config_cls is misma.MismaConfig and s.run is misma.run
+    assert s is misma.STUDY and s.config_cls is MismaConfig and s.run is misma.run
 
 
 def test_conf_yaml_equals_the_dataclass_defaults():
     composed = {k: v for k, v in OmegaConf.to_container(_compose(), resolve=True).items() if k not in entry.ENTRY_KEYS}
-    defaults = config_to_mapping(misma.MismaConfig())
+    defaults = config_to_mapping(MismaConfig())
 
     def check(a, b, where):
         assert isinstance(a, dict) == isinstance(b, dict), where
@@ -52,7 +54,7 @@ def test_conf_yaml_equals_the_dataclass_defaults():
             assert a == b, f"{where}: yaml {a!r} != dataclass {b!r}"
 
     check(composed, defaults, "")
-    assert entry.study_config(_compose()) == misma.MismaConfig()
+    assert entry.study_config(_compose()) == MismaConfig()
 
 
 def test_unknown_settings_are_refused():
@@ -87,7 +89,7 @@ def test_offset_key_is_the_seed_stream():
 
 
 def test_prior_box_and_iters_to():
-    lb, ub = misma.prior_box(50_000.0, 0.5, 0.2)
+    lb, ub = prior_box(50_000.0, 0.5, 0.2)
     np.testing.assert_allclose(0.5 * (lb + ub), np.r_[np.eye(3).ravel(), np.zeros(3)])
     np.testing.assert_allclose((ub - lb)[9:], 2 * 0.2 * 50_000.0)
     curve = np.array([[5.0, 3.0, 1.0, 1.0], [5.0, 4.0, 4.0, 4.0]])
@@ -96,7 +98,7 @@ def test_prior_box_and_iters_to():
 
 @pytest.fixture(scope="module")
 def tiny():
-    cfg = config_from_mapping(misma.MismaConfig, TINY)
+    cfg = config_from_mapping(MismaConfig, TINY)
     data = misma.MismaData({"short": datasets.rotating_drill(0, duration_s=600.0)}, {"ab": load_mag_cal_device("ab")})
     return cfg, data, misma.run(data, cfg, jax.random.PRNGKey(0))
 
@@ -145,7 +147,7 @@ def test_same_key_same_records(tiny):
 
 @pytest.mark.slow  # ~15 s of compilation in a fresh process; tests/test_studies.py runs the example in the fast suite
 def test_smoke_simulated_only_is_deterministic_by_key():
-    cfg = config_from_mapping(misma.MismaConfig, {**TINY, "real": {"enabled": False}})
+    cfg = config_from_mapping(MismaConfig, {**TINY, "real": {"enabled": False}})
     data = misma.MismaData({"short": datasets.rotating_drill(0, duration_s=600.0)}, {})
     a, b = (misma.run(data, cfg, jax.random.PRNGKey(2)) for _ in range(2))
     for k in a.records:

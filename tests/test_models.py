@@ -16,6 +16,7 @@ from icgo.models.format import SCHEMA_VERSION
 from icgo.models.registry import load_model
 from icgo.models.relm import MSAModel, RELMCompensation, circular_mean_spread
 from icgo.studies import icgo_relm as study
+from icgo.studies.icgo_relm_config import StudyConfig
 
 CFG = dict(n_repeats=3, hidden=10, seed=3, pop_size=6, iterations=3)
 
@@ -23,7 +24,7 @@ CFG = dict(n_repeats=3, hidden=10, seed=3, pop_size=6, iterations=3)
 @pytest.fixture(scope="module")
 def fitted():
     frame = datasets.lab_casing(0).frame
-    res = study.run_study(frame, study.StudyConfig(optimizer="pso", **CFG))
+    res = study.run_study(frame, StudyConfig(optimizer="pso", **CFG))
     return frame, res
 
 

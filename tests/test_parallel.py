@@ -16,10 +16,11 @@ from icgo.optim import get, run_batch
 from icgo.optim.base import stack_configs
 from icgo.optim.sharded import balanced_devices, run_members
 from icgo.studies import icgo_relm as study
+from icgo.studies.icgo_relm_config import StudyConfig
 from tests.test_study import sim_frame
 
-TINY = study.StudyConfig(optimizer="cgo", strategies=("original", "wavelet"), n_repeats=3, hidden=10, pop_size=6,
-                         iterations=3, seed=2)
+TINY = StudyConfig(optimizer="cgo", strategies=("original", "wavelet"), n_repeats=3, hidden=10, pop_size=6,
+                   iterations=3, seed=2)
 
 needs_two = pytest.mark.skipif(len(jax.devices()) < 2, reason="needs 2 devices (tests/conftest.py sets 2 host "
                                                                "devices on a CPU)")

@@ -87,7 +87,7 @@ def test_the_writers_stamp_their_tables():
     from icgo.discrepancy.config import WorkflowConfig
     from icgo.discrepancy.report import workflow_settings
     from icgo.studies.gyro import GyroConfig
-    from icgo.studies.misma import MismaConfig
+    from icgo.studies.misma_config import MismaConfig
 
     assert misma.settings(MismaConfig()).startswith(
         "Run settings: population 30 x 2051 iterations per simulated search; real devices: 300 iterations per MISMA "
@@ -176,7 +176,7 @@ def test_one_copy_of_the_published_values():
 
 # ---------------------------------------------------------------------------------------------- seeds
 def test_misma_reports_a_seed_its_choices_were_not_made_on():
-    from icgo.studies.misma import DEVELOPMENT_SEEDS, MismaConfig
+    from icgo.studies.misma_config import DEVELOPMENT_SEEDS, MismaConfig
 
     assert MismaConfig().seed not in DEVELOPMENT_SEEDS
     reported = json.loads((RESULTS / "misma_summary.json").read_text())["config"]["seed"]

@@ -15,7 +15,8 @@ from icgo.datasets import protocols as datasets
 from icgo.maths.conformal import conformal_quantile, member_coverage
 from icgo.methods import relm
 from icgo.studies import splits
-from icgo.studies.icgo_relm import StudyConfig, run_study
+from icgo.studies.icgo_relm import run_study
+from icgo.studies.icgo_relm_config import StudyConfig
 
 
 @pytest.fixture(scope="module")

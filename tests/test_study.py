@@ -12,6 +12,9 @@ from icgo.core.errors import SettingError
 from icgo.maths import metrics
 from icgo.physics import effects, frames
 from icgo.studies import icgo_relm as study
+from icgo.studies.icgo_relm_config import RENAMED_DTYPES, StudyConfig
+from icgo.studies.icgo_relm_prepare import frame_arrays, prepare, sigma_filter
+from icgo.studies.icgo_relm_search import check_search, search, search_kernel, train_rows
 
 
 def sim_frame(seed=0, tf_step=10.0):
@@ -31,7 +34,7 @@ def sim_frame(seed=0, tf_step=10.0):
                          "inclination_deg": I, "toolface_deg": T})
 
 
-PLAIN = study.StudyConfig(optimizer=None, n_repeats=3, hidden=10, seed=7)
+PLAIN = StudyConfig(optimizer=None, n_repeats=3, hidden=10, seed=7)
 
 
 @pytest.fixture(scope="module")
@@ -95,7 +98,7 @@ def test_test_rows_never_steer_the_fit(plain, frame):
 def test_sigma_filter_drops_a_spike(frame):
     bad = frame.copy()
     bad.loc[5, "bx"] += 3000.0
-    keep = study.sigma_filter(*study.frame_arrays(bad))
+    keep = sigma_filter(*frame_arrays(bad))
     assert not keep[5] and keep.sum() >= len(bad) - 3
 
 
@@ -127,8 +130,8 @@ def test_bad_frames(frame):
 
 @pytest.mark.slow
 def test_cgo_strategies_batched_equals_alone_and_beats_plain(frame):
-    cfg = study.StudyConfig(optimizer="cgo", strategies=("original", "three_stage"), n_repeats=2,
-                            hidden=10, pop_size=8, iterations=6, seed=3)
+    cfg = StudyConfig(optimizer="cgo", strategies=("original", "three_stage"), n_repeats=2,
+                      hidden=10, pop_size=8, iterations=6, seed=3)
     res = study.run_study(frame, cfg)
     assert res.curves["best_fitness"].shape == (2, 2, 6)
     assert np.all(np.diff(res.curves["best_fitness"], axis=-1) <= 0)  # best-so-far
@@ -145,11 +148,11 @@ def test_lab_casing_msa_and_plain_relm():
     from icgo.methods import msa
 
     clean = datasets.lab_casing(0, casing=None, effects={"hard_iron": [900.0, -700.0, 1500.0]})
-    G, B, A = study.frame_arrays(clean.frame)
+    G, B, A = frame_arrays(clean.frame)
     r = msa.multi_station_analysis(G, B)
     assert np.all(np.abs(np.asarray(r.bias) - [900.0, -700.0, 1500.0]) < 3 * np.asarray(r.std_error))
     ds = datasets.lab_casing(0)
-    res = study.run_study(ds.frame, study.StudyConfig(optimizer=None, n_repeats=3))
+    res = study.run_study(ds.frame, StudyConfig(optimizer=None, n_repeats=3))
     p = res.predictions[res.predictions.repeat == 0]
     # With the casing, MSA leaves a residual structured in toolface: per azimuth, two
     # toolface harmonics explain most of it.
@@ -175,20 +178,20 @@ def test_tiny_cgo_study_train_kernel_batched_equals_alone(frame, dtype, rtol):
     from icgo.core.execution import ACCELERATOR_KERNEL, CPU_KERNEL
     from icgo.methods import relm, search_fitness
 
-    cfg = study.StudyConfig(optimizer="cgo", strategies=("original", "three_stage"), n_repeats=2,
-                            hidden=10, pop_size=6, iterations=3, seed=5, dtype=dtype)
-    assert study.StudyConfig().dtype == "float32_features"
+    cfg = StudyConfig(optimizer="cgo", strategies=("original", "three_stage"), n_repeats=2,
+                      hidden=10, pop_size=6, iterations=3, seed=5, dtype=dtype)
+    assert StudyConfig().dtype == "float32_features"
     res = study.run_study(frame, cfg)
     alone = study.run_study(frame, dataclasses.replace(cfg, repeat_ids=(1,)))
     np.testing.assert_array_equal(alone.curves["best_fitness"][:, 0], res.curves["best_fitness"][:, 1])
-    G, B, a = study.frame_arrays(frame)
-    prep, _ = study.prepare(None, G, B, a, dataclasses.replace(cfg, n_repeats=1), jax.random.PRNGKey(0))
+    G, B, a = frame_arrays(frame)
+    prep, _ = prepare(None, G, B, a, dataclasses.replace(cfg, n_repeats=1), jax.random.PRNGKey(0))
     data = jax.tree_util.tree_map(lambda x: x[0], prep.data)
-    rows = jax.tree_util.tree_map(lambda x: x[0], study.train_rows(prep))
+    rows = jax.tree_util.tree_map(lambda x: x[0], train_rows(prep))
     pop = relm.random_theta(jax.random.PRNGKey(1), 10, (12,))
     ref = np.asarray(relm.fitness(pop, data, 1e-3, 10))
     for kernel in (CPU_KERNEL, ACCELERATOR_KERNEL):
-        sk = study.search_kernel(dtype, "train", kernel)
+        sk = search_kernel(dtype, "train", kernel)
         assert sk.train_rows
         f = search_fitness.search_fitness(pop, sk.aux(rows, jnp.asarray(1e-3), 10))
         np.testing.assert_allclose(np.asarray(f), ref, rtol=rtol)
@@ -202,13 +205,13 @@ def test_a_lambda_sweep_compiles_the_search_once(frame):
     from icgo.methods import relm
     from icgo.optim.sharded import compiled_programs
 
-    cfg = study.StudyConfig(optimizer="pso", n_repeats=2, hidden=5, pop_size=5, iterations=2, seed=4,
-                            dtype="float64")
-    G, B, a = study.frame_arrays(frame)
-    prep, _ = study.prepare(None, G, B, a, cfg, jax.random.PRNGKey(cfg.seed))
-    study.search(cfg, prep)
+    cfg = StudyConfig(optimizer="pso", n_repeats=2, hidden=5, pop_size=5, iterations=2, seed=4,
+                      dtype="float64")
+    G, B, a = frame_arrays(frame)
+    prep, _ = prepare(None, G, B, a, cfg, jax.random.PRNGKey(cfg.seed))
+    search(cfg, prep)
     n = compiled_programs()
-    thetas, curve, _ = study.search(dataclasses.replace(cfg, lam=0.5), prep)
+    thetas, curve, _ = search(dataclasses.replace(cfg, lam=0.5), prep)
     assert n >= 1 and compiled_programs() == n
     for r in range(2):
         data = jax.tree_util.tree_map(lambda x, r=r: x[r], prep.data)
@@ -216,12 +219,12 @@ def test_a_lambda_sweep_compiles_the_search_once(frame):
         assert float(curve[0, r, -1]) == pytest.approx(ref[0], rel=1e-9) and abs(ref[1] / ref[0] - 1) > 1e-6
 
 
-@pytest.mark.parametrize("old, new", list(study.RENAMED_DTYPES.items()))
+@pytest.mark.parametrize("old, new", list(RENAMED_DTYPES.items()))
 def test_old_dtype_names_are_refused_naming_the_new_ones(old, new):
     line = f"dtype '{old}' was renamed: use float32_features (was fast) or float64 (was mixed)"
     with pytest.raises(SettingError, match=re.escape(line)):
-        study.StudyConfig(dtype=old)
-    assert study.StudyConfig(dtype=new).dtype == new
+        StudyConfig(dtype=old)
+    assert StudyConfig(dtype=new).dtype == new
 
 
 def test_wrap_fitness_sees_every_search_call(frame):
@@ -236,7 +239,7 @@ def test_wrap_fitness_sees_every_search_call(frame):
             return f(pop, aux)
         return g
 
-    cfg = study.StudyConfig(optimizer="pso", n_repeats=2, hidden=10, pop_size=6, iterations=4, seed=2)
+    cfg = StudyConfig(optimizer="pso", n_repeats=2, hidden=10, pop_size=6, iterations=4, seed=2)
     study.run_study(frame, cfg, wrap_fitness=wrap)
     jax.effects_barrier()
     shards = cfg.execution().devices  # each device's block of members calls the fitness on its own
@@ -245,10 +248,10 @@ def test_wrap_fitness_sees_every_search_call(frame):
 
 def test_a_search_that_never_found_a_finite_fitness_is_a_failed_run():
     curve = np.ones((2, 3, 4))
-    study.check_search(curve, ["a", "b"], (0, 1, 2))
+    check_search(curve, ["a", "b"], (0, 1, 2))
     curve[1, 2, :] = np.inf
     with pytest.raises(ValueError, match=r"search of b \(repeat 2\) never found a finite fitness \(1 of 6"):
-        study.check_search(curve, ["a", "b"], (0, 1, 2))
+        check_search(curve, ["a", "b"], (0, 1, 2))
 
 
 def test_tuned_relm_picks_the_best_mean_validation_cell_from_training_rows_only(frame):
@@ -279,7 +282,7 @@ def test_tuned_relm_picks_the_best_mean_validation_cell_from_training_rows_only(
 ])
 def test_tune_needs_plain_relm_and_a_validation_fitness(change, match):
     with pytest.raises(ValueError, match=match):
-        study.StudyConfig(**{"optimizer": None, "tune": True, "fitness": "validation", **change})
+        StudyConfig(**{"optimizer": None, "tune": True, "fitness": "validation", **change})
 
 
 def _sigma_filter_by_masks(G, B, a, n_sigma=3.0):
@@ -300,11 +303,11 @@ def _sigma_filter_by_masks(G, B, a, n_sigma=3.0):
 
 
 def test_sigma_filter_groups_by_sorting_exactly_as_by_masks(frame):
-    G, B, a = study.frame_arrays(frame)
+    G, B, a = frame_arrays(frame)
     rng = np.random.default_rng(5)
     B = B + np.where(rng.random((len(a), 1)) < 0.02, 3000.0, 0.0)  # some outliers to drop
     for az in (a, np.where(rng.random(len(a)) < 0.5, a, rng.uniform(0, 360, len(a))), np.r_[-0.0, a[1:] * 0.0]):
-        np.testing.assert_array_equal(study.sigma_filter(G, B, az), _sigma_filter_by_masks(G, B, az))
+        np.testing.assert_array_equal(sigma_filter(G, B, az), _sigma_filter_by_masks(G, B, az))
 
 
 @pytest.mark.parametrize("lam", [5e3, 1e300, 0.0, -1.0])
@@ -314,5 +317,5 @@ def test_a_lambda_outside_what_a_model_may_carry_is_refused_at_construction(lam)
     from icgo.methods import relm
 
     with pytest.raises(SettingError, match=r"lam must be a number > 0 and at most 1000"):
-        study.StudyConfig(lam=lam)
-    assert study.StudyConfig(lam=relm.MAX_LAM).lam == relm.MAX_LAM
+        StudyConfig(lam=lam)
+    assert StudyConfig(lam=relm.MAX_LAM).lam == relm.MAX_LAM

@@ -17,6 +17,7 @@ from icgo.io.recording import read_recording, write_recording
 from icgo.models.format import sensor_domain
 from icgo.physics.qc import QCBands
 from icgo.studies import icgo_relm
+from icgo.studies.icgo_relm_config import StudyConfig
 from icgo.survey import verdict as V
 from tests.test_apply import _cfg
 
@@ -29,7 +30,7 @@ def fitted(tmp_path_factory):
     """A small study on lab_casing, its saved model, a new draw inside its domain and one far outside it."""
     tmp = tmp_path_factory.mktemp("verdict")
     res = icgo_relm.run_study(datasets.lab_casing(0, toolface_step_deg=30.0).frame,
-                              icgo_relm.StudyConfig(optimizer="pso", n_repeats=3, hidden=8, pop_size=6, iterations=3))
+                              StudyConfig(optimizer="pso", n_repeats=3, hidden=8, pop_size=6, iterations=3))
     path = res.model.save(tmp / "relm_compensation")
     near, far = datasets.lab_casing(5, toolface_step_deg=30.0), datasets.well_conditions(0)
     surveys = {}

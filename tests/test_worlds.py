@@ -18,11 +18,12 @@ from icgo.core.errors import SettingError
 from icgo.reporting import worlds as R
 from icgo.studies import icgo_relm as S
 from icgo.studies import worlds as W
+from icgo.studies.icgo_relm_config import StudyConfig
 from tests.test_experiments_run import _compose, _job_cfg
 
 KWARGS = {"toolface_step_deg": 30.0}
-CFG = S.StudyConfig(optimizer="cgo", strategies=("original", "wavelet"), n_repeats=2, hidden=8, pop_size=8,
-                    iterations=3)
+CFG = StudyConfig(optimizer="cgo", strategies=("original", "wavelet"), n_repeats=2, hidden=8, pop_size=8,
+                  iterations=3)
 FRONT = ["budget=smoke", "progress=false", "figures=false", "jax_cache_dir=null", "worlds=2", "dataset.seed=100",
          "+dataset.kwargs.toolface_step_deg=30.0", "strategy.names=[original,wavelet]", "split.n_repeats=2",
          "model.hidden=8"]

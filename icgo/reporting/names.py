@@ -1,7 +1,7 @@
 """The names every output gives the study's methods and CGO's 4th-seed strategies (one set, so a table, a
 figure, a sweep and the printed summary of a run name a method the same way).
 
-Method ids are the study's (``relm``, ``pso``, ``cgo-<strategy>``, ...; :meth:`icgo.studies.icgo_relm.StudyConfig.method_names`);
+Method ids are the study's (``relm``, ``pso``, ``cgo-<strategy>``, ...; :meth:`icgo.studies.icgo_relm_config.StudyConfig.method_names`);
 strategy ids are :data:`icgo.optim.STRATEGIES`.
 """
 

@@ -24,7 +24,9 @@ from icgo.methods import msa as _msa
 from icgo.methods import relm as _relm
 from icgo.methods.search_fitness import search_fitness
 from icgo.optim.cgo import CGO, CGOConfig, advance
-from icgo.studies import icgo_relm
+from icgo.studies.icgo_relm_config import StudyConfig
+from icgo.studies.icgo_relm_prepare import exclude_failed_repeats, filtered, prepare
+from icgo.studies.icgo_relm_search import search_aux
 
 
 class SeedRates(NamedTuple):
@@ -41,20 +43,20 @@ class SeedRates(NamedTuple):
     best_f: np.ndarray
 
 
-def _reference(cfg: icgo_relm.StudyConfig, meta: dict):
+def _reference(cfg: StudyConfig, meta: dict):
     if cfg.msa_reference == "station_mean":
         return None
     return jnp.asarray(_msa.reference_from_field(float(meta["total_field_nT"]), float(meta["dip_deg"])))
 
 
-def search_setup(frame: pd.DataFrame, meta: dict, cfg: icgo_relm.StudyConfig, key):
+def search_setup(frame: pd.DataFrame, meta: dict, cfg: StudyConfig, key):
     """The study's per-repeat search inputs: (keys (R, 2), fitness aux, bounds) exactly as
-    :func:`icgo.studies.icgo_relm.search` builds them (failed-MSA repeats left out as the study does)."""
-    rows, G, B, a_true, _ = icgo_relm.filtered(frame, cfg)
+    :func:`icgo.studies.icgo_relm_search.search` builds them (failed-MSA repeats left out as the study does)."""
+    rows, G, B, a_true, _ = filtered(frame, cfg)
     reference = _reference(cfg, meta)
-    prep, mem = icgo_relm.prepare(rows, G, B, a_true, cfg, key, reference)
-    prep, mem, cfg, _ = icgo_relm.exclude_failed_repeats(prep, mem, cfg, reference)
-    aux = icgo_relm.search_aux(cfg, prep, cfg.execution(cells=prep.key.shape[0]).kernel)
+    prep, mem = prepare(rows, G, B, a_true, cfg, key, reference)
+    prep, mem, cfg, _ = exclude_failed_repeats(prep, mem, cfg, reference)
+    aux = search_aux(cfg, prep, cfg.execution(cells=prep.key.shape[0]).kernel)
     D = _relm.n_params(cfg.hidden)
     low, high = cfg.theta_bounds
     return prep.key, aux, (np.full(D, float(low)), np.full(D, float(high)))
@@ -112,11 +114,11 @@ def rates_table(runs: dict[str, SeedRates], last: float = 0.5) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def study(frame: pd.DataFrame, meta: dict, configs: dict[str, CGOConfig], cfg: icgo_relm.StudyConfig | None = None,
+def study(frame: pd.DataFrame, meta: dict, configs: dict[str, CGOConfig], cfg: StudyConfig | None = None,
           key=None) -> dict[str, SeedRates]:
     """Every configuration's counted runs on the study's searches (``cfg``: default :class:`StudyConfig`; ``key``:
     ``PRNGKey(cfg.seed)``, as the study's)."""
-    cfg = icgo_relm.StudyConfig() if cfg is None else cfg
+    cfg = StudyConfig() if cfg is None else cfg
     key = jax.random.PRNGKey(cfg.seed) if key is None else key
     keys, aux, bounds = search_setup(frame, meta, cfg, key)
     return {name: run_counted(keys, aux, bounds, cfg.pop_size, cfg.iterations, c) for name, c in configs.items()}

@@ -93,7 +93,7 @@ class LabCasingStudy(NamedTuple):
         seed: data-set and study seed.
         qc: survey-QC counts of the test stations, raw and after the physics model
             (:func:`icgo.models.discrepancy.station_qc`).
-        icgo_config: the ICGO study's :class:`~icgo.studies.icgo_relm.StudyConfig` (its split, its budget).
+        icgo_config: the ICGO study's :class:`~icgo.studies.icgo_relm_config.StudyConfig` (its split, its budget).
     """
 
     result: Result
@@ -112,7 +112,8 @@ def lab_casing_study(config: WorkflowConfig = WorkflowConfig(), seed: int = 0) -
     the physics model + named effects and ICGO-RELM on the same test rows."""
     from icgo.datasets.protocols import lab_casing
     from icgo.io import recording as icgo_io
-    from icgo.studies.icgo_relm import StudyConfig, run_study
+    from icgo.studies.icgo_relm import run_study
+    from icgo.studies.icgo_relm_config import StudyConfig
 
     ds = lab_casing(seed)
     rec = icgo_io.validate(ds.frame, ds.meta, source="lab_casing")

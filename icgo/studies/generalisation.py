@@ -38,7 +38,7 @@ from icgo.maths.stats import holm, wilcoxon_paired
 from icgo.models.format import CORRECTED_B
 from icgo.physics.frames import angle_diff
 from icgo.studies import splits as _splits
-from icgo.studies.icgo_relm import StudyConfig
+from icgo.studies.icgo_relm_config import StudyConfig
 from icgo.studies.protocol import Study
 
 _RELM = StudyConfig()  # the budget and model size default to the ICGO-RELM study's own (one source)
@@ -150,7 +150,7 @@ class GeneralisationResult(NamedTuple):
 
 def _qc_stations(data, cfg) -> pd.DataFrame:
     """The stations a cell's QC counts: the target instrument's under transfer, else the source's (filtered)."""
-    from icgo.studies.icgo_relm import filtered
+    from icgo.studies.icgo_relm_prepare import filtered
 
     return filtered(data.target if data.target is not None else data.frame, cfg)[0].reset_index(drop=True)
 
@@ -173,7 +173,7 @@ def _physics(data, config: GeneralisationConfig, protocol: str, key) -> tuple[li
     from icgo.io import recording as icgo_io
     from icgo.maths.metrics import azimuth_metrics
     from icgo.physics.frames import azimuth_from_gv
-    from icgo.studies.icgo_relm import filtered
+    from icgo.studies.icgo_relm_prepare import filtered
 
     cfg = config.study_config(protocol, None)
     rows = filtered(data.frame, cfg)[0]

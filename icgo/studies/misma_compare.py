@@ -162,7 +162,7 @@ def fair_table(runs: dict, scores: dict, boxes_used: dict) -> pd.DataFrame:
     (Wall times are in the study summary's ``runtime_s``, not here: records are deterministic.)
 
     Args:
-        runs: Row -> RowRun. scores: Row -> :class:`icgo.studies.misma.Scores`.
+        runs: Row -> RowRun. scores: Row -> :class:`icgo.studies.misma_simulated.Scores`.
         boxes_used: box name -> a short description with units.
     """
     out = []

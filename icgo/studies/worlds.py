@@ -7,7 +7,7 @@ one draw (DESIGN.md, Batching).
 
 :func:`run_worlds` stages every world on its own (:func:`icgo.studies.icgo_relm.stage`: filter, split, MSA,
 features, failed repeats left out), runs the search of every (world, repeat) cell and every method as one program
-sharded over the devices (:func:`icgo.studies.icgo_relm.search_cells`), and scores each world on its own
+sharded over the devices (:func:`icgo.studies.icgo_relm_search.search_cells`), and scores each world on its own
 (:func:`icgo.studies.icgo_relm.finish`). Every world's rows are padded (weight-0 rows) to one shape, so every
 world runs the same compiled programs and a world's numbers do not depend on the other worlds: world k of a
 worlds run is bitwise world k run alone through :func:`run_worlds` on a CPU (tested), as a repeat of a batch is
@@ -30,6 +30,9 @@ import pandas as pd
 from icgo.reporting.worlds import WORLD
 from icgo.studies import icgo_relm as _study
 from icgo.studies import sharding, timing
+from icgo.studies.icgo_relm_config import StudyConfig
+from icgo.studies.icgo_relm_prepare import filtered
+from icgo.studies.icgo_relm_search import execution_record, search, search_aux, search_cells
 
 #: ``lab_casing`` data seeds that choices were made on (never reported as worlds; docs/relm_study.md, "Worlds"):
 #: 0: every one-draw result, the data set's design (docs/datasets.md, measured on seed 0), the sweeps and the
@@ -55,7 +58,7 @@ class WorldsResult(NamedTuple):
 
     Attributes:
         seeds: the worlds' data seeds, in order.
-        results: one :class:`icgo.studies.icgo_relm.StudyResult` per world: what that world run alone with
+        results: one :class:`icgo.studies.icgo_relm_result.StudyResult` per world: what that world run alone with
             :func:`world_key` gives.
         config: the StudyConfig (every world's repeats; a world's own kept repeats are in its result's config).
         wall_time_s: wall time of the whole study (stage, search, score, tables), s.
@@ -63,7 +66,7 @@ class WorldsResult(NamedTuple):
 
     seeds: tuple
     results: tuple
-    config: _study.StudyConfig
+    config: StudyConfig
     wall_time_s: float
 
     def table(self, name: str) -> pd.DataFrame:
@@ -125,7 +128,7 @@ def capacity(n: int, quantum: int) -> int:
     return -(-int(n) // quantum) * quantum
 
 
-def run_worlds(worlds: Sequence[World], config: _study.StudyConfig | None = None, *, timings: dict | None = None,
+def run_worlds(worlds: Sequence[World], config: StudyConfig | None = None, *, timings: dict | None = None,
                progress=None) -> WorldsResult:
     """An ICGO-RELM study on every world, the searches of all of them in one sharded program.
 
@@ -146,7 +149,7 @@ def run_worlds(worlds: Sequence[World], config: _study.StudyConfig | None = None
     Returns:
         :class:`WorldsResult`.
     """
-    cfg = _study.StudyConfig() if config is None else config
+    cfg = StudyConfig() if config is None else config
     seeds = [int(w.seed) for w in worlds]
     if not seeds:
         raise ValueError("worlds: no world given")
@@ -156,28 +159,28 @@ def run_worlds(worlds: Sequence[World], config: _study.StudyConfig | None = None
         raise ValueError("worlds: protocol 'transfer' needs a second instrument per world; run it one world at a time")
     t0 = time.perf_counter()
     stages = timing.Stages()
-    rows = capacity(max(int(_study.filtered(w.frame, cfg)[-1].sum()) for w in worlds), ROW_QUANTUM)
+    rows = capacity(max(int(filtered(w.frame, cfg)[-1].sum()) for w in worlds), ROW_QUANTUM)
     staged = [_study.stage(w.frame, cfg, w.meta, world_key(cfg.seed, w.seed), None, stages, rows) for w in worlds]
     train = capacity(max(int(np.asarray(st.prep.train).sum(axis=1).max()) for st in staged), TRAIN_QUANTUM)
     plan = cfg.execution(cells=sum(len(st.mem.repeat) for st in staged))
     with stages("search"):
         if cfg.optimizer is None:
-            found = [_study.search(st.cfg, st.prep) for st in staged]
+            found = [search(st.cfg, st.prep) for st in staged]
         else:
             found = _search_worlds(cfg, staged, plan, train, progress)
     results = tuple(_study.finish(st, *f, t0, stages) for st, f in zip(staged, found))
     if timings is not None:
-        timings.update(stages.times, execution=_study.execution_record(cfg, plan), capacity=[rows, train])
+        timings.update(stages.times, execution=execution_record(cfg, plan), capacity=[rows, train])
     return WorldsResult(tuple(seeds), results, cfg, time.perf_counter() - t0)
 
 
 def _search_worlds(cfg, staged, plan, train: int, progress):
     """Every world's cells x methods as one sharded program: [(thetas (S, R_w, D), curves (S, R_w, T),
     evaluations (S, R_w, T)) per world]."""
-    auxs = [_study.search_aux(cfg, st.prep, plan.kernel, train) for st in staged]
+    auxs = [search_aux(cfg, st.prep, plan.kernel, train) for st in staged]
     keys = np.concatenate([np.asarray(st.prep.key) for st in staged])
     aux = jax.tree_util.tree_map(lambda *xs: np.concatenate([np.asarray(x) for x in xs]), *auxs)
-    found = _study.search_cells(cfg, keys, aux, None, progress, sharding.plan_devices(plan))
+    found = search_cells(cfg, keys, aux, None, progress, sharding.plan_devices(plan))
     out, start = [], 0
     for st in staged:
         n = st.prep.key.shape[0]
