@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from icgo.io import recording as io
+from icgo.methods import cal_pointing
 from icgo.methods import calibration as cal
 from icgo.physics.frames import sensors_from_attitude
 from icgo.physics.qc import measured_dip_deg
@@ -35,7 +36,7 @@ def device_model(name: str):
     Gc = np.asarray(cal.correct(jnp.asarray(xg), G))
     x12 = cal.fit_twelve(Gc, B, 1.0, x0=xm)
     Bc = np.asarray(cal.correct(jnp.asarray(x12), B))
-    Q = cal.align_to_axis(Gc, Bc, groups)
+    Q = cal_pointing.align_to_axis(Gc, Bc, groups)
     dip = float(np.median(measured_dip_deg(Gc, Bc)))
     return xg, x12, Q, dip, float(np.median(np.linalg.norm(B, axis=1)))
 

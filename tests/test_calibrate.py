@@ -20,10 +20,12 @@ from experiments._entry import CONF_DIR
 from icgo.core.errors import SettingError
 from icgo.core.settings import config_to_mapping
 from icgo.io import recording as io
+from icgo.methods import cal_pointing
 from icgo.methods import calibration as cal
 from icgo.methods.cal_sanity import LIMITS, sanity
 from icgo.models.registry import load_model
 from icgo.physics.frames import sensors_from_attitude
+from icgo.physics.rolls import MIN_ROLLED_SHOTS
 from icgo.studies import calibration as C
 
 ROOT = CONF_DIR.parent
@@ -198,11 +200,11 @@ def _relm_residuals_numpy(W, G, b, groups, fit_rows):
     from icgo.physics.qc import measured_dip_deg
 
     bn = b + mag_relm.features(b, mag_relm.axis_rbf_hidden()) @ W
-    d = cal.pointing_directions(G, bn)
+    d = cal_pointing.pointing_directions(G, bn)
     dev = np.zeros_like(d)
     for g in np.unique(groups):
         m = groups == g
-        if m.sum() >= cal.MIN_ROLLED_SHOTS:
+        if m.sum() >= MIN_ROLLED_SHOTS:
             dev[m] = d[m] - d[m].mean(0)
     dip, mod = measured_dip_deg(G, bn), np.linalg.norm(bn, axis=1)
     return np.hstack([np.degrees(dev), (dip - dip[fit_rows].mean())[:, None],
@@ -214,7 +216,7 @@ def test_relm_residuals_vanish_for_exact_shots():
 
     G, B, groups = _rolled_recording()
     b = B  # unit sphere already
-    member = np.array([groups == g for g in np.unique(groups) if (groups == g).sum() >= cal.MIN_ROLLED_SHOTS], float)
+    member = np.array([groups == g for g in np.unique(groups) if (groups == g).sum() >= MIN_ROLLED_SHOTS], float)
     H = mag_relm.features(b, mag_relm.axis_rbf_hidden())
     r = mag_relm.residuals(np.zeros((H.shape[1], 3)), H, G, b, member, np.ones(len(b)))
     np.testing.assert_allclose(np.asarray(r), 0.0, atol=1e-9)
@@ -266,13 +268,13 @@ def test_relm_learns_a_per_axis_non_linearity_and_chooses_its_ridge_by_groups():
     model = mag_relm.fit(G, b, groups)
     assert model.lam in mag_relm.LAMBDAS and model.lam == mag_relm.LAMBDAS[int(np.argmin(model.cv))]
     fixed = mag_relm.apply(model.hidden, model.out, b)
-    before, after = cal.group_spread_deg(G, b, groups)[0], cal.group_spread_deg(G, fixed, groups)[0]
+    before, after = cal_pointing.group_spread_deg(G, b, groups)[0], cal_pointing.group_spread_deg(G, fixed, groups)[0]
     assert after < 0.5 * before
     assert np.ptp(measured_dip_deg(G, fixed)) < 0.5 * np.ptp(measured_dip_deg(G, b))
     # held out: a roll it never saw, and fresh singles
     G2, b2, g2 = _axis_distorted(seed=7)
     fixed2 = mag_relm.apply(model.hidden, model.out, b2)
-    assert cal.group_spread_deg(G2, fixed2, g2)[0] < 0.7 * cal.group_spread_deg(G2, b2, g2)[0]
+    assert cal_pointing.group_spread_deg(G2, fixed2, g2)[0] < 0.7 * cal_pointing.group_spread_deg(G2, b2, g2)[0]
 
 
 def test_relm_on_exact_shots_stays_the_identity():
