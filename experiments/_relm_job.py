@@ -211,11 +211,11 @@ def load_data(cfg: DictConfig):
         for line in rec.notices:  # what the reader noticed but accepted (icgo.io.recording check prints the same)
             print(f"notice: {line}", file=sys.stderr)
         return rec.frame, dict(rec.meta), f"csv:{ds.path}"
-    from icgo.datasets import protocols as datasets
+    from icgo.datasets.registry import DATASETS
 
-    fn = getattr(datasets, ds.name, None)
+    fn = DATASETS.get(ds.name)
     if fn is None:
-        raise SettingError(f"dataset {ds.name!r}: icgo.datasets.protocols has no such protocol")
+        raise SettingError(f"dataset {ds.name!r}: icgo.datasets.registry.DATASETS has no such data set")
     kwargs = dict(OmegaConf.to_container(ds.kwargs, resolve=True) or {})
     try:
         data = fn(int(ds.seed), **kwargs)

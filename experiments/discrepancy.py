@@ -69,11 +69,11 @@ def load_stations(spec: str, seed: int = 0, n: int = 240, design: str = "random"
         rec = icgo_io.load_mag_cal_device(spec[8:])
         return D.stations_from_recording(rec), f"circuitpython-mag-cal device {spec[8:]}", None
     if spec == "lab_casing":
-        from icgo.datasets.protocols import lab_casing
+        from icgo.datasets.casing_stations import lab_casing
 
         ds = lab_casing(seed)
         rec = icgo_io.validate(ds.frame, ds.meta, source="lab_casing")
-        return D.stations_from_recording(rec), f"icgo.datasets.protocols.lab_casing(seed={seed})", ds.truth
+        return D.stations_from_recording(rec), f"icgo.datasets.casing_stations.lab_casing(seed={seed})", ds.truth
     if is_json(spec) or shots:
         rec = read_shots(spec, **shots)
         label = f"{spec} ({rec.meta.get('description', '')})"

@@ -385,7 +385,7 @@ def _paper_consistency_note() -> str:
 
 def _floor_note(dataset: str = "lab_casing") -> str:
     """The noise floor of the data set beside every table (:func:`icgo.datasets.protocols.noise_floor`, data seed 0)."""
-    from icgo.datasets.protocols import noise_floor
+    from icgo.datasets.casing_stations import noise_floor
 
     f = noise_floor(dataset, 0).iloc[0]
     return (f"Noise floor: the same `{dataset}` draw (seed 0, as the presets) with the casing, every systematic "
@@ -1066,7 +1066,7 @@ def table4(runs: Runs, out: Path) -> bool:
         p["cond"] = _condition_of(p)
     p = p[p.cond >= 0]
     raw_err = lambda d: np.abs(((d["azimuth_raw"] - d["azimuth_true"] + 180) % 360) - 180)  # noqa: E731
-    from icgo.datasets.protocols import noise_floor
+    from icgo.datasets.casing_stations import noise_floor
 
     floor = noise_floor("well_conditions", 0).set_index("condition")
     rows = []

@@ -110,7 +110,7 @@ class LabCasingStudy(NamedTuple):
 def lab_casing_study(config: WorkflowConfig = WorkflowConfig(), seed: int = 0) -> LabCasingStudy:
     """lab_casing: name effects on the ICGO study's training rows (repeat 0), then score
     the physics model + named effects and ICGO-RELM on the same test rows."""
-    from icgo.datasets.protocols import lab_casing
+    from icgo.datasets.casing_stations import lab_casing
     from icgo.io import recording as icgo_io
     from icgo.studies.icgo_relm import StudyConfig, run_study
 
