@@ -198,7 +198,7 @@ def load_data(cfg: DictConfig):
     """(frame, metadata, description) of the configured data set.
 
     Raises:
-        SettingError / icgo.io.recording.DataError: one line (missing file, bad CSV, unknown data set).
+        SettingError / icgo.core.errors.DataError: one line (missing file, bad CSV, unknown data set).
     """
     ds = cfg.dataset
     if ds.name == "csv":
@@ -236,7 +236,7 @@ def load_target(cfg: DictConfig):
     the target with the changes of ``split.target`` (:func:`icgo.studies.splits.transfer_survey`).
 
     Raises:
-        SettingError / icgo.io.recording.DataError: one line.
+        SettingError / icgo.core.errors.DataError: one line.
     """
     if OmegaConf.select(cfg, "split.protocol") != "transfer":
         return None

@@ -59,8 +59,8 @@ def compare(seed: int = 0, distances=DISTANCES_M) -> pd.DataFrame:
         One row per (distance, model): the largest and median relative difference of
         the field vector, the largest difference (nT) and the casing field's median size (nT).
     """
-    from icgo.datasets import instruments as ins
     from icgo.datasets import casing_stations
+    from icgo.datasets import instruments as ins
 
     ds = casing_stations.lab_casing(seed)
     t, f = ds.truth, ds.frame

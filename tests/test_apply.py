@@ -164,7 +164,7 @@ def test_require_meta_takes_only_true_or_false(setup, tmp_path, value):
 
 def _ab_calibration():
     """Device ab's ellipsoid calibration, in nT (a model of one device)."""
-    from icgo.io.recording import load_mag_cal_device
+    from icgo.io.mag_cal_bundled import load_mag_cal_device
     from icgo.methods.calibration import ellipsoid_fit
     from icgo.models.calibration import mag_calibration
 
@@ -178,7 +178,7 @@ def _ab_calibration():
 def test_another_devices_calibration_changes_the_verdict(tmp_path):
     """Device ab's calibration: its own shots give one earth field; device jd's do not, and the verdict says not to
     use the result (status, model and next lines, exit status 3), not only a notice."""
-    from icgo.io.recording import load_mag_cal_device
+    from icgo.io.mag_cal_bundled import load_mag_cal_device
     from icgo.survey.apply import correct_survey
     from icgo.survey.verdict import EXIT_OUT_OF_DOMAIN
 

@@ -5,8 +5,7 @@ import numpy as np
 import pytest
 
 import icgo  # noqa: F401
-from icgo.methods import cal_objectives
-from icgo.methods import cal_pointing
+from icgo.methods import cal_objectives, cal_pointing
 from icgo.methods import calibration as cal
 from icgo.methods.misma_objective import MismaObjective
 from icgo.physics.frames import sensors_from_attitude
@@ -127,7 +126,7 @@ def test_make_caldata_bad_input():
 def test_group_spread_matches_peer_package_on_a_real_device():
     from mag_cal import Calibration
 
-    from icgo.io.recording import MAG_CAL_DEVICE_TO_TOOL, load_mag_cal_device
+    from icgo.io.mag_cal_bundled import MAG_CAL_DEVICE_TO_TOOL, load_mag_cal_device
 
     rec = load_mag_cal_device("ab")
     G, B, groups = rec.G, rec.B, rec.frame["group"].to_numpy()

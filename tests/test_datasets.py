@@ -7,12 +7,8 @@ import pytest
 from scipy.optimize import least_squares
 
 import icgo  # noqa: F401  (float64)
+from icgo.datasets import casing_stations, dataset, drill_string, gyro_turntable, registry
 from icgo.datasets import __main__ as datasets_cli
-from icgo.datasets import casing_stations
-from icgo.datasets import dataset
-from icgo.datasets import drill_string
-from icgo.datasets import gyro_turntable
-from icgo.datasets import registry
 from icgo.io import recording as io
 from icgo.physics import frames as F
 

@@ -8,8 +8,8 @@ import pytest
 
 import icgo  # noqa: F401  (float64)
 from icgo.core.errors import SettingError
-from icgo.datasets import instruments as ins
 from icgo.datasets import drill_string
+from icgo.datasets import instruments as ins
 from icgo.methods import calibration as cal
 from icgo.methods.gyro_reference import fit_to_reference, gyro_reference, gyro_term, reference_at
 from icgo.physics import frames as F

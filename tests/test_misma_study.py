@@ -16,7 +16,7 @@ from experiments._entry import CONF_DIR
 from icgo.core.errors import SettingError
 from icgo.core.settings import config_from_mapping, config_to_mapping
 from icgo.datasets.drill_string import rotating_drill
-from icgo.io.recording import load_mag_cal_device
+from icgo.io.mag_cal_bundled import load_mag_cal_device
 from icgo.methods import calibration as cal
 from icgo.models.calibration import MagCalibration
 from icgo.models.registry import load_model

@@ -54,8 +54,8 @@ def test_a_repeat_whose_msa_fails_is_left_out_and_named(tmp_path, capsys):
     from hydra.core.hydra_config import HydraConfig
     from omegaconf import open_dict
 
-    from experiments import _entry as E
     from experiments import figures
+    from experiments import _entry as E
     from experiments.run import run_job
     from icgo.io.recording import write_recording
 

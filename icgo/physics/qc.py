@@ -1,6 +1,6 @@
 """Survey quality control against the reference field: the checks MWD engineers run on every survey.
 
-Per station (row), three comparisons with the reference (:class:`icgo.io.recording.ReferenceField`):
+Per station (row), three comparisons with the reference (:class:`icgo.io.schema.ReferenceField`):
 
 * ``|G| - gravity_g`` within ``g_tol_g`` (default 0.0025 g: the common MWD
   gravity-total acceptance band of +/- 2.5 mg);

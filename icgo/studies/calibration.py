@@ -44,17 +44,17 @@ import pandas as pd
 
 from icgo.core.errors import DataError
 from icgo.core.settings import is_int, need
-from icgo.methods import calibration as cal
 from icgo.methods import joint, mag_relm
+from icgo.methods import calibration as cal
+from icgo.methods.cal_pointing import align_to_axis, group_spread_deg, pointing_directions
 from icgo.methods.cal_sanity import sanity
 from icgo.methods.cal_site import site_check, site_values
-from icgo.methods.cal_pointing import align_to_axis, group_spread_deg, pointing_directions
 from icgo.methods.misma_objective import MismaObjective
-from icgo.physics.rolls import MIN_ROLLED_SHOTS, check_groups, rolled_ids
 from icgo.models.calibration import MagCalibration, mag_calibration
 from icgo.optim import base
 from icgo.optim import misma as misma_opt
 from icgo.optim.registry import get
+from icgo.physics.rolls import MIN_ROLLED_SHOTS, check_groups, rolled_ids
 from icgo.studies.calibration_peer import PEER_METHODS, peer_available, peer_rows
 from icgo.studies.protocol import Study
 
@@ -393,7 +393,7 @@ def run(data: dict, config: CalibrationConfig, key) -> CalibrationResult:
 
 def example() -> tuple[dict, CalibrationConfig]:
     """A tiny real instance: one bundled device, MISMA 3 iterations x 2 repeats, no peer."""
-    from icgo.io.recording import load_mag_cal_device
+    from icgo.io.mag_cal_bundled import load_mag_cal_device
 
     return {"ab": load_mag_cal_device("ab")}, CalibrationConfig(peer=False, misma_iter=3, misma_repeats=2, misma_pop=6)
 

@@ -72,12 +72,13 @@ def devices_study(config: WorkflowConfig = WorkflowConfig()) -> tuple:
     """Run the workflow on each of the 9 real circuitpython-mag-cal devices.
 
     Returns:
-        tuple of :class:`DeviceRun`, in :func:`icgo.io.recording.mag_cal_devices` order.
+        tuple of :class:`DeviceRun`, in :func:`icgo.io.mag_cal_bundled.mag_cal_devices` order.
     """
+    from icgo.io import mag_cal_bundled
     from icgo.io import recording as icgo_io
 
-    return tuple(DeviceRun(dev, run_workflow(stations_from_recording(icgo_io.load_mag_cal_device(dev)), config))
-                 for dev in icgo_io.mag_cal_devices())
+    return tuple(DeviceRun(dev, run_workflow(stations_from_recording(mag_cal_bundled.load_mag_cal_device(dev)), config))
+                 for dev in mag_cal_bundled.mag_cal_devices())
 
 
 class LabCasingStudy(NamedTuple):

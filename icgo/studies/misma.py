@@ -49,7 +49,7 @@ import pandas as pd
 from icgo.core.settings import is_int, is_real, need
 from icgo.datasets import instruments as ins
 from icgo.datasets import drill_string as datasets
-from icgo.io.recording import load_mag_cal_device, mag_cal_devices
+from icgo.io.mag_cal_bundled import load_mag_cal_device, mag_cal_devices
 from icgo.maths import stats
 from icgo.methods import calibration as cal
 from icgo.methods.cal_sanity import sanity
