@@ -1,4 +1,5 @@
-"""Tests for icgo.io.recording: the data contract reader/writer, its one-line errors, and the mag_cal converter."""
+"""Tests for the data contract (icgo.io.recording, schema, checks, csv_text): the reader/writer, its one-line errors,
+and the bundled circuitpython-mag-cal devices (icgo.io.mag_cal_bundled)."""
 
 from __future__ import annotations
 
