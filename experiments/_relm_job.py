@@ -190,7 +190,7 @@ def load_data(cfg: DictConfig):
     """(frame, metadata, description) of the configured data set.
 
     Raises:
-        SettingError / icgo.io.recording.DataError: one line (missing file, bad CSV, unknown data set).
+        SettingError / icgo.core.errors.DataError: one line (missing file, bad CSV, unknown data set).
     """
     ds = cfg.dataset
     if ds.name == "csv":
@@ -203,11 +203,11 @@ def load_data(cfg: DictConfig):
         for line in rec.notices:  # what the reader noticed but accepted (icgo.io.recording check prints the same)
             print(f"notice: {line}", file=sys.stderr)
         return rec.frame, dict(rec.meta), f"csv:{ds.path}"
-    from icgo.datasets import protocols as datasets
+    from icgo.datasets.registry import DATASETS
 
-    fn = getattr(datasets, ds.name, None)
+    fn = DATASETS.get(ds.name)
     if fn is None:
-        raise SettingError(f"dataset {ds.name!r}: icgo.datasets.protocols has no such protocol")
+        raise SettingError(f"dataset {ds.name!r}: icgo.datasets.registry.DATASETS has no such data set")
     kwargs = dict(OmegaConf.to_container(ds.kwargs, resolve=True) or {})
     try:
         data = fn(int(ds.seed), **kwargs)
@@ -228,7 +228,7 @@ def load_target(cfg: DictConfig):
     the target with the changes of ``split.target`` (:func:`icgo.studies.splits.transfer_survey`).
 
     Raises:
-        SettingError / icgo.io.recording.DataError: one line.
+        SettingError / icgo.core.errors.DataError: one line.
     """
     if OmegaConf.select(cfg, "split.protocol") != "transfer":
         return None

@@ -121,7 +121,7 @@ from experiments.bench_user import (
     peer_comparison,
     table3_command,
 )
-from icgo.datasets import protocols as datasets
+from icgo.datasets import casing_stations as datasets
 from icgo.methods import relm
 from icgo.optim import run_batch
 from icgo.optim.cgo import CGO

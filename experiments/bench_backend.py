@@ -113,7 +113,7 @@ def study_scaling(repeats=STUDY_REPEATS, deadline: float = float("inf"), **confi
     past ``deadline`` (``time.perf_counter()``); a failing point records its one-line error and the rest go on.
     ``config``: other :class:`icgo.studies.icgo_relm_config.StudyConfig` settings (smaller ones in a test).
     """
-    from icgo.datasets import protocols as datasets
+    from icgo.datasets import casing_stations as datasets
     from icgo.optim import STRATEGIES
     from icgo.studies import icgo_relm as study
     from icgo.studies.icgo_relm_config import StudyConfig
@@ -151,7 +151,7 @@ def search_rate(n_devices: int, repeats: int = 10, iterations: int = CURVE_ITERA
     ``n_devices`` devices of the default backend, in this process: compile (the first call), then the best of
     ``reps`` calls; returns ``{"devices", "members", "compile_s", "run_s", "evals_per_s"}``."""
     from icgo.core.execution import ACCELERATOR_KERNEL, CPU_KERNEL
-    from icgo.datasets import protocols as datasets
+    from icgo.datasets import casing_stations as datasets
     from icgo.optim import STRATEGIES
     from icgo.studies import icgo_relm as study
     from icgo.studies.icgo_relm_config import StudyConfig

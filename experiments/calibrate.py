@@ -98,6 +98,7 @@ def site_setting(cfg: DictConfig):
 
 def load(cfg: DictConfig) -> dict:
     """name -> Recording with a checked ``group`` column, from ``data=`` (raises SettingError / DataError)."""
+    from icgo.io import mag_cal_bundled
     from icgo.io import recording as io
     from icgo.io.grouping import layout_groups
     from icgo.methods.grouping import by_layout
@@ -120,8 +121,8 @@ def load(cfg: DictConfig) -> dict:
             raise SettingError("mag_axes / grav_axes / groups / columns apply to a file, not to data=bundled (the 9 "
                                "devices are in the circuitpython-mag-cal layout: rolls at shots 8-15 and 16-23)")
         out = {}
-        for name in io.mag_cal_devices():
-            rec = io.load_mag_cal_device(name)
+        for name in mag_cal_bundled.mag_cal_devices():
+            rec = mag_cal_bundled.load_mag_cal_device(name)
             g = by_layout(rec.G, rec.B, rec.frame["station"].to_numpy(), rec.frame["group"].to_numpy(),
                           layout_groups("circuitpython-mag-cal", len(rec.frame)).describe(), name)
             out[name] = rec._replace(meta={**rec.meta, "grouping": g.record}, notices=list(g.notices) + rec.notices)

@@ -16,7 +16,7 @@ def figure(rec, models: dict, path: Path) -> None:
     """Per shot: pointing direction raw vs calibrated, dip and |B| per method (sound fits solid, degenerate dashed)."""
     from matplotlib.figure import Figure  # not pyplot: no backend machinery, half the import time
 
-    from icgo.methods.calibration import pointing_directions
+    from icgo.methods.cal_pointing import pointing_directions
     from icgo.physics.qc import measured_dip_deg
     from icgo.studies.calibration import model_sanity
 

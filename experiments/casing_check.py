@@ -59,15 +59,15 @@ def compare(seed: int = 0, distances=DISTANCES_M) -> pd.DataFrame:
         One row per (distance, model): the largest and median relative difference of
         the field vector, the largest difference (nT) and the casing field's median size (nT).
     """
+    from icgo.datasets import casing_stations
     from icgo.datasets import instruments as ins
-    from icgo.datasets import protocols as datasets
 
-    ds = datasets.lab_casing(seed)
+    ds = casing_stations.lab_casing(seed)
     t, f = ds.truth, ds.frame
     pos = np.asarray(ins.sensor_positions_ned(np.asarray(t["pivot_ned_m"]), np.asarray(t["sensor_lever_tool_m"]),
                                               f["azimuth_deg"].to_numpy(), f["inclination_deg"].to_numpy(),
                                               f["toolface_deg"].to_numpy()))
-    base = datasets.LAB_CASING
+    base = casing_stations.LAB_CASING
     rows = []
     for d in distances:
         casing = ins.casing_at_distance(base, float(d))
@@ -86,10 +86,10 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent.parent / "results"))
     a = ap.parse_args(argv)
-    from icgo.datasets import protocols as datasets
+    from icgo.datasets import casing_stations
 
     df = compare()
-    noise = float(datasets.lab_casing(0).truth["mag_noise_nT"])
+    noise = float(casing_stations.lab_casing(0).truth["mag_noise_nT"])
     from icgo.io.files import staged_results
 
     at_lab = df[(df.distance_m == 1.0) & (df.model == "pole_pair")].iloc[0]
@@ -103,7 +103,7 @@ def main(argv=None) -> int:
                         "No published protocol: the paper gives the casing's size and distance, not its field."), "",
           "`python -m experiments.casing_check` (magpylib "
           f"{__import__('magpylib').__version__}). Field of the lab casing (3 m x 150 mm tube, wall 9 mm, "
-          f"M = {datasets.LAB_CASING.magnetization_A_m:g} A/m axial) at every lab_casing station "
+          f"M = {casing_stations.LAB_CASING.magnetization_A_m:g} A/m axial) at every lab_casing station "
           f"({int(at_lab.n_stations)} sensor positions), the casing moved to each distance from the turntable axis.",
           "", df.to_markdown(index=False, floatfmt=".4g"), "",
           f"At the paper's 1 m the pole pair differs from the tube by at most {at_lab.max_rel_diff:.2%} of the "

@@ -23,7 +23,7 @@ import pandas as pd
 from scipy.optimize import least_squares
 
 import icgo  # noqa: F401
-from icgo.datasets import protocols as D
+from icgo.datasets import casing_stations
 from icgo.physics import frames as F
 from icgo.reporting import plots
 
@@ -49,7 +49,7 @@ def azimuth_errors(frame, B):
 
 
 def lab_casing_figures(out: Path, seed: int):
-    ds = D.lab_casing(seed)
+    ds = casing_stations.lab_casing(seed)
     f = ds.frame
     G, B = f[["gx", "gy", "gz"]].to_numpy(), f[["bx", "by", "bz"]].to_numpy()
     a_raw, e_raw = azimuth_errors(f, B)
@@ -89,12 +89,12 @@ def _protocol(seed: int, split: str) -> str:
 
 
 def well_conditions_table(out: Path, seed: int):
-    ds = D.well_conditions(seed)
+    ds = casing_stations.well_conditions(seed)
     f = ds.frame
     _, e = azimuth_errors(f, f[["bx", "by", "bz"]].to_numpy())
     g = f.assign(e=e).groupby("condition").e
-    paper = np.array(D.TABLE4_ORIGINAL)
-    cond = np.array(D.TABLE4_CONDITIONS)
+    paper = np.array(casing_stations.TABLE4_ORIGINAL)
+    cond = np.array(casing_stations.TABLE4_CONDITIONS)
     table = pd.DataFrame({
         "inclination_deg": cond[:, 0], "azimuth_deg": cond[:, 1],
         "sim_mean_deg": g.mean().to_numpy(), "sim_std_deg": g.std().to_numpy(),

@@ -28,16 +28,17 @@ from omegaconf import DictConfig, OmegaConf
 import icgo  # noqa: F401  (float64)
 from experiments._entry import EXIT_CONFIG, bool_setting, hydra_keep, one_line, one_line_errors, write_hydra_record
 from icgo import discrepancy as D
-from icgo.core.errors import SettingError, SettingsError
+from icgo.core.errors import DataError, SettingError, SettingsError
 from icgo.core.settings import config_from_mapping
 from icgo.discrepancy import report
+from icgo.io import mag_cal_bundled
 from icgo.io import recording as icgo_io
 from icgo.io.files import Output
 from icgo.io.shots import is_json
-from icgo.studies.shots import read_shots
 from icgo.models.discrepancy import PhysicsModel, station_qc
 from icgo.physics.qc import qc_sentence
 from icgo.studies import discrepancy_results
+from icgo.studies.shots import read_shots
 
 #: Settings of the entry point, not of the workflow (excluded from :class:`icgo.discrepancy.WorkflowConfig`).
 ENTRY_KEYS = ("data", "study", "seed", "n_stations", "design", "results_dir", "overwrite", "hydra", "columns",
@@ -57,7 +58,7 @@ def load_stations(spec: str, seed: int = 0, n: int = 240, design: str = "random"
     of a field export (:func:`icgo.io.recording.column_map`); ``shots``: the grouped-shot settings (``mag_axes``,
     ``grav_axes``, ``groups``) for a file of grouped shots (a circuitpython-mag-cal JSON, or a contract CSV
     with ``groups=``; :func:`icgo.studies.shots.read_shots`).
-    Returns (Stations, label, truth or None). Raises icgo.io.recording.DataError / ValueError.
+    Returns (Stations, label, truth or None). Raises icgo.core.errors.DataError / ValueError.
     """
     spec = str(spec)
     shots = {k: v for k, v in (shots or {}).items() if v is not None}
@@ -66,14 +67,14 @@ def load_stations(spec: str, seed: int = 0, n: int = 240, design: str = "random"
         st, truth = D.hidden_stations(seed, names, n, design, noise)
         return st, f"simulated {n} stations ({design}) with hidden {names or 'nothing'}", truth
     if spec.startswith("mag_cal:"):
-        rec = icgo_io.load_mag_cal_device(spec[8:])
+        rec = mag_cal_bundled.load_mag_cal_device(spec[8:])
         return D.stations_from_recording(rec), f"circuitpython-mag-cal device {spec[8:]}", None
     if spec == "lab_casing":
-        from icgo.datasets.protocols import lab_casing
+        from icgo.datasets.casing_stations import lab_casing
 
         ds = lab_casing(seed)
         rec = icgo_io.validate(ds.frame, ds.meta, source="lab_casing")
-        return D.stations_from_recording(rec), f"icgo.datasets.protocols.lab_casing(seed={seed})", ds.truth
+        return D.stations_from_recording(rec), f"icgo.datasets.casing_stations.lab_casing(seed={seed})", ds.truth
     if is_json(spec) or shots:
         rec = read_shots(spec, **shots)
         label = f"{spec} ({rec.meta.get('description', '')})"
@@ -161,7 +162,7 @@ def main_body(cfg: DictConfig, out_dir: Path, keep=()) -> int:
     except SettingError as err:
         print(f"error: {one_line(err)}", file=sys.stderr)
         return EXIT_CONFIG
-    except (icgo_io.DataError, ValueError, FileNotFoundError) as err:
+    except (DataError, ValueError, FileNotFoundError) as err:
         print(f"error: {err}".splitlines()[0], file=sys.stderr)
         return 1
     print(f"data: {label} ({st.n} stations, {'reference attitude' if st.has_reference else 'groups, no reference'})")

@@ -65,7 +65,7 @@ def main(argv=None) -> int:
     import icgo  # noqa: F401  (float64)
     from experiments._entry import results_output
     from icgo.core.errors import SettingError
-    from icgo.datasets import protocols
+    from icgo.datasets import casing_stations
     from icgo.optim.cgo import CGOConfig
     from icgo.studies import cgo_seeds
     from icgo.studies.icgo_relm_config import StudyConfig
@@ -76,7 +76,7 @@ def main(argv=None) -> int:
     if a.repeats is not None:
         cfg = dataclasses.replace(cfg, n_repeats=a.repeats)
     output = results_output(a.out, overwrite=a.overwrite, writer="experiments.fig9_seeds")
-    ds = protocols.lab_casing(0)
+    ds = casing_stations.lab_casing(0)
     t0 = time.perf_counter()
     runs = cgo_seeds.study(ds.frame, ds.meta, {k: CGOConfig.paper(**v) for k, v in CONFIGS.items()}, cfg)
     table = cgo_seeds.rates_table(runs)

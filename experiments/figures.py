@@ -384,8 +384,8 @@ def _paper_consistency_note() -> str:
 
 
 def _floor_note(dataset: str = "lab_casing") -> str:
-    """The noise floor of the data set beside every table (:func:`icgo.datasets.protocols.noise_floor`, data seed 0)."""
-    from icgo.datasets.protocols import noise_floor
+    """The noise floor of the data set beside every table (:func:`icgo.datasets.casing_stations.noise_floor`, data seed 0)."""
+    from icgo.datasets.casing_stations import noise_floor
 
     f = noise_floor(dataset, 0).iloc[0]
     return (f"Noise floor: the same `{dataset}` draw (seed 0, as the presets) with the casing, every systematic "
@@ -1066,7 +1066,7 @@ def table4(runs: Runs, out: Path) -> bool:
         p["cond"] = _condition_of(p)
     p = p[p.cond >= 0]
     raw_err = lambda d: np.abs(((d["azimuth_raw"] - d["azimuth_true"] + 180) % 360) - 180)  # noqa: E731
-    from icgo.datasets.protocols import noise_floor
+    from icgo.datasets.casing_stations import noise_floor
 
     floor = noise_floor("well_conditions", 0).set_index("condition")
     rows = []
@@ -1090,7 +1090,7 @@ def table4(runs: Runs, out: Path) -> bool:
              "positive, so we read them as absolute.",
              "**The raw columns are calibration targets, not a result.** The simulator's casing geometry and lab "
              "field were set so that the raw error of each condition lands near the paper's raw column "
-             "(`icgo.datasets.protocols.TABLE4_ORIGINAL` holds the paper's values; `tests/test_datasets.py` requires "
+             "(`icgo.datasets.casing_stations.TABLE4_ORIGINAL` holds the paper's values; `tests/test_datasets.py` requires "
              "|simulated - paper| < 6 deg per condition; docs/datasets.md). Agreement there is by construction; only "
              "the compensated columns measure the method.",
              "Noise floor MAE: the same draw (seed 0) with the casing, every systematic effect and the spikes removed "

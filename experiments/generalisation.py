@@ -129,9 +129,10 @@ def markdown(rec: dict, config, seconds: dict) -> str:
         fl.append(f"{float(f['mae'].iloc[0]):.4f}")
     lines.append("| " + " | ".join(fl) + " | - |")
     lines += ["", "The noise floor is the MAE of the standard formula on a draw with the same plan and noise but "
-              "no casing and no sensor errors (`icgo.datasets.protocols.noise_floor`): what no compensation can beat on "
-              "average. The paper's column is its own measured lab data under its random split (ICGO paper, "
-              "`icgo.reporting.published`); it reports no other protocol and no well-condition MAE per method.", "",
+              "no casing and no sensor errors (`icgo.datasets.casing_stations.noise_floor`): what no compensation "
+              "can beat on average. The paper's column is its own measured lab data under its random split "
+              "(ICGO paper, `icgo.reporting.published`); it reports no other protocol and no well-condition MAE "
+              "per method.", "",
               "## Coverage of the 90 % conformal interval", "",
               "Fraction of test rows whose azimuth error lies within the member's interval, mean over repeats "
               "(mean half-width in deg in brackets). Each fitted model's half-width is calibrated on rows of its "

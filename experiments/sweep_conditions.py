@@ -11,7 +11,7 @@ Built by :func:`experiments.figures.build` from the runs of three presets (label
 
 Each level runs every method on Table 3's splits and keys (10 paired repeats): plain RELM,
 PSO-RELM, GA-RELM and CGO-RELM's five 4th-seed strategies. Per level the table gives each
-method's test MAE, the noise floor of that level's data (:func:`icgo.datasets.protocols.noise_floor`: the
+method's test MAE, the noise floor of that level's data (:func:`icgo.datasets.casing_stations.noise_floor`: the
 same draw without casing, sensor effects and spikes), the casing's field at the sensor, the order
 of the methods by mean MAE, the Friedman test over the methods (Holm over the levels), the best
 method against the second (paired Wilcoxon, its median difference, Holm over the levels), and
@@ -47,7 +47,7 @@ def _level_data(kwargs: dict) -> dict:
     """One level's ``lab_casing`` draw (seed 0): its noise floor (deg), the casing field at the sensor (nT)
     and the physics of its raw readings against the site's reference (:func:`icgo.physics.qc.survey_qc`): RMS
     deviation of |G| (mg), |B| (nT) and dip (deg), which noise and casing disturb before any compensation."""
-    from icgo.datasets.protocols import lab_casing, noise_floor
+    from icgo.datasets.casing_stations import lab_casing, noise_floor
     from icgo.physics.qc import survey_qc
 
     floor = noise_floor("lab_casing", 0, **kwargs).iloc[0]

@@ -100,7 +100,8 @@ def build_assets(a: Path) -> None:
     import hostile_models as H
     import numpy as np
 
-    from icgo.io.recording import load_mag_cal_device, write_recording
+    from icgo.io.mag_cal_bundled import load_mag_cal_device
+    from icgo.io.recording import write_recording
 
     a.mkdir(parents=True, exist_ok=True)
     models = a / "models"

@@ -15,12 +15,13 @@ from functools import lru_cache
 import jax.numpy as jnp
 import numpy as np
 
-from icgo.io import recording as io
+from icgo.io import mag_cal_bundled, schema
+from icgo.methods import cal_pointing
 from icgo.methods import calibration as cal
 from icgo.physics.frames import sensors_from_attitude
 from icgo.physics.qc import measured_dip_deg
 
-INV = np.argsort(io.MAG_CAL_DEVICE_TO_TOOL)  # tool -> device columns
+INV = np.argsort(mag_cal_bundled.MAG_CAL_DEVICE_TO_TOOL)  # tool -> device columns
 #: The industrial noise the discrepancy workflow assumes (icgo.discrepancy.noise.NOISE): g, nT.
 INDUSTRIAL = (3e-4, 15.0)
 
@@ -28,14 +29,14 @@ INDUSTRIAL = (3e-4, 15.0)
 @lru_cache(maxsize=None)
 def device_model(name: str):
     """(xg (12,), xm (12,), Q (3, 3), dip deg, |B| scale nT) of a bundled device's twelve+axis fit."""
-    rec = io.load_mag_cal_device(name)
+    rec = mag_cal_bundled.load_mag_cal_device(name)
     G, B, groups = rec.G, rec.B, rec.frame.group.to_numpy()
     xg = cal.ellipsoid_fit_accel(G)
     xm = cal.ellipsoid_fit(B, 1.0, G)
     Gc = np.asarray(cal.correct(jnp.asarray(xg), G))
     x12 = cal.fit_twelve(Gc, B, 1.0, x0=xm)
     Bc = np.asarray(cal.correct(jnp.asarray(x12), B))
-    Q = cal.align_to_axis(Gc, Bc, groups)
+    Q = cal_pointing.align_to_axis(Gc, Bc, groups)
     dip = float(np.median(measured_dip_deg(Gc, Bc)))
     return xg, x12, Q, dip, float(np.median(np.linalg.norm(B, axis=1)))
 
@@ -45,7 +46,7 @@ def device_attitudes(name: str):
     from icgo.physics.frames import azimuth_from_gv, inclination_from_g, toolface_from_g
 
     xg, xm, Q, _, _ = device_model(name)
-    rec = io.load_mag_cal_device(name)
+    rec = mag_cal_bundled.load_mag_cal_device(name)
     Gt = np.asarray(cal.correct(jnp.asarray(xg), rec.G)) @ Q.T
     Bt = np.asarray(cal.correct(jnp.asarray(xm), rec.B)) @ Q.T
     return (np.asarray(azimuth_from_gv(Gt, Bt)), np.asarray(inclination_from_g(Gt)),
@@ -100,7 +101,7 @@ def to_sensor(v, axes: str):
 
 def write_raw(path, G, B, mag_axes: str, grav_axes: str, keys: bool = True, g_unit: str = "m/s^2") -> None:
     """The raw layout: sensor frames, [[x, y, z], ...], gravity m/s^2 (or g), field uT; axes keys optional."""
-    g = to_sensor(G[:, INV], grav_axes) * (io.STANDARD_GRAVITY if g_unit == "m/s^2" else 1.0)
+    g = to_sensor(G[:, INV], grav_axes) * (schema.STANDARD_GRAVITY if g_unit == "m/s^2" else 1.0)
     doc = {"mag": to_sensor(B[:, INV] / 1000.0, mag_axes).tolist(), "grav": g.tolist()}
     if keys:
         doc.update({"mag_axes": mag_axes, "grav_axes": grav_axes})

@@ -17,7 +17,7 @@ from hydra.core.global_hydra import GlobalHydra
 from experiments import _entry as entry
 from experiments.apply import run_apply
 from icgo.core.errors import ModelError
-from icgo.datasets import protocols as datasets
+from icgo.datasets import casing_stations
 from icgo.io.recording import read_recording, write_recording
 from icgo.models.format import SCHEMA_VERSION
 from icgo.physics.qc import QCBands
@@ -38,10 +38,10 @@ def _cfg(overrides):
 def setup(tmp_path_factory):
     """A small fitted ICGO-RELM model saved to disk, and a new lab_casing draw written as a survey."""
     tmp = tmp_path_factory.mktemp("apply")
-    res = icgo_relm.run_study(datasets.lab_casing(0, toolface_step_deg=30.0).frame,
+    res = icgo_relm.run_study(casing_stations.lab_casing(0, toolface_step_deg=30.0).frame,
                               StudyConfig(optimizer="pso", n_repeats=2, hidden=8, pop_size=6, iterations=3))
     model = res.model.save(tmp / "relm_compensation")
-    new = datasets.lab_casing(5, toolface_step_deg=30.0)
+    new = casing_stations.lab_casing(5, toolface_step_deg=30.0)
     survey = tmp / "survey.csv"
     write_recording(survey, new.frame, {k: v for k, v in new.meta.items() if k in META_KEYS})
     return tmp, res.model, model, survey
@@ -165,7 +165,7 @@ def test_require_meta_takes_only_true_or_false(setup, tmp_path, value):
 
 def _ab_calibration():
     """Device ab's ellipsoid calibration, in nT (a model of one device)."""
-    from icgo.io.recording import load_mag_cal_device
+    from icgo.io.mag_cal_bundled import load_mag_cal_device
     from icgo.methods.calibration import ellipsoid_fit
     from icgo.models.calibration import mag_calibration
 
@@ -179,7 +179,7 @@ def _ab_calibration():
 def test_another_devices_calibration_changes_the_verdict(tmp_path):
     """Device ab's calibration: its own shots give one earth field; device jd's do not, and the verdict says not to
     use the result (status, model and next lines, exit status 3), not only a notice."""
-    from icgo.io.recording import load_mag_cal_device
+    from icgo.io.mag_cal_bundled import load_mag_cal_device
     from icgo.survey.apply import correct_survey
     from icgo.survey.verdict import EXIT_OUT_OF_DOMAIN
 
@@ -230,7 +230,7 @@ def test_a_large_survey_streams_and_gives_what_the_whole_survey_gives(setup, tmp
     """stream_mb=0 cannot be asked; the smallest streaming (a survey over 1 MiB, chunks of 500 rows) gives the same
     corrected rows, metrics, QC and verdict as reading it whole; its positions go to their own file."""
     _, _, path, _ = setup
-    new = datasets.lab_casing(6, toolface_step_deg=2.0)
+    new = casing_stations.lab_casing(6, toolface_step_deg=2.0)
     frame = pd.concat([new.frame] * 6, ignore_index=True).assign(station=lambda f: np.arange(len(f)))
     frame["md"] = 10.0 * np.arange(len(frame))
     survey = tmp_path / "big.csv"

@@ -19,11 +19,14 @@ from experiments import calibrate as entry
 from experiments._entry import CONF_DIR
 from icgo.core.errors import SettingError
 from icgo.core.settings import config_to_mapping
+from icgo.io import mag_cal_bundled, schema
 from icgo.io import recording as io
+from icgo.methods import cal_pointing
 from icgo.methods import calibration as cal
 from icgo.methods.cal_sanity import LIMITS, sanity
 from icgo.models.registry import load_model
 from icgo.physics.frames import sensors_from_attitude
+from icgo.physics.rolls import MIN_ROLLED_SHOTS
 from icgo.studies import calibration as cal_study
 
 ROOT = CONF_DIR.parent
@@ -69,7 +72,7 @@ def test_sanity_passes_one_field_and_flags_a_collapsed_matrix():
 
 
 def test_misma_box_is_in_data_units_and_contains_the_least_squares():
-    rec = io.load_mag_cal_device("fb")
+    rec = mag_cal_bundled.load_mag_cal_device("fb")
     G, B = rec.G, rec.B
     xg = cal.ellipsoid_fit_accel(G)
     xm = cal.ellipsoid_fit(B, 1.0, G)
@@ -83,7 +86,7 @@ def test_misma_box_is_in_data_units_and_contains_the_least_squares():
 
 
 def test_splits_hold_out_each_rolled_group():
-    groups = io.load_mag_cal_device("ab").frame.group.to_numpy()
+    groups = mag_cal_bundled.load_mag_cal_device("ab").frame.group.to_numpy()
     labels = [s[0] for s in cal_study.splits(groups)]
     assert labels == ["in-sample", "held-out group 8", "held-out group 9"]
     with pytest.raises(ValueError, match="no rolled group"):
@@ -97,7 +100,7 @@ def _run_entry(tmp_path, *args):
 
 @pytest.mark.slow
 def test_front_door_on_an_exported_device_and_apply_on_another(tmp_path):
-    rec = io.load_mag_cal_device("bh")
+    rec = mag_cal_bundled.load_mag_cal_device("bh")
     csv = tmp_path / "bh.csv"
     io.write_recording(csv, rec.frame, rec.meta)
     out = _run_entry(tmp_path, f"data={csv}", *FAST)
@@ -115,16 +118,16 @@ def test_front_door_on_an_exported_device_and_apply_on_another(tmp_path):
     assert fits.loc[fits.degenerate, "score_deg"].isna().all()
     # the saved calibration applies to a second recording of the same family
     model = load_model(run / "models" / "bh_twelve_axis.json")
-    other = io.load_mag_cal_device("jd").frame
+    other = mag_cal_bundled.load_mag_cal_device("jd").frame
     applied = model.apply(other)
     assert np.isfinite(applied[["bx_corrected", "by_corrected", "bz_corrected"]].to_numpy()).all()
 
 
 @pytest.mark.slow
 def test_front_door_on_a_raw_layout_json(tmp_path):
-    rec = io.load_mag_cal_device("ee")
-    inv = np.argsort(io.MAG_CAL_DEVICE_TO_TOOL)
-    doc = {"mag": (rec.B[:, inv] / 1000.0).tolist(), "grav": (rec.G[:, inv] * io.STANDARD_GRAVITY).tolist()}
+    rec = mag_cal_bundled.load_mag_cal_device("ee")
+    inv = np.argsort(mag_cal_bundled.MAG_CAL_DEVICE_TO_TOOL)
+    doc = {"mag": (rec.B[:, inv] / 1000.0).tolist(), "grav": (rec.G[:, inv] * schema.STANDARD_GRAVITY).tolist()}
     path = tmp_path / "ee_raw.json"
     path.write_text(json.dumps(doc))
     out = _run_entry(tmp_path, f"data={path}", "mag_axes=+x+y+z", *FAST)
@@ -132,13 +135,17 @@ def test_front_door_on_a_raw_layout_json(tmp_path):
     assert "m/s^2 / 9.80665 -> g" in (tmp_path / "run" / "report.md").read_text()
 
 
+#: The bundled device ab as circuitpython-mag-cal JSON.
+AB_JSON = mag_cal_bundled._mag_cal_dir().joinpath("ab.json")
+
+
 @pytest.mark.parametrize("args,code,match", [
     ([], 2, "data= is required"),
     (["data=bundled", "mag_axes=+x+y+z"], 2, "mag_axes / grav_axes / groups / columns apply to a file"),
-    ([f"data={io._mag_cal_dir().joinpath('ab.json')}", "groups=[8-15,12-20]"], 2, "groups ranges 8-15 and 12-20 overlap"),
-    ([f"data={io._mag_cal_dir().joinpath('ab.json')}", "groups=[8-10]"], 2, "range 8-10 holds 3 shot(s)"),
-    ([f"data={io._mag_cal_dir().joinpath('ab.json')}", "groups=[8-23]"], 1, "group 8 (shots 8-23) is not a plausible roll"),
-    ([f"data={io._mag_cal_dir().joinpath('ab.json')}", "mag_axes=+x+y+z"], 2, "device frame already"),
+    ([f"data={AB_JSON}", "groups=[8-15,12-20]"], 2, "groups ranges 8-15 and 12-20 overlap"),
+    ([f"data={AB_JSON}", "groups=[8-10]"], 2, "range 8-10 holds 3 shot(s)"),
+    ([f"data={AB_JSON}", "groups=[8-23]"], 1, "group 8 (shots 8-23) is not a plausible roll"),
+    ([f"data={AB_JSON}", "mag_axes=+x+y+z"], 2, "device frame already"),
     (["data=x.json", "misma_iter=0"], 2, "misma_iter must be an integer >= 1"),
     (["data=x.csv", "+no_such=1"], 2, "unknown setting"),
     (["data=/nonexistent/shots.csv"], 1, "/nonexistent/shots.csv"),
@@ -152,7 +159,7 @@ def test_bad_settings_and_data_are_one_line(tmp_path, args, code, match):
 
 
 def test_rolls_alone_leave_a_report_with_the_reason_and_exit_4(tmp_path):
-    rec = io.load_mag_cal_device("ee")
+    rec = mag_cal_bundled.load_mag_cal_device("ee")
     csv = tmp_path / "rolls.csv"
     io.write_recording(csv, rec.frame.iloc[8:].reset_index(drop=True), {})
     out = _run_entry(tmp_path, f"data={csv}", *FAST)
@@ -169,7 +176,7 @@ def test_rolls_alone_leave_a_report_with_the_reason_and_exit_4(tmp_path):
 
 
 def test_csv_without_groups_is_one_line(tmp_path):
-    rec = io.load_mag_cal_device("ab")
+    rec = mag_cal_bundled.load_mag_cal_device("ab")
     csv = tmp_path / "nogroup.csv"
     io.write_recording(csv, rec.frame.drop(columns="group").assign(azimuth_deg=0.0, inclination_deg=0.0), {})
     out = _run_entry(tmp_path, f"data={csv}")
@@ -198,11 +205,11 @@ def _relm_residuals_numpy(W, G, b, groups, fit_rows):
     from icgo.physics.qc import measured_dip_deg
 
     bn = b + mag_relm.features(b, mag_relm.axis_rbf_hidden()) @ W
-    d = cal.pointing_directions(G, bn)
+    d = cal_pointing.pointing_directions(G, bn)
     dev = np.zeros_like(d)
     for g in np.unique(groups):
         m = groups == g
-        if m.sum() >= cal.MIN_ROLLED_SHOTS:
+        if m.sum() >= MIN_ROLLED_SHOTS:
             dev[m] = d[m] - d[m].mean(0)
     dip, mod = measured_dip_deg(G, bn), np.linalg.norm(bn, axis=1)
     return np.hstack([np.degrees(dev), (dip - dip[fit_rows].mean())[:, None],
@@ -214,7 +221,7 @@ def test_relm_residuals_vanish_for_exact_shots():
 
     G, B, groups = _rolled_recording()
     b = B  # unit sphere already
-    member = np.array([groups == g for g in np.unique(groups) if (groups == g).sum() >= cal.MIN_ROLLED_SHOTS], float)
+    member = np.array([groups == g for g in np.unique(groups) if (groups == g).sum() >= MIN_ROLLED_SHOTS], float)
     H = mag_relm.features(b, mag_relm.axis_rbf_hidden())
     r = mag_relm.residuals(np.zeros((H.shape[1], 3)), H, G, b, member, np.ones(len(b)))
     np.testing.assert_allclose(np.asarray(r), 0.0, atol=1e-9)
@@ -266,13 +273,13 @@ def test_relm_learns_a_per_axis_non_linearity_and_chooses_its_ridge_by_groups():
     model = mag_relm.fit(G, b, groups)
     assert model.lam in mag_relm.LAMBDAS and model.lam == mag_relm.LAMBDAS[int(np.argmin(model.cv))]
     fixed = mag_relm.apply(model.hidden, model.out, b)
-    before, after = cal.group_spread_deg(G, b, groups)[0], cal.group_spread_deg(G, fixed, groups)[0]
+    before, after = cal_pointing.group_spread_deg(G, b, groups)[0], cal_pointing.group_spread_deg(G, fixed, groups)[0]
     assert after < 0.5 * before
     assert np.ptp(measured_dip_deg(G, fixed)) < 0.5 * np.ptp(measured_dip_deg(G, b))
     # held out: a roll it never saw, and fresh singles
     G2, b2, g2 = _axis_distorted(seed=7)
     fixed2 = mag_relm.apply(model.hidden, model.out, b2)
-    assert cal.group_spread_deg(G2, fixed2, g2)[0] < 0.7 * cal.group_spread_deg(G2, b2, g2)[0]
+    assert cal_pointing.group_spread_deg(G2, fixed2, g2)[0] < 0.7 * cal_pointing.group_spread_deg(G2, b2, g2)[0]
 
 
 def test_relm_on_exact_shots_stays_the_identity():
@@ -313,7 +320,7 @@ def test_an_older_builds_relm_file_and_a_bad_activation_are_refused(tmp_path):
 
 
 def test_a_relm_calibration_saves_and_applies_bitwise(tmp_path):
-    rec = io.load_mag_cal_device("ai")
+    rec = mag_cal_bundled.load_mag_cal_device("ai")
     cfg = cal_study.CalibrationConfig(peer=False, misma_iter=2, misma_repeats=1, misma_pop=6)
     fitted = cal_study.fit_recording(rec.G, rec.B, rec.frame.group.to_numpy(), cfg, jax.random.PRNGKey(0), {})
     model = fitted["twelve+axis+relm"]
@@ -328,7 +335,7 @@ def test_a_relm_calibration_saves_and_applies_bitwise(tmp_path):
 
 
 def test_misma_bounds_option_reaches_the_search_and_is_recorded():
-    rec = io.load_mag_cal_device("ai")
+    rec = mag_cal_bundled.load_mag_cal_device("ai")
     cfg = cal_study.CalibrationConfig(peer=False, misma_iter=2, misma_repeats=1, misma_pop=6, misma_bounds="paper")
     fitted = cal_study.fit_recording(rec.G, rec.B, rec.frame.group.to_numpy(), cfg, jax.random.PRNGKey(0), {})
     header = fitted["misma+axis"].config
@@ -495,7 +502,8 @@ def test_front_door_on_a_16_shot_json_recommends_and_apply_uses_it(tmp_path):
     assert set(fits[fits.outer.isna()].split) == {"in-sample", "held-out half of group 8 (odd shots)",
                                                   "held-out half of group 8 (even shots)"}
     survey = tmp_path / "survey.csv"
-    io.write_recording(survey, io.load_mag_cal_device("hj2").frame.drop(columns="group"), {}, require_reference=False)
+    hj2 = mag_cal_bundled.load_mag_cal_device("hj2")
+    io.write_recording(survey, hj2.frame.drop(columns="group"), {}, require_reference=False)
     applied = subprocess.run([sys.executable, "-m", "experiments.apply", f"model={run}", f"data={survey}",
                               f"out={tmp_path / 'applied'}"], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert applied.returncode == 0, applied.stderr

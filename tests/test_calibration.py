@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 import icgo  # noqa: F401
+from icgo.methods import cal_objectives, cal_pointing
 from icgo.methods import calibration as cal
 from icgo.methods.misma_objective import MismaObjective
 from icgo.physics.frames import sensors_from_attitude
@@ -33,20 +34,20 @@ def test_objectives_zero_at_true_parameters():
     G, Bt, _ = _stations()
     Bm = np.asarray(cal.distort(R_GEN, B_BIAS, Bt))
     x = cal.params_from_error_model(R_GEN, B_BIAS)
-    assert float(cal.dot_invariance(x, G, Bm)) < 1e-28
-    assert float(cal.magnitude_consistency(x, Bm, 50_000.0)) < 1e-28
-    assert float(cal.magnitude_ratio(x, Bm, 50_000.0)) == pytest.approx(1.0, abs=1e-14)
+    assert float(cal_objectives.dot_invariance(x, G, Bm)) < 1e-28
+    assert float(cal_objectives.magnitude_consistency(x, Bm, 50_000.0)) < 1e-28
+    assert float(cal_objectives.magnitude_ratio(x, Bm, 50_000.0)) == pytest.approx(1.0, abs=1e-14)
     # the normalised dot product is sin(dip) (closed form)
     np.testing.assert_allclose(np.asarray(cal.normalized_dot(G, Bt)), np.sin(np.deg2rad(60.0)), atol=1e-14)
     # and the raw readings are not consistent
-    assert float(cal.dot_invariance(cal.identity_params(), G, Bm)) > 1e-6
+    assert float(cal_objectives.dot_invariance(cal.identity_params(), G, Bm)) > 1e-6
 
 
 def test_magnitude_ratio_closed_form():
     G, Bt, _ = _stations()
     x = cal.pack(1.1 * jnp.eye(3), jnp.zeros(3))  # corrected modulus = 1.1 F everywhere
-    assert float(cal.magnitude_ratio(x, Bt, 50_000.0)) == pytest.approx(1 / 1.1, rel=1e-12)
-    assert float(cal.magnitude_consistency(x, Bt, 50_000.0)) == pytest.approx(0.01, rel=1e-10)
+    assert float(cal_objectives.magnitude_ratio(x, Bt, 50_000.0)) == pytest.approx(1 / 1.1, rel=1e-12)
+    assert float(cal_objectives.magnitude_consistency(x, Bt, 50_000.0)) == pytest.approx(0.01, rel=1e-10)
 
 
 def test_pearson_axis_and_complex_closed_form():
@@ -61,9 +62,9 @@ def test_pearson_axis_and_complex_closed_form():
     expect = np.dot(u, [-1.0, 0.0]) / np.linalg.norm(u)
     x = cal.identity_params()
     seg, rot = np.zeros(len(T), np.int32), np.ones(len(T))
-    rho, n = cal.pearson_xy(x, G, B, seg, rot, 1, "axis")
+    rho, n = cal_objectives.pearson_xy(x, G, B, seg, rot, 1, "axis")
     np.testing.assert_allclose(np.asarray(rho)[0], [expect, expect], atol=1e-9)
-    rho_c, _ = cal.pearson_xy(x, G, B, seg, rot, 1, "complex")
+    rho_c, _ = cal_objectives.pearson_xy(x, G, B, seg, rot, 1, "complex")
     assert float(rho_c[0, 0]) == pytest.approx(1.0, abs=1e-9)
     assert float(n[0]) == len(T)
 
@@ -125,13 +126,13 @@ def test_make_caldata_bad_input():
 def test_group_spread_matches_peer_package_on_a_real_device():
     from mag_cal import Calibration
 
-    from icgo.io.recording import MAG_CAL_DEVICE_TO_TOOL, load_mag_cal_device
+    from icgo.io.mag_cal_bundled import MAG_CAL_DEVICE_TO_TOOL, load_mag_cal_device
 
     rec = load_mag_cal_device("ab")
     G, B, groups = rec.G, rec.B, rec.frame["group"].to_numpy()
     Gc = np.asarray(cal.correct(cal.ellipsoid_fit_accel(G), G))
     Bc = np.asarray(cal.correct(cal.ellipsoid_fit(B, 1.0, G), B))
-    ours, per = cal.group_spread_deg(Gc, Bc, groups)
+    ours, per = cal_pointing.group_spread_deg(Gc, Bc, groups)
     # the peer's own Calibration.accuracy on the same calibrated vectors (identity sensors)
     perm = list(MAG_CAL_DEVICE_TO_TOOL)
     gd, md = np.empty_like(Gc), np.empty_like(Bc)
@@ -156,9 +157,9 @@ def test_align_to_axis_removes_a_known_mounting_rotation():
     groups = np.repeat([8, 9], 8)
     M = np.asarray(rotation_from_vector(jnp.array([2.0, -2.0, 0.0])))
     Gm, Bm = G @ M.T, B @ M.T
-    assert cal.group_spread_deg(Gm, Bm, groups)[0] > 1.0
-    Q = cal.align_to_axis(Gm, Bm, groups)
-    assert cal.group_spread_deg(Gm @ Q.T, Bm @ Q.T, groups)[0] < 1e-6
+    assert cal_pointing.group_spread_deg(Gm, Bm, groups)[0] > 1.0
+    Q = cal_pointing.align_to_axis(Gm, Bm, groups)
+    assert cal_pointing.group_spread_deg(Gm @ Q.T, Bm @ Q.T, groups)[0] < 1e-6
 
 
 # ------------------------------------------- the least-squares fits (icgo.maths.lsq)

@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 
 from icgo.datasets import mag_cal_variants as mv
-from icgo.io.recording import load_mag_cal_device
+from icgo.io.mag_cal_bundled import load_mag_cal_device
 from icgo.studies.calibration_goals import goals, goals_table
 from icgo.studies.shots import read_shots
 

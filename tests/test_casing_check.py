@@ -3,8 +3,8 @@
 import numpy as np
 
 from experiments.casing_check import compare, magpylib_tube_field
+from icgo.datasets import casing_stations
 from icgo.datasets import instruments as ins
-from icgo.datasets import protocols as datasets
 
 
 def test_pole_pair_matches_the_magnetised_tube_at_every_lab_station_and_distance():
@@ -16,7 +16,7 @@ def test_pole_pair_matches_the_magnetised_tube_at_every_lab_station_and_distance
 
 
 def test_tube_field_on_its_axis_far_away_is_the_pole_pair_to_second_order():
-    c = datasets.LAB_CASING
+    c = casing_stations.LAB_CASING
     ax = np.asarray(c.axis_ned, float)
     far = np.asarray(c.end_ned) + (c.length_m + 20.0) * ax      # 20 m beyond the second end, on the axis
     tube = magpylib_tube_field(far[None], c)[0]

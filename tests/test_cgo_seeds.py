@@ -50,11 +50,11 @@ def test_counted_runs_are_the_runners_runs_and_the_counts_add_up(config):
 @pytest.mark.slow
 def test_counted_runs_are_the_icgo_relm_studys_searches():
     """On the RELM fitness: the counted run ends at the study's own final training RMSE, bit for bit."""
-    from icgo.datasets import protocols
+    from icgo.datasets import casing_stations
     from icgo.studies import icgo_relm
     from icgo.studies.icgo_relm_config import StudyConfig
 
-    ds = protocols.lab_casing(0, toolface_step_deg=45.0)
+    ds = casing_stations.lab_casing(0, toolface_step_deg=45.0)
     cfg = StudyConfig(strategies=("original",), n_repeats=2, pop_size=6, iterations=4, hidden=8)
     runs = cgo_seeds.study(ds.frame, ds.meta, {"default": CGOConfig()}, cfg)
     h = icgo_relm.run_study(ds.frame, cfg, ds.meta).histories

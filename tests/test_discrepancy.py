@@ -22,6 +22,7 @@ from icgo import discrepancy as D
 from icgo.core.errors import SettingsError
 from icgo.core.settings import config_from_mapping, config_to_mapping
 from icgo.discrepancy import inversion
+from icgo.io import mag_cal_bundled
 from icgo.io import recording as icgo_io
 from icgo.models.registry import load_model
 from icgo.physics import effects as fx
@@ -413,8 +414,8 @@ def test_no_step_raises_the_held_out_field_or_azimuth_residual_on_the_bundled_de
     # (676 -> 898 nT, 1.48 -> 3.01 deg); every named step must now keep both within GAP_TOLERANCE
     from icgo.discrepancy.search import GAP_TOLERANCE
 
-    for name in icgo_io.mag_cal_devices():
-        res = D.run_workflow(D.stations_from_recording(icgo_io.load_mag_cal_device(name)),
+    for name in mag_cal_bundled.mag_cal_devices():
+        res = D.run_workflow(D.stations_from_recording(mag_cal_bundled.load_mag_cal_device(name)),
                              dataclasses.replace(D.WorkflowConfig(), max_effects=4))
         for s in res.steps:
             b, a = s.gap_before, s.gap_after
@@ -427,7 +428,7 @@ def test_no_step_raises_the_held_out_field_or_azimuth_residual_on_the_bundled_de
 def test_one_model_has_one_score_converged_fits_and_the_noise_from_the_shots(tmp_path):
     # a real device (issue 16): the model a step adds was refitted from another starting point when it became
     # the current model, and the fixed-budget fold fits gave it a second score (8528 as a candidate, 2134 after)
-    res = D.run_workflow(D.stations_from_recording(icgo_io.load_mag_cal_device("ab")),
+    res = D.run_workflow(D.stations_from_recording(mag_cal_bundled.load_mag_cal_device("ab")),
                          dataclasses.replace(D.WorkflowConfig(), max_effects=3))
     assert len(res.steps) >= 2
     for before, after in zip(res.steps, res.steps[1:]):

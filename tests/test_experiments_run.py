@@ -48,10 +48,10 @@ def _job_cfg(overrides):
 @pytest.fixture(scope="module")
 def small_csv(tmp_path_factory):
     """lab_casing with a 30 deg toolface step (8 x 13 rows) as a contract CSV + meta."""
-    from icgo.datasets import protocols as datasets
+    from icgo.datasets import casing_stations
     from icgo.io.recording import write_recording
 
-    ds = datasets.lab_casing(0, toolface_step_deg=30.0)
+    ds = casing_stations.lab_casing(0, toolface_step_deg=30.0)
     path = tmp_path_factory.mktemp("data") / "lab_small.csv"
     write_recording(path, ds.frame, {k: v for k, v in ds.meta.items() if k in
                                      ("total_field_nT", "dip_deg", "declination_deg", "gravity_g", "name")})
@@ -219,10 +219,10 @@ def _fail_if_called(*a, **k):
      "model.hidden=50 has no effect with model.tune=true"),
 ])
 def test_bad_settings_fail_in_one_line_before_computation(override, expect, monkeypatch, capsys, tmp_path):
-    import icgo.datasets.protocols
     import icgo.studies.icgo_relm
+    from icgo.datasets.registry import DATASETS
 
-    monkeypatch.setattr(icgo.datasets.protocols, "lab_casing", _fail_if_called)
+    monkeypatch.setitem(DATASETS, "lab_casing", _fail_if_called)
     monkeypatch.setattr(icgo.studies.icgo_relm, "_run", _fail_if_called)
     overrides = TINY + override.split()
     if override.startswith("+dataset.path"):

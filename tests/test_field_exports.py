@@ -13,6 +13,7 @@ import pytest
 import yaml
 
 from icgo.core.errors import DataError, SettingError
+from icgo.io import schema
 from icgo.io import columns as export
 from icgo.io import recording as io
 
@@ -58,8 +59,8 @@ def test_mixed_case_names_comments_and_a_units_row_read_as_the_contract_file(tmp
     names = {c: c.upper() if c[0] in "gb" else c.title() for c in SENSORS}
     units = {"gx": "m/s^2", "gy": "m/s^2", "gz": "m/s^2", "bx": "uT", "by": "[uT]", "bz": "µT",
              "azimuth_deg": "rad", "inclination_deg": "deg"}
-    scale = {c: 1 / io.STANDARD_GRAVITY ** -1 for c in ("gx", "gy", "gz")} | {c: 1e-3 for c in ("bx", "by", "bz")} | \
-        {"azimuth_deg": math.pi / 180}
+    scale = ({c: 1 / schema.STANDARD_GRAVITY ** -1 for c in ("gx", "gy", "gz")} | {c: 1e-3 for c in ("bx", "by", "bz")}
+             | {"azimuth_deg": math.pi / 180})
     text = _export(survey.frame, names, scale, units, preamble="# rig 7 export\n#, , , ,\n", every="# checked")
     rec = io.read_recording(_write(tmp_path, "field.csv", text))
     for c in SENSORS:
@@ -182,5 +183,5 @@ def test_hydra_configs_list_every_contract_column():
     for path, node in ((CONF / "dataset" / "csv.yaml", None), (CONF / "apply" / "apply.yaml", None),
                        (CONF / "discrepancy.yaml", None)):
         cfg = yaml.safe_load(path.read_text())
-        assert list(cfg["columns"]) == list(io.KNOWN_COLUMNS), path
+        assert list(cfg["columns"]) == list(schema.KNOWN_COLUMNS), path
         assert all(v is None for v in cfg["columns"].values()) and cfg["columns_file"] is None

@@ -386,7 +386,7 @@ def _condition_runs(root: Path, label: str, key: str, levels, rng, best_at):
 def test_noise_and_casing_sweeps_report_every_method_against_the_floor(runs_dir, tmp_path):
     """Issue 18 sweep 5: one row per level, every method, the level's noise floor, ranking statistics."""
     from experiments import sweep_conditions as SC
-    from icgo.datasets.protocols import noise_floor
+    from icgo.datasets.casing_stations import noise_floor
 
     rng = np.random.default_rng(8)
     _condition_runs(runs_dir / "m", "sweep_noise", "noise_scale", (0.5, 1.0, 2.0), rng,
@@ -402,7 +402,7 @@ def test_noise_and_casing_sweeps_report_every_method_against_the_floor(runs_dir,
         assert row["floor MAE (deg)"] == pytest.approx(noise_floor("lab_casing", 0, noise_scale=row["noise x"]).mae[0])
     assert t["floor MAE (deg)"].is_monotonic_increasing
     # the physics of each level's raw readings, recomputed from the draw: |G| against gravity, in mg
-    from icgo.datasets.protocols import lab_casing
+    from icgo.datasets.casing_stations import lab_casing
 
     f = lab_casing(0, noise_scale=2.0).frame
     g = np.linalg.norm(f[["gx", "gy", "gz"]].to_numpy(), axis=1)

@@ -2,7 +2,7 @@
 
 * Valid recordings, generated, round-trip through ``write_recording`` / ``read_recording`` exactly.
 * Malformed CSVs (valid ones with bytes cut, replaced or inserted) and arbitrary JSON metadata end
-  in :class:`icgo.io.recording.DataError` with one line, or read; never another exception.
+  in :class:`icgo.core.errors.DataError` with one line, or read; never another exception.
 * Arbitrary values for the study settings end in a one-line ``SettingError`` or a valid config.
 
 The fast suite runs a bounded number of examples (``FAST``); ``make test-all`` runs the
@@ -22,7 +22,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import icgo  # noqa: F401
-from icgo.core.errors import SettingError
+from icgo.core.errors import DataError, SettingError
+from icgo.io import csv_text
 from icgo.io import recording as io
 from icgo.studies.icgo_relm_config import StudyConfig
 
@@ -95,7 +96,7 @@ def _mutated_text(draw, text):
 def _read_or_one_line_error(path):
     try:
         io.read_recording(path, require_meta=False)
-    except io.DataError as e:
+    except DataError as e:
         msg = str(e)
         assert msg and "\n" not in msg, msg
         assert path.name in msg or io.meta_path_for(path).name in msg, msg  # names the file at fault
@@ -139,10 +140,10 @@ def _check_fast_reader_is_exact(data):
     if not text.strip():
         return
     fast_notes, exact_notes = [], []
-    fast = io._read_fast(text, "f.csv", fast_notes, True)
+    fast = csv_text._read_fast(text, "f.csv", fast_notes, True)
     try:
-        exact = io._read_exact(text, "f.csv", exact_notes, True)
-    except io.DataError:
+        exact = csv_text._read_exact(text, "f.csv", exact_notes, True)
+    except DataError:
         assert fast is None
         return
     if fast is not None:
@@ -349,14 +350,14 @@ def _check_layout(tmp_path_factory, doc):
     p.write_text(json.dumps(doc, allow_nan=True))
     try:
         rec = read_shots(p)
-    except io.DataError as e:
+    except DataError as e:
         assert str(e) and "\n" not in str(e) and "dev.json" in str(e), str(e)
         return
     assert np.isfinite(rec.frame[["gx", "gy", "gz", "bx", "by", "bz"]].to_numpy(float)).all()
 
 
 def _device_doc():
-    from icgo.io.recording import MAG_CAL_DEVICE_TO_TOOL, load_mag_cal_device
+    from icgo.io.mag_cal_bundled import MAG_CAL_DEVICE_TO_TOOL, load_mag_cal_device
 
     rec = load_mag_cal_device("ab")
     inv = np.argsort(MAG_CAL_DEVICE_TO_TOOL)
@@ -385,7 +386,7 @@ def _check_hostile_value(tmp_path_factory, edit):
     t0 = time.perf_counter()
     try:
         rec = read_shots(p, mag_axes="+x+y+z")
-    except io.DataError as e:
+    except DataError as e:
         msg = str(e)
         assert "\n" not in msg and "dev.json" in msg, msg
         assert not re.search(r"\b(inf|nan)\b", msg, re.I), msg  # say what is wrong, not a non-number

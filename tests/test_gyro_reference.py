@@ -8,8 +8,8 @@ import pytest
 
 import icgo  # noqa: F401  (float64)
 from icgo.core.errors import SettingError
+from icgo.datasets import drill_string
 from icgo.datasets import instruments as ins
-from icgo.datasets import protocols as datasets
 from icgo.methods import calibration as cal
 from icgo.methods.gyro_reference import fit_to_reference, gyro_reference, gyro_term, reference_at
 from icgo.physics import frames as F
@@ -24,7 +24,7 @@ STRAIGHT = {"inclination_start_deg": 88.0, "inclination_end_deg": 86.5, "azimuth
 
 def _perfect(**kw):
     """rotating_drill with a perfect, noise-free gyro and noise-free accelerometer and magnetometer."""
-    return datasets.rotating_drill(0, duration_s=1200.0, gyro=ins.GyroErrors(), gyro_noise_deg_h=0.0,
+    return drill_string.rotating_drill(0, duration_s=1200.0, gyro=ins.GyroErrors(), gyro_noise_deg_h=0.0,
                                    accel_noise_g=0.0, mag_noise_nT=0.0, **kw)
 
 
@@ -90,7 +90,7 @@ def test_perfect_gyro_reproduces_the_true_field_direction_history():
 
 def test_gyro_bias_estimated_at_the_stops():
     gyro = ins.GyroErrors(bias_deg_h=(180.0, -144.0, 216.0))
-    ds = datasets.rotating_drill(0, duration_s=1200.0, gyro=gyro, gyro_noise_deg_h=0.0, accel_noise_g=0.0,
+    ds = drill_string.rotating_drill(0, duration_s=1200.0, gyro=gyro, gyro_noise_deg_h=0.0, accel_noise_g=0.0,
                                  mag_noise_nT=0.0)
     ref = _reference(ds, bias="stop")
     # what remains is the horizontal earth rate the stop cannot separate (<= 15.04 cos(lat) deg/h)
@@ -187,13 +187,13 @@ def test_paper_box_unit_coordinates_and_rows():
 
 
 def test_gyro_grade_factor_scales_every_error():
-    g = datasets.MISMA_GYRO
+    g = drill_string.MISMA_GYRO
     assert g.scaled(1.0) == ins.GyroErrors(*[tuple(map(float, v)) if not isinstance(v[0], tuple) else
                                              tuple(tuple(map(float, r)) for r in v) for v in g])
     z = g.scaled(0.0)
     assert all(np.all(np.asarray(v) == 0) for v in z)
-    ds = grade_dataset(datasets.rotating_drill(0, duration_s=600.0), {"duration_s": 600.0}, 0.0)
+    ds = grade_dataset(drill_string.rotating_drill(0, duration_s=600.0), {"duration_s": 600.0}, 0.0)
     assert ds.truth["gyro_noise_deg_h"] == 0.0 and np.all(np.asarray(ds.truth["gyro"]["bias_deg_h"]) == 0)
     # the magnetometer data do not depend on the gyro grade
     np.testing.assert_array_equal(ds.frame[["bx", "by", "bz"]].to_numpy(),
-                                  datasets.rotating_drill(0, duration_s=600.0).frame[["bx", "by", "bz"]].to_numpy())
+                                  drill_string.rotating_drill(0, duration_s=600.0).frame[["bx", "by", "bz"]].to_numpy())

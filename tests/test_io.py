@@ -1,4 +1,5 @@
-"""Tests for icgo.io.recording: the data contract reader/writer, its one-line errors, and the mag_cal converter."""
+"""Tests for the data contract (icgo.io.recording, schema, checks, csv_text): the reader/writer, its one-line errors,
+and the bundled circuitpython-mag-cal devices (icgo.io.mag_cal_bundled)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from icgo.core.errors import DataError
+from icgo.io import csv_text, mag_cal_bundled, schema
 from icgo.io import __main__ as io_cli
 from icgo.io import recording as io
 from icgo.physics.frames import angle_diff, attitude_from_sensors
@@ -25,7 +28,7 @@ def _copy(tmp_path, *names):
 
 
 def _one_line_error(fn, *args, **kw) -> str:
-    with pytest.raises(io.DataError) as e:
+    with pytest.raises(DataError) as e:
         fn(*args, **kw)
     msg = str(e.value)
     assert "\n" not in msg and msg.strip() == msg and msg
@@ -41,7 +44,7 @@ def test_survey_reads_with_types_field_and_consistent_attitude():
     assert f["station"].dtype == np.int64 and f["gx"].dtype == np.float64
     assert f["station"].tolist() == [1, 2, 3, 4, 5, 6]
     assert rec.notices == []
-    assert rec.field == io.ReferenceField(48000.0, 65.0, 0.0, 1.0, "metadata")
+    assert rec.field == schema.ReferenceField(48000.0, 65.0, 0.0, 1.0, "metadata")
     assert rec.has_reference
     # The file's sensors (rounded to 1e-6 g, 1e-3 nT) reproduce its reference attitude.
     att = attitude_from_sensors(rec.G, rec.B)
@@ -212,7 +215,7 @@ def test_round_trip_full_precision(tmp_path):
     for c in f.columns:  # the values given, bit for bit
         assert np.array_equal(back.frame[c].to_numpy(), f[c].to_numpy()), c
     assert back.meta == meta
-    assert back.field == io.ReferenceField(48123.456789012345, 64.1234567890123, -3.3, 0.99987654321, "metadata")
+    assert back.field == schema.ReferenceField(48123.456789012345, 64.1234567890123, -3.3, 0.99987654321, "metadata")
     assert any("extra_note, extra_num" in n for n in back.notices)
 
 
@@ -261,10 +264,10 @@ def test_failed_write_leaves_existing_files_intact(tmp_path, monkeypatch):
 
 # ------------------------------------------------- real devices (mag_cal 1.4.1)
 def test_mag_cal_devices_load_with_the_expected_picture():
-    names = io.mag_cal_devices()
+    names = mag_cal_bundled.mag_cal_devices()
     assert names == ["ab", "ai", "bh", "bi", "ee", "fb", "hj", "hj2", "jd"]
     for name in names:
-        rec = io.load_mag_cal_device(name)
+        rec = mag_cal_bundled.load_mag_cal_device(name)
         f = rec.frame
         assert len(f) == 24 and f["station"].tolist() == list(range(24)) and not rec.has_reference
         assert f["group"].tolist() == list(range(8)) + [8] * 8 + [9] * 8
@@ -293,11 +296,11 @@ def test_mag_cal_converter_matches_the_package_side_by_side():
 
     from icgo.studies.calibration_peer import peer_numpy
 
-    perm = list(io.MAG_CAL_DEVICE_TO_TOOL)
-    for name in io.mag_cal_devices():
+    perm = list(mag_cal_bundled.MAG_CAL_DEVICE_TO_TOOL)
+    for name in mag_cal_bundled.mag_cal_devices():
         text = (Path(io.__file__).parents[1] / "data" / "mag_cal" / f"{name}.json").read_text()
         aligned, grav, mag = read_fixture(text)
-        rec = io.load_mag_cal_device(name)
+        rec = mag_cal_bundled.load_mag_cal_device(name)
         assert np.array_equal(rec.G, grav[:, perm]) and np.array_equal(rec.B, 1000.0 * mag[:, perm])
         for gid, (m, g) in zip((8, 9), aligned):
             assert np.array_equal(rec.B[rec.frame["group"] == gid], 1000.0 * m[:, perm])
@@ -312,12 +315,12 @@ def test_mag_cal_converter_matches_the_package_side_by_side():
 
 
 def test_mag_cal_unknown_device_and_export(tmp_path, capsys):
-    assert "unknown device 'zz'" in _one_line_error(io.load_mag_cal_device, "zz")
+    assert "unknown device 'zz'" in _one_line_error(mag_cal_bundled.load_mag_cal_device, "zz")
     assert io_cli.main(["export-mag-cal", str(tmp_path)]) == 0
     files = sorted(p.name for p in tmp_path.glob("*.csv"))
-    assert files == [f"mag_cal_{n}.csv" for n in io.mag_cal_devices()]
+    assert files == [f"mag_cal_{n}.csv" for n in mag_cal_bundled.mag_cal_devices()]
     back = io.read_recording(tmp_path / "mag_cal_hj2.csv")
-    pd.testing.assert_frame_equal(back.frame, io.load_mag_cal_device("hj2").frame, check_exact=True)
+    pd.testing.assert_frame_equal(back.frame, mag_cal_bundled.load_mag_cal_device("hj2").frame, check_exact=True)
     assert back.meta["license"].startswith("MIT") and back.field is None
 
 
@@ -335,7 +338,7 @@ def test_a_pipe_or_device_is_refused_at_once(tmp_path):
     fifo = tmp_path / "fifo.csv"
     os.mkfifo(fifo)
     for p in (fifo, "/dev/zero", tmp_path):
-        with pytest.raises(io.DataError, match="not a regular file") as e:
+        with pytest.raises(DataError, match="not a regular file") as e:
             io.read_recording(p)
         assert "\n" not in str(e.value)
 
@@ -346,12 +349,12 @@ def test_plain_files_take_the_fast_reader_and_read_as_the_exact_one():
     for name in ("survey.csv", "extras.csv", "groups.csv", "handwritten_axial.csv"):
         text = (DATA / name).read_text(encoding="utf-8-sig")
         notes_fast, notes_exact = [], []
-        fast = io._read_fast(text, name, notes_fast, True)
-        exact = io._read_exact(text, name, notes_exact, True)
+        fast = csv_text._read_fast(text, name, notes_fast, True)
+        exact = csv_text._read_exact(text, name, notes_exact, True)
         assert fast is not None, name
         pd.testing.assert_frame_equal(fast, exact, check_exact=True)
         assert notes_fast == notes_exact
-    assert io._read_fast(text.replace("\n", '\n""\n', 1), "q.csv", [], True) is None
+    assert csv_text._read_fast(text.replace("\n", '\n""\n', 1), "q.csv", [], True) is None
 
 
 # ------------------------------------------- values a reader used to accept silently (issue 19)

@@ -11,9 +11,9 @@ import pytest
 from mag_cal.axes import Axes
 from mag_cal.utils import read_fixture
 
-from icgo.core.errors import SettingError
+from icgo.core.errors import DataError, SettingError
+from icgo.io import mag_cal_bundled, schema
 from icgo.io import __main__ as io_cli
-from icgo.io import recording as io
 from icgo.io.mag_cal_json import parse_axes
 from icgo.io.mag_cal_json import read_mag_cal_json as read_file
 from icgo.studies.shots import read_shots
@@ -23,8 +23,8 @@ def read_mag_cal_json(path, **kw):
     """The recording as read (its layout's groups or groups given), before any search of the data."""
     return read_file(path, **kw).recording
 
-FIXTURE = io._mag_cal_dir().joinpath("ab.json")
-INV = np.argsort(io.MAG_CAL_DEVICE_TO_TOOL)  # tool -> device columns
+FIXTURE = mag_cal_bundled._mag_cal_dir().joinpath("ab.json")
+INV = np.argsort(mag_cal_bundled.MAG_CAL_DEVICE_TO_TOOL)  # tool -> device columns
 
 
 def test_fixture_layout_is_the_peers_reading_in_the_tool_frame():
@@ -32,12 +32,12 @@ def test_fixture_layout_is_the_peers_reading_in_the_tool_frame():
     _, grav, mag = read_fixture(FIXTURE.read_text())
     np.testing.assert_array_equal(rec.G[:, INV], grav)
     np.testing.assert_allclose(rec.B[:, INV], mag * 1000.0, rtol=1e-15)
-    assert rec.frame.group.tolist() == io.load_mag_cal_device("ab").frame.group.tolist()
+    assert rec.frame.group.tolist() == mag_cal_bundled.load_mag_cal_device("ab").frame.group.tolist()
 
 
 @pytest.mark.parametrize("mag_axes,grav_axes", [("+x+y-z", "-y-x+z"), ("-Z+X-Y", None)])
 def test_raw_layout_converts_axes_and_units_as_the_peer(tmp_path, mag_axes, grav_axes):
-    dev = io.load_mag_cal_device("bh")
+    dev = mag_cal_bundled.load_mag_cal_device("bh")
     g_dev, b_dev_ut = dev.G[:, INV], dev.B[:, INV] / 1000.0  # device frame, g and uT
     ga = grav_axes or mag_axes
 
@@ -47,7 +47,7 @@ def test_raw_layout_converts_axes_and_units_as_the_peer(tmp_path, mag_axes, grav
         out[:, idx] = v * np.asarray(sign)
         return out
 
-    mag_s, grav_s = to_sensor(b_dev_ut, mag_axes), to_sensor(g_dev, ga) * io.STANDARD_GRAVITY
+    mag_s, grav_s = to_sensor(b_dev_ut, mag_axes), to_sensor(g_dev, ga) * schema.STANDARD_GRAVITY
     # the peer maps our sensor data back to the device frame
     np.testing.assert_allclose(Axes(mag_axes.upper()).fix_axes(mag_s), b_dev_ut, rtol=1e-14)
     doc = {"mag": mag_s.tolist(), "grav": grav_s.tolist()}
@@ -77,7 +77,7 @@ def test_raw_layout_converts_axes_and_units_as_the_peer(tmp_path, mag_axes, grav
 def test_bad_files_are_one_line(tmp_path, doc, kw, match):
     path = tmp_path / "bad.json"
     path.write_text(json.dumps(doc))
-    with pytest.raises(io.DataError, match=match) as e:
+    with pytest.raises(DataError, match=match) as e:
         read_mag_cal_json(path, **kw)
     assert "\n" not in str(e.value) and str(path) in str(e.value)
 
@@ -164,7 +164,7 @@ def test_raw_layout_mounting_from_keys_or_settings_and_the_cause_when_missing(tm
     np.testing.assert_allclose(rec.B, B, rtol=1e-12)
     assert rec.frame.group.tolist() == list(range(8)) + [8] * 8 + [9] * 8
     np.testing.assert_array_equal(read_mag_cal_json(without, mag_axes=MOUNT[0], grav_axes=MOUNT[1]).B, rec.B)
-    with pytest.raises(io.DataError, match="deg or more from the pointing axis.*probable cause: the mounting is not "
+    with pytest.raises(DataError, match="deg or more from the pointing axis.*probable cause: the mounting is not "
                                            "given") as e:
         read_mag_cal_json(without)
     assert "\n" not in str(e.value)
@@ -208,5 +208,5 @@ def test_groups_setting_on_a_json_gives_the_rolls_and_checks_them(tmp_path):
     write_fixture(path, G, B)
     assert read_mag_cal_json(path, groups=((8, 15), (16, 23))).frame.group.tolist() == (
         read_mag_cal_json(path).frame.group.tolist())
-    with pytest.raises(io.DataError, match=r"group 8 \(shots 8-23\) is not a plausible roll"):
+    with pytest.raises(DataError, match=r"group 8 \(shots 8-23\) is not a plausible roll"):
         read_mag_cal_json(path, groups=((8, 23),))

@@ -15,8 +15,8 @@ from experiments import misma as entry
 from experiments._entry import CONF_DIR
 from icgo.core.errors import SettingError
 from icgo.core.settings import config_from_mapping, config_to_mapping
-from icgo.datasets import protocols as datasets
-from icgo.io.recording import load_mag_cal_device
+from icgo.datasets.drill_string import rotating_drill
+from icgo.io.mag_cal_bundled import load_mag_cal_device
 from icgo.methods import calibration as cal
 from icgo.models.calibration import MagCalibration
 from icgo.models.registry import load_model
@@ -99,7 +99,7 @@ def test_prior_box_and_iters_to():
 @pytest.fixture(scope="module")
 def tiny():
     cfg = config_from_mapping(MismaConfig, TINY)
-    data = misma.MismaData({"short": datasets.rotating_drill(0, duration_s=600.0)}, {"ab": load_mag_cal_device("ab")})
+    data = misma.MismaData({"short": rotating_drill(0, duration_s=600.0)}, {"ab": load_mag_cal_device("ab")})
     return cfg, data, misma.run(data, cfg, jax.random.PRNGKey(0))
 
 
@@ -148,7 +148,7 @@ def test_same_key_same_records(tiny):
 @pytest.mark.slow  # ~15 s of compilation in a fresh process; tests/test_studies.py runs the example in the fast suite
 def test_smoke_simulated_only_is_deterministic_by_key():
     cfg = config_from_mapping(MismaConfig, {**TINY, "real": {"enabled": False}})
-    data = misma.MismaData({"short": datasets.rotating_drill(0, duration_s=600.0)}, {})
+    data = misma.MismaData({"short": rotating_drill(0, duration_s=600.0)}, {})
     a, b = (misma.run(data, cfg, jax.random.PRNGKey(2)) for _ in range(2))
     for k in a.records:
         pd.testing.assert_frame_equal(a.records[k], b.records[k], check_exact=True)
@@ -165,7 +165,7 @@ def test_entry_point_writes_tables_figures_and_models(tmp_path):
                  "misma_summary.md", "misma_summary.json"):
         assert (tmp_path / name).is_file(), name
     back = load_model(tmp_path / "models" / "short_misma.json")
-    frame = datasets.rotating_drill(0, duration_s=600.0).frame
+    frame = rotating_drill(0, duration_s=600.0).frame
     pd.testing.assert_frame_equal(back.apply(frame), res.models["short_misma"].apply(frame), check_exact=True)
 
 

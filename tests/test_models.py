@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 from icgo.core.errors import ModelError
-from icgo.datasets import protocols as datasets
+from icgo.datasets import casing_stations
 from icgo.models.format import SCHEMA_VERSION
 from icgo.models.registry import load_model
 from icgo.models.relm import MSAModel, RELMCompensation, circular_mean_spread
@@ -23,7 +23,7 @@ CFG = dict(n_repeats=3, hidden=10, seed=3, pop_size=6, iterations=3)
 
 @pytest.fixture(scope="module")
 def fitted():
-    frame = datasets.lab_casing(0).frame
+    frame = casing_stations.lab_casing(0).frame
     res = study.run_study(frame, StudyConfig(optimizer="pso", **CFG))
     return frame, res
 
@@ -83,7 +83,7 @@ def test_msa_model_applies_the_biases(fitted):
 
 def test_save_load_apply_is_bitwise(fitted, tmp_path):
     _, res = fitted
-    new = datasets.lab_casing(11).frame
+    new = casing_stations.lab_casing(11).frame
     for model in (res.model, res.msa_model):
         before = model.apply(new)
         path = model.save(tmp_path / model.KIND)
@@ -97,7 +97,7 @@ def test_save_load_apply_is_bitwise(fitted, tmp_path):
 def test_fresh_process_reproduces_prediction_bitwise(fitted, tmp_path):
     """A saved model loaded in a fresh Python process gives the same corrected survey, bit for bit."""
     _, res = fitted
-    new = datasets.lab_casing(12).frame
+    new = casing_stations.lab_casing(12).frame
     new.to_csv(tmp_path / "new.csv", index=False)
     res.model.save(tmp_path / "model")
     here = res.model.apply(new)
@@ -126,7 +126,7 @@ def test_model_errors_are_one_line(fitted, tmp_path):
         load_model(path)
     with pytest.raises(ModelError, match="model file not found"):
         load_model(tmp_path / "absent.json")
-    survey = datasets.lab_casing(1).frame.drop(columns=["bz"])
+    survey = casing_stations.lab_casing(1).frame.drop(columns=["bz"])
     with pytest.raises(ModelError, match=r"needs column\(s\) \['bz'\]") as e:
         res.model.apply(survey)
     assert "\n" not in str(e.value)
@@ -155,7 +155,7 @@ def test_out_of_bag_halfwidth_is_the_conformal_quantile():
 
 def test_models_carry_their_interval(fitted):
     frame, res = fitted
-    out = res.model.apply(datasets.lab_casing(3).frame)
+    out = res.model.apply(casing_stations.lab_casing(3).frame)
     hw = res.model.interval_halfwidth
     assert hw.shape == (1,) and np.isfinite(hw).all() and hw[0] > 0
     assert (out.azimuth_interval_deg == hw[0]).all() and res.model.interval_level == 0.9

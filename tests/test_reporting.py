@@ -167,7 +167,7 @@ def test_the_papers_values_stand_beside_ours(name):
 
 def test_one_copy_of_the_published_values():
     from experiments import figures
-    from icgo.datasets.protocols import TABLE4_ORIGINAL
+    from icgo.datasets.casing_stations import TABLE4_ORIGINAL
     from icgo.reporting.published import ICGO
 
     assert figures.PAPER is ICGO

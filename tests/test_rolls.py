@@ -8,6 +8,7 @@ import pytest
 from mag_cal_files import INDUSTRIAL, device_attitudes, join, roll, singles, synth
 
 from icgo.core.errors import DataError, SettingError
+from icgo.io import mag_cal_bundled
 from icgo.io import recording as io
 from icgo.io.grouping import check_given, groups_from_ranges, parse_groups
 from icgo.methods.rolls import find_rolls
@@ -20,8 +21,8 @@ PEER_GROUPS = np.r_[np.arange(8), [8] * 8, [9] * 8]
 def test_bundled_rolls_are_plausible_and_merged_rolls_are_not():
     # the numbers the module doc quotes for the tolerances
     plane_g, plane_b, agree, to_z, merged_g, merged_b = [], [], [], [], [], []
-    for name in io.mag_cal_devices():
-        rec = io.load_mag_cal_device(name)
+    for name in mag_cal_bundled.mag_cal_devices():
+        rec = mag_cal_bundled.load_mag_cal_device(name)
         G, B = rec.G, rec.B
         found = find_rolls(G, B)
         assert found.groups.tolist() == rec.frame.group.tolist() == PEER_GROUPS.tolist(), name
@@ -124,7 +125,7 @@ def test_parse_groups_refuses_bad_ranges(spec, match):
 
 
 def test_given_ranges_make_the_groups_and_too_short_ranges_are_a_setting_error():
-    rec = io.load_mag_cal_device("ai")
+    rec = mag_cal_bundled.load_mag_cal_device("ai")
     station = rec.frame.station.to_numpy()
     assert groups_from_ranges(station, parse_groups("8-15,16-23")).tolist() == PEER_GROUPS.tolist()
     with pytest.raises(SettingError, match="range 8-10 holds 3 shot"):
@@ -133,7 +134,7 @@ def test_given_ranges_make_the_groups_and_too_short_ranges_are_a_setting_error()
 
 def test_off_plane_shots_names_the_shots_of_another_roll():
     # group 8 given as shots 8-15 plus the first 3 of the next roll: those 3 are named, nothing else
-    rec = io.load_mag_cal_device("ai")
+    rec = mag_cal_bundled.load_mag_cal_device("ai")
     G, B = rec.G[8:19], rec.B[8:19]
     scale = float(np.median(np.linalg.norm(rec.B, axis=1)))
     assert rolls.off_plane_shots(G, B, scale) == [8, 9, 10]
@@ -143,7 +144,7 @@ def test_off_plane_shots_names_the_shots_of_another_roll():
 def test_the_layout_is_checked_and_used_and_the_data_are_asked_for_a_second_opinion():
     from icgo.methods.grouping import by_data, by_layout
 
-    rec = io.load_mag_cal_device("bh")
+    rec = mag_cal_bundled.load_mag_cal_device("bh")
     G, B, station = rec.G, rec.B, rec.frame.station.to_numpy()
     g = by_layout(G, B, station, PEER_GROUPS, "the layout", "bh.json")
     assert g.groups.tolist() == PEER_GROUPS.tolist() and g.record["data_suggest"] is None
@@ -167,7 +168,7 @@ def test_a_corrupt_shot_is_refused_by_the_reader_before_any_fit(tmp_path):
     from icgo.io.mag_cal_json import read_mag_cal_json
     from icgo.methods.calibration import ellipsoid_fit
 
-    d = json.loads(io._mag_cal_dir().joinpath("ab.json").read_text())
+    d = json.loads(mag_cal_bundled._mag_cal_dir().joinpath("ab.json").read_text())
     d["shots"]["mag"][31] = 1e300  # shot 10's third component
     path = tmp_path / "huge.json"
     path.write_text(json.dumps(d))
@@ -175,7 +176,7 @@ def test_a_corrupt_shot_is_refused_by_the_reader_before_any_fit(tmp_path):
     with pytest.raises(DataError, match=r"huge.json: shot 10: \|B\| = 1e\+300 uT while the median is 11\d uT") as e:
         read_mag_cal_json(path)
     assert time.perf_counter() - t0 < 5.0 and "inf" not in str(e.value) and "nan" not in str(e.value)
-    B = io.load_mag_cal_device("ab").B.copy()
+    B = mag_cal_bundled.load_mag_cal_device("ab").B.copy()
     B[10, 2] = 1e300
     with pytest.raises(ValueError, match="too large to square"):
         ellipsoid_fit(B, 1.0, check=False)

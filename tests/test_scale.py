@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 
 import icgo  # noqa: F401  (float64)
-from icgo.datasets import protocols as datasets
+from icgo.datasets import casing_stations
 from icgo.methods import msa
 from icgo.studies import icgo_relm as S
 from icgo.studies.icgo_relm_config import StudyConfig
@@ -28,7 +28,7 @@ def test_msa_of_a_thousand_table3_repeats_stops_by_its_rule():
     """Every repeat converges in a few steps (the optimistix LM took 6-37 steps here, most of them rejected
     at the float64 floor, and on a GPU some repeats never stopped)."""
     cfg = StudyConfig(n_repeats=1000)
-    prep, _ = _prepared(datasets.lab_casing(0).frame, cfg)
+    prep, _ = _prepared(casing_stations.lab_casing(0).frame, cfg)
     steps = np.asarray(prep.msa.n_steps)
     assert np.asarray(prep.msa.converged).all()
     assert steps.max() <= 6, np.bincount(steps)
@@ -39,7 +39,7 @@ def _two_azimuth_frame():
     """One azimuth turned through 360 deg of toolface plus two stations at another azimuth: a 7:3 split that
     puts both of those in the test rows leaves every training station on one tool axis, so the station-mean
     MSA cannot determine the axial bias eps_z (a real failure, not a mock)."""
-    f = datasets.lab_casing(0, toolface_step_deg=15.0).frame
+    f = casing_stations.lab_casing(0, toolface_step_deg=15.0).frame
     az = sorted(f.azimuth_deg.unique())
     return pd.concat([f[f.azimuth_deg == az[0]], f[f.azimuth_deg == az[3]].iloc[:2]]).reset_index(drop=True)
 
@@ -56,8 +56,8 @@ def test_a_repeat_whose_msa_fails_is_left_out_and_named(tmp_path, capsys):
     from hydra.core.hydra_config import HydraConfig
     from omegaconf import open_dict
 
-    from experiments import _entry as E
     from experiments import figures
+    from experiments import _entry as E
     from experiments.run import run_job
     from icgo.io.recording import write_recording
 
@@ -101,7 +101,7 @@ def test_a_repeat_whose_msa_fails_is_left_out_and_named(tmp_path, capsys):
 
 
 def test_every_repeat_failing_stops_the_study_in_one_line():
-    frame = datasets.lab_casing(0, toolface_step_deg=45.0).frame
+    frame = casing_stations.lab_casing(0, toolface_step_deg=45.0).frame
     with pytest.raises(ValueError, match=r"^multi-station analysis \(repeat 0\): Levenberg-Marquardt did not "
                                          r"converge in 1 steps"):
         S.run_study(frame, StudyConfig(n_repeats=3, msa_iterations=1, hidden=4, pop_size=4, iterations=1))
@@ -109,7 +109,7 @@ def test_every_repeat_failing_stops_the_study_in_one_line():
 
 def test_a_thousand_repeat_smoke_study_completes():
     """1,000 repeats x 1 strategy at the smoke budget (population 8, 3 iterations) on a 104-row survey."""
-    frame = datasets.lab_casing(0, toolface_step_deg=30.0).frame
+    frame = casing_stations.lab_casing(0, toolface_step_deg=30.0).frame
     cfg = StudyConfig(n_repeats=1000, hidden=8, pop_size=8, iterations=3)
     t0 = time.perf_counter()
     res = S.run_study(frame, cfg)

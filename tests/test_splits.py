@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 from icgo.core.errors import SettingError
-from icgo.datasets import protocols as datasets
+from icgo.datasets import casing_stations
 from icgo.maths.conformal import conformal_quantile, member_coverage
 from icgo.methods import relm
 from icgo.studies import splits
@@ -21,7 +21,7 @@ from icgo.studies.icgo_relm_config import StudyConfig
 
 @pytest.fixture(scope="module")
 def lab():
-    return datasets.lab_casing(0, toolface_step_deg=45.0)
+    return casing_stations.lab_casing(0, toolface_step_deg=45.0)
 
 
 def test_random_members_are_the_papers_permutation_split(lab):
@@ -73,11 +73,11 @@ def test_fold_protocols_name_a_missing_column_or_a_single_group(lab):
 def test_transfer_draw_changes_only_what_it_says():
     d = splits.TransferDraw(seed=3, casing_distance_scale=1.2, casing_strength_scale=0.5, misalignment_deg=(0.1, 0, 0))
     t = splits.transfer_survey("lab_casing", 0, {"toolface_step_deg": 90.0}, d)
-    c = datasets.LAB_CASING
+    c = casing_stations.LAB_CASING
     truth = t.truth
     assert t.meta["seed"] == 3
     np.testing.assert_allclose(truth["effects"]["mag_misalignment"],
-                               np.asarray(datasets.LAB_EFFECTS["mag_misalignment"]) + [0.1, 0, 0])
+                               np.asarray(casing_stations.LAB_EFFECTS["mag_misalignment"]) + [0.1, 0, 0])
     cas = truth["casing"]
     np.testing.assert_allclose(cas["end_ned"], 1.2 * np.asarray(c.end_ned))
     assert cas["magnetization_A_m"] == pytest.approx(0.5 * c.magnetization_A_m)
@@ -203,7 +203,7 @@ def test_physics_baseline_recovers_the_twelve_parameters_and_an_earth_fixed_fiel
     truth = {"hard_iron": (400.0, -300.0, 250.0), "mag_scale": (0.004, -0.003, 0.002),
              "mag_cross_coupling": (0.003, -0.002, 0.001), "mag_misalignment": (0.2, -0.1, 0.15),
              "external_field": (300.0, -200.0, 100.0)}
-    ds = datasets.lab_casing(1, toolface_step_deg=30.0, casing=None, effects=truth, spike_prob=0.0,
+    ds = casing_stations.lab_casing(1, toolface_step_deg=30.0, casing=None, effects=truth, spike_prob=0.0,
                              inclination_deg=60.0)
     st = stations_from_recording(icgo_io.validate(ds.frame, ds.meta, source="sim"))
     (params,) = fit_members(st, np.ones((1, st.n)), TWELVE_PLUS_FIELD)
@@ -212,7 +212,7 @@ def test_physics_baseline_recovers_the_twelve_parameters_and_an_earth_fixed_fiel
     np.testing.assert_allclose(got["mag_misalignment"], truth["mag_misalignment"], atol=0.02)  # deg
     a = predict(params, ds.frame[["gx", "gy", "gz", "bx", "by", "bz"]].to_numpy(float)).azimuth
     err = np.asarray(angle_diff(np.asarray(a), ds.frame["azimuth_deg"]))
-    floor = datasets.noise_floor("lab_casing", 1, toolface_step_deg=30.0, inclination_deg=60.0)
+    floor = casing_stations.noise_floor("lab_casing", 1, toolface_step_deg=30.0, inclination_deg=60.0)
     assert np.abs(err).mean() < 2 * float(floor["mae"].iloc[0])
 
 

@@ -144,14 +144,14 @@ def test_cgo_strategies_batched_equals_alone_and_beats_plain(frame):
 
 @pytest.mark.slow
 def test_lab_casing_msa_and_plain_relm():
-    from icgo.datasets import protocols as datasets
+    from icgo.datasets import casing_stations
     from icgo.methods import msa
 
-    clean = datasets.lab_casing(0, casing=None, effects={"hard_iron": [900.0, -700.0, 1500.0]})
+    clean = casing_stations.lab_casing(0, casing=None, effects={"hard_iron": [900.0, -700.0, 1500.0]})
     G, B, A = frame_arrays(clean.frame)
     r = msa.multi_station_analysis(G, B)
     assert np.all(np.abs(np.asarray(r.bias) - [900.0, -700.0, 1500.0]) < 3 * np.asarray(r.std_error))
-    ds = datasets.lab_casing(0)
+    ds = casing_stations.lab_casing(0)
     res = study.run_study(ds.frame, StudyConfig(optimizer=None, n_repeats=3))
     p = res.predictions[res.predictions.repeat == 0]
     # With the casing, MSA leaves a residual structured in toolface: per azimuth, two

@@ -59,14 +59,14 @@ def test_md_must_increase():
 
 def test_apply_gives_positions_where_the_survey_has_depth(tmp_path):
     """The front door's library path: a lab_casing survey given a depth column gets both trajectories."""
-    from icgo.datasets import protocols as datasets
+    from icgo.datasets import casing_stations
     from icgo.studies import icgo_relm
     from icgo.studies.icgo_relm_config import StudyConfig
     from icgo.survey.apply import correct_survey
 
-    res = icgo_relm.run_study(datasets.lab_casing(0, toolface_step_deg=60.0).frame,
+    res = icgo_relm.run_study(casing_stations.lab_casing(0, toolface_step_deg=60.0).frame,
                               StudyConfig(optimizer=None, n_repeats=2, hidden=8))
-    new = datasets.lab_casing(3, toolface_step_deg=60.0).frame
+    new = casing_stations.lab_casing(3, toolface_step_deg=60.0).frame
     new = new.assign(md=10.0 * np.arange(len(new)))
     out = correct_survey(res.model, new)
     t = out.table

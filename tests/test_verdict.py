@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 
 from experiments.apply import run_apply
-from icgo.datasets import protocols as datasets
+from icgo.datasets import casing_stations
 from icgo.io.recording import read_recording, write_recording
 from icgo.models.format import sensor_domain
 from icgo.physics.qc import QCBands
@@ -29,10 +29,10 @@ META_KEYS = ("total_field_nT", "dip_deg", "declination_deg", "gravity_g")
 def fitted(tmp_path_factory):
     """A small study on lab_casing, its saved model, a new draw inside its domain and one far outside it."""
     tmp = tmp_path_factory.mktemp("verdict")
-    res = icgo_relm.run_study(datasets.lab_casing(0, toolface_step_deg=30.0).frame,
+    res = icgo_relm.run_study(casing_stations.lab_casing(0, toolface_step_deg=30.0).frame,
                               StudyConfig(optimizer="pso", n_repeats=3, hidden=8, pop_size=6, iterations=3))
     path = res.model.save(tmp / "relm_compensation")
-    near, far = datasets.lab_casing(5, toolface_step_deg=30.0), datasets.well_conditions(0)
+    near, far = casing_stations.lab_casing(5, toolface_step_deg=30.0), casing_stations.well_conditions(0)
     surveys = {}
     for name, d in (("near", near), ("far", far)):
         surveys[name] = tmp / f"{name}.csv"

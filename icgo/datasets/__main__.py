@@ -16,7 +16,8 @@ if __name__ == "__main__":
 from pathlib import Path  # noqa: E402
 
 from icgo.core.settings import ArgumentParser, run_cli  # noqa: E402
-from icgo.datasets.protocols import DATASETS, write_dataset  # noqa: E402
+from icgo.datasets.dataset import write_dataset  # noqa: E402
+from icgo.datasets.registry import DATASETS  # noqa: E402
 from icgo.io.files import Output  # noqa: E402
 
 

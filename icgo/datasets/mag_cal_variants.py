@@ -92,7 +92,7 @@ def _axes(rng) -> str:
 
 def variant(device: str, k: int, seed: int = 0) -> Variant:
     """Variant ``k`` of a bundled device (module doc); the same (device, k, seed) gives the same variant."""
-    from icgo.io.recording import load_mag_cal_device
+    from icgo.io.mag_cal_bundled import load_mag_cal_device
 
     rec = load_mag_cal_device(device)
     G, B = rec.G.copy(), rec.B.copy()
@@ -120,7 +120,7 @@ def variant(device: str, k: int, seed: int = 0) -> Variant:
 
 def variants(devices=None, n: int = N_VARIANTS, seed: int = 0) -> list[Variant]:
     """:data:`N_VARIANTS` variants of each bundled device (all 9 by default)."""
-    from icgo.io.recording import mag_cal_devices
+    from icgo.io.mag_cal_bundled import mag_cal_devices
 
     return [variant(d, k, seed) for d in (devices or mag_cal_devices()) for k in range(n)]
 
@@ -128,8 +128,9 @@ def variants(devices=None, n: int = N_VARIANTS, seed: int = 0) -> list[Variant]:
 def write_raw(v: Variant, path) -> Path:
     """The variant as a circuitpython-mag-cal raw-layout JSON (sensor frames, gravity m/s^2, field uT, its axis
     strings not in the file: the user gives them as ``mag_axes=`` / ``grav_axes=``)."""
+    from icgo.io.mag_cal_bundled import MAG_CAL_DEVICE_TO_TOOL, UT_TO_NT
     from icgo.io.mag_cal_json import parse_axes
-    from icgo.io.recording import MAG_CAL_DEVICE_TO_TOOL, STANDARD_GRAVITY, UT_TO_NT
+    from icgo.io.schema import STANDARD_GRAVITY
 
     inv = np.argsort(MAG_CAL_DEVICE_TO_TOOL)  # tool -> device columns
 

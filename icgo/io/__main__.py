@@ -33,13 +33,8 @@ from icgo.core.errors import DataError, SettingError  # noqa: E402
 from icgo.core.settings import ArgumentParser, run_cli  # noqa: E402
 from icgo.io.files import Output  # noqa: E402
 from icgo.io.grouping import roll_table  # noqa: E402
-from icgo.io.recording import (  # noqa: E402
-    column_map,
-    load_mag_cal_device,
-    mag_cal_devices,
-    read_recording,
-    write_recording,
-)
+from icgo.io.mag_cal_bundled import load_mag_cal_device, mag_cal_devices  # noqa: E402
+from icgo.io.recording import column_map, read_recording, write_recording  # noqa: E402
 from icgo.io.shots import SETTINGS, is_json, read_shot_file  # noqa: E402
 from icgo.physics.rolls import group_findings  # noqa: E402
 

@@ -37,7 +37,7 @@ from icgo.core.errors import DataError, SettingError
 #: Export names read as another contract column without a map.
 ALIASES = {"depth_m": "md"}
 
-_G0 = 9.80665  # m/s^2 per g (standard gravity; icgo.io.recording.STANDARD_GRAVITY)
+_G0 = 9.80665  # m/s^2 per g (standard gravity; icgo.io.schema.STANDARD_GRAVITY)
 _B = {"nt": 1.0, "nanotesla": 1.0, "gamma": 1.0, "ut": 1e3, "µt": 1e3, "μt": 1e3, "microtesla": 1e3,
       "g": 1e5, "gs": 1e5, "gauss": 1e5, "mg": 100.0, "milligauss": 100.0, "t": 1e9, "tesla": 1e9, "mt": 1e6}
 _G = {"g": 1.0, "gn": 1.0, "g0": 1.0, "mg": 1e-3, "milli-g": 1e-3, "m/s^2": 1 / _G0, "m/s2": 1 / _G0,

@@ -12,8 +12,8 @@ Two layouts are read (``docs/calibrate.md``):
   come from the caller (a setting) or from the JSON (keys ``mag_axes`` / ``grav_axes``).
 
 Every shot is checked before anything is computed from it: finite numbers, the units of the whole file from its
-median (below), and every shot's |G| and |B| within a factor of those medians (:data:`icgo.io.recording.ROW_FACTOR_G`,
-:data:`icgo.io.recording.ROW_FACTOR_B`; a shot of 1e300 is refused here, naming the shot). Groups: a recording of
+median (below), and every shot's |G| and |B| within a factor of those medians (:data:`icgo.io.schema.ROW_FACTOR_G`,
+:data:`icgo.io.schema.ROW_FACTOR_B`; a shot of 1e300 is refused here, naming the shot). Groups: a recording of
 ``8 + 8 k`` shots is in the circuitpython-mag-cal layout (:func:`icgo.io.grouping.layout_groups`: 8 single shots,
 then rolls of 8) and gets the layout's groups; shot ranges given (``groups=``) replace them and are checked
 (:func:`icgo.io.grouping.check_given`). Checking a layout against the data and finding rolls where no layout is
@@ -21,7 +21,7 @@ known are :mod:`icgo.methods.grouping`'s (composed by :mod:`icgo.studies.shots`)
 Units are converted and stated in the recording's ``description``: gravity to g
 (m/s^2 / 9.80665 when the median |G| is near 9.8), field uT -> nT (x 1000); a field that
 is not in uT (Gauss, nT) is refused with the factor. The device frame (X right, Y pointing, Z up)
-maps to the tool frame as for the bundled devices (:data:`icgo.io.recording.MAG_CAL_DEVICE_TO_TOOL`).
+maps to the tool frame as for the bundled devices (:data:`icgo.io.mag_cal_bundled.MAG_CAL_DEVICE_TO_TOOL`).
 """
 
 from __future__ import annotations
@@ -37,17 +37,9 @@ import pandas as pd
 from icgo.core.errors import DataError, GroupingError, SettingError
 from icgo.io.files import read_text_bounded
 from icgo.io.grouping import Layout, check_given, groups_from_ranges, layout_groups
-from icgo.io.recording import (
-    ROW_FACTOR_B,
-    ROW_FACTOR_G,
-    STANDARD_GRAVITY,
-    UT_TO_NT,
-    Recording,
-    device_to_tool,
-    fail,
-    fixture_shots,
-    validate,
-)
+from icgo.io.mag_cal_bundled import UT_TO_NT, device_to_tool, fixture_shots
+from icgo.io.recording import Recording, validate
+from icgo.io.schema import ROW_FACTOR_B, ROW_FACTOR_G, STANDARD_GRAVITY, fail
 from icgo.physics.rolls import AXIS_TO_Z_DEG, rolls_off_axis_deg
 
 #: Largest JSON recording read (bytes; docs/data.md): ten times the largest recording calibrate takes.
@@ -151,7 +143,7 @@ def layout_of(d) -> str:
 
 
 def check_shots(G, B_uT, src: str) -> None:
-    """Every shot's |G| and |B| within :data:`icgo.io.recording.ROW_FACTOR_G` / ``ROW_FACTOR_B`` of the median, so
+    """Every shot's |G| and |B| within :data:`icgo.io.schema.ROW_FACTOR_G` / ``ROW_FACTOR_B`` of the median, so
     that one corrupt or mis-scaled reading (1e300, a value in other units) is refused, named, before any fit.
 
     Args:

@@ -15,7 +15,7 @@ from icgo.core.errors import SettingError
 
 #: The keys of the ``site`` setting.
 SITE_KEYS = ("lat", "lon", "date", "alt_km", "dip", "field")
-#: Range of a plausible geomagnetic total field, nT (the data contract's, icgo.io.recording.B_MEDIAN_RANGE_NT
+#: Range of a plausible geomagnetic total field, nT (the data contract's, icgo.io.schema.B_MEDIAN_RANGE_NT
 #: is for raw readings; the earth's own field is 22,000-67,000 nT).
 SITE_FIELD_RANGE_NT = (10_000.0, 100_000.0)
 

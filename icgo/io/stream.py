@@ -5,7 +5,7 @@
 ``stream_above`` bytes is one chunk, read by :func:`icgo.io.recording.read_recording` exactly as every other
 door reads it. A larger one is read line by line: its head (comment lines, the header, a units row) is resolved
 once (:func:`icgo.io.columns.prepare`), then every ``chunk_rows`` data lines are parsed and checked with the same
-code and the same rules as a whole file (:func:`icgo.io.recording.parse_contract_text`), with the lines before
+code and the same rules as a whole file (:func:`icgo.io.csv_text.parse_contract_text`), with the lines before
 them kept as empty lines so that an error names the file's own line, and its row counted from the file's start.
 The reader then holds one chunk's text and frame, never the file.
 
@@ -22,8 +22,10 @@ from pathlib import Path
 
 from icgo.core.errors import DataError
 from icgo.io import columns as export
+from icgo.io.csv_text import parse_contract_text
 from icgo.io.files import MiB, open_regular
-from icgo.io.recording import KNOWN_COLUMNS, Recording, fail, parse_contract_text, read_meta, read_recording
+from icgo.io.recording import Recording, read_meta, read_recording
+from icgo.io.schema import KNOWN_COLUMNS, fail
 
 #: The largest survey ``apply`` takes by default (bytes; its ``max_mb`` setting): streamed, its memory does not
 #: grow with it beyond a few floats per row.

@@ -1,4 +1,4 @@
-"""12-parameter magnetometer calibration: model, objectives, closed-form baselines.
+"""12-parameter magnetometer calibration: the model, the data it is fitted on, closed-form and least-squares fits.
 
 The MISMA paper (Yang & Cai, ``seeds/002_438cb34a40e5ab84.txt``) lost its
 equations in the text extraction; each formula below is reconstructed from the
@@ -12,32 +12,18 @@ iron; b: hard iron and sensor bias, nT). The paper identifies the 12 numbers
 ``B_true = R^-1 (B_meas - b)`` (eq. 4). A parameter vector here is that (12,)
 array; ``R^-1`` is dimensionless and ``b`` in nT.
 
-Objectives (JAX, jittable, vmappable over candidate parameter vectors):
-
-* :func:`dot_invariance` (eq. 5): at one site the angle between G and B is
-  constant, so the spread (variance) of ``G.B / (|G| |B|)`` over the samples
-  is zero at the true parameters.
-* :func:`magnitude_consistency`: mean squared relative deviation of the
-  corrected ``|B|`` from the reference modulus ``|M_omega|`` (the equality
-  constraint of eq. 8 used as a quadratic penalty).
-* :func:`pearson_xy` (eqs. 6-7): while the string rotates, the cross-axial
-  magnetometer and accelerometer signals are sinusoids of one frequency; the
-  Pearson correlation of corrected ``bx`` with ``gx`` and ``by`` with ``gy``
-  must reach a threshold.
-* :func:`magnitude_ratio` (eq. 15): the geomagnetic modulus ratio GMR, in
-  (0, 1], 1 when every corrected ``|B|`` equals ``|M_omega|``.
-
-:class:`icgo.methods.misma_objective.MismaObjective` combines them into the penalised fitness that MISMA and
-SMA minimise (``(P, 12) -> (P,)``, +inf for non-finite values) and exposes the
-GMR for :mod:`icgo.optim.misma`.
+The samples a calibration is fitted on: :class:`CalData` (:func:`make_caldata` checks them); the objectives
+over them (eqs. 5-8, 15) are in :mod:`icgo.methods.cal_objectives`, and
+:class:`icgo.methods.misma_objective.MismaObjective` combines those into the penalised fitness that MISMA and
+SMA minimise.
 
 Closed-form / deterministic baselines (host side, numpy; the nonlinear least
 squares by :func:`icgo.maths.lsq.least_squares`, the converging entry point of :mod:`icgo.maths.lsq`):
 :func:`ellipsoid_fit` (the classical quadric fit, symmetric ``R^-1``),
 :func:`fit_twelve` (all 12 parameters by least squares on the dot-invariance
-and magnitude residuals), :func:`align_to_axis` (a common rotation that puts
-the roll axis of rolled groups on the tool z axis) and the peer package's
-score :func:`group_spread_deg`.
+and magnitude residuals) and :func:`modulus_fit` (MISMA's U), each refusing too few distinct orientations
+(:func:`check_orientations`). The pointing direction of rolled groups, the peer package's score and the
+common rotation onto the roll axis are in :mod:`icgo.methods.cal_pointing`.
 """
 
 from __future__ import annotations
@@ -51,7 +37,6 @@ import numpy as np
 
 from icgo.maths.lsq import LSQResult, least_squares
 from icgo.physics.frames import angle_diff, azimuth_from_gv
-from icgo.physics.rolls import MIN_ROLLED_SHOTS
 
 N_PARAMS = 12
 #: Tool-frame directions closer than this (deg, in G and in B) count as one orientation.
@@ -111,112 +96,6 @@ def normalized_dot(G, B):
     B = jnp.asarray(B)
     num = jnp.sum(G * B, -1)
     return num / (jnp.linalg.norm(G, axis=-1) * jnp.linalg.norm(B, axis=-1))
-
-
-def _wmean(v, w):
-    return jnp.sum(v * w, -1) / jnp.sum(w, -1)
-
-
-def dot_invariance(x, G, B_meas, weights=None):
-    """Eq. (5): spread of the normalised dot product after correction.
-
-    ``J_dot = sum_k w_k (d_k - d_bar)^2 / sum_k w_k`` with
-    ``d_k = G_k.B_k / (|G_k| |B_k|)``, ``B_k = R^-1 (B_meas,k - b)``. Zero at the
-    true parameters on noise-free data. Unit: (cosine)^2.
-
-    Args:
-        x: (12,) parameters. G: (N, 3) gravity, g. B_meas: (N, 3) raw field, nT.
-        weights: (N,) sample weights or None (all 1).
-    Returns:
-        scalar.
-    """
-    d = normalized_dot(G, correct(x, B_meas))
-    w = jnp.ones_like(d) if weights is None else jnp.asarray(weights, d.dtype)
-    return _wmean((d - _wmean(d, w)) ** 2, w)
-
-
-def magnitude_consistency(x, B_meas, ref_nT, weights=None):
-    """Field-magnitude consistency: ``mean_k (|B_k| / |M_omega| - 1)^2`` (eq. 8 as a penalty).
-
-    Args:
-        x: (12,) parameters. B_meas: (N, 3) raw field, nT.
-        ref_nT: reference modulus |M_omega| (nT), scalar.
-        weights: (N,) or None.
-    Returns:
-        scalar, dimensionless.
-    """
-    m = jnp.linalg.norm(correct(x, B_meas), axis=-1)
-    w = jnp.ones_like(m) if weights is None else jnp.asarray(weights, m.dtype)
-    return _wmean((m / ref_nT - 1.0) ** 2, w)
-
-
-def magnitude_ratio(x, B_meas, ref_nT, weights=None):
-    """Eq. (15): geomagnetic modulus ratio GMR in (0, 1].
-
-    ``GMR = mean_k min(r_k, 1 / r_k)``, ``r_k = |R^-1 (B_k - b)| / |M_omega|``:
-    1 when every corrected modulus equals the reference, small for a poor
-    solution (the paper: "GMR small -> B is a poor solution").
-    """
-    r = jnp.linalg.norm(correct(x, B_meas), axis=-1) / ref_nT
-    g = jnp.minimum(r, 1.0 / r)
-    w = jnp.ones_like(g) if weights is None else jnp.asarray(weights, g.dtype)
-    return _wmean(g, w)
-
-
-def _segment_pearson(a, b, seg, w, n_seg):
-    """Pearson correlation of a and b inside each segment (weights w), (n_seg,) and counts."""
-    s = lambda v: jax.ops.segment_sum(v * w, seg, num_segments=n_seg)
-    n = s(jnp.ones_like(a))
-    safe = jnp.maximum(n, 1.0)
-    ma, mb = s(a) / safe, s(b) / safe
-    da, db = a - ma[seg], b - mb[seg]
-    cov = s(da * db)
-    va, vb = s(da * da), s(db * db)
-    rho = cov / jnp.sqrt(jnp.maximum(va * vb, 1e-300))
-    return rho, n
-
-
-def _segment_complex_corr(G, B, seg, w, n_seg):
-    """|complex correlation| of the cross-axial phasors gx + i gy and bx + i by per segment."""
-    s = lambda v: jax.ops.segment_sum(v * w, seg, num_segments=n_seg)
-    n = s(jnp.ones_like(G[:, 0]))
-    safe = jnp.maximum(n, 1.0)
-    gx, gy, bx, by = G[:, 0], G[:, 1], B[:, 0], B[:, 1]
-    gx, gy = gx - (s(gx) / safe)[seg], gy - (s(gy) / safe)[seg]
-    bx, by = bx - (s(bx) / safe)[seg], by - (s(by) / safe)[seg]
-    re = s(bx * gx + by * gy)
-    im = s(by * gx - bx * gy)
-    den = jnp.sqrt(jnp.maximum(s(bx * bx + by * by) * s(gx * gx + gy * gy), 1e-300))
-    return jnp.sqrt(re * re + im * im) / den, n
-
-
-def pearson_xy(x, G, B_meas, segment, rotating, n_segments, mode="axis"):
-    """Eqs. (6)-(7): correlation of corrected magnetometer and accelerometer x/y while rotating.
-
-    Args:
-        x: (12,) parameters. G: (N, 3) g. B_meas: (N, 3) nT.
-        segment: (N,) int segment id (one rotating stretch between two stops).
-        rotating: (N,) bool/float, 1 where the string rotates.
-        n_segments: static number of segments.
-        mode: ``"axis"`` (paper: rho(bx, gx) and rho(by, gy)) or ``"complex"``
-            (|correlation| of the cross-axial phasors, independent of the
-            azimuth-dependent phase between the two rotating vectors).
-    Returns:
-        (rho, counts): rho (n_segments, 2) for ``axis`` (x, y columns) or
-        (n_segments, 1) for ``complex``; counts (n_segments,) samples used.
-    """
-    Bc = correct(x, B_meas)
-    G = jnp.asarray(G)
-    w = jnp.asarray(rotating, Bc.dtype)
-    seg = jnp.asarray(segment)
-    if mode == "axis":
-        rx, n = _segment_pearson(Bc[:, 0], G[:, 0], seg, w, n_segments)
-        ry, _ = _segment_pearson(Bc[:, 1], G[:, 1], seg, w, n_segments)
-        return jnp.stack([rx, ry], -1), n
-    if mode == "complex":
-        r, n = _segment_complex_corr(G, Bc, seg, w, n_segments)
-        return r[:, None], n
-    raise ValueError(f"pearson mode {mode!r}: choose 'axis' or 'complex'")
 
 
 # --------------------------------------------------------------- the fitness
@@ -505,7 +384,7 @@ def modulus_fit(B, ref_nT, x0=None, ridge=0.03):
     return _checked(_solve_modulus(u0, args), "modulus_fit") * scale
 
 
-# -------------------------------------------------- accelerometer and groups
+# ------------------------------------------------------- accelerometer
 def ellipsoid_fit_accel(G, check=True) -> np.ndarray:
     """Ellipsoid fit of the accelerometer: ``G_true = S (G_meas - c)`` on the unit sphere.
 
@@ -514,103 +393,6 @@ def ellipsoid_fit_accel(G, check=True) -> np.ndarray:
     """
     return ellipsoid_fit(np.asarray(G, np.float64), 1.0, check=False) if not check else \
         ellipsoid_fit(np.asarray(G, np.float64), 1.0, G, check=True)
-
-
-def pointing_directions(G, B):
-    """Direction of the tool z axis in the earth frame (N, E, D components), (N, 3).
-
-    Built as the peer package does (mag_cal ``get_orientation_matrix``): down =
-    unit G, east = unit(down x B), north = east x down; the tool axis' earth
-    coordinates are the z components of those three unit vectors.
-    """
-    G = np.asarray(G, np.float64)
-    B = np.asarray(B, np.float64)
-    down = G / np.linalg.norm(G, axis=-1, keepdims=True)
-    east = np.cross(down, B)
-    east /= np.linalg.norm(east, axis=-1, keepdims=True)
-    north = np.cross(east, down)
-    return np.stack([north[..., 2], east[..., 2], down[..., 2]], -1)
-
-
-def group_spread_deg(G, B, groups, min_size=2):
-    """The peer package's accuracy score (mag_cal ``Calibration.accuracy``), in deg.
-
-    For each group of at least ``min_size`` shots sharing one true direction
-    (rolled about the pointing axis), the norm of the per-axis standard
-    deviations (ddof = 1) of the unit pointing-direction vectors; converted
-    from radians to degrees and averaged over the groups.
-
-    Args:
-        G: (N, 3) calibrated gravity. B: (N, 3) calibrated field.
-        groups: (N,) group ids.
-    Returns:
-        (mean over groups, dict group id -> spread), deg.
-    """
-    groups = np.asarray(groups)
-    d = pointing_directions(G, B)
-    out = {}
-    for gid in np.unique(groups):
-        m = groups == gid
-        if m.sum() >= min_size:
-            out[int(gid)] = float(np.degrees(np.linalg.norm(np.std(d[m], axis=0, ddof=1))))
-    if not out:
-        raise ValueError(f"group spread: no group has {min_size} or more shots")
-    return float(np.mean(list(out.values()))), out
-
-
-def _rotation_to_z(n):
-    """Smallest rotation Q (3, 3) with ``Q n = e_z`` for a unit vector n."""
-    n = n / np.linalg.norm(n)
-    ez = np.array([0.0, 0.0, 1.0])
-    v = np.cross(n, ez)
-    s, c = np.linalg.norm(v), float(n @ ez)
-    if s < 1e-15:
-        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
-    k = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]]) / s
-    return np.eye(3) + s * k + (1 - c) * (k @ k)
-
-
-def roll_axis(vectors_by_group):
-    """Common roll axis (unit, tool frame) of several rolled groups.
-
-    Each rolled group's vectors lie on a cone about the roll axis, i.e. in a
-    plane ``v . n = const``: ``n`` from least squares (as mag_cal ``_find_plane``),
-    signs made to agree with +z, then averaged.
-    """
-    acc = np.zeros(3)
-    for v in vectors_by_group:
-        v = np.asarray(v, np.float64)
-        n = np.linalg.lstsq(v, np.ones(len(v)), rcond=None)[0]
-        n /= np.linalg.norm(n)
-        acc += n if n[2] >= 0 else -n
-    return acc / np.linalg.norm(acc)
-
-
-def align_to_axis(G_cal, B_cal, groups, min_size=MIN_ROLLED_SHOTS):
-    """Rotation Q (3, 3) putting the rolled groups' roll axis on tool z (mag_cal ``fit_to_axis``).
-
-    One rotation common to both sensors (so the dot products fitted before are
-    kept); the axis is the average of the accelerometer's and magnetometer's
-    plane normals over the rolled groups. Apply as ``v @ Q.T``.
-    """
-    groups = np.asarray(groups)
-    vecs = []
-    for gid in np.unique(groups):
-        m = groups == gid
-        if m.sum() >= min_size:
-            vecs.append(np.asarray(G_cal)[m] / np.linalg.norm(np.asarray(G_cal)[m], axis=1, keepdims=True))
-            vecs.append(np.asarray(B_cal)[m] / np.linalg.norm(np.asarray(B_cal)[m], axis=1, keepdims=True))
-    if not vecs:
-        raise ValueError(f"axis alignment: no group with {min_size} or more rolled shots")
-    return _rotation_to_z(roll_axis(vecs))
-
-
-def pointing_jnp(G, B):
-    down = G / jnp.linalg.norm(G, axis=-1, keepdims=True)
-    east = jnp.cross(down, B)
-    east = east / jnp.linalg.norm(east, axis=-1, keepdims=True)
-    north = jnp.cross(east, down)
-    return jnp.stack([north[..., 2], east[..., 2], down[..., 2]], -1)
 
 
 # ------------------------------------------------------------------- azimuth

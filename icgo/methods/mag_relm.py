@@ -17,7 +17,7 @@ a non-linearity of one axis may move the others after the linear matrix mixed th
 **Trained by group consistency and one field** (no reference attitude). ``W``
 minimises, over the training shots (:func:`residuals`, all in deg),
 
-* each rolled shot's pointing direction (:func:`icgo.methods.calibration.pointing_directions`)
+* each rolled shot's pointing direction (:func:`icgo.methods.cal_pointing.pointing_directions`)
   minus its group's mean direction (3 components, rad -> deg): the peer's metric;
 * each shot's dip minus the mean dip of the training shots (one field);
 * each shot's ``|b'| / mean|b'| - 1`` (rad -> deg; one field strength);
@@ -50,7 +50,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from icgo.maths.lsq import least_squares_fixed
-from icgo.methods.calibration import MIN_ROLLED_SHOTS, normalized_dot, pointing_jnp
+from icgo.methods.cal_pointing import pointing_jnp
+from icgo.methods.calibration import normalized_dot
+from icgo.physics.rolls import MIN_ROLLED_SHOTS
 
 #: Candidate ridge parameters, deg^2 per unit weight^2 (leave-one-group-out picks one). The largest leaves
 #: the linear calibration nearly unchanged (its correction is below 0.01 deg on the bundled devices).
@@ -164,7 +166,7 @@ def fit(G, b, groups, hidden=None, lambdas=LAMBDAS, train=None) -> MagRELM:
 
     Args:
         G: (N, 3) calibrated gravity (tool frame, any scale). b: (N, 3) linearly calibrated field (unit sphere).
-        groups: (N,) group ids; groups of at least :data:`icgo.methods.calibration.MIN_ROLLED_SHOTS` shots are rolls.
+        groups: (N,) group ids; groups of at least :data:`icgo.physics.rolls.MIN_ROLLED_SHOTS` shots are rolls.
         hidden: (4, L) hidden layer (default :func:`axis_rbf_hidden`). lambdas: candidate ridges (deg^2).
         train: (N,) bool, the shots to fit on (default all); the others get zero weight, so that every
             split of one recording has the same shapes (one compilation).

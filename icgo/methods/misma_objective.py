@@ -7,7 +7,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from icgo.methods import calibration as cal
+from icgo.methods import cal_objectives as obj
+from icgo.methods.calibration import CalData
 from icgo.methods.gyro_reference import gyro_term
 
 
@@ -31,7 +32,7 @@ class MismaObjective:
     Args:
         data: :class:`icgo.methods.calibration.CalData`.
         pearson_threshold: ``th`` (paper: set from the correlation-strength table).
-        pearson_mode: ``"axis"`` or ``"complex"`` (see :func:`icgo.methods.calibration.pearson_xy`).
+        pearson_mode: ``"axis"`` or ``"complex"`` (see :func:`icgo.methods.cal_objectives.pearson_xy`).
         mu_magnitude: weight of the magnitude penalty (0 disables it).
         mu_pearson: weight of the Pearson penalty (0 disables it).
         n_segments: number of segment ids (static); default max(segment) + 1.
@@ -39,7 +40,7 @@ class MismaObjective:
         mu_gyro: weight of ``J_gyro`` (used only with ``gyro``).
     """
 
-    def __init__(self, data: cal.CalData, pearson_threshold=0.8, pearson_mode="axis",
+    def __init__(self, data: CalData, pearson_threshold=0.8, pearson_mode="axis",
                  mu_magnitude=1.0, mu_pearson=1.0, n_segments=None, gyro=None, mu_gyro=1.0):
         if pearson_mode not in ("axis", "complex"):
             raise ValueError(f"pearson_mode {pearson_mode!r}: choose 'axis' or 'complex'")
@@ -60,9 +61,9 @@ class MismaObjective:
     def terms(self, x, data=None):
         """The three terms ``(J_dot, J_mag, P_pearson)`` for one (12,) candidate (data: CalData or None = own)."""
         d = self.data if data is None else data
-        j_dot = cal.dot_invariance(x, d.G, d.B, d.dot_weights)
-        j_mag = cal.magnitude_consistency(x, d.B, d.ref_nT, d.weights)
-        rho, n = cal.pearson_xy(x, d.G, d.B, d.segment, d.rotating, self.n_segments, self.pearson_mode)
+        j_dot = obj.dot_invariance(x, d.G, d.B, d.dot_weights)
+        j_mag = obj.magnitude_consistency(x, d.B, d.ref_nT, d.weights)
+        rho, n = obj.pearson_xy(x, d.G, d.B, d.segment, d.rotating, self.n_segments, self.pearson_mode)
         valid = (n >= 3.0)[:, None] * jnp.ones_like(rho)
         viol = jnp.maximum(0.0, self.pearson_threshold - jnp.abs(rho)) ** 2
         p = jnp.sum(viol * valid) / jnp.maximum(jnp.sum(valid), 1.0)
@@ -91,4 +92,4 @@ class MismaObjective:
     def gmr(self, x, aux=None):
         """GMR (eq. 15) of one (12,) candidate."""
         d = self.data if aux is None else aux
-        return cal.magnitude_ratio(x, d.B, d.ref_nT, d.weights)
+        return obj.magnitude_ratio(x, d.B, d.ref_nT, d.weights)

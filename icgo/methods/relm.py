@@ -31,7 +31,6 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 N_INPUTS = 6
 FITNESS_MODES = ("train", "validation", "kfold")

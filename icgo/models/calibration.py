@@ -8,7 +8,7 @@ One kind, :class:`MagCalibration` (``KIND = "mag_calibration"``), holds what any
 * optionally the accelerometer parameters ``x_accel = [S (9), c (3, g)]``,
   ``G_c = S (G_meas - c)`` (the real-device pipelines calibrate both sensors);
 * optionally one rotation ``Q`` (3, 3) common to both sensors (axis alignment,
-  :func:`icgo.methods.calibration.align_to_axis`), applied as ``v @ Q.T``;
+  :func:`icgo.methods.cal_pointing.align_to_axis`), applied as ``v @ Q.T``;
 * ``field_scale_nT``: nT per unit of the fitted field. A fit to ``|M_omega|`` in
   nT (the simulated studies) has 1.0; a fit to the unit sphere (the real devices,
   whose reference field is unknown) carries the median raw ``|B|`` of its

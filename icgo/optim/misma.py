@@ -19,7 +19,7 @@ paper. ``docs/misma.md`` lists every reconstruction with the reasons.
   iteration): poor members restart (global search), the best never does.
 * **Restart (eq. 12).** ``X_i = VLB + r (VUB - VLB)`` with probability ``z_i``.
 * **GMR and random step (eqs. 14-16).** ``GMR`` of the best-so-far solution
-  (:func:`icgo.methods.calibration.magnitude_ratio`) picks the random step of the
+  (:func:`icgo.methods.cal_objectives.magnitude_ratio`) picks the random step of the
   approach move ``X = B + RS (W X_A - X_B)`` (eq. 14): a large
   ``RS2 ~ U(-a, a)`` (SMA's ``vb``) while ``GMR < gmr_threshold`` (poor best,
   jump out), a small ``RS1 ~ U(-b, b)`` (``b = 1 - t/T``) once the best is good.

@@ -1,6 +1,6 @@
 """Survey quality control against the reference field: the checks MWD engineers run on every survey.
 
-Per station (row), three comparisons with the reference (:class:`icgo.io.recording.ReferenceField`):
+Per station (row), three comparisons with the reference (:class:`icgo.io.schema.ReferenceField`):
 
 * ``|G| - gravity_g`` within ``g_tol_g`` (default 0.0025 g: the common MWD
   gravity-total acceptance band of +/- 2.5 mg);
@@ -119,7 +119,7 @@ def earth_rate_qc(W, tol_deg_h: float = EARTH_RATE_TOL_DEG_H, rate_deg_h: float 
     """The gyro's survey check: measured total rotation rate against the earth rate, per station.
 
     A gyro survey's counterpart of the |B| check. The band (default 0.5 deg/h) is our choice, twice
-    the largest gyro bias of the patent instrument (``icgo.datasets.protocols.PATENT_GYRO``); docs/qc.md.
+    the largest gyro bias of the patent instrument (``icgo.datasets.gyro_turntable.PATENT_GYRO``); docs/qc.md.
 
     Args:
         W: (N, 3) measured rates, deg/h (tool frame). tol_deg_h: band half-width, deg/h.

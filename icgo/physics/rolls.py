@@ -2,7 +2,7 @@
 
 A *roll* is a run of shots taken while the instrument is turned about its pointing axis (tool z) with the
 pointing direction held fixed: the shots share one true direction, which the calibrations and the peer's
-score (:func:`icgo.methods.calibration.group_spread_deg`) rely on. Turning about one axis keeps the component of
+score (:func:`icgo.methods.cal_pointing.group_spread_deg`) rely on. Turning about one axis keeps the component of
 gravity and of the field along that axis constant while the rest turns, so the raw readings of each sensor lie on
 one plane perpendicular to the roll axis (an affine sensor model maps the circle they trace to an ellipse
 in a plane: bias, scale, cross-axis and hard iron do not move them off it). A group of shots is a

@@ -1,7 +1,7 @@
 """Magnetometer calibration from grouped static shots: every method, in-sample and held out, with sanity.
 
 A recording is static shots (``G`` g, ``B`` nT) with a ``group`` column: shots of
-one group share one true direction. Groups of at least :data:`icgo.methods.calibration.MIN_ROLLED_SHOTS` shots are
+one group share one true direction. Groups of at least :data:`icgo.physics.rolls.MIN_ROLLED_SHOTS` shots are
 *rolled groups* (turned about the pointing axis); the others are single shots. No
 reference attitude is needed.
 
@@ -21,7 +21,7 @@ Methods (unit-sphere fits; :func:`fit_recording`):
 
 Splits (:func:`splits`): in-sample (fit and score on every shot) and one held-out
 split per rolled group (fit without it, score on it; one roll: its two interleaved halves). Score: the peer's metric
-(:func:`icgo.methods.calibration.group_spread_deg`, deg) on the scored rolled groups. Every
+(:func:`icgo.methods.cal_pointing.group_spread_deg`, deg) on the scored rolled groups. Every
 fit also gets its physical sanity on all shots (:func:`icgo.methods.cal_sanity.sanity`);
 a degenerate fit's score is withheld (NaN) and it is never counted as a win, and its mean dip and |B|
 (:mod:`icgo.methods.cal_site`), checked against the site where it is known. Inside every held-out split the
@@ -44,17 +44,17 @@ import pandas as pd
 
 from icgo.core.errors import DataError
 from icgo.core.settings import is_int, need
-from icgo.methods import calibration as cal
 from icgo.methods import joint, mag_relm
+from icgo.methods import calibration as cal
+from icgo.methods.cal_pointing import align_to_axis, group_spread_deg, pointing_directions
 from icgo.methods.cal_sanity import sanity
 from icgo.methods.cal_site import site_check, site_values
-from icgo.methods.calibration import MIN_ROLLED_SHOTS
 from icgo.methods.misma_objective import MismaObjective
-from icgo.physics.rolls import check_groups, rolled_ids
 from icgo.models.calibration import MagCalibration, mag_calibration
 from icgo.optim import base
 from icgo.optim import misma as misma_opt
 from icgo.optim.registry import get
+from icgo.physics.rolls import MIN_ROLLED_SHOTS, check_groups, rolled_ids
 from icgo.studies.calibration_peer import PEER_METHODS, peer_available, peer_rows
 from icgo.studies.protocol import Study
 
@@ -211,7 +211,7 @@ def fit_recording(G, B, groups, config: CalibrationConfig, key, header: dict, tr
                                field_scale_nT=scale)
 
     def aligned(method, x, extra=None):
-        return model(method, x, cal.align_to_axis(G_c[train], np.asarray(cal.correct(jnp.asarray(x), Bt)), gt),
+        return model(method, x, align_to_axis(G_c[train], np.asarray(cal.correct(jnp.asarray(x), Bt)), gt),
                      extra=extra)
 
     try:
@@ -243,7 +243,7 @@ def fit_recording(G, B, groups, config: CalibrationConfig, key, header: dict, tr
 def group_score(model: MagCalibration, G, B, groups, score_mask) -> float:
     """The peer metric (deg) of a calibration on the rows of ``score_mask``."""
     Gc, Bc = model.corrected(G, B)
-    return cal.group_spread_deg(Gc[score_mask], Bc[score_mask], groups[score_mask])[0]
+    return group_spread_deg(Gc[score_mask], Bc[score_mask], groups[score_mask])[0]
 
 
 def model_sanity(model: MagCalibration, G, B):
@@ -365,8 +365,8 @@ def roll_directions(model: MagCalibration, G, B, groups) -> pd.DataFrame:
     """Per roll: its mean pointing direction after a calibration (azimuth magnetic and inclination, deg) and
     the spread of the shots about it (the peer's metric, deg)."""
     Gc, Bc = model.corrected(G, B)
-    d = cal.pointing_directions(Gc, Bc)
-    _, spread = cal.group_spread_deg(Gc, Bc, groups, min_size=MIN_ROLLED_SHOTS)
+    d = pointing_directions(Gc, Bc)
+    _, spread = group_spread_deg(Gc, Bc, groups, min_size=MIN_ROLLED_SHOTS)
     rows = []
     for g in rolled_ids(groups):
         m = np.mean(d[np.asarray(groups) == g], axis=0)
@@ -393,7 +393,7 @@ def run(data: dict, config: CalibrationConfig, key) -> CalibrationResult:
 
 def example() -> tuple[dict, CalibrationConfig]:
     """A tiny real instance: one bundled device, MISMA 3 iterations x 2 repeats, no peer."""
-    from icgo.io.recording import load_mag_cal_device
+    from icgo.io.mag_cal_bundled import load_mag_cal_device
 
     return {"ab": load_mag_cal_device("ab")}, CalibrationConfig(peer=False, misma_iter=3, misma_repeats=2, misma_pop=6)
 

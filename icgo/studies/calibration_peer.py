@@ -20,7 +20,7 @@ import types
 
 import numpy as np
 
-from icgo.io.recording import MAG_CAL_DEVICE_TO_TOOL, UT_TO_NT
+from icgo.io.mag_cal_bundled import MAG_CAL_DEVICE_TO_TOOL, UT_TO_NT
 from icgo.methods.cal_sanity import sanity
 from icgo.physics.rolls import rolled_ids
 

@@ -72,12 +72,12 @@ def devices_study(config: WorkflowConfig = WorkflowConfig()) -> tuple:
     """Run the workflow on each of the 9 real circuitpython-mag-cal devices.
 
     Returns:
-        tuple of :class:`DeviceRun`, in :func:`icgo.io.recording.mag_cal_devices` order.
+        tuple of :class:`DeviceRun`, in :func:`icgo.io.mag_cal_bundled.mag_cal_devices` order.
     """
-    from icgo.io import recording as icgo_io
+    from icgo.io import mag_cal_bundled
 
-    return tuple(DeviceRun(dev, run_workflow(stations_from_recording(icgo_io.load_mag_cal_device(dev)), config))
-                 for dev in icgo_io.mag_cal_devices())
+    return tuple(DeviceRun(dev, run_workflow(stations_from_recording(mag_cal_bundled.load_mag_cal_device(dev)), config))
+                 for dev in mag_cal_bundled.mag_cal_devices())
 
 
 class LabCasingStudy(NamedTuple):
@@ -110,7 +110,7 @@ class LabCasingStudy(NamedTuple):
 def lab_casing_study(config: WorkflowConfig = WorkflowConfig(), seed: int = 0) -> LabCasingStudy:
     """lab_casing: name effects on the ICGO study's training rows (repeat 0), then score
     the physics model + named effects and ICGO-RELM on the same test rows."""
-    from icgo.datasets.protocols import lab_casing
+    from icgo.datasets.casing_stations import lab_casing
     from icgo.io import recording as icgo_io
     from icgo.studies.icgo_relm import run_study
     from icgo.studies.icgo_relm_config import StudyConfig

@@ -111,12 +111,12 @@ class GeneralisationConfig:
 
 def build_data(config: GeneralisationConfig) -> dict:
     """(data set, protocol) -> :class:`icgo.studies.icgo_relm.SurveyData` for every cell, simulated."""
-    from icgo.datasets import protocols as datasets
+    from icgo.datasets.registry import DATASETS
     from icgo.studies.icgo_relm import SurveyData
 
     out = {}
     for name, protocol in config.cells:
-        ds = getattr(datasets, name)(config.data_seed)
+        ds = DATASETS[name](config.data_seed)
         target = None
         if protocol == "transfer":
             target = _splits.transfer_survey(name, config.data_seed, {}, config.transfer).frame
@@ -126,7 +126,7 @@ def build_data(config: GeneralisationConfig) -> dict:
 
 def noise_floors(config: GeneralisationConfig) -> pd.DataFrame:
     """Per cell: the azimuth error the simulator's noise alone implies on the rows the cell tests (deg)."""
-    from icgo.datasets.protocols import noise_floor
+    from icgo.datasets.casing_stations import noise_floor
 
     rows = []
     for name, protocol in config.cells:
@@ -277,13 +277,13 @@ def run(data: dict, config: GeneralisationConfig, key, progress=None) -> General
 
 def example() -> tuple:
     """A tiny instance: leave-azimuth-out and transfer on lab_casing at a 45 deg toolface step, RELM and CGO."""
-    from icgo.datasets import protocols as datasets
+    from icgo.datasets.casing_stations import lab_casing
     from icgo.studies.icgo_relm import SurveyData
 
     cfg = GeneralisationConfig(cells=(("lab_casing", "leave_azimuth_out"), ("lab_casing", "transfer")), n_repeats=2,
                                methods=("relm", "cgo"), strategies=("original", "three_stage"), pop_size=6,
                                iterations=3, hidden=8)
-    ds = datasets.lab_casing(0, toolface_step_deg=45.0)
+    ds = lab_casing(0, toolface_step_deg=45.0)
     target = _splits.transfer_survey("lab_casing", 0, {"toolface_step_deg": 45.0}, cfg.transfer).frame
     data = {("lab_casing", "leave_azimuth_out"): SurveyData(ds.frame, ds.meta),
             ("lab_casing", "transfer"): SurveyData(ds.frame, ds.meta, target)}

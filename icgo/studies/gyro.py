@@ -1,11 +1,11 @@
 """The gyro inclinometer study (patent CN1888384): BP network vs lookup table (+ RELM, ICGO-RELM).
 
-Training data: the patent's turntable plan (:func:`icgo.datasets.protocols.turntable`:
+Training data: the patent's turntable plan (:func:`icgo.datasets.gyro_turntable.turntable`:
 inclination 3, 5, 10, 15, 25, 35, 45, 55, 65, 75 deg x azimuth and toolface
 every 30 deg = 1440 points) from a 2-axis gyro + 2-accelerometer instrument
 with repeatable systematic errors. Test data: a dense random set of attitudes
-in the same ranges (:func:`icgo.datasets.protocols.turntable_random`) and a set half-way
-between the grid points in I, A and T (:func:`icgo.datasets.protocols.turntable_between`).
+in the same ranges (:func:`icgo.datasets.gyro_turntable.turntable_random`) and a set half-way
+between the grid points in I, A and T (:func:`icgo.datasets.gyro_turntable.turntable_between`).
 
 Methods, each scored by the azimuth RMSE (deg) on both test sets, ``n_seeds``
 seeds per trained method (mean +/- sample std over seeds, ddof 1):
@@ -47,7 +47,7 @@ import pandas as pd
 
 from icgo.core.errors import SettingError
 from icgo.core.settings import is_int, is_real, need
-from icgo.datasets import protocols as datasets
+from icgo.datasets import gyro_turntable
 from icgo.maths import metrics, stats
 from icgo.methods import gyro_relm, lookup_table, nets, relm
 from icgo.models.network import ANGLE_COLUMNS, GyroNetwork, GyroRELM, LookupTableModel, turntable_domain, turntable_hash
@@ -83,7 +83,7 @@ def _steps(where, values):
 
 @dataclasses.dataclass(frozen=True)
 class DataConfig:
-    """The turntable plan (:func:`icgo.datasets.protocols.turntable`).
+    """The turntable plan (:func:`icgo.datasets.gyro_turntable.turntable`).
 
     Attributes:
         inclinations_deg: test inclinations, deg, each in (0, 90) (patent's 10 points).
@@ -293,7 +293,7 @@ class GyroData(NamedTuple):
 def turntable_train(config: GyroConfig, azimuth_step=None, toolface_step=None) -> pd.DataFrame:
     """The training plan (seed ``config.seed``), optionally with other azimuth/toolface steps (deg)."""
     d = config.data
-    return datasets.turntable(config.seed, inclinations_deg=[float(x) for x in d.inclinations_deg],
+    return gyro_turntable.turntable(config.seed, inclinations_deg=[float(x) for x in d.inclinations_deg],
                               azimuth_step_deg=float(d.azimuth_step_deg if azimuth_step is None else azimuth_step),
                               toolface_step_deg=float(d.toolface_step_deg if toolface_step is None else toolface_step),
                               **d.instrument).frame
@@ -304,9 +304,9 @@ def load_data(config: GyroConfig) -> GyroData:
     d = config.data
     inc = [float(x) for x in d.inclinations_deg]
     tests = {
-        "random": datasets.turntable_random(config.seed + 1, n=int(d.n_random),
+        "random": gyro_turntable.turntable_random(config.seed + 1, n=int(d.n_random),
                                             inclination_range_deg=(min(inc), max(inc)), **d.instrument).frame,
-        "between": datasets.turntable_between(config.seed + 2, inclinations_deg=inc,
+        "between": gyro_turntable.turntable_between(config.seed + 2, inclinations_deg=inc,
                                               azimuth_step_deg=float(d.azimuth_step_deg),
                                               toolface_step_deg=float(d.toolface_step_deg), **d.instrument).frame,
     }

@@ -207,7 +207,7 @@ def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None,
 
 def example() -> tuple:
     """A tiny ICGO-RELM study (seconds): lab_casing at a 45 deg toolface step, PSO, 2 repeats."""
-    from icgo.datasets import protocols as datasets
+    from icgo.datasets import casing_stations as datasets
 
     frame = datasets.lab_casing(0, toolface_step_deg=45.0).frame
     return SurveyData(frame), StudyConfig(optimizer="pso", n_repeats=2, hidden=8, pop_size=6, iterations=3)

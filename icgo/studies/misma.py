@@ -44,8 +44,8 @@ import jax
 import jax.numpy as jnp
 import pandas as pd
 
-from icgo.datasets import protocols as datasets
-from icgo.io.recording import load_mag_cal_device, mag_cal_devices
+from icgo.datasets import drill_string as datasets
+from icgo.io.mag_cal_bundled import load_mag_cal_device, mag_cal_devices
 from icgo.studies import calibration
 from icgo.studies import misma_compare as compare
 from icgo.studies.misma_config import GyroConfig, MismaConfig, RealConfig, SimulatedConfig
@@ -59,7 +59,7 @@ class MismaData(NamedTuple):
     """What the study runs on.
 
     Attributes:
-        simulated: variant name -> :class:`icgo.datasets.protocols.Dataset` (rotating_drill).
+        simulated: variant name -> :class:`icgo.datasets.dataset.Dataset` (rotating_drill).
         devices: device name -> :class:`icgo.io.recording.Recording` (24 shots, ``group`` column).
     """
 

@@ -13,7 +13,7 @@ import inspect
 import numpy as np
 
 from icgo.core.settings import is_int, is_real, need
-from icgo.datasets import protocols as datasets
+from icgo.datasets import drill_string as datasets
 from icgo.methods.gyro_reference import BIAS_MODES
 from icgo.optim import misma as misma_opt
 
@@ -164,7 +164,7 @@ class SimulatedConfig:
 
     Attributes:
         enabled: run it.
-        variants: name -> keyword overrides of :func:`icgo.datasets.protocols.rotating_drill`
+        variants: name -> keyword overrides of :func:`icgo.datasets.drill_string.rotating_drill`
             (``curving`` = its defaults, identifiable; ``straight`` = a near-straight hole).
         subsample: keep every k-th rotating sample (all static samples kept).
         dot_samples: ``static`` (dot invariance on zero-velocity samples) or ``all``.

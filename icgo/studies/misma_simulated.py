@@ -21,8 +21,9 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
+from icgo.datasets import drill_string as datasets
 from icgo.datasets import instruments as ins
-from icgo.datasets import protocols as datasets
+from icgo.datasets.dataset import Dataset
 from icgo.maths import stats
 from icgo.methods import calibration as cal
 from icgo.methods.cal_sanity import sanity
@@ -69,7 +70,7 @@ class Problem(NamedTuple):
     gyro: Any
 
 
-def prepare_problem(ds: datasets.Dataset, scfg: SimulatedConfig) -> Problem:
+def prepare_problem(ds: Dataset, scfg: SimulatedConfig) -> Problem:
     """Fitness data of one variant: every ``subsample``-th rotating sample plus all static ones.
 
     Segments (for the Pearson constraint, eqs. 6-7) are the intervals between
@@ -304,7 +305,7 @@ def _repeat_scores(p: Problem, run, tol) -> Scores:
     return Scores(err, within, physics)
 
 
-def grade_dataset(ds: datasets.Dataset, overrides: dict, factor: float) -> datasets.Dataset:
+def grade_dataset(ds: Dataset, overrides: dict, factor: float) -> Dataset:
     """The run ``ds`` (made with ``overrides``) again, its gyro errors and gyro noise times ``factor``.
 
     The magnetometer and accelerometer data are unchanged (their noise streams do not depend on the gyro).
@@ -314,7 +315,7 @@ def grade_dataset(ds: datasets.Dataset, overrides: dict, factor: float) -> datas
     return datasets.rotating_drill(int(ds.meta["seed"]), **{**overrides, "gyro": gyro, "gyro_noise_deg_h": noise})
 
 
-def gyro_sweep(name: str, ds: datasets.Dataset, scfg: SimulatedConfig, key, no_gyro_errors) -> pd.DataFrame:
+def gyro_sweep(name: str, ds: Dataset, scfg: SimulatedConfig, key, no_gyro_errors) -> pd.DataFrame:
     """MISMA with the gyro term at each gyro grade of ``scfg.gyro.sweep`` against MISMA without it (item 4).
 
     Same repeat keys as :func:`search`, so each grade is paired with the
@@ -356,7 +357,7 @@ def gyro_sweep(name: str, ds: datasets.Dataset, scfg: SimulatedConfig, key, no_g
     return pd.DataFrame(recs)
 
 
-def simulated_variant(name: str, ds: datasets.Dataset, scfg: SimulatedConfig, key) -> VariantResult:
+def simulated_variant(name: str, ds: Dataset, scfg: SimulatedConfig, key) -> VariantResult:
     """Run every comparison row on one rotating_drill variant and score it (see the module doc)."""
     p = prepare_problem(ds, scfg)
     U, U_mod = misma_centre(p)

@@ -202,17 +202,18 @@ def transfer_survey(name: str, seed: int, kwargs: dict, draw: TransferDraw):
     settings changed as ``draw`` says.
 
     Args:
-        name: ``lab_casing`` or ``well_conditions`` (:mod:`icgo.datasets.protocols`).
+        name: ``lab_casing`` or ``well_conditions`` (:mod:`icgo.datasets.casing_stations`).
         seed: the source's noise seed (must differ from ``draw.seed``).
         kwargs: the source's extra keyword arguments.
         draw: :class:`TransferDraw`.
     Returns:
-        :class:`icgo.datasets.protocols.Dataset` of the target instrument.
+        :class:`icgo.datasets.dataset.Dataset` of the target instrument.
     """
-    from icgo.datasets import protocols as datasets
+    from icgo.datasets import casing_stations
 
-    gen = {"lab_casing": (datasets.lab_casing, datasets.LAB_CASING, datasets.LAB_EFFECTS),
-           "well_conditions": (datasets.well_conditions, datasets.WELL_CASING, datasets.WELL_EFFECTS)}
+    cs = casing_stations
+    gen = {"lab_casing": (cs.lab_casing, cs.LAB_CASING, cs.LAB_EFFECTS),
+           "well_conditions": (cs.well_conditions, cs.WELL_CASING, cs.WELL_EFFECTS)}
     if name not in gen:
         raise ValueError(f"split 'transfer' simulates its target with {sorted(gen)}; dataset {name!r} has no "
                          f"simulator (give split.target.path, a recording of the second instrument)")

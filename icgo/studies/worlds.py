@@ -1,7 +1,7 @@
 """ICGO-RELM studies over independent simulated worlds, in one sharded search.
 
 A *world* is one independent simulated data set: its own data seed (the instrument's noise and spikes:
-:func:`icgo.datasets.protocols.lab_casing`), hence its own 3-sigma filter, multi-station analysis, splits and
+:func:`icgo.datasets.casing_stations.lab_casing`), hence its own 3-sigma filter, multi-station analysis, splits and
 search keys (``world_key(study seed, data seed)``). A claim about the methods is made over worlds, never from
 one draw (DESIGN.md, Batching).
 
@@ -102,15 +102,15 @@ def world_seeds(first: int, n: int) -> tuple:
 
 
 def simulate(name: str, seeds: Sequence[int], **kwargs) -> list[World]:
-    """The worlds of a simulated data set (:mod:`icgo.datasets.protocols` ``name``), one per data seed.
+    """The worlds of a simulated data set (``name`` in :data:`icgo.datasets.registry.DATASETS`), one per data seed.
 
     The noise-free stations are one compiled program (the same for every seed); each world draws its noise.
     """
-    from icgo.datasets import protocols
+    from icgo.datasets.registry import DATASETS
 
-    fn = getattr(protocols, name, None)
-    if fn is None or name.startswith("_"):
-        raise ValueError(f"worlds: icgo.datasets.protocols has no data set {name!r}")
+    fn = DATASETS.get(name)
+    if fn is None:
+        raise ValueError(f"worlds: icgo.datasets.registry.DATASETS has no data set {name!r}")
     out = []
     for s in seeds:
         d = fn(int(s), **kwargs)

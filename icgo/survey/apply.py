@@ -298,7 +298,7 @@ def correct_survey(model: FittedModel, frame: pd.DataFrame, field=None, *, metho
         model: any fitted model (:func:`icgo.models.registry.load_model`).
         frame: the survey (data contract: gx, gy, gz in g, bx, by, bz in nT; optional
             azimuth_deg, station, md, ...).
-        field: the survey's :class:`icgo.io.recording.ReferenceField` or None (no QC then).
+        field: the survey's :class:`icgo.io.schema.ReferenceField` or None (no QC then).
         method: for a model holding several methods, which one (None: its default).
         bands: QC acceptance bands.
     Raises:
