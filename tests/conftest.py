@@ -15,6 +15,8 @@ from pathlib import Path
 # with the user's own runs going on beside it (a program read while another process wrote it crashed a worker).
 os.environ["XDG_CACHE_HOME"] = str(Path(__file__).resolve().parents[1] / ".jax_cache" / "xdg")
 
+import pytest  # noqa: E402
+
 import icgo  # noqa: F401, E402  (enables float64 before any test builds arrays)
 from icgo.core.devices import enable_jax_cache, use_host_devices  # noqa: E402
 
@@ -41,3 +43,13 @@ def relm_train_data(n=60, hidden=5, seed=0, scale=1.0):
     pop = scale * rng.uniform(-1, 1, (8, relm.n_params(hidden)))
     fit = relm.FitData(jnp.asarray(X), jnp.asarray(T), jnp.asarray(mask)[None], jnp.asarray(mask)[None])
     return X, T, mask, jnp.asarray(pop), fit
+
+
+@pytest.fixture(autouse=True)
+def _hydra_config_cleared_after_each_test():
+    """A test that sets Hydra's job config (as a front door's task function sees it) leaves it set for the next
+    test in the process; a front door called in-process then writes a Hydra record into its outputs. Clear it."""
+    yield
+    from hydra.core.hydra_config import HydraConfig
+
+    HydraConfig.instance().cfg = None

@@ -147,10 +147,13 @@ def test_a_used_output_directory_is_refused_then_replaced_whole(setup, tmp_path)
     _, _, path, survey = setup
     out = tmp_path / "out"
     run_apply(_cfg([f"model={path}", f"data={survey}"]), out)
-    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    def files():  # every file, nested ones too
+        return {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+
+    before = files()
     with pytest.raises(ValueError, match="already holds files"):
         run_apply(_cfg([f"model={path}", f"data={survey}"]), out)
-    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    assert files() == before
     (out / "stale.txt").write_text("old")
     run_apply(_cfg([f"model={path}", f"data={survey}", "overwrite=true"]), out)
     assert not (out / "stale.txt").exists()
