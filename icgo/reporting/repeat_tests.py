@@ -1,6 +1,7 @@
 """The test families of the ICGO-RELM tables over paired repeats (the same splits and keys for every method):
-paired Wilcoxon of method pairs with Holm over the table (:func:`paired_by_repeat`) and Table 3's Friedman and
-Wilcoxon families (:func:`table3_tests`). docs/reporting.md, rules 3-4.
+paired Wilcoxon of method pairs with Holm over the table (:func:`paired_by_repeat`), Table 3's Friedman and
+Wilcoxon families (:func:`table3_tests`), Fig. 9's under two budgets (:func:`budget_tests`) and columns against one
+reference (:func:`against_reference`, the schedules sweep). docs/reporting.md, rules 3-4.
 """
 
 from __future__ import annotations
@@ -66,3 +67,32 @@ def table3_tests(wide: dict, strategies) -> pd.DataFrame:
     for fam, g in df.groupby("family"):
         df.loc[g.index, "p (Holm)"] = holm(g["p"].to_numpy())
     return df
+
+
+def budget_tests(by_budget: dict, a: str, others, names: dict) -> pd.DataFrame:
+    """Paired Wilcoxon (two-sided) on test MAE of method ``a`` against each of ``others`` under each budget, Holm over
+    all of them (one family).
+
+    Args:
+        by_budget: {budget name: metrics (method, repeat, mae) of that budget's runs}, the repeats paired.
+        a: the method tested. others: the methods it is tested against. names: method id -> its name in the table.
+    Returns:
+        One row per (budget, other): ``budget``, ``comparison``, ``median MAE difference (deg)`` (a - other), ``p``,
+        ``p_holm``.
+    """
+    tests = []
+    for budget, m in by_budget.items():
+        w = m.pivot_table(index="repeat", columns="method", values="mae")
+        for x in others:
+            t = wilcoxon_paired(w[a], w[x])
+            tests.append({"budget": budget, "comparison": f"{names[a]} vs {names[x]}",
+                          "median MAE difference (deg)": float((w[a] - w[x]).median()), "p": t.p_value})
+    tdf = pd.DataFrame(tests)
+    tdf["p_holm"] = holm(tdf["p"].to_numpy())
+    return tdf
+
+
+def against_reference(wide: pd.DataFrame, columns, reference: str) -> dict:
+    """{column: Holm-adjusted p} of the paired Wilcoxon (two-sided) of each of ``columns`` against ``reference``, Holm
+    over ``columns`` (one family); the rows of ``wide`` are paired repeats."""
+    return dict(zip(columns, holm([wilcoxon_paired(wide[c], wide[reference]).p_value for c in columns])))

@@ -8,7 +8,6 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from icgo.maths.stats import holm, wilcoxon_paired
 from icgo.optim.cgo import CGOConfig
 from icgo.reporting import records as R
 from icgo.reporting import stamp
@@ -16,7 +15,7 @@ from icgo.reporting.families import paired_family
 from icgo.reporting.icgo_outputs import FIG9_NAMES, FIG9_WHY, METRICS, MNAME, PAPER, R2_NOTE, commands
 from icgo.reporting.plots import plt_agg
 from icgo.reporting.protocol import comparison
-from icgo.reporting.repeat_tests import paired_by_repeat
+from icgo.reporting.repeat_tests import budget_tests, paired_by_repeat
 from icgo.reporting.run_collection import Runs
 from icgo.reporting.table_writer import have, mean_and_std, n_repeats, one_draw, plus_minus, skip, write_table
 from icgo.studies.icgo_relm_results.notes import floor_note
@@ -99,22 +98,15 @@ def fig9_budgets(iters: Runs, evals: Runs, out: Path) -> bool:
     if min(n_repeats(mi), n_repeats(me)) < 2:
         return skip("one repeat: the paired Wilcoxon tests of fig9_budgets need at least 2 repeats")
     ci, ce = iters.convergence(), evals.convergence()
-    rows, tests = [], []
+    rows = []
     for budget, m, conv in (("equal iterations", mi, ci), ("equal evaluations", me, ce)):
-        w = m.pivot_table(index="repeat", columns="method", values="mae")
         for x in methods:
             mae = mean_and_std(m[m.method == x]["mae"])
             rows.append({"budget": budget, "method": FIG9_NAMES[x], "MAE (deg)": plus_minus(*mae),
                          "RMSE (deg)": plus_minus(*mean_and_std(m[m.method == x]["rmse"])),
                          "evaluations per run": float(conv[conv.method == x]["evals"].max()) if not conv.empty
                          else np.nan})
-        for x in ("pso", "ga"):
-            t = wilcoxon_paired(w["cgo-original"], w[x])
-            tests.append({"budget": budget, "comparison": f"CGO-RELM vs {FIG9_NAMES[x]}",
-                          "median MAE difference (deg)": float((w["cgo-original"] - w[x]).median()), "p": t.p_value})
-
-    tdf = pd.DataFrame(tests)
-    tdf["p_holm"] = holm(tdf["p"].to_numpy())
+    tdf = budget_tests({"equal iterations": mi, "equal evaluations": me}, "cgo-original", ("pso", "ga"), FIG9_NAMES)
     df = pd.DataFrame(rows)
     verdicts = [f"- {r['budget']}: " + comparison("CGO-RELM", r["comparison"].split(" vs ")[1], r["p_holm"],
                                                    r["median MAE difference (deg)"], family=len(tdf)) + "."

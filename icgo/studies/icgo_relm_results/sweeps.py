@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from icgo.maths.stats import friedman, holm, wilcoxon_paired
+from icgo.maths.stats import friedman, wilcoxon_paired
 from icgo.optim.cgo import CGOConfig
 from icgo.reporting import records as R
 from icgo.reporting import stamp
@@ -16,6 +16,7 @@ from icgo.reporting.families import holm_once
 from icgo.reporting.icgo_outputs import LABEL, PAPER, commands
 from icgo.reporting.plots import plt_agg
 from icgo.reporting.protocol import ALPHA
+from icgo.reporting.repeat_tests import against_reference
 from icgo.reporting.run_collection import Runs
 from icgo.reporting.table_writer import mean_and_std, n_repeats, plus_minus, skip, write_table
 from icgo.studies.icgo_relm import StudyConfig
@@ -53,8 +54,7 @@ def sweep_schedules(pooled: Runs, sched: Runs, out: Path) -> bool:
     fr = friedman({c: wide[c].to_numpy() for c in names})
     best_single = min((LABEL[s] for s in singles), key=lambda c: wide[c].mean())
     sched_cols = [c for c in names if c.startswith("three-stage")]
-    tests = [wilcoxon_paired(wide[c], wide[best_single]).p_value for c in sched_cols]
-    p_holm = dict(zip(sched_cols, holm(tests)))
+    p_holm = against_reference(wide, sched_cols, best_single)
     winners = wide.idxmin(axis=1).value_counts()
     rows = [{"column": c, "MAE (deg)": plus_minus(*mean_and_std(wide[c])), "mean rank": round(fr.mean_ranks[c], 2),
              "repeats best": int(winners.get(c, 0)),
