@@ -1,5 +1,6 @@
 """The runs a ``results/`` build collects: every ``run.json`` below the given directories, pooled (newest wins on
-duplicates), read through :mod:`icgo.reporting.records` (schema checked), and the repeats the runs left out.
+duplicates), read through :mod:`icgo.reporting.records` (schema checked); the repeats the runs left out
+(:func:`write_excluded`) and the jobs that left no result (:func:`missing_jobs`).
 """
 
 from __future__ import annotations
@@ -63,7 +64,7 @@ class Runs:
         self.runs.sort(key=lambda r: r["mtime"])
 
     def settings(self) -> list[dict]:
-        """Budget, repeats and dtype of every run (:func:`experiments.stamp.run_settings`)."""
+        """Budget, repeats and dtype of every run (:func:`icgo.reporting.stamp.run_settings`)."""
         return [stamp.run_settings(r["dir"]) for r in self.runs]
 
     def split_label(self, *labels: str) -> tuple["Runs", "Runs"]:
@@ -93,7 +94,7 @@ class Runs:
         return self._cache[name]
 
     def _rows(self, df: pd.DataFrame) -> pd.DataFrame:
-        """The rows a builder reads, their runs added to the output's stamp (:func:`experiments.stamp.use`)."""
+        """The rows a builder reads, their runs added to the output's stamp (:func:`icgo.reporting.stamp.use`)."""
         if "run_order" not in df:
             return df
         stamp.use([stamp.run_settings(self.runs[int(i)]["dir"]) for i in sorted(df["run_order"].unique())])
