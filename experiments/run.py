@@ -140,7 +140,7 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
         return run
     plot = None
     if cfg.figures:
-        from experiments.figures import plot_study
+        from icgo.reporting.run_figure import plot_study
 
         def _plot(path):
             plot_study(result, path, title=desc)

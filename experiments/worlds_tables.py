@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from experiments import _stamp
+from icgo.reporting import stamp
 
 ROOT = Path(__file__).resolve().parents[1]
 #: (name, preset, extra overrides, whether the preset is a multirun): the runs each table is made from, into
@@ -62,7 +62,7 @@ def per_world(runs) -> tuple[pd.DataFrame, list[dict], list[int]]:
         parts.append(world_tables.per_world(pd.read_csv(d / "metrics.csv")))
         seeds |= set(run["worlds"]["seeds"])
     per = pd.concat(parts, ignore_index=True).drop_duplicates(["world", "method"], keep="last")
-    return per, [_stamp.run_settings(d) for d, _ in runs], sorted(seeds)
+    return per, [stamp.run_settings(d) for d, _ in runs], sorted(seeds)
 
 
 def _one_draw(name: str, results: Path) -> dict[str, float] | None:
@@ -128,10 +128,10 @@ def _write(out: Path, name: str, title: str, pooled: pd.DataFrame, per: pd.DataF
 
     pooled.to_csv(out / f"{name}_worlds.csv", index=False)
     per.to_csv(out / f"{name}_worlds_per_world.csv", index=False, float_format="%.10g")
-    stamp = _stamp.describe(settings)["text"]
+    stamp_line = stamp.describe(settings)["text"]
     each = wide(per, methods).reset_index()
     each["world"] = each["world"].astype(int).astype(str)
-    text = [f"# {title}", "", *([stamp, ""] if stamp else []), protocol, "", pooled.to_markdown(index=False), "",
+    text = [f"# {title}", "", *([stamp_line, ""] if stamp_line else []), protocol, "", pooled.to_markdown(index=False), "",
             *notes, "", "## Each world: mean test MAE (deg) over its repeats", "",
             each.to_markdown(index=False, floatfmt=".4f"), ""]
     (out / f"{name}_worlds.md").write_text("\n".join(text).rstrip() + "\n")

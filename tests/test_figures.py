@@ -1,4 +1,4 @@
-"""experiments.figures: collection of run directories and the paper tables, on synthetic run outputs.
+"""The ICGO-RELM results/ builders (icgo.studies.icgo_relm_results): collection of run directories and the paper tables, on synthetic run outputs.
 
 The runs are written by hand with known numbers, so each table is checked
 against a direct computation (numpy mean/std, scipy's Wilcoxon and Friedman).
@@ -16,10 +16,13 @@ import pandas as pd
 import pytest
 from scipy import stats as st
 
-from experiments import figures as F
+from icgo.reporting import icgo_outputs as O
 from icgo.reporting import records as REC
+from icgo.reporting.run_collection import Runs
+from icgo.studies.icgo_relm_results import notes as N
+from icgo.studies.icgo_relm_results.build import BUILDERS, build
 
-S5 = F.STRATEGIES5
+S5 = N.STRATEGIES5
 R = 10
 
 
@@ -95,8 +98,8 @@ def runs_dir(tmp_path):
 
 def test_tables_match_direct_computation(runs_dir, tmp_path):
     out = tmp_path / "results"
-    done = F.build([runs_dir / "m"], out)
-    assert {k for k, v in done.items() if v is True} == set(F.BUILDERS) - {"table4"}
+    done = build([runs_dir / "m"], out)
+    assert {k for k, v in done.items() if v is True} == set(BUILDERS) - {"table4"}
     assert done["table4"] == ("no runs of cgo-three_stage; made by "
                               "`python -m experiments.run -m experiment=table4`")
     assert done["fig9_budgets"].startswith("no runs of pso, ga, cgo-original; made by "
@@ -126,10 +129,10 @@ def test_tables_match_direct_computation(runs_dir, tmp_path):
 
     s = pd.read_csv(out / "table3_stats.csv")
     wide = m.pivot_table(index="repeat", columns="method", values="mae")
-    fr = st.friedmanchisquare(*[wide[f"cgo-{x}"] for x in F.STRATEGIES4])
+    fr = st.friedmanchisquare(*[wide[f"cgo-{x}"] for x in N.STRATEGIES4])
     row = s[(s.metric == "MAE (deg)") & s.test.str.startswith("Friedman")].iloc[0]
     assert row.statistic == pytest.approx(round(fr.statistic, 4)) and row.p == pytest.approx(fr.pvalue)
-    ranks = np.apply_along_axis(st.rankdata, 1, wide[[f"cgo-{x}" for x in F.STRATEGIES4]].to_numpy()).mean(0)
+    ranks = np.apply_along_axis(st.rankdata, 1, wide[[f"cgo-{x}" for x in N.STRATEGIES4]].to_numpy()).mean(0)
     assert f"three-stage {ranks[3]:.2f}" in row["effect"]
     w = st.wilcoxon(wide["cgo-three_stage"], wide["cgo-chaos"])
     row = s[(s.metric == "MAE (deg)") & (s.comparison == "three-stage vs chaotic")].iloc[0]
@@ -158,7 +161,7 @@ def test_failed_runs_are_skipped_and_newest_duplicate_wins(runs_dir, tmp_path):
     future = time.time() + 100
     os.utime(tmp_path / "m" / "zz_newer" / "run.json", (future, future))
     out = tmp_path / "res"
-    F.build([tmp_path / "m"], out)
+    build([tmp_path / "m"], out)
     t1 = pd.read_csv(out / "table1.csv").set_index("metric")
     mae = newer.mae
     assert t1.loc["MAE (deg)", "RELM (ours)"] == f"{mae.mean():.4f} +/- {mae.std(ddof=1):.4f}"
@@ -168,7 +171,7 @@ def test_other_split_seeds_are_kept_apart(tmp_path):
     rng = np.random.default_rng(3)
     _run_dir(tmp_path / "a", _metrics(["relm", "cgo-original"], rng), seed=0)
     _run_dir(tmp_path / "b", _metrics(["relm", "cgo-original"], rng, {"relm": 7.0}), seed=1)
-    runs = F.Runs([tmp_path])
+    runs = Runs([tmp_path])
     a, b = runs.metrics(seed=0), runs.metrics(seed=1)
     assert a[a.method == "relm"].mae.max() < 1 and b[b.method == "relm"].mae.min() > 1
 
@@ -176,11 +179,11 @@ def test_other_split_seeds_are_kept_apart(tmp_path):
 def test_table4_per_condition_from_azimuth(tmp_path):
     rng = np.random.default_rng(4)
     cgo = [f"cgo-{s}" for s in S5]
-    az = tuple(r[1] for r in F.PAPER["table4"])
+    az = tuple(r[1] for r in O.PAPER["table4"])
     pred = _pred(cgo, rng, azimuths=az, n=4)
     _run_dir(tmp_path / "w", _metrics(cgo, rng), dataset="well_conditions", pred=pred)
     out = tmp_path / "res"
-    assert F.build([tmp_path / "w"], out)["table4"]
+    assert build([tmp_path / "w"], out)["table4"]
     t4 = pd.read_csv(out / "table4.csv")
     assert list(t4["azimuth (deg)"]) == list(az)
     d = pred[(pred.method == "cgo-three_stage") & (pred.repeat == 0) & (pred.split == "test")
@@ -193,7 +196,7 @@ def test_table4_per_condition_from_azimuth(tmp_path):
 
 def test_missing_directory_is_one_line(tmp_path):
     with pytest.raises(SystemExit) as e:
-        F.Runs([tmp_path / "nope"])
+        Runs([tmp_path / "nope"])
     assert "no such directory" in str(e.value)
 
 
@@ -205,7 +208,7 @@ def test_a_table_missing_repeats_or_cut_short_is_skipped_and_named(tmp_path, cap
     _run_dir(tmp_path / "m" / "cut", m)
     cut = tmp_path / "m" / "cut" / "metrics.csv"
     cut.write_bytes(cut.read_bytes()[:-7])                               # cut inside the last line
-    runs = F.Runs([tmp_path / "m"])
+    runs = Runs([tmp_path / "m"])
     got = runs.metrics()
     assert len(got) == 2 * R                                             # only the good run
     err = capsys.readouterr().err
@@ -215,7 +218,7 @@ def test_a_table_missing_repeats_or_cut_short_is_skipped_and_named(tmp_path, cap
 
 def test_no_runs_at_all_is_missing_runs_not_a_traceback(tmp_path):
     (tmp_path / "empty").mkdir()
-    done = F.build([tmp_path / "empty"], tmp_path / "out")
+    done = build([tmp_path / "empty"], tmp_path / "out")
     assert not any(v is True for v in done.values())
     assert all(v.startswith("no runs") for v in done.values())
 
@@ -225,7 +228,7 @@ def test_a_truncated_table_is_skipped_and_named(tmp_path, capsys):
     _run_dir(tmp_path / "m" / "good", _metrics(["relm", "cgo-original"], rng))
     _run_dir(tmp_path / "m" / "bad", _metrics(["relm", "cgo-original"], rng))
     (tmp_path / "m" / "bad" / "metrics.csv").write_text("label,dataset,condition,seed,method,rep")
-    runs = F.Runs([tmp_path / "m"])
+    runs = Runs([tmp_path / "m"])
     m = runs.metrics()
     err = capsys.readouterr().err
     assert "skipped" in err and str(tmp_path / "m" / "bad") in err and "metrics" in err
@@ -233,15 +236,15 @@ def test_a_truncated_table_is_skipped_and_named(tmp_path, capsys):
 
 
 def test_paper_consistency_note_flags_the_three_stage_row():
-    from experiments.figures import PAPER, _paper_consistency_note, _paper_variances
+    from icgo.reporting.icgo_outputs import PAPER, paper_consistency_note, paper_variances
 
-    var = _paper_variances()
+    var = paper_variances()
     mae, rmse, r2 = (x[0] for x in PAPER["table3"]["three_stage"])
     assert var["Table 3 three_stage"] == pytest.approx(rmse ** 2 / (1 - r2))
     assert var["Table 1 relm"] == pytest.approx(0.6035 ** 2 / (1 - 0.866))
     others = [v for k, v in var.items() if k != "Table 3 three_stage"]
     assert var["Table 3 three_stage"] < 0.65 * min(others)
-    assert "1.58 deg^2" in _paper_consistency_note() and "2.67-3.05" in _paper_consistency_note()
+    assert "1.58 deg^2" in paper_consistency_note() and "2.67-3.05" in paper_consistency_note()
 
 
 def test_equal_evaluation_runs_sit_beside_not_over_the_equal_iteration_ones(runs_dir, tmp_path):
@@ -252,9 +255,9 @@ def test_equal_evaluation_runs_sit_beside_not_over_the_equal_iteration_ones(runs
     fig9 = ["pso", "ga", "cgo-original"]
     time.sleep(0.01)  # newer than the equal-iteration runs: it must still not replace them
     _run_dir(runs_dir / "m" / "fig9_evals", _metrics(fig9, rng, {"pso": 0.03, "ga": 0.04, "cgo-original": 0.06}),
-             conv=_conv(fig9), label=F.EQUAL_EVALS_LABEL)
+             conv=_conv(fig9), label=O.EQUAL_EVALS_LABEL)
     out = tmp_path / "results"
-    done = F.build([runs_dir / "m"], out)
+    done = build([runs_dir / "m"], out)
     assert done["fig9_budgets"] and done["fig9"]
     m = pd.concat([pd.read_csv(p) for p in sorted((runs_dir / "m").rglob("metrics.csv"))])
     m = m[m.split == "test"]
@@ -262,7 +265,7 @@ def test_equal_evaluation_runs_sit_beside_not_over_the_equal_iteration_ones(runs
     pso_iter = m[(m.method == "pso") & (m.label == "t")].mae
     assert f9.loc["PSO-RELM", "mae_mean"] == pytest.approx(pso_iter.mean())  # not the equal-evaluation run's
     b = pd.read_csv(out / "fig9_budgets.csv")
-    pso_ev = m[(m.method == "pso") & (m.label == F.EQUAL_EVALS_LABEL)].mae
+    pso_ev = m[(m.method == "pso") & (m.label == O.EQUAL_EVALS_LABEL)].mae
     row = b[(b.method == "PSO-RELM") & b.budget.str.startswith("equal evaluations")].iloc[0]
     assert row["MAE (deg)"] == f"{pso_ev.mean():.4f} +/- {pso_ev.std(ddof=1):.4f}"
     assert "Holm" in (out / "fig9_budgets.md").read_text()
@@ -273,10 +276,10 @@ def test_schedules_sweep_pairs_each_schedule_with_the_single_strategies(runs_dir
     rng = np.random.default_rng(4)
     for i, (bounds, clock) in enumerate((([0.2, 0.7], "global"), ([1 / 3, 2 / 3], "stage"))):
         _run_dir(runs_dir / "m" / f"sched{i}", _metrics(["cgo-three_stage"], rng, {"cgo-three_stage": 0.01 + 0.1 * i}),
-                 label=F.SCHEDULES_LABEL,
+                 label=O.SCHEDULES_LABEL,
                  extra={"schedule": {"bounds": bounds, "order": ["chaos", "gaussian", "wavelet"], "clock": clock}})
     out = tmp_path / "results"
-    done = F.build([runs_dir / "m"], out)
+    done = build([runs_dir / "m"], out)
     assert done["sweep_schedules"] and done["table3"]
     t = pd.read_csv(out / "sweep_schedules.csv").set_index("column")
     fast = t.loc["three-stage chaos>gaussian>wavelet at 20/70 %"]
@@ -303,7 +306,7 @@ def test_mutation_readings_sweep_names_each_reading_and_checks_the_paper_order(r
              label="sweep_sigma", extra={"strategies": ["gaussian", "three_stage"],
                                              "optimizer_params": {"variant": "paper", "sigma": 0.2}})
     out = tmp_path / "results"
-    assert F.build([runs_dir / "m"], out)["sweep_mutations"]
+    assert build([runs_dir / "m"], out)["sweep_mutations"]
     t = pd.read_csv(out / "sweep_mutations.csv").set_index("reading")
     assert set(t.index) == {"wavelet zeta 1, amplitude none", "Gaussian sigma 0.2 (0.1 of the box width)"}
     wav = t.loc["wavelet zeta 1, amplitude none"]
@@ -326,7 +329,7 @@ def test_readings_with_identical_columns_are_one_holm_test(runs_dir, tmp_path):
              label="sweep_sigma", extra={"strategies": ["gaussian", "three_stage"],
                                          "optimizer_params": {"variant": "paper", "sigma": 0.2}})
     out = tmp_path / "results"
-    assert F.build([runs_dir / "m"], out)["sweep_mutations"]
+    assert build([runs_dir / "m"], out)["sweep_mutations"]
     t = pd.read_csv(out / "sweep_mutations.csv").set_index("reading")
     raw = t["p three-stage vs single"]
     w1, w2, g = (t.index.get_loc(r) for r in ("wavelet zeta 1, amplitude none", "wavelet zeta 2, amplitude none",
@@ -344,12 +347,12 @@ def test_an_unknown_sweep_never_replaces_the_paper_runs(runs_dir, tmp_path):
 
     rng = np.random.default_rng(6)
     out0 = tmp_path / "before"
-    F.build([runs_dir / "m"], out0)
+    build([runs_dir / "m"], out0)
     time.sleep(0.01)
     _run_dir(runs_dir / "m" / "other", _metrics(["cgo-three_stage", "relm"], rng, {"cgo-three_stage": 9.0, "relm": 9.0}),
              label="sweep_something_new")
     out1 = tmp_path / "after"
-    F.build([runs_dir / "m"], out1)
+    build([runs_dir / "m"], out1)
     for name in ("table1.csv", "table3.csv", "table3_stats.csv"):
         assert (out1 / name).read_text() == (out0 / name).read_text(), name
 
@@ -363,7 +366,7 @@ def test_paper_literal_run_is_one_reading_with_every_strategy_from_it(runs_dir, 
              extra={"strategies": list(S5), "optimizer_params": {"variant": "paper", "wavelet_amplitude": "none",
                                                                    "sigma": 1.0}})
     out = tmp_path / "results"
-    assert F.build([runs_dir / "m"], out)["sweep_mutations"]
+    assert build([runs_dir / "m"], out)["sweep_mutations"]
     t = pd.read_csv(out / "sweep_mutations.csv")
     row = t[t.reading.str.startswith("the paper's literal readings")].iloc[0]
     assert "amplitude none" in row["reading"]
@@ -385,15 +388,15 @@ def _condition_runs(root: Path, label: str, key: str, levels, rng, best_at):
 
 def test_noise_and_casing_sweeps_report_every_method_against_the_floor(runs_dir, tmp_path):
     """Issue 18 sweep 5: one row per level, every method, the level's noise floor, ranking statistics."""
-    from experiments import sweep_conditions as SC
     from icgo.datasets.casing_stations import noise_floor
+    from icgo.studies.icgo_relm_results import condition_sweeps as SC
 
     rng = np.random.default_rng(8)
     _condition_runs(runs_dir / "m", "sweep_noise", "noise_scale", (0.5, 1.0, 2.0), rng,
                     lambda lv: "pso" if lv < 2 else "cgo-wavelet")
     _condition_runs(runs_dir / "m", "sweep_casing", "casing_distance_m", (0.5, 1.0), rng, lambda lv: "ga")
     out = tmp_path / "results"
-    done = F.build([runs_dir / "m"], out)
+    done = build([runs_dir / "m"], out)
     assert done["sweep_noise"] is True and done["sweep_casing"] is True
     t = pd.read_csv(out / "sweep_noise.csv")
     assert list(t["noise x"]) == [0.5, 1.0, 2.0]
@@ -430,7 +433,7 @@ def test_noise_and_casing_sweeps_report_every_method_against_the_floor(runs_dir,
 
 def test_conditions_builders_say_which_runs_are_missing(runs_dir, tmp_path):
     out = tmp_path / "results"
-    done = F.build([runs_dir / "m"], out)
+    done = build([runs_dir / "m"], out)
     assert "experiment=sweep_noise" in done["sweep_noise"]
     assert "experiment=sweep_casing_strength" in done["sweep_casing"]
 
@@ -446,10 +449,10 @@ def test_fig9_ablation_rows_against_the_default_cgo(tmp_path):
     for k, dims in enumerate(("one", "all")):
         c = _conv(["cgo-original"]).assign(best_fitness=lambda d, k=k: d.best_fitness * (0.5 + k) + 1e-3 * d.repeat)
         runs[dims] = c
-        _run_dir(tmp_path / "m" / f"abl-{dims}", _metrics(["cgo-original"], rng), conv=c, label=F.ABLATION_LABEL,
+        _run_dir(tmp_path / "m" / f"abl-{dims}", _metrics(["cgo-original"], rng), conv=c, label=O.ABLATION_LABEL,
                  extra={"optimizer_params": {"variant": "paper", "dims": dims}})
     out = tmp_path / "r"
-    assert F.build([tmp_path / "m"], out)["fig9_ablation"] is True
+    assert build([tmp_path / "m"], out)["fig9_ablation"] is True
     t = pd.read_csv(out / "fig9_ablation.csv").set_index("configuration")
     assert list(t.index[:3]) == ["PSO-RELM", "GA-RELM",
                                  "CGO-RELM (default: variant paper, dims subset, bound_mode clip)"]
@@ -477,11 +480,11 @@ def test_fig9_ablation_tests_the_default_against_pso_and_ga_and_names_the_contro
     ctrl = _conv(["cgo-original"]).assign(best_fitness=lambda d: d.best_fitness * 0.3 + 1e-3 * d.repeat,
                                           evals=lambda d: 40 + 120 * d.iteration)
     d = tmp_path / "m" / "ctrl"
-    _run_dir(d, _metrics(["cgo-original"], rng), conv=ctrl, label=F.ABLATION_LABEL,
+    _run_dir(d, _metrics(["cgo-original"], rng), conv=ctrl, label=O.ABLATION_LABEL,
              extra={"optimizer_params": {"variant": "paper", "fourth_seed": False}})
     (d / "config.yaml").write_text(yaml.safe_dump({"budget": {"pop_size": 40}}))
     out = tmp_path / "r"
-    assert F.build([tmp_path / "m"], out)["fig9_ablation"] is True
+    assert build([tmp_path / "m"], out)["fig9_ablation"] is True
     t = pd.read_csv(out / "fig9_ablation.csv").set_index("configuration")
     row = "CGO-RELM, fourth_seed False, population 40"
     assert t.loc[row, "evaluations per run"] == 40 + 120 * 5 and t.loc["PSO-RELM", "evaluations per run"] == 8 + 32 * 5
@@ -500,7 +503,9 @@ def test_table4_note_gives_the_ratio_of_the_near_vertical_errors_from_the_table(
     t = pd.DataFrame({"inclination (deg)": [0.594, 1.8, 60.0, 90.0, 135.0, 150.0],
                       "compensated mean ours": [0.7805, 0.4536, 0.0836, 0.1001, 0.0773, 0.0915],
                       "noise floor MAE": [0.7812, 0.2337, 0.0252, 0.0198, 0.0197, 0.0259]})
-    note = F._table4_high_inclination(t)
+    from icgo.studies.icgo_relm_results.table4 import _table4_high_inclination
+
+    note = _table4_high_inclination(t)
     assert "stays 3.3-5.1 times its noise floor" in note
     assert f"means are {0.4536 / 0.1001:.1f}-{0.7805 / 0.0773:.1f} times those at I >= 60 deg" in note  # 4.5-10.1
     assert "ten times" not in note and "cause" not in note

@@ -1,22 +1,26 @@
-"""experiments.figures on what a run really was: one split, a smoke budget, missing and failed jobs, the plan."""
+"""The results/ builders and experiments.figures' plan on what a run really was: one split, a smoke budget, missing and failed jobs, the plan."""
 
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 import yaml
 
-from experiments import _stamp
+from experiments import figures_plan as FP
 from hydra_plugins.icgo_launcher import report as sweep_report
-from experiments import figures as F
-from experiments import sweep_conditions as SC
+from icgo.reporting import icgo_outputs as O
+from icgo.reporting import stamp
 from icgo.reporting.names import METHOD_NAMES, STRATEGY_NAMES, method_name
+from icgo.studies.icgo_relm_results import condition_sweeps as SC
+from icgo.studies.icgo_relm_results import notes as N
+from icgo.studies.icgo_relm_results.build import build
 from tests.test_figures import _condition_runs, _conv, _metrics, _pred, _run_dir
 
-S5 = F.STRATEGIES5
+S5 = N.STRATEGIES5
 
 
 def _config(path, pop=8, iterations=3, repeats=10, dtype="float32_features"):
@@ -34,7 +38,7 @@ def test_a_single_split_run_writes_what_it_supports_and_names_what_it_skips(tmp_
              extra={"n_repeats": 1, "repeat_ids": [0]})
     _config(one, repeats=1)
     out = tmp_path / "results"
-    done = F.build([tmp_path / "m"], out)
+    done = build([tmp_path / "m"], out)
     for name in ("table2", "fig10", "fig11", "fig12", "fig13"):
         assert done[name] is True, (name, done[name])
     assert done["table3"].startswith("skipped: 1 repeat: Table 3's mean +/- std and its Friedman and Wilcoxon")
@@ -55,7 +59,7 @@ def test_stamps_say_the_papers_protocol_and_fig9_its_budget(tmp_path):
         _run_dir(d, _metrics(methods, rng), conv=_conv(methods), pred=_pred(methods, rng) if name == "table3" else None)
         _config(d, pop=30, iterations=100)
     out = tmp_path / "r"
-    F.build([tmp_path / "m"], out)
+    build([tmp_path / "m"], out)
     t3 = (out / "table3.md").read_text()
     assert "population 30 x 100 iterations, 10 repeat(s) per run, search dtype float32_features. The paper's protocol" in t3
     assert t3.startswith("# Table 3: 10 repeats")
@@ -63,7 +67,7 @@ def test_stamps_say_the_papers_protocol_and_fig9_its_budget(tmp_path):
     # a smoke budget is said as such, in fig9 too
     for d in (tmp_path / "m").iterdir():
         _config(d, pop=8, iterations=3)
-    F.build([tmp_path / "m"], out)
+    build([tmp_path / "m"], out)
     f9 = (out / "fig9.md").read_text()
     assert "Equal iterations (population x iterations 8 x 3)" in f9 and "the paper's 30 x 100" not in f9
     assert "NOT the paper's protocol" in (out / "table3.md").read_text()
@@ -72,13 +76,13 @@ def test_stamps_say_the_papers_protocol_and_fig9_its_budget(tmp_path):
 def test_describe_and_title():
     paper = {"pop_size": 30, "iterations": 100, "max_evals": None, "dtype": "float32_features", "n_repeats": 10,
              "protocol": "random"}
-    assert _stamp.describe([paper])["paper"]
-    assert _stamp.describe([paper | {"max_evals": 12030}])["paper"]  # the equal-evaluation variant
-    smoke = _stamp.describe([paper | {"pop_size": 8, "iterations": 3}, paper])
+    assert stamp.describe([paper])["paper"]
+    assert stamp.describe([paper | {"max_evals": 12030}])["paper"]  # the equal-evaluation variant
+    smoke = stamp.describe([paper | {"pop_size": 8, "iterations": 3}, paper])
     assert not smoke["paper"] and smoke["short"].endswith("mixed: NOT the paper's protocol")
-    with _stamp.stamping([paper | {"pop_size": 8, "iterations": 3}]):
-        assert _stamp.title("Fig. X") == "Fig. X\n[8 x 3, 10 repeat(s): NOT the paper's protocol]"
-    assert _stamp.title("Fig. X") == "Fig. X" and _stamp.note() == ""
+    with stamp.stamping([paper | {"pop_size": 8, "iterations": 3}]):
+        assert stamp.title("Fig. X") == "Fig. X\n[8 x 3, 10 repeat(s): NOT the paper's protocol]"
+    assert stamp.title("Fig. X") == "Fig. X" and stamp.note() == ""
 
 
 def test_a_sweep_level_missing_a_method_keeps_its_column_and_names_the_job(tmp_path):
@@ -94,7 +98,7 @@ def test_a_sweep_level_missing_a_method_keeps_its_column_and_names_the_job(tmp_p
     bad = root / "sweep_noise-4.0-cgo"
     _run_dir(bad, _metrics(["cgo-original"], rng), label="sweep_noise", failed=True)
     out = tmp_path / "r"
-    done = F.build([root], out)
+    done = build([root], out, sweep_report.REPORT_FILE)
     assert done["sweep_noise"] is True
     t = pd.read_csv(out / "sweep_noise.csv").set_index("noise x")
     assert t.loc[2.0, "GA-RELM"] == "missing" and t.loc[1.0, "GA-RELM"] != "missing"
@@ -107,11 +111,11 @@ def test_a_sweep_level_missing_a_method_keeps_its_column_and_names_the_job(tmp_p
 
 
 def test_plan_counts_jobs_and_prints_an_eta(monkeypatch, capsys, tmp_path):
-    assert [F.plan_jobs(p, o) for _, p, o in F.PLAN] == [1, 1, 1, 2, 3, 5, 6, 3, 1, 20, 20, 20, 1, 13]
+    assert [FP.plan_jobs(p, o) for _, p, o in O.PLAN] == [1, 1, 1, 2, 3, 5, 6, 3, 1, 20, 20, 20, 1, 13]
     clock = iter(range(0, 10_000, 10))
-    monkeypatch.setattr(F.time, "perf_counter", lambda: float(next(clock)))
-    monkeypatch.setattr(F.subprocess, "call", lambda *a, **k: 0)
-    F.run_plan(tmp_path, None)
+    monkeypatch.setattr(FP.time, "perf_counter", lambda: float(next(clock)))
+    monkeypatch.setattr(FP.subprocess, "call", lambda *a, **k: 0)
+    FP.run_plan(tmp_path, None)
     lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("[")]
     assert len(lines) == 14 and lines[0].startswith("[1/14] table3: 1 job(s); elapsed 0:10, ETA after the first")
     # after table3 (1 job; 40 s of the fake clock so far): 96 jobs left at 40 s per job
@@ -121,7 +125,7 @@ def test_plan_counts_jobs_and_prints_an_eta(monkeypatch, capsys, tmp_path):
 def test_one_set_of_names():
     assert method_name("relm-tuned") == "RELM (tuned)" and method_name("cgo-chaos") == "ICGO-RELM (chaotic)"
     assert method_name("cgo-original") == "CGO-RELM" and method_name("sma-x") == "SMA-RELM (x)"
-    assert F.LABEL is STRATEGY_NAMES and SC.METHODS["cgo-wavelet"] == METHOD_NAMES["cgo-wavelet"]
+    assert O.LABEL is STRATEGY_NAMES and SC.METHODS["cgo-wavelet"] == METHOD_NAMES["cgo-wavelet"]
     from experiments import generalisation as G
 
     assert G.NAMES["cgo-chaos"] == "ICGO-RELM (chaotic)"
@@ -161,7 +165,7 @@ def test_run_help_lists_the_groups_not_apply(flag):
     import sys
 
     r = subprocess.run([sys.executable, "-m", "experiments.run", flag], capture_output=True, text=True, timeout=120, check=False,
-                       cwd=F.Path(F.__file__).resolve().parent.parent)
+                       cwd=Path(FP.__file__).resolve().parent.parent)
     assert r.returncode == 0 and "config groups" in r.stdout and "strategy    all, chaos" in r.stdout
     assert "apply" not in r.stdout.split("examples:")[0]
 
@@ -174,7 +178,7 @@ def test_each_table_is_stamped_from_its_own_runs(tmp_path):
     lab = tmp_path / "m" / "table3"
     _run_dir(lab, _metrics(cgo, rng), conv=_conv(cgo), pred=_pred(cgo, rng))
     _config(lab, pop=30, iterations=100, repeats=10)
-    az = tuple(r[1] for r in F.PAPER["table4"])
+    az = tuple(r[1] for r in O.PAPER["table4"])
     well = tmp_path / "m" / "table4"
     m, p = _metrics(cgo, rng), _pred(cgo, rng, azimuths=az, n=4)
     _run_dir(well, m[m.repeat == 0], dataset="well_conditions", pred=p[p.repeat == 0],
@@ -184,7 +188,7 @@ def test_each_table_is_stamped_from_its_own_runs(tmp_path):
         cfg = yaml.safe_load((d / "config.yaml").read_text())
         (d / "config.yaml").write_text(yaml.safe_dump(cfg | {"dataset": {"name": name, "seed": 0}}))
     out = tmp_path / "r"
-    done = F.build([tmp_path / "m"], out)
+    done = build([tmp_path / "m"], out)
     assert done["table3"] is True and done["table4"] is True
     t4, t3 = (out / "table4.md").read_text(), (out / "table3.md").read_text()
     assert "Run settings: population 30 x 100 iterations, 1 repeat(s) per run, search dtype" in t4

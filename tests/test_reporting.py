@@ -166,11 +166,11 @@ def test_the_papers_values_stand_beside_ours(name):
 
 
 def test_one_copy_of_the_published_values():
-    from experiments import figures
     from icgo.datasets.casing_stations import TABLE4_ORIGINAL
+    from icgo.reporting.icgo_outputs import PAPER
     from icgo.reporting.published import ICGO
 
-    assert figures.PAPER is ICGO
+    assert PAPER is ICGO
     assert [tuple(r[2:4]) for r in ICGO["table4"]] == [tuple(r) for r in TABLE4_ORIGINAL]
 
 

@@ -56,10 +56,11 @@ def test_a_repeat_whose_msa_fails_is_left_out_and_named(tmp_path, capsys):
     from hydra.core.hydra_config import HydraConfig
     from omegaconf import open_dict
 
-    from experiments import figures
     from experiments import _entry as E
     from experiments.run import run_job
     from icgo.io.recording import write_recording
+    from icgo.reporting.run_collection import EXCLUDED_FILE
+    from icgo.studies.icgo_relm_results.build import build
 
     frame = _two_azimuth_frame()
     n = 12
@@ -95,8 +96,8 @@ def test_a_repeat_whose_msa_fails_is_left_out_and_named(tmp_path, capsys):
     assert f"{len(good)} repeats" in md
     assert sentence in capsys.readouterr().out
     # the tables builder reads the run and lists what it left out
-    figures.build([run_dir], tmp_path / "fig")
-    listed = (tmp_path / "fig" / figures.EXCLUDED_FILE).read_text().splitlines()
+    build([run_dir], tmp_path / "fig")
+    listed = (tmp_path / "fig" / EXCLUDED_FILE).read_text().splitlines()
     assert [int(line.split("repeat ")[1].split(":")[0]) for line in listed] == bad
 
 

@@ -60,16 +60,17 @@ def test_figures_entry_writes_through_the_staging(tmp_path, monkeypatch):
     """experiments.figures moves its tables in only when the build finished (a failing builder changes nothing)."""
     from experiments import figures
     from icgo.io import files
+    from icgo.studies.icgo_relm_results import build as results_build
 
     out = tmp_path / "results"
     monkeypatch.setattr(files, "RESULTS_DIR", out)  # the shared results folder
     before = _previous(out)
 
-    def boom(dirs, stage):
+    def boom(dirs, stage, report_file=None):
         (stage / "table1.md").write_text("half")
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(figures, "build", boom)
+    monkeypatch.setattr(results_build, "build", boom)
     (tmp_path / "runs").mkdir()
     with pytest.raises(OutputError):
         figures.main([str(tmp_path / "runs"), "--out", str(out)])

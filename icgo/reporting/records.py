@@ -1,7 +1,7 @@
 """The run-record schema: the files of a study's run directory, shared by writers and readers.
 
 ``experiments.run`` writes a run directory (``experiments._relm_job.write_outputs``,
-with :func:`tag_table` and :func:`check_table`) and ``experiments.figures`` reads
+with :func:`tag_table` and :func:`check_table`) and :class:`icgo.reporting.run_collection.Runs` reads
 it back with :func:`read_run` and :func:`read_table`; both take every file name, column name and run-record key
 from here, so a renamed column is renamed once.
 

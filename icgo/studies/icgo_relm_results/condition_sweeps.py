@@ -1,6 +1,6 @@
 """Noise and interference sweeps (``experiment=sweep_noise``, ``sweep_casing``, ``sweep_casing_strength``): every method against the noise floor, per level.
 
-Built by :func:`experiments.figures.build` from the runs of three presets (labels below):
+Built by :func:`icgo.studies.icgo_relm_results.build.build` from the runs of three presets (labels below):
 
 * ``sweep_noise``: the accelerometer and magnetometer white noise both x {0.25, 0.5, 1, 2, 4}
   (``lab_casing``'s ``noise_scale``; x1 = 5e-4 g and 30 nT per raw sample);
@@ -27,10 +27,16 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from scipy.stats import kendalltau
 
-from experiments import _stamp
+from icgo.datasets.casing_stations import lab_casing, noise_floor
+from icgo.maths.stats import format_mean_std, friedman, holm, mean_std, wilcoxon_paired
+from icgo.physics.qc import survey_qc
+from icgo.reporting import records as R
+from icgo.reporting import stamp
 from icgo.reporting.names import METHOD_NAMES
 from icgo.reporting.plots import plt_agg
+from icgo.reporting.protocol import ALPHA
 
 #: Run label of each sweep -> (dataset keyword swept, its readable name, its default value).
 SWEEPS = {"sweep_noise": ("noise_scale", "noise x", 1.0),
@@ -47,9 +53,6 @@ def _level_data(kwargs: dict) -> dict:
     """One level's ``lab_casing`` draw (seed 0): its noise floor (deg), the casing field at the sensor (nT)
     and the physics of its raw readings against the site's reference (:func:`icgo.physics.qc.survey_qc`): RMS
     deviation of |G| (mg), |B| (nT) and dip (deg), which noise and casing disturb before any compensation."""
-    from icgo.datasets.casing_stations import lab_casing, noise_floor
-    from icgo.physics.qc import survey_qc
-
     floor = noise_floor("lab_casing", 0, **kwargs).iloc[0]
     ds = lab_casing(0, **kwargs)
     b = np.linalg.norm(ds.truth["casing_field_ned_nT"], axis=1)
@@ -65,8 +68,6 @@ def _level_data(kwargs: dict) -> dict:
 
 def _levels(runs, label: str) -> dict:
     """{level value: wide (repeat x method) test-MAE frame} of one sweep's runs; raises on a clash."""
-    from icgo.reporting import records as R
-
     key = SWEEPS[label][0]
     frames: dict = {}
     for info in runs.runs:
@@ -101,10 +102,6 @@ def missing_cells(label: str, levels: dict) -> list[str]:
 def table(label: str, levels: dict) -> tuple[pd.DataFrame, list[str]]:
     """One sweep's rows (one per level) and the methods any level has; a method a level lacks is marked
     ``missing`` in its cell (never a dropped column), and that level's order and tests use the methods it has."""
-    from scipy.stats import kendalltau
-
-    from icgo.maths.stats import format_mean_std, friedman, holm, mean_std, wilcoxon_paired
-
     key, name, default = SWEEPS[label]
     methods = [m for m in METHODS if any(m in w.columns for w in levels.values())]
     base_order = None
@@ -158,7 +155,7 @@ def build(runs, out: Path, name: str, lacking: list | None = None) -> bool:
     """Write ``results/<name>.{md,csv,png}`` from the sweeps of :data:`OUTPUTS` ``[name]``; False if none ran.
 
     Args:
-        runs: :class:`experiments.figures.Runs` holding the sweeps' runs (other labels are ignored).
+        runs: :class:`icgo.reporting.run_collection.Runs` holding the sweeps' runs (other labels are ignored).
         out: output folder. name: ``sweep_noise`` or ``sweep_casing``.
         lacking: gets a ``"partial: ..."`` line per missing job (:func:`missing_cells`).
     """
@@ -176,7 +173,7 @@ def build(runs, out: Path, name: str, lacking: list | None = None) -> bool:
         test = (f"per level, Friedman over the methods and the paired Wilcoxon signed-rank (two-sided) of the first "
                 f"against the second by mean MAE; each of the two families Holm-adjusted over the {len(df)} levels")
         text += [f"## {label}: `python -m experiments.run -m experiment={label}`", "",
-                 _stamp.protocol(f"`make figures` (the runs `python -m experiments.run -m experiment={label}`, then "
+                 stamp.protocol(f"`make figures` (the runs `python -m experiments.run -m experiment={label}`, then "
                                  "`python -m experiments.figures`)", test), "",
                  df.to_markdown(index=False, floatfmt=".4g"), "",
                  f"Levels of `dataset.kwargs.{key}` (default {default:g}); each row: {len(methods)} methods x "
@@ -194,16 +191,14 @@ def build(runs, out: Path, name: str, lacking: list | None = None) -> bool:
              "level's raw readings from the site's reference field and gravity (the data set's metadata; `icgo.physics.qc.survey_qc`), "
              "the physics the noise and the casing disturb. The methods output an azimuth correction only (no "
              "corrected G or B), so these columns describe each level's data, not a method's output."]
-    stamp = [_stamp.note(), ""] if _stamp.note() else []
-    (out / f"{name}.md").write_text("\n".join([f"# {title} (test MAE, lab_casing)", "", *stamp, *text, *notes]) + "\n")
-    _stamp.save(fig, out / f"{name}.png", f"{title}: every method against the noise floor (lab_casing)")
+    stamp_lines = [stamp.note(), ""] if stamp.note() else []
+    (out / f"{name}.md").write_text("\n".join([f"# {title} (test MAE, lab_casing)", "", *stamp_lines, *text, *notes]) + "\n")
+    stamp.save(fig, out / f"{name}.png", f"{title}: every method against the noise floor (lab_casing)")
     return True
 
 
 def _separable(df: pd.DataFrame, name: str) -> str:
     """One sentence: at which levels the first place is separable from the second (Holm p < ALPHA)."""
-    from icgo.reporting.protocol import ALPHA
-
     sig = df["p best vs second (Holm)"] < ALPHA
     levels = lambda mask: ", ".join(f"{v:g}" for v in df.loc[mask, name]) or "none"  # noqa: E731
     return (f"The first place is separable from the second (Holm p < {ALPHA:g}) at {int(sig.sum())} of {len(df)} "

@@ -1,13 +1,15 @@
 """What a table or figure of ``results/`` was made from: budget, repeats, search dtype, and whether that is the paper's
-protocol, stamped on every Markdown table and every figure title by :mod:`experiments.figures`; and the table's
-protocol line (command, repeats, split, seeds, test: :func:`icgo.reporting.protocol.protocol_line`) from the same runs.
+protocol, stamped on every Markdown table and every figure title by the builders of
+:mod:`icgo.studies.icgo_relm_results`; and the table's protocol line (command, repeats, split, seeds, test:
+:func:`icgo.reporting.protocol.protocol_line`) from the same runs.
 
 The runs of the output being built are held in a context variable set by :func:`stamping` around each builder: the
 runs it was started with, and every run whose rows the builder then reads (:func:`use`, called by
-:class:`experiments.figures.Runs` when it hands out a run's rows). So each table's stamp and protocol line describe the
-runs its numbers come from, not every run collected, and the builders' ``_write`` and :func:`save` calls stamp
-without passing it along. A run's settings are read from the resolved ``config.yaml`` of its run directory (every run
-of ``experiments.run`` writes one).
+:class:`icgo.reporting.run_collection.Runs` when it hands out a run's rows). So each table's stamp and protocol line
+describe the runs its numbers come from, not every run collected, and the builders'
+:func:`icgo.reporting.table_writer.write_table` and :func:`save` calls stamp without passing it along. A run's
+settings are read from the resolved ``config.yaml`` of its run directory (every run of ``experiments.run`` writes
+one).
 """
 
 from __future__ import annotations
