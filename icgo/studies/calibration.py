@@ -56,7 +56,7 @@ from icgo.optim import misma as misma_opt
 from icgo.optim.registry import get
 from icgo.physics.rolls import MIN_ROLLED_SHOTS, check_groups, rolled_ids
 from icgo.studies.calibration_peer import PEER_METHODS, peer_available, peer_rows
-from icgo.studies.protocol import Study
+from icgo.studies.study import Study
 
 log = logging.getLogger(__name__)
 

@@ -17,7 +17,7 @@ import pandas as pd
 
 from icgo import discrepancy as D
 from icgo.models.discrepancy import PhysicsModel
-from icgo.studies.protocol import Study
+from icgo.studies.study import Study
 
 
 class DiscrepancyResult(NamedTuple):

@@ -39,7 +39,7 @@ from icgo.models.format import CORRECTED_B
 from icgo.physics.frames import angle_diff
 from icgo.studies import splits as _splits
 from icgo.studies.icgo_relm_config import StudyConfig
-from icgo.studies.protocol import Study
+from icgo.studies.study import Study
 
 _RELM = StudyConfig()  # the budget and model size default to the ICGO-RELM study's own (one source)
 

@@ -55,7 +55,7 @@ from icgo.optim.cgo import CGO
 from icgo.optim.registry import get
 from icgo.physics.frames import angle_diff
 from icgo.physics.qc import earth_rate_qc
-from icgo.studies.protocol import Study
+from icgo.studies.study import Study
 
 log = logging.getLogger(__name__)
 

@@ -51,7 +51,7 @@ from icgo.studies.icgo_relm_prepare import (Prepared, exclude_failed_repeats, fi
 from icgo.studies.icgo_relm_result import StudyResult, collect
 from icgo.studies.icgo_relm_score import score_all
 from icgo.studies.icgo_relm_search import check_search, execution_record, search, tune
-from icgo.studies.protocol import Study
+from icgo.studies.study import Study
 
 
 class SurveyData(NamedTuple):

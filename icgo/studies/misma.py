@@ -50,7 +50,7 @@ from icgo.studies import calibration
 from icgo.studies import misma_compare as compare
 from icgo.studies.misma_config import GyroConfig, MismaConfig, RealConfig, SimulatedConfig
 from icgo.studies.misma_simulated import simulated_table, simulated_variant
-from icgo.studies.protocol import Study
+from icgo.studies.study import Study
 
 log = logging.getLogger(__name__)
 

@@ -58,7 +58,7 @@ from icgo.optim.mutation import STRATEGIES
 from icgo.optim.pso import PSO
 from icgo.optim.registry import get
 from icgo.optim.sma import SMA
-from icgo.studies.protocol import Study
+from icgo.studies.study import Study
 
 log = logging.getLogger(__name__)
 

@@ -1,4 +1,4 @@
-"""The protocol every study follows (see :mod:`icgo.studies`)."""
+"""The interface every study follows (see :mod:`icgo.studies`)."""
 
 from __future__ import annotations
 
