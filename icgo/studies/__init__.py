@@ -1,4 +1,5 @@
-"""Studies behind one interface (:class:`icgo.studies.study.Study`) and one registry (the optimizer pattern one level up).
+"""Studies behind one interface (:class:`icgo.studies.study.Study`) and one registry: the optimizer pattern one
+level up.
 
 A study is a :class:`~icgo.studies.study.Study`: a frozen config dataclass that validates itself
 (``__post_init__``, one-line ``ValueError`` naming the field), a pure-ish
