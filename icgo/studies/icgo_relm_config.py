@@ -21,7 +21,7 @@ from icgo.studies import splits as _splits
 #: (:func:`icgo.core.execution.execution_plan`), not this setting.
 PRECISIONS = {"float32_features": ("float32", "float64"), "float64": ("float64", "float64"),
               "float32": ("float32", "float32")}
-#: Former ``dtype`` values, refused with their new names.
+#: ``dtype`` names that are refused, each with the name to use instead (a one-line error).
 RENAMED_DTYPES = {"fast": "float32_features", "mixed": "float64"}
 
 
@@ -83,7 +83,7 @@ class StudyConfig:
             Gram of centred features, float64 Cholesky and iterative refinement), the row-weighted
             :func:`icgo.methods.relm.fitness` otherwise (float64, or float32 for ``"float32"``);
             on an accelerator :func:`icgo.methods.relm_gram.gram_fitness`. The final refit and every
-            reported number are float64 always. (Formerly ``fast`` and ``mixed``: refused with their new names.)
+            reported number are float64 always. ``fast`` and ``mixed`` are refused (:data:`RENAMED_DTYPES`).
     """
 
     n_repeats: int = 10
