@@ -83,13 +83,14 @@ def test_every_result_table_carries_the_stamp_of_its_runs(path):
 
 def test_the_writers_stamp_their_tables():
     """The stamp lines of the MISMA, gyro and discrepancy writers, from their default configs."""
-    from experiments import gyro, misma
+    from experiments import gyro
     from icgo.discrepancy.config import WorkflowConfig
     from icgo.discrepancy.report import workflow_settings
     from icgo.studies.gyro import GyroConfig
+    from icgo.studies import misma_report
     from icgo.studies.misma_config import MismaConfig
 
-    assert misma.settings(MismaConfig()).startswith(
+    assert misma_report.settings(MismaConfig()).startswith(
         "Run settings: population 30 x 2051 iterations per simulated search; real devices: 300 iterations per MISMA "
         "run, 10 search repeats per row, 4 MISMA runs per real-device fit, float64 searches. The paper's population "
         "and iterations (its Table 3); the box around U")
