@@ -9,7 +9,6 @@ models (lookup table, networks, RELMs) into the Hydra run directory (``outputs/g
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
@@ -18,7 +17,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from experiments._entry import enable_jax_cache, one_line_errors, study_main
 from icgo.io.files import Output, staged_results
-from icgo.studies.gyro_report import rate_qc_sentence, write_results
+from icgo.studies.gyro_report import rate_qc_sentence, write_results, write_run_summary
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -55,9 +54,8 @@ def run(cfg: DictConfig, models_dir: Path | None = None, config=None) -> dict:
     result = study.run(data, config, jax.random.PRNGKey(config.seed))
     with staged_results(out, last="gyro_run.json") as stage:
         write_results(result, data, config, stage, models_dir)
-        summary = {**result.summary, "total_seconds": time.perf_counter() - t_start,
-                   "config": OmegaConf.to_container(cfg, resolve=True)}
-        (stage / "gyro_run.json").write_text(json.dumps(summary, indent=1, default=float))
+        summary = write_run_summary(result, time.perf_counter() - t_start, OmegaConf.to_container(cfg, resolve=True),
+                                    stage)
     print(rate_qc_sentence(result.summary["qc"]))
     print(f"[gyro] done in {summary['total_seconds']:.0f} s; results in {out}"
           + (f"; {len(result.models)} models in {models_dir}" if models_dir is not None else ""), flush=True)

@@ -2,11 +2,12 @@
 
 :func:`write_results` writes what :func:`icgo.studies.gyro.run` returned into one (staged) directory: the tables
 (``gyro_methods``, ``gyro_points``, ``gyro_seam`` .csv + .md), the figures (``gyro_points.png``, ``gyro_seam.png``,
-``gyro_toolface.png``) and the fitted models.
+``gyro_toolface.png``) and the fitted models; :func:`write_run_summary` writes ``gyro_run.json``.
 """
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -189,3 +190,11 @@ def write_results(result, data, config, out: Path, models_dir: Path | None) -> N
     if models_dir is not None:
         for name, model in result.models.items():
             model.save(models_dir / f"gyro_{name}")
+
+
+def write_run_summary(result, seconds: float, composed: dict, stage: Path) -> dict:
+    """``gyro_run.json`` into ``stage``: the study's summary, ``total_seconds`` (the whole run) and the composed
+    config; returns it."""
+    summary = {**result.summary, "total_seconds": seconds, "config": composed}
+    (stage / "gyro_run.json").write_text(json.dumps(summary, indent=1, default=float))
+    return summary
