@@ -2,9 +2,9 @@
 
 import numpy as np
 
-from experiments.casing_check import compare, magpylib_tube_field
 from icgo.datasets import casing_stations
 from icgo.datasets import instruments as ins
+from icgo.studies.casing_check import compare, magpylib_tube_field
 
 
 def test_pole_pair_matches_the_magnetised_tube_at_every_lab_station_and_distance():

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 import icgo  # noqa: F401  (float64)
-from experiments import fig9_seeds
 from icgo.optim import get, run_batch
 from icgo.optim.cgo import CGOConfig
 from icgo.reporting.protocol import parse_protocols
@@ -42,8 +41,8 @@ def test_counted_runs_are_the_runners_runs_and_the_counts_add_up(config):
     assert list(table["seed"]) == list(range(1, K + 1))
     assert table.iloc[-1]["improved % (run)"] == pytest.approx(100 * r.improved[:, :, -1].mean())
     assert table.iloc[-1]["chosen % (last 6 iterations)"] == pytest.approx(100 * r.chosen[:, 6:, -1].mean())
-    md = fig9_seeds.markdown(table, __import__("icgo.studies.icgo_relm", fromlist=["StudyConfig"]).StudyConfig(),
-                             1.0, "python -m experiments.fig9_seeds")
+    md = cgo_seeds.markdown(table, __import__("icgo.studies.icgo_relm", fromlist=["StudyConfig"]).StudyConfig(),
+                            1.0, "python -m experiments.fig9_seeds")
     assert parse_protocols(md) and "Run settings: population 30 x 100 iterations, 10 repeats, search dtype" in md
 
 

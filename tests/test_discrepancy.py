@@ -288,7 +288,8 @@ def test_a_json_recording_is_read_with_the_shots_settings(capsys, tmp_path):
     # a bad setting exits 2 naming itself, a missing mounting is data (exit 1) with its probable cause
     from mag_cal_files import device_attitudes, synth, write_raw
 
-    from experiments.discrepancy import load_stations, main_body
+    from experiments.discrepancy import main_body
+    from icgo.studies.discrepancy_job import load_stations
 
     G, B = synth("bh", *device_attitudes("bh"))
     path = tmp_path / "raw.json"
@@ -374,9 +375,9 @@ def test_hydra_config_equals_workflow_config_defaults():
         assert f.name in cfg, f"conf/discrepancy.yaml lacks {f.name}"
         assert cfg[f.name] == getattr(defaults, f.name), (f.name, cfg[f.name], getattr(defaults, f.name))
         assert type(cfg[f.name]) is type(getattr(defaults, f.name)), f.name
-    from experiments.discrepancy import workflow_config
+    from icgo.studies.discrepancy_job import workflow_config
 
-    assert workflow_config(cfg) == defaults
+    assert workflow_config(OmegaConf.to_container(cfg, resolve=True)) == defaults
     assert config_from_mapping(D.WorkflowConfig, config_to_mapping(defaults)) == defaults
 
 

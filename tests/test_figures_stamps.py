@@ -126,7 +126,7 @@ def test_one_set_of_names():
     assert method_name("relm-tuned") == "RELM (tuned)" and method_name("cgo-chaos") == "ICGO-RELM (chaotic)"
     assert method_name("cgo-original") == "CGO-RELM" and method_name("sma-x") == "SMA-RELM (x)"
     assert O.LABEL is STRATEGY_NAMES and SC.METHODS["cgo-wavelet"] == METHOD_NAMES["cgo-wavelet"]
-    from experiments import generalisation as G
+    from icgo.studies import generalisation_report as G
 
     assert G.NAMES["cgo-chaos"] == "ICGO-RELM (chaotic)"
     from icgo.maths.stats import format_mean_std

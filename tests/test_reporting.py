@@ -83,18 +83,18 @@ def test_every_result_table_carries_the_stamp_of_its_runs(path):
 
 def test_the_writers_stamp_their_tables():
     """The stamp lines of the MISMA, gyro and discrepancy writers, from their default configs."""
-    from experiments import gyro, misma
     from icgo.discrepancy.config import WorkflowConfig
     from icgo.discrepancy.report import workflow_settings
+    from icgo.studies import gyro_report, misma_report
     from icgo.studies.gyro import GyroConfig
     from icgo.studies.misma_config import MismaConfig
 
-    assert misma.settings(MismaConfig()).startswith(
+    assert misma_report.settings(MismaConfig()).startswith(
         "Run settings: population 30 x 2051 iterations per simulated search; real devices: 300 iterations per MISMA "
         "run, 10 search repeats per row, 4 MISMA runs per real-device fit, float64 searches. The paper's population "
         "and iterations (its Table 3); the box around U")
-    assert gyro.settings(GyroConfig()).startswith("Run settings: networks 8-8: adam, up to 2000 epochs")
-    assert "No published protocol" in gyro.settings(GyroConfig())
+    assert gyro_report.settings(GyroConfig()).startswith("Run settings: networks 8-8: adam, up to 2000 epochs")
+    assert "No published protocol" in gyro_report.settings(GyroConfig())
     assert workflow_settings(WorkflowConfig(), "one run").startswith(
         "Run settings: Levenberg-Marquardt 12 iterations per fit, up to 6 effects added, 5 folds, one run, float64 "
         "fits.")

@@ -242,7 +242,7 @@ def test_generalisation_table_bolds_only_a_separable_first_and_says_what_lambda_
 
     import pandas as pd
 
-    from experiments.generalisation import markdown
+    from icgo.studies.generalisation_report import markdown
     from icgo.reporting.choices import LAMBDA
     from icgo.reporting.protocol import parse_protocols
     from icgo.studies.generalisation import GeneralisationConfig

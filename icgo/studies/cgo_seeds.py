@@ -8,11 +8,13 @@ study's search with the same settings (tested), so the counts describe Fig. 9's 
 
 Per configuration and seed (1-3: eqs. 12-14; 4: the 4th seed, eq. 15 or its variant): the share of its trials that
 improved on the parent, and the share the selection kept, over the whole run and over its last part; a trial is one
-seed of one member in one iteration, pooled over members, iterations and repeats.
+seed of one member in one iteration, pooled over members, iterations and repeats. The configurations counted for
+``results/fig9_seeds.*`` (``python -m experiments.fig9_seeds``) are :data:`CONFIGS`, its report :func:`markdown`.
 """
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import NamedTuple
 
 import jax
@@ -122,3 +124,46 @@ def study(frame: pd.DataFrame, meta: dict, configs: dict[str, CGOConfig], cfg: S
     key = jax.random.PRNGKey(cfg.seed) if key is None else key
     keys, aux, bounds = search_setup(frame, meta, cfg, key)
     return {name: run_counted(keys, aux, bounds, cfg.pop_size, cfg.iterations, c) for name, c in configs.items()}
+
+
+#: The configurations counted: name -> CGOConfig keywords (the paper variant's factory).
+CONFIGS = {"default (4th seed: eq. 15 on a random subset)": {},
+           "dims one (4th seed on one coordinate)": {"dims": "one"},
+           "dims all (4th seed on every coordinate)": {"dims": "all"},
+           "original_uniform True (4th seed a uniform random point)": {"original_uniform": True}}
+
+
+def markdown(table, cfg, seconds: float, command: str) -> str:
+    """``fig9_seeds.md``: protocol, stamp, the table, what a trial is."""
+    from icgo.reporting.choices import LAMBDA
+    from icgo.reporting.protocol import protocol_line, settings_line
+
+    line = protocol_line(
+        f"`{command}`", f"{cfg.n_repeats} repeats (Fig. 9's splits and keys), the same for every configuration",
+        "random 7:3 of the 3-sigma-filtered rows, a new permutation per repeat; the search sees the training rows "
+        "only (nothing is scored on test rows here)",
+        f"data: lab_casing with noise seed 0; repeat k: split and search key fold_in(PRNGKey({cfg.seed}), k). "
+        f"{LAMBDA.sentence()}",
+        "none: counts of the search's own events (no method is compared with another by a test here; "
+        "`fig9_ablation.md` tests the configurations)")
+    paper = (cfg.pop_size, cfg.iterations) == (30, 100)
+    stamp = settings_line(f"population {cfg.pop_size} x {cfg.iterations} iterations", f"{cfg.n_repeats} repeats",
+                          f"search dtype {cfg.dtype}",
+                          "The paper's protocol (population 30 x 100 iterations)." if paper else
+                          "NOT the paper's protocol (population 30 x 100 iterations).")
+    return "\n".join([
+        "# Fig. 9's CGO-RELM searches: how often each seed improves on its parent and is selected", "", line, "",
+        stamp, "", table.to_markdown(index=False, floatfmt=".3g"), "",
+        "Seeds 1-3: eqs. 12-14; seed 4: the 4th seed (eq. 15 in the default). A trial is one seed of one member in one "
+        f"iteration ({cfg.pop_size} members x {cfg.iterations} iterations x {cfg.n_repeats} repeats per "
+        "configuration); "
+        "`improved`: its training RMSE is below its parent's; `chosen`: the greedy selection kept it (it replaced its "
+        "parent). The runs are the study's searches: each ends at the final training RMSE of the study's run with "
+        "the same settings (tests/test_cgo_seeds.py).",
+        f"Wall time {seconds:.0f} s (one run on a shared machine: a rough figure).", ""])
+
+
+def write_results(table: pd.DataFrame, text: str, stage: Path) -> None:
+    """fig9_seeds.csv (:func:`rates_table`) and fig9_seeds.md (``text``, :func:`markdown`) into ``stage``."""
+    table.to_csv(stage / "fig9_seeds.csv", index=False)
+    (stage / "fig9_seeds.md").write_text(text)
