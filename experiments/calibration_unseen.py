@@ -95,7 +95,7 @@ def main(argv=None) -> int:
     import pandas as pd
 
     from icgo.io.files import Output
-    from experiments.calibrate_report import settings
+    from icgo.studies.calibration_report import settings
     from icgo.reporting.protocol import protocol_line
     from icgo.studies.calibration import CalibrationConfig
     from icgo.studies.calibration_goals import goals, goals_table
