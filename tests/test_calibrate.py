@@ -462,7 +462,7 @@ def test_splits_of_one_roll_hold_out_its_interleaved_halves():
 
 
 def test_apply_takes_the_model_a_calibrate_run_recommends(tmp_path):
-    from experiments.apply import model_path
+    from icgo.survey.apply_run import model_path
     from icgo.core.errors import RecordError
 
     run = tmp_path / "run"
