@@ -1,5 +1,6 @@
 """The ICGO-RELM job behind ``python -m experiments.run``: the composed config checked and mapped onto
-:class:`icgo.studies.icgo_relm_config.StudyConfig`, the data loaded, the progress bar, and the run directory written.
+:class:`icgo.studies.icgo_relm_config.StudyConfig`, the data loaded, and the run directory written
+(:mod:`icgo.studies.icgo_relm_outputs`).
 
 Like :mod:`experiments._entry`, nothing here imports JAX at module import; functions that need the
 library import it inside.
@@ -7,9 +8,7 @@ library import it inside.
 
 from __future__ import annotations
 
-import json
 import sys
-import time
 from pathlib import Path
 
 from omegaconf import DictConfig, ListConfig, OmegaConf
@@ -263,99 +262,6 @@ def select_condition(frame, condition: int):
     return sub
 
 
-class Progress:
-    """A tqdm bar over the search's iterations, fed by ``run_study(progress=...)`` between chunks of iterations.
-
-    The study runs its search in a few jitted chunks and calls this on the host after each
-    (:func:`icgo.optim.sharded.run_members`); nothing enters the compiled programs, so the compilation
-    cache keeps them. The bar starts after the first chunk, i.e. after
-    compiling (or loading) the program, so its rate and ETA measure the search alone.
-    """
-
-    def __init__(self, desc: str):
-        self.desc, self.bar = desc, None
-        print(f"{desc}: compiling or loading the search program, then the bar starts", file=sys.stderr)
-
-    def __call__(self, done: int, total: int) -> None:
-        if self.bar is None:
-            from tqdm.auto import tqdm
-
-            self.bar = tqdm(total=total, initial=done, desc=self.desc, unit="it", mininterval=0.2,
-                            dynamic_ncols=True, file=sys.stderr)
-            return
-        self.bar.update(done - self.bar.n)
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
-
-
-def progress_enabled(setting, accelerator: bool = False) -> bool:
-    """``progress`` option: ``auto`` (a bar when stderr is a terminal and the search runs on a CPU: on an
-    accelerator the bar's host callback would be a round trip inside the iteration loop), true or false."""
-    if isinstance(setting, bool):
-        return setting
-    if setting in (None, "auto"):
-        return sys.stderr.isatty() and not accelerator
-    raise SettingError(f"progress must be auto, true or false, got {setting!r}")
-
-
-def run_with_progress(frame, scfg, meta, progress, desc: str, target=None, timings: dict | None = None):
-    """``icgo.studies.icgo_relm.run_study`` with a progress bar over the optimizer's iterations (:class:`Progress`).
-
-    The bar follows the search's iterations on the host (``run_study(progress=...)``); without an optimizer (plain
-    RELM), or on an accelerator under
-    ``progress=auto``, there is no bar. ``progress``: the ``progress`` setting (:func:`progress_enabled`).
-    ``timings``: see ``run_study``. Prints the execution plan (``search: ...``).
-    """
-    from icgo.core.execution import is_accelerator
-    from icgo.studies import icgo_relm as study
-
-    plan = scfg.execution()
-    enable = progress_enabled(progress, is_accelerator(plan.backend))
-    print(f"search: {plan.why}")  # information, on stdout: stderr is for the one error or interruption line
-    if not enable or scfg.optimizer is None:
-        return study.run_study(frame, scfg, meta, target=target, timings=timings)
-    bar = Progress(desc)
-    try:
-        return study.run_study(frame, scfg, meta, target=target, timings=timings, progress=bar)
-    finally:
-        bar.close()
-
-
-def method_label(method: str) -> str:
-    """The method's name in every output (:func:`icgo.reporting.names.method_name`)."""
-    from icgo.reporting.names import method_name
-
-    return method_name(method)
-
-
-def summary_table(result, split: str = "test"):
-    """Printed/Markdown summary: per method MAE, RMSE, R^2 (mean +/- std over repeats) and evaluations."""
-    import numpy as np
-    import pandas as pd
-
-    from icgo.reporting.records import SUMMARY_COLUMNS
-
-    s = result.summary.xs(split, level="split")
-    evals = dict(zip(result.config.method_names(), np.asarray(result.n_evals).mean(axis=1)))
-    rows = []
-    for m in s.index:
-        rows.append({"method": m, "label": method_label(m), "n": int(s.loc[m, "n"]),
-                     "MAE (deg)": s.loc[m, "mae"], "RMSE (deg)": s.loc[m, "rmse"], "R^2": s.loc[m, "r2"],
-                     "R^2 of error": s.loc[m, "r2_error"],
-                     "evaluations": int(evals[m]) if m in evals else 0})
-    return pd.DataFrame(rows, columns=list(SUMMARY_COLUMNS))
-
-
-def excluded_line(result) -> str | None:
-    """The sentence naming the repeats a study left out (:func:`icgo.studies.icgo_relm_prepare.excluded_sentence`), or
-    None."""
-    from icgo.studies.icgo_relm_prepare import excluded_sentence
-
-    return excluded_sentence(result.excluded, len(result.config.ids()) + len(result.excluded))
-
-
 def run_output(outdir: Path, overwrite: bool):
     """The run directory as an :class:`icgo.io.files.Output`, checked (a used directory refused unless
     ``overwrite``; a failed attempt's marker does not count); Hydra's job log left alone."""
@@ -368,94 +274,24 @@ def run_output(outdir: Path, overwrite: bool):
                   writer="experiments.run").check()
 
 
+def search_sentence(cfg: DictConfig) -> str:
+    """The summary's sentence on the search settings (optimizer, strategies, population, iterations, max_evals)."""
+    return (f"Optimizer {cfg.optimizer.name or 'none (plain RELM)'}, strategies {list(cfg.strategy.names)}, "
+            f"population {cfg.budget.pop_size}, iterations {cfg.budget.iterations}, max_evals {cfg.budget.max_evals}.")
+
+
 def write_outputs(outdir: Path, cfg: DictConfig, result, info: dict, frame=None, meta=None, plot=None) -> dict:
-    """Write the run directory all at once: config, tables, summary, fitted models, figure, then run.json.
-
-    Everything is written into a staging directory inside ``outdir`` first; only when every file is complete
-    is the previous content moved aside, the new files moved in (``os.replace``), ``run.json`` last, and the
-    old content deleted (:class:`icgo.io.files.Output`). An interruption or a full disk before that leaves
-    the previous run as it was (and no staging directory). Hydra's record of the job (``.hydra/``) is staged
-    with the rest. File and column names come from :mod:`icgo.reporting.records`; the fitted models are saved
-    with :meth:`icgo.models.format.FittedModel.save`.
-
-    Args:
-        frame, meta: the study's data and metadata; with a reference field in
-            ``meta``, the survey-QC counts before and after MSA (:func:`icgo.survey.apply.study_qc`)
-            go into the summary and the run record.
-        plot: optional ``path -> None`` writing the study figure (``study.png``).
-    Returns:
-        The run.json dictionary.
-    """
+    """Write the run directory all at once (:func:`icgo.studies.icgo_relm_outputs.write_run_files`), Hydra's record
+    of the job (``.hydra/``) staged with the rest: an interruption or a full disk before the move leaves the previous
+    run as it was (:class:`icgo.io.files.Output`). Returns the run.json dictionary."""
     from experiments._entry import write_hydra_record
     from icgo.reporting import records as run_records
+    from icgo.studies.icgo_relm_outputs import write_run_files
 
     with run_output(outdir, overwrite=True).staged(last=(run_records.RUN_FILE,)) as stage:
         write_hydra_record(stage, cfg)
-        run = _write_run_files(stage, cfg, result, info, frame, meta, plot, run_dir=outdir)
-    return run
-
-
-def _write_run_files(outdir: Path, cfg: DictConfig, result, info: dict, frame, meta, plot, run_dir=None) -> dict:
-    """Every file of a run into ``outdir`` (the staging directory), run.json last; ``run_dir``: where they go."""
-    import numpy as np
-
-    from icgo.physics.qc import qc_sentence
-    from icgo.reporting import records as run_records
-    from icgo.studies.splits import describe as describe_split
-    from icgo.survey.apply import study_qc
-    from icgo.survey.verdict import study_verdict
-
-    t0 = time.perf_counter()
-    qc = None if frame is None else study_qc(frame[result.kept].reset_index(drop=True), meta, result.msa_model)
-
-    outdir.mkdir(parents=True, exist_ok=True)
-    (outdir / run_records.CONFIG_FILE).write_text(OmegaConf.to_yaml(cfg, resolve=True))
-    tags = {"label": info["label"], "dataset": info["dataset"], "condition": info["condition"],
-            "seed": result.config.seed}
-    for name, df in result.records.items():
-        checked = run_records.check_table(name, run_records.tag_table(df, tags), name)
-        checked.to_csv(outdir / f"{name}.csv", index=False, float_format="%.10g")
-    table = summary_table(result)
-    table.to_csv(outdir / "summary.csv", index=False)
-    excluded = excluded_line(result)
-    md = [f"# ICGO-RELM study: {info['dataset']}", "",
-          f"{describe_split(result.config.protocol, result.config.train_fraction).capitalize()}; "
-          f"{len(result.config.ids())} repeats, mean +/- std (sample std). "
-          f"Optimizer {cfg.optimizer.name or 'none (plain RELM)'}, strategies {list(cfg.strategy.names)}, "
-          f"population {cfg.budget.pop_size}, iterations {cfg.budget.iterations}, "
-          f"max_evals {cfg.budget.max_evals}.", "",
-          table.drop(columns=["method"]).to_markdown(index=False), "",
-          *([f"**{excluded}**", ""] if excluded else []),
-          f"Wall time of the study: {result.wall_time_s:.1f} s (compile included); "
-          f"whole job {info['total_time_s']:.1f} s.", "",
-          f"Fitted models: `{result.model.KIND}` (method used by default: {result.model.selected}) and "
-          f"`{result.msa_model.KIND}`."]
-    if qc:
-        md += ["", qc_sentence(qc)]
-    verdict = study_verdict(result.metrics, result.coverage, selected=result.model.selected,
-                            n_repeats=result.config.n_repeats, protocol=result.config.protocol, qc=qc,
-                            trained=result.model.domain, run_dir=str(run_dir or outdir))
-    md += ["", *verdict.markdown()]
-    (outdir / "summary.md").write_text("\n".join(md) + "\n")
-    if plot is not None:
-        plot(outdir / "study.png")
-    models = [result.model.save(outdir / result.model.KIND).name, result.msa_model.save(outdir / result.msa_model.KIND).name]
-    methods = result.config.method_names()
-    if "timings" in info:  # everything above, the run record's own few bytes aside
-        info = {**info, "timings": {**info["timings"], "write_s": time.perf_counter() - t0}}
-    run = {**info, "records_version": run_records.RECORDS_VERSION, "status": "ok", "seed": result.config.seed,
-           "wall_time_s": result.wall_time_s, "methods": methods,
-           "n_evals": {m: int(v) for m, v in zip(methods, np.asarray(result.n_evals)[:, 0])},
-           "n_rows": int(result.kept.sum()), "n_repeats": result.config.n_repeats,
-           "repeat_ids": list(result.config.ids()), "models": models, "qc": qc, "config_sha256": cfg_hash(cfg),
-           "excluded_repeats": [{"repeat": int(r), "reason": why} for r, why in result.excluded]}
-    if result.tuning is not None:
-        run["tuning"] = result.tuning
-    run["verdict"] = verdict.as_dict()
-    missing = [k for k in run_records.RUN_KEYS if k not in run]
-    assert not missing, f"run record lacks {missing}"  # a writer bug, not a user error
-    (outdir / run_records.RUN_FILE).write_text(json.dumps(run, indent=2, default=str) + "\n")
-    return run
+        return write_run_files(stage, result, info, frame, meta, plot, config_yaml=OmegaConf.to_yaml(cfg, resolve=True),
+                               search=search_sentence(cfg), config_sha256=cfg_hash(cfg), run_dir=outdir)
 
 
 def run_help() -> str:

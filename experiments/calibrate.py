@@ -7,20 +7,9 @@
     python -m experiments.calibrate data=device.json site.lat=51.5 site.lon=-0.1 site.date=2024-06-01
     python -m experiments.calibrate data=bundled                         # the 9 bundled devices -> results/
 
-Reads the shots (:func:`icgo.studies.shots.read_shots`: a known layout's groups checked against the data, the
-rolls found where no layout is known, or groups given), fits every method (ellipsoid, 12-parameter least
-squares + axis, MISMA + axis, the regularised joint fit, least squares + axis + a RELM on the residual, the
-peer package side by side), scores each in-sample, held out and inside each held-out split, checks each for
-physical sanity and against the site, recommends one by a rule with its nested accuracy
-(:func:`icgo.studies.calibration_select.recommend`), and writes into the run directory ``report.md``
-(:mod:`experiments.calibrate_report`: the grouping, the rolls, the site, the scores, the recommendation),
-``calibration.csv`` (every fit: score, sanity, site), ``calibration.json`` (the run's record, with
-``recommendation``), one figure per recording and ``models/<recording>_<method>.json`` (the in-sample
-calibrations; ``python -m experiments.apply model=<run dir> data=...`` applies the recommended one). Files are
-staged and moved into place only when all are written; a used run directory is refused unless
-``overwrite=true``. JAX's compilation cache is on (``jax_cache_dir``). A bad setting: one line, exit 2; bad
-data: one line, exit 1, nothing written; a recording with nothing to recommend: every file written, one line,
-exit 4.
+Reads the shots, fits and scores every method, recommends one and writes the run directory
+(:mod:`icgo.studies.calibration_run`, which says what each file holds). A bad setting: one line, exit 2; bad data:
+one line, exit 1, nothing written; a recording with nothing to recommend: every file written, one line, exit 4.
 """
 
 from __future__ import annotations
@@ -32,49 +21,12 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from experiments._entry import enable_jax_cache, one_line, one_line_errors
-from icgo.core.errors import DataError, GroupingError, SettingError
+from icgo.core.errors import SettingError
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Settings of the entry point, not of the study (excluded from CalibrationConfig).
 ENTRY_KEYS = ("data", "mag_axes", "grav_axes", "groups", "columns", "columns_file", "site", "max_shots",
               "max_groups", "results_dir", "jax_cache_dir", "overwrite")
-#: Seed of the fits' PRNG key (split once per recording and split; MISMA is the only fit that draws from it).
-SEED = 0
-
-
-def results_path(cfg: DictConfig) -> Path:
-    """``results_dir`` (relative to the repository root)."""
-    res = Path(str(cfg.results_dir))
-    return res if res.is_absolute() else ROOT / res
-
-
-def size_limits(cfg: DictConfig) -> tuple[int, int]:
-    """``(max_shots, max_groups)``: the largest recording calibrated, its shots and its rolled groups (each group
-    is one leave-one-group-out fold of every method, vmapped, and the inner splits refit every method inside
-    each held-out split). Defaults in conf/calibrate.yaml (docs/data.md: the memory measured at them)."""
-    from icgo.core.settings import is_int
-
-    out = []
-    for k in ("max_shots", "max_groups"):
-        v = cfg.get(k)
-        if not (is_int(v) and v >= 1):
-            raise SettingError(f"{k}={v!r}: must be an integer >= 1")
-        out.append(int(v))
-    return out[0], out[1]
-
-
-def check_groups_size(rec, src: str, max_groups: int) -> None:
-    """DataError naming the file when a recording has no rolled group or more than ``max_groups``."""
-    from icgo.physics.rolls import MIN_ROLLED_SHOTS
-
-    counts = rec.frame["group"].value_counts() if "group" in rec.frame.columns else None
-    rolled = 0 if counts is None else int((counts >= MIN_ROLLED_SHOTS).sum())
-    if rolled == 0:
-        raise DataError(f"{src}: no rolled group ({MIN_ROLLED_SHOTS} or more shots about one pointing direction, "
-                        f"turned about it); calibration needs at least one")
-    if rolled > max_groups:
-        raise DataError(f"{src}: {rolled} rolled groups; calibrate takes at most max_groups={max_groups} (its time and "
-                        "memory grow with them; docs/data.md): split the recording, or raise max_groups=")
 
 
 def study_config(cfg: DictConfig):
@@ -86,216 +38,46 @@ def study_config(cfg: DictConfig):
     return config_from_mapping(CalibrationConfig, values, "conf/calibrate.yaml")
 
 
-def site_setting(cfg: DictConfig):
-    """The ``site.*`` settings as :class:`icgo.io.site.Site`, or None (SettingError on a bad or partial site)."""
-    from icgo.io.site import site_reference
-
-    site = cfg.get("site")
-    if site is not None and not OmegaConf.is_dict(site):
-        raise SettingError(f"site={site!r}: give site.lat= site.lon= site.date=, or site.dip= site.field=")
-    return site_reference(None if site is None else OmegaConf.to_container(site, resolve=True))
-
-
 def load(cfg: DictConfig) -> dict:
-    """name -> Recording with a checked ``group`` column, from ``data=`` (raises SettingError / DataError)."""
-    from icgo.io import mag_cal_bundled
-    from icgo.io import recording as io
-    from icgo.io.grouping import layout_groups
-    from icgo.methods.grouping import by_layout
-    from icgo.studies.shots import read_shots
+    """name -> Recording of ``data=`` (:mod:`icgo.studies.calibration_run`: settings checked, then read)."""
+    from icgo.io.recording import column_map
+    from icgo.studies.calibration_run import check_settings, load_recordings
 
-    data = cfg.data
-    if data is None or str(data) == "":
-        raise SettingError("data= is required: a contract CSV with a group column, a circuitpython-mag-cal JSON, "
-                           "or 'bundled'")
-    if not isinstance(data, str):
-        raise SettingError(f"data={data!r}: must be a path (a contract CSV or a circuitpython-mag-cal JSON) or "
-                           f"'bundled'")
-    max_shots, max_groups = size_limits(cfg)
+    check_settings(cfg.data, cfg.get("max_shots"), cfg.get("max_groups"))
     settings = {k: (OmegaConf.to_container(cfg[k]) if OmegaConf.is_list(cfg[k]) else cfg[k])
                 for k in ("mag_axes", "grav_axes", "groups")}
-    columns = io.column_map(OmegaConf.to_container(cfg.columns) if cfg.get("columns") else None,
-                            cfg.get("columns_file"))
-    if data == "bundled":
-        if any(v is not None for v in settings.values()) or columns:
-            raise SettingError("mag_axes / grav_axes / groups / columns apply to a file, not to data=bundled (the 9 "
-                               "devices are in the circuitpython-mag-cal layout: rolls at shots 8-15 and 16-23)")
-        out = {}
-        for name in mag_cal_bundled.mag_cal_devices():
-            rec = mag_cal_bundled.load_mag_cal_device(name)
-            g = by_layout(rec.G, rec.B, rec.frame["station"].to_numpy(), rec.frame["group"].to_numpy(),
-                          layout_groups("circuitpython-mag-cal", len(rec.frame)).describe(), name)
-            out[name] = rec._replace(meta={**rec.meta, "grouping": g.record}, notices=list(g.notices) + rec.notices)
-        return out
-    rec = read_shots(data, columns=columns or None, max_shots=max_shots, **settings)
-    check_groups_size(rec, data, max_groups)
-    return {Path(data).stem: rec}
-
-
-def sites_of(recordings: dict, site) -> dict:
-    """name -> Site: the ``site.*`` settings, else the recording's own reference field (a contract CSV's metadata:
-    total_field_nT and dip_deg, or its place and date), else None."""
-    from icgo.io.site import Site
-
-    out = {}
-    for name, rec in recordings.items():
-        f = rec.field
-        out[name] = site if site is not None else (
-            None if f is None else Site(f.dip_deg, f.total_field_nT, f"the recording's metadata ({f.origin})"))
-    return out
-
-
-def run(cfg: DictConfig, out: Path, config=None, keep=()) -> int:
-    """Load, fit, score, check, recommend, and write the run directory (all or nothing: :class:`icgo.io.files.Output`;
-    a used directory is refused before anything is computed, unless ``overwrite=true``).
-
-    Every recording that is read leaves its report, recommended or not: where no calibration can be recommended
-    (no sound fit, none consistent with the site, or shots whose geometry the fits refuse) the files are written
-    all the same, the one-line reason printed, and the status is
-    :data:`icgo.survey.verdict.EXIT_NO_RECOMMENDATION`.
-
-    Returns:
-        the exit status: 0, or :data:`icgo.survey.verdict.EXIT_NO_RECOMMENDATION`.
-    """
-    t0 = time.perf_counter()
-    enable_jax_cache(cfg.get("jax_cache_dir"))
-    import jax
-    import pandas as pd
-
-    import icgo  # noqa: F401  (float64)
-    from experiments._entry import bool_setting, write_hydra_record
-    from experiments.calibrate_report import figure, protocol, record, report, settings
-    from icgo.io.files import Output, json_text
-    from icgo.reporting.records import CALIBRATION_FILE
-    from icgo.studies import calibration
-    from icgo.studies.calibration_select import recommend
-    from icgo.survey.verdict import EXIT_NO_RECOMMENDATION, calibrate_verdict
-
-    config = study_config(cfg) if config is None else config
-    site = site_setting(cfg)
-    output = Output(out, setting="hydra.run.dir", overwrite=bool_setting(cfg, "overwrite"), keep=keep,
-                    writer="experiments.calibrate").check()
-    bundled = str(cfg.data) == "bundled"
-    if bundled:  # results/ checked now, not after the fits
-        Output(results_path(cfg), setting="results_dir", shared=True).check()
-    try:
-        recordings = load(cfg)
-    except GroupingError as e:  # the shots were read, but no groups can be made of them: the report says why
-        return refused_run(cfg, config, output, one_line(e), time.perf_counter() - t0)
-    sites = sites_of(recordings, site)
-    sites_given = {n: (s.dip_deg, s.field_nT) for n, s in sites.items() if s is not None}
-    try:
-        df, models = calibration.evaluate(recordings, config, jax.random.PRNGKey(SEED), check=False, sites=sites_given)
-        recs = {name: recommend(df, name) for name in recordings}
-    except calibration.GeometryError as e:  # nothing could be fitted: the report says why
-        why = one_line(e)
-        df, models = pd.DataFrame(columns=["recording", "split", "outer", "method", "score_deg", "degenerate"]), {}
-        recs = {name: {"model": None, "method": None, "criterion": why, "held_out_deg": None, "spread_deg": None,
-                       "clear_winner": False, "runner_up": None, "accuracy_deg": None, "accuracy_spread_deg": None,
-                       "accuracy_splits": [], "refused": why,
-                       "sentence": f"No calibration recommended: the fits refuse the shots: {why}."}
-                for name in recordings}
-    summ = calibration.summary(df) if len(df) else pd.DataFrame()
-    chosen = {name: (models[calibration.model_label(name, r["method"])] if r["method"] else None)
-              for name, r in recs.items()}
-    label = "the 9 bundled circuitpython-mag-cal devices" if bundled else str(cfg.data)
-    text = (report(df, summ, recordings, label, recs, chosen, sites, protocol(df, config, SEED) if bundled else None,
-                   settings(config) if bundled else None)
-            if len(df) else report_refused(recordings, label, recs, chosen, sites))
-    run_record = record(cfg, config, recordings, recs, sites, time.perf_counter() - t0)
-    outer = calibration.outer_rows(df) if len(df) else df
-    verdict = calibrate_verdict(recommendation=run_record.get("recommendation"), n_models=len(models),
-                                run_dir=str(out), n_degenerate=int(outer["degenerate"].astype(bool).sum()),
-                                n_fits=len(outer), refused=run_record.get("refused"),
-                                held_out=outer[outer["split"] != "in-sample"].groupby("method")["score_deg"]
-                                .mean().to_dict() if len(outer) else {})
-    with output.staged(last=(CALIBRATION_FILE,)) as stage:  # the record last: a run directory with it is complete
-        (stage / "models").mkdir()
-        write_hydra_record(stage, cfg)
-        (stage / "report.md").write_text(text + "\n" + "\n".join(verdict.markdown()) + "\n")
-        df.to_csv(stage / "calibration.csv", index=False, float_format="%.6g")
-        for name, rec in recordings.items():
-            figure(rec, {m: models[calibration.model_label(name, m)] for m in calibration.METHODS
-                         if calibration.model_label(name, m) in models}, stage / f"{name}.png")
-        for label_, model in models.items():
-            model.save(stage / "models" / label_)
-        (stage / CALIBRATION_FILE).write_text(json_text(run_record))
-    if bundled:
-        from icgo.io.recording import atomic_write_texts
-
-        res = results_path(cfg)
-        res.mkdir(parents=True, exist_ok=True)
-        atomic_write_texts([(res / "calibration_devices.md", text.replace(
-                                "# Magnetometer calibration:", "# Magnetometer calibration (`python -m experiments."
-                                "calibrate data=bundled`):")),
-                            (res / "calibration_devices.csv", df.to_csv(index=False, float_format="%.6g"))])
-        print(f"wrote {res / 'calibration_devices.md'}")
-    print(text)
-    print(f"run directory: {out} ({len(models)} calibrations in models/; {time.perf_counter() - t0:.1f} s)")
-    print(verdict.text())
-    refused = [f"for {n}: {r['refused']}" for n, r in recs.items() if r["refused"]]
-    if refused and not bundled:
-        import sys
-
-        print(f"error: no calibration recommended {refused[0]} (report: {out / 'report.md'})", file=sys.stderr)
-        return EXIT_NO_RECOMMENDATION
-    return 0
-
-
-def refused_run(cfg: DictConfig, config, output, reason: str, seconds: float) -> int:
-    """The run directory of a recording whose shots were read but could not be grouped: ``report.md`` and
-    ``calibration.json`` with the reason (``"refused"``), an empty ``calibration.csv``; one line on stderr; exit 4."""
-    import sys
-
-    from experiments._entry import write_hydra_record
-    from icgo.core.settings import config_to_mapping
-    from icgo.io.files import json_text
-    from icgo.reporting.records import CALIBRATION_FILE
-    from icgo.survey.verdict import EXIT_NO_RECOMMENDATION, calibrate_verdict
-
-    verdict = calibrate_verdict(recommendation=None, n_models=0, n_degenerate=0, n_fits=0, run_dir=str(output.path),
-                                refused=reason)
-    text = (f"# Magnetometer calibration: {cfg.data}\n\n## Recommendation\n\n- No calibration recommended: the shots "
-            f"were read, but no rolls could be made of them: {reason}\n\n" + "\n".join(verdict.markdown()) + "\n")
-    record = {"kind": "calibration_run", "data": str(cfg.data), "config": config_to_mapping(config), "recordings": {},
-              "recommendations": {}, "recommendation": None, "refused": reason, "wall_time_s": seconds}
-    with output.staged(last=(CALIBRATION_FILE,)) as stage:
-        write_hydra_record(stage, cfg)
-        (stage / "report.md").write_text(text)
-        (stage / "calibration.csv").write_text("recording,split,outer,method,score_deg,degenerate,reasons\n")
-        (stage / CALIBRATION_FILE).write_text(json_text(record))
-    print(text)
-    print(verdict.text())
-    print(f"error: no calibration recommended: {reason} (report: {output.path / 'report.md'})", file=sys.stderr)
-    return EXIT_NO_RECOMMENDATION
-
-
-def report_refused(recordings: dict, label: str, recs: dict, chosen: dict, sites: dict) -> str:
-    """The report of a run where nothing could be fitted: the recommendation's refusal, the grouping and rolls."""
-    from experiments.calibrate_report import rolls_section
-
-    lines = [f"# Magnetometer calibration: {label}", "", "## Recommendation", ""]
-    lines += [f"- `{name}`: {r['sentence']}" for name, r in recs.items()]
-    lines += ["", "## Shots and rolls", ""]
-    for name, rec in recordings.items():
-        lines += rolls_section(name, rec, None)
-    return "\n".join(lines) + "\n"
+    columns = column_map(OmegaConf.to_container(cfg.columns) if cfg.get("columns") else None, cfg.get("columns_file"))
+    return load_recordings(cfg.data, settings, columns, int(cfg.max_shots), int(cfg.max_groups))
 
 
 @hydra.main(config_path="../conf", config_name="calibrate", version_base="1.3")
 @one_line_errors
 def main(cfg: DictConfig) -> None:
-    """Hydra entry point; a bad setting exits 2, bad data exits 1, each with one line; a run that recommends no
-    calibration writes its report and exits :data:`icgo.survey.verdict.EXIT_NO_RECOMMENDATION` (4)."""
+    """Hydra entry point: :func:`icgo.studies.calibration_run.run` with the settings of ``cfg``. A bad setting exits
+    2, bad data exits 1, each with one line; a run that recommends no calibration writes its report and exits
+    :data:`icgo.survey.verdict.EXIT_NO_RECOMMENDATION` (4)."""
     from hydra.core.hydra_config import HydraConfig
 
-    from experiments._entry import hydra_keep
+    from experiments._entry import bool_setting, hydra_keep, write_hydra_record
+    from icgo.io.files import Output
+    from icgo.io.site import site_reference
+    from icgo.studies import calibration_run
 
     try:
         config = study_config(cfg)
     except ValueError as e:
         raise SettingError(one_line(e)) from None
-    rc = run(cfg, Path(HydraConfig.get().runtime.output_dir), config, keep=hydra_keep())
+    t0 = time.perf_counter()
+    enable_jax_cache(cfg.get("jax_cache_dir"))
+    site = cfg.get("site")
+    if site is not None and not OmegaConf.is_dict(site):
+        raise SettingError(f"site={site!r}: give site.lat= site.lon= site.date=, or site.dip= site.field=")
+    site = site_reference(None if site is None else OmegaConf.to_container(site, resolve=True))
+    output = Output(Path(HydraConfig.get().runtime.output_dir), setting="hydra.run.dir",
+                    overwrite=bool_setting(cfg, "overwrite"), keep=hydra_keep(), writer="experiments.calibrate")
+    res = Path(str(cfg.results_dir))
+    rc = calibration_run.run(str(cfg.data), config, site, output, lambda: load(cfg),
+                             lambda stage: write_hydra_record(stage, cfg), res if res.is_absolute() else ROOT / res, t0)
     if rc:
         raise SystemExit(rc)
 

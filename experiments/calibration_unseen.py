@@ -43,10 +43,10 @@ def main(argv=None) -> int:
     ap.add_argument("--devices", nargs="*", default=None, help="bundled devices to perturb (default: all 9)")
     ap.add_argument("--variants", type=_positive, default=None, help="variants per device (default: N_VARIANTS)")
     a = ap.parse_args(argv)
-    from experiments.calibrate_report import settings
     from icgo.io.files import Output
     from icgo.studies import calibration_unseen as unseen
     from icgo.studies.calibration import CalibrationConfig
+    from icgo.studies.calibration_report import settings
 
     out = Output(Path(a.out), setting="--out", shared=True).check()
     df, vs, recs, seconds = unseen.run_variants(a.peer, a.devices, a.variants)

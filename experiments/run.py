@@ -74,6 +74,7 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
               f"(the old run is then replaced whole)", file=sys.stderr)
         raise SystemExit(EXIT_CONFIG)
     from experiments import _worlds_job as worlds_job
+    from icgo.studies.icgo_relm_progress import progress_enabled, run_with_progress
 
     timings = {}
     worlds = cfg.get("worlds") is not None
@@ -90,7 +91,7 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
     try:
         devices = entry.start_devices()  # before JAX's backend starts: jax.distributed, the CPU's host devices
         scfg = relm_job.study_config(cfg)  # every check before any computation (imports the study, JAX with it)
-        relm_job.progress_enabled(cfg.progress)
+        progress_enabled(cfg.progress)
         timings["import_s"] = time.perf_counter() - t0
         entry.enable_jax_cache(cfg.jax_cache_dir)
         if worlds:
@@ -100,8 +101,8 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
             frame, meta, desc = relm_job.load_data(cfg)
             target = relm_job.load_target(cfg)
             timings["load_data_s"] = time.perf_counter() - t1
-            result = relm_job.run_with_progress(frame, scfg, meta, cfg.progress,
-                                         desc=f"{desc} {'/'.join(scfg.method_names())}", target=target, timings=timings)
+            result = run_with_progress(frame, scfg, meta, cfg.progress, desc=f"{desc} {'/'.join(scfg.method_names())}",
+                                       target=target, timings=timings)
     except ValueError as e:  # SettingError, DataError (icgo.core.errors), study/optimizer checks: one line each
         if multirun:
             entry.write_failure(outdir, entry.one_line(e), entry.format_traceback(e))
@@ -136,7 +137,9 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
                 log.error("job failed: %s", entry.one_line(e))
                 return None
             entry.fail_line(e)
-        worlds_job.print_summary(result, outdir, t0)
+        from icgo.studies.worlds_outputs import print_summary as print_worlds
+
+        print_worlds(result, outdir, t0)
         return run
     plot = None
     if cfg.figures:
@@ -154,17 +157,9 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
             log.error("job failed: %s", entry.one_line(e))
             return None
         entry.fail_line(e)
-    table = relm_job.summary_table(result).drop(columns=["method"])
-    print(f"\nICGO-RELM study on {desc}: test split, {len(result.config.ids())} repeats (mean +/- std)")
-    print(table.to_markdown(index=False))
-    excluded = relm_job.excluded_line(result)
-    if excluded:
-        print(excluded)
-    print(f"outputs: {outdir}")
-    print(f"wall time: {time.perf_counter() - t0:.1f} s (study {result.wall_time_s:.1f} s incl. compile)")
-    from icgo.survey.verdict import from_dict
+    from icgo.studies.icgo_relm_outputs import print_summary
 
-    print(from_dict(run["verdict"]).text())
+    print_summary(result, desc, run, outdir, t0)
     return run
 
 

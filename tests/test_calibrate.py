@@ -418,7 +418,8 @@ def test_the_accuracy_printed_is_nested_the_choice_made_inside_each_held_out_spl
 def test_the_bundled_table_states_its_protocol():
     """results/calibration_devices.md's protocol line, from a small fits table (no fit run): the counts come from
     the table, the command from the config (its non-default settings spelled out)."""
-    from experiments.calibrate_report import protocol, report, settings
+    from icgo.studies.calibration_report import protocol, report, settings
+    from icgo.studies.calibration_run import SEED
     from icgo.core.settings import config_overrides
     from icgo.reporting.protocol import PROTOCOL_FIELDS, parse_protocols
 
@@ -428,7 +429,7 @@ def test_the_bundled_table_states_its_protocol():
                         "dip_spread_deg": 0.5, "b_spread_pct": 0.1, "cond": 1.01, "reasons": ""}
                        for r, sps in splits.items() for sp in sps for i, m in enumerate(cal_study.METHODS)])
     md = report(df, cal_study.summary(df), {}, "two recordings", {}, {}, {},
-                protocol(df, cal_study.CalibrationConfig(), entry.SEED),
+                protocol(df, cal_study.CalibrationConfig(), SEED),
                 settings(cal_study.CalibrationConfig(misma_pop=12)))
     (line,) = parse_protocols(md)
     assert md.splitlines()[2].startswith("Protocol: ") and set(line) == set(PROTOCOL_FIELDS)
@@ -438,13 +439,13 @@ def test_the_bundled_table_states_its_protocol():
     assert "its recording's 2-3 held-out split(s)" in line["repeats"]
     assert "all 2 recordings (2 in-sample and 5 held-out fits per method)" in line["repeats"]
     assert "each rolled group left out of the fit in turn" in line["split"]
-    assert f"PRNGKey({entry.SEED})" in line["seeds"] and "the 2 bundled recordings" in line["seeds"]
+    assert f"PRNGKey({SEED})" in line["seeds"] and "the 2 bundled recordings" in line["seeds"]
     assert line["test"].startswith("none: no p-value here")
     # a run with other settings names them, so the line's command regenerates its table
     fast = cal_study.CalibrationConfig(peer=False, misma_iter=3, misma_repeats=2)
     assert config_overrides(fast) == ["peer=false", "misma_iter=3", "misma_repeats=2"]
     assert config_overrides(cal_study.CalibrationConfig()) == []
-    (line,) = parse_protocols(protocol(df[df.recording == "a"], fast, entry.SEED))
+    (line,) = parse_protocols(protocol(df[df.recording == "a"], fast, SEED))
     assert line["command"] == "`python -m experiments.calibrate data=bundled peer=false misma_iter=3 misma_repeats=2`"
     assert "2 MISMA runs (population 30, 3 iterations)" in line["repeats"] and "2 held-out split(s)" in line["repeats"]
     # a run on a user's file has no protocol line (its command is not known here)
@@ -461,7 +462,7 @@ def test_splits_of_one_roll_hold_out_its_interleaved_halves():
 
 
 def test_apply_takes_the_model_a_calibrate_run_recommends(tmp_path):
-    from experiments.apply import model_path
+    from icgo.survey.apply_run import model_path
     from icgo.core.errors import RecordError
 
     run = tmp_path / "run"

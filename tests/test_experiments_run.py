@@ -307,7 +307,9 @@ def test_progress_comes_between_chunks_with_the_same_result_and_a_cached_program
 
 
 def test_progress_bar_starts_after_the_first_chunk(capsys):
-    bar = relm_job.Progress("t")
+    from icgo.studies.icgo_relm_progress import Progress
+
+    bar = Progress("t")
     assert bar.bar is None and "compiling or loading" in capsys.readouterr().err
     bar(2, 20)
     assert bar.bar.n == 2 and bar.bar.total == 20

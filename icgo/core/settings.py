@@ -138,7 +138,7 @@ def error_status(e: BaseException) -> int | None:
     the disk (:data:`DISK_ERRNOS`) and ``MemoryError``.
     """
     if isinstance(e, ValueError):
-        for line in getattr(e, "problems", None) or (_first_line(e),):
+        for line in getattr(e, "problems", None) or (first_line(e),):
             print(f"error: {line}", file=sys.stderr)
         return 2 if isinstance(e, SettingError) else 1
     if isinstance(e, OSError) and e.errno in DISK_ERRNOS:
@@ -151,7 +151,8 @@ def error_status(e: BaseException) -> int | None:
     return None
 
 
-def _first_line(e: BaseException) -> str:
+def first_line(e: BaseException) -> str:
+    """First line of an exception's message (its type's name when it has none)."""
     text = str(e).strip()
     return text.splitlines()[0] if text else type(e).__name__
 

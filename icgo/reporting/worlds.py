@@ -12,7 +12,7 @@ one world share its data, so they are not independent of each other); the worlds
 * :func:`friedman_over_worlds`: Friedman over worlds of several methods.
 
 Pure pandas/numpy on the study's metrics table (``world`` column: the data seed), so the run directory of a
-worlds run and the results builder (``experiments.worlds_tables``) compute the same numbers.
+worlds run and the results builder (``icgo.studies.icgo_relm_results.worlds_tables``) compute the same numbers.
 """
 
 from __future__ import annotations

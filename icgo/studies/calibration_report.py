@@ -1,4 +1,4 @@
-"""What ``experiments.calibrate`` writes about a run: report.md's sections, the figure, the run record (calibration.json).
+"""What a calibration run writes about itself: report.md's sections, the figure, the run record (calibration.json).
 
 Every recording gets its report, whether a calibration is recommended or not: the grouping used (and the one the
 data suggest where they differ), the rolls, the site (each sound fit's mean dip and |B|, checked against the site
@@ -231,14 +231,15 @@ def report(df, summ, recordings: dict, label: str, recs: dict, models: dict, sit
     return "\n".join(lines) + "\n"
 
 
-def record(cfg, config, recordings: dict, recs: dict, sites: dict, seconds: float) -> dict:
+def record(data: str, config, recordings: dict, recs: dict, sites: dict, seconds: float) -> dict:
     """The run's machine-readable record (``calibration.json``): settings, recordings, their grouping and rolls, the
     site, and the recommendation (``recommendation`` for a one-recording run, ``recommendations`` per recording;
-    a recording with nothing to recommend has ``model`` and ``method`` null and ``refused`` saying why)."""
+    a recording with nothing to recommend has ``model`` and ``method`` null and ``refused`` saying why).
+    ``data``: the ``data=`` setting as given."""
     from icgo.core.settings import config_to_mapping
     from icgo.io.grouping import roll_table
 
-    out = {"kind": "calibration_run", "data": str(cfg.data), "config": config_to_mapping(config),
+    out = {"kind": "calibration_run", "data": data, "config": config_to_mapping(config),
            "recordings": {name: {"shots": int(len(rec.frame)), "description": rec.meta.get("description", ""),
                                  "grouping": rec.meta.get("grouping"),
                                  "rolls": roll_table(rec.frame).to_dict(orient="records"),
@@ -252,3 +253,13 @@ def record(cfg, config, recordings: dict, recs: dict, sites: dict, seconds: floa
         if not one["model"]:
             out["refused"] = one["refused"]
     return out
+
+
+def report_refused(recordings: dict, label: str, recs: dict, chosen: dict, sites: dict) -> str:
+    """The report of a run where nothing could be fitted: the recommendation's refusal, the grouping and rolls."""
+    lines = [f"# Magnetometer calibration: {label}", "", "## Recommendation", ""]
+    lines += [f"- `{name}`: {r['sentence']}" for name, r in recs.items()]
+    lines += ["", "## Shots and rolls", ""]
+    for name, rec in recordings.items():
+        lines += rolls_section(name, rec, None)
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,122 @@
+"""One survey corrected by one saved model, written and reported: what ``python -m experiments.apply`` does with its
+checked settings.
+
+:func:`apply_survey` reads the survey (in chunks above a size: :func:`icgo.io.stream.read_chunks`), corrects it with
+:func:`icgo.survey.apply.correct_rows`, and writes ``<survey>_corrected.csv`` and ``<survey>_corrected.meta.json``
+(the model, the QC counts before/after, the metrics where the survey has a reference azimuth, the notices) through
+an :class:`icgo.io.files.Output`, both or neither; :func:`report` prints the summary. A survey that already holds a
+correction's output columns (a corrected survey) is refused: its columns would mix with the new model's.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+from icgo.core.errors import DataError
+
+
+def model_path(path: Path) -> Path:
+    """The model file a ``model=`` setting names: a header, a run directory's main model (the first of its
+    ``run.json``'s ``models``, which must be a file in that directory), or the calibration a calibrate run
+    directory recommends."""
+    from icgo.models.format import run_model_path
+    from icgo.reporting import records
+
+    if path.is_dir() and (path / records.CALIBRATION_FILE).is_file():
+        return records.recommended_model(path)
+    if path.is_dir() and ((path / records.RUN_FILE).exists() or (path / records.RUN_FILE).is_symlink()):
+        return run_model_path(path)
+    return path
+
+
+def apply_survey(output, model, mpath: Path, data: Path, survey_path: str, *, columns: dict, max_bytes: int,
+                 stream_above: int, chunk_rows: int, require_meta: bool, method: str | None, bands, qc_bands: dict,
+                 write_record: Callable[[Path], None]) -> dict:
+    """Correct the survey ``data`` with ``model`` (loaded from ``mpath``) and write the two files (all or none); return the meta
+    dict.
+
+    Args:
+        output: the checked :class:`icgo.io.files.Output` of the run directory. survey_path: ``data`` as given.
+        columns: the column map. max_bytes, stream_above, chunk_rows: the largest survey read (bytes), the size above
+            which it streams (bytes) and the rows per chunk. require_meta: the metadata header required.
+        method: the model's method to use (None: its selected one). bands: the QC bands
+            (:class:`icgo.physics.qc.QCBands`); qc_bands: the same as given (the meta record's ``qc_bands``).
+        write_record: writes the door's own record of its settings into the staging directory.
+    Raises:
+        ValueError (ModelError, DataError, RecordError, OutputError): one line.
+    """
+    import pandas as pd
+
+    from icgo.io.files import json_text
+    from icgo.io.stream import read_chunks
+    from icgo.survey.apply import correct_rows, merge_rows, output_columns_in, summarise
+    from icgo.survey.verdict import survey_verdict
+
+    out_dir = output.path
+    chunks = read_chunks(data, max_bytes=max_bytes, stream_above=stream_above, chunk_rows=chunk_rows,
+                         require_meta=require_meta, require_reference=False, columns=columns)
+    stem = data.stem
+    with output.staged(last=(f"{stem}_corrected.meta.json",)) as stage:
+        out_csv, parts, notices, rec, n_rows = stage / f"{stem}_corrected.csv", [], [], None, 0
+        for k, rec in enumerate(chunks):  # a small survey is one chunk; a large one streams in bounded memory
+            if k == 0:
+                held = output_columns_in(rec.frame.columns)
+                if held:
+                    raise DataError(f"{data}: already holds the output columns of a correction ({', '.join(held[:4])}"
+                                    f"{', ...' if len(held) > 4 else ''}): it is a corrected survey; apply the model "
+                                    f"to the original survey (mixing two models' columns is refused)")
+            notices += rec.notices
+            n_rows += len(rec.frame)
+            parts.append(correct_rows(model, rec.frame, rec.field, method=method, bands=bands))
+            if k == 1:  # streaming: the first chunk's table goes out now, every later one as it comes
+                parts[0].table.to_csv(out_csv, index=False, lineterminator="\n")
+                parts[0] = parts[0]._replace(table=pd.DataFrame())  # (not a slice: a slice keeps the table)
+            if k >= 1:
+                parts[k].table.to_csv(out_csv, index=False, lineterminator="\n", header=False, mode="a")
+                parts[k] = parts[k]._replace(table=pd.DataFrame())
+        streamed = len(parts) > 1
+        res = summarise(model, merge_rows(parts) if streamed else parts[0], rec.field, positions_table=not streamed)
+        if not streamed:  # one chunk: its table, positions included, is the file
+            res.table.to_csv(out_csv, index=False, lineterminator="\n")
+        elif res.trajectory:
+            res.trajectory.pop("table").to_csv(stage / f"{stem}_positions.csv", index=False, lineterminator="\n")
+        verdict = survey_verdict(res, model, bands, out_csv=str(out_dir / f"{stem}_corrected.csv"),
+                                 model_path=str(mpath), survey_path=survey_path, method=method)
+        meta = {"source": rec.source, "model": str(mpath), "model_kind": model.KIND,
+                "method": method if method is not None else getattr(model, "selected", None),
+                "model_data_hash": model.data_hash, "rows": n_rows,
+                "chunks": len(parts), "metrics": res.metrics, "qc": res.qc,
+                "qc_bands": qc_bands,
+                "notices": notices + res.notices, "doubts": res.doubts,
+                "units": {"angles": "deg", "B": "nT", "G": "g"},
+                "trajectory": res.trajectory, "verdict": verdict.as_dict()}
+        if streamed and res.trajectory:
+            meta["positions_file"] = f"{stem}_positions.csv"
+        if rec.field is not None:
+            meta.update({k: getattr(rec.field, k) for k in ("total_field_nT", "dip_deg", "declination_deg",
+                                                             "gravity_g")})
+        (stage / f"{stem}_corrected.meta.json").write_text(json_text(meta))
+        write_record(stage)
+    return meta
+
+
+def report(meta: dict, out_dir: Path, stem: str) -> None:
+    """The printed summary: metrics (or QC only), QC counts, notices, files."""
+    m = meta["metrics"]
+    if m:
+        c = m["compensated"]
+        raw = m.get("raw")
+        print(f"corrected survey: {meta['rows']} stations, MAE {c['mae']:.4f} deg, RMSE {c['rmse']:.4f} deg, "
+              f"R^2 {c['r2']:.4f}" + (f" (raw MAE {raw['mae']:.4f} deg)" if raw else ""))
+    else:
+        print(f"corrected survey: {meta['rows']} stations; no reference azimuth, QC only")
+    for stage, counts in (meta["qc"] or {}).items():
+        print(f"QC {stage}: {counts['any']} of {counts['n']} stations flagged "
+              f"(|G| {counts['g']}, |B| {counts['b']}, dip {counts['dip']})")
+    for n in meta["notices"]:
+        print(f"notice: {n}")
+    print(f"wrote {out_dir / (stem + '_corrected.csv')} and {stem}_corrected.meta.json")
+    from icgo.survey.verdict import from_dict
+
+    print(from_dict(meta["verdict"]).text())
