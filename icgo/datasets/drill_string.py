@@ -12,9 +12,8 @@ import numpy as np
 
 from icgo.datasets import instruments as ins
 from icgo.datasets.dataset import Dataset, as_float64, contract_frame, jsonable, spawn_rngs
-from icgo.physics import strapdown
 from icgo.physics import frames as F
-
+from icgo.physics import strapdown
 
 # ====================================================== rotating_drill (MISMA)
 #: 12-parameter magnetometer error of a MEMS (AMR) magnetometer strapped to a

@@ -17,7 +17,6 @@ from icgo.datasets import instruments as ins
 from icgo.datasets.dataset import Dataset, as_float64, contract_frame, jsonable, spawn_rngs
 from icgo.physics import frames as F
 
-
 # ================================================== turntable (patent CN1888384)
 #: The patent's inclination test points (deg), "dense near zero, 10 deg apart above 10".
 PATENT_INCLINATIONS = (3.0, 5.0, 10.0, 15.0, 25.0, 35.0, 45.0, 55.0, 65.0, 75.0)

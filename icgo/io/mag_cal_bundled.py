@@ -18,7 +18,6 @@ import pandas as pd
 from icgo.io.recording import Recording, validate
 from icgo.io.schema import fail, is_number
 
-
 MAG_CAL_VERSION = "1.4.1"
 MAG_CAL_LICENSE = "MIT, Copyright (c) 2022 Phil Underwood for Underwood Underground"
 #: Device frame of the mag_cal fixtures: X right, Y the pointing axis, Z up

@@ -44,8 +44,8 @@ import pandas as pd
 
 from icgo.core.errors import DataError
 from icgo.core.settings import is_int, need
-from icgo.methods import joint, mag_relm
 from icgo.methods import calibration as cal
+from icgo.methods import joint, mag_relm
 from icgo.methods.cal_pointing import align_to_axis, group_spread_deg, pointing_directions
 from icgo.methods.cal_sanity import sanity
 from icgo.methods.cal_site import site_check, site_values
