@@ -106,7 +106,8 @@ def tiny():
 @pytest.mark.slow
 def test_tiny_run_records_and_models(tiny):
     cfg, data, res = tiny
-    assert set(res.records) == {"params_short", "modulus_short", "simulated", "real_devices", "real_summary"}
+    assert set(res.records) == {"params_short", "modulus_short", "fair_short", "tests_short", "gyro_sweep",
+                                "simulated", "real_devices", "real_summary"}
     p = res.records["params_short"]
     truth = data.simulated["short"].truth
     np.testing.assert_allclose(p["true"], np.asarray(cal.params_from_error_model(np.asarray(truth["R"]),
@@ -120,7 +121,11 @@ def test_tiny_run_records_and_models(tiny):
     assert list(s["qc_static"]) == ["raw", "U", "twelve", "SMA", "MISMA"]
     assert all(c["n"] == n_static for c in s["qc_static"].values())
     real = res.records["real_devices"]
-    assert list(dict.fromkeys(real.split)) == ["in-sample", "held-out group 8", "held-out group 9"]
+    # the calibration study's splits (in-sample, each group held out), then the inner splits of each held-out one
+    labels = list(dict.fromkeys(real.split))
+    outer = [s[0] for s in calibration.splits(data.devices["ab"].frame["group"].to_numpy())]
+    assert outer == ["in-sample", "held-out group 8", "held-out group 9"] and labels[:3] == outer
+    assert len(labels) > 3 and all(label.split(" / ")[0] in outer[1:] for label in labels[3:])
     assert {"ab_ellipsoid", "ab_twelve_axis", "ab_misma_axis", "ab_joint", "short_misma", "short_sma",
             "short_modulus"} <= set(res.models)
     assert all(isinstance(m, MagCalibration) for m in res.models.values())
