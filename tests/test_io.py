@@ -110,6 +110,17 @@ def test_bad_csv_gives_one_line(name, expected):
         assert piece in msg, (piece, msg)
 
 
+def test_a_carriage_return_inside_a_field_is_one_line(tmp_path):
+    """The csv module refuses a bare CR inside an unquoted field (here the header's): the fast reader leaves it to
+    the exact one, which names the line (found by the long fuzz test)."""
+    text = (DATA / "survey.csv").read_text()
+    head, first, *rest = text.split("\n")
+    path = tmp_path / "cr.csv"
+    path.write_text("\n".join([head[:3] + "\r" + head[3:], first, *rest]), newline="")
+    msg = _one_line_error(io.read_recording, path, require_meta=False)
+    assert "cr.csv" in msg and "CSV syntax error at line" in msg
+
+
 def test_cli_prints_only_the_line(capsys):
     assert io_cli.main(["check", str(DATA / "bad_nan.csv")]) == 1
     out, err = capsys.readouterr()

@@ -149,6 +149,8 @@ def _edit(tmp_path, header=None, arrays=None):
     (lambda h: h["fields"].__setitem__("power", 3), None, "power must be 1 or 2"),
     (lambda h: h["fields"].__setitem__("rotated", "yes"), None, "field 'rotated' must be bool"),
     (lambda h: h["fields"].pop("terms"), None, "lacks field 'terms'"),
+    # a range given as a number: only n_* entries are counts (apply compares every range with the survey's)
+    (lambda h: h["fields"]["domain"].__setitem__("b_norm_nT", 0), None, r"training domain 'b_norm_nT' must be \[low"),
 ])
 def test_edited_files_are_one_modelerror_line(tmp_path, header, arrays, says):
     path = _edit(tmp_path, header, arrays)

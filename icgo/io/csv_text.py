@@ -55,7 +55,11 @@ def _read_fast(text: str, src: str, notices: list, require_reference: bool, conv
     """
     if '"' in text or "\x00" in text or (len(text) >= csv.field_size_limit() and _LONG_LINE.search(text)):
         return None
-    header = next((r for r in csv.reader(_io.StringIO(text)) if r and not (len(r) == 1 and r[0].strip() == "")), None)
+    try:
+        header = next((r for r in csv.reader(_io.StringIO(text)) if r and not (len(r) == 1 and r[0].strip() == "")),
+                      None)
+    except csv.Error:  # e.g. a carriage return inside a field: the exact reader words it (line and reason)
+        return None
     if header is None:
         return None
     header = [h.strip() for h in header]

@@ -221,11 +221,12 @@ def plain_ok(v, types: tuple[str, ...]) -> bool:
 
 
 def check_domain(domain, where: str) -> None:
-    """A training domain: quantity -> ``[low, high]`` finite numbers with low <= high, or a count (int >= 0)."""
+    """A training domain: quantity -> ``[low, high]`` finite numbers with low <= high, or, for a count named
+    ``n_*`` (e.g. ``n_points``), an int >= 0 (a quantity compared with a survey's range is always a range)."""
     if not isinstance(domain, dict):
         raise ModelError(f"{where}: 'domain' must be a JSON object, got {type(domain).__name__}")
     for k, v in domain.items():
-        if isinstance(v, int) and not isinstance(v, bool) and v >= 0:
+        if str(k).startswith("n_") and isinstance(v, int) and not isinstance(v, bool) and v >= 0:
             continue
         ok = (isinstance(v, list) and len(v) == 2
               and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)
