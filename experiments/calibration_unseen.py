@@ -45,13 +45,10 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     from icgo.io.files import Output
     from icgo.studies import calibration_unseen as unseen
-    from icgo.studies.calibration import CalibrationConfig
-    from icgo.studies.calibration_report import settings
 
     out = Output(Path(a.out), setting="--out", shared=True).check()
     df, vs, recs, seconds = unseen.run_variants(a.peer, a.devices, a.variants)
-    t, lines = unseen.report(df, vs, recs, seconds, a.peer, settings(CalibrationConfig(peer=a.peer)),
-                             ROOT / "results" / "calibration_devices.csv")
+    t, lines = unseen.report(df, vs, recs, seconds, a.peer, ROOT / "results" / "calibration_devices.csv")
     with out.staged() as stage:
         unseen.write_results(t, lines, stage)
     print("\n".join(lines))

@@ -62,19 +62,21 @@ def summary_lines(title: str, s: dict) -> list[str]:
             f"- degenerate fits (in-sample and held out): {fits}", ""]
 
 
-def report(df, vs: dict, recs: dict, seconds: float, peer: bool, settings_text: str, bundled: Path | None):
+def report(df, vs: dict, recs: dict, seconds: float, peer: bool, bundled: Path | None):
     """(goals table, lines of calibration_unseen.md) of :func:`run_variants`' output.
 
     Args:
         df, vs, recs, seconds: :func:`run_variants`' fits table, variants, recordings and wall seconds.
-        peer: whether circuitpython-mag-cal ran beside (named in the command). settings_text: the stamp line of the
-            calibrate door's tables. bundled: ``results/calibration_devices.csv`` (its goals in a section of their
-            own when the file exists).
+        peer: whether circuitpython-mag-cal ran beside (named in the command and the stamp, which is the calibrate
+            door's: :func:`icgo.studies.calibration_report.settings`). bundled: ``results/calibration_devices.csv``
+            (its goals in a section of their own when the file exists).
     """
     import pandas as pd
 
     from icgo.reporting.protocol import protocol_line
+    from icgo.studies.calibration import CalibrationConfig
     from icgo.studies.calibration_goals import goals, goals_table
+    from icgo.studies.calibration_report import settings
 
     t = goals_table(df)
     t.insert(1, "device", [vs[n].device for n in t["recording"]])
@@ -92,7 +94,7 @@ def report(df, vs: dict, recs: dict, seconds: float, peer: bool, settings_text: 
                  "on these variants; the perturbation sizes were revised once, after the first variant scored had "
                  "every fit degenerate and before any other was scored (docs/calibrate.md, Unseen devices)",
                  "none: no p-value; the goals are thresholds on means (docs/calibrate.md)"),
-             settings_text, "",
+             settings(CalibrationConfig(peer=peer)), "",
              "## Goals", ""]
     lines += summary_lines("Unseen devices (these variants)", goals(t))
     if bundled is not None and Path(bundled).is_file():
