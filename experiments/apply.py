@@ -1,6 +1,6 @@
 """Apply a fitted model to a new survey: ``python -m experiments.apply model=<run dir or model> data=<survey.csv>``.
 
-Loads any saved model (:func:`icgo.models.registry.load_model`; a run directory of ``experiments.run`` gives its
+Loads any saved model (:func:`icgo.artifacts.registry.load_model`; a run directory of ``experiments.run`` gives its
 main model, ``relm_compensation``; one of ``experiments.calibrate`` the calibration its record recommends), corrects
 the survey and writes ``<survey>_corrected.csv`` and ``<survey>_corrected.meta.json`` into the run directory
 (``outputs/apply/<date>/<time>/`` or ``out=``), both or neither (:mod:`icgo.survey.apply_run`; a directory that
@@ -71,7 +71,7 @@ def run_apply(cfg: DictConfig, out_dir: Path, keep=()) -> dict:
     from icgo.core.settings import config_from_mapping
     from icgo.io.files import Output
     from icgo.io.recording import column_map
-    from icgo.models.registry import load_model
+    from icgo.artifacts.registry import load_model
     from icgo.physics.qc import QCBands
     from icgo.survey.apply_run import apply_survey, model_path
 

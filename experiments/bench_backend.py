@@ -9,7 +9,7 @@ Measured, in order (:func:`backend_check`):
 
 1. the device, the backend and the study's execution plan for Table 3 (:meth:`icgo.studies.icgo_relm_config.StudyConfig.execution`);
 2. the plan's search kernel (``float32_features``; on an accelerator the fused kernel,
-   :mod:`icgo.methods.relm_fused`) at batch 120, 1,200 and 60,000 (evaluations per second, after compilation,
+   :mod:`icgo.models.relm_fused`) at batch 120, 1,200 and 60,000 (evaluations per second, after compilation,
    best of a few calls), the other kernels beside it at 120 and 1,200 (the CPU's cache-chunked kernel, and on an
    accelerator the unfused batched-Gram kernel), and the plan kernel's largest relative difference from the
    float64 library fitness (120 thetas);
@@ -64,11 +64,11 @@ def kernel_rates(sd, plan_kernel: str, batches=BATCHES, reps: int = 3) -> dict:
 
     Returns:
         {kernel: {batch: evals/s}} for the plan's kernel at every batch and the other one at the batches
-        up to 1,200; and ``max_rel_diff``: the plan kernel against :func:`icgo.methods.relm.fitness` (float64).
+        up to 1,200; and ``max_rel_diff``: the plan kernel against :func:`icgo.models.relm.fitness` (float64).
     """
     from experiments.bench_kernels import HIDDEN, LAM, best_time, population, slice_tree
     from icgo.core.execution import ACCELERATOR_KERNEL, CPU_KERNEL
-    from icgo.methods import relm, search_fitness
+    from icgo.models import relm, search_fitness
     from icgo.studies.icgo_relm_search import SearchKernel, search_kernel
 
     rows, fit = slice_tree(sd.compact, 0), slice_tree(sd.fit, 0)

@@ -9,14 +9,14 @@ machine it runs on (the CPU kernels here; ``--gpu-check`` measures the backend i
   scale (the study's own data, repeat 0: 407 training rows, 6 inputs,
   L = 30) for a batch of 120 (population 30 x 4 seeds) and 1200 (x 10
   repeats), after compilation, for the study's default search kernel
-  (:func:`icgo.methods.relm.train_fitness` with ``fitness_features`` = the feature dtype of
+  (:func:`icgo.models.relm.train_fitness` with ``fitness_features`` = the feature dtype of
   ``StudyConfig().dtype``); ``library_evals_per_s`` for the row-weighted float64 path
-  ``icgo.methods.relm.fitness``;
+  ``icgo.models.relm.fitness``;
 * ``fitness_by_features_evals_per_s``: that kernel with float64 features (``dtype=float64``) and
   with float32 features (``dtype=float32_features``: pre-activation, sigmoid and matrix-vector products in
   float32, Gram centred in float32, Cholesky and refinement residuals in float64) at the same
   batches, ``f32_features_speedup`` the ratio at batch 1200; ``max_rel_diff_vs_float64`` and
-  ``max_rel_diff_f32_vs_float64`` their largest relative differences from ``icgo.methods.relm.fitness``;
+  ``max_rel_diff_f32_vs_float64`` their largest relative differences from ``icgo.models.relm.fitness``;
 * ``roofline`` (``--skip-roofline``): :mod:`experiments.roofline` in a child process pinned to
   one core: each stage of the kernel against its own ceiling at its own shape, both feature dtypes;
 * ``flop_fraction``: fast throughput x :func:`flops_per_eval` / the rate of a
@@ -64,7 +64,7 @@ rank-one mean term added back in float64, a float64 Cholesky factor of that
 matrix, and ``refine`` steps of iterative refinement with float64 residuals,
 so the result is the float64 ridge solution of its hidden outputs; with float32
 features (the default) those are rounded to float32, within 1e-6 relative of
-``icgo.methods.relm.fitness`` (both checked on the study's own data at every run:
+``icgo.models.relm.fitness`` (both checked on the study's own data at every run:
 ``max_rel_diff_vs_float64``, ``max_rel_diff_f32_vs_float64``).
 """
 
@@ -110,7 +110,7 @@ from experiments.bench_user import (
     peer_comparison,
     table3_command,
 )
-from icgo.methods import relm
+from icgo.models import relm
 from icgo.optim import run_batch
 from icgo.optim.cgo import CGO
 from icgo.studies.icgo_relm_config import StudyConfig

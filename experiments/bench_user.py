@@ -12,7 +12,7 @@
 * :func:`peer_comparison`: a JAX peer on the same fitness, evosax's PSO and
   differential evolution beside icgo's PSO.
 
-Peer comparison: every search runs on the study's fast RELM fitness (:func:`icgo.methods.relm.train_fitness`,
+Peer comparison: every search runs on the study's fast RELM fitness (:func:`icgo.models.relm.train_fitness`,
 Table 3's training rows, one repeat's rows per search), with the same population,
 the same number of fitness evaluations (``pop_size * (iterations + 1)``: one
 evaluated initial population, then one per iteration), jitted as one
@@ -38,7 +38,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from icgo.methods import relm
+from icgo.models import relm
 from icgo.optim import run_batch
 from icgo.optim.registry import get
 

@@ -1,4 +1,4 @@
-"""Per-stage roofline of the fast RELM fitness (:func:`icgo.methods.relm.train_fitness`) on this CPU.
+"""Per-stage roofline of the fast RELM fitness (:func:`icgo.models.relm.train_fitness`) on this CPU.
 
 ``python -m experiments.roofline [--batch 1200] [--quick] [--out FILE.json]`` prints a Markdown
 table and, as its last line, one JSON object (also written to ``--out``). Run as a module it pins
@@ -9,7 +9,7 @@ Shape: the Table 3 study's repeat 0 (:func:`experiments.bench_kernels.study_data
 rows, d1 = 7 augmented inputs (6 standardised sensors and a column of ones for the bias),
 L = 30 hidden units, chunks of C = 10 thetas, ``refine`` = 2, a batch of P = 1200 thetas.
 
-Stages (the kernel's own functions, ``icgo.methods.relm.train_rmse_chunk``), each jitted alone at the
+Stages (the kernel's own functions, ``icgo.models.relm.train_rmse_chunk``), each jitted alone at the
 kernel's chunk shape: a ``lax.fori_loop`` of max(ceil(P / C), 100) iterations (enough to amortise
 the call's fixed cost) runs the stage on one real chunk's inputs (computed from the study's data
 by the stages before it), the first input nudged in place by a runtime 0.0 each iteration (behind
@@ -77,7 +77,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 from experiments.bench_kernels import HIDDEN, LAM, best_time, population, slice_tree, study_data  # noqa: E402
-from icgo.methods import relm  # noqa: E402
+from icgo.models import relm  # noqa: E402
 
 #: Fewest loop iterations of a timed stage or ceiling (a call costs ~20 us before its first iteration).
 MIN_ITERATIONS = 100
@@ -229,7 +229,7 @@ def stage_times(rows: relm.TrainRows, pop, hidden: int, lam: float, chunk: int, 
 
 def measure(rows: relm.TrainRows, hidden: int = HIDDEN, lam: float = LAM, batch: int = 1200, chunk: int = 10,
             refine: int = 2, reps: int = 7) -> dict:
-    """The per-stage roofline of :func:`icgo.methods.relm.train_fitness` on ``rows`` (one repeat, unweighted).
+    """The per-stage roofline of :func:`icgo.models.relm.train_fitness` on ``rows`` (one repeat, unweighted).
 
     Args:
         rows: TrainRows (n, d1) of one repeat. hidden: L. lam: ridge lambda. batch: thetas P of the

@@ -6,7 +6,7 @@ and writes into the run directory (``HydraConfig.get().runtime.output_dir``):
 ``config.yaml`` (resolved), ``metrics.csv`` (per method, repeat, split),
 ``convergence.csv``, ``predictions.csv``, ``msa.csv``, ``summary.csv``,
 ``summary.md``, the fitted models ``relm_compensation.json/.npz`` and
-``msa.json/.npz`` (:mod:`icgo.models.format`), ``study.png`` and, last, ``run.json``
+``msa.json/.npz`` (:mod:`icgo.artifacts.format`), ``study.png`` and, last, ``run.json``
 (file and column names: :mod:`icgo.reporting.records`); prints the summary table and a
 final line with the wall time.
 

@@ -34,7 +34,7 @@ def relm_train_data(n=60, hidden=5, seed=0, scale=1.0):
     import jax.numpy as jnp
     import numpy as np
 
-    from icgo.methods import relm
+    from icgo.models import relm
 
     rng = np.random.default_rng(seed)
     X = rng.standard_normal((n, 6))

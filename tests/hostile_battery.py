@@ -2,7 +2,7 @@
 used output directories, sweeps re-run into their directory, Ctrl-C, SIGTERM and SIGKILL.
 
 Every case is one invocation of a front door (``python -m experiments.<door> ...``, ``python -m icgo.io``,
-``python -m icgo.datasets``, or the library door ``icgo.models.registry.load_model`` followed by
+``python -m icgo.datasets``, or the library door ``icgo.artifacts.registry.load_model`` followed by
 ``icgo.survey.apply.correct_survey`` in a fresh interpreter) on inputs written into the case's own
 folder. Each ends in exactly one outcome:
 
@@ -149,8 +149,8 @@ def build_assets(a: Path) -> None:
     rad = s.assign(azimuth_deg=np.radians(s.azimuth_deg), inclination_deg=np.radians(s.inclination_deg))
     write_recording(a / "survey_rad.csv", rad, meta)
     # device ab's calibration (in nT) and device jd's shots: a model of another device
-    from icgo.methods.calibration import ellipsoid_fit
-    from icgo.models.calibration import mag_calibration
+    from icgo.models.calibration import ellipsoid_fit
+    from icgo.artifacts.calibration import mag_calibration
 
     scale = float(np.median(np.linalg.norm(rec.B, axis=1)))
     cal = mag_calibration("ellipsoid", ellipsoid_fit(rec.B, scale, rec.G), rec.G, rec.B, {})
@@ -375,7 +375,7 @@ import sys
 from icgo.core.errors import IcgoError
 try:
     import pandas as pd
-    from icgo.models.registry import load_model
+    from icgo.artifacts.registry import load_model
     from icgo.survey.apply import correct_survey
     model = load_model(sys.argv[1])
     if len(sys.argv) > 2:
@@ -427,7 +427,7 @@ def model_cases() -> list[Case]:
     cases: list[Case] = []
 
     def add(name, setup, says=("m.",), expect="refuse", fast=False, apply_too=False, model="{w}/m.json", **kw):
-        cases.append(Case(f"model/{name}", "icgo.models.registry.load_model", library(model), expect=expect,
+        cases.append(Case(f"model/{name}", "icgo.artifacts.registry.load_model", library(model), expect=expect,
                           says=says, setup=setup, fast=fast, **kw))
         if apply_too:
             cases.append(Case(f"apply-model/{name}", "experiments.apply",

@@ -10,15 +10,15 @@ import numpy as np
 import pandas as pd
 
 from icgo.discrepancy.inversion import PhysicsParams
-from icgo.methods import gyro_relm, lookup_table, nets
-from icgo.methods import msa as _msa
-from icgo.methods import relm as _relm
-from icgo.methods.compensation import RELMParams
-from icgo.models.calibration import MagCalibration
-from icgo.models.discrepancy import PhysicsModel
-from icgo.models.format import sensor_domain
-from icgo.models.network import GyroNetwork, GyroRELM, LookupTableModel
-from icgo.models.relm import MSAModel, RELMCompensation
+from icgo.models import gyro_relm, lookup_table, nets
+from icgo.models import msa as _msa
+from icgo.models import relm as _relm
+from icgo.models.compensation import RELMParams
+from icgo.artifacts.calibration import MagCalibration
+from icgo.artifacts.discrepancy import PhysicsModel
+from icgo.artifacts.format import sensor_domain
+from icgo.artifacts.network import GyroNetwork, GyroRELM, LookupTableModel
+from icgo.artifacts.relm import MSAModel, RELMCompensation
 
 
 def survey(n: int = 24, seed: int = 0) -> pd.DataFrame:

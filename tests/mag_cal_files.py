@@ -16,8 +16,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from icgo.io import mag_cal_bundled, schema
-from icgo.methods import cal_pointing
-from icgo.methods import calibration as cal
+from icgo.models import cal_pointing
+from icgo.models import calibration as cal
 from icgo.physics.frames import sensors_from_attitude
 from icgo.physics.qc import measured_dip_deg
 

@@ -19,7 +19,7 @@ from experiments.apply import run_apply
 from icgo.core.errors import ModelError
 from icgo.datasets import casing_stations
 from icgo.io.recording import read_recording, write_recording
-from icgo.models.format import SCHEMA_VERSION
+from icgo.artifacts.format import SCHEMA_VERSION
 from icgo.physics.qc import QCBands
 from icgo.studies import icgo_relm
 from icgo.studies.icgo_relm_config import StudyConfig
@@ -169,8 +169,8 @@ def test_require_meta_takes_only_true_or_false(setup, tmp_path, value):
 def _ab_calibration():
     """Device ab's ellipsoid calibration, in nT (a model of one device)."""
     from icgo.io.mag_cal_bundled import load_mag_cal_device
-    from icgo.methods.calibration import ellipsoid_fit
-    from icgo.models.calibration import mag_calibration
+    from icgo.models.calibration import ellipsoid_fit
+    from icgo.artifacts.calibration import mag_calibration
 
     ab = load_mag_cal_device("ab")
     scale = float(np.median(np.linalg.norm(ab.B, axis=1)))

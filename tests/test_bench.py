@@ -5,7 +5,7 @@ import pytest
 from conftest import relm_train_data as _data
 
 from experiments import bench_kernels, bench_rows, bench_user
-from icgo.methods import relm
+from icgo.models import relm
 from icgo.optim.registry import get
 
 

@@ -1,4 +1,4 @@
-"""The site of a calibration (icgo.methods.cal_site, icgo.io.site): its mean dip and |B| against WMM or values given."""
+"""The site of a calibration (icgo.models.cal_site, icgo.io.site): its mean dip and |B| against WMM or values given."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 
 from icgo.core.errors import SettingError
 from icgo.io.site import site_reference
-from icgo.methods.cal_site import SITE_DIP_TOL_DEG, SITE_FIELD_TOL_PCT, site_check, site_values
+from icgo.models.cal_site import SITE_DIP_TOL_DEG, SITE_FIELD_TOL_PCT, site_check, site_values
 from icgo.physics.frames import sensors_from_attitude
 
 

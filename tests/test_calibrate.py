@@ -1,4 +1,4 @@
-"""Calibration of grouped shots (icgo.studies.calibration, icgo.methods.cal_sanity) and its front door experiments.calibrate."""
+"""Calibration of grouped shots (icgo.studies.calibration, icgo.models.cal_sanity) and its front door experiments.calibrate."""
 
 from __future__ import annotations
 
@@ -21,10 +21,10 @@ from icgo.core.errors import SettingError
 from icgo.core.settings import config_to_mapping
 from icgo.io import mag_cal_bundled, schema
 from icgo.io import recording as io
-from icgo.methods import cal_pointing
-from icgo.methods import calibration as cal
-from icgo.methods.cal_sanity import LIMITS, sanity
-from icgo.models.registry import load_model
+from icgo.models import cal_pointing
+from icgo.models import calibration as cal
+from icgo.models.cal_sanity import LIMITS, sanity
+from icgo.artifacts.registry import load_model
 from icgo.physics.frames import sensors_from_attitude
 from icgo.physics.rolls import MIN_ROLLED_SHOTS
 from icgo.studies import calibration as cal_study
@@ -200,8 +200,8 @@ def _rolled_recording(seed=1, n_single=10, n_roll=8, rolls=((40.0, 100.0), (-20.
 
 
 def _relm_residuals_numpy(W, G, b, groups, fit_rows):
-    """The residuals of icgo.methods.mag_relm written again from their definitions (numpy, deg), for the fitting shots."""
-    from icgo.methods import mag_relm
+    """The residuals of icgo.models.mag_relm written again from their definitions (numpy, deg), for the fitting shots."""
+    from icgo.models import mag_relm
     from icgo.physics.qc import measured_dip_deg
 
     bn = b + mag_relm.features(b, mag_relm.axis_rbf_hidden()) @ W
@@ -217,7 +217,7 @@ def _relm_residuals_numpy(W, G, b, groups, fit_rows):
 
 
 def test_relm_residuals_vanish_for_exact_shots():
-    from icgo.methods import mag_relm
+    from icgo.models import mag_relm
 
     G, B, groups = _rolled_recording()
     b = B  # unit sphere already
@@ -244,7 +244,7 @@ def test_relm_fit_matches_scipy_and_leave_one_group_out_equals_refitting_without
     # masked fit against a fit on the shots with that group removed
     from scipy.optimize import least_squares
 
-    from icgo.methods import mag_relm
+    from icgo.models import mag_relm
 
     G, b, groups = _axis_distorted()
     lam = 100.0
@@ -266,7 +266,7 @@ def test_relm_fit_matches_scipy_and_leave_one_group_out_equals_refitting_without
 
 
 def test_relm_learns_a_per_axis_non_linearity_and_chooses_its_ridge_by_groups():
-    from icgo.methods import mag_relm
+    from icgo.models import mag_relm
     from icgo.physics.qc import measured_dip_deg
 
     G, b, groups = _axis_distorted()
@@ -283,7 +283,7 @@ def test_relm_learns_a_per_axis_non_linearity_and_chooses_its_ridge_by_groups():
 
 
 def test_relm_on_exact_shots_stays_the_identity():
-    from icgo.methods import mag_relm
+    from icgo.models import mag_relm
 
     G, B, groups = _rolled_recording()
     b = B  # unit sphere already
@@ -295,8 +295,8 @@ def test_an_older_builds_relm_file_and_a_bad_activation_are_refused(tmp_path):
     """A correction without nl_activation (model schema 1 as an older build wrote it, tanh units) is refused in
     one line, from the constructor and from a file; so are an unknown activation and one without a correction."""
     from icgo.core.errors import ModelError
-    from icgo.methods import mag_relm
-    from icgo.models.calibration import MagCalibration
+    from icgo.models import mag_relm
+    from icgo.artifacts.calibration import MagCalibration
 
     h, o = np.random.default_rng(0).normal(size=(4, 5)), np.zeros((5, 3))
     kw = dict(config={}, data_hash="-", domain={}, method="twelve_relm", axis_aligned=False, field_scale_nT=1.0,

@@ -1,13 +1,13 @@
-"""Tests for icgo.methods.calibration: closed forms, the peer metric, bad input."""
+"""Tests for icgo.models.calibration: closed forms, the peer metric, bad input."""
 
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import icgo  # noqa: F401
-from icgo.methods import cal_objectives, cal_pointing
-from icgo.methods import calibration as cal
-from icgo.methods.misma_objective import MismaObjective
+from icgo.models import cal_objectives, cal_pointing
+from icgo.models import calibration as cal
+from icgo.models.misma_objective import MismaObjective
 from icgo.physics.frames import sensors_from_attitude
 
 
@@ -215,7 +215,7 @@ def _attitudes():
 def test_joint_fit_finds_an_accelerometer_bias_when_free_and_keeps_its_start_when_held():
     # exact shots; the start is the truth with a 20 mg accelerometer bias error (the magnetometer exact):
     # a weak penalty removes the error, a strong one keeps the start, and the fit has converged
-    from icgo.methods import joint
+    from icgo.models import joint
 
     groups = np.concatenate([np.arange(24), np.full(8, 100), np.full(8, 101)])
     s = sensors_from_attitude(*_attitudes(), 1.0, 60.0)
@@ -234,7 +234,7 @@ def test_joint_fit_finds_an_accelerometer_bias_when_free_and_keeps_its_start_whe
 
 
 def test_the_joint_fit_leaves_out_rolls_inside_the_training_shots_only():
-    from icgo.methods.joint import roll_folds
+    from icgo.models.joint import roll_folds
 
     groups = np.r_[np.arange(8), [8] * 8, [9] * 8]
     every = np.ones(24, bool)

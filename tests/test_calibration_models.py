@@ -1,4 +1,4 @@
-"""icgo.models.calibration: the 12-parameter calibration artifact (apply, save/load round trip, errors)."""
+"""icgo.artifacts.calibration: the 12-parameter calibration artifact (apply, save/load round trip, errors)."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ import pytest
 
 import icgo  # noqa: F401
 from icgo.core.errors import ModelError
-from icgo.methods import calibration as cal
-from icgo.models.calibration import MagCalibration, mag_calibration
-from icgo.models.registry import load_model
+from icgo.models import calibration as cal
+from icgo.artifacts.calibration import MagCalibration, mag_calibration
+from icgo.artifacts.registry import load_model
 from icgo.physics.frames import angle_diff, sensors_from_attitude
 
 R_TRUE = np.array([[1.04, 0.02, -0.01], [-0.02, 0.97, 0.03], [0.01, -0.02, 1.02]])

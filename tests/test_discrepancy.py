@@ -24,7 +24,7 @@ from icgo.core.settings import config_from_mapping, config_to_mapping
 from icgo.discrepancy import inversion
 from icgo.io import mag_cal_bundled
 from icgo.io import recording as icgo_io
-from icgo.models.registry import load_model
+from icgo.artifacts.registry import load_model
 from icgo.physics import effects as fx
 from icgo.physics.frames import angle_diff, azimuth_from_gv
 from icgo.physics.qc import measured_dip_deg

@@ -7,7 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from icgo.models.registry import load_model
+from icgo.artifacts.registry import load_model
 from icgo.studies.registry import get_study
 
 HARD_IRON = np.array([300.0, -200.0, 150.0])  # nT, what icgo.studies.discrepancy.example hides
@@ -62,7 +62,7 @@ def test_save_load_apply_is_bitwise(fitted, tmp_path):
 
 def test_corrected_field_and_station_qc(fitted):
     # a hard-iron-only model's disturbance is the constant bias: the corrected field is B - bias exactly
-    from icgo.models.discrepancy import station_qc
+    from icgo.artifacts.discrepancy import station_qc
     from icgo.physics.qc import survey_qc
 
     st, out = fitted

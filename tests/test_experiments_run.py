@@ -137,7 +137,7 @@ def test_run_writes_outputs_and_prints_table(small_csv, tmp_path, capsys):
     ex = rec["execution"]
     assert ex["backend"] == jax.default_backend() and ex["kernel"] == "cache_chunked"
     assert ex["devices"] == min(len(jax.devices()), ex["members"]) and ex["members"] == 2 * 5 and ex["processes"] == 1
-    assert ex["fitness"] == "icgo.methods.relm.train_fitness" and ex["dtype"] == "float32_features" and ex["why"]
+    assert ex["fitness"] == "icgo.models.relm.train_fitness" and ex["dtype"] == "float32_features" and ex["why"]
     t = rec["timings"]
     for stage in ("prepare", "search", "score", "tables"):
         assert 0 <= t[f"{stage}_compile_s"] <= t[f"{stage}_s"]

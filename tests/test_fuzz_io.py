@@ -241,7 +241,7 @@ _sys.path.insert(0, str(_Path(__file__).resolve().parent))
 import hostile_models  # noqa: E402
 
 from icgo.core.errors import IcgoError, ModelError  # noqa: E402
-from icgo.models.registry import load_model  # noqa: E402
+from icgo.artifacts.registry import load_model  # noqa: E402
 from icgo.survey.apply import correct_survey  # noqa: E402
 
 _MODELS = hostile_models.models()

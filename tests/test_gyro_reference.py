@@ -1,4 +1,4 @@
-"""The gyro-derived reference M_omega (icgo.physics.strapdown, icgo.methods.gyro_reference) and MISMA's comparison rows (issue 17)."""
+"""The gyro-derived reference M_omega (icgo.physics.strapdown, icgo.models.gyro_reference) and MISMA's comparison rows (issue 17)."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import icgo  # noqa: F401  (float64)
 from icgo.core.errors import SettingError
 from icgo.datasets import drill_string
 from icgo.datasets import instruments as ins
-from icgo.methods import calibration as cal
-from icgo.methods.gyro_reference import fit_to_reference, gyro_reference, gyro_term, reference_at
+from icgo.models import calibration as cal
+from icgo.models.gyro_reference import fit_to_reference, gyro_reference, gyro_term, reference_at
 from icgo.physics import frames as F
 from icgo.physics.strapdown import gyro_rates_from_attitude, relative_rotations, rot_exp, rot_log
 from icgo.studies import misma_compare as compare
@@ -77,7 +77,7 @@ def test_perfect_gyro_reproduces_the_true_field_direction_history():
     assert np.max(np.abs(np.asarray(m) - true)) < 1e-6  # nT, of a 52 650 nT field
     # the heading the gyro cannot see comes out as the true azimuth at each anchor
     fr = ds.frame
-    from icgo.methods.gyro_reference import stop_runs
+    from icgo.models.gyro_reference import stop_runs
 
     anchors = [(a + b) // 2 for a, b in stop_runs(fr["static"].to_numpy())]
     np.testing.assert_allclose(np.asarray(F.angle_diff(np.degrees(np.asarray(psi)), fr["azimuth_deg"].to_numpy()[anchors])),

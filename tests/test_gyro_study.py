@@ -17,7 +17,7 @@ from experiments import gyro as entry
 from experiments._entry import CONF_DIR
 from icgo.core.errors import SettingError
 from icgo.core.settings import config_from_mapping, config_to_mapping
-from icgo.models.registry import load_model
+from icgo.artifacts.registry import load_model
 from icgo.studies import gyro
 from icgo.studies.registry import STUDIES
 

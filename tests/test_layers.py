@@ -14,8 +14,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 #: Bottom to top: a module may import its own package and any package listed before it.
-LAYERS = ("icgo.core", "icgo.physics", "icgo.maths", "icgo.reporting", "icgo.optim", "icgo.methods", "icgo.io",
-          "icgo.datasets", "icgo.discrepancy", "icgo.models", "icgo.survey", "icgo.studies")
+LAYERS = ("icgo.core", "icgo.physics", "icgo.maths", "icgo.reporting", "icgo.optim", "icgo.models", "icgo.io",
+          "icgo.datasets", "icgo.discrepancy", "icgo.artifacts", "icgo.survey", "icgo.studies")
 
 
 def _module_name(path: Path) -> str:

@@ -1,5 +1,5 @@
 """circuitpython-mag-cal JSON layouts (icgo.io.mag_cal_json) against the peer's own reader and axes; the instrument's
-layout first, checked against the data (icgo.methods.grouping, icgo.studies.shots)."""
+layout first, checked against the data (icgo.models.grouping, icgo.studies.shots)."""
 
 from __future__ import annotations
 

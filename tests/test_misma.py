@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 import icgo  # noqa: F401
-from icgo.methods import calibration as cal
-from icgo.methods.misma_objective import MismaObjective
+from icgo.models import calibration as cal
+from icgo.models.misma_objective import MismaObjective
 from icgo.optim import base, misma
 from icgo.optim.registry import get
 from icgo.physics.frames import sensors_from_attitude

@@ -17,9 +17,9 @@ from icgo.core.errors import SettingError
 from icgo.core.settings import config_from_mapping, config_to_mapping
 from icgo.datasets.drill_string import rotating_drill
 from icgo.io.mag_cal_bundled import load_mag_cal_device
-from icgo.methods import calibration as cal
-from icgo.models.calibration import MagCalibration
-from icgo.models.registry import load_model
+from icgo.models import calibration as cal
+from icgo.artifacts.calibration import MagCalibration
+from icgo.artifacts.registry import load_model
 from icgo.studies import calibration, misma, misma_compare
 from icgo.studies.misma_config import MismaConfig
 from icgo.studies.misma_simulated import prior_box

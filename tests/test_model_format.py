@@ -1,4 +1,4 @@
-"""icgo.models.format's generic save/load of (kind, params leaves, meta), on a toy family of the shape the RELM
+"""icgo.artifacts.format's generic save/load of (kind, params leaves, meta), on a toy family of the shape the RELM
 and calibration families take: nested and dict-valued params, an optional leaf, a static setting, a member axis,
 meta JSON values and a record array."""
 
@@ -19,7 +19,7 @@ import pytest
 import icgo  # noqa: F401  (float64)
 from icgo.core.errors import ModelError
 from icgo.core.settings import need
-from icgo.models.format import SCHEMA_VERSION, FittedModel, need_shape, param_arrays, read_model
+from icgo.artifacts.format import SCHEMA_VERSION, FittedModel, need_shape, param_arrays, read_model
 
 
 class Scale(NamedTuple):

@@ -1,4 +1,4 @@
-"""Fitted models as artifacts (icgo.models.format, icgo.models.relm): apply, save/load round trips, errors."""
+"""Fitted models as artifacts (icgo.artifacts.format, icgo.artifacts.relm): apply, save/load round trips, errors."""
 
 from __future__ import annotations
 
@@ -12,9 +12,9 @@ import pytest
 
 from icgo.core.errors import ModelError
 from icgo.datasets import casing_stations
-from icgo.models.format import SCHEMA_VERSION
-from icgo.models.registry import load_model
-from icgo.models.relm import MSAModel, RELMCompensation, circular_mean_spread
+from icgo.artifacts.format import SCHEMA_VERSION
+from icgo.artifacts.registry import load_model
+from icgo.artifacts.relm import MSAModel, RELMCompensation, circular_mean_spread
 from icgo.studies import icgo_relm as study
 from icgo.studies.icgo_relm_config import StudyConfig
 
@@ -57,7 +57,7 @@ def test_one_member_predicts_the_same_alone_or_among_others(fitted):
     import jax
     import jax.numpy as jnp
 
-    from icgo.methods.compensation import members, predict
+    from icgo.models.compensation import members, predict
 
     frame, res = fitted
     model = res.model
@@ -101,7 +101,7 @@ def test_fresh_process_reproduces_prediction_bitwise(fitted, tmp_path):
     new.to_csv(tmp_path / "new.csv", index=False)
     res.model.save(tmp_path / "model")
     here = res.model.apply(new)
-    code = ("import pandas as pd, icgo; from icgo.models.registry import load_model; "
+    code = ("import pandas as pd, icgo; from icgo.artifacts.registry import load_model; "
             f"m = load_model(r'{tmp_path / 'model.json'}'); "
             f"m.apply(pd.read_csv(r'{tmp_path / 'new.csv'}')).to_csv(r'{tmp_path / 'out.csv'}', index=False, float_format='%.17g')")
     subprocess.run([sys.executable, "-c", code], check=True, timeout=300)
@@ -139,7 +139,7 @@ def test_circular_mean_across_north():
 
 
 def test_out_of_bag_halfwidth_is_the_conformal_quantile():
-    from icgo.models.relm import out_of_bag_halfwidth
+    from icgo.artifacts.relm import out_of_bag_halfwidth
 
     a_true = np.array([10.0, 20.0, 30.0, 359.0, 0.5])
     # member 0 held out rows 0, 1, 3; member 1 held out rows 1, 2, 3; row 4 is never held out
@@ -272,7 +272,7 @@ def test_apply_in_row_blocks_is_bitwise_the_whole():
 
     import jax.numpy as jnp
 
-    from icgo.methods.compensation import members, predict
+    from icgo.models.compensation import members, predict
 
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     import hostile_models
@@ -292,8 +292,8 @@ def test_the_saved_params_predict_what_the_study_scored(fitted):
     whole (up to XLA's fusion) and the MSA family's predict is the field the study's MSA corrected."""
     import jax
 
-    from icgo.methods import compensation
-    from icgo.methods import msa as _msa
+    from icgo.models import compensation
+    from icgo.models import msa as _msa
 
     frame, res = fitted
     kept = frame.iloc[np.flatnonzero(res.kept)].reset_index(drop=True)
@@ -315,7 +315,7 @@ def test_the_saved_params_predict_what_the_study_scored(fitted):
 def test_fit_reproduces_the_studys_refit(fitted):
     """compensation.fit (checked, one member) on a repeat's training rows, MSA and hidden weights gives the output
     weights and statistics the study refitted for that repeat (the same ridge problem, eq. 9)."""
-    from icgo.methods import compensation
+    from icgo.models import compensation
 
     frame, res = fitted
     kept = frame.iloc[np.flatnonzero(res.kept)].reset_index(drop=True)

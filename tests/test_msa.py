@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import icgo  # noqa: F401  (float64)
-from icgo.methods import msa
+from icgo.models import msa
 from icgo.physics import effects, frames
 
 F, DIP, NOISE = 50_000.0, 60.0, 15.0

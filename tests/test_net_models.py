@@ -1,4 +1,4 @@
-"""icgo.models.network: the gyro network, RELM and lookup-table artifacts (apply, save/load round trip, errors)."""
+"""icgo.artifacts.network: the gyro network, RELM and lookup-table artifacts (apply, save/load round trip, errors)."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import pytest
 
 import icgo  # noqa: F401
 from icgo.core.errors import ModelError
-from icgo.methods import gyro_relm, nets
-from icgo.models.network import GyroNetwork, GyroRELM, LookupTableModel
-from icgo.models.registry import load_model
+from icgo.models import gyro_relm, nets
+from icgo.artifacts.network import GyroNetwork, GyroRELM, LookupTableModel
+from icgo.artifacts.registry import load_model
 from icgo.studies import gyro
 
 

@@ -1,4 +1,4 @@
-"""Tests for icgo.methods.nets (the patent's BP network) and icgo.methods.lookup_table (the baseline it replaced)."""
+"""Tests for icgo.models.nets (the patent's BP network) and icgo.models.lookup_table (the baseline it replaced)."""
 
 import jax
 import jax.numpy as jnp
@@ -7,7 +7,7 @@ import pytest
 from scipy.interpolate import RegularGridInterpolator
 
 import icgo  # noqa: F401  (float64)
-from icgo.methods import lookup_table, nets
+from icgo.models import lookup_table, nets
 from icgo.physics.frames import angle_diff
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import icgo  # noqa: F401  (float64)
-from icgo.methods import compensation, relm, relm_fit
+from icgo.models import compensation, relm, relm_fit
 from icgo.physics import effects, frames
 
 L = 12

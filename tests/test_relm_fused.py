@@ -1,4 +1,4 @@
-"""The fused accelerator kernel (icgo.methods.relm_fused), run here on the CPU: against the float64 library fitness
+"""The fused accelerator kernel (icgo.models.relm_fused), run here on the CPU: against the float64 library fitness
 at every Gram precision, in bounded memory (small blocks, member groups), batch members equal to calls alone, the
 TF32 / bfloat16 rounding against ml_dtypes, and never a NaN."""
 
@@ -12,8 +12,8 @@ import pytest
 from conftest import relm_train_data
 
 import icgo  # noqa: F401  (float64)
-from icgo.methods import relm
-from icgo.methods import relm_fused as F
+from icgo.models import relm
+from icgo.models import relm_fused as F
 
 HIDDEN = 5
 

@@ -1,4 +1,4 @@
-"""Rolls: what one is (icgo.physics.rolls), found (icgo.methods.rolls) or given (icgo.io.grouping), on real-looking
+"""Rolls: what one is (icgo.physics.rolls), found (icgo.models.rolls) or given (icgo.io.grouping), on real-looking
 files made from the bundled devices."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from icgo.core.errors import DataError, SettingError
 from icgo.io import mag_cal_bundled
 from icgo.io import recording as io
 from icgo.io.grouping import check_given, groups_from_ranges, parse_groups
-from icgo.methods.rolls import find_rolls
+from icgo.models.rolls import find_rolls
 from icgo.physics import rolls
 from icgo.physics.frames import sensors_from_attitude
 
@@ -142,7 +142,7 @@ def test_off_plane_shots_names_the_shots_of_another_roll():
 
 
 def test_the_layout_is_checked_and_used_and_the_data_are_asked_for_a_second_opinion():
-    from icgo.methods.grouping import by_data, by_layout
+    from icgo.models.grouping import by_data, by_layout
 
     rec = mag_cal_bundled.load_mag_cal_device("bh")
     G, B, station = rec.G, rec.B, rec.frame.station.to_numpy()
@@ -166,7 +166,7 @@ def test_a_corrupt_shot_is_refused_by_the_reader_before_any_fit(tmp_path):
     import time
 
     from icgo.io.mag_cal_json import read_mag_cal_json
-    from icgo.methods.calibration import ellipsoid_fit
+    from icgo.models.calibration import ellipsoid_fit
 
     d = json.loads(mag_cal_bundled._mag_cal_dir().joinpath("ab.json").read_text())
     d["shots"]["mag"][31] = 1e300  # shot 10's third component

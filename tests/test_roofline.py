@@ -6,7 +6,7 @@ import pytest
 from conftest import relm_train_data
 
 from experiments import roofline
-from icgo.methods import relm
+from icgo.models import relm
 
 
 def test_stage_counts_match_hand_count():

@@ -13,7 +13,7 @@ import pytest
 
 import icgo  # noqa: F401  (float64)
 from icgo.datasets import casing_stations
-from icgo.methods import msa
+from icgo.models import msa
 from icgo.studies import icgo_relm as S
 from icgo.studies.icgo_relm_config import StudyConfig
 from icgo.studies.icgo_relm_prepare import filtered, prepare

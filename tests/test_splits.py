@@ -13,7 +13,7 @@ import pytest
 from icgo.core.errors import SettingError
 from icgo.datasets import casing_stations
 from icgo.maths.conformal import conformal_quantile, member_coverage
-from icgo.methods import relm
+from icgo.models import relm
 from icgo.studies import splits
 from icgo.studies.icgo_relm import run_study
 from icgo.studies.icgo_relm_config import StudyConfig

@@ -16,8 +16,8 @@ import pandas as pd
 import pytest
 
 from icgo.core.settings import config_from_mapping, config_overrides, config_to_mapping
-from icgo.models.format import FittedModel
-from icgo.models.registry import load_model
+from icgo.artifacts.format import FittedModel
+from icgo.artifacts.registry import load_model
 from icgo.reporting import records as REC
 from icgo.studies.registry import all_studies, get_study
 

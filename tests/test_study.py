@@ -145,7 +145,7 @@ def test_cgo_strategies_batched_equals_alone_and_beats_plain(frame):
 @pytest.mark.slow
 def test_lab_casing_msa_and_plain_relm():
     from icgo.datasets import casing_stations
-    from icgo.methods import msa
+    from icgo.models import msa
 
     clean = casing_stations.lab_casing(0, casing=None, effects={"hard_iron": [900.0, -700.0, 1500.0]})
     G, B, A = frame_arrays(clean.frame)
@@ -176,7 +176,7 @@ def test_tiny_cgo_study_train_kernel_batched_equals_alone(frame, dtype, rtol):
     import jax.numpy as jnp
 
     from icgo.core.execution import ACCELERATOR_KERNEL, CPU_KERNEL
-    from icgo.methods import relm, search_fitness
+    from icgo.models import relm, search_fitness
 
     cfg = StudyConfig(optimizer="cgo", strategies=("original", "three_stage"), n_repeats=2,
                       hidden=10, pop_size=6, iterations=3, seed=5, dtype=dtype)
@@ -198,11 +198,11 @@ def test_tiny_cgo_study_train_kernel_batched_equals_alone(frame, dtype, rtol):
 
 
 def test_a_lambda_sweep_compiles_the_search_once(frame):
-    """lam travels as data (:class:`icgo.methods.search_fitness.SearchData`): a search at another ridge lambda reuses
+    """lam travels as data (:class:`icgo.models.search_fitness.SearchData`): a search at another ridge lambda reuses
     the compiled search and minimises the float64 fitness at that lambda."""
     import jax
 
-    from icgo.methods import relm
+    from icgo.models import relm
     from icgo.optim.sharded import compiled_programs
 
     cfg = StudyConfig(optimizer="pso", n_repeats=2, hidden=5, pop_size=5, iterations=2, seed=4,
@@ -256,7 +256,7 @@ def test_a_search_that_never_found_a_finite_fitness_is_a_failed_run():
 
 def test_tuned_relm_picks_the_best_mean_validation_cell_from_training_rows_only(frame):
     """Issue 18's honest baseline: (L, lambda) chosen on the grid by validation on the training rows."""
-    from icgo.methods import relm
+    from icgo.models import relm
 
     cfg = dataclasses.replace(PLAIN, hidden=30, tune=True, fitness="validation", sigma_filter=None)
     res = study.run_study(frame, cfg)
@@ -312,9 +312,9 @@ def test_sigma_filter_groups_by_sorting_exactly_as_by_masks(frame):
 
 @pytest.mark.parametrize("lam", [5e3, 1e300, 0.0, -1.0])
 def test_a_lambda_outside_what_a_model_may_carry_is_refused_at_construction(lam):
-    """The bound a saved model is read with (icgo.methods.relm.MAX_LAM) is the study config's own: a library
+    """The bound a saved model is read with (icgo.models.relm.MAX_LAM) is the study config's own: a library
     StudyConfig never runs a study whose model load_model would refuse."""
-    from icgo.methods import relm
+    from icgo.models import relm
 
     with pytest.raises(SettingError, match=r"lam must be a number > 0 and at most 1000"):
         StudyConfig(lam=lam)

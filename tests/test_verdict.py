@@ -14,7 +14,7 @@ import pytest
 from experiments.apply import run_apply
 from icgo.datasets import casing_stations
 from icgo.io.recording import read_recording, write_recording
-from icgo.models.format import sensor_domain
+from icgo.artifacts.format import sensor_domain
 from icgo.physics.qc import QCBands
 from icgo.studies import icgo_relm
 from icgo.studies.icgo_relm_config import StudyConfig

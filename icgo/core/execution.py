@@ -7,12 +7,12 @@ devices it has, the processes of the job, the ``devices`` setting and the number
 JAX, so the plan can be made, printed and tested before a backend starts.
 
 * **CPU** (:data:`CPU_KERNEL`): the cache-chunked kernel (a chunk of thetas whose hidden outputs stay in cache,
-  batch members one after another: :func:`icgo.methods.relm.train_fitness`) sharded over the host devices, one per
+  batch members one after another: :func:`icgo.models.relm.train_fitness`) sharded over the host devices, one per
   core the job may use (:func:`icgo.core.devices.use_host_devices`, set before the backend starts). A member's result
   does not depend on the members beside it, so any device count gives the one-device result bitwise.
 * **Any accelerator** (:data:`ACCELERATOR_KERNEL`): the whole block of members on each device as batched matrix
-  products, rows accumulated in bounded blocks (:mod:`icgo.methods.relm_fused` for the paper's training fitness,
-  :func:`icgo.methods.relm_gram.gram_fitness` for the others), sharded over every accelerator of the job.
+  products, rows accumulated in bounded blocks (:mod:`icgo.models.relm_fused` for the paper's training fitness,
+  :func:`icgo.models.relm_gram.gram_fitness` for the others), sharded over every accelerator of the job.
 """
 
 from __future__ import annotations

@@ -24,7 +24,7 @@ Six verbs, all usable from a notebook with plain arguments::
 * **apply** — :mod:`.inversion`: the fitted physics model as a :class:`PhysicsParams` pytree
   (:func:`physics_params` of a result) and its pure ``predict(params, sensors)``, the attitude that
   best explains each measured station; saved and applied as
-  :class:`~icgo.models.discrepancy.PhysicsModel`.
+  :class:`~icgo.artifacts.discrepancy.PhysicsModel`.
 
 Modules: ``noise`` (the one set of noise constants), ``stations`` (input,
 checks, simulation, designs), ``model`` (layout, prepare, predict, residuals),

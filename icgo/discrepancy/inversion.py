@@ -5,7 +5,7 @@ field and the residual weights (:class:`PhysicsParams`; :func:`physics_params` o
 :func:`predict` inverts it on measured stations: per station the attitude (A, I) that best explains the
 measured (G, B), toolface from G with the model's accelerometer effects removed, and the measured field
 with the fitted disturbance removed. The lab_casing study scores the workflow through it and the saved
-model (:class:`icgo.models.discrepancy.PhysicsModel`) applies it.
+model (:class:`icgo.artifacts.discrepancy.PhysicsModel`) applies it.
 """
 
 from __future__ import annotations

@@ -183,7 +183,7 @@ def report_markdown(res: Result, label: str, truth=None, qc=None, protocol: str 
     """The workflow report (steps, gap table, remaining pattern, residual by toolface bin, QC, figures).
 
     ``qc``: survey-QC counts before and after the fitted model
-    (:func:`icgo.models.discrepancy.station_qc`), or None without a reference field. ``protocol``: the report's
+    (:func:`icgo.artifacts.discrepancy.station_qc`), or None without a reference field. ``protocol``: the report's
     protocol line (:func:`icgo.reporting.protocol.protocol_line`), under the title when given.
     """
     lines = [f"# Discrepancy report: {label}", ""] + ([protocol, ""] if protocol else [])

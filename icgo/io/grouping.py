@@ -5,7 +5,7 @@ Every front door that reads grouped static shots (``experiments.calibrate``, ``e
 
 * unset: a recording in a known instrument layout (:data:`LAYOUTS`, :func:`layout_groups`) is grouped by
   its layout; a contract CSV by its ``group`` column; any other recording by the rolls found from the data;
-* ``auto``: the rolls found from the data (:mod:`icgo.methods.rolls`), whatever the layout;
+* ``auto``: the rolls found from the data (:mod:`icgo.models.rolls`), whatever the layout;
 * ``column``: the recording's ``group`` column as given;
 * shot ranges ``[8-15,16-23]`` (or the string ``"8-15,16-23"``): each range of ``station`` values (both
   ends included) is one roll, every other shot its own group.
@@ -13,7 +13,7 @@ Every front door that reads grouped static shots (``experiments.calibrate``, ``e
 This module reads and makes groups; it does not search the data. Groups given (a column, ranges) must be
 plausible rolls (:func:`check_given`, against :mod:`icgo.physics.rolls`), else the recording is refused in one
 line naming the group, its shots and the criterion it fails; a layout's groups are checked and the shots
-that disagree named by :mod:`icgo.methods.grouping`, which also finds rolls where no layout is known.
+that disagree named by :mod:`icgo.models.grouping`, which also finds rolls where no layout is known.
 """
 
 from __future__ import annotations

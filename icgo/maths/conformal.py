@@ -4,7 +4,7 @@ The interval of a compensated azimuth is ``a +/- q``, ``q`` the conformal quanti
 (:func:`conformal_quantile`) of absolute errors on calibration rows the model did
 not fit. Two uses:
 
-* the half-width a saved model carries (:func:`icgo.models.relm.out_of_bag_halfwidth`);
+* the half-width a saved model carries (:func:`icgo.artifacts.relm.out_of_bag_halfwidth`);
 * the coverage measured under a protocol (:func:`member_coverage`): each member (one
   fitted model of :mod:`icgo.studies.splits`) gets its own ``q``, calibrated on rows of *its
   training set* predicted by the other members that held them out (the cross-fitted

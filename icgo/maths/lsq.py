@@ -7,8 +7,8 @@ differ in when they stop:
 
 * :func:`least_squares` -- stops when the Gauss-Newton step from the current
   point is negligible (below), or after ``max_steps`` steps (then ``ok`` is
-  False): multi-station analysis :mod:`icgo.methods.msa`, the magnetometer
-  calibrations :mod:`icgo.methods.calibration`.
+  False): multi-station analysis :mod:`icgo.models.msa`, the magnetometer
+  calibrations :mod:`icgo.models.calibration`.
 * :func:`least_squares_fixed` -- exactly ``n_steps`` steps in ``lax.scan``,
   for large vmapped batches of fits (the discrepancy package: every candidate
   model x k folds in :func:`icgo.discrepancy.fit.evaluate_models`, and the

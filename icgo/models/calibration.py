@@ -1,198 +1,402 @@
-"""Fitted 12-parameter sensor calibrations as :class:`icgo.models.format.FittedModel` artifacts.
+"""12-parameter magnetometer calibration: the model, the data it is fitted on, closed-form and least-squares fits.
 
-One kind, :class:`MagCalibration` (``KIND = "mag_calibration"``), holds what any
-12-parameter calibration method fits (MISMA paper eqs. 2-4, :mod:`icgo.methods.calibration`):
+The MISMA paper (Yang & Cai, ``seeds/002_438cb34a40e5ab84.txt``) lost its
+equations in the text extraction; each formula below is reconstructed from the
+paragraph that describes it and carries the paper's equation number. The list
+of reconstructions, with the reasons, is in ``docs/misma.md``.
 
-* the magnetometer parameters ``x_mag = [R^-1 (row-major, 9), b (3, nT)]``,
-  corrected field ``B_c = R^-1 (B_meas - b)`` (eq. 4);
-* optionally the accelerometer parameters ``x_accel = [S (9), c (3, g)]``,
-  ``G_c = S (G_meas - c)`` (the real-device pipelines calibrate both sensors);
-* optionally one rotation ``Q`` (3, 3) common to both sensors (axis alignment,
-  :func:`icgo.methods.cal_pointing.align_to_axis`), applied as ``v @ Q.T``;
-* ``field_scale_nT``: nT per unit of the fitted field. A fit to ``|M_omega|`` in
-  nT (the simulated studies) has 1.0; a fit to the unit sphere (the real devices,
-  whose reference field is unknown) carries the median raw ``|B|`` of its
-  training shots, so ``apply`` still reports nT.
+Model (paper eqs. 2-4). The magnetometer reads ``B_meas = R B_true + b``
+(R: 3x3 matrix lumping scale factors, non-orthogonality, misalignment and soft
+iron; b: hard iron and sensor bias, nT). The paper identifies the 12 numbers
+``Mcc = [R^-1 (row-major, 9), b (3)]`` and corrects with
+``B_true = R^-1 (B_meas - b)`` (eq. 4). A parameter vector here is that (12,)
+array; ``R^-1`` is dimensionless and ``b`` in nT.
 
-``method`` names the method that produced the numbers (:data:`METHODS`:
-``ellipsoid``, ``twelve`` (12-parameter least squares), ``misma``, ``sma``,
-``joint``, ``modulus`` (MISMA's centre U)); ``axis_aligned`` says whether ``Q`` is
-present. :meth:`MagCalibration.corrected` gives the corrected vectors in fit
-units (what the studies score); :meth:`MagCalibration.apply` the data-contract
-table.
+The samples a calibration is fitted on: :class:`CalData` (:func:`make_caldata` checks them); the objectives
+over them (eqs. 5-8, 15) are in :mod:`icgo.models.cal_objectives`, and
+:class:`icgo.models.misma_objective.MismaObjective` combines those into the penalised fitness that MISMA and
+SMA minimise.
+
+Closed-form / deterministic baselines (host side, numpy; the nonlinear least
+squares by :func:`icgo.maths.lsq.least_squares`, the converging entry point of :mod:`icgo.maths.lsq`):
+:func:`ellipsoid_fit` (the classical quadric fit, symmetric ``R^-1``),
+:func:`fit_twelve` (all 12 parameters by least squares on the dot-invariance
+and magnitude residuals) and :func:`modulus_fit` (MISMA's U), each refusing too few distinct orientations
+(:func:`check_orientations`). The pointing direction of rolled groups, the peer package's score and the
+common rotation onto the roll axis are in :mod:`icgo.models.cal_pointing`.
 """
 
 from __future__ import annotations
 
-import dataclasses
+import warnings
+from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
-import pandas as pd
 
-from icgo.core.errors import ModelError
-from icgo.core.settings import need
-from icgo.methods import calibration as cal
-from icgo.methods import mag_relm
-from icgo.models.format import CORRECTED_B, FittedModel, data_hash, frame_values, sensor_domain
-from icgo.physics.frames import azimuth_from_gv, inclination_from_g, toolface_from_g
+from icgo.maths.lsq import LSQResult, least_squares
+from icgo.physics.frames import angle_diff, azimuth_from_gv
 
-#: Methods a :class:`MagCalibration` may come from.
-METHODS = ("ellipsoid", "twelve", "misma", "sma", "joint", "modulus", "twelve_relm")
-
-_G_COLS = ("gx", "gy", "gz")
-_B_COLS = ("bx", "by", "bz")
+N_PARAMS = 12
+#: Tool-frame directions closer than this (deg, in G and in B) count as one orientation.
+DISTINCT_SEPARATION_DEG = 2.0
+#: Distinct orientations a 12-parameter fit needs (see :func:`check_orientations`).
+MIN_ORIENTATIONS_12 = 12
+#: ... and the 9-coefficient ellipsoid (quadric) fit.
+MIN_ORIENTATIONS_ELLIPSOID = 9
 
 
-def _check_params(name, x):
-    x = np.asarray(x, np.float64)
-    if x.shape != (cal.N_PARAMS,) or not np.all(np.isfinite(x)):
-        raise ModelError(f"mag_calibration: {name} must be {cal.N_PARAMS} finite numbers, got shape {x.shape}")
+# ----------------------------------------------------------------------- model
+def pack(r_inv, b):
+    """12-vector ``[R^-1 row-major, b]`` from ``R^-1`` (..., 3, 3) and ``b`` (..., 3) nT."""
+    r_inv = jnp.asarray(r_inv)
+    b = jnp.asarray(b)
+    return jnp.concatenate([r_inv.reshape(r_inv.shape[:-2] + (9,)), b], axis=-1)
+
+
+def unpack(x):
+    """Inverse of :func:`pack`: ``(R^-1 (..., 3, 3), b (..., 3))`` from (..., 12)."""
+    x = jnp.asarray(x)
+    return x[..., :9].reshape(x.shape[:-1] + (3, 3)), x[..., 9:]
+
+
+def params_from_error_model(r, b):
+    """Calibration parameters (12,) for a sensor with ``B_meas = R B_true + b`` (eq. 3)."""
+    return pack(jnp.linalg.inv(jnp.asarray(r)), b)
+
+
+def identity_params(dtype=jnp.float64):
+    """Parameters of a perfect magnetometer (R^-1 = I, b = 0), (12,)."""
+    return pack(jnp.eye(3, dtype=dtype), jnp.zeros(3, dtype))
+
+
+def distort(r, b, B_true):
+    """Eq. (3): ``B_meas = R B_true + b``; B_true (N, 3) nT -> (N, 3) nT."""
+    return jnp.einsum("ij,...j->...i", jnp.asarray(r), jnp.asarray(B_true)) + jnp.asarray(b)
+
+
+def correct(x, B_meas):
+    """Eq. (4): ``B_true = R^-1 (B_meas - b)``.
+
+    Args:
+        x: (12,) parameters ``[R^-1, b]``.
+        B_meas: (N, 3) raw magnetometer readings, nT.
+    Returns:
+        (N, 3) corrected field, nT.
+    """
+    r_inv, b = unpack(x)
+    return jnp.einsum("ij,nj->ni", r_inv, jnp.asarray(B_meas) - b)
+
+
+# ------------------------------------------------------------------ objectives
+def normalized_dot(G, B):
+    """``G.B / (|G| |B|)`` per sample, (N,). Equals sin(dip) for ideal sensors."""
+    G = jnp.asarray(G)
+    B = jnp.asarray(B)
+    num = jnp.sum(G * B, -1)
+    return num / (jnp.linalg.norm(G, axis=-1) * jnp.linalg.norm(B, axis=-1))
+
+
+# --------------------------------------------------------------- the fitness
+class CalData(NamedTuple):
+    """Samples a calibration is fitted on.
+
+    Attributes:
+        G: (N, 3) gravity, g. B: (N, 3) raw magnetometer, nT.
+        segment: (N,) int32 rotating-stretch id (0 .. n_segments-1).
+        rotating: (N,) float 1/0, samples taken while the string rotates.
+        ref_nT: reference modulus |M_omega| (nT), scalar.
+        weights: (N,) sample weights of the magnitude term.
+        dot_weights: (N,) sample weights of the dot-invariance term (the
+            paper takes gravity at zero-velocity stops: see :func:`make_caldata`).
+    """
+
+    G: jnp.ndarray
+    B: jnp.ndarray
+    segment: jnp.ndarray
+    rotating: jnp.ndarray
+    ref_nT: jnp.ndarray
+    weights: jnp.ndarray
+    dot_weights: jnp.ndarray
+
+
+def make_caldata(G, B, ref_nT, segment=None, rotating=None, weights=None, dot_weights=None) -> CalData:
+    """Validate and pack calibration samples.
+
+    Args:
+        G: (N, 3) gravity in the tool frame, g. B: (N, 3) raw field, nT.
+        ref_nT: reference field modulus |M_omega|, nT (> 0).
+        segment: (N,) ints >= 0 or None (one segment).
+        rotating: (N,) bools or None (no sample rotating: no Pearson term).
+        weights: (N,) non-negative or None (all 1), for the magnitude term.
+        dot_weights: (N,) non-negative or None (= weights), for the dot term;
+            e.g. 1 at static samples only, where the accelerometer reads
+            gravity without vibration and centripetal acceleration.
+    Raises:
+        ValueError: one line naming the bad argument.
+    """
+    G = np.asarray(G, np.float64)
+    B = np.asarray(B, np.float64)
+    if G.ndim != 2 or G.shape[1] != 3 or B.shape != G.shape:
+        raise ValueError(f"calibration data: G and B must both be (N, 3), got {G.shape} and {B.shape}")
+    n = G.shape[0]
+    if n < 2:
+        raise ValueError(f"calibration data: need at least 2 samples, got {n}")
+    for name, v in (("G", G), ("B", B)):
+        bad = np.argwhere(~np.isfinite(v))
+        if bad.size:
+            raise ValueError(f"calibration data: {name} has a non-finite value at row {bad[0][0]}")
+    if np.any(np.linalg.norm(G, axis=1) == 0) or np.any(np.linalg.norm(B, axis=1) == 0):
+        raise ValueError("calibration data: a G or B row is the zero vector")
+    if not np.isfinite(ref_nT) or ref_nT <= 0:
+        raise ValueError(f"calibration data: reference modulus must be > 0, got {ref_nT}")
+    seg = np.zeros(n, np.int32) if segment is None else np.asarray(segment)
+    if seg.shape != (n,) or np.any(seg < 0):
+        raise ValueError(f"calibration data: segment must be (N,) non-negative ints, got shape {seg.shape}")
+    rot = np.zeros(n) if rotating is None else np.asarray(rotating, np.float64)
+    if rot.shape != (n,):
+        raise ValueError(f"calibration data: rotating must be (N,), got shape {rot.shape}")
+    w = np.ones(n) if weights is None else np.asarray(weights, np.float64)
+    if w.shape != (n,) or np.any(w < 0) or w.sum() <= 0:
+        raise ValueError("calibration data: weights must be (N,), non-negative, not all zero")
+    dw = w if dot_weights is None else np.asarray(dot_weights, np.float64)
+    if dw.shape != (n,) or np.any(dw < 0) or dw.sum() <= 0:
+        raise ValueError("calibration data: dot_weights must be (N,), non-negative, not all zero")
+    return CalData(jnp.asarray(G), jnp.asarray(B), jnp.asarray(seg.astype(np.int32)),
+                   jnp.asarray(rot), jnp.asarray(float(ref_nT)), jnp.asarray(w), jnp.asarray(dw))
+
+
+# ------------------------------------------------ orientation count (bad input)
+def count_distinct_orientations(G, B, min_sep_deg=DISTINCT_SEPARATION_DEG) -> int:
+    """Number of distinct tool-frame orientations (greedy clustering of unit G and B).
+
+    Two samples belong to one orientation when both their G directions and
+    their raw B directions are within ``min_sep_deg`` of each other.
+    """
+    G = np.asarray(G, np.float64)
+    B = np.asarray(B, np.float64)
+    g = G / np.linalg.norm(G, axis=1, keepdims=True)
+    b = B / np.linalg.norm(B, axis=1, keepdims=True)
+    c = np.cos(np.deg2rad(min_sep_deg))
+    reps_g, reps_b = np.zeros((0, 3)), np.zeros((0, 3))
+    for gi, bi in zip(g, b):
+        if reps_g.shape[0] and np.any((reps_g @ gi >= c) & (reps_b @ bi >= c)):
+            continue
+        reps_g = np.vstack([reps_g, gi])
+        reps_b = np.vstack([reps_b, bi])
+    return int(reps_g.shape[0])
+
+
+def check_orientations(G, B, n_required=MIN_ORIENTATIONS_12, what="the 12-parameter model",
+                       min_sep_deg=DISTINCT_SEPARATION_DEG) -> int:
+    """Raise ValueError when a recording has too few distinct orientations.
+
+    Each static orientation gives two scalar conditions (field modulus and dip)
+    with an unknown heading; we ask for one distinct orientation per parameter
+    (12 for the full model, 9 for the ellipsoid's quadric), which leaves the
+    least-squares problems over-determined by a factor of ~2. Geometry that is
+    rank deficient despite enough orientations (e.g. rotation about one axis
+    only) is caught by :func:`ellipsoid_fit`.
+
+    Returns:
+        the number of distinct orientations.
+    """
+    n = count_distinct_orientations(G, B, min_sep_deg)
+    if n < n_required:
+        raise ValueError(
+            f"only {n} distinct orientations (>{min_sep_deg:g} deg apart) in the recording; "
+            f"{what} needs at least {n_required}: record {n_required - n} more")
+    return n
+
+
+# --------------------------------------------------------- closed-form fits
+def _sqrtm_spd(m):
+    w, v = np.linalg.eigh(0.5 * (m + m.T))
+    return (v * np.sqrt(w)) @ v.T, w
+
+
+def ellipsoid_fit(B, ref_nT, G=None, check=True) -> np.ndarray:
+    """Classical closed-form ellipsoid fit; symmetric ``R^-1`` and bias b.
+
+    Least squares on the quadric ``x^T A x + 2 v^T x = 1`` (9 coefficients),
+    centre ``b = -A^-1 v``, and ``R^-1 = |M_omega| sqrtm(A / (1 + b^T A b))``,
+    the symmetric square root (the rotation part of R is invisible to
+    magnitudes). Exact on noise-free data when R is symmetric positive definite.
+
+    Args:
+        B: (N, 3) raw field, nT. ref_nT: radius to scale to, nT.
+        G: optional (N, 3) gravity; with ``check`` the orientation count is checked.
+        check: raise on too few orientations / degenerate geometry.
+    Returns:
+        (12,) numpy parameters.
+    Raises:
+        ValueError: too few distinct orientations, rank-deficient design or a
+            quadric that is not an ellipsoid.
+    """
+    B = np.asarray(B, np.float64)
+    if check:
+        check_orientations(G if G is not None else np.ones_like(B), B,
+                           MIN_ORIENTATIONS_ELLIPSOID, "the ellipsoid fit")
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflow is refused just below
+        s = np.median(np.linalg.norm(B, axis=1))
+        x, y, z = (B / s).T
+        D = np.stack([x * x, y * y, z * z, 2 * x * y, 2 * x * z, 2 * y * z, 2 * x, 2 * y, 2 * z], 1)
+    if not np.all(np.isfinite(D)):  # LAPACK on inf hangs or fails: a reading far larger than the others
+        raise ValueError("ellipsoid fit: a reading is too large to square (check the units of every shot)")
+    sv = np.linalg.svd(D, compute_uv=False)
+    if check and sv[-1] < 1e-9 * sv[0]:
+        raise ValueError(
+            "ellipsoid fit: the orientations do not span the sphere (rank-deficient design, e.g. "
+            "rotation about a single axis): record orientations with other inclinations/azimuths")
+    a, bq, c, d, e, f, g, h, i = np.linalg.lstsq(D, np.ones(len(B)), rcond=None)[0]
+    A = np.array([[a, d, e], [d, bq, f], [e, f, c]])
+    v = np.array([g, h, i])
+    centre = -np.linalg.solve(A, v)
+    k = 1.0 + centre @ A @ centre
+    M = A / k
+    if np.any(np.linalg.eigvalsh(M) <= 0):
+        raise ValueError("ellipsoid fit: the fitted quadric is not an ellipsoid (data too noisy or degenerate)")
+    root, _ = _sqrtm_spd(M)
+    return np.concatenate([(ref_nT / s * root).ravel(), centre * s])
+
+
+#: Step budget of the calibration least squares (Levenberg-Marquardt steps).
+LSQ_MAX_STEPS = 500
+
+
+def _twelve_residuals(u, args):
+    """Residuals of :func:`fit_twelve`: eq. (5) ``d_k - d_bar`` and ``sqrt(mu) (|B_k| / |M| - 1)``, (2N,)."""
+    scale, G, B, sw, ref_nT, mu = args
+    Bc = correct(u * scale, B)
+    d = normalized_dot(G, Bc)
+    r1 = (d - jnp.sum(sw * sw * d) / jnp.sum(sw * sw)) * sw  # the weighted mean: zero-weight shots do not enter
+    r2 = jnp.sqrt(mu) * (jnp.linalg.norm(Bc, axis=1) / ref_nT - 1.0) * sw
+    return jnp.concatenate([r1, r2])
+
+
+def _modulus_residuals(u, args):
+    """Residuals of :func:`modulus_fit`: ``|R^-1 (B_k - b)| / |M| - 1`` (N,) and ``ridge (u - u0)`` (12,)."""
+    scale, B, ref_nT, u0, ridge = args
+    m = jnp.linalg.norm(correct(u * scale, B), axis=1) / ref_nT - 1.0
+    return jnp.concatenate([m, ridge * (u - u0)])
+
+
+def _column_scaled(fn):
+    """``fn`` in variables ``v = c * u`` (``args = (c, fn_args)``), c: (P,) column scales."""
+    return lambda v, args: fn(v / args[0], args[1])
+
+
+_twelve_scaled_residuals = _column_scaled(_twelve_residuals)
+
+
+@jax.jit
+def _solve_twelve(u0, args) -> LSQResult:
+    """:func:`fit_twelve`'s solve, each variable also in units of its Jacobian column norm at the start.
+
+    That is the fixed form of the ``x_scale="jac"`` the scipy version used;
+    without it the near-straight ``rotating_drill`` variant (condition ~4e3)
+    does not converge in 500 steps. Returns x in the ``u`` variables.
+    """
+    c = jnp.linalg.norm(jax.jacfwd(_twelve_residuals)(u0, args), axis=0)
+    c = jnp.where(c > 0, c, 1.0)
+    fit = least_squares(_twelve_scaled_residuals, u0 * c, (c, args), max_steps=LSQ_MAX_STEPS)
+    return fit._replace(x=fit.x / c)
+
+
+@jax.jit
+def _solve_modulus(u0, args) -> LSQResult:
+    return least_squares(_modulus_residuals, u0, args, max_steps=LSQ_MAX_STEPS)
+
+
+def _checked(fit: LSQResult, what: str) -> np.ndarray:
+    """The solution (numpy) of a calibration least squares.
+
+    Raises ValueError if it is not finite; warns (RuntimeWarning) and returns
+    the last iterate when the step budget ran out before convergence.
+    """
+    x = np.asarray(fit.x)
+    if not np.all(np.isfinite(x)) or not np.isfinite(float(fit.cost)):
+        raise ValueError(f"{what}: the least squares diverged to a non-finite solution (bad start or data)")
+    if not bool(fit.ok):
+        warnings.warn(f"{what}: Levenberg-Marquardt did not converge in {int(fit.n_steps)} steps; "
+                      "returning the last iterate", RuntimeWarning, stacklevel=3)
     return x
 
 
-@dataclasses.dataclass(frozen=True, eq=False)
-class MagCalibration(FittedModel):
-    """A 12-parameter magnetometer calibration (optionally with accelerometer and axis alignment).
+def fit_twelve(G, B, ref_nT, x0=None, mu_magnitude=1.0, weights=None, check=True):
+    """All 12 parameters by least squares (the deterministic 12-parameter baseline).
 
-    Attributes:
-        method: one of :data:`METHODS`.
-        axis_aligned: whether :attr:`alignment` is applied.
-        field_scale_nT: nT per unit of the corrected field (1.0 for fits in nT).
-        x_mag: (12,) ``[R^-1 row-major, b]``; ``b`` in fit units (nT when ``field_scale_nT == 1``;
-            raw nT always, since ``b`` is subtracted from the raw reading).
-        x_accel: (12,) ``[S, c (g)]`` or None (accelerometer used as read).
-        alignment: (3, 3) rotation Q or None.
-        nl_hidden, nl_out: the non-linear residual correction (:mod:`icgo.methods.mag_relm`), applied after
-            the alignment: (4, L) hidden and (L, 3) output weights, or None (a linear calibration).
-        nl_activation: the correction's hidden activation (:data:`icgo.methods.mag_relm.ACTIVATIONS`), given exactly
-            with a correction.
-    """
-
-    KIND = "mag_calibration"
-    #: A calibration makes the field one earth field: its corrected |B| and dip are checked for spread over a
-    #: survey's stations (icgo.survey.apply.one_field_doubt).
-    ONE_FIELD = True
-    UNITS = {"x_mag": "R^-1 (1), b (nT)", "x_accel": "S (1), c (g)", "alignment": "1",
-             "bx,by,bz": "nT", "gx,gy,gz": "g", "angles": "deg", "b_total_nT": "nT"}
-
-    method: str
-    axis_aligned: bool
-    field_scale_nT: float
-    x_mag: np.ndarray
-    x_accel: np.ndarray | None = None
-    alignment: np.ndarray | None = None
-    nl_hidden: np.ndarray | None = None
-    nl_out: np.ndarray | None = None
-    nl_activation: str | None = None
-
-    def __post_init__(self):
-        if self.method not in METHODS:
-            raise ModelError(f"mag_calibration: method {self.method!r} is not one of {METHODS}")
-        if bool(self.axis_aligned) != (self.alignment is not None):
-            raise ModelError("mag_calibration: axis_aligned must be true exactly when an alignment is given")
-        if self.alignment is not None and np.asarray(self.alignment).shape != (3, 3):
-            raise ModelError(f"mag_calibration: alignment must be (3, 3), got {np.asarray(self.alignment).shape}")
-        if not (np.isfinite(self.field_scale_nT) and self.field_scale_nT > 0):
-            raise ModelError(f"mag_calibration: field_scale_nT must be > 0, got {self.field_scale_nT}")
-        _check_params("x_mag", self.x_mag)
-        if self.x_accel is not None:
-            _check_params("x_accel", self.x_accel)
-        if (self.nl_hidden is None) != (self.nl_out is None):
-            raise ModelError("mag_calibration: nl_hidden and nl_out come together")
-        if self.nl_hidden is not None:
-            h, o = np.asarray(self.nl_hidden), np.asarray(self.nl_out)
-            if h.ndim != 2 or h.shape[0] != 4 or o.shape != (h.shape[1], 3) or not (np.all(np.isfinite(h))
-                                                                                  and np.all(np.isfinite(o))):
-                raise ModelError(f"mag_calibration: nl_hidden (4, L) and nl_out (L, 3) must be finite, got "
-                                 f"{h.shape} and {o.shape}")
-        act = self.nl_activation
-        if self.nl_hidden is not None and act is None:
-            raise ModelError("mag_calibration: a non-linear correction without nl_activation (model schema 1 as an "
-                             "older icgo build wrote it); refit the model")
-        if act is not None and (self.nl_hidden is None or act not in mag_relm.ACTIVATIONS):
-            raise ModelError(f"mag_calibration: nl_activation must be one of {mag_relm.ACTIVATIONS} and comes with "
-                             f"nl_hidden, got {act!r}")
-
-    #: Largest condition number of a loaded calibration's matrices (R^-1, S): beyond it a matrix is singular
-    #: in float64 and the corrected field meaningless.
-    MAX_CONDITION = 1e8
-
-    def validate(self) -> None:
-        """The matrices R^-1 (and S) invertible, the alignment a rotation."""
-        for name, x in (("x_mag", self.x_mag), ("x_accel", self.x_accel)):
-            if x is not None:
-                M = np.asarray(x, np.float64)[:9].reshape(3, 3)
-                need(bool(np.linalg.cond(M) < self.MAX_CONDITION), f"{name}: its matrix is singular (condition "
-                                                                     f"{np.linalg.cond(M):.3g})", error=ModelError)
-        if self.alignment is not None:
-            Q = np.asarray(self.alignment, np.float64)
-            need(bool(np.allclose(Q @ Q.T, np.eye(3), atol=1e-6) and np.linalg.det(Q) > 0),
-                 "alignment must be a rotation matrix (orthonormal, determinant +1)", error=ModelError)
-
-    def corrected_field(self, B) -> np.ndarray:
-        """Corrected field in fit units (before alignment): eq. (4), (N, 3) -> (N, 3)."""
-        return np.asarray(cal.correct(jnp.asarray(self.x_mag), B))
-
-    def corrected_gravity(self, G) -> np.ndarray:
-        """Calibrated gravity (before alignment), g, (N, 3); G as read without an accelerometer fit."""
-        G = np.asarray(G, np.float64)
-        return G if self.x_accel is None else np.asarray(cal.correct(jnp.asarray(self.x_accel), G))
-
-    def corrected(self, G, B) -> tuple[np.ndarray, np.ndarray]:
-        """Calibrated and (if aligned) rotated ``(G_c (N, 3) g, B_c (N, 3) fit units)``; ``G`` may be None."""
-        Bc = self.corrected_field(B)
-        Gc = None if G is None else self.corrected_gravity(G)
-        if self.alignment is not None:
-            Q = np.asarray(self.alignment)
-            Bc = Bc @ Q.T
-            Gc = None if Gc is None else Gc @ Q.T
-        if self.nl_hidden is not None:
-            Bc = mag_relm.apply(self.nl_hidden, self.nl_out, Bc, self.nl_activation)
-        return Gc, Bc
-
-    def apply(self, frame: pd.DataFrame) -> pd.DataFrame:
-        """Corrected sensor values per row; attitude, dip and |B| when the frame has gravity.
-
-        Returns:
-            DataFrame with ``station`` (if given), ``bx_corrected, by_corrected,
-            bz_corrected`` and ``b_total_nT`` (nT); with ``gx, gy, gz`` also
-            ``gx_corrected, gy_corrected, gz_corrected`` (g), ``inclination_compensated``,
-            ``toolface_compensated``, ``azimuth_compensated`` (magnetic, from the corrected
-            vectors) and ``dip_compensated_deg``.
-        """
-        B = frame_values(frame, _B_COLS, "mag_calibration model")
-        has_g = all(c in frame.columns for c in _G_COLS)
-        G = frame_values(frame, _G_COLS, "mag_calibration model") if has_g else None
-        Gc, Bc = self.corrected(G, B)
-        B_nT = Bc * self.field_scale_nT
-        bn = np.linalg.norm(B_nT, axis=1)
-        out = {"station": frame["station"].to_numpy()} if "station" in frame.columns else {}
-        out.update({**dict(zip(CORRECTED_B, B_nT.T)), "b_total_nT": bn})
-        if has_g:
-            gn = np.linalg.norm(Gc, axis=1)
-            sin_dip = np.clip(np.sum(Gc * B_nT, axis=1) / (gn * bn), -1.0, 1.0)
-            out.update({"gx_corrected": Gc[:, 0], "gy_corrected": Gc[:, 1], "gz_corrected": Gc[:, 2],
-                        "inclination_compensated": np.asarray(inclination_from_g(Gc)),
-                        "toolface_compensated": np.asarray(toolface_from_g(Gc)),
-                        "azimuth_compensated": np.asarray(azimuth_from_gv(Gc, B_nT)),
-                        "dip_compensated_deg": np.degrees(np.arcsin(sin_dip))})
-        return pd.DataFrame(out)
-
-
-def mag_calibration(method: str, x_mag, G, B, config: dict, *, x_accel=None, alignment=None,
-                    field_scale_nT: float = 1.0) -> MagCalibration:
-    """Build a :class:`MagCalibration` with the header of its training data.
+    Residuals: ``d_k - d_bar`` (eq. 5) and ``sqrt(mu_m) (|B_k| / |M_omega| - 1)``,
+    solved by :func:`icgo.maths.lsq.least_squares` (Levenberg-Marquardt, exact JAX
+    Jacobian) from the ellipsoid fit, in variables scaled so that the matrix
+    (by its largest start entry) and the bias (by ``ref_nT``) are of order one
+    and then by the Jacobian's column norms at the start.
+    Unlike the ellipsoid fit it also finds the rotation of the magnetometer
+    relative to the accelerometers.
 
     Args:
-        method: one of :data:`METHODS`.
-        x_mag: (12,) magnetometer parameters. G, B: (N, 3) training shots (g, nT raw).
-        config: the settings of the fit (JSON-able).
-        x_accel: (12,) accelerometer parameters or None. alignment: (3, 3) or None.
-        field_scale_nT: nT per fit unit.
+        G: (N, 3) g. B: (N, 3) raw nT. ref_nT: |M_omega|, nT.
+        x0: start (12,) or None (ellipsoid fit).
+        mu_magnitude: weight of the magnitude residuals.
+        weights: (N,) or None.
+    Returns:
+        (12,) numpy parameters.
     """
-    return MagCalibration(config=dict(config), data_hash=data_hash(G, B), domain=sensor_domain(G, B),
-                          method=method, axis_aligned=alignment is not None, field_scale_nT=float(field_scale_nT),
-                          x_mag=np.array(x_mag, np.float64),
-                          x_accel=None if x_accel is None else np.array(x_accel, np.float64),
-                          alignment=None if alignment is None else np.array(alignment, np.float64))
+    G = np.asarray(G, np.float64)
+    B = np.asarray(B, np.float64)
+    if check:
+        check_orientations(G, B)
+    if x0 is None:
+        x0 = ellipsoid_fit(B, ref_nT, G, check=check)
+    w = np.ones(len(B)) if weights is None else np.asarray(weights, np.float64)
+    sw = jnp.asarray(np.sqrt(w / w.mean()))
+    # scale the variables so the bias (nT) and the matrix (1) are comparable
+    scale = np.concatenate([np.full(9, np.abs(np.asarray(x0[:9])).max()), np.full(3, ref_nT)])
+    args = (jnp.asarray(scale), jnp.asarray(G), jnp.asarray(B), sw, jnp.asarray(float(ref_nT)),
+            jnp.asarray(float(mu_magnitude)))
+    fit = _solve_twelve(jnp.asarray(np.asarray(x0, np.float64) / scale), args)
+    return _checked(fit, "fit_twelve") * scale
+
+
+def modulus_fit(B, ref_nT, x0=None, ridge=0.03):
+    """U of MISMA (eqs. 9-10): parameters whose corrected modulus matches ``|M_omega|``.
+
+    Least squares (:func:`icgo.maths.lsq.least_squares`) on
+    ``|R^-1 (B_k - b)| / |M_omega| - 1`` with a weak ridge ``ridge * (x - x0)``
+    (scaled) towards ``x0`` (default: identity matrix, bias = mean of B), so
+    the fit stays defined where the geometry cannot separate all 12
+    parameters (e.g. rotation about one axis only, where the ellipsoid fit is
+    rank deficient). On well-spread data it agrees with :func:`ellipsoid_fit`
+    up to a rotation, which moduli cannot see.
+
+    Returns:
+        (12,) numpy parameters.
+    """
+    B = np.asarray(B, np.float64)
+    if x0 is None:  # a roughly calibrated sensor: identity (scaled to the reference), no bias
+        s = np.median(np.linalg.norm(B, axis=1))
+        x0 = np.concatenate([(np.eye(3) * ref_nT / s).ravel(), np.zeros(3)])
+    x0 = np.asarray(x0, np.float64)
+    scale = np.concatenate([np.full(9, np.abs(x0[:9]).max()), np.full(3, ref_nT)])
+    u0 = jnp.asarray(x0 / scale)
+    args = (jnp.asarray(scale), jnp.asarray(B), jnp.asarray(float(ref_nT)), u0, jnp.asarray(float(ridge)))
+    return _checked(_solve_modulus(u0, args), "modulus_fit") * scale
+
+
+# ------------------------------------------------------- accelerometer
+def ellipsoid_fit_accel(G, check=True) -> np.ndarray:
+    """Ellipsoid fit of the accelerometer: ``G_true = S (G_meas - c)`` on the unit sphere.
+
+    Same closed form as :func:`ellipsoid_fit` with radius 1 g; returns (12,)
+    ``[S, c]`` usable with :func:`correct`.
+    """
+    return ellipsoid_fit(np.asarray(G, np.float64), 1.0, check=False) if not check else \
+        ellipsoid_fit(np.asarray(G, np.float64), 1.0, G, check=True)
+
+
+# ------------------------------------------------------------------- azimuth
+def azimuth_error_deg(G, B, reference_azimuth_deg, declination_deg=0.0):
+    """Wrapped azimuth error (deg, (-180, 180]) of ``azimuth_from_gv(G, B) + declination`` vs a reference."""
+    a = azimuth_from_gv(jnp.asarray(G), jnp.asarray(B)) + declination_deg
+    return np.asarray(angle_diff(a, jnp.asarray(reference_azimuth_deg)))

@@ -19,7 +19,7 @@ paper. ``docs/misma.md`` lists every reconstruction with the reasons.
   iteration): poor members restart (global search), the best never does.
 * **Restart (eq. 12).** ``X_i = VLB + r (VUB - VLB)`` with probability ``z_i``.
 * **GMR and random step (eqs. 14-16).** ``GMR`` of the best-so-far solution
-  (:func:`icgo.methods.cal_objectives.magnitude_ratio`) picks the random step of the
+  (:func:`icgo.models.cal_objectives.magnitude_ratio`) picks the random step of the
   approach move ``X = B + RS (W X_A - X_B)`` (eq. 14): a large
   ``RS2 ~ U(-a, a)`` (SMA's ``vb``) while ``GMR < gmr_threshold`` (poor best,
   jump out), a small ``RS1 ~ U(-b, b)`` (``b = 1 - t/T``) once the best is good.
@@ -35,7 +35,7 @@ paper. ``docs/misma.md`` lists every reconstruction with the reasons.
   ``tanh|F_i - B_f|``.
 
 The GMR needs the magnetometer data: the fitness object supplies it as
-``fitness.gmr(x, aux)`` (:class:`icgo.methods.misma_objective.MismaObjective` does). For a
+``fitness.gmr(x, aux)`` (:class:`icgo.models.misma_objective.MismaObjective` does). For a
 plain fitness (benchmarks) GMR falls back to ``t / T`` (large steps early,
 small late), documented in ``docs/misma.md``.
 """
@@ -170,7 +170,7 @@ def misma_bounds(u, ref_nT, matrix_halfwidth=0.05, bias_halfwidth=0.02):
 
     ``U`` is the 12-vector that makes the corrected modulus equal the
     gyro-derived ``|M_omega|`` (least squares, i.e. the ellipsoid fit of
-    :func:`icgo.methods.calibration.ellipsoid_fit`). The paper argues the wanted
+    :func:`icgo.models.calibration.ellipsoid_fit`). The paper argues the wanted
     solution lies "near U" and redefines the bounds around it; we take
     ``U_j -/+ h_j`` with ``h = matrix_halfwidth * max_j |U_matrix|`` for the nine
     ``R^-1`` entries and ``h = bias_halfwidth * |M_omega|`` for the three biases.

@@ -9,7 +9,7 @@ devices (:func:`icgo.core.devices.use_host_devices`), the GPUs of a node, or the
 not divide into the devices is padded with copies of its first member, whose results are dropped.
 
 Result of member m == the same member run alone, bitwise, whenever its fitness is (the CPU kernel
-:func:`icgo.methods.relm.train_fitness` runs batch members one after another, so its result does not depend on
+:func:`icgo.models.relm.train_fitness` runs batch members one after another, so its result does not depend on
 which members share its device: tested on 1 and 2 host devices, ``tests/test_parallel.py``).
 """
 

@@ -2,7 +2,7 @@
 
 A *roll* is a run of shots taken while the instrument is turned about its pointing axis (tool z) with the
 pointing direction held fixed: the shots share one true direction, which the calibrations and the peer's
-score (:func:`icgo.methods.cal_pointing.group_spread_deg`) rely on. Turning about one axis keeps the component of
+score (:func:`icgo.models.cal_pointing.group_spread_deg`) rely on. Turning about one axis keeps the component of
 gravity and of the field along that axis constant while the rest turns, so the raw readings of each sensor lie on
 one plane perpendicular to the roll axis (an affine sensor model maps the circle they trace to an ellipse
 in a plane: bias, scale, cross-axis and hard iron do not move them off it). A group of shots is a
@@ -23,7 +23,7 @@ in a plane: bias, scale, cross-axis and hard iron do not move them off it). A gr
 
 :func:`off_plane_shots` names the shots of a group that leave its planes (the shots that disagree with a
 layout's group). Finding rolls where no layout says where they are is an algorithm, in
-:mod:`icgo.methods.rolls`; this module is the definition both it and the readers of :mod:`icgo.io` check
+:mod:`icgo.models.rolls`; this module is the definition both it and the readers of :mod:`icgo.io` check
 against.
 
 Tolerances (measured on the 9 bundled circuitpython-mag-cal devices, 18 rolls, with

@@ -10,7 +10,7 @@ A run directory holds (ICGO-RELM study):
 * ``run.json``: the run record (:data:`RUN_KEYS`), written last;
 * one CSV per table of :data:`TABLES`, each starting with the tag columns
   :data:`TAG_COLUMNS` (label, dataset, condition, seed);
-* the fitted models (``<kind>.json`` + ``<kind>.npz``, :mod:`icgo.models.format`).
+* the fitted models (``<kind>.json`` + ``<kind>.npz``, :mod:`icgo.artifacts.format`).
 """
 
 from __future__ import annotations

@@ -15,7 +15,7 @@ A study is a :class:`~icgo.studies.study.Study`: a frozen config dataclass that 
 for ICGO-RELM; a data set or devices for MISMA); ``key`` is a JAX PRNG key from
 which every random draw of the run is split, so ``run`` is deterministic given
 ``(data, config, key)``. Every result carries its fitted models (dict
-name -> :class:`icgo.models.format.FittedModel`) and its records (dict name ->
+name -> :class:`icgo.artifacts.format.FittedModel`) and its records (dict name ->
 ``DataFrame``, column names from :mod:`icgo.reporting.records`).
 
 Hydra never appears here: ``experiments/`` composes a config, builds the

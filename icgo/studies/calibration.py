@@ -14,17 +14,17 @@ Methods (unit-sphere fits; :func:`fit_recording`):
   contains the least-squares solution (:func:`misma_box`), then the axis rotation;
 * ``joint``: ``twelve+axis`` with the accelerometer's 12 parameters refitted on the rolls' directions, one
   dip and unit spheres, regularised toward small accelerometer errors with its strength chosen by
-  leave-one-group-out (:mod:`icgo.methods.joint`);
+  leave-one-group-out (:mod:`icgo.models.joint`);
 * ``twelve+axis+relm``: ``twelve+axis`` plus a RELM on its field residual, trained by group
-  consistency with its ridge chosen by leave-one-group-out on the training shots (:mod:`icgo.methods.mag_relm`);
+  consistency with its ridge chosen by leave-one-group-out on the training shots (:mod:`icgo.models.mag_relm`);
 * the peer package circuitpython-mag-cal side by side (``peer_*``), when installed.
 
 Splits (:func:`splits`): in-sample (fit and score on every shot) and one held-out
 split per rolled group (fit without it, score on it; one roll: its two interleaved halves). Score: the peer's metric
-(:func:`icgo.methods.cal_pointing.group_spread_deg`, deg) on the scored rolled groups. Every
-fit also gets its physical sanity on all shots (:func:`icgo.methods.cal_sanity.sanity`);
+(:func:`icgo.models.cal_pointing.group_spread_deg`, deg) on the scored rolled groups. Every
+fit also gets its physical sanity on all shots (:func:`icgo.models.cal_sanity.sanity`);
 a degenerate fit's score is withheld (NaN) and it is never counted as a win, and its mean dip and |B|
-(:mod:`icgo.methods.cal_site`), checked against the site where it is known. Inside every held-out split the
+(:mod:`icgo.models.cal_site`), checked against the site where it is known. Inside every held-out split the
 training shots are split again (:func:`held_out_splits`) for the nested accuracy of the recommendation
 (:func:`icgo.studies.calibration_select.recommend`). Every group of a recording is checked to be a plausible
 roll first (:func:`icgo.physics.rolls.check_groups`) unless its reader did (a layout's groups are kept where the
@@ -44,13 +44,13 @@ import pandas as pd
 
 from icgo.core.errors import DataError
 from icgo.core.settings import is_int, need
-from icgo.methods import calibration as cal
-from icgo.methods import joint, mag_relm
-from icgo.methods.cal_pointing import align_to_axis, group_spread_deg, pointing_directions
-from icgo.methods.cal_sanity import sanity
-from icgo.methods.cal_site import site_check, site_values
-from icgo.methods.misma_objective import MismaObjective
-from icgo.models.calibration import MagCalibration, mag_calibration
+from icgo.models import calibration as cal
+from icgo.models import joint, mag_relm
+from icgo.models.cal_pointing import align_to_axis, group_spread_deg, pointing_directions
+from icgo.models.cal_sanity import sanity
+from icgo.models.cal_site import site_check, site_values
+from icgo.models.misma_objective import MismaObjective
+from icgo.artifacts.calibration import MagCalibration, mag_calibration
 from icgo.optim import base
 from icgo.optim import misma as misma_opt
 from icgo.optim.registry import get
@@ -247,14 +247,14 @@ def group_score(model: MagCalibration, G, B, groups, score_mask) -> float:
 
 
 def model_sanity(model: MagCalibration, G, B):
-    """:func:`icgo.methods.cal_sanity.sanity` of a calibration on all the shots."""
+    """:func:`icgo.models.cal_sanity.sanity` of a calibration on all the shots."""
     Gc, Bc = model.corrected(G, B)
     return sanity(Gc, Bc, np.asarray(model.x_mag[:9]).reshape(3, 3))
 
 
 def site_row(model: MagCalibration, G, B, site=None) -> dict:
     """The site columns of a calibration on shots (G, B): mean dip and |B| with their spreads
-    (:func:`icgo.methods.cal_site.site_values`) and, with ``site`` (dip deg, |B| nT), the check against it."""
+    (:func:`icgo.models.cal_site.site_values`) and, with ``site`` (dip deg, |B| nT), the check against it."""
     Gc, Bc = model.corrected(G, B)
     v = site_values(Gc, Bc, np.asarray(model.x_mag[:9]).reshape(3, 3))
     row = {"dip_deg": v.dip_deg, "dip_std_deg": v.dip_std_deg, "field_nT": v.field_nT, "field_std_nT": v.field_std_nT,

@@ -2,7 +2,7 @@
 
 :func:`peer_rows` fits the peer's three stages (``fit_ellipsoid``, ``fit_to_axis``, ``fit_non_linear``) on a
 split's training shots and scores each with the peer's own ``accuracy`` on the scored rolls, with the same
-physical sanity check as ours (:func:`icgo.methods.cal_sanity.sanity`).
+physical sanity check as ours (:func:`icgo.models.cal_sanity.sanity`).
 
 numpy >= 2.5 returns ``numpy.linalg.eig`` results as complex arrays even when every eigenvalue is real (measured:
 numpy 2.5.5 gives ``complex128`` for a real symmetric 3 x 3 matrix; older numpy gave ``float64``). The peer's
@@ -21,7 +21,7 @@ import types
 import numpy as np
 
 from icgo.io.mag_cal_bundled import MAG_CAL_DEVICE_TO_TOOL, UT_TO_NT
-from icgo.methods.cal_sanity import sanity
+from icgo.models.cal_sanity import sanity
 from icgo.physics.rolls import rolled_ids
 
 #: The peer's stages (circuitpython-mag-cal), in table order.

@@ -16,7 +16,7 @@ def figure(rec, models: dict, path: Path) -> None:
     """Per shot: pointing direction raw vs calibrated, dip and |B| per method (sound fits solid, degenerate dashed)."""
     from matplotlib.figure import Figure  # not pyplot: no backend machinery, half the import time
 
-    from icgo.methods.cal_pointing import pointing_directions
+    from icgo.models.cal_pointing import pointing_directions
     from icgo.physics.qc import measured_dip_deg
     from icgo.studies.calibration import model_sanity
 
@@ -100,7 +100,7 @@ def rolls_section(name: str, rec, model) -> list[str]:
 
 def site_section(df, name: str, site) -> list[str]:
     """Each sound in-sample fit's mean dip and |B| with their spreads; with the site, how far each is from it."""
-    from icgo.methods.cal_site import SITE_DIP_TOL_DEG, SITE_FIELD_TOL_PCT
+    from icgo.models.cal_site import SITE_DIP_TOL_DEG, SITE_FIELD_TOL_PCT
     from icgo.studies.calibration import METHODS, outer_rows
 
     g = outer_rows(df)
@@ -108,7 +108,7 @@ def site_section(df, name: str, site) -> list[str]:
           & g["method"].isin(METHODS)]
     lines = ["", f"Site of `{name}`: what each sound in-sample fit says about the field it was calibrated in "
                  "(mean over the shots +/- their standard deviation; |B| in the sensor's own scale, "
-                 "`icgo.methods.cal_site`). "
+                 "`icgo.models.cal_site`). "
              + (f"The site given: dip {site.dip_deg:.2f} deg, |B| {site.field_nT:.0f} nT ({site.origin}); a fit "
                 f"more than {SITE_DIP_TOL_DEG:g} deg or {SITE_FIELD_TOL_PCT:g} % off is inconsistent with it "
                 "(inconsistent axes or mounting) and never recommended."
@@ -134,7 +134,7 @@ def settings(config) -> str:
     """The stamp line of the calibration tables (:func:`icgo.reporting.protocol.settings_line`): each fit's budget
     (the converging least squares, the joint fit's and the residual RELM's LM steps and strength grids, MISMA's
     population x iterations x runs)."""
-    from icgo.methods import joint, mag_relm
+    from icgo.models import joint, mag_relm
     from icgo.reporting.protocol import settings_line
 
     return settings_line(
@@ -199,7 +199,7 @@ def report(df, summ, recordings: dict, label: str, recs: dict, models: dict, sit
     Args:
         models: recording name -> the recommended calibration, or None. sites: name -> Site or None.
     """
-    from icgo.methods.cal_sanity import limits_sentence
+    from icgo.models.cal_sanity import limits_sentence
     from icgo.physics.rolls import AXIS_TO_Z_DEG, MIN_SPAN_DEG, PLANE_TOL_B, PLANE_TOL_G
     from icgo.studies.calibration import wide
 

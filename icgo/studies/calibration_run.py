@@ -72,7 +72,7 @@ def load_recordings(data: str, settings: dict, columns: dict, max_shots: int, ma
     """
     from icgo.io import mag_cal_bundled
     from icgo.io.grouping import layout_groups
-    from icgo.methods.grouping import by_layout
+    from icgo.models.grouping import by_layout
     from icgo.studies.shots import read_shots
 
     if data == "bundled":

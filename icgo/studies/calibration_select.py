@@ -2,8 +2,8 @@
 
 **The rule** (:func:`choose`), on the held-out scores of one set of splits (the peer's metric, deg):
 
-* candidates: the methods saved as models with a sound fit (:mod:`icgo.methods.cal_sanity`) in every split
-  and no fit inconsistent with the site (:mod:`icgo.methods.cal_site`; only when the site is known);
+* candidates: the methods saved as models with a sound fit (:mod:`icgo.models.cal_sanity`) in every split
+  and no fit inconsistent with the site (:mod:`icgo.models.cal_site`; only when the site is known);
 * the baseline is :data:`BASELINE` (``twelve+axis``, the 12-parameter least squares): another candidate is
   preferred only where it **beats the baseline by more than the standard error** of their paired difference
   over the held-out splits (mean of ``score_baseline - score_method`` above its standard error); among the

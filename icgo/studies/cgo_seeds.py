@@ -22,9 +22,9 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
-from icgo.methods import msa as _msa
-from icgo.methods import relm as _relm
-from icgo.methods.search_fitness import search_fitness
+from icgo.models import msa as _msa
+from icgo.models import relm as _relm
+from icgo.models.search_fitness import search_fitness
 from icgo.optim.cgo import CGO, CGOConfig, advance
 from icgo.studies.icgo_relm_config import StudyConfig
 from icgo.studies.icgo_relm_prepare import exclude_failed_repeats, filtered, prepare

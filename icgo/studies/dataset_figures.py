@@ -8,7 +8,7 @@
 
 The multi-station analysis here is a plain least-squares version of the ICGO
 paper's eqs. (2)-(7) (constant tool-frame bias minimising the spread of Bh and
-Bv, :func:`msa_bias`), used only to draw the comparison; the project's MSA lives in icgo.methods.msa.
+Bv, :func:`msa_bias`), used only to draw the comparison; the project's MSA lives in icgo.models.msa.
 """
 
 from __future__ import annotations

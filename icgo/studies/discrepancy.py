@@ -3,7 +3,7 @@
 ``run(stations, WorkflowConfig, key)``: the greedy search of
 :func:`icgo.discrepancy.run_workflow` (fold assignment from ``key``); records:
 the gap after each step and one row per step; model: the final physics model
-(:class:`icgo.models.discrepancy.PhysicsModel`), which ``apply`` inverts on
+(:class:`icgo.artifacts.discrepancy.PhysicsModel`), which ``apply`` inverts on
 new surveys.
 """
 
@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 
 from icgo import discrepancy as D
-from icgo.models.discrepancy import PhysicsModel
+from icgo.artifacts.discrepancy import PhysicsModel
 from icgo.studies.study import Study
 
 

@@ -1,6 +1,6 @@
 """One discrepancy job of the front door (``experiments.discrepancy``): a ``data=`` value read into stations, the
 entry settings checked, one ``study=`` run and written, or the workflow fitted and its report and physics model
-written (:mod:`icgo.discrepancy`, :class:`icgo.models.discrepancy.PhysicsModel`).
+written (:mod:`icgo.discrepancy`, :class:`icgo.artifacts.discrepancy.PhysicsModel`).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from icgo.discrepancy import report
 from icgo.io import mag_cal_bundled
 from icgo.io import recording as icgo_io
 from icgo.io.shots import is_json
-from icgo.models.discrepancy import PhysicsModel, station_qc
+from icgo.artifacts.discrepancy import PhysicsModel, station_qc
 from icgo.physics.qc import qc_sentence
 from icgo.studies import discrepancy_results
 from icgo.studies.shots import read_shots

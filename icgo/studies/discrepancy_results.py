@@ -92,7 +92,7 @@ class LabCasingStudy(NamedTuple):
         truth_effects: effects the simulation injected besides the casing.
         seed: data-set and study seed.
         qc: survey-QC counts of the test stations, raw and after the physics model
-            (:func:`icgo.models.discrepancy.station_qc`).
+            (:func:`icgo.artifacts.discrepancy.station_qc`).
         icgo_config: the ICGO study's :class:`~icgo.studies.icgo_relm_config.StudyConfig` (its split, its budget).
     """
 
@@ -136,7 +136,7 @@ def lab_casing_study(config: WorkflowConfig = WorkflowConfig(), seed: int = 0) -
     methods = {m: test[test["method"] == m]["error_compensated"].to_numpy() for m in meth}
     err_msa = test[test["method"] == meth[0]]["error_msa"].to_numpy()
     truth = {k: np.asarray(v, float) for k, v in (ds.truth.get("effects") or {}).items()}
-    from icgo.models.discrepancy import PhysicsModel, station_qc
+    from icgo.artifacts.discrepancy import PhysicsModel, station_qc
 
     qc = station_qc(PhysicsModel.from_result(res, st_all.G[itr], st_all.B[itr]), select_stations(st_all, ite))
     return LabCasingStudy(res, err_raw, err, methods, err_msa, truth, int(seed), qc, icgo_config)

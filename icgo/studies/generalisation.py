@@ -35,7 +35,7 @@ import numpy as np
 import pandas as pd
 
 from icgo.maths.stats import holm, wilcoxon_paired
-from icgo.models.format import CORRECTED_B
+from icgo.artifacts.format import CORRECTED_B
 from icgo.physics.frames import angle_diff
 from icgo.studies import splits as _splits
 from icgo.studies.icgo_relm_config import StudyConfig

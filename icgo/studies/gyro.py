@@ -12,15 +12,15 @@ seeds per trained method (mean +/- sample std over seeds, ddof 1):
 
 * ``raw``: the instrument's computed azimuth (patent eq. 7);
 * ``table``: the prior-art error table over (I, A), toolface ignored, bilinear
-  (:mod:`icgo.methods.lookup_table`; :class:`icgo.models.network.LookupTableModel`);
-* the network variants of ``variants`` (patent eqs. 8-12, :mod:`icgo.methods.nets`; all
+  (:mod:`icgo.models.lookup_table`; :class:`icgo.artifacts.network.LookupTableModel`);
+* the network variants of ``variants`` (patent eqs. 8-12, :mod:`icgo.models.nets`; all
   seeds of one variant train in one jitted, vmapped call;
-  :class:`icgo.models.network.GyroNetwork`);
-* ``relm`` / ``icgo_relm``: RELM (ICGO paper eqs. 8-9, :mod:`icgo.methods.gyro_relm`) on the
+  :class:`icgo.artifacts.network.GyroNetwork`);
+* ``relm`` / ``icgo_relm``: RELM (ICGO paper eqs. 8-9, :mod:`icgo.models.gyro_relm`) on the
   encoded (I, T, computed A) with random hidden weights, or with hidden
   weights searched by ``relm.optimizer`` (CGO with the three-stage 4th-seed
   mutation by default) on the training-only RELM fitness
-  (:class:`icgo.models.network.GyroRELM`).
+  (:class:`icgo.artifacts.network.GyroRELM`).
 
 Every method is scored through its family's pure ``predict(params, x)`` on the test sets' measured angles
 (:func:`predict_all`), the function its saved model applies.
@@ -49,8 +49,8 @@ from icgo.core.errors import SettingError
 from icgo.core.settings import is_int, is_real, need
 from icgo.datasets import gyro_turntable
 from icgo.maths import metrics, stats
-from icgo.methods import gyro_relm, lookup_table, nets, relm
-from icgo.models.network import ANGLE_COLUMNS, GyroNetwork, GyroRELM, LookupTableModel, turntable_domain, turntable_hash
+from icgo.models import gyro_relm, lookup_table, nets, relm
+from icgo.artifacts.network import ANGLE_COLUMNS, GyroNetwork, GyroRELM, LookupTableModel, turntable_domain, turntable_hash
 from icgo.optim.cgo import CGO
 from icgo.optim.registry import get
 from icgo.physics.frames import angle_diff
@@ -117,7 +117,7 @@ _NET = nets.NetConfig()  # the one source of the network defaults
 
 @dataclasses.dataclass(frozen=True)
 class NetSection:
-    """:class:`icgo.methods.nets.NetConfig` defaults of every network variant (same fields, same meaning, same defaults)."""
+    """:class:`icgo.models.nets.NetConfig` defaults of every network variant (same fields, same meaning, same defaults)."""
 
     hidden: tuple = _NET.hidden
     encoding: str = _NET.encoding
@@ -136,7 +136,7 @@ class NetSection:
         self.netconfig({}, "net")
 
     def netconfig(self, overrides: dict, where: str) -> nets.NetConfig:
-        """The checked :class:`icgo.methods.nets.NetConfig` of these defaults updated by ``overrides``.
+        """The checked :class:`icgo.models.nets.NetConfig` of these defaults updated by ``overrides``.
 
         Raises:
             SettingError: ``<where> ...`` for an unknown key or a bad value.
@@ -278,7 +278,7 @@ class GyroConfig:
              f"{self.sweep.variant!r} is not one of variants {list(self.variants)}")
 
     def netconfig(self, variant: str) -> nets.NetConfig:
-        """The :class:`icgo.methods.nets.NetConfig` of one variant."""
+        """The :class:`icgo.models.nets.NetConfig` of one variant."""
         return self.net.netconfig(self.variants[variant], f"variants.{variant}")
 
 
@@ -375,7 +375,7 @@ def seam_rows(method, preds, f: pd.DataFrame, band) -> dict:
 
 def predict_all(model, tests: dict) -> dict:
     """``{test: (S, N) compensated azimuth, deg}``: the model's ``predict`` (its family's pure forward pass on its
-    params, :meth:`icgo.models.format.FittedModel.predict`) on each test set's measured angles ((1, N) for the
+    params, :meth:`icgo.artifacts.format.FittedModel.predict`) on each test set's measured angles ((1, N) for the
     table)."""
     return {k: np.atleast_2d(np.asarray(model.predict(f[list(ANGLE_COLUMNS)].to_numpy(float))))
             for k, f in tests.items()}
@@ -406,8 +406,8 @@ def fit_relm(rc: RelmConfig, keys, train: pd.DataFrame, optimized: bool, config:
     """Plain RELM or ICGO-RELM on the encoded (I, T, A_raw); target = wrapped error ``A_true - A_raw``.
 
     Hidden weights per seed are random (``optimized=False``) or searched by ``rc.optimizer``
-    (:func:`icgo.methods.gyro_relm.search_theta`); the output weights are the ridge solution (eq. 9) on
-    all training points (:func:`icgo.methods.gyro_relm.refit`).
+    (:func:`icgo.models.gyro_relm.search_theta`); the output weights are the ridge solution (eq. 9) on
+    all training points (:func:`icgo.models.gyro_relm.refit`).
 
     Returns:
         (GyroRELM, seconds incl. compilation).

@@ -8,11 +8,11 @@ Pipeline, per repeat (one PRNG key each, ``fold_in(PRNGKey(seed), repeat_id)``):
    or a generalisation protocol (whole azimuths or well conditions held out,
    or a second instrument build as the test set). Each fitted model is a
    *member* with 0/1 row masks, so shapes stay fixed across members;
-3. multi-station analysis on the training rows only (:mod:`icgo.methods.msa`);
+3. multi-station analysis on the training rows only (:mod:`icgo.models.msa`);
 4. target = azimuth error left after MSA, ``wrap(A_msa - A_true)`` (deg);
 5. model: RELM on the six raw sensor values standardised with training
    statistics; hidden parameters drawn at random (plain RELM) or searched by an
-   optimizer of :mod:`icgo.optim` on a training-only fitness (:mod:`icgo.methods.relm`);
+   optimizer of :mod:`icgo.optim` on a training-only fitness (:mod:`icgo.models.relm`);
 6. output weights refit on all training rows; compensated azimuth
    ``A_msa - predicted error`` scored on the test rows (:mod:`icgo.maths.metrics`).
 
@@ -22,7 +22,7 @@ the preparation (:func:`icgo.studies.icgo_relm_prepare.prepare`, mapped over rep
 host-side MSA observability check, the search (:mod:`icgo.studies.icgo_relm_search`: the optimizer's runner
 :func:`icgo.studies.sharding.run_grid`, one program over repeats and CGO strategies, sharded over the devices), then
 :func:`icgo.studies.icgo_relm_score.score_all` (refit vmapped over strategies and mapped over repeats; predictions by
-:func:`icgo.methods.compensation.predict_methods`, the forward pass the saved model
+:func:`icgo.models.compensation.predict_methods`, the forward pass the saved model
 applies to the same params; metrics); the tables and fitted models: :mod:`icgo.studies.icgo_relm_result`.
 Repeat k of a batched run equals the same repeat run alone (``repeat_ids``).
 

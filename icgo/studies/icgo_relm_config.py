@@ -10,8 +10,8 @@ import dataclasses
 from typing import Any
 
 from icgo.core.execution import ExecutionPlan
-from icgo.methods import msa as _msa
-from icgo.methods import relm as _relm
+from icgo.models import msa as _msa
+from icgo.models import relm as _relm
 from icgo.optim.cgo import CGO
 from icgo.studies import sharding
 from icgo.studies import splits as _splits
@@ -64,7 +64,7 @@ class StudyConfig:
         optimizer: registry name in :mod:`icgo.optim` (``cgo``, ``pso``, ``ga``,
             ``sma``) or None for plain RELM (one random theta per repeat).
         tune: plain RELM only (``optimizer=None``): choose ``hidden`` and ``lam`` on the grid
-            :data:`icgo.methods.relm.TUNE_HIDDEN` x :data:`icgo.methods.relm.TUNE_LAMBDA` by the mean over repeats of
+            :data:`icgo.models.relm.TUNE_HIDDEN` x :data:`icgo.models.relm.TUNE_LAMBDA` by the mean over repeats of
             the validation fitness on the training rows (``fitness`` ``validation`` or ``kfold``;
             the test rows are never seen), then fit at the chosen cell (method ``relm-tuned``).
         strategies: CGO 4th-seed strategies run side by side (vmapped); ignored
@@ -79,10 +79,10 @@ class StudyConfig:
             is all a search needs to rank candidates. ``"float64"``: everything in float64 (the
             float64 fitness to 1e-9 relative). ``"float32"``: everything in float32 (1e-3).
             The kernel that computes it follows the backend (:meth:`execution`): on a CPU the
-            cache-chunked :func:`icgo.methods.relm.train_fitness` for ``fitness="train"`` (float32
+            cache-chunked :func:`icgo.models.relm.train_fitness` for ``fitness="train"`` (float32
             Gram of centred features, float64 Cholesky and iterative refinement), the row-weighted
-            :func:`icgo.methods.relm.fitness` otherwise (float64, or float32 for ``"float32"``);
-            on an accelerator :func:`icgo.methods.relm_gram.gram_fitness`. The final refit and every
+            :func:`icgo.models.relm.fitness` otherwise (float64, or float32 for ``"float32"``);
+            on an accelerator :func:`icgo.models.relm_gram.gram_fitness`. The final refit and every
             reported number are float64 always. ``fast`` and ``mixed`` are refused (:data:`RENAMED_DTYPES`).
     """
 

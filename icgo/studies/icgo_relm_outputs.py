@@ -47,7 +47,7 @@ def write_run_files(outdir: Path, result, info: dict, frame, meta, plot, *, conf
 
     The staged write (:class:`icgo.io.files.Output`) is the caller's: only when every file is complete is the
     previous content moved aside and the new files moved in, ``run.json`` last. File and column names come from
-    :mod:`icgo.reporting.records`; the fitted models are saved with :meth:`icgo.models.format.FittedModel.save`.
+    :mod:`icgo.reporting.records`; the fitted models are saved with :meth:`icgo.artifacts.format.FittedModel.save`.
 
     Args:
         result: the study's result (:func:`icgo.studies.icgo_relm.run_study`). info: the run record's fields

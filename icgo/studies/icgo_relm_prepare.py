@@ -18,8 +18,8 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
-from icgo.methods import msa as _msa
-from icgo.methods import relm as _relm
+from icgo.models import msa as _msa
+from icgo.models import relm as _relm
 from icgo.physics.frames import angle_diff, azimuth_from_gv
 from icgo.physics.qc import measured_dip_deg
 from icgo.studies import splits as _splits
@@ -224,12 +224,12 @@ def exclude_failed_repeats(prep: Prepared, mem: _splits.Members, cfg: StudyConfi
     """Leave out the repeats whose multi-station analysis failed, so that the others go on.
 
     A repeat is left out whole (all its folds) when the MSA of any of its members failed
-    (:func:`icgo.methods.msa.msa_failures`: parameters the training stations cannot determine, a
+    (:func:`icgo.models.msa.msa_failures`: parameters the training stations cannot determine, a
     non-finite solution, or no convergence within ``msa_iterations`` steps). Its numbers would
     rest on an unusable correction, so it is neither searched nor scored nor averaged in; the
     result names it (``StudyResult.excluded``) and so do the printed summary, ``summary.md`` and
     ``run.json``. Only when every repeat failed does the study stop (the same one-line
-    ValueError as :func:`icgo.methods.msa.check_observability`, naming the first).
+    ValueError as :func:`icgo.models.msa.check_observability`, naming the first).
 
     Args:
         prep, mem: the prepared members and their protocol (:func:`prepare`).

@@ -14,7 +14,7 @@ import pandas as pd
 
 from icgo.maths.metrics import azimuth_metrics
 from icgo.maths.stats import mean_std_table
-from icgo.methods import msa as _msa
+from icgo.models import msa as _msa
 from icgo.physics.frames import angle_diff
 from icgo.studies import splits as _splits
 from icgo.studies.icgo_relm_config import StudyConfig
@@ -37,7 +37,7 @@ class StudyResult(NamedTuple):
         msa: per member (repeat, fold): biases (nT), standard errors, condition number, V.
         coverage: per (method, repeat, fold): the member's conformal half-width
             (deg, :func:`icgo.maths.conformal.member_coverage`), its coverage of the test
-            rows at :data:`icgo.models.relm.INTERVAL_LEVEL`, the test and calibration row counts.
+            rows at :data:`icgo.artifacts.relm.INTERVAL_LEVEL`, the test and calibration row counts.
         curves: dict of arrays: ``best_fitness`` and ``evals`` (S, M, T) over members.
         kept: (N_in,) bool, rows of the input frame surviving the sigma filter
             (for transfer: of the source; the target's kept rows are the
@@ -45,10 +45,10 @@ class StudyResult(NamedTuple):
         config: the StudyConfig.
         wall_time_s: wall time of the jitted stages (incl. compile), s.
         n_evals: fitness evaluations per method and member (S, M).
-        model: the fitted compensation (:class:`icgo.models.relm.RELMCompensation`):
+        model: the fitted compensation (:class:`icgo.artifacts.relm.RELMCompensation`):
             MSA biases, input statistics, hidden and output weights per method
             and repeat; ``model.apply(frame)`` corrects a new survey.
-        msa_model: the MSA-only fit (:class:`icgo.models.relm.MSAModel`).
+        msa_model: the MSA-only fit (:class:`icgo.artifacts.relm.MSAModel`).
         tuning: with ``config.tune``: ``{"hidden", "lam", "grid": [{hidden, lam, val_mean, val_std}, ...]}``
             (the chosen cell is ``config.hidden`` / ``config.lam``); else None.
         excluded: ``((repeat id, reason), ...)``: the repeats left out because their MSA failed
@@ -101,7 +101,7 @@ def collect(cfg, rows, kept, a_true, G, B, n_source, mem: _splits.Members, prep,
         curve, evals: (S, M, T) best-so-far fitness and evaluations. wall: wall time of the jitted stages, s.
     """
     from icgo.maths.conformal import member_coverage
-    from icgo.models.relm import INTERVAL_LEVEL
+    from icgo.artifacts.relm import INTERVAL_LEVEL
 
     methods = cfg.method_names()
     ids = cfg.ids()
@@ -198,8 +198,8 @@ def _fitted_models(cfg: StudyConfig, G, B, a_true, mem: _splits.Members, prep: P
     (for transfer: the source instrument's), which set the data hash and domain; the
     conformal half-width uses the rows each member held out of that survey only.
     """
-    from icgo.models.format import data_hash, sensor_domain
-    from icgo.models.relm import MSAModel, RELMCompensation, out_of_bag_halfwidth
+    from icgo.artifacts.format import data_hash, sensor_domain
+    from icgo.artifacts.relm import MSAModel, RELMCompensation, out_of_bag_halfwidth
 
     methods = cfg.method_names()
     ids = [int(r) for r in mem.repeat]

@@ -1,6 +1,6 @@
 """The ICGO-RELM study's scores (ICGO paper section 3.4, eq. 9 and eq. 21): the output weights refitted on all
 training rows of every (strategy, repeat), the compensated azimuths predicted through the forward pass the saved model
-applies (:func:`icgo.methods.compensation.predict_methods`), and their test and training metrics.
+applies (:func:`icgo.models.compensation.predict_methods`), and their test and training metrics.
 """
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ import jax
 import jax.numpy as jnp
 
 from icgo.maths.metrics import azimuth_metrics
-from icgo.methods import relm_fit
-from icgo.methods.compensation import RELMParams, predict_methods
+from icgo.models import relm_fit
+from icgo.models.compensation import RELMParams, predict_methods
 from icgo.physics.frames import wrap360
 from icgo.studies.icgo_relm_prepare import Prepared
 
@@ -32,7 +32,7 @@ class Scored(NamedTuple):
 @functools.partial(jax.jit, static_argnames=("hidden",))
 def refit_all(thetas, prep: Prepared, lam, hidden):
     """Output weights beta (S, R, L) refitted on all training rows of each (strategy, repeat) (eq. 9; row blocks
-    above :data:`icgo.methods.relm.ROW_BLOCK` rows, so memory does not grow with strategies x rows x hidden)."""
+    above :data:`icgo.models.relm.ROW_BLOCK` rows, so memory does not grow with strategies x rows x hidden)."""
     over_s = jax.vmap(lambda th, p: relm_fit.ridge_beta(th, p.data.X, p.target, lam, hidden, p.train), in_axes=(0, None))
     # lax.map over repeats for bitwise batch-size independence (see icgo_relm_prepare.prepare).
     return jnp.swapaxes(jax.lax.map(lambda tp: over_s(*tp), (jnp.swapaxes(thetas, 0, 1), prep)), 0, 1)
@@ -53,7 +53,7 @@ def _metrics(a_comp, prep: Prepared, a_true):
 def score_all(thetas, prep: Prepared, G, B, a_true, lam, hidden: int, raw_features: bool) -> Scored:
     """Refit, predict and score every (strategy, repeat).
 
-    The predictions come from :func:`icgo.methods.compensation.predict_methods` on the params the study saves
+    The predictions come from :func:`icgo.models.compensation.predict_methods` on the params the study saves
     (:attr:`Scored.params`), the forward pass its artifact applies, so a saved model reproduces them bitwise.
 
     Args:

@@ -16,8 +16,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from icgo.core.execution import ACCELERATOR_KERNEL, CPU_KERNEL, ExecutionPlan
-from icgo.methods import relm as _relm
-from icgo.methods.search_fitness import SearchData, search_fitness
+from icgo.models import relm as _relm
+from icgo.models.search_fitness import SearchData, search_fitness
 from icgo.studies import sharding
 from icgo.studies.icgo_relm_config import PRECISIONS, StudyConfig
 from icgo.studies.icgo_relm_prepare import Prepared
@@ -26,10 +26,10 @@ log = logging.getLogger(__name__)
 
 
 class SearchKernel(NamedTuple):
-    """The search's fitness kernel: its name in :mod:`icgo.methods.relm` (one of
-    :data:`icgo.methods.search_fitness.SEARCH_KERNELS`), whether it reads the gathered training rows
+    """The search's fitness kernel: its name in :mod:`icgo.models.relm` (one of
+    :data:`icgo.models.search_fitness.SEARCH_KERNELS`), whether it reads the gathered training rows
     (:func:`train_rows`)
-    or the row-weighted FitData, and its precisions (:class:`icgo.methods.search_fitness.SearchData`)."""
+    or the row-weighted FitData, and its precisions (:class:`icgo.models.search_fitness.SearchData`)."""
 
     name: str
     train_rows: bool
@@ -37,7 +37,7 @@ class SearchKernel(NamedTuple):
     solve_dtype: str
 
     def aux(self, rows, lam, hidden: int) -> SearchData:
-        """The optimizer's ``aux`` for :func:`icgo.methods.search_fitness.search_fitness`: ``rows`` (TrainRows or
+        """The optimizer's ``aux`` for :func:`icgo.models.search_fitness.search_fitness`: ``rows`` (TrainRows or
         FitData)
         and ``lam`` (an array with the rows' leading axes: (R,) for a search, () for one repeat) as data."""
         return SearchData(rows, lam, int(hidden), self.name, self.feature_dtype, self.solve_dtype)
@@ -48,11 +48,11 @@ def search_kernel(dtype: str, fitness: str, kernel: str) -> SearchKernel:
     mode and backend kernel.
 
     ``kernel`` :data:`icgo.core.execution.ACCELERATOR_KERNEL`: the fused kernel
-    :func:`icgo.methods.relm_fused.fused_train_fitness` (train mode with float32 features: the default),
-    :func:`icgo.methods.relm_gram.gram_train_fitness` (train mode, other precisions) or
-    :func:`icgo.methods.relm_gram.gram_fitness`. CPU: the train-mode kernel
-    :func:`icgo.methods.relm.train_fitness` for ``fitness="train"`` with a float64 solve, else the
-    row-weighted :func:`icgo.methods.relm.fitness` (float64; float32 for ``dtype="float32"``).
+    :func:`icgo.models.relm_fused.fused_train_fitness` (train mode with float32 features: the default),
+    :func:`icgo.models.relm_gram.gram_train_fitness` (train mode, other precisions) or
+    :func:`icgo.models.relm_gram.gram_fitness`. CPU: the train-mode kernel
+    :func:`icgo.models.relm.train_fitness` for ``fitness="train"`` with a float64 solve, else the
+    row-weighted :func:`icgo.models.relm.fitness` (float64; float32 for ``dtype="float32"``).
     """
     features, solve = PRECISIONS[dtype]
     train = fitness == "train"
@@ -130,7 +130,7 @@ def search_cells(cfg: StudyConfig, keys, aux, wrap_fitness=None, progress=None, 
 
 
 def train_rows(prep: Prepared, capacity: int | None = None):
-    """The fast fitness's data (:class:`icgo.methods.relm.TrainRows`, leading member axis): each member's training
+    """The fast fitness's data (:class:`icgo.models.relm.TrainRows`, leading member axis): each member's training
     rows gathered, padded with weight-0 rows where members have different numbers of them (or, with ``capacity``,
     always padded to that many rows)."""
     n_train = np.asarray(prep.train).sum(axis=1).astype(int)
@@ -183,8 +183,8 @@ def tune(cfg: StudyConfig, prep: Prepared, n_fit: int):
 def execution_record(cfg: StudyConfig, plan: ExecutionPlan) -> dict:
     """run.json's ``execution``: the plan, the fitness function that ran and the dtype."""
     if cfg.optimizer is None:
-        return {**plan._asdict(), "fitness": "icgo.methods.relm.fitness (plain RELM, no search)", "dtype": cfg.dtype}
+        return {**plan._asdict(), "fitness": "icgo.models.relm.fitness (plain RELM, no search)", "dtype": cfg.dtype}
     name = search_kernel(cfg.dtype, cfg.fitness, plan.kernel).name
     module = {"fused_train_fitness": "relm_fused", "gram_fitness": "relm_gram", "gram_train_fitness": "relm_gram"}.get(
         name, "relm")
-    return {**plan._asdict(), "fitness": f"icgo.methods.{module}.{name}", "dtype": cfg.dtype}
+    return {**plan._asdict(), "fitness": f"icgo.models.{module}.{name}", "dtype": cfg.dtype}

@@ -2,10 +2,10 @@
 
 Simulated part (per ``rotating_drill`` variant, :func:`icgo.studies.misma_simulated.simulated_variant`):
 MISMA and the standard SMA minimise the penalised MISMA fitness
-(:class:`icgo.methods.misma_objective.MismaObjective`: dot invariance eq. 5, Pearson
+(:class:`icgo.models.misma_objective.MismaObjective`: dot invariance eq. 5, Pearson
 constraint eqs. 6-7, field modulus eq. 8 and, in the paper's magneto-inertial
 reading, the gyro term J_gyro on the reference field M_omega of
-:mod:`icgo.methods.gyro_reference`) over the 12 parameters ``[R^-1, b]`` (eqs. 2-4),
+:mod:`icgo.models.gyro_reference`) over the 12 parameters ``[R^-1, b]`` (eqs. 2-4),
 ``repeats`` vmapped repeats each, population ``pop_size``. The comparison runs
 one contribution at a time (:mod:`icgo.studies.misma_compare`: boxes,
 coordinates, operators, objective; same repeat keys, paired tests), and

@@ -157,7 +157,7 @@ def convergence(fast: RowRun, slow: RowRun) -> dict:
 def fair_table(runs: dict, scores: dict, boxes_used: dict) -> pd.DataFrame:
     """One row per search: its settings, static-point |azimuth error| (deg) over repeats, parameters recovered,
     and the physics its median repeat must respect at the stops (dip spread, |B| spread, cond(R^-1),
-    ``degenerate`` by :data:`icgo.methods.cal_sanity.LIMITS`): an error that looks small on a degenerate fit is no win.
+    ``degenerate`` by :data:`icgo.models.cal_sanity.LIMITS`): an error that looks small on a degenerate fit is no win.
 
     (Wall times are in the study summary's ``runtime_s``, not here: records are deterministic.)
 

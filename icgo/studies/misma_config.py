@@ -14,7 +14,7 @@ import numpy as np
 
 from icgo.core.settings import is_int, is_real, need
 from icgo.datasets import drill_string as datasets
-from icgo.methods.gyro_reference import BIAS_MODES
+from icgo.models.gyro_reference import BIAS_MODES
 from icgo.optim import misma as misma_opt
 
 
@@ -99,7 +99,7 @@ class SMASearchConfig:
 
 @dataclasses.dataclass(frozen=True)
 class GyroConfig:
-    """The gyro-derived reference M_omega (:mod:`icgo.methods.gyro_reference`) and its objective term.
+    """The gyro-derived reference M_omega (:mod:`icgo.models.gyro_reference`) and its objective term.
 
     Attributes:
         term: ``vector`` (the paper's magneto-inertial reading: J_gyro in the objective, the box

@@ -187,7 +187,7 @@ def summary_lines(result, config=None) -> list[str]:
                   "paired difference `MISMA_gyro_az_err_median_diff_deg`), else no significant difference.", "",
                   result.records["gyro_sweep"].to_markdown(index=False, floatfmt=".4g"), ""]
     if "real" in result.summary:
-        from icgo.methods.cal_sanity import limits_sentence
+        from icgo.models.cal_sanity import limits_sentence
         from icgo.studies.calibration import wide
 
         lines += ["## 9 real devices: peer metric (deg), ours vs circuitpython-mag-cal", "",

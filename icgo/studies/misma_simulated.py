@@ -1,10 +1,10 @@
 """The MISMA study's simulated part (MISMA paper, Yang & Cai): MISMA vs SMA on one ``rotating_drill`` variant.
 
 MISMA and the standard SMA minimise the penalised MISMA fitness
-(:class:`icgo.methods.misma_objective.MismaObjective`: dot invariance eq. 5, Pearson
+(:class:`icgo.models.misma_objective.MismaObjective`: dot invariance eq. 5, Pearson
 constraint eqs. 6-7, field modulus eq. 8 and, in the paper's magneto-inertial
 reading, the gyro term J_gyro on the reference field M_omega of
-:mod:`icgo.methods.gyro_reference`) over the 12 parameters ``[R^-1, b]`` (eqs. 2-4),
+:mod:`icgo.models.gyro_reference`) over the 12 parameters ``[R^-1, b]`` (eqs. 2-4),
 ``repeats`` vmapped repeats each, population ``pop_size``, one comparison row at a time
 (:mod:`icgo.studies.misma_compare`); :func:`gyro_sweep` repeats MISMA over gyro grades.
 Scored by :func:`simulated_variant` (see :mod:`icgo.studies.misma`).
@@ -25,11 +25,11 @@ from icgo.datasets import drill_string as datasets
 from icgo.datasets import instruments as ins
 from icgo.datasets.dataset import Dataset
 from icgo.maths import stats
-from icgo.methods import calibration as cal
-from icgo.methods.cal_sanity import sanity
-from icgo.methods.gyro_reference import fit_to_reference, gyro_reference, reference_at
-from icgo.methods.misma_objective import MismaObjective
-from icgo.models.calibration import mag_calibration
+from icgo.models import calibration as cal
+from icgo.models.cal_sanity import sanity
+from icgo.models.gyro_reference import fit_to_reference, gyro_reference, reference_at
+from icgo.models.misma_objective import MismaObjective
+from icgo.artifacts.calibration import mag_calibration
 from icgo.optim import misma as misma_opt
 from icgo.physics.qc import survey_qc
 from icgo.studies import misma_compare as compare
@@ -48,11 +48,11 @@ class Problem(NamedTuple):
         G, B: (N, 3) all samples, g and nT. static: (N,) bool zero-velocity samples.
         t: (N,) time, s. sel: (N,) bool samples the fitness uses.
         ref_nT: |M_omega|, the modulus of the gyro-rotated reference field (nT).
-        objective: the study's penalised fitness (:class:`icgo.methods.misma_objective.MismaObjective`; with
+        objective: the study's penalised fitness (:class:`icgo.models.misma_objective.MismaObjective`; with
             J_gyro when the gyro term is on). objective_mag: the same without J_gyro.
         x_true: (12,) true parameters. f_true, f_true_mag: their fitness under the two objectives.
         az_ref: (n_static,) true magnetic azimuth at the static samples, deg.
-        gyro: the :class:`icgo.methods.gyro_reference.GyroReference` (None with the term off).
+        gyro: the :class:`icgo.models.gyro_reference.GyroReference` (None with the term off).
     """
 
     G: np.ndarray
@@ -75,7 +75,7 @@ def prepare_problem(ds: Dataset, scfg: SimulatedConfig) -> Problem:
 
     Segments (for the Pearson constraint, eqs. 6-7) are the intervals between
     stops; the dot-invariance term (eq. 5) sees the static samples (or all);
-    the gyro term (:mod:`icgo.methods.gyro_reference`) every sample of its windows.
+    the gyro term (:mod:`icgo.models.gyro_reference`) every sample of its windows.
     """
     fr, meta, truth = ds.frame, ds.meta, ds.truth
     G, B = fr[["gx", "gy", "gz"]].to_numpy(float), fr[["bx", "by", "bz"]].to_numpy(float)
@@ -287,7 +287,7 @@ def median_repeat(run) -> np.ndarray:
 
 class Scores(NamedTuple):
     """A row's scores: per repeat ``err`` (mean static |azimuth error|, deg) and ``within`` (parameters in
-    tolerance, of 12); ``physics``: the median repeat's invariants at the stops (:func:`icgo.methods.cal_sanity.sanity`:
+    tolerance, of 12); ``physics``: the median repeat's invariants at the stops (:func:`icgo.models.cal_sanity.sanity`:
     dip spread, |B| spread, cond(R^-1), degenerate)."""
 
     err: np.ndarray

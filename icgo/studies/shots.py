@@ -1,4 +1,4 @@
-"""Grouped static shots for the front doors: the file as read (:mod:`icgo.io.shots`), grouped (:mod:`icgo.methods.grouping`).
+"""Grouped static shots for the front doors: the file as read (:mod:`icgo.io.shots`), grouped (:mod:`icgo.models.grouping`).
 
 :func:`read_shots` is what ``experiments.calibrate`` and ``experiments.discrepancy`` call for a file of grouped
 shots. The groups, in order of precedence:
@@ -11,7 +11,7 @@ shots. The groups, in order of precedence:
   differs; the layout is used;
 * otherwise the rolls found from the data.
 
-The recording's metadata gains ``grouping`` (:attr:`icgo.methods.grouping.Grouping.record`): the report prints it.
+The recording's metadata gains ``grouping`` (:attr:`icgo.models.grouping.Grouping.record`): the report prints it.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from icgo.core.errors import DataError
 from icgo.io.grouping import groups_from_ranges
 from icgo.io.recording import Recording
 from icgo.io.shots import read_shot_file
-from icgo.methods.grouping import by_data, by_layout, rolls_text
+from icgo.models.grouping import by_data, by_layout, rolls_text
 
 
 def read_shots(path, mag_axes=None, grav_axes=None, groups=None, columns=None, max_shots: int | None = None) -> Recording:

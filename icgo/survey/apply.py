@@ -1,6 +1,6 @@
 """Correct a new survey with a fitted model: the fit-once, apply-to-every-survey workflow (ICGO paper section 5).
 
-:func:`correct_survey` applies any :class:`icgo.models.format.FittedModel` to a
+:func:`correct_survey` applies any :class:`icgo.artifacts.format.FittedModel` to a
 recording in the data contract and returns the corrected survey: the model's
 per-station output (compensated azimuth, inclination, toolface, corrections,
 spread), survey QC against the reference field before and after the correction
@@ -18,7 +18,7 @@ import pandas as pd
 
 from icgo.core.errors import DataError, ModelError
 from icgo.maths.metrics import azimuth_metrics
-from icgo.models.format import CORRECTED_B, FittedModel, domain_notices, sensor_domain
+from icgo.artifacts.format import CORRECTED_B, FittedModel, domain_notices, sensor_domain
 from icgo.physics.frames import angle_diff
 from icgo.physics.qc import QCBands, survey_qc
 from icgo.survey.trajectory import MD_COLUMN, position_change
@@ -295,14 +295,14 @@ def correct_survey(model: FittedModel, frame: pd.DataFrame, field=None, *, metho
     """Apply ``model`` to a survey and check the result (:func:`correct_rows`, then :func:`summarise`).
 
     Args:
-        model: any fitted model (:func:`icgo.models.registry.load_model`).
+        model: any fitted model (:func:`icgo.artifacts.registry.load_model`).
         frame: the survey (data contract: gx, gy, gz in g, bx, by, bz in nT; optional
             azimuth_deg, station, md, ...).
         field: the survey's :class:`icgo.io.schema.ReferenceField` or None (no QC then).
         method: for a model holding several methods, which one (None: its default).
         bands: QC acceptance bands.
     Raises:
-        icgo.models.format.ModelError: one line, e.g. the survey lacks a column the model needs.
+        icgo.artifacts.format.ModelError: one line, e.g. the survey lacks a column the model needs.
     """
     return summarise(model, correct_rows(model, frame, field, method=method, bands=bands), field)
 
@@ -329,7 +329,7 @@ def study_qc(frame: pd.DataFrame, meta: dict, msa_model, bands: QCBands = QCBand
     Args:
         frame: the stations the study used (data contract). meta: their metadata
             (``total_field_nT``, ``dip_deg``, optional ``gravity_g``).
-        msa_model: the study's :class:`icgo.models.relm.MSAModel` (its corrected field is "after").
+        msa_model: the study's :class:`icgo.artifacts.relm.MSAModel` (its corrected field is "after").
         bands: QC bands.
     Returns:
         ``{"raw": counts, "msa": counts}`` (see :class:`icgo.physics.qc.QCResult`).

@@ -20,7 +20,7 @@ def model_path(path: Path) -> Path:
     """The model file a ``model=`` setting names: a header, a run directory's main model (the first of its
     ``run.json``'s ``models``, which must be a file in that directory), or the calibration a calibrate run
     directory recommends."""
-    from icgo.models.format import run_model_path
+    from icgo.artifacts.format import run_model_path
     from icgo.reporting import records
 
     if path.is_dir() and (path / records.CALIBRATION_FILE).is_file():

@@ -26,7 +26,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from icgo.models.format import DOMAIN_TOLERANCE, domain_overshoots
+from icgo.artifacts.format import DOMAIN_TOLERANCE, domain_overshoots
 from icgo.reporting.records import RECOMMENDATION_KEYS
 
 #: ``apply``'s exit status when its verdict says not to use the result as it stands (files still written): far
@@ -35,7 +35,7 @@ EXIT_OUT_OF_DOMAIN = 3
 #: ``calibrate``'s exit status when it recommends no calibration (report and calibrations still written).
 EXIT_NO_RECOMMENDATION = 4
 #: An overshoot of the training range beyond the larger of this and the range's own width is "far outside"
-#: (units of each quantity): ten times the noise-level tolerance of :data:`icgo.models.format.DOMAIN_TOLERANCE`.
+#: (units of each quantity): ten times the noise-level tolerance of :data:`icgo.artifacts.format.DOMAIN_TOLERANCE`.
 FAR_TOLERANCE = {k: 10.0 * v for k, v in DOMAIN_TOLERANCE.items()}
 #: Model kinds whose output corrects the magnetic field itself (their corrected field is what QC checks).
 FIELD_CORRECTING_KINDS = ("mag_calibration", "discrepancy_model", "msa")
@@ -94,10 +94,10 @@ def domain_status(trained: dict | None, survey: dict | None) -> tuple[str, list[
 
     Args:
         trained: the model's ``domain`` (quantity -> [low, high]). survey: the same quantities of the
-            survey (:func:`icgo.models.format.sensor_domain`).
+            survey (:func:`icgo.artifacts.format.sensor_domain`).
     Returns:
         (status, one phrase per quantity outside, {quantity: overshoot}): status ``"in domain"`` (no
-        quantity beyond :data:`icgo.models.format.DOMAIN_TOLERANCE`), ``"far outside"`` (some quantity beyond the larger of
+        quantity beyond :data:`icgo.artifacts.format.DOMAIN_TOLERANCE`), ``"far outside"`` (some quantity beyond the larger of
         :data:`FAR_TOLERANCE` and the width of its training range) or ``"edge"``; ``"n/a"`` when either is missing.
     """
     if not trained or not survey:

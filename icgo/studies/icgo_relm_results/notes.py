@@ -7,7 +7,7 @@ from __future__ import annotations
 import pandas as pd
 
 from icgo.datasets.casing_stations import noise_floor
-from icgo.methods.relm import TUNE_HIDDEN, TUNE_LAMBDA
+from icgo.models.relm import TUNE_HIDDEN, TUNE_LAMBDA
 from icgo.optim import STRATEGIES
 from icgo.reporting.icgo_outputs import PAPER
 from icgo.reporting.names import method_name

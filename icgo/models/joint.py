@@ -3,7 +3,7 @@
 Both sensors' 12 parameters (``G_c = S (G - c)``, ``B_c = M (B - b)``, unit spheres, eq. 4 for each) are
 fitted together on grouped static shots. Per shot, the residuals (:func:`residuals`) are
 
-* its pointing direction (:func:`icgo.methods.cal_pointing.pointing_directions`) minus its roll's mean
+* its pointing direction (:func:`icgo.models.cal_pointing.pointing_directions`) minus its roll's mean
   direction (3 components, rad; 0 for a single shot): the rolls' group consistency, the peer's metric;
 * its ``G_c . B_c / (|G_c| |B_c|)`` minus the mean over the fitting shots (eq. 5: one dip);
 * ``|G_c| - 1`` and ``|B_c| - 1`` (one gravity, one field strength).
@@ -11,7 +11,7 @@ fitted together on grouped static shots. Per shot, the residuals (:func:`residua
 Freed completely, the 24 parameters over-fit the two rolls of a 24-shot recording (measured: 0.256 deg
 in-sample, 0.577 held out on the bundled devices; 0.408 / 0.792 on unseen devices). So the fit starts from
 ``twelve+axis`` (the accelerometer's ellipsoid fit and the 12-parameter magnetometer fit, both turned onto the
-rolls' axis, :func:`icgo.methods.cal_pointing.align_to_axis`) and **the accelerometer may leave its start only
+rolls' axis, :func:`icgo.models.cal_pointing.align_to_axis`) and **the accelerometer may leave its start only
 by physically small amounts**: the penalty ``lambda (|S - S_0|^2 / SIGMA_S^2 + |c - c_0|^2 / SIGMA_C^2)``
 with :data:`SIGMA_S` (1 % per matrix entry: consumer MEMS gain and cross-axis errors after an ellipsoid fit)
 and :data:`SIGMA_C` (10 mg). The magnetometer is free (a weak ridge of 1e-5 in scaled variables, as before,
@@ -41,8 +41,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from icgo.maths.lsq import gauss_newton_gap, least_squares_fixed
-from icgo.methods.cal_pointing import pointing_jnp
-from icgo.methods.calibration import correct, normalized_dot
+from icgo.models.cal_pointing import pointing_jnp
+from icgo.models.calibration import correct, normalized_dot
 from icgo.physics.rolls import MIN_ROLLED_SHOTS
 
 #: Prior scale of the accelerometer matrix's change from its start, per entry (dimensionless).

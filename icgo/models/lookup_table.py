@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from icgo.methods.nets import check_angles
+from icgo.models.nets import check_angles
 from icgo.physics.frames import wrap360
 
 

@@ -59,7 +59,7 @@ def limits_sentence(limits: dict = LIMITS) -> str:
     """What ``degenerate`` means in a results table, one sentence naming the limits."""
     return (f"`degenerate`: the fit fails the physical sanity check on all shots (dip spread > "
             f"{limits['dip_spread_deg']:g} deg, |B| std > {limits['b_spread_pct']:g} % of its mean, or cond(R^-1) > "
-            f"{limits['cond']:g}; `icgo.methods.cal_sanity`, docs/calibrate.md): no score, never in a mean or a win.")
+            f"{limits['cond']:g}; `icgo.models.cal_sanity`, docs/calibrate.md): no score, never in a mean or a win.")
 
 
 def sanity(G_cal, B_cal, matrix, limits: dict = LIMITS) -> Sanity:

@@ -2,7 +2,7 @@
 
 The final model of :func:`icgo.discrepancy.run_workflow` (the named effects with their fitted parameters,
 the fitted reference field, the noise weights): a :class:`icgo.discrepancy.inversion.PhysicsParams`
-pytree saved with :mod:`icgo.models.format`. ``apply`` inverts it per station through the family's pure
+pytree saved with :mod:`icgo.artifacts.format`. ``apply`` inverts it per station through the family's pure
 :func:`icgo.discrepancy.inversion.predict`: the attitude that best explains each measured (G, B).
 """
 
@@ -16,7 +16,7 @@ import pandas as pd
 from icgo.core.errors import ModelError
 from icgo.core.settings import config_to_mapping, need
 from icgo.discrepancy import inversion
-from icgo.models.format import CORRECTED_B, FittedModel, data_hash, need_shape, sensor_domain
+from icgo.artifacts.format import CORRECTED_B, FittedModel, data_hash, need_shape, sensor_domain
 from icgo.physics import effects as _fx
 from icgo.physics.frames import azimuth_from_gv, inclination_from_g, toolface_from_g
 from icgo.physics.qc import QCBands, survey_qc

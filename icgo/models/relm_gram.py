@@ -1,11 +1,11 @@
 """The accelerator's RELM fitness: the search's fitness from weighted Gram sums, one pass over the rows.
 
-:func:`gram_fitness` (any fold mode, on :class:`icgo.methods.relm.FitData`) and :func:`gram_train_fitness`
-(the paper's train mode on gathered :class:`icgo.methods.relm.TrainRows`) give the fitness of
-:func:`icgo.methods.relm.fitness` as batched matrix products over row blocks of bounded size: under
+:func:`gram_fitness` (any fold mode, on :class:`icgo.models.relm.FitData`) and :func:`gram_train_fitness`
+(the paper's train mode on gathered :class:`icgo.models.relm.TrainRows`) give the fitness of
+:func:`icgo.models.relm.fitness` as batched matrix products over row blocks of bounded size: under
 ``vmap`` (the runner's repeats and strategies) the whole batch is one call, which is what an accelerator
-needs. The CPU's kernels are :func:`icgo.methods.relm.train_fitness` and :func:`icgo.methods.relm.fitness`;
-the paper's default on an accelerator is :func:`icgo.methods.relm_fused.fused_train_fitness`.
+needs. The CPU's kernels are :func:`icgo.models.relm.train_fitness` and :func:`icgo.models.relm.fitness`;
+the paper's default on an accelerator is :func:`icgo.models.relm_fused.fused_train_fitness`.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from functools import partial
 import jax
 import jax.numpy as jnp
 
-from icgo.methods.relm import FitData, TrainRows, cho_solve, cholesky, input_weights, row_blocks, scan_sum
+from icgo.models.relm import FitData, TrainRows, cho_solve, cholesky, input_weights, row_blocks, scan_sum
 
 #: Elements (batch members x rows x hidden units) of one block of hidden outputs in :func:`gram_fitness`:
 #: its memory bound whatever the batch (2**26 float64 values: 512 MiB, the float32 features beside them
@@ -146,7 +146,7 @@ def _gram_call(pop, Xa, T, fw, sw, lam, hidden, feature_dtype, solve_dtype, bloc
 @partial(jax.jit, static_argnames=("hidden", "feature_dtype", "solve_dtype", "block_elements"))
 def gram_fitness(pop, data: FitData, lam, hidden: int, feature_dtype: str = "float32",
                  solve_dtype: str = "float64", block_elements: int = BLOCK_ELEMENTS):
-    """The accelerator kernel: :func:`icgo.methods.relm.fitness` (any fold mode) from weighted Gram sums, one pass over the rows.
+    """The accelerator kernel: :func:`icgo.models.relm.fitness` (any fold mode) from weighted Gram sums, one pass over the rows.
 
     For each theta and fold, one pass over the rows in blocks accumulates ``G = H^T diag(w) H`` and
     ``c = H^T diag(w) T`` for the fold's fit weights and its score weights (``lax.scan``); then
@@ -156,13 +156,13 @@ def gram_fitness(pop, data: FitData, lam, hidden: int, feature_dtype: str = "flo
     ``block_elements`` of them (:data:`BLOCK_ELEMENTS`), whatever the batch (members are grouped
     when even :data:`MIN_BLOCK_ROWS` rows of the whole batch would exceed it). Under ``vmap`` (the
     runner's repeats and strategies) the whole strategies x repeats x population batch is one call
-    of batched matrix products: no ``lax.map`` over small chunks as on the CPU (:func:`icgo.methods.relm.train_fitness`).
+    of batched matrix products: no ``lax.map`` over small chunks as on the CPU (:func:`icgo.models.relm.train_fitness`).
 
     Precision: eq. (8) (pre-activation and sigmoid) in ``feature_dtype``; the products, sums, Cholesky
     and RMSE in ``solve_dtype`` (a product of two float32 features is exact in float64, so with
     float64 sums the result is the float64 ridge fit of the float32-rounded hidden outputs, like
-    :func:`icgo.methods.relm.train_fitness`'s float32 features, without its refinement passes); float32 products run at
-    full float32 precision (never TF32). Tolerance against :func:`icgo.methods.relm.fitness` (float64), tested on the
+    :func:`icgo.models.relm.train_fitness`'s float32 features, without its refinement passes); float32 products run at
+    full float32 precision (never TF32). Tolerance against :func:`icgo.models.relm.fitness` (float64), tested on the
     study's data: 5e-6 relative with float32 features, 1e-9 with float64 ones. The scored sum of
     squares is a difference of terms of size ``sum s T^2``: its rounding is ``eps`` times
     ``sum s T^2 / sum s r^2`` (about 1e3 on the study's data: 1e-13 in float64).
@@ -186,7 +186,7 @@ def gram_fitness(pop, data: FitData, lam, hidden: int, feature_dtype: str = "flo
 def gram_train_fitness(pop, rows: TrainRows, lam, hidden: int, feature_dtype: str = "float32",
                        solve_dtype: str = "float64", block_elements: int = BLOCK_ELEMENTS):
     """:func:`gram_fitness` of the paper's train mode on gathered training rows (one fold, scored on its fit
-    rows: one Gram per theta). Same result as :func:`icgo.methods.relm.train_fitness` within the tolerances of :func:`gram_fitness`.
+    rows: one Gram per theta). Same result as :func:`icgo.models.relm.train_fitness` within the tolerances of :func:`gram_fitness`.
 
     Args:
         pop: (P, 7 L). rows: TrainRows of one repeat (weights None or 0/1). lam, hidden, feature_dtype,

@@ -39,7 +39,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from icgo.methods import calibration as cal
+from icgo.models import calibration as cal
 from icgo.physics.frames import earth_rate_ned, field_vector_ned, inclination_from_g, tool_to_earth, toolface_from_g
 from icgo.physics.strapdown import earth_rotation, relative_rotations
 

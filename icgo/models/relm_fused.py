@@ -1,7 +1,7 @@
 """The fused accelerator kernel of the paper's training fitness (eqs. 8-9): hidden layer and Gram in bounded row blocks.
 
 For every theta of a batch (members x population) and its member's gathered training rows
-(:class:`icgo.methods.relm.TrainRows`), the training RMSE of the ridge fit, computed in passes over blocks of
+(:class:`icgo.models.relm.TrainRows`), the training RMSE of the ridge fit, computed in passes over blocks of
 :data:`BLOCK_ROWS` rows (``lax.scan``); a block's hidden outputs ``H = sigmoid(Xa W)`` (eq. 8) exist only inside
 its step, so no member's H is ever held for more than one block, and the batch is cut into groups of members run
 one after another (``lax.map``), a population larger than a block allows into parts, when one block of the whole
@@ -10,7 +10,7 @@ batch would exceed :data:`BLOCK_ELEMENTS` hidden outputs: any batch runs in boun
 1. **Gram pass.** Per block b: its column means ``m_b`` (float64), the Gram of its centred columns
    ``Hc_b^T Hc_b`` on the matrix units at ``gram`` precision (float32 products accumulated in float32 over the
    block), plus ``n_b m_b m_b^T`` in float64, and ``H^T T``; summed over blocks in float64. Centring keeps the
-   low-precision part small against the columns' large common mean (:func:`icgo.methods.relm.normal_equations`).
+   low-precision part small against the columns' large common mean (:func:`icgo.models.relm.normal_equations`).
 2. **Solve.** Cholesky of the float64 Gram + lambda I and ``beta = C^-T C^-1 H^T T`` (eq. 9), float64.
 3. **Refinement** (``refine`` passes): ``beta += (C C^T)^-1 (H^T r - lambda beta)`` with the float64 residual
    ``r = w (T - H beta)`` of the exact normal equations, H recomputed block by block. Each pass shrinks the error
@@ -27,7 +27,7 @@ Gram precisions (:data:`GRAM_PRECISIONS`), the same numbers on every backend (up
 * ``"bfloat16"``: operands rounded to bfloat16 (7-bit mantissa), products accumulated in float32 (the bfloat16
   tensor cores of a GPU or TPU).
 
-Measured tolerances against the float64 library fitness (:func:`icgo.methods.relm.fitness`) on the study's data,
+Measured tolerances against the float64 library fitness (:func:`icgo.models.relm.fitness`) on the study's data,
 and the default: ``docs/performance.md`` ("The fused accelerator kernel"); tested in ``tests/test_relm_fused.py``.
 """
 
@@ -38,7 +38,7 @@ from functools import partial
 import jax
 import jax.numpy as jnp
 
-from icgo.methods.relm import TrainRows, cho_solve, cholesky, input_weights, row_blocks
+from icgo.models.relm import TrainRows, cho_solve, cholesky, input_weights, row_blocks
 
 #: Precisions of the Gram's products (see the module docstring).
 GRAM_PRECISIONS = ("float32", "tf32", "bfloat16")
@@ -155,7 +155,7 @@ def _batched(pop, Xa, T, w, lam, hidden: int, gram: str, refine: int, block_rows
 
 def _kernel(hidden: int, gram: str, refine: int, block_rows: int, block_elements: int):
     """The one-member entry ``(pop (P, D), Xa, T, w, lam) -> (P,)`` whose batching rules hand every vmap's axis to
-    :func:`_batched` as one batch (as :func:`icgo.methods.relm_gram.gram_fitness` does)."""
+    :func:`_batched` as one batch (as :func:`icgo.models.relm_gram.gram_fitness` does)."""
     args = (hidden, gram, refine, block_rows, block_elements)
 
     @jax.custom_batching.custom_vmap
@@ -185,7 +185,7 @@ def fused_train_fitness(pop, rows: TrainRows, lam, hidden: int, gram: str = DEFA
     """The paper's training fitness (RMSE of the ridge fit on the training rows, deg) by the fused kernel.
 
     Args:
-        pop: (P, 7 L) hidden parameters. rows: :class:`icgo.methods.relm.TrainRows` of one member (weights None
+        pop: (P, 7 L) hidden parameters. rows: :class:`icgo.models.relm.TrainRows` of one member (weights None
             or 0/1). lam: ridge lambda. hidden: L.
         gram: :data:`GRAM_PRECISIONS`. refine: refinement passes. block_rows: rows per block (static, fixed).
         block_elements: the memory bound of one block of a group (static).

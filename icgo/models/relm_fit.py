@@ -1,9 +1,9 @@
 """A RELM fitted for chosen hidden weights, and its output on new rows (ICGO paper eqs. 8-9).
 
-The search (:mod:`icgo.methods.relm` and its kernels) only scores hidden weights; once they are chosen, the
+The search (:mod:`icgo.models.relm` and its kernels) only scores hidden weights; once they are chosen, the
 output weights are refitted on all training rows: :func:`ridge_beta` (eq. 9 on standardised features) and
 :func:`fit_output` (with the features' statistics). :func:`predict_rows` is the RELM's output ``H beta`` on
-standardised features. All three hold at most :data:`icgo.methods.relm.ROW_BLOCK` rows of hidden outputs
+standardised features. All three hold at most :data:`icgo.models.relm.ROW_BLOCK` rows of hidden outputs
 at a time, so memory stays flat in the number of rows; at or below it they are the unblocked products.
 """
 
@@ -14,11 +14,11 @@ from functools import partial
 import jax
 import jax.numpy as jnp
 
-from icgo.methods import relm
+from icgo.models import relm
 
 
 def ridge_beta(theta, Xs, T, lam, hidden: int, weights=None, row_block: int = relm.ROW_BLOCK):
-    """Eq. (9) for hidden parameters ``theta``: :func:`icgo.methods.relm.ridge_solve` of its hidden layer, in bounded memory.
+    """Eq. (9) for hidden parameters ``theta``: :func:`icgo.models.relm.ridge_solve` of its hidden layer, in bounded memory.
 
     Up to ``row_block`` rows this is ``relm.ridge_solve(relm.hidden_layer(theta, Xs, hidden), T, lam, weights)``
     exactly; above, ``H^T diag(w) H`` and ``H^T diag(w) T`` are accumulated over row blocks of
@@ -71,14 +71,14 @@ def predict_rows(theta, beta, Xs, hidden: int, row_block: int = relm.ROW_BLOCK):
 def fit_output(theta, X, T, lam, weights, hidden: int):
     """A RELM's output weights for given hidden weights: the weighted feature statistics and the ridge fit.
 
-    Jittable and vmappable, unchecked (:func:`icgo.methods.compensation.fit` checks its inputs).
+    Jittable and vmappable, unchecked (:func:`icgo.models.compensation.fit` checks its inputs).
 
     Args:
         theta: ((d + 1) L,) hidden parameters. X: (N, d) raw features. T: (N,) targets.
         lam: ridge lambda. weights: (N,) row weights. hidden: L.
     Returns:
         (beta (L,), mean (d,), std (d,)): output weights (eq. 9, :func:`ridge_beta`) on the features standardised
-        with the statistics of the rows of weight > 0 (:func:`icgo.methods.relm.standardize_stats`).
+        with the statistics of the rows of weight > 0 (:func:`icgo.models.relm.standardize_stats`).
     """
     mean, std = relm.standardize_stats(X, weights)
     return ridge_beta(theta, relm.standardize(X, mean, std), T, lam, hidden, weights), mean, std

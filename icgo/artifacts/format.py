@@ -20,7 +20,7 @@ arrays under their field names; ``<stem>.json`` holds the header::
 
 Loading (:func:`read_model`) is the equinox way: the kind rebuilds the params' skeleton from the meta
 (:meth:`FittedModel.params_like`: its leaves' paths and the static settings ``predict`` needs), and
-exactly those leaves are read into it, every one checked (:mod:`icgo.models.reading`). The JSON file is
+exactly those leaves are read into it, every one checked (:mod:`icgo.artifacts.reading`). The JSON file is
 written last (both atomically, temp file + rename), so a header on disk always names a complete array
 file. ``save -> load -> apply`` is bitwise ``apply`` (tested): arrays are stored exactly, the skeleton
 rebuilt from the meta is the saved params' own (checked on save) and ``predict`` is deterministic.
@@ -46,7 +46,7 @@ import numpy as np
 import pandas as pd
 
 from icgo.core.errors import ModelError
-from icgo.models.reading import (
+from icgo.artifacts.reading import (
     check_array,
     check_domain,
     field_types,
@@ -298,18 +298,18 @@ def read_model(path, kinds: dict) -> FittedModel:
     """Load a model saved by :meth:`FittedModel.save`, every part checked.
 
     Checks, each a one-line :class:`ModelError` naming the file: the header (a JSON object of at
-    most :data:`~icgo.models.reading.MAX_HEADER_BYTES`, a known schema and kind, a schema the kind still
+    most :data:`~icgo.artifacts.reading.MAX_HEADER_BYTES`, a known schema and kind, a schema the kind still
     reads, meta ``fields`` of the kind's types, a training domain of finite ranges), the params' skeleton
     rebuilt from the meta (:meth:`FittedModel.params_like`), the array file (a zip archive; only the
     skeleton's leaves and the kind's array fields are read, each checked from its .npy header for dtype,
-    size (:data:`~icgo.models.reading.MAX_ARRAY_BYTES`) and shape before it is read, then for NaN/inf and
+    size (:data:`~icgo.artifacts.reading.MAX_ARRAY_BYTES`) and shape before it is read, then for NaN/inf and
     magnitude; nothing is unpickled), and the kind's own consistency (:meth:`FittedModel.validate`: shapes
     that agree, scales > 0, names it knows).
 
     Args:
         path: the ``.json`` header, the ``.npz``, the stem, a run directory (its ``run.json``'s first
             model) or a directory holding exactly one model.
-        kinds: KIND -> model class (:data:`icgo.models.registry.MODEL_KINDS`).
+        kinds: KIND -> model class (:data:`icgo.artifacts.registry.MODEL_KINDS`).
     """
     p = header_path(path)
     head = read_header(p, SCHEMA_VERSION)

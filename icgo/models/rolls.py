@@ -3,7 +3,7 @@
 What a roll is, and the check of a group against its shots, is :mod:`icgo.physics.rolls`; the readers of
 :mod:`icgo.io` group a recording by its instrument's layout or by groups given. :func:`find_rolls` searches the
 data (runs of consecutive shots, then the same search with the rolls' common axes held fixed), after checking
-that the shots' scatter (:func:`scatter`) lets rolls be told apart at all. :mod:`icgo.methods.grouping` composes
+that the shots' scatter (:func:`scatter`) lets rolls be told apart at all. :mod:`icgo.models.grouping` composes
 the two: a layout checked against what the data suggest, or the data's rolls where no layout is known.
 """
 
@@ -80,7 +80,7 @@ def _runs(G, B, b_scale, **criterion) -> list:
 
 
 def scatter(G, B) -> tuple[float, float, str]:
-    """The shots' scatter about each sensor's ellipsoid fit (:func:`icgo.methods.calibration.ellipsoid_fit`):
+    """The shots' scatter about each sensor's ellipsoid fit (:func:`icgo.models.calibration.ellipsoid_fit`):
     RMS of ``|G_c| - 1`` (g) and of ``|B_c| - 1`` times the fitted radius in raw units over the median raw |B|
     (the units of :data:`PLANE_TOL_B`); noise and non-linearity together.
 
@@ -89,7 +89,7 @@ def scatter(G, B) -> tuple[float, float, str]:
         the shots do not span the orientations the fits need (nothing to judge); both NaN with the reason when
         they do but no ellipsoid fits one sensor's shots (they scatter too much for one).
     """
-    from icgo.methods.calibration import MIN_ORIENTATIONS_ELLIPSOID, count_distinct_orientations, ellipsoid_fit
+    from icgo.models.calibration import MIN_ORIENTATIONS_ELLIPSOID, count_distinct_orientations, ellipsoid_fit
 
     G = np.asarray(G, np.float64)
     B = np.asarray(B, np.float64)

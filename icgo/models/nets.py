@@ -37,7 +37,7 @@ Input encodings (degrees in, dimensionless out):
 * ``"sincos"``: ``(I/45 - 1, sin T, cos T, sin A, cos A)`` (5 inputs),
   continuous across 0/360.
 
-The lookup table the network replaced is :mod:`icgo.methods.lookup_table`.
+The lookup table the network replaced is :mod:`icgo.models.lookup_table`.
 
 All angles are in degrees at every public function.
 """

@@ -1,9 +1,9 @@
 """The fitness a study's search calls: one function whose data name the kernel that computes it.
 
 :func:`search_fitness` ``(pop, aux: SearchData) -> (P,)`` dispatches on ``aux.kernel`` (:data:`SEARCH_KERNELS`) to
-:func:`icgo.methods.relm.fitness` (row-weighted, any fold mode), :func:`icgo.methods.relm.train_fitness` (the CPU's
-cache-chunked training fitness), :func:`icgo.methods.relm_gram.gram_fitness` / :func:`icgo.methods.relm_gram.gram_train_fitness`
-(batched Gram sums) or :func:`icgo.methods.relm_fused.fused_train_fitness` (the fused accelerator kernel). Every
+:func:`icgo.models.relm.fitness` (row-weighted, any fold mode), :func:`icgo.models.relm.train_fitness` (the CPU's
+cache-chunked training fitness), :func:`icgo.models.relm_gram.gram_fitness` / :func:`icgo.models.relm_gram.gram_train_fitness`
+(batched Gram sums) or :func:`icgo.models.relm_fused.fused_train_fitness` (the fused accelerator kernel). Every
 search passes the same static fitness; the kernel, its precisions and L travel in the data's static fields.
 """
 
@@ -15,9 +15,9 @@ from typing import Any
 
 import jax
 
-from icgo.methods import relm_fused
-from icgo.methods.relm import fitness, train_fitness
-from icgo.methods.relm_gram import gram_fitness, gram_train_fitness
+from icgo.models import relm_fused
+from icgo.models.relm import fitness, train_fitness
+from icgo.models.relm_gram import gram_fitness, gram_train_fitness
 
 #: The fitness kernels a search can run (:func:`search_fitness`), by their function's name.
 SEARCH_KERNELS = ("fitness", "train_fitness", "gram_fitness", "gram_train_fitness", "fused_train_fitness")
@@ -34,8 +34,8 @@ class SearchData:
     own jit cache compiles once per setting).
 
     Attributes:
-        rows: :class:`icgo.methods.relm.TrainRows` (the ``*train_fitness`` kernels) or
-            :class:`icgo.methods.relm.FitData`.
+        rows: :class:`icgo.models.relm.TrainRows` (the ``*train_fitness`` kernels) or
+            :class:`icgo.models.relm.FitData`.
         lam: ridge lambda, () per repeat.
         hidden: L.
         kernel: one of :data:`SEARCH_KERNELS`.

@@ -1,8 +1,8 @@
 """A RELM compensating the gyro inclinometer's azimuth (ICGO paper eqs. 8-9 on the patent's inputs).
 
-The RELM of :mod:`icgo.methods.relm` learns the wrapped azimuth error ``A_true - A_raw`` from the
+The RELM of :mod:`icgo.models.relm` learns the wrapped azimuth error ``A_true - A_raw`` from the
 instrument's own solution (I, T, A_raw), encoded as the patent network's inputs
-(:func:`icgo.methods.nets.encode_inputs`). A fitted one is a :class:`GyroRELMParams` pytree and
+(:func:`icgo.models.nets.encode_inputs`). A fitted one is a :class:`GyroRELMParams` pytree and
 :func:`predict` its whole forward pass: encode, standardise, hidden layer (eq. 8), output weights,
 ``wrap360(A_raw + error)``. Fitting, all seeds in one call each: the per-seed fitness data
 (:func:`fit_data`), hidden weights drawn (:func:`random_theta`, plain RELM) or searched by a population
@@ -18,8 +18,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from icgo.methods import relm, relm_fit, search_fitness
-from icgo.methods.nets import encode_inputs
+from icgo.models import relm, relm_fit, search_fitness
+from icgo.models.nets import encode_inputs
 from icgo.physics.frames import wrap360
 
 
@@ -31,7 +31,7 @@ class GyroRELMParams:
     Attributes:
         theta: ((n_in + 1) L,) hidden weights and biases. beta: (L,) output weights, deg.
         mean, std: (n_in,) input standardisation (encoded units) from the training points.
-        encoding: the input encoding (:data:`icgo.methods.nets.ENCODINGS`), static.
+        encoding: the input encoding (:data:`icgo.models.nets.ENCODINGS`), static.
     """
 
     theta: jnp.ndarray
@@ -65,10 +65,10 @@ predict_seeds = jax.vmap(predict, in_axes=(0, None))
 
 
 def fit_data(keys, X, T, fitness: str):
-    """Per-seed RELM fitness data (:class:`icgo.methods.relm.FitData`) on all training points.
+    """Per-seed RELM fitness data (:class:`icgo.models.relm.FitData`) on all training points.
 
-    Inputs are standardised with the training statistics (:func:`icgo.methods.relm.standardize_stats`);
-    the folds of the fitness mode (:data:`icgo.methods.relm.FITNESS_MODES`) are drawn from each seed's key.
+    Inputs are standardised with the training statistics (:func:`icgo.models.relm.standardize_stats`);
+    the folds of the fitness mode (:data:`icgo.models.relm.FITNESS_MODES`) are drawn from each seed's key.
 
     Args:
         keys: (S, 2) per-seed keys. X: (N, n_in) encoded inputs. T: (N,) targets, deg. fitness: the mode.
@@ -118,7 +118,7 @@ def search_theta(keys, data: relm.FitData, hidden: int, lam: float, bounds: tupl
 
 def refit(theta, X, T, lam: float, hidden: int, encoding: str) -> GyroRELMParams:
     """The fitted RELMs of hidden weights ``theta`` (S, D): ridge output weights (eq. 9) and input statistics on
-    all training points (:func:`icgo.methods.relm_fit.fit_output`), as :class:`GyroRELMParams` with seed axis S."""
+    all training points (:func:`icgo.models.relm_fit.fit_output`), as :class:`GyroRELMParams` with seed axis S."""
     w = jnp.ones(X.shape[0])
     beta, mean, std = jax.vmap(lambda th: relm_fit.fit_output(th, X, T, lam, w, hidden))(theta)
     return GyroRELMParams(theta, beta, mean, std, encoding=encoding)

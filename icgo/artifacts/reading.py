@@ -5,7 +5,7 @@ model; :func:`read_header` reads it (bounded, a JSON object with a known schema)
 the named members of its ``.npz``, each checked from its ``.npy`` header (dtype, size, shape) before any data
 is read, nothing unpickled; :func:`field_types`, :func:`plain_ok`, :func:`check_domain` and
 :func:`check_array` check the typed JSON fields, the training domain and every array (finite, bounded).
-:func:`icgo.models.format.read_model` composes them. Every failure is one :class:`ModelError` line naming the
+:func:`icgo.artifacts.format.read_model` composes them. Every failure is one :class:`ModelError` line naming the
 file.
 """
 

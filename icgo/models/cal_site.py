@@ -1,6 +1,6 @@
 """The site a calibration was made at: the mean dip and field strength its calibrated shots see, against the site's.
 
-A calibration that is physically sound (:mod:`icgo.methods.cal_sanity`: one dip and one |B| over the shots)
+A calibration that is physically sound (:mod:`icgo.models.cal_sanity`: one dip and one |B| over the shots)
 can still be wrong about *which* field: a magnetometer and an accelerometer whose axes are inconsistent (a
 mounting string wrong for one sensor, a sensor turned on its board) are calibrated to one dip that is not the
 site's (a peer calibration of such a recording gave a dip of 0-10 deg where the site's is 60-70). Only the site
@@ -17,7 +17,7 @@ The tolerances come from the sources, not from any recording (no bundled device 
 
 * dip, 10 deg: WMM's dip uncertainty is about 0.2 deg (its error model), crustal anomalies and the steel of a
   building move the dip by up to a few degrees indoors, and a sound calibration's dip varies by at most
-  2 deg over the shots (:data:`icgo.methods.cal_sanity.LIMITS`); an axis error moves it by tens of degrees;
+  2 deg over the shots (:data:`icgo.models.cal_sanity.LIMITS`); an axis error moves it by tens of degrees;
 * |B|, 20 %: WMM's |B| uncertainty is about 150 nT (0.3 %), a consumer magnetometer's sensitivity tolerance
   is a few to 10 % part to part, and indoor steel adds up to about 10 %; a unit error is a factor of 10 or more.
 """

@@ -5,7 +5,7 @@ the procedure that took it says which shots are rolls, and a search of the data 
 rolls found at shots 9-13 and 16-23 instead of 8-15 and 16-23 raised its held-out score from 1.27 to 1.85 deg).
 :func:`by_layout` checks every group of the layout against the data (:func:`icgo.physics.rolls.group_findings`:
 the criteria a group fails and the shots that leave its roll plane), searches the data as a second opinion
-(:func:`icgo.methods.rolls.find_rolls`) and names both where they differ, but uses the layout; only a mounting
+(:func:`icgo.models.rolls.find_rolls`) and names both where they differ, but uses the layout; only a mounting
 that turns every roll about another axis than the pointing axis is refused, by the reader (nothing calibrates
 then).
 :func:`by_data` finds the rolls where no layout is known, or where the user asks for it (``groups=auto``), and
@@ -22,7 +22,7 @@ from typing import NamedTuple
 import numpy as np
 
 from icgo.core.errors import GroupingError
-from icgo.methods.rolls import find_rolls
+from icgo.models.rolls import find_rolls
 from icgo.physics.rolls import (
     AXIS_TO_Z_DEG,
     MIN_ROLLED_SHOTS,
@@ -103,7 +103,7 @@ def by_layout(G, B, station, groups, layout: str, source: str) -> Grouping:
 
 
 def by_data(G, B, station, source: str, layout: tuple | None = None, no_roll_hint: str = "") -> Grouping:
-    """The rolls found in the data (:func:`icgo.methods.rolls.find_rolls`), every other shot its own group.
+    """The rolls found in the data (:func:`icgo.models.rolls.find_rolls`), every other shot its own group.
 
     Args:
         G, B, station: as :func:`by_layout`. source: the file, for messages.

@@ -1,5 +1,5 @@
-"""MISMA's penalised fitness over a fixed data set (the paper's eqs. 5, 7, 8; terms in :mod:`icgo.methods.calibration`,
-the gyro term in :mod:`icgo.methods.gyro_reference`)."""
+"""MISMA's penalised fitness over a fixed data set (the paper's eqs. 5, 7, 8; terms in :mod:`icgo.models.calibration`,
+the gyro term in :mod:`icgo.models.gyro_reference`)."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from icgo.methods import cal_objectives as obj
-from icgo.methods.calibration import CalData
-from icgo.methods.gyro_reference import gyro_term
+from icgo.models import cal_objectives as obj
+from icgo.models.calibration import CalData
+from icgo.models.gyro_reference import gyro_term
 
 
 class MismaObjective:
@@ -18,7 +18,7 @@ class MismaObjective:
     ``F(x) = J_dot(x) + mu_m J_mag(x) + mu_p sum_{s,axis} max(0, th - |rho_s|)^2 / n [+ mu_g J_gyro(x)]``
 
     where the Pearson sum runs over rotating segments with at least 3 samples
-    and ``J_gyro`` (:func:`icgo.methods.gyro_reference.gyro_term`) compares the corrected
+    and ``J_gyro`` (:func:`icgo.models.gyro_reference.gyro_term`) compares the corrected
     field with the gyro-derived reference M_omega when ``gyro`` is given.
     The equality constraint ``|B| = |M_omega|`` is a quadratic penalty
     (``mu_m = 1`` makes it as strong as the objective, both being squared
@@ -30,9 +30,9 @@ class MismaObjective:
     per-candidate GMR used by MISMA.
 
     Args:
-        data: :class:`icgo.methods.calibration.CalData`.
+        data: :class:`icgo.models.calibration.CalData`.
         pearson_threshold: ``th`` (paper: set from the correlation-strength table).
-        pearson_mode: ``"axis"`` or ``"complex"`` (see :func:`icgo.methods.cal_objectives.pearson_xy`).
+        pearson_mode: ``"axis"`` or ``"complex"`` (see :func:`icgo.models.cal_objectives.pearson_xy`).
         mu_magnitude: weight of the magnitude penalty (0 disables it).
         mu_pearson: weight of the Pearson penalty (0 disables it).
         n_segments: number of segment ids (static); default max(segment) + 1.

@@ -1,6 +1,6 @@
 """The objectives of a 12-parameter magnetometer calibration (JAX, jittable, vmappable over candidate parameters).
 
-Parameters as in :mod:`icgo.methods.calibration` (``[R^-1 row-major, b]``, (12,); eq. 4 corrects
+Parameters as in :mod:`icgo.models.calibration` (``[R^-1 row-major, b]``, (12,); eq. 4 corrects
 ``B_true = R^-1 (B_meas - b)``); the equation numbers are the MISMA paper's, reconstructed as listed in
 ``docs/misma.md``:
 
@@ -17,7 +17,7 @@ Parameters as in :mod:`icgo.methods.calibration` (``[R^-1 row-major, b]``, (12,)
 * :func:`magnitude_ratio` (eq. 15): the geomagnetic modulus ratio GMR, in
   (0, 1], 1 when every corrected ``|B|`` equals ``|M_omega|``.
 
-:class:`icgo.methods.misma_objective.MismaObjective` combines them into the penalised fitness that MISMA and
+:class:`icgo.models.misma_objective.MismaObjective` combines them into the penalised fitness that MISMA and
 SMA minimise (``(P, 12) -> (P,)``, +inf for non-finite values) and exposes the GMR for :mod:`icgo.optim.misma`.
 """
 
@@ -26,7 +26,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from icgo.methods.calibration import correct, normalized_dot
+from icgo.models.calibration import correct, normalized_dot
 
 
 def _wmean(v, w):

@@ -5,7 +5,7 @@ training rows, its feature standardisation and its RELM (hidden weights ``theta`
 with the RELM's size ``hidden`` and its input features (``raw_features``) as static settings.
 :func:`predict` is its only forward pass; :func:`fit` fits one member's output weights (eq. 9, checked).
 The study scores its fits through :func:`predict_methods` and the saved artifact
-(:class:`icgo.models.relm.RELMCompensation`) applies the same function to the same params, so "apply
+(:class:`icgo.artifacts.relm.RELMCompensation`) applies the same function to the same params, so "apply
 reproduces the study" holds bitwise by construction: every member runs the same compiled program
 (``lax.map`` over members and over fixed-size row blocks), whatever the number of members or rows.
 
@@ -25,9 +25,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from icgo.methods import msa as _msa
-from icgo.methods import relm as _relm
-from icgo.methods import relm_fit
+from icgo.models import msa as _msa
+from icgo.models import relm as _relm
+from icgo.models import relm_fit
 from icgo.physics.frames import azimuth_from_gv
 
 #: Survey rows per block of :func:`predict`: bounds its memory (one block x hidden units at a time) whatever
@@ -44,7 +44,7 @@ class RELMParams:
 
     One member (no leading axis): msa_bias (3,) MSA biases eps, nT; msa_scale (3,) MSA scale errors s;
     x_mean, x_std (6,) feature standardisation (g, g, g, nT, nT, nT) from the member's training rows;
-    theta (7 L,) hidden weights and biases (:func:`icgo.methods.relm.unpack`); beta (L,) output weights, deg.
+    theta (7 L,) hidden weights and biases (:func:`icgo.models.relm.unpack`); beta (L,) output weights, deg.
     :func:`predict` takes M members (a leading axis M on every array); :func:`predict_methods` takes the
     layout a study and its saved model hold: S methods x R repeats, the MSA and standardisation per repeat
     ((R, 3), (R, 6)) and the RELM per method and repeat (theta (S, R, 7 L), beta (S, R, L)).

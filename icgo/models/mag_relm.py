@@ -17,7 +17,7 @@ a non-linearity of one axis may move the others after the linear matrix mixed th
 **Trained by group consistency and one field** (no reference attitude). ``W``
 minimises, over the training shots (:func:`residuals`, all in deg),
 
-* each rolled shot's pointing direction (:func:`icgo.methods.cal_pointing.pointing_directions`)
+* each rolled shot's pointing direction (:func:`icgo.models.cal_pointing.pointing_directions`)
   minus its group's mean direction (3 components, rad -> deg): the peer's metric;
 * each shot's dip minus the mean dip of the training shots (one field);
 * each shot's ``|b'| / mean|b'| - 1`` (rad -> deg; one field strength);
@@ -50,8 +50,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from icgo.maths.lsq import least_squares_fixed
-from icgo.methods.cal_pointing import pointing_jnp
-from icgo.methods.calibration import normalized_dot
+from icgo.models.cal_pointing import pointing_jnp
+from icgo.models.calibration import normalized_dot
 from icgo.physics.rolls import MIN_ROLLED_SHOTS
 
 #: Candidate ridge parameters, deg^2 per unit weight^2 (leave-one-group-out picks one). The largest leaves

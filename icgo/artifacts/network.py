@@ -1,4 +1,4 @@
-"""Fitted azimuth compensations of the gyro inclinometer study as :class:`icgo.models.format.FittedModel` artifacts.
+"""Fitted azimuth compensations of the gyro inclinometer study as :class:`icgo.artifacts.format.FittedModel` artifacts.
 
 Three kinds, each a params pytree and the pure ``predict`` of its family, mapping the instrument's own
 solution (measured inclination ``I``, toolface ``T`` and computed azimuth ``A_raw``, deg; frame columns
@@ -6,14 +6,14 @@ solution (measured inclination ``I``, toolface ``T`` and computed azimuth ``A_ra
 azimuth (deg, [0, 360)):
 
 * :class:`GyroNetwork` (``"gyro_network"``): the patent's 3-8-8-1 BP network
-  (CN1888384 eqs. 8-12), :class:`icgo.methods.nets.NetParams` of every seed and
-  :func:`icgo.methods.nets.predict_seeds`;
+  (CN1888384 eqs. 8-12), :class:`icgo.models.nets.NetParams` of every seed and
+  :func:`icgo.models.nets.predict_seeds`;
 * :class:`GyroRELM` (``"gyro_relm"``): a RELM on the encoded (I, T, A_raw)
-  (ICGO paper eqs. 8-9), :class:`icgo.methods.gyro_relm.GyroRELMParams` of every seed and
-  :func:`icgo.methods.gyro_relm.predict_seeds`; hidden weights random (``relm``) or searched (``icgo_relm``);
+  (ICGO paper eqs. 8-9), :class:`icgo.models.gyro_relm.GyroRELMParams` of every seed and
+  :func:`icgo.models.gyro_relm.predict_seeds`; hidden weights random (``relm``) or searched (``icgo_relm``);
 * :class:`LookupTableModel` (``"gyro_lookup_table"``): the prior-art error table over (I, A) with bilinear
-  interpolation (toolface ignored), :class:`icgo.methods.lookup_table.LookupTable` and
-  :func:`icgo.methods.lookup_table.predict`.
+  interpolation (toolface ignored), :class:`icgo.models.lookup_table.LookupTable` and
+  :func:`icgo.models.lookup_table.predict`.
 
 ``members(frame)`` returns every seed's compensated azimuth, (S, N) ((1, N) for the table), by the
 same ``predict`` the study scores with; ``apply(frame)`` the ensemble: circular mean over seeds and the
@@ -29,16 +29,16 @@ import pandas as pd
 
 from icgo.core.errors import ModelError
 from icgo.core.settings import need
-from icgo.methods import gyro_relm, lookup_table, nets
-from icgo.models.format import FittedModel, data_hash, need_shape
-from icgo.models.relm import circular_mean_spread
+from icgo.models import gyro_relm, lookup_table, nets
+from icgo.artifacts.format import FittedModel, data_hash, need_shape
+from icgo.artifacts.relm import circular_mean_spread
 
 #: Frame columns every gyro model reads (deg): the instrument's own attitude solution, the input ``x``.
 ANGLE_COLUMNS = ("inclination_raw_deg", "toolface_raw_deg", "azimuth_raw_deg")
 
 
 def turntable_hash(frame: pd.DataFrame) -> str:
-    """:func:`icgo.models.format.data_hash` of a turntable frame's measured angles and reference azimuth."""
+    """:func:`icgo.artifacts.format.data_hash` of a turntable frame's measured angles and reference azimuth."""
     return data_hash(frame[list(ANGLE_COLUMNS) + ["azimuth_deg"]].to_numpy(float))
 
 
@@ -49,7 +49,7 @@ def turntable_domain(frame: pd.DataFrame) -> dict:
 
 
 def _net_config(net_config: dict) -> nets.NetConfig:
-    """The checked :class:`icgo.methods.nets.NetConfig` of a saved ``net_config`` (ModelError naming it)."""
+    """The checked :class:`icgo.models.nets.NetConfig` of a saved ``net_config`` (ModelError naming it)."""
     try:
         return nets.check_config(nets.NetConfig(**{**net_config, "hidden": tuple(net_config["hidden"])}))
     except (TypeError, ValueError, KeyError) as e:
@@ -93,9 +93,9 @@ class GyroNetwork(GyroModel):
 
     Attributes:
         variant: the study's variant name (e.g. ``net_error``).
-        net_config: :class:`icgo.methods.nets.NetConfig` fields (``hidden`` as a list); its ``encoding`` and
+        net_config: :class:`icgo.models.nets.NetConfig` fields (``hidden`` as a list); its ``encoding`` and
             ``target`` are the params' settings.
-        params: :class:`icgo.methods.nets.NetParams`: w1 (S, m1, n), b1 (S, m1), w2 (S, m2, m1), b2 (S, m2),
+        params: :class:`icgo.models.nets.NetParams`: w1 (S, m1, n), b1 (S, m1), w2 (S, m2, m1), b2 (S, m2),
             v (S, m2) weights (eqs. 8-12), y_scale (S,) deg per output unit.
         best_epoch, stopped_epoch: (S,) ints. best_val_loss: (S,). train_loss, val_loss: (S, epochs): the
             training record.
@@ -124,7 +124,7 @@ class GyroNetwork(GyroModel):
     @classmethod
     def from_fit(cls, variant: str, cfg: nets.NetConfig, res: nets.TrainResult, train: pd.DataFrame,
                  config: dict) -> "GyroNetwork":
-        """Wrap a batched :func:`icgo.methods.nets.fit` result (seed axis first)."""
+        """Wrap a batched :func:`icgo.models.nets.fit` result (seed axis first)."""
         record = {k: np.asarray(getattr(res, k)) for k in ("best_epoch", "best_val_loss", "train_loss", "val_loss",
                                                            "stopped_epoch")}
         params = nets.NetParams(*(np.asarray(getattr(res.params, k)) for k in ("w1", "b1", "w2", "b2", "v",
@@ -151,7 +151,7 @@ class GyroNetwork(GyroModel):
         need(bool(np.all(p.y_scale > 0)), "y_scale must be > 0 (deg per output unit)", error=ModelError)
 
     def netconfig(self) -> nets.NetConfig:
-        """The :class:`icgo.methods.nets.NetConfig` the networks were trained with."""
+        """The :class:`icgo.models.nets.NetConfig` the networks were trained with."""
         return _net_config(self.net_config)
 
 
@@ -161,9 +161,9 @@ class GyroRELM(GyroModel):
 
     Attributes:
         method: ``relm`` (random hidden weights) or ``icgo_relm`` (searched).
-        encoding: input encoding (:func:`icgo.methods.nets.encode_inputs`), the params' setting. hidden: L.
+        encoding: input encoding (:func:`icgo.models.nets.encode_inputs`), the params' setting. hidden: L.
             lam: ridge lambda.
-        params: :class:`icgo.methods.gyro_relm.GyroRELMParams`: theta (S, (n_in + 1) L) hidden weights and
+        params: :class:`icgo.models.gyro_relm.GyroRELMParams`: theta (S, (n_in + 1) L) hidden weights and
             biases, beta (S, L) output weights (deg), mean and std (S, n_in) input standardisation.
         train_fitness: (S,) training fitness (RMSE, deg) of the hidden weights.
     """
@@ -205,7 +205,7 @@ class LookupTableModel(GyroModel):
 
     Attributes:
         toolface: ``"mean"`` (node = error averaged over toolface) or the one toolface used, deg.
-        params: :class:`icgo.methods.lookup_table.LookupTable`: inc_nodes (Ni,) deg, az_nodes (Na,) deg in
+        params: :class:`icgo.models.lookup_table.LookupTable`: inc_nodes (Ni,) deg, az_nodes (Na,) deg in
             [0, 360), error (Ni, Na) ``wrap180(A_true - A_raw)``, deg.
     """
 
