@@ -22,12 +22,11 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
-from icgo.models import msa as _msa
 from icgo.models import relm as _relm
 from icgo.models.search_fitness import search_fitness
 from icgo.optim.cgo import CGO, CGOConfig, advance
 from icgo.studies.icgo_relm_config import StudyConfig
-from icgo.studies.icgo_relm_prepare import exclude_failed_repeats, filtered, prepare
+from icgo.studies.icgo_relm_prepare import exclude_failed_repeats, filtered, prepare, reference_field
 from icgo.studies.icgo_relm_search import search_aux
 
 
@@ -45,17 +44,11 @@ class SeedRates(NamedTuple):
     best_f: np.ndarray
 
 
-def _reference(cfg: StudyConfig, meta: dict):
-    if cfg.msa_reference == "station_mean":
-        return None
-    return jnp.asarray(_msa.reference_from_field(float(meta["total_field_nT"]), float(meta["dip_deg"])))
-
-
 def search_setup(frame: pd.DataFrame, meta: dict, cfg: StudyConfig, key):
     """The study's per-repeat search inputs: (keys (R, 2), fitness aux, bounds) exactly as
     :func:`icgo.studies.icgo_relm_search.search` builds them (failed-MSA repeats left out as the study does)."""
     rows, G, B, a_true, _ = filtered(frame, cfg)
-    reference = _reference(cfg, meta)
+    reference = reference_field(cfg, meta)
     prep, mem = prepare(rows, G, B, a_true, cfg, key, reference)
     prep, mem, cfg, _ = exclude_failed_repeats(prep, mem, cfg, reference)
     aux = search_aux(cfg, prep, cfg.execution(cells=prep.key.shape[0]).kernel)
