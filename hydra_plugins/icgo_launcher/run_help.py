@@ -19,7 +19,7 @@ def run_help() -> str:
     for g in STUDY_GROUPS:
         lines.append(f"  {g:<11} {', '.join(group_options(g))}  [{defaults.get(g) or 'none'}]")
     lines += ["", "other settings (KEY=VALUE): " + ", ".join(k for k in cfg if k not in ("defaults", "hydra")),
-              "  e.g. split.n_repeats=3 budget.iterations=50 dtype=... devices=2 progress=false overwrite=true",
+              "  e.g. split.n_repeats=3 budget.iterations=50 precision=float64 devices=2 progress=false overwrite=true",
               "  your own recording: dataset=csv dataset.path=FILE.csv [dataset.columns.gx=Gx ...] (docs/data.md)", "",
               "examples:",
               "  python -m experiments.run strategy=three_stage           # make run",

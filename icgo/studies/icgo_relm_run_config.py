@@ -231,7 +231,7 @@ class RunConfig:
 
     Attributes:
         dataset: :data:`DATASETS` node. split, msa, model, fitness, budget: the study's nodes. optimizer,
-            strategy, schedule: the search. dtype: the search fitness's precision
+            strategy, schedule: the search. precision: the search fitness's precision
             (:data:`icgo.studies.icgo_relm_config.PRECISIONS`). worlds: N independent simulated worlds, or None.
         devices: the most devices the search is sharded over (None: every one). progress: ``auto``, true or false.
         figures: write study.png. overwrite: replace a complete run. label: the experiment's name or None.
@@ -248,7 +248,7 @@ class RunConfig:
     optimizer: OptimizerSettings
     strategy: StrategySettings
     schedule: ScheduleSettings
-    dtype: str
+    precision: str
     worlds: int | None
     devices: int | None
     progress: bool | str
@@ -298,7 +298,7 @@ class RunConfig:
             "k_folds": ("fitness.k_folds", f.k_folds), "optimizer": ("optimizer.name", self.optimizer.name),
             "strategies": ("strategy.names", self.strategy.names), "pop_size": ("budget.pop_size", b.pop_size),
             "iterations": ("budget.iterations", b.iterations), "max_evals": ("budget.max_evals", b.max_evals),
-            "dtype": ("dtype", self.dtype), "devices": ("devices", self.devices)}
+            "precision": ("precision", self.precision), "devices": ("devices", self.devices)}
         if sp.train_fraction is not None:
             fields["train_fraction"] = ("split.train_fraction", sp.train_fraction)
         try:
