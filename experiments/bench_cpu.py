@@ -10,10 +10,10 @@ machine it runs on (the CPU kernels here; ``--gpu-check`` measures the backend i
   L = 30) for a batch of 120 (population 30 x 4 seeds) and 1200 (x 10
   repeats), after compilation, for the study's default search kernel
   (:func:`icgo.models.relm.train_fitness` with ``fitness_features`` = the feature dtype of
-  ``StudyConfig().dtype``); ``library_evals_per_s`` for the row-weighted float64 path
+  ``StudyConfig().precision``); ``library_evals_per_s`` for the row-weighted float64 path
   ``icgo.models.relm.fitness``;
-* ``fitness_by_features_evals_per_s``: that kernel with float64 features (``dtype=float64``) and
-  with float32 features (``dtype=float32_features``: pre-activation, sigmoid and matrix-vector products in
+* ``fitness_by_features_evals_per_s``: that kernel with float64 features (``precision=float64``) and
+  with float32 features (``precision=float32_features``: pre-activation, sigmoid and matrix-vector products in
   float32, Gram centred in float32, Cholesky and refinement residuals in float64) at the same
   batches, ``f32_features_speedup`` the ratio at batch 1200; ``max_rel_diff_vs_float64`` and
   ``max_rel_diff_f32_vs_float64`` their largest relative differences from ``icgo.models.relm.fitness``;
@@ -342,7 +342,7 @@ def cpu_benchmark(a, iters: int, n_rep: int, s_iters: int, s_reps: tuple, mealpy
             ll = like_for_like(ll_work, len(STRATEGIES) * n_rep, ll_extra)
             out["like_for_like"] = ll
             out["like_for_like_s"] = ll["warm"]["wall_s"]
-            row("like-for-like front door (CGO variant=mealpy, original seed, dtype=float64, 50 runs), warm",
+            row("like-for-like front door (CGO variant=mealpy, original seed, precision=float64, 50 runs), warm",
                 ll["warm"]["wall_s"], "s", f"cold {ll['cold']['wall_s']:.1f} s")
     else:
         out["table3_s"] = res["total_s"]

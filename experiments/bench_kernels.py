@@ -25,8 +25,8 @@ HIDDEN = 30
 LAM = 1e-3
 N_INPUTS = relm.N_INPUTS
 STRATEGIES = ("original", "chaos", "gaussian", "wavelet", "three_stage")
-#: Feature dtype of the study's default search kernel (``StudyConfig.dtype``): what the benchmark's study path runs.
-FEATURES = PRECISIONS[StudyConfig().dtype][0]
+#: Feature dtype of the study's default search kernel (``StudyConfig.precision``): what the benchmark's study path runs.
+FEATURES = PRECISIONS[StudyConfig().precision][0]
 
 
 # --------------------------------------------------------------------------- flops

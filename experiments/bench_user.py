@@ -198,13 +198,13 @@ def front_door(workdir=None, extra=(), sweeps: bool = True) -> dict:
 def like_for_like_command(work: Path, name: str, runs: int = 50, extra=()) -> list[str]:
     """The like-for-like front-door command (:func:`like_for_like`) into ``work/name``, cache ``work/cache``."""
     return [sys.executable, "-m", "experiments.run", "strategy=original", f"split.n_repeats={runs}",
-            "optimizer.params.variant=mealpy", "dtype=float64", "figures=false", "progress=false",
+            "optimizer.params.variant=mealpy", "precision=float64", "figures=false", "progress=false",
             f"jax_cache_dir={work / 'cache'}", f"hydra.run.dir={work / name}", *extra]
 
 
 def like_for_like(workdir=None, runs: int = 50, extra=()) -> dict:
     """The front door run like mealpy's side of the comparison: ``runs`` searches (Table 3 has 50) of CGO's
-    ``mealpy`` variant (mealpy's OriginalCGO rules) with the original 4th seed, in float64 (``dtype=float64``,
+    ``mealpy`` variant (mealpy's OriginalCGO rules) with the original 4th seed, in float64 (``precision=float64``,
     as mealpy's numpy fitness), cold then warm. Returns ``{cold, warm}`` as :func:`front_door`'s entries."""
     work = Path(workdir or tempfile.mkdtemp(prefix="icgo-likeforlike-"))
     out = {}

@@ -73,6 +73,16 @@ def test_stamps_say_the_papers_protocol_and_fig9_its_budget(tmp_path):
     assert "NOT the paper's protocol" in (out / "table3.md").read_text()
 
 
+def test_run_settings_read_the_precision_of_new_and_older_run_directories(tmp_path):
+    """A run's config.yaml names the search's precision ``precision``; one written before the key had that name
+    says ``dtype``: both read the same."""
+    for key, value in (("precision", "float64"), ("dtype", "float32_features")):
+        d = tmp_path / key
+        d.mkdir()
+        (d / "config.yaml").write_text(yaml.safe_dump({key: value, "budget": {"pop_size": 30}}))
+        assert stamp.run_settings(d)["dtype"] == value and stamp.run_settings(d)["pop_size"] == 30
+
+
 def test_describe_and_title():
     paper = {"pop_size": 30, "iterations": 100, "max_evals": None, "dtype": "float32_features", "n_repeats": 10,
              "protocol": "random"}

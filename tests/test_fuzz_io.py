@@ -196,7 +196,7 @@ def test_arbitrary_metadata_reads_or_fails_in_one_line_long(tmp_path_factory, re
 SETTING_VALUES = st.one_of(st.none(), st.booleans(), st.integers(-10**6, 10**6), st.floats(), st.text(max_size=6),
                            st.lists(st.floats(), max_size=3))
 FIELDS = st.sampled_from(["n_repeats", "seed", "train_fraction", "sigma_filter", "msa_iterations", "hidden", "lam",
-                          "fitness", "val_fraction", "k_folds", "theta_bounds", "pop_size", "iterations", "dtype",
+                          "fitness", "val_fraction", "k_folds", "theta_bounds", "pop_size", "iterations", "precision",
                           "protocol", "features", "msa_model", "tune", "strategies"])
 
 

@@ -12,7 +12,7 @@ from icgo.core.errors import SettingError
 from icgo.maths import metrics
 from icgo.physics import effects, frames
 from icgo.studies import icgo_relm as study
-from icgo.studies.icgo_relm_config import RENAMED_DTYPES, StudyConfig
+from icgo.studies.icgo_relm_config import RENAMED_PRECISIONS, StudyConfig
 from icgo.studies.icgo_relm_prepare import frame_arrays, prepare, sigma_filter
 from icgo.studies.icgo_relm_search import check_search, search, search_kernel, train_rows
 
@@ -168,8 +168,8 @@ def test_lab_casing_msa_and_plain_relm():
     assert s.loc[("relm", "test"), "mae_mean"] < s.loc[("msa", "test"), "mae_mean"]
 
 
-@pytest.mark.parametrize("dtype, rtol", [("float32_features", 5e-6), ("float64", 1e-9)])
-def test_tiny_cgo_study_train_kernel_batched_equals_alone(frame, dtype, rtol):
+@pytest.mark.parametrize("precision, rtol", [("float32_features", 5e-6), ("float64", 1e-9)])
+def test_tiny_cgo_study_train_kernel_batched_equals_alone(frame, precision, rtol):
     """The train-mode searches (float32_features = default, float64): repeat k batched == alone, and the
     fitness they search with, on either kernel, is the row-weighted float64 one to the precision's tolerance."""
     import jax
@@ -179,8 +179,8 @@ def test_tiny_cgo_study_train_kernel_batched_equals_alone(frame, dtype, rtol):
     from icgo.models import relm, search_fitness
 
     cfg = StudyConfig(optimizer="cgo", strategies=("original", "three_stage"), n_repeats=2,
-                      hidden=10, pop_size=6, iterations=3, seed=5, dtype=dtype)
-    assert StudyConfig().dtype == "float32_features"
+                      hidden=10, pop_size=6, iterations=3, seed=5, precision=precision)
+    assert StudyConfig().precision == "float32_features"
     res = study.run_study(frame, cfg)
     alone = study.run_study(frame, dataclasses.replace(cfg, repeat_ids=(1,)))
     np.testing.assert_array_equal(alone.curves["best_fitness"][:, 0], res.curves["best_fitness"][:, 1])
@@ -191,7 +191,7 @@ def test_tiny_cgo_study_train_kernel_batched_equals_alone(frame, dtype, rtol):
     pop = relm.random_theta(jax.random.PRNGKey(1), 10, (12,))
     ref = np.asarray(relm.fitness(pop, data, 1e-3, 10))
     for kernel in (CPU_KERNEL, ACCELERATOR_KERNEL):
-        sk = search_kernel(dtype, "train", kernel)
+        sk = search_kernel(precision, "train", kernel)
         assert sk.train_rows
         f = search_fitness.search_fitness(pop, sk.aux(rows, jnp.asarray(1e-3), 10))
         np.testing.assert_allclose(np.asarray(f), ref, rtol=rtol)
@@ -206,7 +206,7 @@ def test_a_lambda_sweep_compiles_the_search_once(frame):
     from icgo.optim.sharded import compiled_programs
 
     cfg = StudyConfig(optimizer="pso", n_repeats=2, hidden=5, pop_size=5, iterations=2, seed=4,
-                      dtype="float64")
+                      precision="float64")
     G, B, a = frame_arrays(frame)
     prep, _ = prepare(None, G, B, a, cfg, jax.random.PRNGKey(cfg.seed))
     search(cfg, prep)
@@ -219,12 +219,12 @@ def test_a_lambda_sweep_compiles_the_search_once(frame):
         assert float(curve[0, r, -1]) == pytest.approx(ref[0], rel=1e-9) and abs(ref[1] / ref[0] - 1) > 1e-6
 
 
-@pytest.mark.parametrize("old, new", list(RENAMED_DTYPES.items()))
-def test_old_dtype_names_are_refused_naming_the_new_ones(old, new):
-    line = f"dtype '{old}' was renamed: use float32_features (was fast) or float64 (was mixed)"
+@pytest.mark.parametrize("old, new", list(RENAMED_PRECISIONS.items()))
+def test_old_precision_names_are_refused_naming_the_new_ones(old, new):
+    line = f"precision '{old}' was renamed: use float32_features (was fast) or float64 (was mixed)"
     with pytest.raises(SettingError, match=re.escape(line)):
-        StudyConfig(dtype=old)
-    assert StudyConfig(dtype=new).dtype == new
+        StudyConfig(precision=old)
+    assert StudyConfig(precision=new).precision == new
 
 
 def test_wrap_fitness_sees_every_search_call(frame):

@@ -132,10 +132,10 @@ def test_the_reported_worlds_exclude_every_development_seed():
     (["worlds=2", "split=transfer"], "split=transfer is not supported"),
 ])
 def test_bad_worlds_settings_are_one_line(overrides, message):
-    from experiments import _worlds_job as WJ
+    from experiments._relm_job import run_config
 
     with pytest.raises(SettingError, match=message):
-        WJ.check(_compose(overrides))
+        run_config(_compose(overrides))
 
 
 def test_worlds_need_distinct_seeds_and_no_transfer():

@@ -107,9 +107,12 @@ def check_hydra_dirs(args: list[str]) -> str | None:
     return None
 
 
-#: Settings that no longer exist -> what replaced them (named in the one-line error for an override of one).
-RENAMED_KEYS = {"workers": "use devices=N (the search is one program sharded over N devices: a CPU's cores as host "
-                           "devices, docs/performance.md) or leave devices=null for every device"}
+#: Settings that no longer exist -> what replaced them (named in the one-line error for an override of one), for
+#: every door (``"*"``) or the door of one config name.
+RENAMED_KEYS = {"*": {"workers": "use devices=N (the search is one program sharded over N devices: a CPU's cores as "
+                                 "host devices, docs/performance.md) or leave devices=null for every device"},
+                "config": {"dtype": "use precision= (the search fitness's precision: float32_features, float64 or "
+                                    "float32)"}}
 
 
 def check_plain_overrides(args: list[str], config_name: str, conf_dir: Path = CONF_DIR) -> str | None:
@@ -150,9 +153,10 @@ def check_plain_overrides(args: list[str], config_name: str, conf_dir: Path = CO
         return None
     finally:
         GlobalHydra.instance().clear()
+    renamed = RENAMED_KEYS["*"] | RENAMED_KEYS.get(config_name, {})
     for ov in plain:
-        if ov.key_or_group in RENAMED_KEYS and not _has_key(cfg, ov.key_or_group):
-            return f"setting {ov.key_or_group!r} was replaced: {RENAMED_KEYS[ov.key_or_group]}"
+        if ov.key_or_group in renamed and not _has_key(cfg, ov.key_or_group):
+            return f"setting {ov.key_or_group!r} was replaced: {renamed[ov.key_or_group]}"
         if not _has_key(cfg, ov.key_or_group):
             where = (conf_dir / f"{config_name}.yaml").relative_to(CONF_DIR.parent)
             return (f"unknown setting {ov.key_or_group!r} in override {ov.input_line!r}: {where} (with the chosen "

@@ -42,28 +42,70 @@ def is_real(x) -> bool:
 def config_from_mapping(cls, values: dict, where: str = "config", _prefix: str = ""):
     """Build a config dataclass from a plain mapping, refusing unknown keys in one line.
 
+    A field whose type (or default) is a dataclass is built recursively from a mapping, an optional one
+    (``X | None``) too; a field with ``metadata={"variants": {tag: class}, "tag": key}`` is built as the
+    class its mapping's ``key`` names (a config group whose options take different keys).
+
     Args:
         cls: the config dataclass.
         values: field name -> value (nested dataclass fields given as mappings are built recursively).
         where: the name of the mapping in error messages (e.g. ``"conf/misma.yaml"``).
     Raises:
-        SettingError: an unknown key, or the dataclass's own validation.
+        SettingError: an unknown key (named by its dotted path), or the dataclass's own validation.
     """
     if not isinstance(values, dict):
         raise SettingError(f"{where}: expected a mapping of settings, got {type(values).__name__}")
     names = {f.name: f for f in dataclasses.fields(cls)}
     unknown = sorted(set(values) - set(names))
     if unknown:
-        raise SettingError(f"{where}: unknown setting(s) {unknown}; known: {sorted(names)}")
+        raise SettingError(f"{where}: unknown setting(s) {[_prefix + k for k in unknown]}; known: {sorted(names)}")
+    hints = _type_hints(cls)
     kwargs = {}
     for k, v in values.items():
-        default = names[k].default
-        if dataclasses.is_dataclass(default) and isinstance(v, dict):
-            v = config_from_mapping(type(default), v, f"{where}.{k}", f"{_prefix}{k}.")
-        elif str(names[k].type) == "bool" and not isinstance(v, bool):  # "maybe", "false", 0: never read as a bool
-            raise SettingError(f"{_prefix}{k}", f"must be true or false, got {v!r}")
+        field, key = names[k], f"{_prefix}{k}"
+        variants = field.metadata.get("variants")
+        sub = _dataclass_in(hints.get(k)) or (type(field.default) if dataclasses.is_dataclass(field.default) else None)
+        if variants is not None:
+            tag = field.metadata["tag"]
+            chosen = v.get(tag) if isinstance(v, dict) else None
+            if chosen not in variants:
+                raise SettingError(f"{key}.{tag}", f"must be one of {sorted(variants)}, got {chosen!r}")
+            v = config_from_mapping(variants[chosen], v, f"{where}.{k}", f"{key}.")
+        elif sub is not None and isinstance(v, dict):
+            v = config_from_mapping(sub, v, f"{where}.{k}", f"{key}.")
+        elif sub is not None and not isinstance(v, sub) and not (v is None and _optional(hints.get(k))):
+            raise SettingError(key, f"must be a group of settings ({key}.<key>=value), got {v!r}")
+        elif str(field.type) == "bool" and not isinstance(v, bool):  # "maybe", "false", 0: never read as a bool
+            raise SettingError(key, f"must be true or false, got {v!r}")
         kwargs[k] = v
     return cls(**kwargs)
+
+
+def _type_hints(cls) -> dict:
+    """The resolved field types of a dataclass ({} where they cannot be resolved)."""
+    import typing
+
+    try:
+        return typing.get_type_hints(cls)
+    except Exception:  # noqa: BLE001  (a name only imported for type checkers: fall back to the defaults)
+        return {}
+
+
+def _dataclass_in(tp):
+    """The dataclass a field type names (``X`` or ``X | None``), else None."""
+    import typing
+
+    for t in (tp, *typing.get_args(tp)):
+        if isinstance(t, type) and dataclasses.is_dataclass(t):
+            return t
+    return None
+
+
+def _optional(tp) -> bool:
+    """Whether a field type admits None (``X | None``)."""
+    import typing
+
+    return type(None) in typing.get_args(tp)
 
 
 def config_to_mapping(config) -> dict:

@@ -438,7 +438,8 @@ def lab_casing_study_markdown(study) -> str:
                       workflow_settings(study.result.config, "one split (repeat 0), one run of each method",
                                         f"ICGO-RELM: population {c.pop_size} x {c.iterations} iterations ("
                                         + ("the paper's" if (c.pop_size, c.iterations) == (30, 100) else
-                                           "NOT the paper's 30 x 100") + f"), search dtype {c.dtype}; workflow: "), "",
+                                           "NOT the paper's 30 x 100")
+                                        + f"), search dtype {c.precision}; workflow: "), "",
                       f"Seed {study.seed}. The workflow is fitted on the ICGO study's training rows of repeat 0 only; "
                       "both are scored on its test rows.", "",
                       f"**Verdict (training rows):** {verdict(res)}", "",

@@ -33,8 +33,9 @@ def run_settings(run_dir: Path) -> dict:
     except (OSError, ValueError, yaml.YAMLError):
         cfg = {}
     b, s, d = cfg.get("budget") or {}, cfg.get("split") or {}, cfg.get("dataset") or {}
+    precision = cfg.get("precision", cfg.get("dtype"))  # a run directory written before the key was ``precision``
     return {"pop_size": b.get("pop_size"), "iterations": b.get("iterations"), "max_evals": b.get("max_evals"),
-            "dtype": cfg.get("dtype"), "n_repeats": s.get("n_repeats"), "protocol": s.get("protocol"),
+            "dtype": precision, "n_repeats": s.get("n_repeats"), "protocol": s.get("protocol"),
             "train_fraction": s.get("train_fraction"), "split_seed": s.get("seed"), "dataset": d.get("name"),
             "data_seed": d.get("seed")}
 

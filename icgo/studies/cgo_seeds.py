@@ -141,7 +141,7 @@ def markdown(table, cfg, seconds: float, command: str) -> str:
         "`fig9_ablation.md` tests the configurations)")
     paper = (cfg.pop_size, cfg.iterations) == (30, 100)
     stamp = settings_line(f"population {cfg.pop_size} x {cfg.iterations} iterations", f"{cfg.n_repeats} repeats",
-                          f"search dtype {cfg.dtype}",
+                          f"search dtype {cfg.precision}",
                           "The paper's protocol (population 30 x 100 iterations)." if paper else
                           "NOT the paper's protocol (population 30 x 100 iterations).")
     return "\n".join([

@@ -60,7 +60,7 @@ def markdown(rec: dict, config, seconds: dict) -> str:
     paper = (config.pop_size, config.iterations) == (30, 100)
     stamp = settings_line(
         f"population {config.pop_size} x {config.iterations} iterations, L = {config.hidden} hidden units",
-        f"{config.n_repeats} repeats per cell", f"search dtype {StudyConfig().dtype}",
+        f"{config.n_repeats} repeats per cell", f"search dtype {StudyConfig().precision}",
         ("The paper's population and iterations (30 x 100)" if paper else
          "NOT the paper's population and iterations (30 x 100)")
         + "; only the random 7:3 cells are the paper's split, the others are this project's protocols.")
@@ -71,7 +71,7 @@ def markdown(rec: dict, config, seconds: dict) -> str:
              "else marked \"first by mean\" (not separable from the methods marked `=`); `*` = different from the "
              f"first at Holm-adjusted p < {ALPHA:g}; `=` = not significantly different. Budget: population "
              f"{config.pop_size}, {config.iterations} iterations, L = {config.hidden} "
-             f"hidden units, search dtype `{StudyConfig().dtype}` (the ICGO-RELM study's default; every reported "
+             f"hidden units, search dtype `{StudyConfig().precision}` (the ICGO-RELM study's default; every reported "
              "number is the float64 refit).", ""]
     from icgo.reporting.published import ICGO_LAB_MAE
 

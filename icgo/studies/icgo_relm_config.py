@@ -16,13 +16,13 @@ from icgo.optim.cgo import CGO
 from icgo.studies import sharding
 from icgo.studies import splits as _splits
 
-#: Search-fitness precisions (``StudyConfig.dtype``) -> (dtype of the hidden layer, eq. 8; dtype of the
+#: Search-fitness precisions (``StudyConfig.precision``) -> (dtype of the hidden layer, eq. 8; dtype of the
 #: ridge solve and the RMSE, eq. 9). Which kernel computes them follows the backend
 #: (:func:`icgo.core.execution.execution_plan`), not this setting.
 PRECISIONS = {"float32_features": ("float32", "float64"), "float64": ("float64", "float64"),
               "float32": ("float32", "float32")}
-#: ``dtype`` names that are refused, each with the name to use instead (a one-line error).
-RENAMED_DTYPES = {"fast": "float32_features", "mixed": "float64"}
+#: ``precision`` names that are refused, each with the name to use instead (a one-line error).
+RENAMED_PRECISIONS = {"fast": "float32_features", "mixed": "float64"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,7 +73,7 @@ class StudyConfig:
         iterations: optimizer iterations (paper: 100); exclusive with max_evals.
         max_evals: fitness-evaluation budget instead of iterations.
         optimizer_config: the optimizer's config object (None = its defaults).
-        dtype: precision of the search's fitness (:data:`PRECISIONS`), whatever the backend.
+        precision: the search fitness's precision (:data:`PRECISIONS`), whatever the backend.
             ``"float32_features"`` (default): the hidden layer (eq. 8) in float32, the ridge solve
             and the RMSE in float64: within 5e-6 relative of the float64 fitness (tested), which
             is all a search needs to rank candidates. ``"float64"``: everything in float64 (the
@@ -83,7 +83,7 @@ class StudyConfig:
             Gram of centred features, float64 Cholesky and iterative refinement), the row-weighted
             :func:`icgo.models.relm.fitness` otherwise (float64, or float32 for ``"float32"``);
             on an accelerator :func:`icgo.models.relm_gram.gram_fitness`. The final refit and every
-            reported number are float64 always. ``fast`` and ``mixed`` are refused (:data:`RENAMED_DTYPES`).
+            reported number are float64 always. ``fast`` and ``mixed`` are refused (:data:`RENAMED_PRECISIONS`).
     """
 
     n_repeats: int = 10
@@ -110,7 +110,7 @@ class StudyConfig:
     iterations: int | None = 100
     max_evals: int | None = None
     optimizer_config: Any = None
-    dtype: str = "float32_features"
+    precision: str = "float32_features"
 
     def __post_init__(self):
         """Validate every setting that does not depend on the data (one-line SettingError naming the field)."""
@@ -159,11 +159,11 @@ class StudyConfig:
         tb = self.theta_bounds
         need(isinstance(tb, tuple) and len(tb) == 2 and all(is_real(x) for x in tb) and tb[0] < tb[1],
              "theta_bounds", f"must be [low, high] with low < high, got {tb!r}")
-        need(not (isinstance(self.dtype, str) and self.dtype in RENAMED_DTYPES), "dtype",
-             f"{self.dtype!r} was renamed: use {' or '.join(f'{v} (was {k})' for k, v in RENAMED_DTYPES.items())}; "
-             f"dtype names the precision only, the kernel follows the backend")
-        need(isinstance(self.dtype, str) and self.dtype in PRECISIONS, "dtype",
-             f"must be one of {list(PRECISIONS)}, got {self.dtype!r}")
+        need(not (isinstance(self.precision, str) and self.precision in RENAMED_PRECISIONS), "precision",
+             f"{self.precision!r} was renamed: use "
+             f"{' or '.join(f'{v} (was {k})' for k, v in RENAMED_PRECISIONS.items())}; the kernel follows the backend")
+        need(isinstance(self.precision, str) and self.precision in PRECISIONS, "precision",
+             f"must be one of {list(PRECISIONS)}, got {self.precision!r}")
         need(isinstance(self.tune, bool), "tune", f"must be true or false, got {self.tune!r}")
         if self.tune:
             need(self.optimizer is None, "tune", f"tunes plain RELM only: set optimizer none (got {self.optimizer!r})")

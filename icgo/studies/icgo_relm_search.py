@@ -43,7 +43,7 @@ class SearchKernel(NamedTuple):
         return SearchData(rows, lam, int(hidden), self.name, self.feature_dtype, self.solve_dtype)
 
 
-def search_kernel(dtype: str, fitness: str, kernel: str) -> SearchKernel:
+def search_kernel(precision: str, fitness: str, kernel: str) -> SearchKernel:
     """The fitness kernel a search runs for a precision (:data:`icgo.studies.icgo_relm_config.PRECISIONS`), fitness
     mode and backend kernel.
 
@@ -52,9 +52,9 @@ def search_kernel(dtype: str, fitness: str, kernel: str) -> SearchKernel:
     :func:`icgo.models.relm_gram.gram_train_fitness` (train mode, other precisions) or
     :func:`icgo.models.relm_gram.gram_fitness`. CPU: the train-mode kernel
     :func:`icgo.models.relm.train_fitness` for ``fitness="train"`` with a float64 solve, else the
-    row-weighted :func:`icgo.models.relm.fitness` (float64; float32 for ``dtype="float32"``).
+    row-weighted :func:`icgo.models.relm.fitness` (float64; float32 for ``precision="float32"``).
     """
-    features, solve = PRECISIONS[dtype]
+    features, solve = PRECISIONS[precision]
     train = fitness == "train"
     if kernel == ACCELERATOR_KERNEL:
         if train and (features, solve) == ("float32", "float64"):
@@ -69,7 +69,7 @@ def search_kernel(dtype: str, fitness: str, kernel: str) -> SearchKernel:
 
 def _plain_dtype(cfg: StudyConfig) -> str | None:
     """Plain RELM's fitness precision: ``float32`` when asked, else None (the float64 library path)."""
-    return "float32" if cfg.dtype == "float32" else None
+    return "float32" if cfg.precision == "float32" else None
 
 
 @functools.partial(jax.jit, static_argnames=("hidden", "low", "high", "dtype"))
@@ -106,7 +106,7 @@ def search_aux(cfg: StudyConfig, prep: Prepared, kernel: str, capacity: int | No
     """The search's data for each member of ``prep`` (leading axis: its members): the rows the fitness kernel of
     ``kernel`` reads (gathered training rows, ``capacity`` of them when given, or the row-weighted FitData),
     lambda and the precisions."""
-    sk = search_kernel(cfg.dtype, cfg.fitness, kernel)
+    sk = search_kernel(cfg.precision, cfg.fitness, kernel)
     return sk.aux(train_rows(prep, capacity) if sk.train_rows else prep.data,
                   np.full(prep.key.shape[0], cfg.lam, prep.data.X.dtype), cfg.hidden)
 
@@ -181,10 +181,10 @@ def tune(cfg: StudyConfig, prep: Prepared, n_fit: int):
 
 
 def execution_record(cfg: StudyConfig, plan: ExecutionPlan) -> dict:
-    """run.json's ``execution``: the plan, the fitness function that ran and the dtype."""
+    """run.json's ``execution``: the plan, the fitness function that ran and its precision (record key ``dtype``)."""
     if cfg.optimizer is None:
-        return {**plan._asdict(), "fitness": "icgo.models.relm.fitness (plain RELM, no search)", "dtype": cfg.dtype}
-    name = search_kernel(cfg.dtype, cfg.fitness, plan.kernel).name
+        return {**plan._asdict(), "fitness": "icgo.models.relm.fitness (plain RELM, no search)", "dtype": cfg.precision}
+    name = search_kernel(cfg.precision, cfg.fitness, plan.kernel).name
     module = {"fused_train_fitness": "relm_fused", "gram_fitness": "relm_gram", "gram_train_fitness": "relm_gram"}.get(
         name, "relm")
-    return {**plan._asdict(), "fitness": f"icgo.models.{module}.{name}", "dtype": cfg.dtype}
+    return {**plan._asdict(), "fitness": f"icgo.models.{module}.{name}", "dtype": cfg.precision}
