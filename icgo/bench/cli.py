@@ -110,7 +110,7 @@ def plan(a, error) -> Plan:
     s_reps = tuple(int(x) for x in a.scaling_repeats.split(",")) if a.scaling_repeats else ((1, 2, 4) if quick else (1, 10, 100))
     if min(iters, n_rep, s_iters, *s_reps) < 1:
         error("--repeats, --iterations and the scaling sizes must be >= 1")
-    from icgo.bench.kernels import STRATEGIES
+    from icgo.optim import STRATEGIES
 
     mealpy_runs = a.mealpy_runs if a.mealpy_runs is not None else (2 if quick else len(STRATEGIES) * n_rep)
     if mealpy_runs < 0:

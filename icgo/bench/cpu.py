@@ -91,7 +91,6 @@ from icgo.bench.kernels import (
     HIDDEN,
     LAM,
     N_INPUTS,
-    STRATEGIES,
     StudyData,
     best_time,
     flops_per_eval,
@@ -105,7 +104,7 @@ from icgo.bench.kernels import (
 from icgo.bench.peers import peer_comparison
 from icgo.bench.process import measure
 from icgo.models import relm
-from icgo.optim import run_batch
+from icgo.optim import STRATEGIES, run_batch
 from icgo.optim.cgo import CGO
 from icgo.studies.icgo_relm_config import StudyConfig
 from icgo.studies.icgo_relm_score import score_all

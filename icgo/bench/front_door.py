@@ -23,9 +23,7 @@ from pathlib import Path
 import pandas as pd
 
 from icgo.bench.process import measure
-
-#: Table 3's strategies, one sweep job each (the five of ``strategy=all``).
-TABLE3_STRATEGIES = ("original", "chaos", "gaussian", "wavelet", "three_stage")
+from icgo.optim import STRATEGIES
 
 
 def table3_command(work: Path, name: str, extra=()) -> list[str]:
@@ -106,7 +104,7 @@ def front_door(workdir=None, extra=(), sweeps: bool = True) -> dict:
     """
     work = Path(workdir or tempfile.mkdtemp(prefix="icgo-frontdoor-"))
     sweep = [sys.executable, "-m", "experiments.run", "-m", "experiment=table3",
-             f"strategy={','.join(TABLE3_STRATEGIES)}", "figures=false", "progress=false",
+             f"strategy={','.join(STRATEGIES)}", "figures=false", "progress=false",
              f"jax_cache_dir={work / 'cache'}", *extra]
     cmds = {"cold": table3_command(work, "cold", extra), "warm": table3_command(work, "warm", extra),
             "warm_1_device": table3_command(work, "warm1", [*extra, "devices=1"]),

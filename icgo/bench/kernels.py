@@ -24,7 +24,6 @@ from icgo.studies.icgo_relm_search import train_rows
 HIDDEN = 30
 LAM = 1e-3
 N_INPUTS = relm.N_INPUTS
-STRATEGIES = ("original", "chaos", "gaussian", "wavelet", "three_stage")
 #: Feature dtype of the study's default search kernel (``StudyConfig.dtype``): what the benchmark's study path runs.
 FEATURES = PRECISIONS[StudyConfig().dtype][0]
 
