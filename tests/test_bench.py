@@ -1,10 +1,11 @@
-"""Building blocks of the benchmark (experiments/bench*.py) at tiny sizes (no timing is tested)."""
+"""Building blocks of the benchmark (icgo/bench/) at tiny sizes (no timing is tested)."""
 
 import numpy as np
 import pytest
 from conftest import relm_train_data as _data
 
-from experiments import bench_kernels, bench_rows, bench_user
+from icgo.bench import kernels, process, rows
+from icgo.bench.front_door import breakdown
 from icgo.models import relm
 from icgo.optim.registry import get
 
@@ -12,16 +13,16 @@ from icgo.optim.registry import get
 def test_flop_count_matches_hand_count():
     # n=10, L=2, d=6: 2ndL 240 + nL 20 + sigmoid 3nL 60 + Gram 2nL^2 80 + H^T T 40
     # + Cholesky L^3/3 -> 2 + solves 2L^2 8 + H beta 40 + residual 3n 30 + ridge L 2
-    assert bench_kernels.flops_per_eval(10, hidden=2, d=6) == 522
+    assert kernels.flops_per_eval(10, hidden=2, d=6) == 522
     # the Gram term dominates at the paper's scale
-    assert 2 * 407 * 30**2 / bench_kernels.flops_per_eval(407) > 0.7
+    assert 2 * 407 * 30**2 / kernels.flops_per_eval(407) > 0.7
 
 
 def test_numpy_fitness_equals_jax_fitness():
     X, T, mask, pop, fit = _data()
     ref = np.asarray(relm.fitness(pop, fit, 1e-3, 5))
     idx = mask > 0
-    got = np.array([bench_kernels.numpy_fitness(np.asarray(th), X[idx], T[idx], 1e-3, 5) for th in pop])
+    got = np.array([kernels.numpy_fitness(np.asarray(th), X[idx], T[idx], 1e-3, 5) for th in pop])
     np.testing.assert_allclose(got, ref, rtol=1e-10, atol=0)
 
 
@@ -32,39 +33,39 @@ def test_large_recording_and_measure(tmp_path):
 
     from icgo.io import recording as io
 
-    rec = bench_rows.write_large_recording(tmp_path / "big.csv", 1500)
+    rec = rows.write_large_recording(tmp_path / "big.csv", 1500)
     back = io.read_recording(tmp_path / "big.csv")
     assert len(back.frame) == 1500 and back.frame["station"].is_unique and back.field is not None
     np.testing.assert_array_equal(back.frame["azimuth_deg"], rec.frame["azimuth_deg"])
-    m = bench_user.measure([sys.executable, "-c", "print('ok')"])
+    m = process.measure([sys.executable, "-c", "print('ok')"])
     assert m["rc"] == 0 and "ok" in m["tail"] and 0 < m["peak_rss_gb"] < 1 and m["wall_s"] > 0
     core = max(os.sched_getaffinity(0))  # --cores: the command runs on the cores it is given
-    m = bench_user.measure([sys.executable, "-c", "import os; print(sorted(os.sched_getaffinity(0)))"], cpus=[core])
+    m = process.measure([sys.executable, "-c", "import os; print(sorted(os.sched_getaffinity(0)))"], cpus=[core])
     assert m["rc"] == 0 and m["tail"].strip() == f"[{core}]"
 
 
 def test_evosax_peers_spend_the_same_evaluations_and_icgo_pso_is_run_batch():
-    """bench_user.peer_comparison at tiny sizes: equal budgets, finite results, icgo's row equals run_batch."""
+    """peers.peer_comparison at tiny sizes: equal budgets, finite results, icgo's row equals run_batch."""
     import jax
     import jax.numpy as jnp
 
-    from experiments.bench_user import peer_comparison
+    from icgo.bench.peers import peer_comparison
     from icgo.optim import run_batch
 
-    sd = bench_kernels.study_data(2)
-    res = peer_comparison(sd.compact, bench_kernels.LAM, bench_kernels.HIDDEN, pop_size=8, iterations=3, reps=1)
+    sd = kernels.study_data(2)
+    res = peer_comparison(sd.compact, kernels.LAM, kernels.HIDDEN, pop_size=8, iterations=3, reps=1)
     assert [r["name"] for r in res] == ["icgo PSO", "evosax PSO", "evosax DE"]
     assert all(r["evals"] == 8 * 4 and np.isfinite(r["best_f_mean"]) and r["best_f_mean"] > 0 for r in res)
-    D = relm.n_params(bench_kernels.HIDDEN)
-    ref = run_batch(get("pso"), relm.make_train_fitness(bench_kernels.LAM, bench_kernels.HIDDEN), (-jnp.ones(D), jnp.ones(D)),
+    D = relm.n_params(kernels.HIDDEN)
+    ref = run_batch(get("pso"), relm.make_train_fitness(kernels.LAM, kernels.HIDDEN), (-jnp.ones(D), jnp.ones(D)),
                     jax.random.split(jax.random.PRNGKey(0), 2), 8, 3, aux=sd.compact).best_f
     assert res[0]["best_f_mean"] == float(np.mean(np.asarray(ref)))
 
 
 def test_mealpy_in_its_parallel_mode_runs_the_same_search():
-    sd = bench_kernels.study_data(1)
-    single = bench_kernels.run_mealpy(sd, 1, pop_size=8, iterations=2)
-    parallel = bench_kernels.run_mealpy(sd, 1, pop_size=8, iterations=2, mode="process", n_workers=2)
+    sd = kernels.study_data(1)
+    single = kernels.run_mealpy(sd, 1, pop_size=8, iterations=2)
+    parallel = kernels.run_mealpy(sd, 1, pop_size=8, iterations=2, mode="process", n_workers=2)
     assert single["evals_per_run"] == parallel["evals_per_run"] > 8
     assert np.isfinite(parallel["best_f"]).all()
 
@@ -76,13 +77,13 @@ def test_breakdown_splits_a_front_door_run_from_its_record(tmp_path):
          "write_s": 0.75, "prepare_compile_s": 1.0, "search_compile_s": 0.0, "score_compile_s": 0.1,
          "tables_compile_s": 0.2}
     (tmp_path / "run.json").write_text(json.dumps({"timings": t, "total_time_s": 11.0, "execution": {"devices": 2}}))
-    b = bench_user.breakdown(tmp_path, wall_s=13.0)
+    b = breakdown(tmp_path, wall_s=13.0)
     assert b["start"] == 13.0 - 11.0 - 0.75 and b["msa"] == 3.0 and b["scoring"] == 0.75 and b["write"] == 0.75
     assert b["compile"] == 1.0 + 0.0 + 0.1 + 0.2 and b["execution"]["devices"] == 2
 
 
 def test_backend_check_skips_a_study_point_that_would_overrun_the_budget():
-    from experiments.bench_backend import overrun
+    from icgo.bench.backend import overrun
 
     assert overrun(None, 1000, 0.0) is None                                          # the first point always runs
     last = {"repeats": 10, "compile_s": 20.0, "run_s": 3.0}
@@ -93,7 +94,7 @@ def test_backend_check_skips_a_study_point_that_would_overrun_the_budget():
 
 @pytest.mark.slow
 def test_gpu_check_runs_on_a_cpu_and_says_the_gpu_is_absent(capsys):
-    from experiments.bench_backend import backend_check, report
+    from icgo.bench.backend import backend_check, report
 
     res = backend_check(budget_s=300, mealpy_runs=1, front=False, batches=(12, 24, 48), repeats=(1, 2, 10**6),
                         curve=(1, 2), curve_size=(2, 2), worlds=(1, 10**6), strategies=("original",), hidden=6,

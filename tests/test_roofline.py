@@ -1,11 +1,11 @@
-"""experiments/roofline.py: the flop and byte counts by hand, and one small run (no timing is tested)."""
+"""icgo/bench/roofline.py: the flop and byte counts by hand, and one small run (no timing is tested)."""
 
 import json
 
 import pytest
 from conftest import relm_train_data
 
-from experiments import roofline
+from icgo.bench import roofline
 from icgo.models import relm
 
 

@@ -1,7 +1,7 @@
 """The benchmark's ``--rows``: the commands a user runs on a large contract CSV, timed with their peak memory.
 
 A recording of each size is written (:func:`write_large_recording`), then each command runs in its own process
-(:func:`experiments.bench_user.measure`): the reader (``icgo.io.recording.read_recording``), the ICGO-RELM study
+(:func:`icgo.bench.process.measure`): the reader (``icgo.io.recording.read_recording``), the ICGO-RELM study
 (``experiments.run dataset=csv``) and the discrepancy workflow (``experiments.discrepancy data=FILE``).
 """
 
@@ -15,8 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.bench_user import measure
+from icgo.bench.process import measure
 from icgo.datasets import casing_stations as datasets
+from icgo.io.recording import write_recording
 
 #: Measurement noise added to each tiled copy of the lab_casing rows (1 sigma per axis): g and nT,
 #: the discrepancy workflow's default noise (``icgo.discrepancy.NOISE``).
@@ -35,8 +36,6 @@ def write_large_recording(path, n_rows: int, seed: int = 0):
     Returns:
         The written :class:`icgo.io.recording.Recording`.
     """
-    from icgo.io.recording import write_recording
-
     ds = datasets.lab_casing(0)
     base = ds.frame
     idx = np.arange(n_rows) % len(base)

@@ -1,94 +1,29 @@
-"""The benchmark of what a user runs, used by :mod:`experiments.bench`.
+"""The benchmark of what a user runs, used by :mod:`icgo.bench.cpu` and :mod:`icgo.bench.backend`.
 
 * :func:`front_door`: ``python -m experiments.run experiment=table3`` end to end in a
   fresh process, with an empty (cold) and then a filled (warm) compilation cache; and
   Table 3 as a five-job sweep (one strategy per job) through the default launcher on
   1 and on 2 launcher workers (jobs at once).
-* :func:`measure`: any command in a child process (optionally on fewer cores), its wall time and
-  peak memory; :func:`breakdown`: where a front-door run's time went, from its run.json;
+* :func:`breakdown`: where a front-door run's time went, from its run.json; every command runs through
+  :func:`icgo.bench.process.measure` (wall time and peak memory of a child process);
 * :func:`core_curve`: Table 3's front door with the job's affinity cut to 1, 2, ... cores;
 * :func:`like_for_like`: the front door run as mealpy's side of the comparison is (CGO's ``mealpy``
   variant, the original seed, float64);
-* :func:`peer_comparison`: a JAX peer on the same fitness, evosax's PSO and
-  differential evolution beside icgo's PSO.
-
-Peer comparison: every search runs on the study's fast RELM fitness (:func:`icgo.models.relm.train_fitness`,
-Table 3's training rows, one repeat's rows per search), with the same population,
-the same number of fitness evaluations (``pop_size * (iterations + 1)``: one
-evaluated initial population, then one per iteration), jitted as one
-``lax.scan`` over iterations and ``vmap`` over the repeats, compiled before the
-clock starts. evosax runs with its own default hyperparameters (each library's
-algorithm as its authors set it: PSO inertia 0.75, cognitive 1.5, social 2.0;
-DE rand/1/bin with F 0.8, CR 0.9 and elitism); evosax does not keep a search in
-its box, so its candidates are clipped to the box before they are evaluated,
-as icgo's PSO clips its particles. Wall time is the best of ``reps`` runs.
+* :func:`calibrate_front_door`: ``python -m experiments.calibrate`` on one bundled device, cold then warm.
 """
 
 from __future__ import annotations
 
+import json
 import os
-import subprocess
 import sys
 import tempfile
-import time
-from functools import partial
 from pathlib import Path
 
-import jax
-import jax.numpy as jnp
-import numpy as np
+import pandas as pd
 
-from icgo.models import relm
-from icgo.optim import run_batch
-from icgo.optim.registry import get
-
-#: Runs argv[2:] as its child and writes that child's peak resident memory (kB) to the file argv[1]. The
-#: command must be started by a small process: a child's ru_maxrss includes the memory of the process it
-#: was forked from (Linux carries the pre-exec high-water mark over exec), so forking it straight from a
-#: benchmark that holds a large data set would report that data set as the command's own. With
-#: ``ICGO_BENCH_CPUS`` (comma list) set, the launcher first cuts its affinity to those cores (the child
-#: inherits it); set here rather than in the benchmark, which must not fork once JAX runs threads.
-_SHIM = """import os, sys
-cpus = os.environ.pop("ICGO_BENCH_CPUS", "")
-if cpus:
-    os.sched_setaffinity(0, {int(c) for c in cpus.split(",")})
-pid = os.fork()
-if pid == 0:
-    os.execvp(sys.argv[2], sys.argv[2:])
-_, status, ru = os.wait4(pid, 0)
-open(sys.argv[1], "w").write(str(ru.ru_maxrss))
-sys.exit(os.waitstatus_to_exitcode(status))
-"""
-
-
-def measure(cmd: list[str], timeout: float | None = None, cpus: list[int] | None = None) -> dict:
-    """Run ``cmd`` in a child process: wall time (s), peak resident memory (GB), exit status, output tail.
-
-    Peak memory is the command's own ``ru_maxrss`` (``os.wait4`` in a small launcher process, see
-    :data:`_SHIM`), whatever the size of this process. ``cpus``: the child may run on these cores only
-    (its affinity mask, inherited by everything it starts: the job then gives the CPU one host device per core of it).
-    """
-    with tempfile.TemporaryDirectory() as tmp:
-        log_path, rss_path = Path(tmp) / "log", Path(tmp) / "rss"
-        with open(log_path, "w") as log:
-            t = time.perf_counter()
-            env = None if cpus is None else {**os.environ, "ICGO_BENCH_CPUS": ",".join(str(c) for c in cpus)}
-            proc = subprocess.Popen([sys.executable, "-c", _SHIM, str(rss_path), *cmd], stdout=log,
-                                    stderr=subprocess.STDOUT, start_new_session=True, env=env)
-            try:
-                rc = proc.wait(timeout)
-            except subprocess.TimeoutExpired:  # the launcher and the command are one process group
-                os.killpg(proc.pid, 9)
-                proc.wait()
-                rc = None
-            wall = time.perf_counter() - t
-        rss_kb = float(rss_path.read_text()) if rss_path.exists() else float("nan")
-        tail = log_path.read_text()[-2000:]
-    return {"wall_s": wall, "peak_rss_gb": rss_kb * 1024 / 1e9, "rc": rc, "tail": tail}
-
-
-#: Table 3's strategies, one sweep job each (the five of ``strategy=all``).
-TABLE3_STRATEGIES = ("original", "chaos", "gaussian", "wavelet", "three_stage")
+from icgo.bench.process import measure
+from icgo.optim import STRATEGIES
 
 
 def table3_command(work: Path, name: str, extra=()) -> list[str]:
@@ -105,8 +40,6 @@ def breakdown(run_dir: Path, wall_s: float) -> dict:
     analysis), ``search``, ``scoring`` (refit, metrics, tables), ``write``; ``compile`` (of all of them: JAX
     tracing and compiling or loading programs from the persistent cache); ``execution``: the plan it ran.
     """
-    import json
-
     run = json.loads((run_dir / "run.json").read_text())
     t = run["timings"]
     return {"start": wall_s - run["total_time_s"] - t["write_s"], "import": t["import_s"],
@@ -171,7 +104,7 @@ def front_door(workdir=None, extra=(), sweeps: bool = True) -> dict:
     """
     work = Path(workdir or tempfile.mkdtemp(prefix="icgo-frontdoor-"))
     sweep = [sys.executable, "-m", "experiments.run", "-m", "experiment=table3",
-             f"strategy={','.join(TABLE3_STRATEGIES)}", "figures=false", "progress=false",
+             f"strategy={','.join(STRATEGIES)}", "figures=false", "progress=false",
              f"jax_cache_dir={work / 'cache'}", *extra]
     cmds = {"cold": table3_command(work, "cold", extra), "warm": table3_command(work, "warm", extra),
             "warm_1_device": table3_command(work, "warm1", [*extra, "devices=1"]),
@@ -244,8 +177,6 @@ def calibrate_front_door(data: str = "icgo/data/mag_cal/ab.json", warm_runs: int
 
 def _table_diff(single: Path, other: Path) -> float:
     """Largest absolute difference of the CGO methods' metrics between a run (or a sweep's jobs) and ``single``."""
-    import pandas as pd
-
     def cgo(d: Path):
         df = pd.concat([pd.read_csv(p) for p in sorted(d.glob("*/metrics.csv")) or [d / "metrics.csv"]])
         return df[df.method.str.startswith("cgo-")].set_index(["method", "repeat", "split"]).sort_index()
@@ -255,79 +186,3 @@ def _table_diff(single: Path, other: Path) -> float:
         return float("inf")
     cols = ["mae", "rmse", "r2", "r2_error"]
     return float((got[cols] - ref[cols]).abs().to_numpy().max())
-
-
-def _clock(f, *args, reps: int) -> tuple[float, object]:
-    out = jax.block_until_ready(f(*args))
-    best = float("inf")
-    for _ in range(reps):
-        t = time.perf_counter()
-        out = jax.block_until_ready(f(*args))
-        best = min(best, time.perf_counter() - t)
-    return best, out
-
-
-def _evosax_search(algorithm_cls, fitness, lb, ub, pop_size: int, iterations: int):
-    """``(keys (R,2), rows (TrainRows, leading axis R)) -> best fitness (R,)`` for an evosax algorithm."""
-    D = lb.shape[0]
-    algo = algorithm_cls(population_size=pop_size, solution=jnp.zeros(D))
-    params = algo.default_params
-
-    def one(key, rows):
-        k0, k1, k_scan = jax.random.split(key, 3)
-        x0 = jax.random.uniform(k0, (pop_size, D), lb.dtype, lb, ub)
-        f0 = fitness(x0, rows)
-        state = algo.init(k1, x0, f0, params)
-
-        def step(state, key):
-            k_ask, k_tell = jax.random.split(key)
-            x, state = algo.ask(k_ask, state, params)
-            x = jnp.clip(x, lb, ub)
-            f = fitness(x, rows)
-            state, _ = algo.tell(k_tell, x, f, state, params)
-            return state, None
-
-        state, _ = jax.lax.scan(step, state, jax.random.split(k_scan, iterations))
-        return jnp.minimum(state.best_fitness, jnp.min(f0))
-
-    return jax.jit(jax.vmap(one))
-
-
-def peer_comparison(rows: relm.TrainRows, lam: float, hidden: int, pop_size: int = 30, iterations: int = 100,
-                    reps: int = 3) -> list[dict]:
-    """icgo PSO vs evosax PSO and DE on the same fitness at equal evaluations.
-
-    Args:
-        rows: the repeats' training rows (leading axis R: one search per repeat).
-        lam, hidden: the RELM's ridge lambda and hidden width (the fitness).
-        pop_size, iterations: the search budget (``pop_size * (iterations + 1)`` evaluations each).
-        reps: timed runs (best kept) after one compiling run.
-    Returns:
-        One dict per search: name, evals, compile_s, wall_s, best_f_mean, best_f_median (training RMSE, deg).
-    """
-    from evosax.algorithms import PSO as EvoPSO
-    from evosax.algorithms import DifferentialEvolution as EvoDE
-
-    fitness = relm.make_train_fitness(lam, hidden)
-    D = relm.n_params(hidden)
-    lb, ub = -jnp.ones(D), jnp.ones(D)
-    R = int(rows.T.shape[0])
-    keys = jax.random.split(jax.random.PRNGKey(0), R)
-
-    @partial(jax.jit)
-    def icgo_pso(keys, rows):
-        return run_batch(get("pso"), fitness, (lb, ub), keys, pop_size, iterations, aux=rows).best_f
-
-    searches = {"icgo PSO": icgo_pso,
-                "evosax PSO": _evosax_search(EvoPSO, fitness, lb, ub, pop_size, iterations),
-                "evosax DE": _evosax_search(EvoDE, fitness, lb, ub, pop_size, iterations)}
-    out = []
-    for name, f in searches.items():
-        t = time.perf_counter()
-        compiled = f.lower(keys, rows).compile()
-        compile_s = time.perf_counter() - t
-        wall, best = _clock(compiled, keys, rows, reps=reps)
-        best = np.asarray(best)
-        out.append({"name": name, "evals": pop_size * (iterations + 1), "compile_s": compile_s, "wall_s": wall,
-                    "best_f_mean": float(best.mean()), "best_f_median": float(np.median(best))})
-    return out

@@ -1,7 +1,7 @@
 """What the benchmarks measure with: the study's data and fitness settings, a numpy reference fitness, timing
 helpers, the flop count of one evaluation and mealpy's CGO on the same data.
 
-Shared by :mod:`experiments.bench` (the CPU benchmark) and :mod:`experiments.bench_backend` (the per-backend
+Shared by :mod:`icgo.bench.cpu` (the CPU benchmark) and :mod:`icgo.bench.backend` (the per-backend
 check), so that neither imports the other.
 """
 
@@ -24,7 +24,6 @@ from icgo.studies.icgo_relm_search import train_rows
 HIDDEN = 30
 LAM = 1e-3
 N_INPUTS = relm.N_INPUTS
-STRATEGIES = ("original", "chaos", "gaussian", "wavelet", "three_stage")
 #: Feature dtype of the study's default search kernel (``StudyConfig.precision``): what the benchmark's study path runs.
 FEATURES = PRECISIONS[StudyConfig().precision][0]
 

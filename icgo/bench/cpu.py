@@ -3,7 +3,7 @@ against mealpy.
 
 ``python -m experiments.bench`` (``make bench``) measures, in one run on the
 machine it runs on (the CPU kernels here; ``--gpu-check`` measures the backend it finds,
-:mod:`experiments.bench_backend`):
+:mod:`icgo.bench.backend`):
 
 * ``fitness_evals_per_s``: batched RELM fitness throughput at the paper's
   scale (the study's own data, repeat 0: 407 training rows, 6 inputs,
@@ -25,7 +25,7 @@ machine it runs on (the CPU kernels here; ``--gpu-check`` measures the backend i
 * ``table3_kernel_s``: the full Table 3 study (5 strategies x 10 repeats,
   population 30, 100 iterations, 12,030 evaluations per run) through this
   file's own path (fast kernel, compile included), and ``compile_s``;
-* ``table3_s`` (what a user runs, :func:`experiments.bench_user.front_door`):
+* ``table3_s`` (what a user runs, :func:`icgo.bench.front_door.front_door`):
   ``python -m experiments.run experiment=table3`` end to end in a fresh process
   with a warm compilation cache; ``table3_cold_s`` with an empty one; the same
   table as a five-job sweep on 1 and 2 launcher workers (``front_door``,
@@ -33,14 +33,14 @@ machine it runs on (the CPU kernels here; ``--gpu-check`` measures the backend i
   one-job run); ``table3_1_device_s`` the one-job run with its search on one device
   (``devices=1``; the default shards it over one host device per core, :mod:`icgo.optim.sharded`)
   and ``study_devices_speedup`` the ratio; ``--skip-front-door``: ``table3_s`` is ``table3_kernel_s``;
-  each single run's ``breakdown`` (:func:`experiments.bench_user.breakdown`: start, import, data, MSA,
+  each single run's ``breakdown`` (:func:`icgo.bench.front_door.breakdown`: start, import, data, MSA,
   search, scoring, write, and the compile or cache-load part); ``like_for_like_s``
-  (:func:`experiments.bench_user.like_for_like`): the front door run as mealpy's side is, 50 runs of
+  (:func:`icgo.bench.front_door.like_for_like`): the front door run as mealpy's side is, 50 runs of
   CGO's ``mealpy`` variant in float64, and ``speedup_vs_mealpy_like_for_like``;
 * ``alternating`` (``--alternate K``, :func:`interleaved_ratio`): mealpy's runs timed in K parts, each
   after a warm front-door run (Table 3 and like-for-like), and the ratios over the medians: both sides
   see the same stretch of a shared machine's load;
-* ``cores`` (``--cores 1,2``, :func:`experiments.bench_user.core_curve`): Table 3's front door with the
+* ``cores`` (``--cores 1,2``, :func:`icgo.bench.front_door.core_curve`): Table 3's front door with the
   job's CPU affinity cut to that many cores (one host device per core), cold and warm, with the
   breakdown at each point;
 * ``mealpy_table3_s`` and ``speedup_vs_mealpy`` (vs ``table3_s``): the same study with mealpy 3.x
@@ -49,7 +49,7 @@ machine it runs on (the CPU kernels here; ``--gpu-check`` measures the backend i
   mealpy's own parallel mode on 2 processes (``mealpy_parallel_table3_s``,
   ``speedup_vs_mealpy_parallel``);
 * ``peers``, ``pso_speedup_vs_evosax``: evosax's PSO and DE beside icgo's PSO on
-  the same fast fitness at equal evaluations (:func:`experiments.bench_user.peer_comparison`);
+  the same fast fitness at equal evaluations (:func:`icgo.bench.peers.peer_comparison`);
 * ``numpy_evals_per_s``: :func:`numpy_fitness` in a plain loop;
 * scaling rows: study wall time for 1, 10, 100 repeats (one strategy), and
   fitness time per batch of 120 for 582, 5,820 and 58,200 data rows.
@@ -85,12 +85,12 @@ import jax.numpy as jnp
 import numpy as np
 
 import icgo  # noqa: F401  (enables float64)
-from experiments.bench_kernels import (
+from icgo.bench.front_door import core_curve, front_door, like_for_like, like_for_like_command, table3_command
+from icgo.bench.kernels import (
     FEATURES,
     HIDDEN,
     LAM,
     N_INPUTS,
-    STRATEGIES,
     StudyData,
     best_time,
     flops_per_eval,
@@ -101,17 +101,10 @@ from experiments.bench_kernels import (
     slice_tree,
     study_data,
 )
-from experiments.bench_user import (
-    core_curve,
-    front_door,
-    like_for_like,
-    like_for_like_command,
-    measure,
-    peer_comparison,
-    table3_command,
-)
+from icgo.bench.peers import peer_comparison
+from icgo.bench.process import measure
 from icgo.models import relm
-from icgo.optim import run_batch
+from icgo.optim import STRATEGIES, run_batch
 from icgo.optim.cgo import CGO
 from icgo.studies.icgo_relm_config import StudyConfig
 from icgo.studies.icgo_relm_score import score_all
@@ -143,7 +136,7 @@ _FAST: dict = {}
 
 
 def _same_note(diff: float) -> str:
-    """How a run's CGO metrics compare with the one-job default run's (:func:`experiments.bench_user.front_door`)."""
+    """How a run's CGO metrics compare with the one-job default run's (:func:`icgo.bench.front_door.front_door`)."""
     return "bitwise the one-job run's metrics" if diff == 0 else f"metrics differ from the one-job run by up to {diff:.1g}"
 
 
@@ -181,7 +174,7 @@ def interleaved_ratio(sd: StudyData, chunks: int, fd_work: Path, fd_extra, ll_wo
 
     mealpy's Table 3 runs (all of them) are timed in ``chunks`` parts; before each part the warm front
     door runs once (Table 3, and the like-for-like job when ``ll_work`` is given), in the caches that
-    :func:`experiments.bench_user.front_door` and :func:`experiments.bench_user.like_for_like` filled.
+    :func:`icgo.bench.front_door.front_door` and :func:`icgo.bench.front_door.like_for_like` filled.
     The ratios are mealpy's total over the median of each front-door command: both sides then share
     the same stretch of the machine's load.
 

@@ -14,7 +14,7 @@ Measured, in order (:func:`backend_check`):
    accelerator the unfused batched-Gram kernel), and the plan kernel's largest relative difference from the
    float64 library fitness (120 thetas);
 3. a 2048^2 matrix product in float32 (the backend's default precision) and float64, and ``flop_fraction``:
-   kernel evals/s at batch 1,200 x :func:`experiments.bench_kernels.flops_per_eval` / the float32 rate;
+   kernel evals/s at batch 1,200 x :func:`icgo.bench.kernels.flops_per_eval` / the float32 rate;
 4. Table 3 through the front door (``python -m experiments.run experiment=table3``) in fresh processes,
    cold (empty compilation cache) and warm, with each run's time breakdown;
 5. the Table 3 study (5 strategies, 12,030 evaluations a run) in this process at 1, 10, 100 and 1,000
@@ -33,13 +33,38 @@ Measured, in order (:func:`backend_check`):
 
 from __future__ import annotations
 
+import json
 import os
+import subprocess
 import sys
+import tempfile
 import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from icgo.bench.front_door import front_door
+from icgo.bench.kernels import (
+    HIDDEN,
+    LAM,
+    best_time,
+    flops_per_eval,
+    matmul_gflops,
+    population,
+    run_mealpy,
+    slice_tree,
+    study_data,
+)
+from icgo.core.devices import HOST_DEVICE_FLAG, available_cores
+from icgo.core.execution import ACCELERATOR_KERNEL, CPU_KERNEL
+from icgo.datasets import casing_stations as datasets
+from icgo.models import relm, search_fitness
+from icgo.optim import STRATEGIES
+from icgo.studies import icgo_relm as study
+from icgo.studies import worlds as worlds_study
+from icgo.studies.icgo_relm_config import StudyConfig
+from icgo.studies.icgo_relm_search import SearchKernel, search, search_kernel
 
 #: Wall seconds the check aims to stay under (the lent machine's 8 minutes, less a margin).
 BUDGET_S = 420.0
@@ -66,11 +91,6 @@ def kernel_rates(sd, plan_kernel: str, batches=BATCHES, reps: int = 3) -> dict:
         {kernel: {batch: evals/s}} for the plan's kernel at every batch and the other one at the batches
         up to 1,200; and ``max_rel_diff``: the plan kernel against :func:`icgo.models.relm.fitness` (float64).
     """
-    from experiments.bench_kernels import HIDDEN, LAM, best_time, population, slice_tree
-    from icgo.core.execution import ACCELERATOR_KERNEL, CPU_KERNEL
-    from icgo.models import relm, search_fitness
-    from icgo.studies.icgo_relm_search import SearchKernel, search_kernel
-
     rows, fit = slice_tree(sd.compact, 0), slice_tree(sd.fit, 0)
     out = {}
     plan_sk = search_kernel("float32_features", "train", plan_kernel)
@@ -113,11 +133,6 @@ def study_scaling(repeats=STUDY_REPEATS, deadline: float = float("inf"), **confi
     past ``deadline`` (``time.perf_counter()``); a failing point records its one-line error and the rest go on.
     ``config``: other :class:`icgo.studies.icgo_relm_config.StudyConfig` settings (smaller ones in a test).
     """
-    from icgo.datasets import casing_stations as datasets
-    from icgo.optim import STRATEGIES
-    from icgo.studies import icgo_relm as study
-    from icgo.studies.icgo_relm_config import StudyConfig
-
     frame = datasets.lab_casing(0).frame
     out, last = [], None
     for R in repeats:
@@ -150,13 +165,6 @@ def search_rate(n_devices: int, repeats: int = 10, iterations: int = CURVE_ITERA
     """Table 3's search (5 strategies x ``repeats`` members, population 30) as one program sharded over the first
     ``n_devices`` devices of the default backend, in this process: compile (the first call), then the best of
     ``reps`` calls; returns ``{"devices", "members", "compile_s", "run_s", "evals_per_s"}``."""
-    from icgo.core.execution import ACCELERATOR_KERNEL, CPU_KERNEL
-    from icgo.datasets import casing_stations as datasets
-    from icgo.optim import STRATEGIES
-    from icgo.studies import icgo_relm as study
-    from icgo.studies.icgo_relm_config import StudyConfig
-    from icgo.studies.icgo_relm_search import search
-
     cfg = StudyConfig(strategies=STRATEGIES, n_repeats=repeats, iterations=iterations)
     st = study.stage(datasets.lab_casing(0).frame, cfg, None, jax.random.PRNGKey(0))
     kernel = CPU_KERNEL if jax.default_backend() == "cpu" else ACCELERATOR_KERNEL
@@ -177,8 +185,6 @@ def search_rate(n_devices: int, repeats: int = 10, iterations: int = CURVE_ITERA
 def _curve_child(counts: str, out_path: str, repeats: int, iterations: int) -> None:
     """The devices curve's child process (host devices set by its ``XLA_FLAGS``): one :func:`search_rate` per
     count, written as JSON to ``out_path``."""
-    import json
-
     res = []
     for n in (int(x) for x in counts.split(",")):
         res.append(search_rate(n, repeats, iterations))
@@ -195,17 +201,12 @@ def devices_curve(counts=CURVE_DEVICES, timeout_s: float = 300.0, repeats: int =
     :func:`search_rate`; on an accelerator also over 1 .. all of its devices in this process. Points past the
     child's ``timeout_s`` are missing (the ones done are kept). Returns ``{"cpu": [...], "cpu_cores": n,
     "accelerator": [...] or None}``."""
-    import json
-    import subprocess
-    import tempfile
-
-    from icgo.core.devices import HOST_DEVICE_FLAG, available_cores
 
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "curve.json")
         flags = " ".join(f for f in os.environ.get("XLA_FLAGS", "").split() if not f.startswith(HOST_DEVICE_FLAG))
         env = {**os.environ, "JAX_PLATFORMS": "cpu", "XLA_FLAGS": f"{flags} {HOST_DEVICE_FLAG}={max(counts)}".strip()}
-        code = (f"from experiments.bench_backend import _curve_child; "
+        code = (f"from icgo.bench.backend import _curve_child; "
                 f"_curve_child({','.join(map(str, counts))!r}, {path!r}, {repeats}, {iterations})")
         try:
             subprocess.run([sys.executable, "-c", code], env=env, timeout=timeout_s, check=False)
@@ -223,10 +224,6 @@ def worlds_scaling(worlds=WORLDS, deadline: float = float("inf"), **config) -> l
     """Table 3's study on 1, 10, 100 independent worlds (lab_casing data seeds from 100), every world's search in
     one sharded program (:func:`icgo.studies.worlds.run_worlds`); a point is skipped when its time projected from
     the last one (compile as measured, the rest linear in worlds) would end past ``deadline``."""
-    from icgo.optim import STRATEGIES
-    from icgo.studies import worlds as worlds_study
-    from icgo.studies.icgo_relm_config import StudyConfig
-
     out, last = [], None
     for n in worlds:
         why = overrun(None if last is None else {"repeats": last["worlds"], "compile_s": last["compile_s"],
@@ -259,12 +256,6 @@ def backend_check(budget_s: float = BUDGET_S, mealpy_runs: int = 5, front: bool 
     ``front``: False leaves the front door out; ``batches``, ``repeats``, ``curve`` (host-device counts; empty:
     no curve), ``curve_size`` (its repeats and iterations), ``worlds``, ``config``: smaller sizes (a test).
     """
-    from experiments.bench_kernels import HIDDEN, flops_per_eval, matmul_gflops, run_mealpy, study_data
-    from experiments.bench_user import front_door
-    from icgo.optim import STRATEGIES
-    from icgo.studies.icgo_relm_config import StudyConfig
-    from icgo.studies.icgo_relm_search import search_kernel
-
     t0 = time.perf_counter()
     deadline = t0 + budget_s
     out = device_line()
