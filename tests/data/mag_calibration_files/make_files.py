@@ -75,9 +75,9 @@ def main():
         m.save(HERE / name)
         out, field_only = m.apply(frame), m.apply(frame[["bx", "by", "bz"]])
         expected[f"{name}.apply"] = out.to_numpy(np.float64)
-        expected[f"{name}.apply_columns"] = np.array(out.columns)
+        expected[f"{name}.apply_columns"] = np.array(out.columns, dtype=str)
         expected[f"{name}.apply_field_only"] = field_only.to_numpy(np.float64)
-        expected[f"{name}.apply_field_only_columns"] = np.array(field_only.columns)
+        expected[f"{name}.apply_field_only_columns"] = np.array(field_only.columns, dtype=str)
         expected[f"{name}.corrected"] = np.hstack([*m.corrected(G, B), m.corrected(None, B)[1]])
     np.savez_compressed(HERE / "expected.npz", **expected)
 
