@@ -13,6 +13,7 @@ from icgo.discrepancy.inversion import PhysicsParams
 from icgo.models import gyro_relm, lookup_table, nets
 from icgo.models import msa as _msa
 from icgo.models import relm as _relm
+from icgo.models.calibration_params import CalibrationParams
 from icgo.models.compensation import RELMParams
 from icgo.artifacts.calibration import MagCalibration
 from icgo.artifacts.discrepancy import PhysicsModel
@@ -60,7 +61,7 @@ def models(seed: int = 0) -> dict:
     msa = MSAModel(**base, params=_msa.MSAParams(bias=rng.normal(0, 50, (R, 3)), scale=np.zeros((R, 3))),
                    repeat_ids=[0, 1])
     cal = MagCalibration(**base, method="twelve", axis_aligned=False, field_scale_nT=1.0,
-                         x_mag=np.r_[np.eye(3).ravel(), rng.normal(0, 100, 3)])
+                         params=CalibrationParams(np.r_[np.eye(3).ravel(), rng.normal(0, 100, 3)]))
     cfg = nets.NetConfig()
     n_in, (m1, m2), E = nets.n_inputs(cfg.encoding), cfg.hidden, 5
     tdom = {"inclination_raw_deg": [0.0, 90.0], "n_points": 100}

@@ -176,7 +176,9 @@ def _ab_calibration():
     scale = float(np.median(np.linalg.norm(ab.B, axis=1)))
     model = mag_calibration("ellipsoid", ellipsoid_fit(ab.B / scale, 1.0), ab.G, ab.B / scale, {},
                             field_scale_nT=scale)
-    return dataclasses.replace(model, x_mag=np.r_[model.x_mag[:9], model.x_mag[9:] * scale], field_scale_nT=1.0)
+    x = model.params.x_mag
+    return dataclasses.replace(model, params=dataclasses.replace(model.params, x_mag=np.r_[x[:9], x[9:] * scale]),
+                               field_scale_nT=1.0)
 
 
 def test_another_devices_calibration_changes_the_verdict(tmp_path):

@@ -297,15 +297,17 @@ def test_an_older_builds_relm_file_and_a_bad_activation_are_refused(tmp_path):
     from icgo.core.errors import ModelError
     from icgo.models import mag_relm
     from icgo.artifacts.calibration import MagCalibration
+    from icgo.models.calibration_params import CalibrationParams
 
     h, o = np.random.default_rng(0).normal(size=(4, 5)), np.zeros((5, 3))
-    kw = dict(config={}, data_hash="-", domain={}, method="twelve_relm", axis_aligned=False, field_scale_nT=1.0,
-              x_mag=np.r_[np.eye(3).ravel(), 0, 0, 0])
+    kw = dict(config={}, data_hash="-", domain={}, method="twelve_relm", axis_aligned=False, field_scale_nT=1.0)
+    x = np.r_[np.eye(3).ravel(), 0, 0, 0]
+    nl = lambda act: CalibrationParams(x, nl_hidden=h, nl_out=o, nl_activation=act)
     line = ("a non-linear correction without nl_activation (model schema 1 as an older icgo build wrote it); "
             "refit the model")
     with pytest.raises(ModelError, match=re.escape(line)):
-        MagCalibration(**kw, nl_hidden=h, nl_out=o)
-    path = MagCalibration(**kw, nl_hidden=h, nl_out=o, nl_activation="gauss").save(tmp_path / "m")
+        MagCalibration(**kw, params=nl(None))
+    path = MagCalibration(**kw, params=nl("gauss"), nl_activation="gauss").save(tmp_path / "m")
     head = json.loads(path.read_text())
     del head["fields"]["nl_activation"]
     path.write_text(json.dumps(head))
@@ -313,9 +315,11 @@ def test_an_older_builds_relm_file_and_a_bad_activation_are_refused(tmp_path):
         load_model(path)
     assert "\n" not in str(e.value)
     with pytest.raises(ModelError, match="nl_activation"):
-        MagCalibration(**kw, nl_hidden=h, nl_out=o, nl_activation="relu")
+        MagCalibration(**kw, params=nl("relu"), nl_activation="relu")
     with pytest.raises(ModelError, match="nl_activation"):
-        MagCalibration(**kw, nl_activation="gauss")
+        MagCalibration(**kw, params=CalibrationParams(x), nl_activation="gauss")
+    with pytest.raises(ModelError, match="nl_activation"):  # the meta and the params' static setting disagree
+        MagCalibration(**kw, params=nl(None), nl_activation="gauss")
     assert mag_relm.ACTIVATIONS == ("gauss",)
 
 
@@ -324,13 +328,13 @@ def test_a_relm_calibration_saves_and_applies_bitwise(tmp_path):
     cfg = cal_study.CalibrationConfig(peer=False, misma_iter=2, misma_repeats=1, misma_pop=6)
     fitted = cal_study.fit_recording(rec.G, rec.B, rec.frame.group.to_numpy(), cfg, jax.random.PRNGKey(0), {})
     model = fitted["twelve+axis+relm"]
-    assert model.method == "twelve_relm" and model.nl_out.shape == (model.nl_hidden.shape[1], 3)
+    assert model.method == "twelve_relm" and model.params.nl_out.shape == (model.params.nl_hidden.shape[1], 3)
     assert model.nl_activation == "gauss" and model.config["relm_lambda_deg2"] in cal_study.mag_relm.LAMBDAS
     back = load_model(model.save(tmp_path / "ai_relm"))
     pd.testing.assert_frame_equal(back.apply(rec.frame), model.apply(rec.frame), check_exact=True)
     # without the residual part it is the linear calibration
     lin = fitted["twelve+axis"]
-    assert isinstance(lin, type(model)) and lin.nl_hidden is None
+    assert isinstance(lin, type(model)) and lin.params.nl_hidden is None
     assert not np.allclose(model.apply(rec.frame).bx_corrected, lin.apply(rec.frame).bx_corrected)
 
 

@@ -10,6 +10,7 @@ import icgo  # noqa: F401
 from icgo.core.errors import ModelError
 from icgo.models import calibration as cal
 from icgo.artifacts.calibration import MagCalibration, mag_calibration
+from icgo.models.calibration_params import CalibrationParams
 from icgo.artifacts.registry import load_model
 from icgo.physics.frames import angle_diff, sensors_from_attitude
 
@@ -83,15 +84,16 @@ def test_save_load_apply_is_bitwise(tmp_path):
         assert isinstance(back, MagCalibration) and back.method == m.method and back.config == m.config
         pd.testing.assert_frame_equal(back.apply(new), before, check_exact=True)
         assert back.data_hash == m.data_hash and back.domain == m.domain
-    assert load_model(tmp_path / "cal0").x_accel is None
+    assert load_model(tmp_path / "cal0").params.x_accel is None
 
 
 def test_bad_models_are_refused_in_one_line():
     frame, G, B, _, _ = _survey()
     x = np.asarray(cal.identity_params())
-    for kwargs, msg in [(dict(method="magic"), "method"), (dict(x_mag=np.zeros(11)), "x_mag"),
+    for kwargs, msg in [(dict(method="magic"), "method"), (dict(params=CalibrationParams(np.zeros(11))), "x_mag"),
                         (dict(field_scale_nT=0.0), "field_scale_nT"), (dict(axis_aligned=True), "axis_aligned")]:
-        args = dict(config={}, data_hash="", domain={}, method="misma", axis_aligned=False, field_scale_nT=1.0, x_mag=x)
+        args = dict(config={}, data_hash="", domain={}, method="misma", axis_aligned=False, field_scale_nT=1.0,
+                    params=CalibrationParams(x))
         with pytest.raises(ModelError, match=msg) as e:
             MagCalibration(**{**args, **kwargs})
         assert "\n" not in str(e.value)

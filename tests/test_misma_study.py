@@ -147,7 +147,7 @@ def test_same_key_same_records(tiny):
     for k in res.records:
         pd.testing.assert_frame_equal(again.records[k], res.records[k], check_exact=True)
     for k in res.models:
-        np.testing.assert_array_equal(again.models[k].x_mag, res.models[k].x_mag)
+        np.testing.assert_array_equal(again.models[k].params.x_mag, res.models[k].params.x_mag)
 
 
 @pytest.mark.slow  # ~15 s of compilation in a fresh process; tests/test_studies.py runs the example in the fast suite

@@ -169,3 +169,45 @@ def test_a_kind_refuses_files_older_than_its_layout(tmp_path):
     with pytest.raises(ModelError, match=rf"toy\.json: a toy file of model schema {SCHEMA_VERSION - 1}, .*"
                                          r"refit it with the toy command"):
         read_model(path, {"toy": NewToy})
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class OptionalToy(ToyModel):
+    """The toy whose rotation is an optional leaf: the header says whether it has one (null: it has not)."""
+
+    OPTIONAL_LEAVES = ("rotation",)
+
+    @classmethod
+    def params_like(cls, fields):
+        return ToyParams(Scale(0, 0), {t: 0 for t in fields["terms"]}, None if fields.get("rotation", 0) is None
+                         else 0, fields["power"])
+
+
+@pytest.mark.parametrize("rotated", [True, False])
+def test_an_absent_optional_leaf_is_null_in_the_header(tmp_path, rotated):
+    model = OptionalToy(**{f.name: getattr(_toy(rotated), f.name) for f in dataclasses.fields(ToyModel)})
+    path = model.save(tmp_path / "toy")
+    head = json.loads(path.read_text())
+    assert ("rotation" in head["fields"]) == (not rotated) and head["fields"].get("rotation") is None
+    assert ("rotation" in head["array_names"]) == rotated
+    back = read_model(path, {"toy": OptionalToy})
+    assert jax.tree_util.tree_structure(back.params) == jax.tree_util.tree_structure(model.params)
+    x = np.random.default_rng(1).normal(size=(7, 3))
+    np.testing.assert_array_equal(back.predict(x), model.predict(x))
+    if not rotated:  # a part marked present must be an array; a non-null value is refused
+        for value, says in [(0, "'rotation' must be an array in toy.npz or null"), (None, None)]:
+            head["fields"]["rotation"] = value
+            path.write_text(json.dumps(head))
+            if says is None:
+                assert read_model(path, {"toy": OptionalToy}).params.rotation is None
+                continue
+            with pytest.raises(ModelError, match=says) as e:
+                read_model(path, {"toy": OptionalToy})
+            assert "\n" not in str(e.value)
+        del head["fields"]["rotation"]
+        path.write_text(json.dumps(head))
+        with pytest.raises(ModelError, match="lacks array 'rotation' in toy.npz"):
+            read_model(path, {"toy": OptionalToy})
+    with pytest.raises(ModelError, match="unknown field"):  # a kind without the optional leaf refuses the null
+        read_model(OptionalToy(**{f.name: getattr(_toy(False), f.name) for f in dataclasses.fields(ToyModel)}).save(
+            tmp_path / "other"), KINDS)

@@ -1,7 +1,9 @@
 """Fitted 12-parameter sensor calibrations as :class:`icgo.artifacts.format.FittedModel` artifacts.
 
-One kind, :class:`MagCalibration` (``KIND = "mag_calibration"``), holds what any
-12-parameter calibration method fits (MISMA paper eqs. 2-4, :mod:`icgo.models.calibration`):
+One kind, :class:`MagCalibration` (``KIND = "mag_calibration"``), holds what any calibration method of the
+calibrate and MISMA studies fits (MISMA paper eqs. 2-4, :mod:`icgo.models.calibration`) as a
+:class:`icgo.models.calibration_params.CalibrationParams` pytree and applies it through that family's one
+forward pass, :func:`icgo.models.calibration_params.predict`, the one its study scores with:
 
 * the magnetometer parameters ``x_mag = [R^-1 (row-major, 9), b (3, nT)]``,
   corrected field ``B_c = R^-1 (B_meas - b)`` (eq. 4);
@@ -9,30 +11,32 @@ One kind, :class:`MagCalibration` (``KIND = "mag_calibration"``), holds what any
   ``G_c = S (G_meas - c)`` (the real-device pipelines calibrate both sensors);
 * optionally one rotation ``Q`` (3, 3) common to both sensors (axis alignment,
   :func:`icgo.models.cal_pointing.align_to_axis`), applied as ``v @ Q.T``;
-* ``field_scale_nT``: nT per unit of the fitted field. A fit to ``|M_omega|`` in
-  nT (the simulated studies) has 1.0; a fit to the unit sphere (the real devices,
-  whose reference field is unknown) carries the median raw ``|B|`` of its
-  training shots, so ``apply`` still reports nT.
+* optionally the field's non-linear residual (:mod:`icgo.models.mag_relm`), applied last.
 
+Meta: ``field_scale_nT``: nT per unit of the fitted field. A fit to ``|M_omega|`` in
+nT (the simulated studies) has 1.0; a fit to the unit sphere (the real devices,
+whose reference field is unknown) carries the median raw ``|B|`` of its
+training shots, so ``apply`` still reports nT.
 ``method`` names the method that produced the numbers (:data:`METHODS`:
 ``ellipsoid``, ``twelve`` (12-parameter least squares), ``misma``, ``sma``,
-``joint``, ``modulus`` (MISMA's centre U)); ``axis_aligned`` says whether ``Q`` is
-present. :meth:`MagCalibration.corrected` gives the corrected vectors in fit
-units (what the studies score); :meth:`MagCalibration.apply` the data-contract
-table.
+``joint``, ``modulus`` (MISMA's centre U), ``twelve_relm``); ``axis_aligned`` says whether ``Q`` is
+present and ``nl_activation`` names the residual's activation (both also in the params: the header says
+which parts a model has, with ``null`` for each part it lacks).
+:meth:`MagCalibration.corrected` gives the corrected vectors in fit units (what the studies score);
+:meth:`MagCalibration.apply` the data-contract table.
 """
 
 from __future__ import annotations
 
 import dataclasses
 
-import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
 from icgo.core.errors import ModelError
 from icgo.core.settings import need
 from icgo.models import calibration as cal
+from icgo.models import calibration_params as cal_params
 from icgo.models import mag_relm
 from icgo.artifacts.format import CORRECTED_B, FittedModel, data_hash, frame_values, sensor_domain
 from icgo.physics.frames import azimuth_from_gv, inclination_from_g, toolface_from_g
@@ -45,28 +49,25 @@ _B_COLS = ("bx", "by", "bz")
 
 
 def _check_params(name, x):
-    x = np.asarray(x, np.float64)
+    x = np.asarray(x)
     if x.shape != (cal.N_PARAMS,) or not np.all(np.isfinite(x)):
         raise ModelError(f"mag_calibration: {name} must be {cal.N_PARAMS} finite numbers, got shape {x.shape}")
-    return x
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class MagCalibration(FittedModel):
-    """A 12-parameter magnetometer calibration (optionally with accelerometer and axis alignment).
+    """A 12-parameter magnetometer calibration (optionally with accelerometer, axis alignment and residual).
 
     Attributes:
         method: one of :data:`METHODS`.
-        axis_aligned: whether :attr:`alignment` is applied.
+        axis_aligned: whether the params hold an alignment.
         field_scale_nT: nT per unit of the corrected field (1.0 for fits in nT).
-        x_mag: (12,) ``[R^-1 row-major, b]``; ``b`` in fit units (nT when ``field_scale_nT == 1``;
-            raw nT always, since ``b`` is subtracted from the raw reading).
-        x_accel: (12,) ``[S, c (g)]`` or None (accelerometer used as read).
-        alignment: (3, 3) rotation Q or None.
-        nl_hidden, nl_out: the non-linear residual correction (:mod:`icgo.models.mag_relm`), applied after
-            the alignment: (4, L) hidden and (L, 3) output weights, or None (a linear calibration).
-        nl_activation: the correction's hidden activation (:data:`icgo.models.mag_relm.ACTIVATIONS`), given exactly
-            with a correction.
+        params: :class:`icgo.models.calibration_params.CalibrationParams`: ``x_mag`` (12,) ``[R^-1 row-major,
+            b]``, ``b`` in raw nT (it is subtracted from the raw reading); ``x_accel`` (12,) ``[S, c (g)]`` or
+            None (accelerometer used as read); ``alignment`` (3, 3) rotation Q or None; ``nl_hidden`` (4, L),
+            ``nl_out`` (L, 3), the non-linear residual after the alignment, or None (a linear calibration).
+        nl_activation: the residual's hidden activation (:data:`icgo.models.mag_relm.ACTIVATIONS`), given exactly
+            with a residual; the params' static setting.
     """
 
     KIND = "mag_calibration"
@@ -75,44 +76,56 @@ class MagCalibration(FittedModel):
     ONE_FIELD = True
     UNITS = {"x_mag": "R^-1 (1), b (nT)", "x_accel": "S (1), c (g)", "alignment": "1",
              "bx,by,bz": "nT", "gx,gy,gz": "g", "angles": "deg", "b_total_nT": "nT"}
+    PARAMS = cal_params.CalibrationParams
+    PREDICT = cal_params.predict
+    INPUTS = _G_COLS + _B_COLS
+    OPTIONAL_LEAVES = cal_params.OPTIONAL_LEAVES
 
     method: str
     axis_aligned: bool
     field_scale_nT: float
-    x_mag: np.ndarray
-    x_accel: np.ndarray | None = None
-    alignment: np.ndarray | None = None
-    nl_hidden: np.ndarray | None = None
-    nl_out: np.ndarray | None = None
+    params: cal_params.CalibrationParams
     nl_activation: str | None = None
 
     def __post_init__(self):
         if self.method not in METHODS:
             raise ModelError(f"mag_calibration: method {self.method!r} is not one of {METHODS}")
-        if bool(self.axis_aligned) != (self.alignment is not None):
+        p = self.params
+        if not isinstance(p, cal_params.CalibrationParams):
+            raise ModelError(f"mag_calibration: params must be a CalibrationParams, got {type(p).__name__}")
+        if bool(self.axis_aligned) != (p.alignment is not None):
             raise ModelError("mag_calibration: axis_aligned must be true exactly when an alignment is given")
-        if self.alignment is not None and np.asarray(self.alignment).shape != (3, 3):
-            raise ModelError(f"mag_calibration: alignment must be (3, 3), got {np.asarray(self.alignment).shape}")
+        if p.alignment is not None and np.shape(p.alignment) != (3, 3):
+            raise ModelError(f"mag_calibration: alignment must be (3, 3), got {np.shape(p.alignment)}")
         if not (np.isfinite(self.field_scale_nT) and self.field_scale_nT > 0):
             raise ModelError(f"mag_calibration: field_scale_nT must be > 0, got {self.field_scale_nT}")
-        _check_params("x_mag", self.x_mag)
-        if self.x_accel is not None:
-            _check_params("x_accel", self.x_accel)
-        if (self.nl_hidden is None) != (self.nl_out is None):
+        _check_params("x_mag", p.x_mag)
+        if p.x_accel is not None:
+            _check_params("x_accel", p.x_accel)
+        if (p.nl_hidden is None) != (p.nl_out is None):
             raise ModelError("mag_calibration: nl_hidden and nl_out come together")
-        if self.nl_hidden is not None:
-            h, o = np.asarray(self.nl_hidden), np.asarray(self.nl_out)
+        if p.nl_hidden is not None:
+            h, o = np.asarray(p.nl_hidden), np.asarray(p.nl_out)
             if h.ndim != 2 or h.shape[0] != 4 or o.shape != (h.shape[1], 3) or not (np.all(np.isfinite(h))
                                                                                   and np.all(np.isfinite(o))):
                 raise ModelError(f"mag_calibration: nl_hidden (4, L) and nl_out (L, 3) must be finite, got "
                                  f"{h.shape} and {o.shape}")
         act = self.nl_activation
-        if self.nl_hidden is not None and act is None:
+        if p.nl_hidden is not None and act is None:
             raise ModelError("mag_calibration: a non-linear correction without nl_activation (model schema 1 as an "
                              "older icgo build wrote it); refit the model")
-        if act is not None and (self.nl_hidden is None or act not in mag_relm.ACTIVATIONS):
+        if act is not None and (p.nl_hidden is None or act not in mag_relm.ACTIVATIONS):
             raise ModelError(f"mag_calibration: nl_activation must be one of {mag_relm.ACTIVATIONS} and comes with "
                              f"nl_hidden, got {act!r}")
+        if p.nl_activation != act:
+            raise ModelError(f"mag_calibration: nl_activation {act!r} is not the params' {p.nl_activation!r}")
+
+    @classmethod
+    def params_like(cls, fields: dict) -> cal_params.CalibrationParams:
+        """Placeholders for ``x_mag`` and each optional part the header does not mark ``null``, with the
+        meta's ``nl_activation``."""
+        parts = {n: None if fields.get(n, 0) is None else 0 for n in cls.OPTIONAL_LEAVES}
+        return cal_params.CalibrationParams(x_mag=0, **parts, nl_activation=fields.get("nl_activation"))
 
     #: Largest condition number of a loaded calibration's matrices (R^-1, S): beyond it a matrix is singular
     #: in float64 and the corrected field meaningless.
@@ -120,36 +133,23 @@ class MagCalibration(FittedModel):
 
     def validate(self) -> None:
         """The matrices R^-1 (and S) invertible, the alignment a rotation."""
-        for name, x in (("x_mag", self.x_mag), ("x_accel", self.x_accel)):
+        for name, x in (("x_mag", self.params.x_mag), ("x_accel", self.params.x_accel)):
             if x is not None:
                 M = np.asarray(x, np.float64)[:9].reshape(3, 3)
                 need(bool(np.linalg.cond(M) < self.MAX_CONDITION), f"{name}: its matrix is singular (condition "
                                                                      f"{np.linalg.cond(M):.3g})", error=ModelError)
-        if self.alignment is not None:
-            Q = np.asarray(self.alignment, np.float64)
+        if self.params.alignment is not None:
+            Q = np.asarray(self.params.alignment, np.float64)
             need(bool(np.allclose(Q @ Q.T, np.eye(3), atol=1e-6) and np.linalg.det(Q) > 0),
                  "alignment must be a rotation matrix (orthonormal, determinant +1)", error=ModelError)
 
-    def corrected_field(self, B) -> np.ndarray:
-        """Corrected field in fit units (before alignment): eq. (4), (N, 3) -> (N, 3)."""
-        return np.asarray(cal.correct(jnp.asarray(self.x_mag), B))
-
-    def corrected_gravity(self, G) -> np.ndarray:
-        """Calibrated gravity (before alignment), g, (N, 3); G as read without an accelerometer fit."""
-        G = np.asarray(G, np.float64)
-        return G if self.x_accel is None else np.asarray(cal.correct(jnp.asarray(self.x_accel), G))
-
-    def corrected(self, G, B) -> tuple[np.ndarray, np.ndarray]:
-        """Calibrated and (if aligned) rotated ``(G_c (N, 3) g, B_c (N, 3) fit units)``; ``G`` may be None."""
-        Bc = self.corrected_field(B)
-        Gc = None if G is None else self.corrected_gravity(G)
-        if self.alignment is not None:
-            Q = np.asarray(self.alignment)
-            Bc = Bc @ Q.T
-            Gc = None if Gc is None else Gc @ Q.T
-        if self.nl_hidden is not None:
-            Bc = mag_relm.apply(self.nl_hidden, self.nl_out, Bc, self.nl_activation)
-        return Gc, Bc
+    def corrected(self, G, B) -> tuple[np.ndarray | None, np.ndarray]:
+        """Calibrated, rotated and residual-corrected ``(G_c (N, 3) g, B_c (N, 3) fit units)`` on the host
+        (:func:`icgo.models.calibration_params.predict`); ``G`` may be None (then ``G_c`` is None)."""
+        B = np.asarray(B, np.float64)
+        G_in = np.zeros_like(B) if G is None else np.asarray(G, np.float64)
+        out = self.predict(np.concatenate([G_in, B], axis=1))
+        return (None if G is None else np.ascontiguousarray(out[:, :3])), np.ascontiguousarray(out[:, 3:])
 
     def apply(self, frame: pd.DataFrame) -> pd.DataFrame:
         """Corrected sensor values per row; attitude, dip and |B| when the frame has gravity.
@@ -182,7 +182,7 @@ class MagCalibration(FittedModel):
 
 def mag_calibration(method: str, x_mag, G, B, config: dict, *, x_accel=None, alignment=None,
                     field_scale_nT: float = 1.0) -> MagCalibration:
-    """Build a :class:`MagCalibration` with the header of its training data.
+    """Build a linear :class:`MagCalibration` with the header of its training data.
 
     Args:
         method: one of :data:`METHODS`.
@@ -191,8 +191,21 @@ def mag_calibration(method: str, x_mag, G, B, config: dict, *, x_accel=None, ali
         x_accel: (12,) accelerometer parameters or None. alignment: (3, 3) or None.
         field_scale_nT: nT per fit unit.
     """
+    arr = lambda a: None if a is None else np.array(a, np.float64)
+    params = cal_params.CalibrationParams(x_mag=arr(x_mag), x_accel=arr(x_accel), alignment=arr(alignment))
     return MagCalibration(config=dict(config), data_hash=data_hash(G, B), domain=sensor_domain(G, B),
                           method=method, axis_aligned=alignment is not None, field_scale_nT=float(field_scale_nT),
-                          x_mag=np.array(x_mag, np.float64),
-                          x_accel=None if x_accel is None else np.array(x_accel, np.float64),
-                          alignment=None if alignment is None else np.array(alignment, np.float64))
+                          params=params)
+
+
+def with_residual(model: MagCalibration, nl: mag_relm.MagRELM, config: dict) -> MagCalibration:
+    """A linear calibration with the non-linear residual ``nl`` fitted after it (method ``twelve_relm``).
+
+    Args:
+        model: the linear calibration the residual was fitted on (its data hash and domain are kept).
+        nl: the fitted residual (:func:`icgo.models.mag_relm.fit`). config: the settings of the whole fit.
+    """
+    params = dataclasses.replace(model.params, nl_hidden=np.array(nl.hidden, np.float64),
+                                 nl_out=np.array(nl.out, np.float64), nl_activation=nl.activation)
+    return dataclasses.replace(model, method="twelve_relm", params=params, nl_activation=nl.activation,
+                               config=dict(config))

@@ -10,6 +10,13 @@ its training data's hash and domain and the family's own labels (JSON values) an
 a data-contract frame (``gx, gy, gz`` in g, ``bx, by, bz`` in nT, ...). A kind whose parameters are still
 loose array fields (``PARAMS`` None) is saved and loaded by the same code, its arrays taken from its fields.
 
+Optional parts: a family whose models may lack a part (a calibration without an accelerometer fit) has None
+in that leaf's place, so the params' structure says which parts a model has. The kind lists such leaves in
+:attr:`FittedModel.OPTIONAL_LEAVES` (top-level fields of its params); an absent one is written in the
+header's ``fields`` as ``null`` (the header says which parts the model has, readable without icgo), and
+:meth:`FittedModel.params_like` reads it back from there: ``null`` gives None in the skeleton, anything else
+a leaf to read.
+
 File format (open, readable without icgo): ``<stem>.npz`` holds the arrays (float64/int, exact): each leaf
 of the params under its path in the pytree (``w1``; ``effects.hard_iron`` for a dict entry), then the meta's
 arrays under their field names; ``<stem>.json`` holds the header::
@@ -173,6 +180,8 @@ class FittedModel(abc.ABC):
       member axis where the params have one); :meth:`predict` applies it.
     * ``INPUTS``: the frame columns that make ``x`` (:meth:`inputs`).
     * ``MAY_BE_EMPTY``, ``NAN_OK``: arrays (leaf or field names) that may be empty or hold NaN.
+    * ``OPTIONAL_LEAVES``: params leaves (top-level fields of ``PARAMS``) a model may lack (None); an absent
+      one is ``null`` in the header's ``fields`` (see the module doc).
     * ``OLDEST_SCHEMA``, ``REFIT``: the oldest schema of this kind's files that is read, and what to do
       with an older one (one line, e.g. the command that refits it).
     """
@@ -184,6 +193,7 @@ class FittedModel(abc.ABC):
     INPUTS: ClassVar[tuple] = ()
     MAY_BE_EMPTY: ClassVar[tuple] = ()
     NAN_OK: ClassVar[tuple] = ()
+    OPTIONAL_LEAVES: ClassVar[tuple] = ()
     OLDEST_SCHEMA: ClassVar[int] = 1
     REFIT: ClassVar[str] = "refit it"
 
@@ -225,7 +235,10 @@ class FittedModel(abc.ABC):
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
             if self.PARAMS is not None and f.name == "params":
+                plain.update({n: None for n in self.OPTIONAL_LEAVES if getattr(v, n) is None})
                 continue
+            if f.name in self.OPTIONAL_LEAVES:
+                raise ValueError(f"{self.KIND}: field {f.name!r} has the name of an optional params leaf")
             if isinstance(v, np.ndarray):
                 if f.name in arrays:
                     raise ValueError(f"{self.KIND}: field {f.name!r} has the name of a params leaf")
@@ -299,12 +312,12 @@ def read_model(path, kinds: dict) -> FittedModel:
 
     Checks, each a one-line :class:`ModelError` naming the file: the header (a JSON object of at
     most :data:`~icgo.artifacts.reading.MAX_HEADER_BYTES`, a known schema and kind, a schema the kind still
-    reads, meta ``fields`` of the kind's types, a training domain of finite ranges), the params' skeleton
-    rebuilt from the meta (:meth:`FittedModel.params_like`), the array file (a zip archive; only the
-    skeleton's leaves and the kind's array fields are read, each checked from its .npy header for dtype,
-    size (:data:`~icgo.artifacts.reading.MAX_ARRAY_BYTES`) and shape before it is read, then for NaN/inf and
-    magnitude; nothing is unpickled), and the kind's own consistency (:meth:`FittedModel.validate`: shapes
-    that agree, scales > 0, names it knows).
+    reads, meta ``fields`` of the kind's types (an absent optional leaf: null), a training domain of finite
+    ranges), the params' skeleton rebuilt from the meta (:meth:`FittedModel.params_like`), the array file
+    (a zip archive; only the skeleton's leaves and the kind's array fields are read, each checked from its
+    .npy header for dtype, size (:data:`~icgo.artifacts.reading.MAX_ARRAY_BYTES`) and shape before it is
+    read, then for NaN/inf and magnitude; nothing is unpickled), and the kind's own consistency
+    (:meth:`FittedModel.validate`: shapes that agree, scales > 0, names it knows).
 
     Args:
         path: the ``.json`` header, the ``.npz``, the stem, a run directory (its ``run.json``'s first
@@ -325,9 +338,12 @@ def read_model(path, kinds: dict) -> FittedModel:
     if cls.PARAMS is not None:
         types.pop("params")
     fields = head["fields"]
-    unknown = sorted(set(fields) - set(types))
+    unknown = sorted(set(fields) - set(types) - set(cls.OPTIONAL_LEAVES))
     if unknown:
         raise ModelError(f"{p}: model of kind {kind!r} has unknown field(s) {unknown[:5]}")
+    for name in cls.OPTIONAL_LEAVES:  # in the header only as null: the model lacks that part
+        if fields.get(name) is not None:
+            raise ModelError(f"{p}: {name!r} must be an array in {npz.name} or null, got {str(fields[name])[:40]!r}")
     defaults = {f.name for f in dataclasses.fields(cls)
                 if f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING}
     kwargs = {}

@@ -50,7 +50,7 @@ from icgo.models.cal_pointing import align_to_axis, group_spread_deg, pointing_d
 from icgo.models.cal_sanity import sanity
 from icgo.models.cal_site import site_check, site_values
 from icgo.models.misma_objective import MismaObjective
-from icgo.artifacts.calibration import MagCalibration, mag_calibration
+from icgo.artifacts.calibration import MagCalibration, mag_calibration, with_residual
 from icgo.optim import base
 from icgo.optim import misma as misma_opt
 from icgo.optim.registry import get
@@ -226,17 +226,16 @@ def fit_recording(G, B, groups, config: CalibrationConfig, key, header: dict, tr
     out["misma+axis"] = aligned("misma", misma_on_shots(G_c, B, config, (lb, ub), key, train.astype(float)),
                                 {"misma_box_lb": lb.tolist(), "misma_box_ub": ub.tolist(), "misma_box": box})
     lin = out["twelve+axis"]
-    Q = lin.alignment
+    Q = lin.params.alignment
     rot = lambda x: np.concatenate([(Q @ np.asarray(x[:9]).reshape(3, 3)).ravel(), np.asarray(x[9:])])
     j = joint.fit(G, B, groups, train, rot(xg), rot(x12))
     out["joint"] = model("joint", j.xm, x_accel=j.xg, extra={"joint_lambda": j.lam, "joint_cv": j.cv.tolist(),
                                                              "joint_gauss_newton_gap": j.gap})
     Gc_lin, Bc_lin = lin.corrected(G, B)
     nl = mag_relm.fit(Gc_lin, Bc_lin, groups, train=train)
-    out["twelve+axis+relm"] = dataclasses.replace(
-        lin, method="twelve_relm", nl_hidden=nl.hidden, nl_out=nl.out, nl_activation=nl.activation,
-        config={**lin.config, "relm_lambda_deg2": nl.lam, "relm_hidden": int(nl.hidden.shape[1]),
-                "relm_cv_deg2": nl.cv.tolist()})
+    out["twelve+axis+relm"] = with_residual(lin, nl, {**lin.config, "relm_lambda_deg2": nl.lam,
+                                                      "relm_hidden": int(nl.hidden.shape[1]),
+                                                      "relm_cv_deg2": nl.cv.tolist()})
     return out
 
 
@@ -249,14 +248,14 @@ def group_score(model: MagCalibration, G, B, groups, score_mask) -> float:
 def model_sanity(model: MagCalibration, G, B):
     """:func:`icgo.models.cal_sanity.sanity` of a calibration on all the shots."""
     Gc, Bc = model.corrected(G, B)
-    return sanity(Gc, Bc, np.asarray(model.x_mag[:9]).reshape(3, 3))
+    return sanity(Gc, Bc, np.asarray(model.params.x_mag[:9]).reshape(3, 3))
 
 
 def site_row(model: MagCalibration, G, B, site=None) -> dict:
     """The site columns of a calibration on shots (G, B): mean dip and |B| with their spreads
     (:func:`icgo.models.cal_site.site_values`) and, with ``site`` (dip deg, |B| nT), the check against it."""
     Gc, Bc = model.corrected(G, B)
-    v = site_values(Gc, Bc, np.asarray(model.x_mag[:9]).reshape(3, 3))
+    v = site_values(Gc, Bc, np.asarray(model.params.x_mag[:9]).reshape(3, 3))
     row = {"dip_deg": v.dip_deg, "dip_std_deg": v.dip_std_deg, "field_nT": v.field_nT, "field_std_nT": v.field_std_nT,
            "site_dip_off_deg": np.nan, "site_field_off_pct": np.nan, "site_flag": False, "site_reason": ""}
     if site is not None:

@@ -26,6 +26,7 @@ from icgo.datasets import instruments as ins
 from icgo.datasets.dataset import Dataset
 from icgo.maths import stats
 from icgo.models import calibration as cal
+from icgo.models import calibration_params as cal_params
 from icgo.models.cal_sanity import sanity
 from icgo.models.gyro_reference import fit_to_reference, gyro_reference, reference_at
 from icgo.models.misma_objective import MismaObjective
@@ -148,11 +149,18 @@ def search(p: Problem, U, U_mod, scfg: SimulatedConfig, key) -> tuple[dict, dict
     return runs, text
 
 
+def corrected_field(x, G, B) -> np.ndarray:
+    """The field (N, 3) after the 12 parameters ``x`` (eq. 4), by the calibration's own
+    :func:`icgo.models.calibration_params.predict` (what a saved model of ``x`` applies). G, B: (N, 3)."""
+    out = cal_params.predict(cal_params.CalibrationParams(x), np.hstack([G, B]))
+    return np.ascontiguousarray(np.asarray(out)[:, 3:])
+
+
 def static_azimuth_error(p: Problem, x) -> np.ndarray:
     """|azimuth error| (deg) at the static samples after correcting with ``x`` (None: raw), (n_static,)."""
     Gs, Bs = p.G[p.static], p.B[p.static]
     if x is not None:
-        Bs = np.asarray(cal.correct(jnp.asarray(x), Bs))
+        Bs = corrected_field(x, Gs, Bs)
     return np.abs(cal.azimuth_error_deg(Gs, Bs, p.az_ref))
 
 
@@ -188,7 +196,7 @@ def static_qc(p: Problem, meta: dict, fits: dict) -> dict:
     out = {"raw": survey_qc(Gs, Bs, *ref).counts}
     for lab, x in fits.items():
         if x is not None:
-            out[lab] = survey_qc(Gs, np.asarray(cal.correct(jnp.asarray(x), Bs)), *ref).counts
+            out[lab] = survey_qc(Gs, corrected_field(x, Gs, Bs), *ref).counts
     return out
 
 
@@ -300,7 +308,7 @@ def _repeat_scores(p: Problem, run, tol) -> Scores:
     err = np.array([np.mean(static_azimuth_error(p, x)) for x in run.best_x])
     within = np.sum(np.abs(run.best_x - p.x_true) <= tol, axis=1)
     x = median_repeat(run)
-    Bc = np.asarray(cal.correct(jnp.asarray(x), p.B[p.static]))
+    Bc = corrected_field(x, p.G[p.static], p.B[p.static])
     physics = sanity(p.G[p.static], Bc, x[:9].reshape(3, 3)).row()
     return Scores(err, within, physics)
 
@@ -398,7 +406,7 @@ def simulated_variant(name: str, ds: Dataset, scfg: SimulatedConfig, key) -> Var
         ident["with J_gyro: weakest direction (scaled parameters)"] = dict(zip(PARAM_NAMES, np.round(v_g, 3).tolist()))
 
     def modulus(x):
-        return np.linalg.norm(np.asarray(cal.correct(jnp.asarray(x), p.B)), axis=1)
+        return np.linalg.norm(corrected_field(x, p.G, p.B), axis=1)
 
     moduli = {"raw": np.linalg.norm(p.B, axis=1), "SMA": modulus(x_med["SMA"]), "MISMA": modulus(x_med["MISMA"])}
     summary = {
