@@ -7,8 +7,7 @@ saved model reproduces the study. :class:`FittedModel` is the artifact around it
 its training data's hash and domain and the family's own labels (JSON values) and records (arrays that
 ``predict`` does not use, such as loss curves). A subclass sets ``KIND``, ``UNITS``, ``PARAMS``,
 ``PREDICT``, ``INPUTS`` (the frame columns that make ``x``) and implements ``apply(frame) -> DataFrame`` on
-a data-contract frame (``gx, gy, gz`` in g, ``bx, by, bz`` in nT, ...). A kind whose parameters are still
-loose array fields (``PARAMS`` None) is saved and loaded by the same code, its arrays taken from its fields.
+a data-contract frame (``gx, gy, gz`` in g, ``bx, by, bz`` in nT, ...).
 
 Optional parts: a family whose models may lack a part (a calibration without an accelerometer fit) has None
 in that leaf's place, so the params' structure says which parts a model has. The kind lists such leaves in
@@ -188,7 +187,7 @@ class FittedModel(abc.ABC):
 
     KIND: ClassVar[str] = ""
     UNITS: ClassVar[dict] = {}
-    PARAMS: ClassVar[type | None] = None
+    PARAMS: ClassVar[type]
     PREDICT: ClassVar[Callable | None] = None
     INPUTS: ClassVar[tuple] = ()
     MAY_BE_EMPTY: ClassVar[tuple] = ()
@@ -230,11 +229,11 @@ class FittedModel(abc.ABC):
     # ---------------------------------------------------------------- files
     def _split_fields(self) -> tuple[dict, dict]:
         """``(arrays, plain)``: the arrays to save (params leaves, then array fields) and the JSON fields."""
-        arrays = {} if self.PARAMS is None else param_arrays(self.params)
+        arrays = param_arrays(self.params)
         plain = {}
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
-            if self.PARAMS is not None and f.name == "params":
+            if f.name == "params":
                 plain.update({n: None for n in self.OPTIONAL_LEAVES if getattr(v, n) is None})
                 continue
             if f.name in self.OPTIONAL_LEAVES:
@@ -245,12 +244,11 @@ class FittedModel(abc.ABC):
                 arrays[f.name] = v
             else:
                 plain[f.name] = v
-        if self.PARAMS is not None:
-            like = self.params_like(json.loads(json.dumps(plain, default=_json_default)))
-            if jax.tree_util.tree_structure(like) != jax.tree_util.tree_structure(self.params):
-                raise ValueError(f"{self.KIND}: the params' structure or settings differ from those its meta "
-                                 f"describes ({jax.tree_util.tree_structure(self.params)} vs "
-                                 f"{jax.tree_util.tree_structure(like)}); a saved model would not load as it is")
+        like = self.params_like(json.loads(json.dumps(plain, default=_json_default)))
+        if jax.tree_util.tree_structure(like) != jax.tree_util.tree_structure(self.params):
+            raise ValueError(f"{self.KIND}: the params' structure or settings differ from those its meta "
+                             f"describes ({jax.tree_util.tree_structure(self.params)} vs "
+                             f"{jax.tree_util.tree_structure(like)}); a saved model would not load as it is")
         return arrays, plain
 
     def header(self) -> dict:
@@ -335,8 +333,7 @@ def read_model(path, kinds: dict) -> FittedModel:
                          f"reads (it reads schema {cls.OLDEST_SCHEMA} on); {cls.REFIT}")
     npz = p.with_name(local_name(head["arrays"], str(p), "'arrays'"))
     types = field_types(cls)
-    if cls.PARAMS is not None:
-        types.pop("params")
+    types.pop("params")
     fields = head["fields"]
     unknown = sorted(set(fields) - set(types) - set(cls.OPTIONAL_LEAVES))
     if unknown:
@@ -358,16 +355,13 @@ def read_model(path, kinds: dict) -> FittedModel:
             raise ModelError(f"{p}: field {name!r} must be {' or '.join(t)}, got {str(fields[name])[:60]!r}")
         kwargs[name] = fields[name]
     check_domain(kwargs["domain"], str(p))
-    leaves, skeleton = [], None
-    if cls.PARAMS is not None:
-        try:
-            like = cls.params_like(fields)
-            leaves, skeleton = jax.tree_util.tree_flatten_with_path(like)
-        except ModelError as e:
-            raise ModelError(f"{p}: {e}") from None
-        except (TypeError, ValueError, IndexError, KeyError, AttributeError) as e:
-            raise ModelError(f"{p}: the meta of this {kind} model describes no params ({type(e).__name__}: "
-                             f"{one_line(e)})") from None
+    try:
+        leaves, skeleton = jax.tree_util.tree_flatten_with_path(cls.params_like(fields))
+    except ModelError as e:
+        raise ModelError(f"{p}: {e}") from None
+    except (TypeError, ValueError, IndexError, KeyError, AttributeError) as e:
+        raise ModelError(f"{p}: the meta of this {kind} model describes no params ({type(e).__name__}: "
+                         f"{one_line(e)})") from None
     leaf_names = [_leaf_name(path) for path, _ in leaves]
     bad = [n for n in leaf_names if not _LEAF_NAME.fullmatch(n)]
     if bad:
@@ -381,8 +375,7 @@ def read_model(path, kinds: dict) -> FittedModel:
     missing = [n for n in leaf_names if n not in arrays]
     if missing:
         raise ModelError(f"{p}: model of kind {kind!r} lacks array {missing[0]!r} in {npz.name}")
-    if skeleton is not None:
-        kwargs["params"] = jax.tree_util.tree_unflatten(skeleton, [arrays[n] for n in leaf_names])
+    kwargs["params"] = jax.tree_util.tree_unflatten(skeleton, [arrays[n] for n in leaf_names])
     for name in field_arrays:
         t = types[name]
         if name in arrays:
