@@ -2,7 +2,7 @@
 :class:`icgo.studies.icgo_relm_config.StudyConfig`, the data loaded, and the run directory written
 (:mod:`icgo.studies.icgo_relm_outputs`).
 
-Like :mod:`experiments._entry`, nothing here imports JAX at module import; functions that need the
+Like :mod:`hydra_plugins.icgo_launcher.door`, nothing here imports JAX at module import; functions that need the
 library import it inside.
 """
 
@@ -58,7 +58,7 @@ def check_config(cfg: DictConfig) -> None:
     Raises:
         SettingError: one line naming the setting, its value and what is allowed.
     """
-    from experiments._entry import bool_setting
+    from hydra_plugins.icgo_launcher.door import bool_setting
 
     _unknown(cfg.keys(), ENTRY_KEYS[""], "")
     for node in ("optimizer", "strategy", "schedule", "dataset", *STUDY_NODES):
@@ -284,7 +284,7 @@ def write_outputs(outdir: Path, cfg: DictConfig, result, info: dict, frame=None,
     """Write the run directory all at once (:func:`icgo.studies.icgo_relm_outputs.write_run_files`), Hydra's record
     of the job (``.hydra/``) staged with the rest: an interruption or a full disk before the move leaves the previous
     run as it was (:class:`icgo.io.files.Output`). Returns the run.json dictionary."""
-    from experiments._entry import write_hydra_record
+    from hydra_plugins.icgo_launcher.door import write_hydra_record
     from icgo.reporting import records as run_records
     from icgo.studies.icgo_relm_outputs import write_run_files
 
@@ -299,7 +299,7 @@ def run_help() -> str:
     keys, and where to read more (read from ``conf/``, so it never lists an option that does not exist)."""
     import yaml
 
-    from experiments._entry import CONF_DIR, STUDY_GROUPS, group_options
+    from hydra_plugins.icgo_launcher.door import CONF_DIR, STUDY_GROUPS, group_options
 
     cfg = yaml.safe_load((CONF_DIR / "config.yaml").read_text())
     defaults = {k: v for d in cfg.get("defaults", []) if isinstance(d, dict) for k, v in d.items()}

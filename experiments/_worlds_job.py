@@ -76,7 +76,7 @@ def write_outputs(outdir: Path, cfg: DictConfig, result, info: dict) -> dict:
     """The run directory all at once (:func:`icgo.studies.worlds_outputs.write_run_files`; staged, run.json last:
     :func:`experiments._relm_job.write_outputs`' rule). Returns the run.json dictionary."""
     from experiments import _relm_job as relm_job
-    from experiments._entry import write_hydra_record
+    from hydra_plugins.icgo_launcher.door import write_hydra_record
     from icgo.reporting import records as run_records
     from icgo.studies.worlds_outputs import write_run_files
 

@@ -17,7 +17,7 @@ import json
 import os
 import re
 
-from experiments._entry import RESULTS_DIR, results_output
+from icgo.io.files import RESULTS_DIR, results_output
 
 
 def main(argv=None) -> dict:

@@ -32,7 +32,7 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from experiments._entry import CONF_DIR, EXIT_CONFIG, check_overrides, one_line_errors, preflight
+from hydra_plugins.icgo_launcher.door import CONF_DIR, EXIT_CONFIG, check_overrides, one_line_errors, preflight
 
 log = logging.getLogger(__name__)
 
@@ -50,18 +50,19 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
     Raises:
         SystemExit(2): a bad setting or data file outside a sweep (one line on stderr).
     """
-    from experiments import _entry as entry
+    from hydra_plugins.icgo_launcher import door, jobs
+    from icgo.core import devices as runtime
     from experiments import _relm_job as relm_job
 
     t0 = time.perf_counter()
-    previous = entry.previous_run(outdir)
+    previous = jobs.previous_run(outdir)
     if previous is not None and multirun and cfg.overwrite is not True:
         # Re-running a sweep into its directory resumes it: a finished job is kept only when it ran this
         # job's configuration (its hash); one of another configuration is refused, never taken for this job.
         there = relm_job.stored_hash(outdir, previous)
         if there is not None and there == relm_job.cfg_hash(cfg):
             log.info("kept the finished job in %s (overwrite=true reruns it)", outdir)
-            (outdir / entry.FAILED).unlink(missing_ok=True)
+            (outdir / jobs.FAILED).unlink(missing_ok=True)
             return previous
         old = relm_job.stored_config(outdir)
         diff = relm_job.config_difference(old, OmegaConf.to_container(cfg, resolve=True)) if old else \
@@ -81,19 +82,19 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
     try:
         relm_job.check_config(cfg)
         worlds_job.check(cfg)
-        relm_job.run_output(outdir, overwrite=entry.bool_setting(cfg, "overwrite"))
+        relm_job.run_output(outdir, overwrite=door.bool_setting(cfg, "overwrite"))
     except ValueError as e:
         if multirun:
-            entry.write_failure(outdir, entry.one_line(e))
-            log.error("job failed: %s", entry.one_line(e))
+            jobs.write_failure(outdir, jobs.one_line(e))
+            log.error("job failed: %s", jobs.one_line(e))
             return None
-        entry.fail_line(e)
+        door.fail_line(e)
     try:
-        devices = entry.start_devices()  # before JAX's backend starts: jax.distributed, the CPU's host devices
+        devices = runtime.start_devices()  # before JAX's backend starts: jax.distributed, the CPU's host devices
         scfg = relm_job.study_config(cfg)  # every check before any computation (imports the study, JAX with it)
         progress_enabled(cfg.progress)
         timings["import_s"] = time.perf_counter() - t0
-        entry.enable_jax_cache(cfg.jax_cache_dir)
+        runtime.enable_jax_cache(cfg.jax_cache_dir)
         if worlds:
             result, desc = worlds_job.run_study(cfg, scfg, timings)
         else:
@@ -105,15 +106,15 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
                                        target=target, timings=timings)
     except ValueError as e:  # SettingError, DataError (icgo.core.errors), study/optimizer checks: one line each
         if multirun:
-            entry.write_failure(outdir, entry.one_line(e), entry.format_traceback(e))
-            log.error("job failed: %s", entry.one_line(e))
+            jobs.write_failure(outdir, jobs.one_line(e), jobs.format_traceback(e))
+            log.error("job failed: %s", jobs.one_line(e))
             return None
-        entry.fail_line(e)
+        door.fail_line(e)
     except Exception as e:
         if not multirun:
             raise
-        entry.write_failure(outdir, f"{type(e).__name__}: {entry.one_line(e)}", entry.format_traceback(e))
-        log.error("job failed: %s: %s", type(e).__name__, entry.one_line(e))
+        jobs.write_failure(outdir, f"{type(e).__name__}: {jobs.one_line(e)}", jobs.format_traceback(e))
+        log.error("job failed: %s: %s", type(e).__name__, jobs.one_line(e))
         return None
 
     info = {"label": cfg.label, "dataset": cfg.dataset.name,
@@ -125,18 +126,18 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
             "optimizer_params": OmegaConf.to_container(cfg.optimizer.params, resolve=True) if cfg.optimizer.name
             else None,
             "execution": timings.pop("execution"), "timings": timings, "devices": devices,
-            "total_time_s": time.perf_counter() - t0, **entry.env_info()}
-    if entry.is_secondary_process():  # a multi-process job: the first process writes the run directory
+            "total_time_s": time.perf_counter() - t0, **runtime.env_info()}
+    if runtime.is_secondary_process():  # a multi-process job: the first process writes the run directory
         return None
     if worlds:
         try:
             run = worlds_job.write_outputs(outdir, cfg, result, info)
         except ValueError as e:  # OutputError: the previous run is intact
             if multirun:
-                entry.write_failure(outdir, entry.one_line(e))
-                log.error("job failed: %s", entry.one_line(e))
+                jobs.write_failure(outdir, jobs.one_line(e))
+                log.error("job failed: %s", jobs.one_line(e))
                 return None
-            entry.fail_line(e)
+            door.fail_line(e)
         from icgo.studies.worlds_outputs import print_summary as print_worlds
 
         print_worlds(result, outdir, t0)
@@ -153,10 +154,10 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
         run = relm_job.write_outputs(outdir, cfg, result, info, frame, meta, plot)
     except ValueError as e:  # OutputError (a full disk, a read-only directory): the previous run is intact
         if multirun:
-            entry.write_failure(outdir, entry.one_line(e))
-            log.error("job failed: %s", entry.one_line(e))
+            jobs.write_failure(outdir, jobs.one_line(e))
+            log.error("job failed: %s", jobs.one_line(e))
             return None
-        entry.fail_line(e)
+        door.fail_line(e)
     from icgo.studies.icgo_relm_outputs import print_summary
 
     print_summary(result, desc, run, outdir, t0)
@@ -190,6 +191,6 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    from experiments._entry import guarded
+    from hydra_plugins.icgo_launcher.door import guarded
 
     guarded(main)

@@ -16,7 +16,7 @@ from omegaconf import OmegaConf
 
 import icgo  # noqa: F401
 from experiments import calibrate as entry
-from experiments._entry import CONF_DIR
+from hydra_plugins.icgo_launcher.door import CONF_DIR
 from icgo.core.errors import SettingError
 from icgo.core.settings import config_to_mapping
 from icgo.io import mag_cal_bundled, schema
