@@ -17,9 +17,12 @@ import hydra
 from omegaconf import DictConfig
 
 from hydra_plugins.icgo_launcher.door import hydra_cli, one_line_errors, study_main
+from hydra_plugins.icgo_launcher.schema import register
+from icgo.studies.misma_config import MismaConfig
 
 #: Settings of the entry point, not of the study (excluded from the study's config dataclass).
 ENTRY_KEYS = ("out_dir",)
+register("misma", MismaConfig, [("out_dir", str, "results")])  # conf/misma.yaml's schema
 
 
 @hydra.main(config_path="../conf", config_name="misma", version_base="1.3")

@@ -163,6 +163,45 @@ def check_plain_overrides(args: list[str], config_name: str, conf_dir: Path = CO
     return None
 
 
+def check_schema(args: list[str], config_name: str, conf_dir: Path = CONF_DIR) -> str | None:
+    """One-line error for an override whose value the config's typed schema refuses (a config whose defaults list
+    names a ``*_schema``: :mod:`hydra_plugins.icgo_launcher.schema`), else None.
+
+    Hydra checks the schema when it composes, and would print its refusal as a block with exit status 1; this
+    composes the config with the command line's overrides (a sweep's first value) and names the key.
+    """
+    from omegaconf.errors import ValidationError
+
+    defaults = OmegaConf.load(conf_dir / f"{config_name}.yaml").get("defaults") or []
+    if not any(str(d).endswith("_schema") for d in defaults):
+        return None
+    candidates = [a for i, a in enumerate(args) if not a.startswith("-") and not (i and args[i - 1] in VALUE_FLAGS)]
+    choices = []  # (key with its + or ++, every value of a sweep or the one value)
+    for ov in OverridesParser.create().parse_overrides(candidates):  # the grammar checked by check_plain_overrides
+        if ov.key_or_group.startswith("hydra") or ov.type == OverrideType.DEL:
+            continue
+        prefix = {OverrideType.ADD: "+", OverrideType.FORCE_ADD: "++"}.get(ov.type, "")
+        values = list(ov.sweep_string_iterator()) if ov.is_sweep_override() else [ov.get_value_element_as_str()]
+        choices.append((prefix + ov.key_or_group, values))
+    first = [f"{k}={values[0]}" for k, values in choices]
+    trials = [first] + [first[:i] + [f"{k}={v}"] + first[i + 1:]
+                        for i, (k, values) in enumerate(choices) for v in values[1:]]  # each sweep value once
+    GlobalHydra.instance().clear()
+    try:
+        with initialize_config_dir(config_dir=str(conf_dir), version_base="1.3"):
+            for overrides in trials:
+                try:
+                    compose(config_name=config_name, overrides=overrides)
+                except Exception as e:  # noqa: BLE001  (only a value the schema refuses is named here)
+                    while e is not None and not isinstance(e, ValidationError):
+                        e = e.__cause__ or e.__context__
+                    if e is not None:
+                        return f"setting {e.full_key!r}: {first_line(e)} (conf/{config_name}.yaml's schema)"
+    finally:
+        GlobalHydra.instance().clear()
+    return None
+
+
 def _has_key(cfg, dotted: str) -> bool:
     """Whether the composed config has the key ``a.b.c`` (a mandatory ``???`` value counts as present)."""
     node = cfg
@@ -180,7 +219,7 @@ def preflight(config_name: str, args: list[str] | None = None, conf_dir: Path = 
     """Checks of a Hydra entry point's command line before Hydra starts; one line and exit 2 on a bad one.
 
     Moves ``-m``/``--multirun`` in front of the overrides (Hydra's parser refuses
-    them after one), then :func:`check_hydra_dirs` and :func:`check_plain_overrides`.
+    them after one), then :func:`check_hydra_dirs`, :func:`check_plain_overrides` and :func:`check_schema`.
     Rewrites ``sys.argv`` when ``args`` is None.
     """
     argv = sys.argv[1:] if args is None else args
@@ -188,7 +227,8 @@ def preflight(config_name: str, args: list[str] | None = None, conf_dir: Path = 
     rest = [a for a in argv if a not in MULTIRUN_FLAGS]
     if args is None:
         sys.argv[1:] = flags + rest
-    err = check_hydra_dirs(rest) or check_plain_overrides(rest, config_name, conf_dir)
+    err = (check_hydra_dirs(rest) or check_plain_overrides(rest, config_name, conf_dir)
+           or check_schema(rest, config_name, conf_dir))
     if err:
         print(f"error: {err}", file=sys.stderr)
         raise SystemExit(EXIT_CONFIG)
