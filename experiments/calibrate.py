@@ -20,16 +20,18 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from hydra_plugins.icgo_launcher.door import (bool_setting, hydra_cli, hydra_keep, one_line_errors, study_config,
-                                               write_hydra_record)
+from hydra_plugins.icgo_launcher.door import (bool_setting, hydra_cli, hydra_keep, one_line_errors, repo_path,
+                                               study_config, write_hydra_record)
+from hydra_plugins.icgo_launcher.schema import register
 from icgo.core.devices import enable_jax_cache
 from icgo.core.errors import SettingError
 from icgo.core.settings import first_line
+from icgo.studies.calibration import CalibrationConfig
 
-ROOT = Path(__file__).resolve().parents[1]
 #: Settings of the entry point, not of the study (excluded from CalibrationConfig).
 ENTRY_KEYS = ("data", "mag_axes", "grav_axes", "groups", "columns", "columns_file", "site", "max_shots",
               "max_groups", "results_dir", "jax_cache_dir", "overwrite")
+register("calibrate", CalibrationConfig, ENTRY_KEYS)  # conf/calibrate.yaml's schema
 
 
 def load(cfg: DictConfig) -> dict:
@@ -68,9 +70,8 @@ def main(cfg: DictConfig) -> None:
     site = site_reference(None if site is None else OmegaConf.to_container(site, resolve=True))
     output = Output(Path(HydraConfig.get().runtime.output_dir), setting="hydra.run.dir",
                     overwrite=bool_setting(cfg, "overwrite"), keep=hydra_keep(), writer="experiments.calibrate")
-    res = Path(str(cfg.results_dir))
     rc = calibration_run.run(str(cfg.data), config, site, output, lambda: load(cfg),
-                             lambda stage: write_hydra_record(stage, cfg), res if res.is_absolute() else ROOT / res, t0)
+                             lambda stage: write_hydra_record(stage, cfg), repo_path(cfg.results_dir), t0)
     if rc:
         raise SystemExit(rc)
 

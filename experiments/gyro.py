@@ -11,8 +11,6 @@ The one study main (:func:`hydra_plugins.icgo_launcher.door.study_main`) compose
 
 from __future__ import annotations
 
-from typing import Any
-
 import hydra
 from omegaconf import DictConfig
 
@@ -22,7 +20,7 @@ from icgo.studies.gyro import GyroConfig
 
 #: Settings of the entry point, not of the study (excluded from the study's config dataclass).
 ENTRY_KEYS = ("out_dir", "jax_cache")
-register("gyro", GyroConfig, [("out_dir", str, "results"), ("jax_cache", Any, None)])  # conf/gyro.yaml's schema
+register("gyro", GyroConfig, ENTRY_KEYS)  # conf/gyro.yaml's schema
 
 
 @hydra.main(config_path="../conf", config_name="gyro", version_base="1.3")

@@ -22,7 +22,7 @@ from icgo.studies.misma_config import MismaConfig
 
 #: Settings of the entry point, not of the study (excluded from the study's config dataclass).
 ENTRY_KEYS = ("out_dir",)
-register("misma", MismaConfig, [("out_dir", str, "results")])  # conf/misma.yaml's schema
+register("misma", MismaConfig, ENTRY_KEYS)  # conf/misma.yaml's schema
 
 
 @hydra.main(config_path="../conf", config_name="misma", version_base="1.3")

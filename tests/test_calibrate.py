@@ -46,6 +46,21 @@ def test_conf_yaml_equals_the_dataclass_defaults():
     assert OmegaConf.load(CONF_DIR / "calibrate.yaml").jax_cache_dir == app.jax_cache_dir
 
 
+def test_conf_yaml_is_checked_against_the_schema_of_the_dataclass():
+    """conf/calibrate.yaml names the schema made from CalibrationConfig: an int or str study field of the wrong type
+    is refused when Hydra composes (the door's preflight prints it as one line, exit 2); a bool and the entry
+    point's own settings are the library's and the door's checks."""
+    from hydra.errors import ConfigCompositionException
+
+    from hydra_plugins.icgo_launcher.door import check_schema
+
+    for ov in ("misma_iter=abc", "misma_pop=1e9", "misma_bounds=[1]"):
+        with pytest.raises(ConfigCompositionException):
+            _compose(ov)
+        assert check_schema([ov], "calibrate").startswith(f"setting {ov.split('=')[0]!r}: ")
+    assert _compose("peer=maybe").peer == "maybe" and check_schema(["peer=maybe", "max_shots=abc"], "calibrate") is None
+
+
 def _one_field(n=40, seed=0, F=50_000.0, dip=60.0):
     """Shots of one field at random attitudes (tool frame), exact: the closed-form sanity reference."""
     r = np.random.default_rng(seed)

@@ -168,7 +168,7 @@ def check_schema(args: list[str], config_name: str, conf_dir: Path = CONF_DIR) -
     names a ``*_schema``: :mod:`hydra_plugins.icgo_launcher.schema`), else None.
 
     Hydra checks the schema when it composes, and would print its refusal as a block with exit status 1; this
-    composes the config with the command line's overrides (a sweep's first value) and names the key.
+    composes the config with the command line's overrides (each value of a sweep once) and names the key.
     """
     from omegaconf.errors import ValidationError
 

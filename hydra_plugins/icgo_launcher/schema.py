@@ -1,9 +1,9 @@
 """The typed schema of a study door's YAML, made from the study's config dataclass and registered in Hydra's
 ConfigStore, so that Hydra refuses an unknown key or a wrongly typed value when it composes.
 
-``conf/misma.yaml`` and ``conf/gyro.yaml`` name their schema first in their defaults list
+``conf/misma.yaml``, ``conf/gyro.yaml`` and ``conf/calibrate.yaml`` name their schema first in their defaults list
 (``defaults: [misma_schema, _self_]``); :func:`register` stores it, made from ``STUDIES[name].config_cls``
-(:func:`schema_of`) plus the entry point's own keys. The library's dataclass stays the one source of the defaults
+(:func:`schema_of`) plus the entry point's own keys (untyped, their values given by the YAML only). The library's dataclass stays the one source of the defaults
 and the one full check (:func:`icgo.core.settings.config_from_mapping` and its ``__post_init__``): OmegaConf
 cannot express every field's type, so the schema types only what it checks exactly as the library does:
 
@@ -23,6 +23,8 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
+from omegaconf import MISSING
+
 #: What each typed field annotation becomes in a schema (every other annotation: ``Any``).
 TYPED = {"int": int, "str": str}
 
@@ -36,10 +38,10 @@ def _plain(value):
     return value
 
 
-def schema_of(config_cls, entry_fields=()) -> type:
+def schema_of(config_cls, entry_keys=()) -> type:
     """A mutable dataclass with the fields and defaults of the frozen ``config_cls`` (nested dataclasses mirrored,
-    types as the module docstring says), plus ``entry_fields``: ``(name, type, default)`` of the entry point's own
-    keys."""
+    types as the module docstring says), plus ``entry_keys``: the entry point's own settings (``Any``, no default
+    here: the YAML gives them)."""
     default = config_cls()
     fields = []
     for f in dataclasses.fields(config_cls):
@@ -52,15 +54,15 @@ def schema_of(config_cls, entry_fields=()) -> type:
         if kind is not Any and (type(value) is not kind):
             kind = Any  # a default of another type than its annotation: the library decides
         fields.append((f.name, kind, dataclasses.field(default_factory=lambda v=value: _plain(v))))
-    for name, kind, value in entry_fields:
-        fields.append((name, kind, dataclasses.field(default_factory=lambda v=value: _plain(v))))
+    fields += [(name, Any, dataclasses.field(default=MISSING)) for name in entry_keys]
     return dataclasses.make_dataclass(f"{config_cls.__name__}Schema", fields)
 
 
-def register(name: str, config_cls, entry_fields=()) -> str:
-    """Store the schema of ``config_cls`` (``STUDIES[name].config_cls``; :func:`schema_of`) in Hydra's ConfigStore
-    as ``<name>_schema``; returns that name (storing again replaces it)."""
+def register(config_name: str, config_cls, entry_keys=()) -> str:
+    """Store the schema of ``conf/<config_name>.yaml`` (:func:`schema_of` ``config_cls``, the study's config class,
+    and ``entry_keys``) in Hydra's ConfigStore as ``<config_name>_schema``; returns that name (storing again
+    replaces it)."""
     from hydra.core.config_store import ConfigStore
 
-    ConfigStore.instance().store(name=f"{name}_schema", node=schema_of(config_cls, entry_fields))
-    return f"{name}_schema"
+    ConfigStore.instance().store(name=f"{config_name}_schema", node=schema_of(config_cls, entry_keys))
+    return f"{config_name}_schema"
