@@ -15,12 +15,9 @@ import hydra
 from omegaconf import DictConfig
 
 from hydra_plugins.icgo_launcher.door import hydra_cli, one_line_errors, study_main
-from hydra_plugins.icgo_launcher.schema import register
-from icgo.studies.gyro import GyroConfig
 
 #: Settings of the entry point, not of the study (excluded from the study's config dataclass).
 ENTRY_KEYS = ("out_dir", "jax_cache")
-register("gyro", GyroConfig, ENTRY_KEYS)  # conf/gyro.yaml's schema
 
 
 @hydra.main(config_path="../conf", config_name="gyro", version_base="1.3")

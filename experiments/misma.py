@@ -17,12 +17,9 @@ import hydra
 from omegaconf import DictConfig
 
 from hydra_plugins.icgo_launcher.door import hydra_cli, one_line_errors, study_main
-from hydra_plugins.icgo_launcher.schema import register
-from icgo.studies.misma_config import MismaConfig
 
 #: Settings of the entry point, not of the study (excluded from the study's config dataclass).
 ENTRY_KEYS = ("out_dir",)
-register("misma", MismaConfig, ENTRY_KEYS)  # conf/misma.yaml's schema
 
 
 @hydra.main(config_path="../conf", config_name="misma", version_base="1.3")

@@ -46,7 +46,7 @@ def test_conf_yaml_equals_the_dataclass_defaults():
     assert OmegaConf.load(CONF_DIR / "calibrate.yaml").jax_cache_dir == app.jax_cache_dir
 
 
-def test_conf_yaml_is_checked_against_the_schema_of_the_dataclass():
+def test_conf_yaml_is_checked_against_the_schema_of_the_dataclass(tmp_path):
     """conf/calibrate.yaml names the schema made from CalibrationConfig: an int or str study field of the wrong type
     is refused when Hydra composes (the door's preflight prints it as one line, exit 2); a bool and the entry
     point's own settings are the library's and the door's checks."""
@@ -59,6 +59,10 @@ def test_conf_yaml_is_checked_against_the_schema_of_the_dataclass():
             _compose(ov)
         assert check_schema([ov], "calibrate").startswith(f"setting {ov.split('=')[0]!r}: ")
     assert _compose("peer=maybe").peer == "maybe" and check_schema(["peer=maybe", "max_shots=abc"], "calibrate") is None
+    out = _run_entry(tmp_path, "data=x.json", "misma_iter=1,abc")
+    lines = out.stderr.strip().splitlines()
+    assert out.returncode == 2 and len(lines) == 1, out.stderr
+    assert lines[0].startswith("error: setting 'misma_iter': ") and "schema" in lines[0], lines[0]
 
 
 def _one_field(n=40, seed=0, F=50_000.0, dip=60.0):

@@ -1,9 +1,15 @@
 """The typed schema of a study door's YAML, made from the study's config dataclass and registered in Hydra's
 ConfigStore, so that Hydra refuses an unknown key or a wrongly typed value when it composes.
 
-``conf/misma.yaml``, ``conf/gyro.yaml`` and ``conf/calibrate.yaml`` name their schema first in their defaults list
-(``defaults: [misma_schema, _self_]``); :func:`register` stores it, made from ``STUDIES[name].config_cls``
-(:func:`schema_of`) plus the entry point's own keys (untyped, their values given by the YAML only). The library's dataclass stays the one source of the defaults
+``conf/calibrate.yaml`` names its schema first in its defaults list (``defaults: [calibrate_schema, _self_]``);
+:func:`register` stores it, made from ``STUDIES[name].config_cls`` (:func:`schema_of`) plus the entry point's own
+keys (untyped, their values given by the YAML only).
+
+``conf/misma.yaml`` and ``conf/gyro.yaml`` have no schema: a free mapping inside a typed node (MISMA's
+``simulated.variants``, gyro's ``data.instrument``) can then no longer be deleted or replaced from the command
+line (``~simulated.variants +simulated.variants={...}``, ``data.instrument={...}``: OmegaConf refuses both on a
+structured node), which their command lines use; :func:`icgo.core.settings.config_from_mapping` stays their one
+check. The library's dataclass stays the one source of the defaults
 and the one full check (:func:`icgo.core.settings.config_from_mapping` and its ``__post_init__``): OmegaConf
 cannot express every field's type, so the schema types only what it checks exactly as the library does:
 
