@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import json
 
-from experiments._entry import RESULTS_DIR, results_output
+from icgo.io.files import RESULTS_DIR, results_output
 
 
 def main(argv=None) -> dict:

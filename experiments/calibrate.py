@@ -20,22 +20,18 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from experiments._entry import enable_jax_cache, one_line, one_line_errors
+from hydra_plugins.icgo_launcher.door import (bool_setting, hydra_cli, hydra_keep, one_line_errors, repo_path,
+                                               study_config, write_hydra_record)
+from hydra_plugins.icgo_launcher.schema import register
+from icgo.core.devices import enable_jax_cache
 from icgo.core.errors import SettingError
+from icgo.core.settings import first_line
+from icgo.studies.calibration import CalibrationConfig
 
-ROOT = Path(__file__).resolve().parents[1]
 #: Settings of the entry point, not of the study (excluded from CalibrationConfig).
 ENTRY_KEYS = ("data", "mag_axes", "grav_axes", "groups", "columns", "columns_file", "site", "max_shots",
               "max_groups", "results_dir", "jax_cache_dir", "overwrite")
-
-
-def study_config(cfg: DictConfig):
-    """:class:`icgo.studies.calibration.CalibrationConfig` of a composed config (unknown keys refused)."""
-    from icgo.core.settings import config_from_mapping
-    from icgo.studies.calibration import CalibrationConfig
-
-    values = {k: v for k, v in OmegaConf.to_container(cfg, resolve=True).items() if k not in ENTRY_KEYS}
-    return config_from_mapping(CalibrationConfig, values, "conf/calibrate.yaml")
+register("calibrate", CalibrationConfig, ENTRY_KEYS)  # conf/calibrate.yaml's schema
 
 
 def load(cfg: DictConfig) -> dict:
@@ -58,15 +54,14 @@ def main(cfg: DictConfig) -> None:
     :data:`icgo.survey.verdict.EXIT_NO_RECOMMENDATION` (4)."""
     from hydra.core.hydra_config import HydraConfig
 
-    from experiments._entry import bool_setting, hydra_keep, write_hydra_record
     from icgo.io.files import Output
     from icgo.io.site import site_reference
     from icgo.studies import calibration_run
 
     try:
-        config = study_config(cfg)
+        config = study_config("calibration", cfg, ENTRY_KEYS, config_name="calibrate")
     except ValueError as e:
-        raise SettingError(one_line(e)) from None
+        raise SettingError(first_line(e)) from None
     t0 = time.perf_counter()
     enable_jax_cache(cfg.get("jax_cache_dir"))
     site = cfg.get("site")
@@ -75,21 +70,11 @@ def main(cfg: DictConfig) -> None:
     site = site_reference(None if site is None else OmegaConf.to_container(site, resolve=True))
     output = Output(Path(HydraConfig.get().runtime.output_dir), setting="hydra.run.dir",
                     overwrite=bool_setting(cfg, "overwrite"), keep=hydra_keep(), writer="experiments.calibrate")
-    res = Path(str(cfg.results_dir))
     rc = calibration_run.run(str(cfg.data), config, site, output, lambda: load(cfg),
-                             lambda stage: write_hydra_record(stage, cfg), res if res.is_absolute() else ROOT / res, t0)
+                             lambda stage: write_hydra_record(stage, cfg), repo_path(cfg.results_dir), t0)
     if rc:
         raise SystemExit(rc)
 
 
-def cli() -> None:
-    from experiments._entry import preflight
-
-    preflight("calibrate")
-    main()
-
-
 if __name__ == "__main__":
-    from experiments._entry import guarded
-
-    guarded(cli)
+    hydra_cli("calibrate", main)

@@ -1,4 +1,4 @@
-"""Hydra entry of the discrepancy workflow: read the data, fit, write (:mod:`icgo.studies.discrepancy_job`).
+"""Hydra entry of the discrepancy workflow: read the data, fit, write (:mod:`icgo.studies.discrepancy`).
 
     python -m experiments.discrepancy data=path/to/file.csv     # .meta.json next to it
     python -m experiments.discrepancy data=device.json [mag_axes=.. grav_axes=..] [groups=..]   # circuitpython-mag-cal
@@ -21,49 +21,38 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from experiments._entry import EXIT_CONFIG, hydra_keep, one_line, one_line_errors, write_hydra_record
-from icgo import discrepancy as D
-from icgo.core.errors import DataError, SettingError
-from icgo.io import recording as icgo_io
-from icgo.io.files import Output
+from hydra_plugins.icgo_launcher.door import EXIT_CONFIG, hydra_cli, hydra_keep, one_line_errors, run_study
+from icgo.core.settings import error_status
 from icgo.studies import discrepancy_job as job
 
 
 def main_body(cfg: DictConfig, out_dir: Path, keep=()) -> int:
     """Run one composed config; 0, :data:`EXIT_CONFIG` (2) for a bad setting, 1 for bad input data. ``out_dir`` is
     written all at once (:class:`icgo.io.files.Output`), refused when it holds files unless ``overwrite=true``."""
+    from icgo.io.files import Output
+    from icgo.io.recording import column_map
+
     try:
         config = job.workflow_config(OmegaConf.to_container(cfg, resolve=True))
-        cmap = icgo_io.column_map(OmegaConf.to_container(cfg.columns) if cfg.get("columns") else None,
-                                  cfg.get("columns_file"))
+        columns = column_map(OmegaConf.to_container(cfg.columns) if cfg.get("columns") else None,
+                             cfg.get("columns_file"))
         output = None if cfg.study != "none" else Output(out_dir, setting="hydra.run.dir", overwrite=cfg.overwrite,
                                                          keep=keep, writer="experiments.discrepancy").check()
-    except ValueError as err:  # a SettingsError: one line per problem
-        for line in getattr(err, "problems", None) or (one_line(err),):
-            print(f"error: {line}", file=sys.stderr)
+    except ValueError as err:  # one line per problem (a SettingsError has several); each exits 2 here
+        error_status(err)
         return EXIT_CONFIG
+    if cfg.study != "none":
+        print("wrote", job.write_study(str(cfg.study), config, int(cfg.seed), int(cfg.n_stations),
+                                       Path(cfg.results_dir)))
+        return 0
+    shots = {k: (OmegaConf.to_container(cfg[k]) if OmegaConf.is_list(cfg[k]) else cfg[k])
+             for k in ("mag_axes", "grav_axes", "groups")}
+    inputs = dict(data=str(cfg.data), seed=int(cfg.seed), n_stations=int(cfg.n_stations), design=str(cfg.design),
+                  columns=columns, shots=shots)
     try:
-        if cfg.study != "none":
-            print("wrote", job.write_study(str(cfg.study), config, int(cfg.seed), int(cfg.n_stations),
-                                           Path(cfg.results_dir)))
-            return 0
-        shots = {k: (OmegaConf.to_container(cfg[k]) if OmegaConf.is_list(cfg[k]) else cfg[k])
-                 for k in ("mag_axes", "grav_axes", "groups")}
-        st, label, truth = job.load_stations(cfg.data, int(cfg.seed), int(cfg.n_stations), str(cfg.design),
-                                             config.noise, cmap, shots)
-        D.check_stations(st)  # too few stations, NaN: one line here, not a traceback from the workflow
-    except SettingError as err:
-        print(f"error: {one_line(err)}", file=sys.stderr)
-        return EXIT_CONFIG
-    except (DataError, ValueError, FileNotFoundError) as err:
-        print(f"error: {err}".splitlines()[0], file=sys.stderr)
-        return 1
-    res, model, qc = job.fit_stations(st, label, config)
-    with output.staged(last=("report.md",)) as stage:
-        write_hydra_record(stage, cfg)
-        job.write_fit(stage, res, label, truth, qc, model)
-    print("report:", out_dir / "report.md")
-    print("model:", out_dir / "discrepancy_model.json")
+        run_study("discrepancy", config, output, inputs=inputs, cfg=cfg)
+    except ValueError as err:  # bad data (exit 1) or a bad reading setting (exit 2), one line
+        return error_status(err)
     return 0
 
 
@@ -77,14 +66,5 @@ def main(cfg: DictConfig) -> None:
         sys.exit(rc)
 
 
-def cli() -> None:
-    from experiments._entry import preflight
-
-    preflight("discrepancy")
-    main()
-
-
 if __name__ == "__main__":
-    from experiments._entry import guarded
-
-    guarded(cli)
+    hydra_cli("discrepancy", main)

@@ -27,7 +27,7 @@ def main(argv=None) -> int:
     import dataclasses
 
     import icgo  # noqa: F401  (float64)
-    from experiments._entry import results_output
+    from icgo.io.files import results_output
     from icgo.core.errors import SettingError
     from icgo.datasets import casing_stations
     from icgo.optim.cgo import CGOConfig

@@ -33,7 +33,7 @@ def main(argv=None) -> int:
                     help="jobs at once for the preset plan (icgo_local launcher; default one per core)")
     ap.add_argument("--override", action="append", default=[], help="extra Hydra override for the preset plan")
     a = ap.parse_args(argv)
-    from experiments._entry import results_output
+    from icgo.io.files import results_output
     from experiments.figures_plan import check_plan_overrides, run_plan
     from hydra_plugins.icgo_launcher.report import REPORT_FILE
     from icgo.core.errors import SettingError

@@ -20,12 +20,12 @@ import sys
 
 
 def parser() -> argparse.ArgumentParser:
+    """The command line (defaults: :class:`icgo.studies.generalisation.GeneralisationConfig`)."""
+    from icgo.core.settings import ArgumentParser
+    from icgo.io.files import RESULTS_DIR
     from icgo.studies.generalisation import GeneralisationConfig
 
     d = GeneralisationConfig()
-    from experiments._entry import RESULTS_DIR
-    from icgo.core.settings import ArgumentParser
-
     ap = ArgumentParser(prog="python -m experiments.generalisation", description=__doc__,
                         formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--n-repeats", type=int, default=d.n_repeats)
@@ -39,16 +39,15 @@ def parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    args = parser().parse_args(sys.argv[1:] if argv is None else argv)
+    """The command: options -> the study's config (a bad one: one line, exit 2) -> the one study main."""
     import dataclasses
 
-    import jax
-
-    from experiments._entry import results_output
+    from hydra_plugins.icgo_launcher.door import progress_to_stdout, run_study
     from icgo.core.errors import SettingError
-    from icgo.studies.generalisation import GeneralisationConfig, build_data, run
-    from icgo.studies.generalisation_report import write_results
+    from icgo.io.files import results_output
+    from icgo.studies.generalisation import GeneralisationConfig
 
+    args = parser().parse_args(sys.argv[1:] if argv is None else argv)
     try:
         config = dataclasses.replace(GeneralisationConfig(), n_repeats=args.n_repeats, iterations=args.iterations,
                                      pop_size=args.pop_size, seed=args.seed)
@@ -56,11 +55,8 @@ def main(argv=None) -> int:
         print(f"error: --{e.field.replace('_', '-')} {e.problem}" if e.field else f"error: {e}", file=sys.stderr)
         return 2
     output = results_output(args.out, overwrite=args.overwrite, writer="experiments.generalisation")
-    out = output.path
-    res = run(build_data(config), config, jax.random.PRNGKey(config.seed), progress=lambda s: print(s, flush=True))
-    with output.staged(last=("generalisation.md",)) as stage:
-        write_results(res, config, stage)
-    print((out / "generalisation.md").read_text())
+    progress_to_stdout("generalisation")
+    run_study("generalisation", config, output)
     return 0
 
 

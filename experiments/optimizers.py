@@ -10,16 +10,13 @@ a call counter on the mealpy side, ``n_evals`` on ours). Pairs compared with the
 Wilcoxon rank-sum test (two-sided, alpha 0.05): ``+`` ours significantly lower
 (better), ``-`` significantly higher, ``=`` no significant difference.
 
-The study itself is ``icgo.studies.optimizers`` (registered as ``optimizers``);
-this entry point parses the options into its ``OptimizerStudyConfig``, runs it
-with ``PRNGKey(seed)`` and writes optimizers.md, optimizers_table.csv (the cell
-table) and optimizers_runs.csv (the run table).
+The study is ``icgo.studies.optimizers``; the options become its ``OptimizerStudyConfig``, run by the one study
+main (``PRNGKey(seed)``): optimizers.md, optimizers_table.csv (cells) and optimizers_runs.csv (runs).
 """
 
 from __future__ import annotations
 
 import argparse
-import logging
 import sys
 
 #: Config fields set from the command line (option --pop-size -> field pop_size).
@@ -28,12 +25,11 @@ FIELDS = ("functions", "dims", "runs", "pop_size", "budget", "jobs", "seed", "al
 
 def parser() -> argparse.ArgumentParser:
     """The command line (defaults: :class:`icgo.studies.optimizers.OptimizerStudyConfig`)."""
+    from icgo.core.settings import ArgumentParser
+    from icgo.io.files import RESULTS_DIR
     from icgo.studies.optimizers import OptimizerStudyConfig
 
     d = OptimizerStudyConfig()
-    from experiments._entry import RESULTS_DIR
-    from icgo.core.settings import ArgumentParser
-
     ap = ArgumentParser(prog="python -m experiments.optimizers", description=__doc__,
                         formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--dims", type=int, nargs="+", default=list(d.dims))
@@ -57,17 +53,14 @@ def parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None):
-    ap = parser()
-    argv = sys.argv[1:] if argv is None else argv
+    """The command: options -> the study's config (a bad one: one line, exit 2) -> the one study main."""
+    ap, argv = parser(), sys.argv[1:] if argv is None else argv
     args = ap.parse_args(argv)
-
-    import jax
-
-    import icgo  # noqa: F401
+    from hydra_plugins.icgo_launcher.door import progress_to_stdout, run_study
     from icgo.core.errors import SettingError
     from icgo.core.settings import config_from_mapping
+    from icgo.io.files import results_output
     from icgo.studies import optimizers as study
-    from icgo.studies.optimizers_report import write_results
 
     try:
         cfg = config_from_mapping(study.OptimizerStudyConfig, {k: getattr(args, k) for k in FIELDS},
@@ -75,19 +68,9 @@ def main(argv=None):
         study.study_functions(None, cfg)
     except SettingError as e:
         ap.error(f"--{e.field.replace('_', '-')}: {e.problem}" if e.field else str(e))
-    from experiments._entry import results_output
-
     output = results_output(args.out, overwrite=args.overwrite, writer="experiments.optimizers")
-    log = logging.getLogger(study.__name__)  # progress lines of the study, not every library's INFO
-    if not log.handlers:
-        handler = logging.StreamHandler(sys.stdout)
-        handler.setFormatter(logging.Formatter("%(message)s"))
-        log.addHandler(handler)
-        log.setLevel(logging.INFO)
-    res = study.run(None, cfg, jax.random.PRNGKey(cfg.seed))
-    with output.staged(last=("optimizers.md",)) as stage:
-        write_results(res, argv, stage)
-    print(res.records["summary"].to_string(index=False))
+    progress_to_stdout("optimizers")
+    run_study("optimizers", cfg, output, argv=argv)
 
 
 if __name__ == "__main__":

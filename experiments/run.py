@@ -24,7 +24,7 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig
 
-from experiments._entry import CONF_DIR, EXIT_CONFIG, check_overrides, one_line_errors, preflight
+from hydra_plugins.icgo_launcher.door import CONF_DIR, EXIT_CONFIG, check_overrides, one_line_errors, preflight
 
 
 def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | None:
@@ -64,6 +64,6 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    from experiments._entry import guarded
+    from hydra_plugins.icgo_launcher.door import guarded
 
     guarded(main)

@@ -14,7 +14,7 @@ import pytest
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 
-from experiments import _entry as entry
+from hydra_plugins.icgo_launcher import door as entry
 from experiments.apply import run_apply
 from icgo.core.errors import ModelError
 from icgo.datasets import casing_stations

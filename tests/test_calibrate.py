@@ -16,7 +16,7 @@ from omegaconf import OmegaConf
 
 import icgo  # noqa: F401
 from experiments import calibrate as entry
-from experiments._entry import CONF_DIR
+from hydra_plugins.icgo_launcher.door import CONF_DIR
 from icgo.core.errors import SettingError
 from icgo.core.settings import config_to_mapping
 from icgo.io import mag_cal_bundled, schema
@@ -44,6 +44,25 @@ def test_conf_yaml_equals_the_dataclass_defaults():
     # the compilation cache is the study app's (conf/config.yaml), restated here and kept equal
     app = OmegaConf.load(CONF_DIR / "config.yaml")
     assert OmegaConf.load(CONF_DIR / "calibrate.yaml").jax_cache_dir == app.jax_cache_dir
+
+
+def test_conf_yaml_is_checked_against_the_schema_of_the_dataclass(tmp_path):
+    """conf/calibrate.yaml names the schema made from CalibrationConfig: an int or str study field of the wrong type
+    is refused when Hydra composes (the door's preflight prints it as one line, exit 2); a bool and the entry
+    point's own settings are the library's and the door's checks."""
+    from hydra.errors import ConfigCompositionException
+
+    from hydra_plugins.icgo_launcher.door import check_schema
+
+    for ov in ("misma_iter=abc", "misma_pop=1e9", "misma_bounds=[1]"):
+        with pytest.raises(ConfigCompositionException):
+            _compose(ov)
+        assert check_schema([ov], "calibrate").startswith(f"setting {ov.split('=')[0]!r}: ")
+    assert _compose("peer=maybe").peer == "maybe" and check_schema(["peer=maybe", "max_shots=abc"], "calibrate") is None
+    out = _run_entry(tmp_path, "data=x.json", "misma_iter=1,abc")
+    lines = out.stderr.strip().splitlines()
+    assert out.returncode == 2 and len(lines) == 1, out.stderr
+    assert lines[0].startswith("error: setting 'misma_iter': ") and "schema" in lines[0], lines[0]
 
 
 def _one_field(n=40, seed=0, F=50_000.0, dip=60.0):

@@ -17,7 +17,7 @@ import pytest
 from omegaconf import OmegaConf
 
 import icgo  # noqa: F401
-from experiments._entry import EXIT_CONFIG
+from hydra_plugins.icgo_launcher.door import EXIT_CONFIG
 from icgo import discrepancy as D
 from icgo.core.errors import SettingsError
 from icgo.core.settings import config_from_mapping, config_to_mapping

@@ -20,7 +20,8 @@ from hydra.core.global_hydra import GlobalHydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import OmegaConf, open_dict
 
-from experiments import _entry as E
+from hydra_plugins.icgo_launcher import door as E
+from hydra_plugins.icgo_launcher.jobs import FAILED
 from experiments import _relm_job as relm_job
 from hydra_plugins.icgo_launcher.jobs import cfg_hash
 from hydra_plugins.icgo_launcher import report as sweep_report
@@ -261,7 +262,7 @@ def test_failed_multirun_job_leaves_marker_and_others_intact(tmp_path, capsys):
     record = json.dumps({k: None for k in R.RUN_KEYS} | {"status": "ok"})
     (ok / "run.json").write_text(record)
     assert run_job(_job_cfg(TINY + ["split.n_repeats=-3"]), tmp_path / "1", multirun=True) is None
-    assert (tmp_path / "1" / E.FAILED).read_text().startswith("split.n_repeats must be")
+    assert (tmp_path / "1" / FAILED).read_text().startswith("split.n_repeats must be")
     assert (ok / "run.json").read_text() == record
     cfg = _compose([f"hydra.sweep.dir={tmp_path}"], hydra=True)
     with open_dict(cfg):
@@ -394,7 +395,7 @@ def test_the_precision_key_and_the_old_dtype_key():
 def test_failed_marker_name_is_the_records_schema_name():
     from icgo.reporting import records
 
-    assert E.FAILED == records.FAILED_FILE
+    assert FAILED == records.FAILED_FILE
 
 
 # ------------------------------------------------------ atomic run directories
@@ -443,11 +444,11 @@ def test_a_writer_failing_midway_leaves_the_previous_run_intact(small_csv, tmp_p
 def test_rerunning_a_sweep_keeps_finished_jobs(small_csv, tmp_path):
     base = TINY + ["dataset=csv", f"dataset.path={small_csv}", "strategy=chaos", "split.n_repeats=1"]
     first = run_job(_job_cfg(base), tmp_path / "0", multirun=True)
-    (tmp_path / "0" / E.FAILED).write_text("stale\n")
+    (tmp_path / "0" / FAILED).write_text("stale\n")
     stamp = (tmp_path / "0" / "run.json").stat().st_mtime_ns
     again = run_job(_job_cfg(base), tmp_path / "0", multirun=True)
     assert again["seed"] == first["seed"] and (tmp_path / "0" / "run.json").stat().st_mtime_ns == stamp
-    assert not (tmp_path / "0" / E.FAILED).exists()
+    assert not (tmp_path / "0" / FAILED).exists()
 
 
 def test_a_sweep_rerun_with_another_config_is_refused_and_changes_nothing(small_csv, tmp_path):

@@ -14,7 +14,8 @@ from omegaconf import OmegaConf
 
 import icgo  # noqa: F401
 from experiments import gyro as entry
-from experiments._entry import CONF_DIR
+from hydra_plugins.icgo_launcher import door
+from hydra_plugins.icgo_launcher.door import CONF_DIR
 from icgo.core.errors import SettingError
 from icgo.core.settings import config_from_mapping, config_to_mapping
 from icgo.artifacts.registry import load_model
@@ -51,7 +52,7 @@ def test_conf_yaml_equals_the_dataclass_defaults():
                 assert composed[k][f] == defaults[k][f], f"{k}.{f}: yaml {composed[k][f]!r} != {defaults[k][f]!r}"
         else:
             assert composed[k] == defaults[k], f"{k}: yaml {composed[k]!r} != {defaults[k]!r}"
-    assert entry.study_config(_compose()) == gyro.GyroConfig()
+    assert door.study_config("gyro", _compose(), entry.ENTRY_KEYS) == gyro.GyroConfig()
 
 
 def test_unknown_settings_are_refused():
@@ -59,7 +60,7 @@ def test_unknown_settings_are_refused():
         _compose("net.optimiser=sgd")  # struct mode: no such key
     for ov, msg in [("+epochs=3", "unknown setting"), ("+relm.foo=1", r"relm: unknown setting.*foo")]:
         with pytest.raises(ValueError, match=msg):
-            entry.study_config(_compose(ov))
+            door.study_config("gyro", _compose(ov), entry.ENTRY_KEYS)
 
 
 def test_config_errors_are_one_line_and_name_the_field():
@@ -72,7 +73,7 @@ def test_config_errors_are_one_line_and_name_the_field():
                     ("relm.strategy=nope", "relm.strategy"), ("relm.theta_bounds=[1,-1]", "relm.theta_bounds"),
                     ("seam.band_deg=0", "seam.band_deg")]:
         with pytest.raises(ValueError, match=msg) as e:
-            entry.study_config(_compose(ov))
+            door.study_config("gyro", _compose(ov), entry.ENTRY_KEYS)
         assert "\n" not in str(e.value), ov
         assert isinstance(e.value, SettingError), ov  # "<dotted key> <problem>"
 
@@ -175,7 +176,7 @@ def test_entry_point_writes_tables_figures_and_models(tmp_path):
                  "net.patience=10", "net.batch_size=8", "~variants", "+variants={net_error: {}}",
                  "relm.enabled=false", "sweep.azimuth_steps=[90]", "sweep.toolface_steps=[90]",
                  "sweep.table_only_azimuth_steps=[45]"]
-    summary = entry.run(_compose(*overrides), tmp_path / "models")
+    summary = door.run_composed("gyro", _compose(*overrides), tmp_path / "models", entry_keys=entry.ENTRY_KEYS).summary
     for name in ("gyro_methods.csv", "gyro_methods.md", "gyro_seam.csv", "gyro_seam.png", "gyro_points.csv",
                  "gyro_points.png", "gyro_toolface.png", "gyro_run.json"):
         assert (tmp_path / name).is_file(), name
@@ -183,7 +184,7 @@ def test_entry_point_writes_tables_figures_and_models(tmp_path):
     assert m.columns[-1] == "train_s" and m.loc[m.method == "raw", "train_s"].isna().all()
     assert json.loads((tmp_path / "gyro_run.json").read_text())["n_train"] == summary["n_train"] == 32
     net = load_model(tmp_path / "models" / "gyro_net_error.json")
-    f = gyro.load_data(entry.study_config(_compose(*overrides))).tests["random"]
+    f = gyro.load_data(door.study_config("gyro", _compose(*overrides), entry.ENTRY_KEYS)).tests["random"]
     e = gyro.azimuth_errors(f["azimuth_deg"].to_numpy(), net.members(f))
     np.testing.assert_allclose(np.sqrt(np.mean(e ** 2, axis=1)).mean(),
                                m.loc[(m.method == "net_error") & (m.test == "random"), "rmse_mean"].item(), rtol=1e-12)

@@ -12,7 +12,8 @@ from omegaconf import OmegaConf
 
 import icgo  # noqa: F401
 from experiments import misma as entry
-from experiments._entry import CONF_DIR
+from hydra_plugins.icgo_launcher import door
+from hydra_plugins.icgo_launcher.door import CONF_DIR
 from icgo.core.errors import SettingError
 from icgo.core.settings import config_from_mapping, config_to_mapping
 from icgo.datasets.drill_string import rotating_drill
@@ -54,7 +55,7 @@ def test_conf_yaml_equals_the_dataclass_defaults():
             assert a == b, f"{where}: yaml {a!r} != dataclass {b!r}"
 
     check(composed, defaults, "")
-    assert entry.study_config(_compose()) == MismaConfig()
+    assert door.study_config("misma", _compose(), entry.ENTRY_KEYS) == MismaConfig()
 
 
 def test_unknown_settings_are_refused():
@@ -63,7 +64,7 @@ def test_unknown_settings_are_refused():
     for ov, msg in [("+repeats=3", "unknown setting"),
                     ("+simulated.misma.zmax=1", r"simulated.misma: unknown setting")]:
         with pytest.raises(ValueError, match=msg):
-            entry.study_config(_compose(ov))
+            door.study_config("misma", _compose(ov), entry.ENTRY_KEYS)
 
 
 def test_config_errors_are_one_line_and_name_the_field():
@@ -77,7 +78,7 @@ def test_config_errors_are_one_line_and_name_the_field():
                     (["real.misma_iter=0"], "real.misma_iter"), (["seed=-1"], "seed"), (["real.peer=2"], "real.peer"),
                     (["simulated.enabled=false", "real.enabled=false"], "nothing to run")]:
         with pytest.raises(ValueError, match=msg) as e:
-            entry.study_config(_compose(*ov))
+            door.study_config("misma", _compose(*ov), entry.ENTRY_KEYS)
         assert "\n" not in str(e.value), ov
         assert isinstance(e.value, SettingError), ov  # "<dotted key> <problem>"
 
@@ -165,7 +166,7 @@ def test_smoke_simulated_only_is_deterministic_by_key():
 def test_entry_point_writes_tables_figures_and_models(tmp_path):
     cfg = _compose(f"out_dir={tmp_path}", "simulated.repeats=2", "simulated.n_iter=5", "simulated.pop_size=6",
                    "~simulated.variants", "+simulated.variants={short: {duration_s: 600.0}}", "real.enabled=false")
-    res = entry.run(cfg, tmp_path / "models")
+    res = door.run_composed("misma", cfg, tmp_path / "models", entry_keys=entry.ENTRY_KEYS)
     for name in ("misma_params_short.csv", "misma_params_short.md", "misma_modulus_short.csv", "misma_short.png",
                  "misma_summary.md", "misma_summary.json"):
         assert (tmp_path / name).is_file(), name

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from experiments import docs as D
+from icgo.reporting import documents as D
 from icgo.reporting.protocol import ALPHA, PROTOCOL_FIELDS, SETTINGS_PREFIX, comparison, parse_protocols, protocol_line
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -188,7 +188,7 @@ def test_misma_reports_a_seed_its_choices_were_not_made_on():
 def test_every_result_number_in_the_prose_is_rendered_from_its_cell(doc):
     """docs/reporting.md, rule 6: no value stale against its results file, no marker that cannot be read, no
     false claim, no citation of a missing results file, and no unmarked result number (`make docs` renders them;
-    experiments.docs.PENDING names a document whose numbers are not yet marked: only the first four apply)."""
+    icgo.reporting.documents.PENDING names a document whose numbers are not yet marked: only the first four apply)."""
     problems = D.check([doc], RESULTS)
     assert not problems, "\n".join(problems)
 

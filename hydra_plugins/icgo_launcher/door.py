@@ -8,6 +8,9 @@ never forked.
 Errors the user can fix (a bad override, a missing data file) are :class:`icgo.core.errors.SettingError`
 (or :class:`icgo.core.errors.DataError`), both one line; the front door prints ``error: <line>`` and
 exits with :data:`EXIT_CONFIG` (2), before any computation.
+
+The one study main (:func:`study_main`, :func:`run_study`) runs any registered study
+(:data:`icgo.studies.registry.STUDIES`): composed config -> the study's typed config -> load -> run -> write.
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import OverrideType
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
-from icgo.core.settings import error_status
+from icgo.core.settings import error_status, first_line
 
 #: Hydra config directory of the front doors (absolute, so runs work from any working directory).
 CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
@@ -164,6 +167,45 @@ def check_plain_overrides(args: list[str], config_name: str, conf_dir: Path = CO
     return None
 
 
+def check_schema(args: list[str], config_name: str, conf_dir: Path = CONF_DIR) -> str | None:
+    """One-line error for an override whose value the config's typed schema refuses (a config whose defaults list
+    names a ``*_schema``: :mod:`hydra_plugins.icgo_launcher.schema`), else None.
+
+    Hydra checks the schema when it composes, and would print its refusal as a block with exit status 1; this
+    composes the config with the command line's overrides (each value of a sweep once) and names the key.
+    """
+    from omegaconf.errors import ValidationError
+
+    defaults = OmegaConf.load(conf_dir / f"{config_name}.yaml").get("defaults") or []
+    if not any(str(d).endswith("_schema") for d in defaults):
+        return None
+    candidates = [a for i, a in enumerate(args) if not a.startswith("-") and not (i and args[i - 1] in VALUE_FLAGS)]
+    choices = []  # (key with its + or ++, every value of a sweep or the one value)
+    for ov in OverridesParser.create().parse_overrides(candidates):  # the grammar checked by check_plain_overrides
+        if ov.key_or_group.startswith("hydra") or ov.type == OverrideType.DEL:
+            continue
+        prefix = {OverrideType.ADD: "+", OverrideType.FORCE_ADD: "++"}.get(ov.type, "")
+        values = list(ov.sweep_string_iterator()) if ov.is_sweep_override() else [ov.get_value_element_as_str()]
+        choices.append((prefix + ov.key_or_group, values))
+    first = [f"{k}={values[0]}" for k, values in choices]
+    trials = [first] + [first[:i] + [f"{k}={v}"] + first[i + 1:]
+                        for i, (k, values) in enumerate(choices) for v in values[1:]]  # each sweep value once
+    GlobalHydra.instance().clear()
+    try:
+        with initialize_config_dir(config_dir=str(conf_dir), version_base="1.3"):
+            for overrides in trials:
+                try:
+                    compose(config_name=config_name, overrides=overrides)
+                except Exception as e:  # noqa: BLE001  (only a value the schema refuses is named here)
+                    while e is not None and not isinstance(e, ValidationError):
+                        e = e.__cause__ or e.__context__
+                    if e is not None:
+                        return f"setting {e.full_key!r}: {first_line(e)} (conf/{config_name}.yaml's schema)"
+    finally:
+        GlobalHydra.instance().clear()
+    return None
+
+
 def _has_key(cfg, dotted: str) -> bool:
     """Whether the composed config has the key ``a.b.c`` (a mandatory ``???`` value counts as present)."""
     node = cfg
@@ -181,7 +223,7 @@ def preflight(config_name: str, args: list[str] | None = None, conf_dir: Path = 
     """Checks of a Hydra entry point's command line before Hydra starts; one line and exit 2 on a bad one.
 
     Moves ``-m``/``--multirun`` in front of the overrides (Hydra's parser refuses
-    them after one), then :func:`check_hydra_dirs` and :func:`check_plain_overrides`.
+    them after one), then :func:`check_hydra_dirs`, :func:`check_plain_overrides` and :func:`check_schema`.
     Rewrites ``sys.argv`` when ``args`` is None.
     """
     argv = sys.argv[1:] if args is None else args
@@ -189,7 +231,8 @@ def preflight(config_name: str, args: list[str] | None = None, conf_dir: Path = 
     rest = [a for a in argv if a not in MULTIRUN_FLAGS]
     if args is None:
         sys.argv[1:] = flags + rest
-    err = check_hydra_dirs(rest) or check_plain_overrides(rest, config_name, conf_dir)
+    err = (check_hydra_dirs(rest) or check_plain_overrides(rest, config_name, conf_dir)
+           or check_schema(rest, config_name, conf_dir))
     if err:
         print(f"error: {err}", file=sys.stderr)
         raise SystemExit(EXIT_CONFIG)
@@ -245,3 +288,138 @@ def write_hydra_record(stage: Path, cfg: DictConfig) -> None:
     d.mkdir(exist_ok=True)
     for name, text in hydra_files(cfg).items():
         (d / name).write_text(text)
+
+
+def fail_line(e: BaseException):
+    """Print ``error: <line>`` (one per problem of a SettingsError) and exit 2 for a bad setting, 1 for other
+    errors of the input (:func:`icgo.core.settings.error_status`)."""
+    raise SystemExit(error_status(e) or EXIT_CONFIG)
+
+
+def guarded(main) -> None:
+    """Run an entry point's ``__main__`` body (:func:`icgo.core.settings.run_cli`): Ctrl-C or SIGTERM is one
+    line and exit status 130; outputs are staged (:mod:`icgo.io.files`), so an interrupted command leaves
+    every output directory as it was."""
+    from icgo.core.settings import run_cli
+
+    rc = run_cli(main)
+    if rc:
+        raise SystemExit(rc)
+
+
+def hydra_cli(config_name: str, main, conf_dir: Path = CONF_DIR) -> None:
+    """A Hydra entry point run as a command: :func:`preflight` of its command line, then ``main`` (the
+    ``@hydra.main`` task), under :func:`guarded`."""
+    def cli() -> None:
+        preflight(config_name, conf_dir=conf_dir)
+        main()
+
+    guarded(cli)
+
+
+def bool_setting(cfg: DictConfig, key: str) -> bool:
+    """The value of a true/false setting; anything else (``maybe``, ``'false'``, ``0``, null) is a SettingError."""
+    from icgo.core.errors import SettingError
+
+    v = OmegaConf.select(cfg, key)
+    if not isinstance(v, bool):
+        raise SettingError(f"{key}={v!r}: must be true or false")
+    return v
+
+
+def repo_path(value) -> Path:
+    """A path setting: absolute as given, relative to the repository root (the folder of ``conf/``) otherwise."""
+    p = Path(str(value))
+    return p if p.is_absolute() else CONF_DIR.parent / p
+
+
+def study_config(name: str, cfg: DictConfig, entry_keys=(), config_name: str | None = None):
+    """The typed config of ``STUDIES[name]`` (its ``config_cls``) from a composed config, the entry point's own
+    settings (``entry_keys``) left out: an unknown key or a bad value is one ``ValueError`` line naming it.
+
+    Args:
+        name: the registry name. cfg: the composed config. entry_keys: top-level keys that are settings of the
+            entry point, not of the study. config_name: the YAML named in errors (default ``name``).
+    """
+    from icgo.core.settings import config_from_mapping
+    from icgo.studies.registry import get_study
+
+    values = {k: v for k, v in OmegaConf.to_container(cfg, resolve=True).items() if k not in entry_keys}
+    return config_from_mapping(get_study(name).config_cls, values, f"conf/{config_name or name}.yaml")
+
+
+def progress_to_stdout(name: str) -> None:
+    """The progress lines of ``STUDIES[name]`` (its run module's INFO log) printed as they are, one a line (a
+    command-line door; a Hydra door logs through Hydra's handlers)."""
+    from icgo.studies.registry import get_study
+
+    log = logging.getLogger(get_study(name).run.__module__)
+    if not log.handlers:
+        handler = logging.StreamHandler(sys.stdout)
+        handler.setFormatter(logging.Formatter("%(message)s"))
+        log.addHandler(handler)
+        log.setLevel(logging.INFO)
+
+
+def run_study(name: str, config, output, *, inputs: dict | None = None, models_dir: Path | None = None,
+              settings: dict | None = None, argv=(), cfg: DictConfig | None = None):
+    """Load -> run -> write of ``STUDIES[name]``: the outputs into ``output`` all at once (staged), the models
+    into ``models_dir``; prints what the study's ``write`` returns and returns the study's result.
+
+    Args:
+        name: the registry name. config: its typed config. output: the checked :class:`icgo.io.files.Output`
+            of the tables and figures. inputs: keyword inputs of the study's ``load`` (a data file and how to
+            read it). models_dir: where the fitted models go (None: not saved). settings: the composed settings
+            the outputs record. argv: the command line's arguments. cfg: the composed config of a Hydra job
+            whose output directory also holds Hydra's record (:func:`write_hydra_record`).
+    Raises:
+        icgo.core.errors.DataError: an input file that is not there (one line), as any bad data.
+    """
+    import time
+
+    import icgo  # noqa: F401  (float64)
+    from icgo.core.errors import DataError
+    from icgo.studies.registry import get_study
+    from icgo.studies.study import Invocation
+
+    study = get_study(name)
+    started = time.perf_counter()
+    try:
+        data = study.load(config, **(inputs or {})) if study.load is not None else None
+    except FileNotFoundError as e:
+        raise DataError(first_line(e)) from None
+    result = study.run(data, config, study.key(config))
+    invocation = Invocation(dict(settings or {}), tuple(argv), started, output.path, models_dir)
+    with output.staged(last=study.last) as stage:
+        if cfg is not None:
+            write_hydra_record(stage, cfg)
+        message = study.write(result, data, config, stage, invocation)
+    if message:
+        print(message, flush=True)
+    return result
+
+
+def run_composed(name: str, cfg: DictConfig, models_dir: Path | None = None, config=None, entry_keys=("out_dir",)):
+    """:func:`run_study` of a composed config: tables into ``out_dir`` (relative to the repository root; a shared
+    results folder: the study's files replace their namesakes), the models into ``models_dir``; ``jax_cache``
+    (where the YAML has it) turns on the compilation cache. ``config``: the typed config if already built."""
+    from icgo.core.devices import enable_jax_cache
+    from icgo.io.files import Output
+
+    config = study_config(name, cfg, entry_keys) if config is None else config
+    if cfg.get("jax_cache"):
+        enable_jax_cache(str(repo_path(cfg.jax_cache)))
+    output = Output(repo_path(cfg.out_dir), setting="out_dir", shared=True).check()  # before the study runs
+    return run_study(name, config, output, models_dir=models_dir, settings=OmegaConf.to_container(cfg, resolve=True))
+
+
+def study_main(name: str, cfg: DictConfig, entry_keys=("out_dir",)) -> None:
+    """Body of a study's Hydra main: the typed config first (a bad setting: one line, exit 2), then
+    :func:`run_composed` with the models into the Hydra run directory's ``models/``."""
+    try:
+        config = study_config(name, cfg, entry_keys)
+    except ValueError as e:
+        print(f"error: {first_line(e)}", file=sys.stderr)
+        raise SystemExit(EXIT_CONFIG) from None
+    logging.getLogger("icgo").setLevel(logging.INFO)
+    run_composed(name, cfg, Path(HydraConfig.get().runtime.output_dir) / "models", config, entry_keys)

@@ -18,6 +18,11 @@ which every random draw of the run is split, so ``run`` is deterministic given
 name -> :class:`icgo.artifacts.format.FittedModel`) and its records (dict name ->
 ``DataFrame``, column names from :mod:`icgo.reporting.records`).
 
-Hydra never appears here: ``experiments/`` composes a config, builds the
-dataclass (``config_from_mapping``) and calls ``run``.
+A study that a front door runs also names its ``load`` (``(config, **inputs) -> data``), its ``write``
+(``(result, data, config, stage, invocation) -> message``: every output file into a staged directory) and
+the files it writes ``last``; the one study main (``hydra_plugins/icgo_launcher/door.run_study``) runs any of
+them the same way: load -> run -> write.
+
+Hydra never appears here: the front door composes a config, builds the
+dataclass (``config_from_mapping``) and calls the study.
 """

@@ -14,8 +14,7 @@ from icgo.discrepancy import report
 from icgo.io import mag_cal_bundled
 from icgo.io import recording as icgo_io
 from icgo.io.shots import is_json
-from icgo.artifacts.discrepancy import PhysicsModel, station_qc
-from icgo.physics.qc import qc_sentence
+from icgo.artifacts.discrepancy import PhysicsModel
 from icgo.studies import discrepancy_results
 from icgo.studies.shots import read_shots
 
@@ -124,17 +123,6 @@ def write_study(name: str, config: D.WorkflowConfig, seed: int, n_stations: int,
     path.parent.mkdir(parents=True, exist_ok=True)
     icgo_io.atomic_write_texts([(path, text + "\n")])
     return path
-
-
-def fit_stations(st, label: str, config: D.WorkflowConfig):
-    """The workflow on ``st`` with its search log, steps and survey QC printed; returns (result, model, qc)."""
-    print(f"data: {label} ({st.n} stations, {'reference attitude' if st.has_reference else 'groups, no reference'})")
-    res = D.run_workflow(st, config)
-    print("\n".join(report.search_log(res) + report.step_summary(res)))
-    model = PhysicsModel.from_result(res, st.G, st.B)
-    qc = station_qc(model, st)
-    print(qc_sentence(qc) if qc else "survey QC: no reference field given")
-    return res, model, qc
 
 
 def write_fit(stage: Path, res, label: str, truth, qc, model: PhysicsModel) -> None:

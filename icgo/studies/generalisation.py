@@ -29,6 +29,7 @@ and transfer; repeat 0's 30 % under the random split).
 from __future__ import annotations
 
 import dataclasses
+import logging
 from typing import NamedTuple
 
 import numpy as np
@@ -37,9 +38,12 @@ import pandas as pd
 from icgo.maths.stats import holm, wilcoxon_paired
 from icgo.artifacts.format import CORRECTED_B
 from icgo.physics.frames import angle_diff
+from icgo.studies import generalisation_report
 from icgo.studies import splits as _splits
 from icgo.studies.icgo_relm_config import StudyConfig
 from icgo.studies.study import Study
+
+log = logging.getLogger(__name__)
 
 _RELM = StudyConfig()  # the budget and model size default to the ICGO-RELM study's own (one source)
 
@@ -221,13 +225,12 @@ def paired_tests(metrics: pd.DataFrame, value: str = "mae") -> pd.DataFrame:
     return pd.DataFrame(out, columns=["dataset", "protocol", "method", "best", "mean_diff", "p_value", "p_holm"])
 
 
-def run(data: dict, config: GeneralisationConfig, key, progress=None) -> GeneralisationResult:
-    """Every method in every cell.
+def run(data: dict, config: GeneralisationConfig, key) -> GeneralisationResult:
+    """Every method in every cell; which cell / method starts is logged (INFO).
 
     Args:
         data: (data set, protocol) -> SurveyData (:func:`build_data`).
         config: :class:`GeneralisationConfig`. key: PRNG key shared by the methods of a cell.
-        progress: optional ``callable(str)`` told which cell / method starts.
     """
     import time
 
@@ -240,8 +243,7 @@ def run(data: dict, config: GeneralisationConfig, key, progress=None) -> General
             raise ValueError(f"generalisation: no data for cell {cell}; build it with build_data(config)")
         t0 = time.perf_counter()
         for i, meth in enumerate(config.methods):
-            if progress:
-                progress(f"{name} / {protocol}: {meth}")
+            log.info("%s / %s: %s", name, protocol, meth)
             res = run_relm(data[cell], config.study_config(protocol, None if meth == "relm" else meth), key)
             test = res.metrics[res.metrics["split"] == "test"]
             if i > 0:  # raw and msa once per cell
@@ -260,8 +262,7 @@ def run(data: dict, config: GeneralisationConfig, key, progress=None) -> General
             pooled["coverage"] = pooled.pop("hit") / pooled["n_test"]
             coverage.append(pooled.assign(dataset=name, protocol=protocol))
         if config.physics:
-            if progress:
-                progress(f"{name} / {protocol}: physics")
+            log.info("%s / %s: physics", name, protocol)
             rows, qc_phys = _physics(data[cell], config, protocol, key)
             metrics.append(pd.DataFrame(rows).assign(dataset=name, protocol=protocol))
             qc.append({"dataset": name, "protocol": protocol, **qc_phys})
@@ -292,4 +293,5 @@ def example() -> tuple:
 
 STUDY = Study("generalisation", GeneralisationConfig, run, "every method under the random, "
               "leave-azimuth-out, leave-condition-out and transfer protocols (paired repeats, Holm-adjusted "
-              "tests, conformal coverage)", example, fits_models=False)
+              "tests, conformal coverage)", example, fits_models=False, load=build_data,
+              write=generalisation_report.write, last=("generalisation.md",))

@@ -185,3 +185,10 @@ def write_results(res, config, stage: Path) -> None:
     for name in ("metrics", "coverage", "tests", "qc"):
         suffix = "" if name == "metrics" else f"_{name}"
         (stage / f"generalisation{suffix}.csv").write_text(rec[name].to_csv(index=False))
+
+
+def write(result, data, config, stage: Path, invocation) -> str:
+    """The study's outputs (:class:`icgo.studies.study.Study` ``.write``): :func:`write_results`; returns
+    generalisation.md."""
+    write_results(result, config, stage)
+    return (stage / "generalisation.md").read_text()

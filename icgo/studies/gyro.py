@@ -55,6 +55,7 @@ from icgo.optim.cgo import CGO
 from icgo.optim.registry import get
 from icgo.physics.frames import angle_diff
 from icgo.physics.qc import earth_rate_qc
+from icgo.studies import gyro_report
 from icgo.studies.study import Study
 
 log = logging.getLogger(__name__)
@@ -549,4 +550,4 @@ def example() -> tuple[GyroData, GyroConfig]:
 
 STUDY = Study("gyro", GyroConfig, run,
               "gyro inclinometer: the patent's BP network vs its lookup table, plus RELM and ICGO-RELM",
-              example)
+              example, load=load_data, write=gyro_report.write, last=("gyro_run.json",))

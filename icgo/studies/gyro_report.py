@@ -95,15 +95,15 @@ def fig_points(df: pd.DataFrame, path: Path) -> None:
 
 def fig_toolface(train: pd.DataFrame, path: Path, inclination=25.0) -> None:
     """Raw azimuth error vs toolface at one inclination, one curve per azimuth (why the table fails)."""
-    from icgo.studies.gyro import azimuth_errors
+    from icgo.physics.frames import angle_diff
 
     plt = plt_agg()
     d = train[np.isclose(train["inclination_deg"], inclination)]
     fig, ax = plt.subplots(figsize=(7, 4))
     for a, g in d.groupby("azimuth_deg"):
         g = g.sort_values("toolface_deg")
-        ax.plot(g["toolface_deg"], azimuth_errors(g["azimuth_deg"], g["azimuth_raw_deg"]), marker=".",
-                lw=0.8, label=f"A={a:g}")
+        error = np.asarray(angle_diff(g["azimuth_raw_deg"].to_numpy(), g["azimuth_deg"].to_numpy()))
+        ax.plot(g["toolface_deg"], error, marker=".", lw=0.8, label=f"A={a:g}")
     ax.set_xlabel("toolface (deg)")
     ax.set_ylabel("raw azimuth error (deg)")
     ax.set_title(f"raw error vs toolface at I={inclination:g} deg: the table's toolface blind spot")
@@ -198,3 +198,16 @@ def write_run_summary(result, seconds: float, composed: dict, stage: Path) -> di
     summary = {**result.summary, "total_seconds": seconds, "config": composed}
     (stage / "gyro_run.json").write_text(json.dumps(summary, indent=1, default=float))
     return summary
+
+
+def write(result, data, config, stage: Path, invocation) -> str:
+    """The study's outputs (:class:`icgo.studies.study.Study` ``.write``): :func:`write_results` and
+    :func:`write_run_summary` (the wall time since the door started); returns the rate QC and the done line."""
+    import time
+
+    models = invocation.models_dir
+    write_results(result, data, config, stage, models)
+    summary = write_run_summary(result, time.perf_counter() - invocation.started, invocation.settings, stage)
+    return (rate_qc_sentence(result.summary["qc"]) + "\n"
+            + f"[gyro] done in {summary['total_seconds']:.0f} s; results in {invocation.out}"
+            + (f"; {len(result.models)} models in {models}" if models is not None else ""))

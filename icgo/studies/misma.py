@@ -48,6 +48,7 @@ from icgo.datasets import drill_string as datasets
 from icgo.io.mag_cal_bundled import load_mag_cal_device, mag_cal_devices
 from icgo.studies import calibration
 from icgo.studies import misma_compare as compare
+from icgo.studies import misma_report
 from icgo.studies.misma_config import GyroConfig, MismaConfig, RealConfig, SimulatedConfig
 from icgo.studies.misma_simulated import simulated_table, simulated_variant
 from icgo.studies.study import Study
@@ -162,4 +163,4 @@ def example() -> tuple[MismaData, MismaConfig]:
 
 STUDY = Study("misma", MismaConfig, run,
               "MISMA vs SMA 12-parameter magnetometer calibration: rotating_drill and 9 real devices",
-              example)
+              example, load=load_data, write=misma_report.write, last=("misma_summary.json",))

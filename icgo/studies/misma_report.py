@@ -199,8 +199,9 @@ def summary_lines(result, config=None) -> list[str]:
     return lines
 
 
-def write_results(result, composed: dict, out: Path, models_dir: Path | None, config=None) -> None:
-    """Tables, figures, summary (``out/misma_*``) and the fitted models (``models_dir``)."""
+def write_results(result, composed: dict, out: Path, models_dir: Path | None, config=None) -> list[str]:
+    """Tables, figures, summary (``out/misma_*``) and the fitted models (``models_dir``); returns the lines of the
+    summary."""
     out.mkdir(parents=True, exist_ok=True)
     for name, plot in result.plots.items():
         params = result.records[f"params_{name}"]
@@ -224,4 +225,13 @@ def write_results(result, composed: dict, out: Path, models_dir: Path | None, co
     if models_dir is not None:
         for name, model in result.models.items():
             model.save(models_dir / name)
-    print("\n".join(lines))
+    return lines
+
+
+def write(result, data, config, stage: Path, invocation) -> str:
+    """The study's outputs (:class:`icgo.studies.study.Study` ``.write``): :func:`write_results` with the composed
+    settings; returns the summary and where the models went."""
+    lines = write_results(result, invocation.settings, stage, invocation.models_dir, config)
+    if invocation.models_dir is not None:
+        lines = [*lines, f"[misma] {len(result.models)} fitted calibrations in {invocation.models_dir}"]
+    return "\n".join(lines)

@@ -58,6 +58,7 @@ from icgo.optim.mutation import STRATEGIES
 from icgo.optim.pso import PSO
 from icgo.optim.registry import get
 from icgo.optim.sma import SMA
+from icgo.studies import optimizers_report
 from icgo.studies.study import Study
 
 log = logging.getLogger(__name__)
@@ -451,6 +452,7 @@ class OptimizerStudyResult(NamedTuple):
         wall_s: ``{"ours", "peer", "total"}`` seconds.
         functions: the functions run.
         config: the :class:`OptimizerStudyConfig`.
+        methods: our methods run (:func:`methods`), in table order.
     """
 
     records: dict
@@ -459,6 +461,7 @@ class OptimizerStudyResult(NamedTuple):
     wall_s: dict
     functions: tuple
     config: OptimizerStudyConfig
+    methods: tuple
 
 
 def _typed(key):
@@ -526,7 +529,7 @@ def run(data, config: OptimizerStudyConfig, key) -> OptimizerStudyResult:
     summary = summary_table(cells, config.dims, chosen)
     return OptimizerStudyResult({"runs": runs, "cells": cells, "summary": summary}, {},
                                 pd.DataFrame(comp, columns=["dim", "job", "compiles", "seconds"]),
-                                {"ours": t_ours, "peer": t_peer, "total": time.time() - t_start}, names, config)
+                                {"ours": t_ours, "peer": t_peer, "total": time.time() - t_start}, names, config, chosen)
 
 
 def example() -> tuple:
@@ -539,4 +542,5 @@ def example() -> tuple:
 
 STUDY = Study("optimizers", OptimizerStudyConfig, run,
               "our optimizers vs mealpy 3.x on shifted/rotated CEC 2017 functions at an equal "
-              "evaluation budget (rank-sum +/=/-, Holm)", example, fits_models=False)
+              "evaluation budget (rank-sum +/=/-, Holm)", example, fits_models=False,
+              write=optimizers_report.write, last=("optimizers.md",))

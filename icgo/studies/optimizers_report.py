@@ -17,13 +17,19 @@ def write_results(res, argv, stage: Path) -> None:
     (stage / "optimizers.md").write_text("\n".join(markdown(res, argv)) + "\n")
 
 
+def write(result, data, config, stage: Path, invocation) -> str:
+    """The study's outputs (:class:`icgo.studies.study.Study` ``.write``): :func:`write_results` (the command line
+    named in optimizers.md); returns the summary table."""
+    write_results(result, list(invocation.argv), stage)
+    return result.records["summary"].to_string(index=False)
+
+
 def markdown(res, argv) -> list[str]:
     """The lines of optimizers.md for a :class:`icgo.studies.optimizers.OptimizerStudyResult`; ``argv``: the
     command line's arguments (named in the report's command)."""
     from icgo.optim import iterations_for_budget
     from icgo.optim.cgo import CGO
     from icgo.optim.pso import PSO
-    from icgo.studies import optimizers as study
 
     cfg, names, df, summary = res.config, res.functions, res.records["cells"], res.records["summary"]
     n_cgo, n_pso = (iterations_for_budget(a, cfg.pop_size, cfg.budget) for a in (CGO, PSO))
@@ -80,7 +86,7 @@ def markdown(res, argv) -> list[str]:
     lines += ["## CGO against mealpy OriginalCGO, function by function", "",
               "`mealpy` rows: our `variant=mealpy`, the same algorithm as OriginalCGO (the side-by-side check); "
               "`paper` rows: the ICGO paper's text (the library default); `matlab`: the original MATLAB code.", ""]
-    for m in study.methods(cfg):
+    for m in res.methods:
         if m.algorithm != CGO.name:
             continue
         sel = df[df.ours == m.label]

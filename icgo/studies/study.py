@@ -1,8 +1,36 @@
-"""The interface every study follows (see :mod:`icgo.studies`)."""
+"""The interface every study follows (see :mod:`icgo.studies`): its settings, its data, its run and its outputs.
+
+A front door runs any registered study the same way (``hydra_plugins.icgo_launcher.door.run_study``)::
+
+    data = study.load(config, **inputs)                 # simulated from the config, or read from the inputs
+    result = study.run(data, config, study.key(config))
+    with output.staged(last=study.last) as stage:       # all files at once, or none
+        message = study.write(result, data, config, stage, invocation)
+    print(message)
+"""
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any, Callable, NamedTuple
+
+
+class Invocation(NamedTuple):
+    """How and where a front door runs a study: what its outputs record beside the results.
+
+    Attributes:
+        settings: the door's settings as composed (a plain, JSON-able mapping; {} for a command-line door).
+        argv: the command line's arguments (named in a report's command line).
+        started: ``time.perf_counter()`` when the door started loading (a report's wall time, s).
+        out: the output directory the staged files become (a report names the final paths).
+        models_dir: where the fitted models are saved, or None (not saved).
+    """
+
+    settings: dict
+    argv: tuple
+    started: float
+    out: Path
+    models_dir: Path | None = None
 
 
 class Study(NamedTuple):
@@ -18,6 +46,13 @@ class Study(NamedTuple):
             used by the registry-wide tests and as a usage example.
         fits_models: False for a study that fits nothing to apply (the optimizer benchmark);
             every other study's result carries at least one fitted model.
+        load: ``(config, **inputs) -> data`` for ``run``: simulated from the config, or read from the
+            inputs (a front door's input settings: a data file and how to read it); None: ``run`` takes
+            ``None`` and makes its own data.
+        write: ``(result, data, config, stage, invocation) -> message``: every output file into the
+            staging directory ``stage`` (:class:`icgo.io.files.Output`), the fitted models into
+            ``invocation.models_dir``; returns what the door prints once the files are in place.
+        last: the files the staged output writes last (their presence marks a complete output).
     """
 
     name: str
@@ -26,7 +61,18 @@ class Study(NamedTuple):
     description: str = ""
     example: Callable[[], tuple] | None = None
     fits_models: bool = True
+    load: Callable[..., Any] | None = None
+    write: Callable[..., str] | None = None
+    last: tuple = ()
 
     def records(self, result) -> dict:
         """Named tables the study writes (``result.records``)."""
         return dict(result.records)
+
+    def key(self, config):
+        """The PRNG key a front door runs the study with: ``PRNGKey(config.seed)``, or None (the study's own
+        default) for a config without a seed."""
+        import jax
+
+        seed = getattr(config, "seed", None)
+        return None if seed is None else jax.random.PRNGKey(seed)
