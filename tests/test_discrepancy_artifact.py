@@ -16,8 +16,8 @@ HARD_IRON = np.array([300.0, -200.0, 150.0])  # nT, what icgo.studies.discrepanc
 @pytest.fixture(scope="module")
 def fitted():
     study = get_study("discrepancy")
-    st, cfg = study.example()
-    return st, study.run(st, cfg, jax.random.PRNGKey(0))
+    data, cfg = study.example()
+    return data.stations, study.run(data, cfg, jax.random.PRNGKey(0))
 
 
 def test_the_physics_model_recovers_the_hidden_effect_and_corrects_azimuth(fitted):
