@@ -290,12 +290,6 @@ def write_hydra_record(stage: Path, cfg: DictConfig) -> None:
         (d / name).write_text(text)
 
 
-def fail_line(e: BaseException):
-    """Print ``error: <line>`` (one per problem of a SettingsError) and exit 2 for a bad setting, 1 for other
-    errors of the input (:func:`icgo.core.settings.error_status`)."""
-    raise SystemExit(error_status(e) or EXIT_CONFIG)
-
-
 def guarded(main) -> None:
     """Run an entry point's ``__main__`` body (:func:`icgo.core.settings.run_cli`): Ctrl-C or SIGTERM is one
     line and exit status 130; outputs are staged (:mod:`icgo.io.files`), so an interrupted command leaves
