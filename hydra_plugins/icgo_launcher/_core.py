@@ -40,9 +40,9 @@ from hydra.core.utils import JobReturn, JobStatus, configure_log, filter_overrid
 from omegaconf import OmegaConf, open_dict
 
 from hydra_plugins.icgo_launcher import report
-from hydra_plugins.icgo_launcher.jobs import FAILED, one_line, previous_run, write_failure
+from hydra_plugins.icgo_launcher.jobs import FAILED, previous_run, write_failure
 from icgo.core.devices import xla_flags
-from icgo.core.settings import interrupts_raise
+from icgo.core.settings import first_line, interrupts_raise
 
 log = logging.getLogger(__name__)
 
@@ -139,7 +139,7 @@ def _settle(ret: JobReturn | None, config, overrides, job_dir: Path, exitcode: i
         log.error("job %s %s", config.hydra.job.num, status)
         return _placeholder(config, overrides, job_dir)
     if ret.status == JobStatus.FAILED:  # the task raised past its own handler: record it, go on
-        write_failure(job_dir, f"{type(ret._return_value).__name__}: {one_line(ret._return_value)}")
+        write_failure(job_dir, f"{type(ret._return_value).__name__}: {first_line(ret._return_value)}")
         return _placeholder(config, overrides, job_dir)
     return ret
 

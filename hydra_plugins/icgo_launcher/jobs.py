@@ -24,6 +24,8 @@ from typing import Protocol
 
 from omegaconf import DictConfig, OmegaConf
 
+from icgo.core.settings import first_line
+
 log = logging.getLogger(__name__)
 
 #: Marker a failed multirun job leaves in its directory (one line: the error); the same name as
@@ -108,12 +110,6 @@ def write_failure(outdir: Path, message: str, tb: str | None = None) -> None:
         (outdir / "error.txt").write_text(tb)
 
 
-def one_line(e: BaseException) -> str:
-    """First line of an exception message."""
-    text = str(e).strip()
-    return text.splitlines()[0] if text else type(e).__name__
-
-
 def format_traceback(e: BaseException) -> str:
     """The traceback of an exception, as Python prints it."""
     return "".join(traceback.format_exception(type(e), e, e.__traceback__))
@@ -187,8 +183,8 @@ def run_guarded(cfg: DictConfig, outdir: Path, multirun: bool, job: Job) -> dict
     except Exception as e:
         if not multirun:
             raise
-        write_failure(outdir, f"{type(e).__name__}: {one_line(e)}", format_traceback(e))
-        log.error("job failed: %s: %s", type(e).__name__, one_line(e))
+        write_failure(outdir, f"{type(e).__name__}: {first_line(e)}", format_traceback(e))
+        log.error("job failed: %s: %s", type(e).__name__, first_line(e))
         return None
     from icgo.core.devices import is_secondary_process
 
@@ -208,8 +204,8 @@ def _failed(e: ValueError, outdir: Path, multirun: bool, tb: str | None = None) 
         from icgo.core.settings import error_status
 
         raise SystemExit(error_status(e) or 2)
-    write_failure(outdir, one_line(e), tb)
-    log.error("job failed: %s", one_line(e))
+    write_failure(outdir, first_line(e), tb)
+    log.error("job failed: %s", first_line(e))
     return None
 
 

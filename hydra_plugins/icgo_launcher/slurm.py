@@ -26,9 +26,9 @@ from omegaconf import OmegaConf
 
 from hydra_plugins.hydra_submitit_launcher.config import BaseQueueConf
 from hydra_plugins.hydra_submitit_launcher.submitit_launcher import SlurmLauncher
-from hydra_plugins.icgo_launcher.jobs import one_line, previous_run, write_failure
+from hydra_plugins.icgo_launcher.jobs import previous_run, write_failure
 from hydra_plugins.icgo_launcher.slurm_check import cluster_offer, unschedulable
-from icgo.core.settings import interrupts_raise
+from icgo.core.settings import first_line, interrupts_raise
 
 log = logging.getLogger(__name__)
 
@@ -87,7 +87,7 @@ class IcgoSlurmLauncher(SlurmLauncher):
                 if previous_run(job_dir) is None:
                     died = isinstance(e, UncompletedJobError)
                     write_failure(job_dir, f"{'killed' if died else 'failed'}: SLURM job {job.job_id} ended {state} "
-                                           f"without a result ({type(e).__name__}: {one_line(e)})")
+                                           f"without a result ({type(e).__name__}: {first_line(e)})")
                 log.error("job %d (SLURM %s) ended %s", idx, job.job_id, state)
             returns.append(JobReturn(overrides=overrides, cfg=None, hydra_cfg=None, working_dir=str(sweep_dir / str(idx)),
                                      task_name="", status=JobStatus.COMPLETED, _return_value=None))
