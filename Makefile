@@ -1,21 +1,46 @@
 # Two-command start: `make run` and `make test` on a fresh machine.
 # Python 3.12+ (scripts/find_python.sh): JAX >= 0.12 installs there.
+# Installs come from the lock files in requirements/ (the same versions on every machine): `make run` installs only
+# what the study needs (run.lock), `make test` adds the test tools and the peer libraries (dev.lock, a superset at
+# the same versions). `make upgrade` re-resolves both from pyproject.toml and re-runs what the README says must hold.
 PY ?= $(shell sh scripts/find_python.sh)
 VENV := .venv
 BIN := $(VENV)/bin
-STAMP := $(VENV)/.installed
+RUN_STAMP := $(VENV)/.installed-run
+DEV_STAMP := $(VENV)/.installed-dev
+PIP := $(BIN)/python -m pip install --quiet
+# the versions the locks were resolved for; uv writes environment markers for every platform (--universal)
+DEV_EXTRAS := --extra dev --extra bench
+LOCK := $(BIN)/python -m uv pip compile pyproject.toml --universal --python-version 3.12 --no-header --quiet
 
-.PHONY: run test test-all test-slurm figures bench optimizers misma gyro discrepancy generalisation calibration calibration-unseen dataset-figures docs venv clean
+.PHONY: run test test-all test-slurm figures bench optimizers misma gyro discrepancy generalisation calibration calibration-unseen dataset-figures docs venv upgrade clean
 
-$(STAMP): pyproject.toml
-	test -x $(BIN)/python || $(PY) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[dev,bench]'
-	touch $(STAMP)
+$(BIN)/python:
+	$(PY) -m venv $(VENV)
+	$(PIP) --upgrade pip
 
-venv: $(STAMP)
+$(RUN_STAMP): $(BIN)/python requirements/run.lock pyproject.toml
+	$(PIP) -r requirements/run.lock
+	$(PIP) --no-deps -e .
+	touch $(RUN_STAMP)
 
-run: $(STAMP)
+$(DEV_STAMP): $(RUN_STAMP) requirements/dev.lock
+	$(PIP) -r requirements/dev.lock
+	touch $(DEV_STAMP)
+
+STAMP := $(DEV_STAMP)
+
+venv: $(DEV_STAMP)
+
+upgrade: $(BIN)/python
+	$(PIP) uv
+	$(LOCK) --upgrade $(DEV_EXTRAS) -o requirements/dev.lock
+	$(LOCK) --upgrade -c requirements/dev.lock -o requirements/run.lock
+	rm -f $(RUN_STAMP) $(DEV_STAMP)
+	$(MAKE) test docs
+	$(BIN)/python -m experiments.docs --check
+
+run: $(RUN_STAMP)
 	$(BIN)/python -m experiments.run strategy=three_stage
 
 test: $(STAMP)
