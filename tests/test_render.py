@@ -138,3 +138,16 @@ def test_a_table_after_a_paragraph_that_quotes_results_is_a_result_unit(results)
     doc = ("The means (`results/t.csv`):\n\n| method | MAE |\n|---|---|\n| ours | 0.04 |\n\n"
            "A figure (`results/t.png`):\n\n| setting | value |\n|---|---|\n| step | 0.5 |\n")
     assert [(u.line, u.number) for u in untraced(doc, results)] == [(5, "0.04")]
+
+
+def test_lock_reads_the_version_the_lock_beside_results_pins(tmp_path):
+    """``lock(name)`` renders the tested-versions table from requirements/dev.lock (names normalised as pip does)."""
+    results = tmp_path / "results"
+    results.mkdir()
+    (tmp_path / "requirements").mkdir()
+    (tmp_path / "requirements" / "dev.lock").write_text(
+        "hydra-core==1.3.8\n    # via icgo\nJAX==0.12.1\ncolorama==0.4.6 ; sys_platform == 'win32'\n")
+    new, problems = render_text('<!--= {lock("jax")}, {lock("Hydra_Core")}, {lock("colorama")} -->?<!--/-->', results)
+    assert not problems and "-->0.12.1, 1.3.8, 0.4.6<!--/-->" in new
+    _, problems = render_text('<!--= {lock("numpy")} -->?<!--/-->', results)
+    assert len(problems) == 1 and "'numpy' is not locked" in str(problems[0])

@@ -184,6 +184,18 @@ class Sources:
             raise RenderError(f"pattern {pattern!r} has no group")
         return _value(hits[0].group(1))
 
+    def lock(self, package: str) -> str:
+        """The version ``requirements/dev.lock`` (beside the results directory) pins for ``package``."""
+        path = self.results.parent / "requirements" / "dev.lock"
+        if not path.is_file():
+            raise RenderError(f"{path}: no such lock file")
+        want = re.sub(r"[-_.]+", "-", package).lower()
+        for line in path.read_text().splitlines():
+            m = re.match(r"([A-Za-z0-9._-]+)==([^\s;]+)", line)
+            if m and re.sub(r"[-_.]+", "-", m.group(1)).lower() == want:
+                return m.group(2)
+        raise RenderError(f"{path.name}: {package!r} is not locked")
+
     @staticmethod
     def paper(name: str, *keys):
         from icgo.reporting import published
@@ -200,7 +212,7 @@ class Sources:
 
     def functions(self) -> dict:
         return {"csv": self.csv, "md": self.md, "table": self.table, "js": self.js, "text": self.text,
-                "paper": self.paper, **HELPERS}
+                "lock": self.lock, "paper": self.paper, **HELPERS}
 
 
 def num(s):
@@ -266,7 +278,7 @@ HELPERS = {"num": num, "nums": nums, "sd": sd, "col": col, "where": where, "join
            "sorted": sorted, "set": set, "list": list, "int": int, "float": float, "any": any, "all": all,
            "mean": statistics.fmean, "median": statistics.median}
 #: Every name a marker may call.
-FUNCTIONS = (*HELPERS, "csv", "md", "table", "js", "text", "paper")
+FUNCTIONS = (*HELPERS, "csv", "md", "table", "js", "text", "lock", "paper")
 
 
 # -------------------------------------------------------------------------------------------- expressions
