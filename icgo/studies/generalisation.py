@@ -36,6 +36,7 @@ import numpy as np
 import pandas as pd
 
 from icgo.maths.stats import holm, wilcoxon_paired
+from icgo.optim import STRATEGIES
 from icgo.artifacts.format import CORRECTED_B
 from icgo.physics.frames import angle_diff
 from icgo.studies import generalisation_report
@@ -67,7 +68,7 @@ class GeneralisationConfig:
         seed: the study key's seed (every method of a cell shares it: paired repeats).
         data_seed: noise seed of the simulated data sets (the transfer target's is ``transfer.seed``).
         methods: learned methods (:data:`METHODS`; ``relm`` = random hidden weights).
-        strategies: the CGO strategies run side by side.
+        strategies: the CGO strategies run side by side (default: every built-in one of the registry).
         pop_size, iterations: every optimizer's budget (default: the ICGO-RELM study's, the paper's 30, 100).
         hidden: RELM hidden units (default: the ICGO-RELM study's). physics: include the physics baseline.
         transfer: how the transfer target differs (:class:`icgo.studies.splits.TransferDraw`).
@@ -78,7 +79,7 @@ class GeneralisationConfig:
     seed: int = 0
     data_seed: int = 0
     methods: tuple = METHODS
-    strategies: tuple = ("original", "chaos", "gaussian", "wavelet", "three_stage")
+    strategies: tuple = STRATEGIES
     pop_size: int = _RELM.pop_size
     iterations: int = _RELM.iterations
     hidden: int = _RELM.hidden

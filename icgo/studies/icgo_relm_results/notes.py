@@ -15,7 +15,8 @@ from icgo.reporting.run_collection import Runs
 from icgo.reporting.table_writer import one_draw
 from icgo.studies.icgo_relm_config import StudyConfig
 
-#: The five CGO 4th-seed strategies (:data:`icgo.optim.STRATEGIES`) and the four mutated ones.
+#: The built-in CGO 4th-seed strategies (the registry's, :data:`icgo.optim.STRATEGIES`: the paper's five) and the
+#: mutated ones (all but ``original``).
 STRATEGIES5 = STRATEGIES
 STRATEGIES4 = tuple(s for s in STRATEGIES5 if s != "original")
 
