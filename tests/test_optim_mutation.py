@@ -220,8 +220,16 @@ def test_registry_holds_the_papers_five_in_index_order():
     assert method_name("cgo-gaussian") == "ICGO-RELM (Gaussian)"
 
 
-def test_register_refuses_bad_names_and_a_taken_name(monkeypatch):
-    monkeypatch.setattr(mut, "MUTATIONS", dict(mut.MUTATIONS))  # this test's registry only
+@pytest.fixture
+def own_registry():
+    """The registry as shipped, restored in place after the test (its registrations are the test's only)."""
+    before = dict(mut.MUTATIONS)
+    yield mut.MUTATIONS
+    mut.MUTATIONS.clear()
+    mut.MUTATIONS.update(before)
+
+
+def test_register_refuses_bad_names_and_a_taken_name(own_registry):
     with pytest.raises(ValueError, match="lower-case identifier"):
         mut.register("Levy-1", _levy_like)
     with pytest.raises(ValueError, match="must be a function"):
@@ -236,7 +244,7 @@ def test_register_refuses_bad_names_and_a_taken_name(monkeypatch):
         mut.register("levy", partial(_levy_like, amplitude=0.5), "Levy-like")
 
 
-def test_a_registered_strategy_runs_batched_beside_the_builtins_which_keep_their_bits(monkeypatch):
+def test_a_registered_strategy_runs_batched_beside_the_builtins_which_keep_their_bits(own_registry):
     """A user's operator, by name, in one vmapped batch with the five built-ins: its seeds are its closed form,
     and the built-ins' results are bitwise those of the batch without it (its branch only adds a branch)."""
     from icgo.optim import run_batch
@@ -249,7 +257,6 @@ def test_a_registered_strategy_runs_batched_beside_the_builtins_which_keep_their
     keys = jax.random.split(jax.random.key(3), 2)
     aux = jnp.ones((2, 3))
     before = run_batch(get("cgo"), sphere, box, keys, 8, 6, configs=CGO.axis_configs(None, mut.STRATEGIES), aux=aux)
-    monkeypatch.setattr(mut, "MUTATIONS", dict(mut.MUTATIONS))
     mut.register("levy_like", _levy_like, "Levy-like")
     configs = CGO.axis_configs(None, (*mut.STRATEGIES, "levy_like"))
     assert configs[-1].strategy == 5 and configs[0].mutations == (*mut.STRATEGIES, "levy_like")
