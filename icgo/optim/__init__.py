@@ -24,5 +24,6 @@ from icgo.optim.base import (
 from icgo.optim.mutation import MUTATIONS, STRATEGIES, strategy_index
 from icgo.optim.registry import OPTIMIZERS, get
 
-__all__ = ["MUTATIONS", "OPTIMIZERS", "Algorithm", "Bound", "Context", "RunResult", "State", "STRATEGIES", "best_at_evals", "bind",
-           "compiled_runners", "evaluate", "get", "iterations_for_budget", "run", "run_batch", "strategy_index"]
+__all__ = ["MUTATIONS", "OPTIMIZERS", "Algorithm", "Bound", "Context", "RunResult", "State", "STRATEGIES",
+           "best_at_evals", "bind", "compiled_runners", "evaluate", "get", "iterations_for_budget", "run", "run_batch",
+           "strategy_index"]
