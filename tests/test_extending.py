@@ -21,7 +21,7 @@ import pytest
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 
-from hydra_plugins.icgo_launcher.door import CONF_DIR, check_overrides
+from hydra_plugins.icgo_launcher.door import CONF_DIR, check_overrides, check_plain_overrides
 from icgo.core.errors import SettingError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -116,6 +116,7 @@ def test_each_command_composes_registers_and_builds_its_study(folder, registries
     for command, methods in zip(_commands(), want):
         overrides = _overrides(command, folder)
         assert check_overrides(overrides) is None  # the door's group check finds the options of the user's folder
+        assert check_plain_overrides(overrides, "config") is None  # and composes with them to check plain keys
         run = _run_config(overrides)
         study = run.study_config()
         assert set(study.method_names()) == methods, command
@@ -130,6 +131,8 @@ def test_each_command_composes_registers_and_builds_its_study(folder, registries
     from icgo.reporting.names import method_name
 
     assert method_name("cgo-cauchy") == "ICGO-RELM (Cauchy)" and method_name("de") == "DE-RELM"
+    typo = check_plain_overrides([*_overrides(_commands()[0], folder), "strategy.nams=[x]"], "config")
+    assert typo.startswith("unknown setting 'strategy.nams' in override")
     # without the user's folder the door refuses the option in one line (exit 2 there)
     assert "unknown strategy 'cauchy'" in check_overrides([o for o in _overrides(_commands()[0], folder)
                                                            if not o.startswith("hydra.searchpath")])

@@ -157,6 +157,9 @@ def check_plain_overrides(args: list[str], config_name: str, conf_dir: Path = CO
     groups, plain = [], []
     for ov in overrides:
         key = ov.key_or_group
+        if key == "hydra.searchpath":
+            groups.append(ov.input_line)  # a user's config folder: its group options compose as conf/'s
+            continue
         if key.startswith("hydra") or (ov.type != OverrideType.CHANGE and not (conf_dir / key).is_dir()):
             continue  # Hydra's own settings; an added or deleted key (the entry points refuse unknown ones)
         if (conf_dir / key).is_dir():
