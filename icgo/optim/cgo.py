@@ -228,6 +228,9 @@ class CGOConfig:
         set_("mutations", tuple(self.mutations))
         if isinstance(self.strategy, str) or not self.mutations:
             set_("mutations", tuple(mut.MUTATIONS))  # the registry only grows: earlier indices keep their names
+        if tuple(mut.MUTATIONS)[:len(self.mutations)] != self.mutations:
+            raise ValueError(f"CGO mutations {self.mutations} are not the registry's strategies in index order "
+                             f"{tuple(mut.MUTATIONS)}; register a strategy of your own before building its config")
         if isinstance(self.strategy, str) or _scalar(self.strategy):
             set_("strategy", mut.strategy_index(self.strategy))
             if self.strategy >= len(self.mutations):
