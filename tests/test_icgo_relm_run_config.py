@@ -26,7 +26,11 @@ def test_each_dataset_option_builds_its_own_node():
     assert type(csv) is RC.CsvData and csv.require_meta is True and csv.kwargs is None and csv.condition is None
     m = _mapping()
     m["dataset"]["name"] = "bogus"
-    with pytest.raises(SettingError, match=r"^dataset.name must be one of \['csv', 'lab_casing', 'well_conditions'\]"):
+    with pytest.raises(SettingError, match=r"^dataset.name 'bogus' is no data set of icgo.datasets.registry.DATASETS "
+                                           r"\(lab_casing, well_conditions, .*\) nor csv; a simulator of your own"):
+        RC.RunConfig.from_mapping(m)
+    m["dataset"]["name"] = 3
+    with pytest.raises(SettingError, match=r"^dataset.name must be one of \['csv', 'well_conditions'\], got 3"):
         RC.RunConfig.from_mapping(m)
 
 

@@ -14,7 +14,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 #: Bottom to top: a module may import its own package and any package listed before it.
-LAYERS = ("icgo.core", "icgo.physics", "icgo.maths", "icgo.reporting", "icgo.optim", "icgo.models", "icgo.io",
+LAYERS = ("icgo.core", "icgo.physics", "icgo.maths", "icgo.optim", "icgo.reporting", "icgo.models", "icgo.io",
           "icgo.datasets", "icgo.discrepancy", "icgo.artifacts", "icgo.survey", "icgo.studies", "icgo.bench")
 
 

@@ -196,3 +196,83 @@ def test_wavelet_amplitude_reading():
         assert np.abs(none).max() <= 1.0 and np.abs(none).max() > 0.9
     with pytest.raises(ValueError, match="unknown CGO wavelet_amplitude 'half'"):
         CGOConfig.paper(wavelet_amplitude="half")
+
+
+# --- the registry: a strategy is a function registered by name ------------------------------------------------
+
+
+def _levy_like(key, s, amplitude=0.5):
+    """A user's operator: x + amplitude * sign * U(0, 1)^2 on the masked coordinates (closed form below)."""
+    k_u, k_s = jax.random.split(key)
+    u = jax.random.uniform(k_u, s.x.shape, s.x.dtype)
+    sign = jnp.where(jax.random.bernoulli(k_s, 0.5, s.x.shape), 1.0, -1.0)
+    return jnp.where(s.mask, s.x + amplitude * sign * u * u, s.x)
+
+
+def test_registry_holds_the_papers_five_in_index_order():
+    assert mut.STRATEGIES == ("original", "chaos", "gaussian", "wavelet", "three_stage")
+    assert tuple(mut.MUTATIONS)[:5] == mut.STRATEGIES
+    assert [mut.MUTATIONS[s].operator is not None for s in mut.STRATEGIES] == [True] * 4 + [False]
+    assert mut.STAGE_ORDER == (1, 2, 3) and CGOConfig().stage_order == (1, 2, 3)
+    from icgo.reporting.names import STRATEGY_NAMES, method_name
+
+    assert STRATEGY_NAMES == {s: mut.MUTATIONS[s].label for s in mut.STRATEGIES}
+    assert method_name("cgo-gaussian") == "ICGO-RELM (Gaussian)"
+
+
+@pytest.fixture
+def own_registry():
+    """The registry as shipped, restored in place after the test (its registrations are the test's only)."""
+    before = dict(mut.MUTATIONS)
+    yield mut.MUTATIONS
+    mut.MUTATIONS.clear()
+    mut.MUTATIONS.update(before)
+
+
+def test_register_refuses_bad_names_and_a_taken_name(own_registry):
+    with pytest.raises(ValueError, match="lower-case identifier"):
+        mut.register("Levy-1", _levy_like)
+    with pytest.raises(ValueError, match="must be a function"):
+        mut.register("levy", "not a function")
+    with pytest.raises(ValueError, match="already registered with another operator"):
+        mut.register("chaos", _levy_like)
+    from functools import partial
+
+    i = mut.register("levy", partial(_levy_like, amplitude=0.25), "Levy-like")
+    assert i == 5 and mut.register("levy", partial(_levy_like, amplitude=0.25), "Levy-like") == 5  # same: a no-op
+    with pytest.raises(ValueError, match="already registered"):
+        mut.register("levy", partial(_levy_like, amplitude=0.5), "Levy-like")
+
+
+def test_a_registered_strategy_runs_batched_beside_the_builtins_which_keep_their_bits(own_registry):
+    """A user's operator, by name, in one vmapped batch with the five built-ins: its seeds are its closed form,
+    and the built-ins' results are bitwise those of the batch without it (its branch only adds a branch)."""
+    from icgo.optim import run_batch
+    from icgo.optim.cgo import CGO
+
+    def sphere(pop, aux):
+        return jnp.sum((pop - aux) ** 2, axis=-1)
+
+    box = (-5.0 * jnp.ones(3), 5.0 * jnp.ones(3))
+    keys = jax.random.split(jax.random.key(3), 2)
+    aux = jnp.ones((2, 3))
+    before = run_batch(get("cgo"), sphere, box, keys, 8, 6, configs=CGO.axis_configs(None, mut.STRATEGIES), aux=aux)
+    mut.register("levy_like", _levy_like, "Levy-like")
+    configs = CGO.axis_configs(None, (*mut.STRATEGIES, "levy_like"))
+    assert configs[-1].strategy == 5 and configs[0].mutations == (*mut.STRATEGIES, "levy_like")
+    after = run_batch(get("cgo"), sphere, box, keys, 8, 6, configs=configs, aux=aux)
+    assert after.best_f.shape == (6, 2)
+    np.testing.assert_array_equal(np.asarray(after.best_f[:5]), np.asarray(before.best_f))
+    np.testing.assert_array_equal(np.asarray(after.curve[:5]), np.asarray(before.curve))
+    assert np.all(np.isfinite(np.asarray(after.best_f[5])))
+    # the operator itself through mutate's switch: x + 0.5 sign u^2 on the mask, |d| <= 0.5, mean |d| = 0.5 / 3
+    P, D = 6000, 2
+    x = jnp.full((P, D), 1.0)
+    mask = jnp.zeros((P, D), bool).at[:, 1].set(True)
+    s4 = np.asarray(mut.mutate(jax.random.key(1), x, mask, x, 5, 0, 10, box[0][:2], box[1][:2], configs[-1]))
+    d = s4[:, 1] - 1.0
+    np.testing.assert_array_equal(s4[:, 0], 1.0)
+    assert np.abs(d).max() <= 0.5 and abs(np.abs(d).mean() - 0.5 / 3) < 0.01 and abs(d.mean()) < 0.01
+    with pytest.raises(ValueError, match="stage_order must name 3 single strategies"):
+        CGOConfig(stage_order=("chaos", "gaussian", "three_stage"))
+    assert CGOConfig(strategy="three_stage", stage_order=("chaos", "levy_like", "wavelet")).stage_order == (1, 5, 3)

@@ -41,16 +41,34 @@ STUDY_GROUPS = ("dataset", "model", "optimizer", "strategy", "schedule", "budget
 EXIT_CONFIG = 2
 
 
-def group_options(group: str, conf_dir: Path = CONF_DIR) -> list[str]:
-    """Names of the options of a config group (its ``*.yaml`` files)."""
-    return sorted(p.stem for p in (conf_dir / group).glob("*.yaml"))
+def group_options(group: str, conf_dir: Path = CONF_DIR, extra=()) -> list[str]:
+    """Names of the options of a config group (its ``*.yaml`` files), in ``conf_dir`` and the folders ``extra``."""
+    return sorted({p.stem for d in (conf_dir, *extra) for p in (Path(d) / group).glob("*.yaml")})
+
+
+def searchpath_dirs(args: list[str]) -> list[Path]:
+    """The ``file://`` folders of a ``hydra.searchpath=[file://...]`` override: a user's own config folder, whose
+    group options (``strategy/levy.yaml``) Hydra composes beside conf/'s (docs/extending.md)."""
+    out = []
+    for a in args:
+        key, sep, _ = a.lstrip("+").partition("=")
+        if not sep or key != "hydra.searchpath":
+            continue
+        try:
+            value = OverridesParser.create().parse_overrides([a])[0].value()
+        except Exception:  # noqa: BLE001  (a malformed value: check_plain_overrides names it)
+            continue
+        out += [Path(str(v)[len("file://"):]) for v in (value if isinstance(value, list) else [value])
+                if str(v).startswith("file://")]
+    return out
 
 
 def check_overrides(args: list[str], groups=STUDY_GROUPS, conf_dir: Path = CONF_DIR) -> str | None:
     """One-line error for an override that names an unknown group option, else None.
 
     Handles ``group=a``, ``+group=a``, ``~group`` (ignored) and sweeps
-    ``group=a,b,c``; anything else is left to Hydra.
+    ``group=a,b,c``, with the options of a ``hydra.searchpath`` folder among the choices; anything else is
+    left to Hydra.
 
     Args:
         args: command-line arguments (without the program name).
@@ -59,6 +77,7 @@ def check_overrides(args: list[str], groups=STUDY_GROUPS, conf_dir: Path = CONF_
     Returns:
         The error line, or None when every group override names an existing option.
     """
+    extra = searchpath_dirs(args)
     for arg in args:
         if arg.startswith("-") or "=" not in arg:
             continue
@@ -66,7 +85,7 @@ def check_overrides(args: list[str], groups=STUDY_GROUPS, conf_dir: Path = CONF_
         key = key.lstrip("+")
         if key not in groups:
             continue
-        options = group_options(key, conf_dir)
+        options = group_options(key, conf_dir, extra)
         for v in value.split(","):
             v = v.strip()
             if v in ("null", "") and key == "experiment":
@@ -138,6 +157,9 @@ def check_plain_overrides(args: list[str], config_name: str, conf_dir: Path = CO
     groups, plain = [], []
     for ov in overrides:
         key = ov.key_or_group
+        if key == "hydra.searchpath":
+            groups.append(ov.input_line)  # a user's config folder: its group options compose as conf/'s
+            continue
         if key.startswith("hydra") or (ov.type != OverrideType.CHANGE and not (conf_dir / key).is_dir()):
             continue  # Hydra's own settings; an added or deleted key (the entry points refuse unknown ones)
         if (conf_dir / key).is_dir():

@@ -71,6 +71,7 @@ class MagCalibration(FittedModel):
     """
 
     KIND = "mag_calibration"
+    CORRECTS_FIELD = True
     #: A calibration makes the field one earth field: its corrected |B| and dip are checked for spread over a
     #: survey's stations (icgo.survey.apply.one_field_doubt).
     ONE_FIELD = True

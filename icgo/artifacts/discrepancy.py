@@ -39,6 +39,7 @@ class PhysicsModel(FittedModel):
     """
 
     KIND = "discrepancy_model"
+    CORRECTS_FIELD = True
     UNITS = {"field": "nT, deg, deg", "sigma_b_nT": "nT", "sigma_g": "g", "angles": "deg"}
     PARAMS = inversion.PhysicsParams
     PREDICT = inversion.predict

@@ -173,6 +173,7 @@ class FittedModel(abc.ABC):
     records saved in the ``.npz``. Class settings:
 
     * ``KIND``, ``UNITS``: its name in the header and the units it states.
+    * ``CORRECTS_FIELD``: its output corrects the magnetic field itself (what survey QC then checks).
     * ``PARAMS``: the params pytree class (a ``NamedTuple`` of arrays, or a dataclass registered with
       ``jax.tree_util.register_dataclass`` whose static fields are settings of ``predict``).
     * ``PREDICT``: the family's pure ``predict(params, x)``, batched as the kind's params are (over a leading
@@ -187,6 +188,7 @@ class FittedModel(abc.ABC):
 
     KIND: ClassVar[str] = ""
     UNITS: ClassVar[dict] = {}
+    CORRECTS_FIELD: ClassVar[bool] = False
     PARAMS: ClassVar[type]
     PREDICT: ClassVar[Callable | None] = None
     INPUTS: ClassVar[tuple] = ()

@@ -104,6 +104,7 @@ class MSAModel(FittedModel):
     """
 
     KIND = "msa"
+    CORRECTS_FIELD = True
     UNITS = {"bias": "nT", "scale": "1", "gx,gy,gz": "g", "bx,by,bz": "nT", "angles": "deg"}
     PARAMS = _msa.MSAParams
     PREDICT = _msa.predict_members

@@ -44,7 +44,8 @@ def config_from_mapping(cls, values: dict, where: str = "config", _prefix: str =
 
     A field whose type (or default) is a dataclass is built recursively from a mapping, an optional one
     (``X | None``) too; a field with ``metadata={"variants": {tag: class}, "tag": key}`` is built as the
-    class its mapping's ``key`` names (a config group whose options take different keys).
+    class its mapping's ``key`` names (a config group whose options take different keys), or, with
+    ``"default": class`` in the metadata, as that class for any other tag (which then checks the tag).
 
     Args:
         cls: the config dataclass.
@@ -68,9 +69,10 @@ def config_from_mapping(cls, values: dict, where: str = "config", _prefix: str =
         if variants is not None:
             tag = field.metadata["tag"]
             chosen = v.get(tag) if isinstance(v, dict) else None
-            if chosen not in variants:
+            other = field.metadata.get("default")  # the class of every other tag (which checks the tag itself)
+            if chosen not in variants and (other is None or not isinstance(chosen, str)):
                 raise SettingError(f"{key}.{tag}", f"must be one of {sorted(variants)}, got {chosen!r}")
-            v = config_from_mapping(variants[chosen], v, f"{where}.{k}", f"{key}.")
+            v = config_from_mapping(variants.get(chosen, other), v, f"{where}.{k}", f"{key}.")
         elif sub is not None and isinstance(v, dict):
             v = config_from_mapping(sub, v, f"{where}.{k}", f"{key}.")
         elif sub is not None and not isinstance(v, sub) and not (v is None and _optional(hints.get(k))):

@@ -1,5 +1,6 @@
-"""The simulated data sets by name: :data:`DATASETS` (what ``python -m icgo.datasets NAME`` writes and what a
-study's ``dataset`` setting names).
+"""The simulated data sets by name: :data:`DATASETS`, the one registry of data sets (what ``python -m icgo.datasets
+NAME`` writes and what a study's ``dataset`` setting names). A researcher's own simulator is added with
+:func:`register` (from their config's ``dataset._target_``: docs/extending.md).
 """
 
 from __future__ import annotations
@@ -17,3 +18,17 @@ DATASETS = {
     "turntable_between": turntable_between,
     "rotating_drill": rotating_drill,
 }
+
+
+def register(name: str, fn) -> None:
+    """Add the simulator ``fn(seed, **kwargs) -> icgo.datasets.dataset.Dataset`` under ``name``; the same function
+    again is a no-op.
+
+    Raises:
+        ValueError: ``fn`` not callable, or ``name`` taken by another simulator.
+    """
+    if not callable(fn):
+        raise ValueError(f"data set {name!r}: the simulator must be a function fn(seed, **kwargs) -> Dataset")
+    if DATASETS.get(name, fn) is not fn:
+        raise ValueError(f"data set name {name!r} is taken by another simulator; choose another name")
+    DATASETS[name] = fn

@@ -111,7 +111,7 @@ def _flag(name, value):
                       "stage_bounds", "stage_order"],
          meta_fields=["variant", "selection", "dims", "original_uniform", "wavelet_bounded", "bound_mode",
                       "chaos_guard", "wavelet_stage_clock", "wavelet_amplitude", "alpha", "seed_form", "fourth_seed",
-                      "overrides"])
+                      "overrides", "mutations"])
 @dataclasses.dataclass(frozen=True)
 class CGOConfig:
     """CGO hyperparameters: data fields are traced (and may be vmapped), static fields select code.
@@ -128,8 +128,8 @@ class CGOConfig:
     silently mixing one variant's code with another's settings.
 
     Attributes:
-        strategy: 4th-seed strategy (data), name or index into ``mutation.STRATEGIES``
-            (0 original, 1 chaos, 2 gaussian, 3 wavelet, 4 three_stage); the
+        strategy: 4th-seed strategy (data), name or index into the registry ``mutation.MUTATIONS``
+            (0 original, 1 chaos, 2 gaussian, 3 wavelet, 4 three_stage, then a user's own); the
             axis a study runs side by side (``CGO.axis``).
         variant: ``paper``, ``matlab`` or ``mealpy`` (static; the preset of
             :data:`VARIANT_FIELDS`, see the module docstring).
@@ -157,7 +157,7 @@ class CGOConfig:
             instead of the paper's additive x + psi (static).
         stage_bounds: fractions of the run where stages 2 and 3 of
             ``three_stage`` start (default thirds; data).
-        stage_order: strategy indices of stages 1-3 (default chaos, gaussian,
+        stage_order: operator indices (or names) of stages 1-3 (default chaos, gaussian,
             wavelet; data).
         wavelet_stage_clock: in ``three_stage``, the wavelet's dilation runs on its
             stage's own clock (:func:`icgo.optim.mutation.stage_clock`) instead of
@@ -180,6 +180,10 @@ class CGOConfig:
             a control, not a reading of the paper.
         overrides: the variant fields deliberately set away from the variant's
             setting (static, sorted names; filled in by the factories).
+        mutations: the registry's strategy names in index order when the config was built (static; filled in
+            whenever ``strategy`` is given by name, or when empty): the branches of the 4th seed's
+            ``lax.switch`` (:func:`icgo.optim.mutation.mutate`), so a program compiled before a user registered
+            a strategy is never reused for one built after.
     """
 
     strategy: Any = 0
@@ -197,7 +201,7 @@ class CGOConfig:
     wavelet_zeta: Any = 5.0
     wavelet_bounded: bool = False
     stage_bounds: Any = (1.0 / 3.0, 2.0 / 3.0)
-    stage_order: Any = (mut.CHAOS, mut.GAUSSIAN, mut.WAVELET)
+    stage_order: Any = mut.STAGE_ORDER
     wavelet_stage_clock: bool = False
     wavelet_amplitude: str = "ling"
     bound_mode: str = "clip"
@@ -205,6 +209,7 @@ class CGOConfig:
     seed_form: str = "paper"
     fourth_seed: bool = True
     overrides: tuple = ()
+    mutations: tuple = ()
 
     def __post_init__(self):
         set_ = partial(object.__setattr__, self)
@@ -220,14 +225,25 @@ class CGOConfig:
         set_("wavelet_bounded", _flag("wavelet_bounded", self.wavelet_bounded))
         set_("chaos_guard", _flag("chaos_guard", self.chaos_guard))
         set_("wavelet_stage_clock", _flag("wavelet_stage_clock", self.wavelet_stage_clock))
+        set_("mutations", tuple(self.mutations))
+        if isinstance(self.strategy, str) or not self.mutations:
+            set_("mutations", tuple(mut.MUTATIONS))  # the registry only grows: earlier indices keep their names
+        if tuple(mut.MUTATIONS)[:len(self.mutations)] != self.mutations:
+            raise ValueError(f"CGO mutations {self.mutations} are not the registry's strategies in index order "
+                             f"{tuple(mut.MUTATIONS)}; register a strategy of your own before building its config")
         if isinstance(self.strategy, str) or _scalar(self.strategy):
             set_("strategy", mut.strategy_index(self.strategy))
+            if self.strategy >= len(self.mutations):
+                raise ValueError(f"CGO strategy {self.strategy} is not among this config's strategies "
+                                 f"{self.mutations}; give it by name")
         if _scalar(self.mg_size) and (self.mg_size < 0 or self.mg_size != int(self.mg_size)):
             raise ValueError(f"CGO mg_size must be an integer >= 0 (0 = random group size), got {self.mg_size}")
         if isinstance(self.stage_order, (tuple, list)):
             order = tuple(mut.strategy_index(x) if isinstance(x, str) else x for x in self.stage_order)
-            if len(order) != 3 or any(_scalar(x) and not 0 <= x <= 3 for x in order):
-                raise ValueError("CGO stage_order must name 3 single strategies (original/chaos/gaussian/wavelet)")
+            if len(order) != 3 or any(_scalar(x) and not (0 <= x < len(self.mutations) and mut.is_operator(x))
+                                      for x in order):
+                ops = [n for n in self.mutations if mut.MUTATIONS[n].operator is not None]
+                raise ValueError(f"CGO stage_order must name 3 single strategies (operators: {'/'.join(ops)})")
             set_("stage_order", order)
         if _scalar(self.mu) and not 3.57 <= self.mu <= 4.0:
             raise ValueError(f"CGO mu must be in [3.57, 4], got {self.mu}")

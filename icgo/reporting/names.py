@@ -2,14 +2,17 @@
 figure, a sweep and the printed summary of a run name a method the same way).
 
 Method ids are the study's (``relm``, ``pso``, ``cgo-<strategy>``, ...; :meth:`icgo.studies.icgo_relm_config.StudyConfig.method_names`);
-strategy ids are :data:`icgo.optim.STRATEGIES`.
+strategy ids and their names are the registry's (:data:`icgo.optim.mutation.MUTATIONS`: each entry's ``label``).
 """
 
 from __future__ import annotations
 
-#: Strategy id -> its name in tables and legends.
-STRATEGY_NAMES = {"original": "original", "chaos": "chaotic", "gaussian": "Gaussian", "wavelet": "wavelet",
-                  "three_stage": "three-stage"}
+from icgo.optim.mutation import MUTATIONS, STRATEGIES
+from icgo.optim.mutation import label as strategy_label
+
+#: Built-in strategy id -> its name in tables and legends (the registry's labels; a strategy a user registers
+#: later is named by :func:`method_name` through the registry).
+STRATEGY_NAMES = {s: MUTATIONS[s].label for s in STRATEGIES}
 
 #: Method id -> its name (the ICGO paper's where it gives one). CGO with the original 4th seed is the paper's
 #: CGO-RELM; with a mutated seed, ICGO-RELM with that strategy.
@@ -19,8 +22,12 @@ METHOD_NAMES = {"raw": "raw (eq. 1)", "msa": "MSA only", "relm": "RELM", "relm-t
 
 
 def method_name(method: str) -> str:
-    """:data:`METHOD_NAMES`, else ``<ALG>-RELM (<variant>)`` from an id ``<alg>-<variant>`` (``<ALG>-RELM`` alone)."""
+    """:data:`METHOD_NAMES`, else ``ICGO-RELM (<label>)`` for ``cgo-<strategy>`` (the registry's label, or the
+    name of a strategy not registered in this process), else ``<ALG>-RELM (<variant>)`` from an id
+    ``<alg>-<variant>`` (``<ALG>-RELM`` alone)."""
     if method in METHOD_NAMES:
         return METHOD_NAMES[method]
     name, _, value = method.partition("-")
-    return f"{name.upper()}-RELM" + (f" ({STRATEGY_NAMES.get(value, value)})" if value else "")
+    if name == "cgo" and value:  # a strategy registered after import (a user's own): ICGO-RELM with its label
+        return f"ICGO-RELM ({strategy_label(value)})"
+    return f"{name.upper()}-RELM" + (f" ({strategy_label(value)})" if value else "")

@@ -36,6 +36,7 @@ import numpy as np
 import pandas as pd
 
 from icgo.maths.stats import holm, wilcoxon_paired
+from icgo.optim import STRATEGIES
 from icgo.artifacts.format import CORRECTED_B
 from icgo.physics.frames import angle_diff
 from icgo.studies import generalisation_report
@@ -47,8 +48,9 @@ log = logging.getLogger(__name__)
 
 _RELM = StudyConfig()  # the budget and model size default to the ICGO-RELM study's own (one source)
 
-#: The data sets a cell can use (simulated; ``SurveyData`` built by :func:`build_data`).
-DATASETS = ("lab_casing", "well_conditions")
+#: The data sets of :data:`icgo.datasets.registry.DATASETS` a cell can use (the ICGO paper's two, simulated;
+#: ``SurveyData`` built by :func:`build_data`).
+CELL_DATASETS = ("lab_casing", "well_conditions")
 #: The default cells: every protocol on the data set it is meant for, and the random split on both.
 CELLS = (("lab_casing", "random"), ("lab_casing", "leave_azimuth_out"), ("lab_casing", "transfer"),
          ("well_conditions", "random"), ("well_conditions", "leave_condition_out"))
@@ -62,12 +64,12 @@ class GeneralisationConfig:
     """Settings of the generalisation study.
 
     Attributes:
-        cells: (data set, protocol) pairs (:data:`DATASETS` x :data:`icgo.studies.splits.PROTOCOLS`).
+        cells: (data set, protocol) pairs (:data:`CELL_DATASETS` x :data:`icgo.studies.splits.PROTOCOLS`).
         n_repeats: repeats per cell (each a full pass over the folds for fold protocols).
         seed: the study key's seed (every method of a cell shares it: paired repeats).
         data_seed: noise seed of the simulated data sets (the transfer target's is ``transfer.seed``).
         methods: learned methods (:data:`METHODS`; ``relm`` = random hidden weights).
-        strategies: the CGO strategies run side by side.
+        strategies: the CGO strategies run side by side (default: every built-in one of the registry).
         pop_size, iterations: every optimizer's budget (default: the ICGO-RELM study's, the paper's 30, 100).
         hidden: RELM hidden units (default: the ICGO-RELM study's). physics: include the physics baseline.
         transfer: how the transfer target differs (:class:`icgo.studies.splits.TransferDraw`).
@@ -78,7 +80,7 @@ class GeneralisationConfig:
     seed: int = 0
     data_seed: int = 0
     methods: tuple = METHODS
-    strategies: tuple = ("original", "chaos", "gaussian", "wavelet", "three_stage")
+    strategies: tuple = STRATEGIES
     pop_size: int = _RELM.pop_size
     iterations: int = _RELM.iterations
     hidden: int = _RELM.hidden
@@ -94,9 +96,10 @@ class GeneralisationConfig:
         object.__setattr__(self, "methods", tuple(self.methods))
         if isinstance(self.transfer, dict):
             object.__setattr__(self, "transfer", _splits.TransferDraw(**self.transfer))
-        need(len(cells) >= 1 and all(len(c) == 2 and c[0] in DATASETS and c[1] in _splits.PROTOCOLS for c in cells),
-             "cells", f"must be [data set, protocol] pairs with a data set in {list(DATASETS)} and a protocol in "
-                      f"{list(_splits.PROTOCOLS)}, got {list(cells)}")
+        need(len(cells) >= 1
+             and all(len(c) == 2 and c[0] in CELL_DATASETS and c[1] in _splits.PROTOCOLS for c in cells), "cells",
+             f"must be [data set, protocol] pairs with a data set in {list(CELL_DATASETS)} and a protocol in "
+             f"{list(_splits.PROTOCOLS)}, got {list(cells)}")
         need(len(set(cells)) == len(cells), "cells", f"must be distinct, got {list(cells)}")
         need(len(self.methods) >= 1 and set(self.methods) <= set(METHODS) and len(set(self.methods)) == len(self.methods),
              "methods", f"must be distinct names from {list(METHODS)}, got {list(self.methods)}")

@@ -3,7 +3,7 @@ dataclasses mirroring ``conf/config.yaml`` node by node, built from the composed
 :func:`icgo.core.settings.config_from_mapping` (an unknown key is refused in one line naming its dotted path),
 each node checking what it owns at construction, with the YAML key in its one-line errors (``split.target``).
 
-:class:`RunConfig` is the whole run: the data set (:data:`DATASETS`, one node per ``dataset`` option), the
+:class:`RunConfig` is the whole run: the data set (:data:`DATASET_NODES`: the node of each ``dataset`` option), the
 study's nodes (``split``, ``msa``, ``model``, ``fitness``, ``budget``), the search (``optimizer``, ``strategy``,
 ``schedule``) and the top-level keys. :meth:`RunConfig.study_config` is the one explicit constructor of
 :class:`icgo.studies.icgo_relm_config.StudyConfig` (the library's flat settings, which validate the study's values
@@ -20,6 +20,7 @@ from pathlib import Path
 
 from icgo.core.errors import SettingError
 from icgo.core.settings import config_from_mapping, is_int, need
+from icgo.core.targets import load_target, target_callable
 
 
 def _file(path, key: str) -> Path:
@@ -32,22 +33,37 @@ def _file(path, key: str) -> Path:
 
 @dataclasses.dataclass(frozen=True)
 class SimulatedData:
-    """``dataset=lab_casing``: a simulated data set of :data:`icgo.datasets.registry.DATASETS`.
+    """``dataset=lab_casing``: a simulated data set of :data:`icgo.datasets.registry.DATASETS` (the one registry
+    of data sets), or a researcher's own (``_target_``, docs/extending.md).
 
     Attributes:
         name: its registry name. seed: noise seed (0 <= seed < 2**32; the systematic errors are fixed).
         kwargs: extra keyword arguments of the simulator.
+        _target_: ``module.function`` of a user's simulator ``fn(seed, **kwargs) -> Dataset``, registered under
+            ``name`` (None: a built-in).
     """
 
     name: str
     seed: int
     kwargs: dict
+    _target_: str | None = None
 
     def __post_init__(self):
         need(is_int(self.seed) and 0 <= self.seed < 2**32, "dataset.seed",
              f"must be an integer 0 <= seed < 2**32, got {self.seed!r}")
         need(isinstance(self.kwargs, dict), "dataset.kwargs",
              f"must be a mapping of the simulator's keyword arguments, got {self.kwargs!r}")
+        from icgo.datasets import registry
+
+        if self._target_ is not None:
+            fn = load_target(self._target_, "dataset._target_")
+            try:
+                registry.register(self.name, fn)
+            except ValueError as e:
+                raise SettingError("dataset.name", str(e)) from None
+        need(self.name in registry.DATASETS, "dataset.name",
+             f"{self.name!r} is no data set of icgo.datasets.registry.DATASETS ({', '.join(registry.DATASETS)}) "
+             f"nor csv; a simulator of your own is named by dataset._target_ (docs/extending.md)")
 
     @property
     def condition(self) -> int | None:
@@ -94,8 +110,9 @@ class CsvData:
     kwargs = None
 
 
-#: ``dataset.name`` -> its node (a config group whose options take different keys).
-DATASETS = {"lab_casing": SimulatedData, "well_conditions": WellConditionsData, "csv": CsvData}
+#: ``dataset.name`` -> its node where it takes other keys than :class:`SimulatedData` (a config group whose options
+#: take different keys); every other name is a :class:`SimulatedData` of :data:`icgo.datasets.registry.DATASETS`.
+DATASET_NODES = {"well_conditions": WellConditionsData, "csv": CsvData}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -193,17 +210,55 @@ class BudgetSettings:
 
 @dataclasses.dataclass(frozen=True)
 class OptimizerSettings:
-    """``optimizer``: a registry name of :mod:`icgo.optim` (null: plain RELM) and its config's arguments."""
+    """``optimizer``: a registry name of :mod:`icgo.optim` (null: plain RELM) and its config's arguments.
+
+    ``_target_``: ``module.NAME`` of a researcher's own :class:`icgo.optim.Algorithm` (docs/extending.md),
+    registered in :data:`icgo.optim.OPTIMIZERS` under ``name`` (which must be the algorithm's own name)."""
 
     name: str | None
     params: dict | None = None
+    _target_: str | None = None
+
+    def __post_init__(self):
+        if self._target_ is None:
+            return
+        from icgo.optim import registry
+
+        alg = load_target(self._target_, "optimizer._target_")
+        need(getattr(alg, "name", None) == self.name, "optimizer.name",
+             f"{self.name!r} must be the name of the algorithm optimizer._target_ names "
+             f"({getattr(alg, 'name', None)!r})")
+        try:
+            registry.register(alg)
+        except ValueError as e:
+            raise SettingError("optimizer._target_", str(e)) from None
 
 
 @dataclasses.dataclass(frozen=True)
 class StrategySettings:
-    """``strategy``: the CGO 4th-seed strategies run side by side."""
+    """``strategy``: the CGO 4th-seed strategies run side by side, by their names in the registry
+    (:data:`icgo.optim.mutation.MUTATIONS`).
+
+    ``define``: a researcher's own strategies (docs/extending.md), name -> ``{_target_: module.function, label:
+    its name in tables, **keyword arguments of the function}``, registered (after the built-ins) before the
+    study is built."""
 
     names: list
+    define: dict | None = None
+
+    def __post_init__(self):
+        if not self.define:
+            return
+        need(isinstance(self.define, dict), "strategy.define",
+             f"must map a strategy name to {{_target_: module.function, label: ...}}, got {self.define!r}")
+        from icgo.optim import mutation
+
+        for name, spec in self.define.items():
+            fn, rest = target_callable(spec, f"strategy.define.{name}", reserved=("label",))
+            try:
+                mutation.register(name, fn, rest.get("label"))
+            except ValueError as e:
+                raise SettingError(f"strategy.define.{name}", str(e)) from None
 
 
 #: ``schedule.clock`` values: the wavelet's dilation on the whole run's t/T, or on its stage's own clock.
@@ -230,7 +285,7 @@ class RunConfig:
     """One run of ``python -m experiments.run`` (``conf/config.yaml`` with its groups; docs/experiments.md).
 
     Attributes:
-        dataset: :data:`DATASETS` node. split, msa, model, fitness, budget: the study's nodes. optimizer,
+        dataset: the data set's node (:data:`DATASET_NODES`, else :class:`SimulatedData`). split, msa, model, fitness, budget: the study's nodes. optimizer,
             strategy, schedule: the search. precision: the search fitness's precision
             (:data:`icgo.studies.icgo_relm_config.PRECISIONS`). worlds: N independent simulated worlds, or None.
         devices: the most devices the search is sharded over (None: every one). progress: ``auto``, true or false.
@@ -239,7 +294,7 @@ class RunConfig:
     """
 
     dataset: SimulatedData | WellConditionsData | CsvData = dataclasses.field(
-        metadata={"variants": DATASETS, "tag": "name"})
+        metadata={"variants": DATASET_NODES, "tag": "name", "default": SimulatedData})
     split: SplitSettings
     msa: MsaSettings
     model: ModelSettings

@@ -27,6 +27,7 @@ from typing import NamedTuple
 import numpy as np
 
 from icgo.artifacts.format import DOMAIN_TOLERANCE, domain_overshoots
+from icgo.artifacts.registry import MODEL_KINDS
 from icgo.reporting.records import RECOMMENDATION_KEYS
 
 #: ``apply``'s exit status when its verdict says not to use the result as it stands (files still written): far
@@ -37,8 +38,9 @@ EXIT_NO_RECOMMENDATION = 4
 #: An overshoot of the training range beyond the larger of this and the range's own width is "far outside"
 #: (units of each quantity): ten times the noise-level tolerance of :data:`icgo.artifacts.format.DOMAIN_TOLERANCE`.
 FAR_TOLERANCE = {k: 10.0 * v for k, v in DOMAIN_TOLERANCE.items()}
-#: Model kinds whose output corrects the magnetic field itself (their corrected field is what QC checks).
-FIELD_CORRECTING_KINDS = ("mag_calibration", "discrepancy_model", "msa")
+#: Model kinds whose output corrects the magnetic field itself (their corrected field is what QC checks): the
+#: registry's (:data:`icgo.artifacts.registry.MODEL_KINDS`, each kind's ``CORRECTS_FIELD``).
+FIELD_CORRECTING_KINDS = tuple(k for k, cls in MODEL_KINDS.items() if cls.CORRECTS_FIELD)
 
 
 class Verdict(NamedTuple):

@@ -147,14 +147,16 @@ def table3(per, seeds, settings, out: Path, results: Path) -> None:
     from icgo.reporting import worlds as world_tables
     from icgo.reporting.names import method_name
     from icgo.reporting.published import ICGO
+    from icgo.studies.icgo_relm_results.notes import STRATEGIES4
 
-    four = [f"cgo-{s}" for s in ("chaos", "gaussian", "wavelet", "three_stage")]
+    four = [f"cgo-{s}" for s in STRATEGIES4 if f"cgo-{s}" in set(per.method)]  # the registry's mutated ones run
+    singles = [m for m in four if m != "cgo-three_stage"]
     methods = ["cgo-original", *four]
     paper = {f"cgo-{s}": f"{v[0][0]:.4f} +/- {v[0][1]:.4f}" for s, v in ICGO["table3"].items()}
     pooled = _with_paper(world_tables.pooled(per, methods), paper)
     fr = [(k, world_tables.friedman_over_worlds(per, four, k)) for k in ("mae", "rmse")]
     fr_holm = holm([t.p_value for _, t in fr])
-    wil = pd.concat([world_tables.paired_tests(per, [("cgo-three_stage", m) for m in four[:-1]], k).assign(metric=k)
+    wil = pd.concat([world_tables.paired_tests(per, [("cgo-three_stage", m) for m in singles], k).assign(metric=k)
                      for k in ("mae", "rmse")], ignore_index=True)
     wil["p (Holm)"] = holm(wil["p"].to_numpy())  # one family: both metrics, as the one-draw Table 3
     from icgo.reporting.protocol import comparison
@@ -162,14 +164,14 @@ def table3(per, seeds, settings, out: Path, results: Path) -> None:
     wil["verdict"] = [comparison(method_name(r.a), method_name(r.b), r["p (Holm)"], r["median difference a - b"],
                                  family=len(wil)) + f" [{r.metric.upper()}]" for _, r in wil.iterrows()]
     notes = [changed_note("table3", per, methods, results), "", world_tables.rank_sentence(per, methods), "",
-             *(f"- Friedman over worlds of the 4 mutated strategies ({k.upper()}): chi2 = {t.statistic:.2f}, p = "
+             *(f"- Friedman over worlds of the {len(four)} mutated strategies ({k.upper()}): chi2 = {t.statistic:.2f}, p = "
                f"{p:.3g} (Holm over the 2 Friedman tests); mean ranks: "
                + ", ".join(f"{method_name(m)} {t.mean_ranks[m]:.2f}" for m in four) + "."
                for (k, t), p in zip(fr, fr_holm)), "",
              f"Wilcoxon signed-rank over worlds (paired by world), three-stage against each single strategy, MAE and "
              f"RMSE, Holm over the {len(wil)} tests:", "", *world_tables.markdown_tests(wil)]
-    test = ("Friedman over worlds of the 4 mutated strategies (MAE, RMSE: Holm over these 2) and Wilcoxon signed-rank "
-            f"over worlds of three-stage against each single strategy (MAE, RMSE: Holm over these {len(wil)})")
+    test = (f"Friedman over worlds of the {len(four)} mutated strategies (MAE, RMSE: Holm over these 2) and Wilcoxon "
+            f"signed-rank over worlds of three-stage against each single strategy (MAE, RMSE: Holm over these {len(wil)})")
     _write(out, "table3", f"Table 3 over {len(seeds)} worlds: mean +/- std over worlds (test split)", pooled, per,
            methods, notes, _protocol("table3", seeds, settings, test), settings)
 
