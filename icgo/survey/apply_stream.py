@@ -240,7 +240,7 @@ class StreamedSurvey:
     def add(self, rows: Rows) -> None:
         """Fold one chunk's :class:`~icgo.survey.apply.Rows` in (its table is written already)."""
         k = rows.keep
-        # a key counts only when every chunk has it (as merge_rows keeps them)
+        # a key counts only when every chunk has it (a survey-level number needs every station)
         self.keys = set(k) if self.keys is None else self.keys & set(k)
         n = len(next(iter(k.values()))) if k else 0
         self.n += n
