@@ -1,7 +1,9 @@
 """Per-stage roofline of the fast RELM fitness (:func:`icgo.models.relm.train_fitness`) on this CPU.
 
 ``python -m experiments.roofline [--batch 1200] [--quick] [--out FILE.json]`` prints a Markdown
-table and, as its last line, one JSON object (also written to ``--out``). Run as a module it pins
+table and, as its last line, one JSON object (also written to ``--out``). ``--ab SPEC [SPEC ...]`` instead times
+settings of the kernel side by side at a Table 3 search's call, by process CPU time (:mod:`icgo.bench.kernel_ab`),
+e.g. ``--ab base refine=1 chunk=5``. Run as a module it pins
 itself to one core with one XLA thread (:func:`icgo.core.devices.xla_flags`, as the launcher's jobs,
 set before JAX is imported); :mod:`icgo.bench.cpu` runs it in a child process for the same reason.
 The stages, their counts and ceilings: :mod:`icgo.bench.roofline`.
@@ -35,6 +37,9 @@ def main(argv=None) -> dict:
     p.add_argument("--quick", action="store_true", help="batch 120 and 3 rounds (smoke use, under a minute)")
     p.add_argument("--out", default=None, help="also write the JSON object to this file (refused if it exists)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    p.add_argument("--ab", nargs="+", default=None, metavar="SPEC",
+                   help="instead: time these kernel settings side by side (e.g. base refine=1 chunk=5,refine=1)")
+    p.add_argument("--rounds", type=int, default=10, help="--ab: rounds of the variants in turn (best taken)")
     a = p.parse_args(argv)
     if a.out:
         from icgo.io.files import check_output_file
@@ -44,9 +49,22 @@ def main(argv=None) -> dict:
     reps = a.reps if a.reps is not None else (3 if a.quick else 7)
     if batch < 1 or a.chunk < 1 or a.refine < 0 or reps < 1:
         p.error("--batch, --chunk and --reps must be >= 1 and --refine >= 0")
-    from icgo.bench import roofline
+    if a.ab:
+        from icgo.bench import kernel_ab
 
-    res = roofline.run(batch, a.chunk, a.refine, reps, a.quick)
+        try:
+            [kernel_ab.parse_spec(x) for x in a.ab]
+        except ValueError as e:
+            p.error(str(e))
+        if a.rounds < 1:
+            p.error("--rounds must be >= 1")
+        res = kernel_ab.run(a.ab, rounds=a.rounds)
+        show = kernel_ab.table
+    else:
+        from icgo.bench import roofline
+
+        res = roofline.run(batch, a.chunk, a.refine, reps, a.quick)
+        show = roofline.table
     line = json.dumps(res)
     if a.out:
         from icgo.io.recording import atomic_write_texts
@@ -57,7 +75,7 @@ def main(argv=None) -> dict:
             from icgo.core.errors import OutputError
 
             raise OutputError(f"--out {a.out!r}: writing failed ({e.strerror}); nothing was written") from None
-    print(roofline.table(res))
+    print(show(res))
     print(line)
     return res
 

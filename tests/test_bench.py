@@ -37,6 +37,9 @@ def test_large_recording_and_measure(tmp_path):
     back = io.read_recording(tmp_path / "big.csv")
     assert len(back.frame) == 1500 and back.frame["station"].is_unique and back.field is not None
     np.testing.assert_array_equal(back.frame["azimuth_deg"], rec.frame["azimuth_deg"])
+    rows.write_large_recording(tmp_path / "md.csv", 20, md_step_m=0.5)
+    with_md = io.read_recording(tmp_path / "md.csv")
+    np.testing.assert_array_equal(with_md.frame["md"], 0.5 * np.arange(20))
     m = process.measure([sys.executable, "-c", "print('ok')"])
     assert m["rc"] == 0 and "ok" in m["tail"] and 0 < m["peak_rss_gb"] < 1 and m["wall_s"] > 0
     core = max(os.sched_getaffinity(0))  # --cores: the command runs on the cores it is given
@@ -110,3 +113,15 @@ def test_gpu_check_runs_on_a_cpu_and_says_the_gpu_is_absent(capsys):
     assert "projected" in res["study"][2]["skipped"]
     md = report(res)
     assert md.startswith("GPU absent") and "study, 2 repeats" in md
+
+
+def test_rows_commands_are_checked():
+    """--rows-commands names only commands rows_scaling runs; apply among them."""
+    from icgo.bench import cli
+
+    p = cli.parser("bench", "")
+    errors = []
+    assert cli.plan(p.parse_args(["--rows", "10", "--rows-commands", "apply"]), errors.append).sizes == [10]
+    assert not errors
+    with pytest.raises(SystemExit):
+        cli.plan(p.parse_args(["--rows", "10", "--rows-commands", "apply,nonsense"]), p.error)

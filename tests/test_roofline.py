@@ -43,3 +43,19 @@ def test_roofline_at_the_study_shape_with_one_chunk_reports_every_stage():
         assert 0 < res[fd]["kernel_fraction"] <= 5 and res[fd]["kernel_us"] > 0
     assert res["f32_speedup"] > 0
     assert roofline.table(res).count("\n") == 2 + 2 * (len(roofline.STAGES) + 1) - 1
+
+
+def test_kernel_ab_specs_and_a_small_run():
+    """--ab: specs parsed or refused in one line; a variant equal to the first is bitwise it, every variant within
+    the search kernel's 5e-6 of the float64 fitness at refine >= 1 (no timing is tested)."""
+    from icgo.bench import kernel_ab
+
+    assert kernel_ab.parse_spec("base") == {} and kernel_ab.parse_spec("chunk=5, refine=1") == {"chunk": 5, "refine": 1}
+    for bad, what in (("chunks=5", "not name=value"), ("refine=one", "is not a int"), ("chunk", "not name=value")):
+        with pytest.raises(ValueError, match=what):
+            kernel_ab.parse_spec(bad)
+    res = kernel_ab.run(["base", "chunk=10,refine=2", "refine=1"], members=2, batch=20, rounds=1)
+    v = {x["spec"]: x for x in res["variants"]}
+    assert v["chunk=10,refine=2"]["bitwise"] and v["base"]["ratio"] == 1.0
+    assert all(x["max_rel_vs_float64"] < 5e-6 and x["evals_per_cpu_s"] > 0 for x in res["variants"])
+    assert "| `refine=1` |" in kernel_ab.table(res)

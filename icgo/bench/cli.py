@@ -16,6 +16,8 @@ from icgo.core.settings import ArgumentParser
 
 #: The modes whose result is printed only (a summary, then the JSON line), never written to results/.
 PRINTED_ONLY = ("calibrate", "rows")
+#: The commands ``--rows`` can measure (:func:`icgo.bench.rows.rows_scaling`).
+ROWS_COMMANDS = ("reader", "study", "discrepancy", "apply")
 
 
 def parser(prog: str, description: str) -> ArgumentParser:
@@ -41,10 +43,13 @@ def parser(prog: str, description: str) -> ArgumentParser:
     p.add_argument("--calibrate-runs", type=int, default=3, help="--calibrate: warm runs after the cold one")
     p.add_argument("--rows", default=None,
                    help="comma list of row counts (e.g. 1e3,1e4,1e5,1e6): only measure time and peak memory of the "
-                        "reader, the study and the discrepancy workflow on contract CSVs of that many rows")
+                        "reader, the study, the discrepancy workflow and streaming apply (--rows-commands) on "
+                        "contract CSVs of that many rows (each deleted once measured)")
     p.add_argument("--rows-budget", default="smoke", help="--rows: the study's conf/budget option (default smoke)")
     p.add_argument("--rows-repeats", type=int, default=None, help="--rows: the study's split.n_repeats (default 10)")
-    p.add_argument("--rows-commands", default="reader,study,discrepancy", help="--rows: which commands to run")
+    p.add_argument("--rows-commands", default="reader,study,discrepancy",
+                   help="--rows: which commands to run, of reader, study, discrepancy, apply (e.g. --rows 1e6,4e6,16e6 "
+                        "--rows-commands apply: streaming apply's peak memory)")
     p.add_argument("--rows-dir", default=None, help="--rows: directory for the CSVs and run directories")
     p.add_argument("--gpu-check", action="store_true",
                    help="only the backend check of icgo.bench.backend (kernels at batch 120 / 1,200 / 60,000, "
@@ -100,6 +105,9 @@ def plan(a, error) -> Plan:
         sizes = [int(float(x)) for x in a.rows.split(",")]
         if min(sizes) < 1:
             error("--rows sizes must be >= 1")
+        unknown = set(a.rows_commands.split(",")) - set(ROWS_COMMANDS)
+        if unknown:
+            error(f"--rows-commands: unknown {sorted(unknown)}; choose from {', '.join(ROWS_COMMANDS)}")
         return Plan("rows", a, cores, sizes)
     if a.chunk < 1 or a.refine < 0:
         error("--chunk must be >= 1 and --refine >= 0")

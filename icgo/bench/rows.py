@@ -2,13 +2,17 @@
 
 A recording of each size is written (:func:`write_large_recording`), then each command runs in its own process
 (:func:`icgo.bench.process.measure`): the reader (``icgo.io.recording.read_recording``), the ICGO-RELM study
-(``experiments.run dataset=csv``) and the discrepancy workflow (``experiments.discrepancy data=FILE``).
+(``experiments.run dataset=csv``), the discrepancy workflow (``experiments.discrepancy data=FILE``) and streaming
+apply (``experiments.apply``: a model fitted once by a ``budget=smoke`` study applied to a survey of that many rows
+with measured depth, read in chunks: its peak memory is the chunk's, whatever the rows). The CSVs are written into
+a temporary directory (or ``workdir``) and each is deleted once its commands ran.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import shutil
 import sys
 import tempfile
 from pathlib import Path
@@ -24,7 +28,7 @@ from icgo.io.recording import write_recording
 TILE_NOISE = (3e-4, 15.0)
 
 
-def write_large_recording(path, n_rows: int, seed: int = 0):
+def write_large_recording(path, n_rows: int, seed: int = 0, md_step_m: float | None = None):
     """A contract CSV (+ ``.meta.json``) of ``n_rows`` rows: lab_casing tiled, fresh noise on every copy.
 
     The simulated lab_casing survey (583 rows, ICGO 3.1) is repeated until it has
@@ -33,6 +37,8 @@ def write_large_recording(path, n_rows: int, seed: int = 0):
 
     Args:
         path: CSV path (its directory must exist). n_rows: rows (>= 1). seed: noise seed.
+        md_step_m: with a value, a measured-depth column ``md`` (m) rising by it from row to row (a survey
+            ``apply`` places by minimum curvature).
     Returns:
         The written :class:`icgo.io.recording.Recording`.
     """
@@ -44,6 +50,8 @@ def write_large_recording(path, n_rows: int, seed: int = 0):
     for cols, sigma in zip((["gx", "gy", "gz"], ["bx", "by", "bz"]), TILE_NOISE):
         frame[cols] = frame[cols].to_numpy() + sigma * rng.standard_normal((n_rows, 3))
     frame["station"] = np.arange(n_rows)
+    if md_step_m is not None:
+        frame["md"] = md_step_m * np.arange(n_rows)
     meta = {k: v for k, v in ds.meta.items() if k in ("name", "total_field_nT", "dip_deg", "declination_deg",
                                                       "gravity_g")}
     meta["name"] = f"lab_casing tiled to {n_rows} rows"
@@ -66,10 +74,11 @@ def rows_scaling(sizes, budget: str = "smoke", repeats: int | None = None, workd
     work.mkdir(parents=True, exist_ok=True)
     py = sys.executable
     out = []
+    model = apply_model(work, timeout) if "apply" in commands else None
     for n in sizes:
         csv = work / f"rows_{n}.csv"
         if not csv.exists():
-            write_large_recording(csv, n)
+            write_large_recording(csv, n, md_step_m=APPLY_MD_STEP_M if "apply" in commands else None)
         cmds = {
             "reader": [py, "-c", f"import icgo.io.recording; icgo.io.recording.read_recording({str(csv)!r})"],
             "study": [py, "-m", "experiments.run", "dataset=csv", f"dataset.path={csv}", f"budget={budget}",
@@ -77,6 +86,8 @@ def rows_scaling(sizes, budget: str = "smoke", repeats: int | None = None, workd
             + ([f"split.n_repeats={repeats}"] if repeats else []),
             "discrepancy": [py, "-m", "experiments.discrepancy", f"data={csv}",
                             f"hydra.run.dir={work / f'discrepancy_{n}'}"],
+            "apply": [py, "-m", "experiments.apply", f"model={model}", f"data={csv}", f"out={work / f'apply_{n}'}",
+                      "overwrite=true"],
         }
         for name in commands:
             m = measure(cmds[name], timeout)
@@ -85,7 +96,27 @@ def rows_scaling(sizes, budget: str = "smoke", repeats: int | None = None, workd
             status = "ok" if m["rc"] == 0 else f"exit {m['rc']}: {m['tail'].strip().splitlines()[-1:]}"
             print(f"  {name:12s} {n:>9d} rows  {m['wall_s']:8.1f} s  {m['peak_rss_gb']:6.2f} GB  {status}",
                   file=sys.stderr, flush=True)
+        for f in (csv, csv.with_suffix(".meta.json")):  # a 16M-row survey is GBs: gone once measured
+            f.unlink(missing_ok=True)
+        shutil.rmtree(work / f"apply_{n}", ignore_errors=True)
     return out
+
+
+#: Measured depth between consecutive rows of the ``apply`` command's survey (m): positions by minimum curvature
+#: are part of what it streams.
+APPLY_MD_STEP_M = 0.1
+
+
+def apply_model(work: Path, timeout: float | None = None) -> Path:
+    """The run directory of a ``budget=smoke`` ICGO-RELM study (2 repeats) on lab_casing, fitted in a child process
+    once: the model the ``apply`` command applies."""
+    run = work / "apply_model"
+    if not (run / "run.json").exists():
+        m = measure([sys.executable, "-m", "experiments.run", "budget=smoke", "split.n_repeats=2", "figures=false",
+                     "progress=false", "overwrite=true", f"hydra.run.dir={run}"], timeout)
+        if m["rc"] != 0:
+            raise RuntimeError(f"fitting the apply model failed (exit {m['rc']}): {m['tail'][-500:]}")
+    return run
 
 
 def rows_report(res: list[dict], budget: str, repeats: int | None) -> tuple[str, dict]:

@@ -63,7 +63,13 @@ def one_field_doubt(model: FittedModel, b_raw, dip_raw, b_corr, dip_corr) -> str
     """
     if len(b_raw) < 3:
         return None
-    (b0, d0), (b1, d1) = _spreads(b_raw, dip_raw), _spreads(b_corr, dip_corr)
+    return field_doubt_line(model, _spreads(b_raw, dip_raw), _spreads(b_corr, dip_corr))
+
+
+def field_doubt_line(model: FittedModel, raw: tuple[float, float], corrected: tuple[float, float]) -> str | None:
+    """:func:`one_field_doubt`'s decision from the spreads (:func:`_spreads`) of the raw and the corrected field
+    (also what a streamed survey's sums give: :mod:`icgo.survey.apply_stream`)."""
+    (b0, d0), (b1, d1) = raw, corrected
     worse = b1 > b0 + SPREAD_MARGIN["b_rel"] or d1 > d0 + SPREAD_MARGIN["dip_deg"]
     not_one = getattr(model, "ONE_FIELD", False) and (b1 > ONE_FIELD_SPREAD["b_rel"] or d1 > ONE_FIELD_SPREAD["dip_deg"])
     if worse or not_one:
@@ -99,8 +105,13 @@ def radians_doubt(reference, estimate_deg, column: str) -> str | None:
     ref, est = ref[ok], est[ok]
     if ref.size < 3 or np.max(np.abs(ref)) > RADIANS_MAX:
         return None
-    as_deg = float(np.median(np.abs(np.asarray(angle_diff(est, ref)))))
-    as_rad = float(np.median(np.abs(np.asarray(angle_diff(est, np.degrees(ref))))))
+    return radians_line(float(np.median(np.abs(np.asarray(angle_diff(est, ref))))),
+                        float(np.median(np.abs(np.asarray(angle_diff(est, np.degrees(ref)))))), column)
+
+
+def radians_line(as_deg: float, as_rad: float, column: str) -> str | None:
+    """:func:`radians_doubt`'s decision from the median |difference| (deg) between the survey's own angle and the
+    reference read as degrees (``as_deg``) and as radians (``as_rad``)."""
     if as_deg >= RADIANS_FAR_DEG and as_rad * RADIANS_RATIO <= as_deg:
         return (f"the survey's {column} looks like radians (every value within +/- 2 pi; the median difference "
                 f"from the survey's own angle is {as_deg:.1f} deg read as degrees, {as_rad:.2f} deg read as "
@@ -229,20 +240,6 @@ def correct_rows(model: FittedModel, frame: pd.DataFrame, field=None, *, method:
             keep["inc_ref"], keep["azi_ref"] = frame["inclination_deg"].to_numpy(float), frame["azimuth_deg"].to_numpy(float)
     # copies: a column taken from a frame is a view that would keep the whole frame (a streamed chunk) alive
     return Rows(table, {name: np.array(v, dtype=float, copy=True) for name, v in keep.items()}, domain, qc)
-
-
-def merge_rows(parts: list[Rows]) -> Rows:
-    """Rows of consecutive stations as one (the tables left out: a streamed survey writes them as it goes)."""
-    keys = set().union(*(p.keep for p in parts)) if parts else set()
-    keep = {k: np.concatenate([p.keep[k] for p in parts]) for k in keys if all(k in p.keep for p in parts)}
-    domain = {}
-    for p in parts:
-        for k, (lo, hi) in p.domain.items():
-            domain[k] = [min(lo, domain[k][0]), max(hi, domain[k][1])] if k in domain else [lo, hi]
-    qc = None
-    if parts and all(p.qc for p in parts):
-        qc = {stage: {c: sum(p.qc[stage][c] for p in parts) for c in parts[0].qc[stage]} for stage in parts[0].qc}
-    return Rows(pd.DataFrame(), keep, domain, qc)
 
 
 def summarise(model: FittedModel, rows: Rows, field, *, positions_table: bool = True) -> CorrectedSurvey:

@@ -2,7 +2,9 @@
 checked settings.
 
 :func:`apply_survey` reads the survey (in chunks above a size: :func:`icgo.io.stream.read_chunks`), corrects it with
-:func:`icgo.survey.apply.correct_rows`, and writes ``<survey>_corrected.csv`` and ``<survey>_corrected.meta.json``
+:func:`icgo.survey.apply.correct_rows` (a streamed survey chunk by chunk: each chunk's rows written as they come and
+its stations folded into survey-level sums, :class:`icgo.survey.apply_stream.StreamedSurvey`, so memory is bounded by
+the chunk, not the file), and writes ``<survey>_corrected.csv`` and ``<survey>_corrected.meta.json``
 (the model, the QC counts before/after, the metrics where the survey has a reference azimuth, the notices) through
 an :class:`icgo.io.files.Output`, both or neither; :func:`report` prints the summary. A survey that already holds a
 correction's output columns (a corrected survey) is refused: its columns would mix with the new model's.
@@ -11,6 +13,7 @@ correction's output columns (a corrected survey) is refused: its columns would m
 from __future__ import annotations
 
 from collections.abc import Callable
+from contextlib import ExitStack
 from pathlib import Path
 
 from icgo.core.errors import DataError
@@ -46,19 +49,19 @@ def apply_survey(output, model, mpath: Path, data: Path, survey_path: str, *, co
     Raises:
         ValueError (ModelError, DataError, RecordError, OutputError): one line.
     """
-    import pandas as pd
-
     from icgo.io.files import json_text
     from icgo.io.stream import read_chunks
-    from icgo.survey.apply import correct_rows, merge_rows, output_columns_in, summarise
+    from icgo.survey.apply import correct_rows, output_columns_in, summarise
+    from icgo.survey.apply_stream import StreamedSurvey
     from icgo.survey.verdict import survey_verdict
 
     out_dir = output.path
     chunks = read_chunks(data, max_bytes=max_bytes, stream_above=stream_above, chunk_rows=chunk_rows,
                          require_meta=require_meta, require_reference=False, columns=columns)
     stem = data.stem
-    with output.staged(last=(f"{stem}_corrected.meta.json",)) as stage:
-        out_csv, parts, notices, rec, n_rows = stage / f"{stem}_corrected.csv", [], [], None, 0
+    with output.staged(last=(f"{stem}_corrected.meta.json",)) as stage, ExitStack() as scratch:
+        out_csv, first, streamed, notices, rec = stage / f"{stem}_corrected.csv", None, None, [], None
+        n_rows = n_chunks = 0
         for k, rec in enumerate(chunks):  # a small survey is one chunk; a large one streams in bounded memory
             if k == 0:
                 held = output_columns_in(rec.frame.columns)
@@ -68,30 +71,38 @@ def apply_survey(output, model, mpath: Path, data: Path, survey_path: str, *, co
                                     f"to the original survey (mixing two models' columns is refused)")
             notices += rec.notices
             n_rows += len(rec.frame)
-            parts.append(correct_rows(model, rec.frame, rec.field, method=method, bands=bands))
-            if k == 1:  # streaming: the first chunk's table goes out now, every later one as it comes
-                parts[0].table.to_csv(out_csv, index=False, lineterminator="\n")
-                parts[0] = parts[0]._replace(table=pd.DataFrame())  # (not a slice: a slice keeps the table)
-            if k >= 1:
-                parts[k].table.to_csv(out_csv, index=False, lineterminator="\n", header=False, mode="a")
-                parts[k] = parts[k]._replace(table=pd.DataFrame())
-        streamed = len(parts) > 1
-        res = summarise(model, merge_rows(parts) if streamed else parts[0], rec.field, positions_table=not streamed)
-        if not streamed:  # one chunk: its table, positions included, is the file
+            n_chunks += 1
+            rows = correct_rows(model, rec.frame, rec.field, method=method, bands=bands)
+            if k == 0:  # held until a second chunk says the survey streams
+                first = rows
+                continue
+            if k == 1:  # streaming: the first chunk's table goes out now, its stations into the sums
+                streamed = scratch.enter_context(StreamedSurvey(stage / f"{stem}_positions.csv"))
+                first.table.to_csv(out_csv, index=False, lineterminator="\n")
+                streamed.add(first)
+                first = None
+            rows.table.to_csv(out_csv, index=False, lineterminator="\n", header=False, mode="a")
+            streamed.add(rows)  # every later chunk as it comes: its table written, its stations summed, then dropped
+            del rows
+        out_csv_name = str(out_dir / f"{stem}_corrected.csv")
+        if streamed is None:  # one chunk: its table, positions included, is the file
+            res = summarise(model, first, rec.field)
             res.table.to_csv(out_csv, index=False, lineterminator="\n")
-        elif res.trajectory:
-            res.trajectory.pop("table").to_csv(stage / f"{stem}_positions.csv", index=False, lineterminator="\n")
-        verdict = survey_verdict(res, model, bands, out_csv=str(out_dir / f"{stem}_corrected.csv"),
-                                 model_path=str(mpath), survey_path=survey_path, method=method)
+            verdict = survey_verdict(res, model, bands, out_csv=out_csv_name, model_path=str(mpath),
+                                     survey_path=survey_path, method=method)
+        else:
+            res = streamed.result(model, rec.field)
+            verdict = streamed.verdict(res, model, bands, out_csv=out_csv_name, model_path=str(mpath),
+                                       survey_path=survey_path, method=method)
         meta = {"source": rec.source, "model": str(mpath), "model_kind": model.KIND,
                 "method": method if method is not None else getattr(model, "selected", None),
                 "model_data_hash": model.data_hash, "rows": n_rows,
-                "chunks": len(parts), "metrics": res.metrics, "qc": res.qc,
+                "chunks": n_chunks, "metrics": res.metrics, "qc": res.qc,
                 "qc_bands": qc_bands,
                 "notices": notices + res.notices, "doubts": res.doubts,
                 "units": {"angles": "deg", "B": "nT", "G": "g"},
                 "trajectory": res.trajectory, "verdict": verdict.as_dict()}
-        if streamed and res.trajectory:
+        if streamed is not None and res.trajectory:
             meta["positions_file"] = f"{stem}_positions.csv"
         if rec.field is not None:
             meta.update({k: getattr(rec.field, k) for k in ("total_field_nT", "dip_deg", "declination_deg",

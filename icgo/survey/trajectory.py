@@ -40,11 +40,13 @@ def check_md(md, source: str = "survey") -> np.ndarray:
     return md
 
 
-def positions(md, inc_deg, azi_deg) -> pd.DataFrame:
-    """North, east and TVD of every station by minimum curvature (welleng ``Survey``), tie-on at the origin.
+def positions(md, inc_deg, azi_deg, start=(0.0, 0.0, 0.0)) -> pd.DataFrame:
+    """North, east and TVD of every station by minimum curvature (welleng ``Survey``), tie-on at ``start``.
 
     Args:
         md: (N,) measured depth, m, strictly increasing. inc_deg, azi_deg: (N,) inclination and azimuth, deg.
+        start: (north, east, TVD) of the first station, m (the origin; a streamed survey's chunk starts at the last
+            station of the chunk before: :class:`icgo.survey.apply_stream.StreamedPositions`).
     Returns:
         DataFrame with ``north_m``, ``east_m``, ``tvd_m`` (float64, m).
     """
@@ -52,7 +54,7 @@ def positions(md, inc_deg, azi_deg) -> pd.DataFrame:
 
     md = check_md(md)
     s = Survey(md=md, inc=np.asarray(inc_deg, np.float64), azi=np.mod(np.asarray(azi_deg, np.float64), 360.0),
-               deg=True)
+               deg=True, start_nev=[float(v) for v in start])
     return pd.DataFrame({"north_m": np.asarray(s.n, np.float64), "east_m": np.asarray(s.e, np.float64),
                          "tvd_m": np.asarray(s.tvd, np.float64)})
 
@@ -80,15 +82,22 @@ def position_change(md, inc_raw, azi_raw, inc_corrected, azi_corrected, inc_ref=
     raw = positions(md, inc_raw, azi_raw)
     cor = positions(md, inc_corrected, azi_corrected)
     table = pd.concat([raw.add_suffix("_raw").rename(columns=lambda c: c.replace("_m_raw", "_raw_m")), cor], axis=1)
-    summary = {"md_m": float(np.asarray(md, float)[-1]), "stations": len(raw),
+    ref = positions(md, inc_ref, azi_ref) if inc_ref is not None and azi_ref is not None else None
+    return table, position_summary(float(np.asarray(md, float)[-1]), len(raw), raw, cor, ref)
+
+
+def position_summary(md_m: float, stations: int, raw: pd.DataFrame, cor: pd.DataFrame,
+                     ref: pd.DataFrame | None = None) -> dict:
+    """:func:`position_change`'s summary from the positions' last rows (``raw``, ``cor``, ``ref``: frames whose last
+    row is the bottom hole), the last station's measured depth ``md_m`` (m) and the number of stations."""
+    summary = {"md_m": md_m, "stations": stations,
                "bottom_hole_raw": {k: float(v) for k, v in raw.iloc[-1].items()},
                "bottom_hole_corrected": {k: float(v) for k, v in cor.iloc[-1].items()},
                "correction": _shift(raw, cor)}
-    if inc_ref is not None and azi_ref is not None:
-        ref = positions(md, inc_ref, azi_ref)
+    if ref is not None:
         summary["raw_vs_reference"] = _shift(ref, raw)
         summary["corrected_vs_reference"] = _shift(ref, cor)
-    return table, summary
+    return summary
 
 
 def trajectory_sentence(summary: dict) -> str:
