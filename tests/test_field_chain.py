@@ -113,6 +113,7 @@ def test_a_relative_calibration_is_named_and_scaled_to_the_reference(chain, tmp_
     relative = dataclasses.replace(model, field_reference=None,
                                    field_scale_nT=float(np.median(np.linalg.norm(rec.B, axis=1))))
     assert relative.relative and not model.relative
+    assert not dataclasses.replace(relative, field_scale_nT=1.0).relative  # a fit in nT (MISMA's): earth units
     path = relative.save(tmp_path / "relative")
     survey = tmp_path / "ab.csv"
     write_recording(survey, rec.frame, {"total_field_nT": 49330.0, "dip_deg": 66.7, "declination_deg": 0.0},

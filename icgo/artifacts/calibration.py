@@ -73,7 +73,8 @@ class MagCalibration(FittedModel):
         nl_activation: the residual's hidden activation (:data:`icgo.models.mag_relm.ACTIVATIONS`), given exactly
             with a residual; the params' static setting.
         field_reference: the site the field was scaled to, ``{"total_field_nT", "dip_deg", "origin"}``, or None:
-            a relative calibration (:func:`in_earth_units`; older files have none and load as relative).
+            a relative calibration where the fit was to the unit sphere (:attr:`relative`; :func:`in_earth_units`;
+            older files have none and load as relative).
         accuracy: the expected accuracy stated when it was fitted (:data:`ACCURACY_KEYS`), or None.
     """
 
@@ -147,8 +148,10 @@ class MagCalibration(FittedModel):
 
     @property
     def relative(self) -> bool:
-        """Whether the corrected field is in the sensor's own scale, not the site's (no ``field_reference``)."""
-        return self.field_reference is None
+        """Whether the corrected field is in the sensor's own scale, not the site's: a unit-sphere fit (its
+        ``field_scale_nT`` not 1) that records no ``field_reference``. A fit in nT (``field_scale_nT`` 1: MISMA's
+        simulated studies, fitted to the reference ``|M_omega|``) is in earth units as fitted."""
+        return self.field_reference is None and self.field_scale_nT != 1.0
 
     @classmethod
     def params_like(cls, fields: dict) -> cal_params.CalibrationParams:
