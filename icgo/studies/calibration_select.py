@@ -232,13 +232,18 @@ def recommend(df, recording: str) -> dict:
                 "clear_winner": False, "runner_up": None, "accuracy_deg": None, "accuracy_spread_deg": None,
                 "accuracy_splits": nested.per_split, "refused": choice.why, "sentence": sentence}
     model = f"models/{model_label(recording, choice.method)}.json"
+    own = model_accuracy(df, recording, choice.method)
+    acc = "" if own is None or not len(held) else (
+        f"expected accuracy {own['deg']:.3f}" + (f" +/- {own['spread_deg']:.3f}" if own["spread_deg"] is not None
+                                                 else "")
+        + " deg (its held-out score: the accuracy its model carries and apply prints); ")
     if nested.mean_deg is None:
-        acc = "accuracy not estimated (no held-out split to score the rule on)"
+        acc += "accuracy not estimated (no held-out split to score the rule on)"
     else:
-        acc = (f"expected accuracy {nested.mean_deg:.3f}"
-               + (f" +/- {nested.spread_deg:.3f}" if nested.spread_deg is not None else "")
-               + f" deg (nested: the rule applied inside each of {len(nested.per_split)} held-out split(s)' training "
-               "shots, its choice scored on the held-out shots)")
+        acc += (f"the rule's nested score {nested.mean_deg:.3f}"
+                + (f" +/- {nested.spread_deg:.3f}" if nested.spread_deg is not None else "")
+                + f" deg (nested: the rule applied inside each of {len(nested.per_split)} held-out split(s)' "
+                "training shots, its choice scored on the held-out shots)")
     other = "" if choice.runner_up is None else (
         f", runner-up `{choice.runner_up}` {choice.candidates[choice.runner_up]:.3f} deg"
         if choice.candidates[choice.runner_up] >= choice.mean_deg else
