@@ -1062,10 +1062,32 @@ def io_cases() -> list[Case]:
             ("csv-symlink-loop", symlink("c.csv", "c.csv"), "c.csv"),
             ("meta-fifo", steps(write("c.csv", hdr + row), fifo("c.meta.json")), "c.meta.json"),
             ("meta-dir", steps(write("c.csv", hdr + row), mkdir("c.meta.json")), "c.meta.json"),
-            ("meta-missing", write("c.csv", hdr + row), "c.meta.json"),
+
             ("csv-huge", sparse("c.csv", hdr + row * 1000, 300 << 20), "c.csv")):
         add(label, ["check", "{w}/c.csv"], setup=setup, says=(says,), timeout=60.0 if "fifo" in label else 300.0,
             fast=label == "csv-fifo")
+    # the checker takes the doors' options: no .meta.json is read as {} (as apply and calibrate read it) unless
+    # require_meta=true; a field export's columns by columns.*= or columns_file=
+    add("meta-missing", ["check", "{w}/c.csv"], setup=write("c.csv", hdr + row), expect="ok")
+    add("meta-missing-required", ["check", "{w}/c.csv", "require_meta=true"], setup=write("c.csv", hdr + row),
+        says=("c.meta.json",))
+    export_hdr = "Survey #,Gx (g),Gy (g),Gz (g),Bx (nT),By (nT),Bz (nT),Azi,Inc\n"
+    mapped = ["columns.station='Survey #'", "columns.azimuth_deg=Azi", "columns.inclination_deg=Inc"]
+    add("export-mapped", ["check", "{w}/c.csv"] + mapped, setup=steps(write("c.csv", export_hdr + row), meta),
+        expect="ok")
+    add("export-unmapped", ["check", "{w}/c.csv"], setup=steps(write("c.csv", export_hdr + row), meta),
+        says=("c.csv", "columns.station='Survey #'", "columns.inclination_deg=Inc"))
+    add("export-columns-file", ["check", "{w}/c.csv", "columns_file={w}/map.json"],
+        setup=steps(write("c.csv", export_hdr + row), meta, write("map.json", json.dumps(
+            {"station": "Survey #", "azimuth_deg": "Azi", "inclination_deg": "Inc"}))), expect="ok")
+    add("units-row-uT-on-nT", ["check", "{w}/c.csv"], setup=steps(write("c.csv", hdr + ",g,g,g,uT,uT,uT,deg,deg\n"
+                                                                         + row), meta), says=("c.csv", "units row"))
+    add("two-failures", ["check", "{w}/c.csv"], setup=steps(write("c.csv", hdr + row.replace("20000", "abc")
+                                                                  + row.replace(",12\n", ",200\n")), meta),
+        says=("c.csv",), check=lambda w, a, r: None if r.stderr.count("error:") == 2 else
+        f"not both failures: {r.stderr[:300]}")
+    add("bad-column-setting", ["check", "{w}/c.csv", "columns.bogus=x"], setup=steps(write("c.csv", hdr + row), meta),
+        says=("columns.bogus",))
     jsons = {
         "not-json": "{", "empty": "", "array": "[1]", "null": "null", "number": "5", "deep": "[" * 100000,
         "no-layout": '{"a": 1}', "raw-nan": '{"mag": [[NaN, 1, 2]], "grav": [[0, 0, 1]]}',

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -206,7 +207,7 @@ def test_another_devices_calibration_changes_the_verdict(tmp_path):
     assert own_meta["verdict"]["status"] != "other device" and not own_meta["doubts"]
 
 
-def test_a_reference_in_radians_changes_the_verdict(setup, tmp_path):
+def test_a_reference_in_radians_changes_the_verdict(setup, tmp_path, capsys):
     """The survey's azimuth_deg and inclination_deg written in radians: no MAE reported as a result, the status says
     the reference is in doubt, and the next step is to convert it (exit status 3)."""
     from icgo.survey.apply import radians_doubt
@@ -222,6 +223,13 @@ def test_a_reference_in_radians_changes_the_verdict(setup, tmp_path):
     assert "NOT measured on this survey" in v["accuracy"] and "looks like radians" in v["accuracy"]
     assert "MAE" not in v["accuracy"] and "convert the survey's reference angles" in v["next"]
     assert "reference_units" in meta["doubts"]
+    # no MAE line printed above the verdict that says it means nothing (issue 48)
+    from icgo.survey.apply_run import report
+
+    capsys.readouterr()
+    report(meta, tmp_path / "o", "rad")
+    printed = capsys.readouterr().out
+    assert not re.search(r"MAE [0-9]", printed) and "no MAE: the survey's reference angles look like radians" in printed
     # the same survey in degrees: no doubt; a survey heading north (azimuths 0-6 deg, in degrees) is not taken for
     # radians: the model's own azimuth agrees with it read as degrees
     assert run_apply(_cfg([f"model={path}", f"data={survey}"]), tmp_path / "o2")["verdict"]["status"] != \

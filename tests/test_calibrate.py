@@ -435,7 +435,9 @@ def test_the_accuracy_printed_is_nested_the_choice_made_inside_each_held_out_spl
     assert [x["chosen"] for x in r["accuracy_splits"]] == ["twelve+axis+relm", "twelve+axis"]
     # the nested estimate scores each split's own choice on that split: (0.30 + 0.70) / 2, not the chosen 0.41
     assert r["accuracy_deg"] == pytest.approx(0.5) and r["accuracy_spread_deg"] == pytest.approx(0.2)
-    assert "expected accuracy 0.500 +/- 0.200 deg (nested" in r["sentence"]
+    # the sentence: the applied method's own held-out score first (what its model carries), the rule's beside it
+    assert "expected accuracy 0.410 +/- 0.110 deg (its held-out score" in r["sentence"]
+    assert "the rule's nested score 0.500 +/- 0.200 deg (nested" in r["sentence"]
 
 
 def test_the_bundled_table_states_its_protocol():

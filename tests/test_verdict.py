@@ -116,10 +116,21 @@ def test_calibrate_verdict_prints_the_nested_accuracy_and_says_why_nothing_is_re
     rec = {"model": "dev_joint", "method": "joint", "criterion": "joint beats twelve+axis", "held_out_deg": 0.2871,
            "spread_deg": 0.0412, "clear_winner": False, "runner_up": "twelve+axis", "accuracy_deg": 0.3512,
            "accuracy_spread_deg": 0.0523}
-    v = V.calibrate_verdict(recommendation=rec, n_models=5, n_degenerate=2, n_fits=24, run_dir="R")
-    # the accuracy printed is the nested one, not the mean of the splits the method was chosen on
-    assert "held-out pointing spread 0.351 deg +/- 0.052" in v.accuracy and "nested" in v.accuracy
-    assert "0.287" not in v.accuracy
+    # the accuracy printed is the one the applied model carries (its method's held-out score), the rule's nested
+    # score beside it and named as such (issue 48: one accuracy per model)
+    acc = {"deg": 0.2871, "spread_deg": 0.0412, "what": "held-out pointing spread of joint",
+           "nested_deg": 0.3512, "nested_spread_deg": 0.0523, "nested_what": "the recommendation rule's nested score"}
+    v = V.calibrate_verdict(recommendation=rec, n_models=5, n_degenerate=2, n_fits=24, run_dir="R", accuracy=acc)
+    assert v.accuracy.startswith("joint: pointing spread 0.287 +/- 0.041 deg (held-out pointing spread of joint")
+    assert "beside it, the rule's nested score 0.351 +/- 0.052 deg (the recommendation rule's" in v.accuracy
+    assert v.accuracy.index("0.287") < v.accuracy.index("0.351") and v.numbers["accuracy"] == acc
+    assert "RELATIVE" in v.domain  # no field_reference: the calibration is relative, and said so
+    assert "earth units" in V.calibrate_verdict(recommendation=rec, n_models=5, n_degenerate=2, n_fits=24,
+                                                run_dir="R", accuracy=acc, field_reference={
+                                                    "total_field_nT": 49330.0, "dip_deg": 66.7, "origin": "o"}).domain
+    # a record without the model's accuracy (an older run): the rule's nested score, named as such
+    old = V.calibrate_verdict(recommendation=rec, n_models=5, n_degenerate=2, n_fits=24, run_dir="R")
+    assert old.accuracy.startswith("the rule's nested score 0.351 deg +/- 0.052") and "0.287" not in old.accuracy
     assert "not a clear winner: twelve+axis" in v.model and "dev_joint (joint)" in v.model
     assert v.next == "python -m experiments.apply model=R data=<your survey.csv>" and v.exit_code == 0
     assert v.qc.startswith("2 of 24 fits degenerate")

@@ -14,9 +14,13 @@ forward pass, :func:`icgo.models.calibration_params.predict`, the one its study 
 * optionally the field's non-linear residual (:mod:`icgo.models.mag_relm`), applied last.
 
 Meta: ``field_scale_nT``: nT per unit of the fitted field. A fit to ``|M_omega|`` in
-nT (the simulated studies) has 1.0; a fit to the unit sphere (the real devices,
-whose reference field is unknown) carries the median raw ``|B|`` of its
-training shots, so ``apply`` still reports nT.
+nT (the simulated studies) has 1.0; a fit to the unit sphere (the real devices) is scaled to the site's field
+where one is known (:func:`in_earth_units`: the mean corrected ``|B|`` of its training shots is the site's ``|B|``,
+and ``field_reference`` records that site), so ``apply`` reports the field in earth units and its QC compares it
+with the reference; where no site is known it carries the median raw ``|B|`` of its training shots and
+``field_reference`` is null: a **relative** calibration (the field's direction is calibrated, its level is the
+sensor's own scale). ``accuracy``: the expected accuracy the calibrate door stated for this model
+(:func:`with_accuracy`), the one every later door prints for it (null: none stated).
 ``method`` names the method that produced the numbers (:data:`METHODS`:
 ``ellipsoid``, ``twelve`` (12-parameter least squares), ``misma``, ``sma``,
 ``joint``, ``modulus`` (MISMA's centre U), ``twelve_relm``); ``axis_aligned`` says whether ``Q`` is
@@ -68,6 +72,10 @@ class MagCalibration(FittedModel):
             ``nl_out`` (L, 3), the non-linear residual after the alignment, or None (a linear calibration).
         nl_activation: the residual's hidden activation (:data:`icgo.models.mag_relm.ACTIVATIONS`), given exactly
             with a residual; the params' static setting.
+        field_reference: the site the field was scaled to, ``{"total_field_nT", "dip_deg", "origin"}``, or None:
+            a relative calibration where the fit was to the unit sphere (:attr:`relative`; :func:`in_earth_units`;
+            older files have none and load as relative).
+        accuracy: the expected accuracy stated when it was fitted (:data:`ACCURACY_KEYS`), or None.
     """
 
     KIND = "mag_calibration"
@@ -87,6 +95,8 @@ class MagCalibration(FittedModel):
     field_scale_nT: float
     params: cal_params.CalibrationParams
     nl_activation: str | None = None
+    field_reference: dict | None = None
+    accuracy: dict | None = None
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -120,6 +130,29 @@ class MagCalibration(FittedModel):
                              f"nl_hidden, got {act!r}")
         if p.nl_activation != act:
             raise ModelError(f"mag_calibration: nl_activation {act!r} is not the params' {p.nl_activation!r}")
+        ref = self.field_reference
+        if ref is not None:
+            ok = (isinstance(ref, dict) and set(ref) == {"total_field_nT", "dip_deg", "origin"}
+                  and isinstance(ref["origin"], str) and all(
+                      isinstance(ref[k], (int, float)) and not isinstance(ref[k], bool) and np.isfinite(ref[k])
+                      for k in ("total_field_nT", "dip_deg"))
+                  and ref["total_field_nT"] > 0 and -90.0 <= ref["dip_deg"] <= 90.0)
+            if not ok:
+                raise ModelError(f"mag_calibration: field_reference must be {{total_field_nT > 0, dip_deg in [-90, 90], "
+                                 f"origin}}, got {str(ref)[:80]}")
+        acc = self.accuracy
+        if acc is not None and not (isinstance(acc, dict) and set(ACCURACY_KEYS) <= set(acc)
+                                    and isinstance(acc["deg"], (int, float)) and np.isfinite(acc["deg"])
+                                    and isinstance(acc["what"], str)):
+            raise ModelError(f"mag_calibration: accuracy must hold {list(ACCURACY_KEYS)} (deg a finite number), got "
+                             f"{str(acc)[:80]}")
+
+    @property
+    def relative(self) -> bool:
+        """Whether the corrected field is in the sensor's own scale, not the site's: a unit-sphere fit (its
+        ``field_scale_nT`` not 1) that records no ``field_reference``. A fit in nT (``field_scale_nT`` 1: MISMA's
+        simulated studies, fitted to the reference ``|M_omega|``) is in earth units as fitted."""
+        return self.field_reference is None and self.field_scale_nT != 1.0
 
     @classmethod
     def params_like(cls, fields: dict) -> cal_params.CalibrationParams:
@@ -179,6 +212,33 @@ class MagCalibration(FittedModel):
                         "azimuth_compensated": np.asarray(azimuth_from_gv(Gc, B_nT)),
                         "dip_compensated_deg": np.degrees(np.arcsin(sin_dip))})
         return pd.DataFrame(out)
+
+
+#: The keys every ``accuracy`` of a model holds: ``deg`` (the expected score, the peer's pointing-spread metric),
+#: ``what`` (what it is, in words); optionally ``spread_deg`` (its standard error), ``nested_deg`` /
+#: ``nested_spread_deg`` / ``nested_what`` (the recommendation rule's nested score, named as such).
+ACCURACY_KEYS = ("deg", "what")
+
+
+def in_earth_units(model: MagCalibration, G, B, site) -> MagCalibration:
+    """``model`` with its field scaled to the site's: ``field_scale_nT`` such that the mean corrected ``|B|`` over the
+    shots (G, B) (its training shots) is the site's ``|B|``, and the site recorded in ``field_reference``.
+
+    Args:
+        G, B: (N, 3) the training shots (g, nT raw). site: :class:`icgo.io.site.Site` (dip deg, |B| nT, origin)
+            or None (the model returned as it is: relative).
+    """
+    if site is None:
+        return model
+    _, Bc = model.corrected(G, B)
+    mean = float(np.mean(np.linalg.norm(Bc, axis=1)))
+    return dataclasses.replace(model, field_scale_nT=float(site.field_nT) / mean, field_reference={
+        "total_field_nT": float(site.field_nT), "dip_deg": float(site.dip_deg), "origin": str(site.origin)})
+
+
+def with_accuracy(model: MagCalibration, accuracy: dict | None) -> MagCalibration:
+    """``model`` carrying the expected accuracy stated for it (:data:`ACCURACY_KEYS`; None: none)."""
+    return dataclasses.replace(model, accuracy=None if accuracy is None else dict(accuracy))
 
 
 def mag_calibration(method: str, x_mag, G, B, config: dict, *, x_accel=None, alignment=None,

@@ -1,13 +1,19 @@
 """``python -m icgo.io check|convert|export-mag-cal``: check a recording, convert a JSON to the contract, export.
 
-    python -m icgo.io check FILE.csv|FILE.json [...] [mag_axes=+x+y-z] [grav_axes=-y-x+z] [groups=auto|column|8-15,16-23] [--columns MAP]
+    python -m icgo.io check FILE.csv|FILE.json [...] [columns.gx=Gx ...] [columns_file=MAP] [require_meta=true]
+        [require_reference=true] [mag_axes=+x+y-z] [grav_axes=-y-x+z] [groups=auto|column|8-15,16-23]
     python -m icgo.io convert FILE.json --out FILE.csv [mag_axes=...] [grav_axes=...] [groups=...] [--overwrite]
     python -m icgo.io export-mag-cal OUTDIR [--overwrite]
 
-Settings are ``key=value`` words anywhere after the command (the keys of :data:`icgo.io.shots.SETTINGS`),
-the same keys the Hydra front doors take. A ``.json`` file is a circuitpython-mag-cal recording (either layout,
-:func:`icgo.io.shots.read_shot_file`); a CSV is checked against the data contract (``--columns MAP``: a JSON or
-YAML column map for a field export, :mod:`icgo.io.columns`), and with ``groups=`` also its groups. The groups
+Settings are ``key=value`` words anywhere after the command: exactly the front doors' (:data:`CHECK_SETTINGS`):
+the column map of a field export (``columns.<contract column>=<export column>``, ``columns_file=MAP``, JSON or
+YAML: :mod:`icgo.io.columns`), ``require_meta=`` (default false: a CSV without its ``.meta.json`` is read as ``{}``,
+as experiments.apply and experiments.calibrate read it), ``require_reference=`` (default false, as those two
+doors; true: the reference attitude or a group column required, as experiments.run's ``dataset=csv``), and the
+grouped shots' ``mag_axes=``, ``grav_axes=``, ``groups=`` (:data:`icgo.io.shots.SETTINGS`). A ``.json`` file is a
+circuitpython-mag-cal recording (either layout, :func:`icgo.io.shots.read_shot_file`); a CSV is checked against
+the data contract by the doors' own reader, **every failure at once** (one ``error:`` line each; the first is the
+one the doors refuse the file with: :class:`icgo.io.checks.Lazy`), and with ``groups=`` also its groups. The groups
 printed are the ones known without searching the data: a layout's (each checked against the data: the groups
 and shots that disagree are named), a ``group`` column or shot ranges given (checked: refused when not rolls).
 Finding rolls in the data (``groups=auto``, or a recording in no known layout) is the calibrate and
@@ -39,18 +45,42 @@ from icgo.io.shots import SETTINGS, is_json, read_shot_file  # noqa: E402
 from icgo.physics.rolls import group_findings  # noqa: E402
 
 
-def split_words(words: list[str]) -> tuple[list[str], dict]:
-    """(paths, settings) of a command's words; a word with ``=`` is a setting (SettingError if unknown)."""
+#: The settings ``check`` takes besides :data:`icgo.io.shots.SETTINGS`: the doors' (``columns.<name>`` too).
+CHECK_SETTINGS = ("columns_file", "require_meta", "require_reference")
+
+
+def split_words(words: list[str], extra: tuple = ()) -> tuple[list[str], dict]:
+    """(paths, settings) of a command's words; a word with ``=`` is a setting (SettingError if unknown). ``extra``:
+    more keys taken (``columns.<name>`` among them when ``"columns"`` is one)."""
     paths, settings = [], {}
     for w in words:
         key, sep, value = w.partition("=")
         if not sep:
             paths.append(w)
-        elif key in SETTINGS:
+        elif key in SETTINGS or key in extra or ("columns" in extra and key.startswith("columns.")):
+            if len(value) >= 2 and value[0] == value[-1] and value[0] in "'\"":
+                value = value[1:-1]  # quoted as on the Hydra doors: columns.station='Survey #'
             settings[key] = value
         else:
-            raise SettingError(f"unknown setting {key!r} in {w!r}; python -m icgo.io takes {', '.join(SETTINGS)}")
+            taken = list(SETTINGS) + [("columns.<contract column>" if k == "columns" else k) for k in extra]
+            raise SettingError(f"unknown setting {key!r} in {w!r}; python -m icgo.io takes {', '.join(taken)}")
     return paths, settings
+
+
+def _flag(settings: dict, key: str) -> bool:
+    v = str(settings.pop(key, "false")).strip().lower()
+    if v not in ("true", "false"):
+        raise SettingError(f"{key}={v!r}: must be true or false")
+    return v == "true"
+
+
+def check_settings(settings: dict) -> tuple[dict | None, bool, bool, dict]:
+    """(column map or None, require_meta, require_reference, the grouped shots' settings) of ``check``'s settings,
+    each checked as the doors check it (:func:`icgo.io.recording.column_map`)."""
+    settings = dict(settings)
+    cols = {k.split(".", 1)[1]: settings.pop(k) for k in [k for k in settings if k.startswith("columns.")]}
+    cmap = column_map(cols or None, settings.pop("columns_file", None)) or None
+    return cmap, _flag(settings, "require_meta"), _flag(settings, "require_reference"), settings
 
 
 def describe_shots(p, shots) -> list[str]:
@@ -78,28 +108,40 @@ def describe_shots(p, shots) -> list[str]:
     return lines
 
 
-def check(words: list[str], columns: str | None = None) -> int:
-    """Print one ``ok`` block per file (its rolls for grouped shots) and the notices; a bad file is one line on
-    stderr and the others are still checked. Exit status 1 if any was bad; a bad setting raises SettingError."""
-    paths, settings = split_words(words)
+def check(words: list[str]) -> int:
+    """Print one ``ok`` block per file (its rolls for grouped shots) and the notices; a bad file gives one
+    ``error:`` line per failure on stderr (every failure of a CSV at once) and the others are still checked. Exit
+    status 1 if any was bad; a bad setting raises SettingError."""
+    from icgo.io.checks import DataErrors
+
+    paths, settings = split_words(words, ("columns",) + CHECK_SETTINGS)
     if not paths:
         raise SettingError("check: no file given")
-    cmap = column_map(None, columns, "--columns") if columns else None
+    cmap, require_meta, require_reference, shot_settings = check_settings(settings)
     bad = 0
     for p in paths:
         try:
-            if is_json(p) or settings:
-                shots = read_shot_file(p, columns=cmap, **settings)
+            if is_json(p) or shot_settings:
+                shots = read_shot_file(p, columns=cmap, lazy=True, **shot_settings)
                 rec = shots.recording
                 lines = describe_shots(p, shots)
             else:
-                rec = read_recording(p, columns=cmap)
+                rec = read_recording(p, require_meta=require_meta, require_reference=require_reference, columns=cmap,
+                                     lazy=True)
                 f = rec.field
                 fdesc = (f"field {f.total_field_nT:.1f} nT, dip {f.dip_deg:.3f}, decl {f.declination_deg:.3f} "
                          f"({f.origin})" if f else "no reference field")
                 lines = [f"{p}: ok, {len(rec.frame)} rows, columns {', '.join(rec.frame.columns)}; {fdesc}"]
+                if not rec.has_reference and "group" not in rec.frame.columns:
+                    lines.append(f"  notice: {p}: no reference attitude and no group column: experiments.apply "
+                                 "corrects it; experiments.run (dataset=csv) needs azimuth_deg and inclination_deg "
+                                 "(require_reference=true checks for it) and experiments.calibrate a group column")
         except SettingError:
             raise
+        except DataErrors as e:
+            print("\n".join(f"error: {x}" for x in e.lines), file=sys.stderr)
+            bad += 1
+            continue
         except DataError as e:
             print(f"error: {e}", file=sys.stderr)
             bad += 1
@@ -155,8 +197,8 @@ def main(argv=None) -> int:
     sub = ap.add_subparsers(dest="command", required=True)
     c = sub.add_parser("check", help="read and check contract CSVs and circuitpython-mag-cal JSON files")
     c.add_argument("words", nargs="+", metavar="FILES",
-                   help=f"files to check, and settings {', '.join(f'{k}=' for k in SETTINGS)}")
-    c.add_argument("--columns", metavar="MAP", help="a JSON or YAML column map for field exports (docs/data.md)")
+                   help=f"files to check, and the doors' settings columns.<contract column>=, "
+                        f"{', '.join(f'{k}=' for k in CHECK_SETTINGS + SETTINGS)}")
     v = sub.add_parser("convert", help="write a JSON recording as a contract CSV + meta.json with its groups")
     v.add_argument("words", nargs="+", metavar="FILE.json", help=f"the recording, and settings "
                    f"{', '.join(f'{k}=' for k in SETTINGS)}")
@@ -172,7 +214,7 @@ def main(argv=None) -> int:
         a.words += extra
     try:
         if a.command == "check":
-            return check(a.words, a.columns)
+            return check(a.words)
         if a.command == "convert":
             return convert(a.words, a.out, a.overwrite)
         return export_mag_cal(Path(a.outdir), a.overwrite)

@@ -15,6 +15,7 @@ import math
 import numpy as np
 import pandas as pd
 
+from icgo.core.errors import DataError
 from icgo.io import columns as export
 from icgo.io.schema import (
     ANGLE_COLUMNS,
@@ -42,6 +43,57 @@ from icgo.io.schema import (
 )
 
 
+class DataErrors(DataError):
+    """Every failure of one file (:class:`Lazy`): its text is the first failure's line, ``lines`` holds them all."""
+
+    def __init__(self, lines: list[str]):
+        super().__init__(lines[0])
+        self.lines = list(lines)
+
+
+class Lazy:
+    """Every failure of a file at once, as pandera's lazy validation lists them (``python -m icgo.io check``).
+
+    The checks the doors run one after the other, stopping at the first failure, run here each on its own: a
+    failure is kept and the columns it names are marked bad, so the checks that need those columns are skipped
+    and every other one still runs. The first failure kept is the one the doors refuse the file with (the checks
+    run in the doors' order), so the checker and the doors accept and refuse the same files.
+
+    Attributes:
+        errors: the failures (one line each, in the doors' order). bad: the columns a failure names.
+    """
+
+    def __init__(self):
+        self.errors: list[str] = []
+        self.bad: set = set()
+
+    def skip(self, cols) -> bool:
+        """Whether a check of ``cols`` is to be skipped (one of them failed already)."""
+        return any(c in self.bad for c in cols)
+
+    def raise_all(self) -> None:
+        """:class:`DataErrors` of every failure kept (each once, in order), if any."""
+        if self.errors:
+            raise DataErrors(list(dict.fromkeys(self.errors)))
+
+
+def guard(lazy: Lazy | None, cols, fn, *args) -> bool:
+    """``fn(*args)``; without ``lazy`` a failure raises (the doors), with it the failure is kept and the columns
+    ``cols`` marked bad (the checker). Returns whether it passed."""
+    if lazy is None:
+        fn(*args)
+        return True
+    try:
+        fn(*args)
+        return True
+    except DataErrors as e:
+        lazy.errors += e.lines
+    except DataError as e:
+        lazy.errors.append(str(e))
+    lazy.bad.update(cols)
+    return False
+
+
 def _median_norm(frame: pd.DataFrame, cols) -> float:
     return float(np.median(np.linalg.norm(frame[list(cols)].to_numpy(np.float64), axis=1)))
 
@@ -65,86 +117,115 @@ def coerce_frame(frame: pd.DataFrame, source: str, line_of) -> pd.DataFrame:
     return pd.DataFrame(out)
 
 
-def check_columns(cols: list, source: str, require_reference: bool = True, setting: str = "columns") -> None:
+def check_columns(cols: list, source: str, require_reference: bool = True, setting: str = "columns",
+                  lazy: Lazy | None = None) -> None:
     """Header-level checks: required, paired and grouped columns (reference optional if not required).
 
     ``setting`` names the column map in the hint of a missing column (:func:`icgo.io.columns.missing_hint`).
+    ``lazy``: keep every failure instead of raising the first (:class:`Lazy`).
     """
     missing = [c for c in REQUIRED_COLUMNS if c not in cols]
-    if missing:
-        fail(source, f"missing required column(s) {', '.join(missing)} (have: {', '.join(map(str, cols))})"
-                     + export.missing_hint(missing, [str(c) for c in cols], KNOWN_COLUMNS, setting))
+
+    def required():
+        if missing:
+            header = [str(c) for c in cols]
+            hint = export.missing_hint(missing, header, KNOWN_COLUMNS, setting)
+            others = [h for h in header if h not in KNOWN_COLUMNS and f"`{h}`" not in hint and repr(h) not in hint]
+            more = export.synonym_hint(others, header + missing, KNOWN_COLUMNS, setting)
+            fail(source, f"missing required column(s) {', '.join(missing)} (have: {', '.join(header)})" + hint
+                 + (f"; other columns that look like contract columns{more}" if more else ""))
+
     ref = [c for c in REFERENCE_COLUMNS if c in cols]
-    if len(ref) == 1:
-        other = REFERENCE_COLUMNS[1 - REFERENCE_COLUMNS.index(ref[0])]
-        fail(source, f"column '{ref[0]}' given without '{other}' (the reference attitude needs both)")
-    if require_reference and not ref and "group" not in cols:
-        fail(source, "missing required columns azimuth_deg, inclination_deg "
-                      "(reference attitude; they may be left out only when a 'group' column is present)"
-                     + export.missing_hint(list(REFERENCE_COLUMNS), [str(c) for c in cols], KNOWN_COLUMNS,
-                                           setting).replace("; name the export", "; or name the export"))
-    gyro = [c for c in GYRO_COLUMNS if c in cols]
-    if gyro and len(gyro) != 3:
-        fail(source, f"gyro columns must come as wx, wy, wz together (have only {', '.join(gyro)})")
+
+    def reference():
+        if len(ref) == 1:
+            other = REFERENCE_COLUMNS[1 - REFERENCE_COLUMNS.index(ref[0])]
+            fail(source, f"column '{ref[0]}' given without '{other}' (the reference attitude needs both)")
+        if require_reference and not ref and "group" not in cols:
+            fail(source, "missing required columns azimuth_deg, inclination_deg "
+                          "(reference attitude; they may be left out only when a 'group' column is present)"
+                         + export.missing_hint(list(REFERENCE_COLUMNS), [str(c) for c in cols], KNOWN_COLUMNS,
+                                               setting).replace("; name the export", "; or name the export"))
+
+    def gyro():
+        have = [c for c in GYRO_COLUMNS if c in cols]
+        if have and len(have) != 3:
+            fail(source, f"gyro columns must come as wx, wy, wz together (have only {', '.join(have)})")
+
+    guard(lazy, missing, required)
+    guard(lazy, REFERENCE_COLUMNS, reference)
+    guard(lazy, GYRO_COLUMNS, gyro)
+
+
+def _check_values(v: np.ndarray, name: str, source: str, line_of) -> None:
+    """One contract column's values: no NaN, finite, whole numbers within :data:`MAX_ID` for an id."""
+    nan = np.isnan(v)
+    if nan.any():
+        i = int(np.argmax(nan))
+        fail(source, "NaN / missing value", i + 1, name, line_of(i))
+    inf = ~np.isfinite(v)
+    if inf.any():
+        i = int(np.argmax(inf))
+        fail(source, f"non-finite value {float(v[i])!r}", i + 1, name, line_of(i))
+    if name in INTEGER_COLUMNS:
+        frac = v != np.round(v)
+        if frac.any():
+            i = int(np.argmax(frac))
+            fail(source, f"{float(v[i])!r} is not an integer", i + 1, name, line_of(i))
+        big = np.abs(v) > MAX_ID
+        if big.any():  # beyond 2^53 a float64 no longer holds every integer (and 1e300 is no int64)
+            i = int(np.argmax(big))
+            fail(source, f"{float(v[i])!r} is too large for an id (at most {MAX_ID:,} in magnitude)", i + 1,
+                 name, line_of(i))
+
+
+def _check_range(a: np.ndarray, name: str, lo: float, hi: float, what: str, source: str, line_of) -> None:
+    out = (a < lo) | (a > hi)
+    if out.any():
+        i = int(np.argmax(out))
+        fail(source, f"{what}{float(a[i])!r} deg outside [{lo:g}, {hi:g}]", i + 1, name, line_of(i))
 
 
 def check_frame(frame: pd.DataFrame, source: str, line_of, notices: list,
-                 require_reference: bool = True, convert: dict | None = None,
-                 setting: str = "columns") -> pd.DataFrame:
+                require_reference: bool = True, convert: dict | None = None,
+                setting: str = "columns", lazy: Lazy | None = None) -> pd.DataFrame:
     """Contract checks on a frame whose contract columns are float64; returns the typed frame.
 
-    ``convert``: column -> (scale, offset, unit) from a units row (:func:`icgo.io.columns.prepare`),
-    applied before any check.
+    ``convert``: column -> (scale, offset, unit, where) from a units row or bracketed header
+    (:func:`icgo.io.columns.prepare`), applied before any check. ``lazy``: every failure kept, the checks of the
+    columns a failure names skipped, :class:`DataErrors` raised at the end (:class:`Lazy`); without it the first
+    failure raises (the doors).
     """
     cols = list(frame.columns)
     if len(frame) == 0:
         fail(source, "no data rows (header only)")
-    check_columns(cols, source, require_reference, setting)
+    check_columns(cols, source, require_reference, setting, lazy)
     if convert:
         frame = frame.copy()
-        for name, (scale, offset, _) in convert.items():
+        for name, (scale, offset, *_) in convert.items():
             if name in cols:
                 frame[name] = frame[name].to_numpy(np.float64) * scale + offset
+    ok = (lambda *c: all(x in cols for x in c) and not lazy.skip(c)) if lazy is not None else (
+        lambda *c: all(x in cols for x in c))
 
     for name in [c for c in KNOWN_COLUMNS if c in cols]:
-        v = frame[name].to_numpy(np.float64)
-        nan = np.isnan(v)
-        if nan.any():
-            i = int(np.argmax(nan))
-            fail(source, "NaN / missing value", i + 1, name, line_of(i))
-        inf = ~np.isfinite(v)
-        if inf.any():
-            i = int(np.argmax(inf))
-            fail(source, f"non-finite value {float(v[i])!r}", i + 1, name, line_of(i))
-        if name in INTEGER_COLUMNS:
-            frac = v != np.round(v)
-            if frac.any():
-                i = int(np.argmax(frac))
-                fail(source, f"{float(v[i])!r} is not an integer", i + 1, name, line_of(i))
-            big = np.abs(v) > MAX_ID
-            if big.any():  # beyond 2^53 a float64 no longer holds every integer (and 1e300 is no int64)
-                i = int(np.argmax(big))
-                fail(source, f"{float(v[i])!r} is too large for an id (at most {MAX_ID:,} in magnitude)", i + 1,
-                      name, line_of(i))
-
-    if "inclination_deg" in cols:
-        inc = frame["inclination_deg"].to_numpy(np.float64)
-        out = (inc < 0.0) | (inc > 180.0)
-        if out.any():
-            i = int(np.argmax(out))
-            fail(source, f"inclination {float(inc[i])!r} deg outside [0, 180]", i + 1, "inclination_deg", line_of(i))
-
+        if ok(name):
+            guard(lazy, (name,), _check_values, frame[name].to_numpy(np.float64), name, source, line_of)
+    if ok("inclination_deg"):
+        guard(lazy, ("inclination_deg",), _check_range, frame["inclination_deg"].to_numpy(np.float64),
+              "inclination_deg", 0.0, 180.0, "inclination ", source, line_of)
     for name in ANGLE_COLUMNS:
-        if name in cols:
-            a = frame[name].to_numpy(np.float64)
-            out = (a < ANGLE_RANGE_DEG[0]) | (a > ANGLE_RANGE_DEG[1])
-            if out.any():
-                i = int(np.argmax(out))
-                fail(source, f"{float(a[i])!r} deg outside [{ANGLE_RANGE_DEG[0]:g}, {ANGLE_RANGE_DEG[1]:g}]", i + 1,
-                      name, line_of(i))
-
-    _check_units(frame, source)
-    _check_row_units(frame, source, line_of)
+        if ok(name):
+            guard(lazy, (name,), _check_range, frame[name].to_numpy(np.float64), name, *ANGLE_RANGE_DEG, "",
+                  source, line_of)
+    for sensor in (("gx", "gy", "gz"), ("bx", "by", "bz"), GYRO_COLUMNS):
+        if ok(*sensor):
+            guard(lazy, sensor, _check_units, frame, source, sensor, convert or {})
+    for sensor in (("gx", "gy", "gz"), ("bx", "by", "bz")):
+        if ok(*sensor):
+            guard(lazy, sensor, _check_row_units, frame, source, line_of, sensor)
+    if lazy is not None:
+        lazy.raise_all()
 
     typed = frame.copy()
     for name in INTEGER_COLUMNS:
@@ -154,50 +235,74 @@ def check_frame(frame: pd.DataFrame, source: str, line_of, notices: list,
     order = [c for c in KNOWN_COLUMNS if c in cols] + unknown
     typed = typed[order].reset_index(drop=True)
     if unknown:
-        notices.append(f"{source}: unknown column(s) kept, not used: {', '.join(map(str, unknown))}")
+        notices.append(f"{source}: unknown column(s) kept, not used: {', '.join(map(str, unknown))}"
+                       + export.synonym_hint([str(c) for c in unknown], cols, KNOWN_COLUMNS, setting))
     _consistency_notices(typed, source, notices)
     return typed
 
 
-def _check_row_units(frame: pd.DataFrame, source: str, line_of) -> None:
-    """Every row's |G| and |B| within a factor of the median: a row in other units fails, named."""
-    for cols, unit, factor in ((("gx", "gy", "gz"), "g", ROW_FACTOR_G), (("bx", "by", "bz"), "nT", ROW_FACTOR_B)):
-        norm = np.linalg.norm(frame[list(cols)].to_numpy(np.float64), axis=1)
-        med = float(np.median(norm))
-        off = (norm < med / factor) | (norm > med * factor)
-        if off.any():
-            i = int(np.argmax(off))
-            fail(source, f"|{cols[0][0].upper()}| = {norm[i]:.6g} while the median is {med:.6g} {unit} "
-                          f"({int(off.sum())} row(s) more than {factor:g}x off: rows in other units?)", i + 1,
-                  cols, line_of(i))
+def _check_row_units(frame: pd.DataFrame, source: str, line_of, cols=("gx", "gy", "gz")) -> None:
+    """Every row's |G| (or |B|: ``cols``) within a factor of the median: a row in other units fails, named."""
+    unit, factor = ("g", ROW_FACTOR_G) if cols[0] == "gx" else ("nT", ROW_FACTOR_B)
+    norm = np.linalg.norm(frame[list(cols)].to_numpy(np.float64), axis=1)
+    med = float(np.median(norm))
+    off = (norm < med / factor) | (norm > med * factor)
+    if off.any():
+        i = int(np.argmax(off))
+        fail(source, f"|{cols[0][0].upper()}| = {norm[i]:.6g} while the median is {med:.6g} {unit} "
+                     f"({int(off.sum())} row(s) more than {factor:g}x off: rows in other units?)", i + 1,
+             tuple(cols), line_of(i))
 
 
-def _check_units(frame: pd.DataFrame, source: str) -> None:
-    g = _median_norm(frame, ("gx", "gy", "gz"))
-    lo, hi = G_MEDIAN_RANGE_G
-    if not lo <= g <= hi:
-        if lo * STANDARD_GRAVITY <= g <= hi * STANDARD_GRAVITY:
-            hint = f"looks like m/s^2: divide by {STANDARD_GRAVITY}, or give m/s^2 in a units row under the header"
-        elif lo * 1000 <= g <= hi * 1000:
-            hint = "looks like milli-g: divide by 1000"
-        else:
-            hint = "expected about 1 g"
-        fail(source, f"median |G| = {g:.6g} is not in g ({hint})", "all rows", ("gx", "gy", "gz"))
-    b = _median_norm(frame, ("bx", "by", "bz"))
-    lo, hi = B_MEDIAN_RANGE_NT
-    if not lo <= b <= hi:
-        if b < lo and lo <= b * 1e3 <= hi:
-            hint = "looks like uT given as nT: multiply by 1000; or give the unit in a units row under the header, docs/data.md"
-        elif b < lo and lo <= b * 1e5 <= hi:
-            hint = "looks like Gauss given as nT: multiply by 100000; or give the unit in a units row under the header, docs/data.md"
-        else:
-            hint = "the geomagnetic field is about 22,000-67,000 nT"
-        fail(source, f"median |B| = {b:.6g} is not in nT ({hint})", "all rows", ("bx", "by", "bz"))
-    if "wx" in frame.columns:
-        w = _median_norm(frame, GYRO_COLUMNS)
+def _given_units(convert: dict, cols, unit: str) -> str:
+    """The units a units row or a bracketed header name gave ``cols`` (converted before the check), named with
+    where they were given, or ""."""
+    conv = [convert[c] for c in cols if c in convert]
+    if not conv:
+        return ""
+    scale, _, token, *where = conv[0]
+    return (f"; the values were read as {token} by {where[0] if where else 'the units given'} and converted to "
+            f"{unit} (x{scale:g}): as written they are {unit} already, so {where[0] if where else 'that unit'} "
+            f"disagrees with the values")
+
+
+def _check_units(frame: pd.DataFrame, source: str, cols=("gx", "gy", "gz"), convert: dict | None = None) -> None:
+    """The median norm of one sensor (``cols``: gravity, field or gyro) in the contract's unit; where a units row
+    or bracketed header converted the values, the refusal names it when the values as written fit the unit."""
+    convert = convert or {}
+    if cols[0] == "gx":
+        g = _median_norm(frame, cols)
+        lo, hi = G_MEDIAN_RANGE_G
+        if not lo <= g <= hi:
+            scale = convert[cols[0]][0] if cols[0] in convert else 1.0
+            if scale != 1.0 and lo <= g / scale <= hi:
+                hint = "expected about 1 g" + _given_units(convert, cols, "g")
+            elif lo * STANDARD_GRAVITY <= g <= hi * STANDARD_GRAVITY:
+                hint = f"looks like m/s^2: divide by {STANDARD_GRAVITY}, or give m/s^2 in a units row under the header"
+            elif lo * 1000 <= g <= hi * 1000:
+                hint = "looks like milli-g: divide by 1000"
+            else:
+                hint = "expected about 1 g"
+            fail(source, f"median |G| = {g:.6g} is not in g ({hint})", "all rows", tuple(cols))
+    elif cols[0] == "bx":
+        b = _median_norm(frame, cols)
+        lo, hi = B_MEDIAN_RANGE_NT
+        if not lo <= b <= hi:
+            scale = convert[cols[0]][0] if cols[0] in convert else 1.0
+            if scale != 1.0 and lo <= b / scale <= hi:
+                hint = "the geomagnetic field is about 22,000-67,000 nT" + _given_units(convert, cols, "nT")
+            elif b < lo and lo <= b * 1e3 <= hi:
+                hint = "looks like uT given as nT: multiply by 1000; or give the unit in a units row under the header, docs/data.md"
+            elif b < lo and lo <= b * 1e5 <= hi:
+                hint = "looks like Gauss given as nT: multiply by 100000; or give the unit in a units row under the header, docs/data.md"
+            else:
+                hint = "the geomagnetic field is about 22,000-67,000 nT"
+            fail(source, f"median |B| = {b:.6g} is not in nT ({hint})", "all rows", tuple(cols))
+    else:
+        w = _median_norm(frame, cols)
         if w < W_MEDIAN_MIN_DEG_H:
             fail(source, f"median |W| = {w:.6g} is below the earth rate (15.04 deg/h): not deg/h "
-                          "(rad/s or deg/s?)", "all rows", GYRO_COLUMNS)
+                         "(rad/s or deg/s?)", "all rows", tuple(cols))
 
 
 def _consistency_notices(frame: pd.DataFrame, source: str, notices: list) -> None:

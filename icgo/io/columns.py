@@ -73,10 +73,13 @@ _OFFSET = {"k": -273.15, "kelvin": -273.15, "f": -32.0 * 5.0 / 9.0, "degf": -32.
 #: Every unit token of every kind (a row of these under the header is a units row).
 _ALL_UNITS = set().union(*(u[2] for u in UNITS.values())) - {"", "1", "n", "no", "none", "id", "#", "-"}
 
-#: Names an export may give a contract column (compared lower-case, letters and digits only), for the hint
-#: of a missing column; none is read without a map.
+#: Names an export may give a contract column (compared lower-case, letters and digits only): the one table of
+#: the hints every reader gives (a missing column's, :func:`missing_hint`, and an unknown column's that looks like a
+#: contract column, :func:`synonym_hint`), on the doors and in ``python -m icgo.io check`` alike; none is read
+#: without a map.
 SYNONYMS = {
-    "station": ("stn", "sta", "stationid", "stationno", "stationnumber", "shot", "shotno", "index", "id", "svy"),
+    "station": ("stn", "sta", "stationid", "stationno", "stationnumber", "shot", "shotno", "shotnumber", "index",
+                "id", "svy", "survey", "surveyno", "surveynumber", "surveyid", "svyno"),
     "azimuth_deg": ("azimuth", "azi", "az", "azm", "azimuthdeg", "refazimuth", "trueazimuth", "azimuthref"),
     "inclination_deg": ("inclination", "inc", "incl", "incdeg", "inclinationdeg", "refinclination", "inclinationref"),
     "toolface_deg": ("toolface", "tf", "gtf", "gravitytoolface", "highsidetoolface"),
@@ -249,10 +252,31 @@ def missing_hint(missing, header: list[str], known, setting: str = "columns") ->
                  and (_loose(h) in wanted or (_BRACKETED.match(h) and _loose(_BRACKETED.match(h).group(1)) in wanted))]
         if found:
             h = found[0]
-            hints.append(f"found `{h}`: use {setting}.{c}={h}" if re.fullmatch(r"[\w.-]+", h)
-                         else f"found {h!r}: use {setting}.{c}='{h}'")
+            hints.append(f"found `{h}`: use {_use(setting, c, h)}" if re.fullmatch(r"[\w.-]+", h)
+                         else f"found {h!r}: use {_use(setting, c, h)}")
     return ("; " + "; ".join(hints)) if hints else (
         f"; name the export's columns with {setting}.<contract column>=<export column> (docs/data.md)")
+
+
+def _use(setting: str, c: str, h: str) -> str:
+    return (f"{setting}.{c}={h}" if re.fullmatch(r"[\w.-]+", h) else f"{setting}.{c}='{h}'")
+
+
+def synonym_hint(unknown: list[str], header: list[str], known, setting: str = "columns") -> str:
+    """For unknown columns that look like a contract column the header lacks (:data:`SYNONYMS`), how to read them.
+
+    Returns:
+        ``" (`Inc` looks like inclination_deg: columns.inclination_deg=Inc)"``, or "" when none looks like one.
+    """
+    hints = []
+    for h in unknown:
+        m = _BRACKETED.match(h)
+        forms = {_loose(h)} | ({_loose(m.group(1))} if m else set())
+        for c in known:
+            if c not in header and forms & ({_loose(c)} | {_loose(x) for x in SYNONYMS.get(c, ())}):
+                hints.append(f"`{h}` looks like {c}: {_use(setting, c, h)}")
+                break
+    return f" ({'; '.join(hints)})" if hints else ""
 
 
 def _numeric(cell: str) -> bool:
@@ -321,7 +345,8 @@ class Prepared:
 
     Attributes:
         text: comment lines and the units row emptied, the header line in contract names.
-        convert: contract column -> (scale, offset, unit given) to apply to the parsed values.
+        convert: contract column -> (scale, offset, unit given, where it was given: the units row or the header) to
+            apply to the parsed values.
         notices: one line each: the names mapped, the units converted.
     """
 
@@ -353,6 +378,7 @@ def prepare(text: str, source: str, known, columns: Mapping[str, str] | None = N
     hdr = resolve_header(header, columns or {}, known, source, setting)
     units = bracket_units(hdr.units, source)
     given = dict(hdr.units)  # contract column -> the unit as written, for the notice
+    where = {n: f"the header ({header[hdr.names.index(n)].strip()!r})" for n in hdr.units}
     uidx = next((i for i in range(hidx + 1, len(lines)) if lines[i].strip() != ""), None)
     if uidx is not None:
         try:
@@ -363,6 +389,7 @@ def prepare(text: str, source: str, known, columns: Mapping[str, str] | None = N
         if row_units is not None:
             units.update({n: t for n, t in row_units.items() if t or n not in units})
             given.update({n: cells[hdr.names.index(n)].strip() for n, t in row_units.items() if t})
+            where.update({n: f"the units row (line {uidx + 1})" for n, t in row_units.items() if t})
             ending = lines[uidx][len(lines[uidx].rstrip("\r\n")):]
             lines[uidx] = ending
             notices.append(f"{source}: line {uidx + 1} read as the units row")
@@ -381,4 +408,7 @@ def prepare(text: str, source: str, known, columns: Mapping[str, str] | None = N
         notices.append(f"{source}: converted to the contract's units: " + "; ".join(
             f"{', '.join(ns)} {u} -> {cu} (x{scale:.10g}{f' {offset:+.10g}' if offset else ''})"
             for (u, cu, scale, offset), ns in groups.items()))
+        # each conversion names where its unit was given: a refusal of the converted values names it
+        convert = {n: (scale, offset, given.get(n, t), where.get(n, "the units given"))
+                   for n, (scale, offset, t) in convert.items()}
     return Prepared("".join(lines), convert, notices)

@@ -17,15 +17,18 @@ import numpy as np
 import pandas as pd
 
 from icgo.core.errors import DataError
-from icgo.io.checks import check_columns, check_frame
+from icgo.io.checks import Lazy, check_columns, check_frame, guard
 from icgo.io.schema import KNOWN_COLUMNS, fail
 
 
 def parse_contract_text(text: str, src: str, require_reference: bool, convert=None,
-                        setting: str = "columns") -> tuple[pd.DataFrame, list]:
+                        setting: str = "columns", lazy: Lazy | None = None) -> tuple[pd.DataFrame, list]:
     """(checked frame, notices) of a contract CSV's text (comments blanked, header resolved: :mod:`icgo.io.columns`):
-    pandas' C parser where it can, the exact reader where it cannot (and to word every error)."""
+    pandas' C parser where it can, the exact reader where it cannot (and to word every error). ``lazy``: every
+    failure of the file kept (:class:`icgo.io.checks.Lazy`; the exact reader only), raised together at the end."""
     notices: list[str] = []
+    if lazy is not None:
+        return _read_exact(text, src, notices, require_reference, convert=convert, setting=setting, lazy=lazy), notices
     typed = _read_fast(text, src, notices, require_reference, convert=convert, setting=setting)
     if typed is None:
         notices = []
@@ -96,7 +99,7 @@ def _read_fast(text: str, src: str, notices: list, require_reference: bool, conv
 
 
 def _read_exact(text: str, src: str, notices: list, require_reference: bool, convert=None,
-                setting: str = "columns") -> pd.DataFrame:
+                setting: str = "columns", lazy: Lazy | None = None) -> pd.DataFrame:
     """Every row through the csv module and ``float``: the reference reader, and the one that words errors."""
     reader = csv.reader(_io.StringIO(text))
     numbered = []  # (line number, fields), blank lines skipped
@@ -118,20 +121,26 @@ def _read_exact(text: str, src: str, notices: list, require_reference: bool, con
         if len(r) != len(header):
             fail(src, f"{len(r)} fields, the header has {len(header)}", k + 1, None, ln)
     if body:
-        check_columns(header, src, require_reference, setting)
+        check_columns(header, src, require_reference, setting, lazy)
     rows = [r for _, r in body]
     line_of = lambda i: body[i][0]  # noqa: E731
-    frame = _parse_columns(header, rows, src, line_of) if rows else pd.DataFrame(columns=header)
-    return check_frame(frame, src, line_of, notices, require_reference, convert, setting)
+    frame = _parse_columns(header, rows, src, line_of, lazy) if rows else pd.DataFrame(columns=header)
+    return check_frame(frame, src, line_of, notices, require_reference, convert, setting, lazy)
 
 
-def _parse_columns(header: list[str], rows: list[list[str]], source: str, line_of) -> pd.DataFrame:
-    """Text cells -> numeric DataFrame; first bad cell raises DataError."""
+def _parse_columns(header: list[str], rows: list[list[str]], source: str, line_of,
+                   lazy: Lazy | None = None) -> pd.DataFrame:
+    """Text cells -> numeric DataFrame; a column's first bad cell raises DataError (``lazy``: kept, and the column
+    read as NaN and marked bad, so no later check of it runs)."""
     data = {}
     for j, name in enumerate(header):
         cells = [r[j] for r in rows]
         if name in KNOWN_COLUMNS:
-            data[name] = _to_float(cells, name, source, line_of)
+            out = []
+            if guard(lazy, (name,), lambda: out.append(_to_float(cells, name, source, line_of))):
+                data[name] = out[0]
+            else:
+                data[name] = np.full(len(cells), np.nan)
         else:  # unknown column: numeric if it parses, else kept as text
             try:
                 data[name] = np.fromiter((float(c) for c in cells), np.float64, len(cells))

@@ -140,7 +140,8 @@ def column_map(columns=None, columns_file=None, setting: str = "columns") -> dic
 
 
 def read_recording(csv_path, meta_path=None, *, require_meta: bool = True, require_reference: bool = True,
-                   columns=None, column_setting: str = "columns", max_bytes: int = MAX_CSV_BYTES) -> Recording:
+                   columns=None, column_setting: str = "columns", max_bytes: int = MAX_CSV_BYTES,
+                   lazy: bool = False) -> Recording:
     """Read and validate a contract CSV and its ``<name>.meta.json``.
 
     Args:
@@ -156,6 +157,10 @@ def read_recording(csv_path, meta_path=None, *, require_meta: bool = True, requi
             (``columns``, ``dataset.columns``).
         max_bytes: the largest file read (default :data:`MAX_CSV_BYTES`; a larger survey streams through
             :func:`icgo.io.stream.read_chunks`).
+        lazy: list every failure of the file at once (``python -m icgo.io check``): the CSV's checks each on their own
+            (:class:`icgo.io.checks.Lazy`) and the metadata read even where the CSV fails;
+            :class:`icgo.io.checks.DataErrors` (a DataError whose text is the first failure, the one the doors give)
+            holds them all.
     Returns:
         Recording; ``notices`` say which export columns were mapped and which units converted.
     Raises:
@@ -168,6 +173,8 @@ def read_recording(csv_path, meta_path=None, *, require_meta: bool = True, requi
     if text.strip() == "":
         fail(src, "empty file (no header, no rows)")
     cmap = export.check_column_map(columns, KNOWN_COLUMNS, column_setting)
+    if lazy:
+        return _read_lazy(csv_path, meta_path, text, cmap, require_meta, require_reference, column_setting)
     prep = export.prepare(text, src, KNOWN_COLUMNS, cmap, column_setting)
     text = prep.text
     if text.strip() == "":
@@ -179,6 +186,39 @@ def read_recording(csv_path, meta_path=None, *, require_meta: bool = True, requi
                        f"is complete")
     del text
     meta, field = read_meta(csv_path, meta_path, require_meta, notices)
+    return Recording(typed, meta, notices, field, src)
+
+
+def _read_lazy(csv_path: Path, meta_path, text: str, cmap: dict, require_meta: bool, require_reference: bool,
+               column_setting: str) -> Recording:
+    """:func:`read_recording` with every failure kept (``lazy=True``): the CSV's (those after a failure of the
+    header's names or units row cannot be judged and are not run) and the metadata's, together."""
+    from icgo.io.checks import DataErrors, Lazy, guard
+
+    src, lazy, notices, typed = str(csv_path), Lazy(), [], None
+
+    def csv_part():
+        nonlocal typed
+        prep = export.prepare(text, src, KNOWN_COLUMNS, cmap, column_setting)
+        if prep.text.strip() == "":
+            fail(src, "only comment lines (lines starting with #): no header, no rows")
+        typed, found = parse_contract_text(prep.text, src, require_reference, prep.convert, column_setting, Lazy())
+        notices.extend(prep.notices + found)
+        if not prep.text.endswith(("\n", "\r")):
+            notices.append(f"{src}: the file does not end with a newline; check that its last row (row {len(typed)}) "
+                           f"is complete")
+
+    guard(lazy, (), csv_part)
+    meta = {}
+    field = None
+
+    def meta_part():
+        nonlocal meta, field
+        meta, field = read_meta(csv_path, meta_path, require_meta, notices)
+
+    guard(lazy, (), meta_part)
+    if lazy.errors:
+        raise DataErrors(list(dict.fromkeys(lazy.errors)))
     return Recording(typed, meta, notices, field, src)
 
 

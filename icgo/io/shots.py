@@ -30,7 +30,7 @@ def is_json(path) -> bool:
     return str(path).lower().endswith(".json")
 
 
-def read_shot_file(path, mag_axes=None, grav_axes=None, groups=None, columns=None) -> ShotFile:
+def read_shot_file(path, mag_axes=None, grav_axes=None, groups=None, columns=None, lazy: bool = False) -> ShotFile:
     """A recording of static shots with the groups known without a search (:class:`icgo.io.mag_cal_json.ShotFile`).
 
     Args:
@@ -38,6 +38,7 @@ def read_shot_file(path, mag_axes=None, grav_axes=None, groups=None, columns=Non
         mag_axes, grav_axes: mounting strings (raw-layout JSON only), or None.
         groups: the ``groups=`` setting (:func:`icgo.io.grouping.parse_groups`; raw or parsed), or None.
         columns: a column map for a CSV field export (:mod:`icgo.io.columns`), or None.
+        lazy: a CSV's every failure at once (:func:`icgo.io.recording.read_recording`, ``python -m icgo.io check``).
     Raises:
         SettingError: a bad setting (exit 2). DataError: bad data, or given groups that are not rolls (exit 1).
     """
@@ -51,7 +52,7 @@ def read_shot_file(path, mag_axes=None, grav_axes=None, groups=None, columns=Non
     if any(v is not None for v in axes.values()):
         raise SettingError("mag_axes / grav_axes apply to a raw-layout JSON file; a contract CSV is in the tool "
                            "frame already")
-    rec = read_recording(path, require_meta=False, require_reference=False, columns=columns)
+    rec = read_recording(path, require_meta=False, require_reference=False, columns=columns, lazy=lazy)
     frame, src = rec.frame, str(path)
     layout = layout_groups(str(rec.meta.get("instrument", "")), len(frame))
     if isinstance(spec, tuple):

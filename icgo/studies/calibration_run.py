@@ -158,6 +158,7 @@ def run(data: str, config, site, output, load: Callable[[], dict], write_record:
                        "sentence": f"No calibration recommended: the fits refuse the shots: {why}."}
                 for name in recordings}
     summ = calibration.summary(df) if len(df) else pd.DataFrame()
+    models = carried(models, df, recordings, recs, sites)
     chosen = {name: (models[calibration.model_label(name, r["method"])] if r["method"] else None)
               for name, r in recs.items()}
     label = "the 9 bundled circuitpython-mag-cal devices" if bundled else data
@@ -166,7 +167,10 @@ def run(data: str, config, site, output, load: Callable[[], dict], write_record:
             if len(df) else report_refused(recordings, label, recs, chosen, sites))
     run_record = record(data, config, recordings, recs, sites, time.perf_counter() - t0)
     outer = calibration.outer_rows(df) if len(df) else df
+    one = chosen.get(next(iter(recordings))) if len(recordings) == 1 else None
     verdict = calibrate_verdict(recommendation=run_record.get("recommendation"), n_models=len(models),
+                                accuracy=None if one is None else one.accuracy,
+                                field_reference=None if one is None else one.field_reference,
                                 run_dir=str(out), n_degenerate=int(outer["degenerate"].astype(bool).sum()),
                                 n_fits=len(outer), refused=run_record.get("refused"),
                                 held_out=outer[outer["split"] != "in-sample"].groupby("method")["score_deg"]
@@ -199,6 +203,32 @@ def run(data: str, config, site, output, load: Callable[[], dict], write_record:
         print(f"error: no calibration recommended {refused[0]} (report: {out / 'report.md'})", file=sys.stderr)
         return EXIT_NO_RECOMMENDATION
     return 0
+
+
+def carried(models: dict, df, recordings: dict, recs: dict, sites: dict) -> dict:
+    """The in-sample calibrations as they are saved: each scaled to its recording's site where one is known
+    (:func:`icgo.artifacts.calibration.in_earth_units`; relative otherwise) and carrying its expected accuracy
+    (:func:`icgo.studies.calibration_select.model_accuracy`; the recommended one also the rule's nested score, named
+    as such), the accuracy every later door prints for it."""
+    from icgo.artifacts.calibration import in_earth_units, with_accuracy
+    from icgo.studies.calibration import METHODS, model_label
+    from icgo.studies.calibration_select import model_accuracy
+
+    out = dict(models)
+    for name, rec in recordings.items():
+        r = recs.get(name) or {}
+        for method in METHODS:
+            label = model_label(name, method)
+            if label not in out:
+                continue
+            acc = model_accuracy(df, name, method)
+            if acc is not None and method == r.get("method") and r.get("accuracy_deg") is not None:
+                acc.update({"nested_deg": r["accuracy_deg"], "nested_spread_deg": r.get("accuracy_spread_deg"),
+                            "nested_what": "the recommendation rule's nested score (the rule applied inside each "
+                                           "held-out split's training shots, its choice scored on the shots it did "
+                                           "not see): what choosing by the rule delivers, not this method alone"})
+            out[label] = with_accuracy(in_earth_units(out[label], rec.G, rec.B, sites.get(name)), acc)
+    return out
 
 
 def refused_run(data: str, config, output, write_record: Callable[[Path], None], reason: str, seconds: float) -> int:

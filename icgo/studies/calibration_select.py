@@ -10,8 +10,12 @@
   baseline and the methods that do, the lowest mean held-out score is chosen. A method fitted with more freedom
   (the joint fit's accelerometer, the RELM's correction, MISMA's search) has to show on held-out shots that
   the freedom generalises;
+* a margin is a margin only when it is at least :data:`MIN_MARGIN_DEG` as well (a RELM whose correction the
+  regularisation shrinks to nothing scores within 1e-6 deg of the baseline, with a standard error smaller
+  still: that is no win), and only over two or more held-out splits (one split has no standard error);
 * without a held-out split (one roll too short to halve) nothing can show that, and the baseline is chosen;
-  without a sound baseline, the lowest mean among the candidates.
+  without a sound baseline, the lowest mean among the candidates. "A clear winner" obeys the same two
+  conditions against the runner-up.
 
 **Its accuracy** (:func:`nested_accuracy`): the rule chooses on held-out splits, so the mean held-out score of
 its choice is optimistic (the winner's curse). The accuracy reported is nested: for each outer held-out
@@ -28,6 +32,18 @@ import numpy as np
 
 #: The method every other one has to beat (module doc).
 BASELINE = "twelve+axis"
+#: The smallest margin (deg) that counts as one method beating another: a tenth of the 0.1 deg pointing accuracy
+#: of the best survey tools (a smaller difference has no use in the field). Set from that, not from a recording.
+MIN_MARGIN_DEG = 0.01
+
+
+def beats(d) -> tuple[float, float] | None:
+    """``(mean, standard error)`` of the paired differences ``d`` (deg, the loser's score minus the winner's over
+    the held-out splits) when they make a win: two or more splits, the mean above its standard error and at least
+    :data:`MIN_MARGIN_DEG`; else None."""
+    se = _se(d)
+    m = float(np.mean(d)) if np.size(d) else 0.0
+    return (m, se) if se is not None and m > se and m >= MIN_MARGIN_DEG else None
 
 
 class Choice(NamedTuple):
@@ -93,15 +109,14 @@ def choose(scores: dict, excluded: dict, methods, held: bool) -> Choice:
         for m in ranked:
             if m == BASELINE:
                 continue
-            d = sound[BASELINE] - sound[m]
-            se = _se(d)
-            if se is not None and float(np.mean(d)) > se:
-                beat[m] = (float(np.mean(d)), se)
+            b = beats(sound[BASELINE] - sound[m])
+            if b is not None:
+                beat[m] = b
         contenders = [m for m in ranked if m == BASELINE or m in beat]
         pick = contenders[0]
         if pick == BASELINE:
             why = (f"{BASELINE}, the baseline: no other sound method beats it by more than the standard error of "
-                   "their paired difference over the held-out splits")
+                   f"their paired difference over the held-out splits and by {MIN_MARGIN_DEG:g} deg or more")
         else:
             why = (f"{pick} beats {BASELINE} by {beat[pick][0]:.3f} deg, more than the standard error of their "
                    f"paired difference ({beat[pick][1]:.3f}), and has the lowest mean held-out score among the "
@@ -112,9 +127,7 @@ def choose(scores: dict, excluded: dict, methods, held: bool) -> Choice:
     runner = next((m for m in ranked if m != pick), None)
     clear = False
     if runner is not None and held:
-        d = sound[runner] - sound[pick]
-        se = _se(d)
-        clear = bool(se is not None and float(np.mean(d)) > se)
+        clear = beats(sound[runner] - sound[pick]) is not None
     return Choice(pick, means[pick], _se(sound[pick]) if held else None, runner, clear, why, means, out)
 
 
@@ -150,6 +163,30 @@ def nested_accuracy(outer: dict, inner: dict) -> Nested:
     if not scores:
         return Nested(None, None, rows)
     return Nested(float(np.mean(scores)), _se(scores), rows)
+
+
+def model_accuracy(df, recording: str, method: str) -> dict | None:
+    """The expected accuracy of one method's in-sample calibration, as its model carries it
+    (:data:`icgo.artifacts.calibration.ACCURACY_KEYS`): the mean held-out score (the peer's metric, deg) of its sound
+    fits over the held-out splits with its standard error, or, without a held-out split, its in-sample score
+    (optimistic, and named so); None when no fit of it was sound."""
+    from icgo.studies.calibration import outer_rows
+
+    g = outer_rows(df[(df["recording"] == recording) & (df["method"] == method)])
+    held = g[g["split"] != "in-sample"]
+    use = held if len(held) else g[g["split"] == "in-sample"]
+    s = use["score_deg"].to_numpy(np.float64)
+    ok = s[np.isfinite(s)]
+    if not ok.size:
+        return None
+    if len(held):
+        what = (f"held-out pointing spread of {method} (the peer's accuracy metric): mean over {ok.size} held-out "
+                f"split(s), each fitted without the shots it is scored on"
+                + (f"; {s.size - ok.size} split(s) degenerate, left out" if ok.size < s.size else ""))
+    else:
+        what = (f"in-sample pointing spread of {method} (no held-out split: one roll too short to halve; an "
+                "in-sample score is optimistic)")
+    return {"deg": float(ok.mean()), "spread_deg": _se(ok), "what": what}
 
 
 def recommend(df, recording: str) -> dict:
@@ -195,13 +232,18 @@ def recommend(df, recording: str) -> dict:
                 "clear_winner": False, "runner_up": None, "accuracy_deg": None, "accuracy_spread_deg": None,
                 "accuracy_splits": nested.per_split, "refused": choice.why, "sentence": sentence}
     model = f"models/{model_label(recording, choice.method)}.json"
+    own = model_accuracy(df, recording, choice.method)
+    acc = "" if own is None or not len(held) else (
+        f"expected accuracy {own['deg']:.3f}" + (f" +/- {own['spread_deg']:.3f}" if own["spread_deg"] is not None
+                                                 else "")
+        + " deg (its held-out score: the accuracy its model carries and apply prints); ")
     if nested.mean_deg is None:
-        acc = "accuracy not estimated (no held-out split to score the rule on)"
+        acc += "accuracy not estimated (no held-out split to score the rule on)"
     else:
-        acc = (f"expected accuracy {nested.mean_deg:.3f}"
-               + (f" +/- {nested.spread_deg:.3f}" if nested.spread_deg is not None else "")
-               + f" deg (nested: the rule applied inside each of {len(nested.per_split)} held-out split(s)' training "
-               "shots, its choice scored on the held-out shots)")
+        acc += (f"the rule's nested score {nested.mean_deg:.3f}"
+                + (f" +/- {nested.spread_deg:.3f}" if nested.spread_deg is not None else "")
+                + f" deg (nested: the rule applied inside each of {len(nested.per_split)} held-out split(s)' "
+                "training shots, its choice scored on the held-out shots)")
     other = "" if choice.runner_up is None else (
         f", runner-up `{choice.runner_up}` {choice.candidates[choice.runner_up]:.3f} deg"
         if choice.candidates[choice.runner_up] >= choice.mean_deg else

@@ -41,6 +41,18 @@ def excluded_line(result) -> str | None:
     return excluded_sentence(result.excluded, len(result.config.ids()) + len(result.excluded))
 
 
+def model_interval(model) -> float | None:
+    """The half-width (deg) the saved compensation model carries for its selected method (the one apply prints), or
+    None where it has none (NaN: no row was out of bag)."""
+    import numpy as np
+
+    hw = getattr(model, "interval_halfwidth", None)
+    if hw is None or model.selected not in model.methods:
+        return None
+    v = float(np.asarray(hw)[model.methods.index(model.selected)])
+    return v if np.isfinite(v) else None
+
+
 def write_run_files(outdir: Path, result, info: dict, frame, meta, plot, *, config_yaml: str, search: str,
                     config_sha256: str, run_dir=None) -> dict:
     """Every file of a run into ``outdir`` (the staging directory), run.json last; ``run_dir``: where they go.
@@ -94,7 +106,8 @@ def write_run_files(outdir: Path, result, info: dict, frame, meta, plot, *, conf
         md += ["", qc_sentence(qc)]
     verdict = study_verdict(result.metrics, result.coverage, selected=result.model.selected,
                             n_repeats=result.config.n_repeats, protocol=result.config.protocol, qc=qc,
-                            trained=result.model.domain, run_dir=str(run_dir or outdir))
+                            trained=result.model.domain, run_dir=str(run_dir or outdir),
+                            model_interval_deg=model_interval(result.model))
     md += ["", *verdict.markdown()]
     (outdir / "summary.md").write_text("\n".join(md) + "\n")
     if plot is not None:

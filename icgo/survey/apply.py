@@ -18,7 +18,7 @@ import pandas as pd
 
 from icgo.core.errors import DataError, ModelError
 from icgo.maths.metrics import azimuth_metrics
-from icgo.artifacts.format import CORRECTED_B, FittedModel, domain_notices, sensor_domain
+from icgo.artifacts.format import CORRECTED_B, FittedModel, domain_notices, frame_values, sensor_domain
 from icgo.physics.frames import angle_diff
 from icgo.physics.qc import QCBands, survey_qc
 from icgo.survey.trajectory import MD_COLUMN, position_change
@@ -119,6 +119,55 @@ def radians_line(as_deg: float, as_rad: float, column: str) -> str | None:
     return None
 
 
+def qc_reference(site, survey_field, model: FittedModel):
+    """The reference field apply's QC compares the corrected survey with, and where it came from.
+
+    In order: the ``site.*`` settings (:class:`icgo.io.site.Site`), the survey's own metadata
+    (:class:`icgo.io.schema.ReferenceField`), the site a calibration was scaled to when it was fitted (its
+    ``field_reference``); None when there is none (no QC then).
+
+    Returns:
+        (ReferenceField or None, {"total_field_nT", "dip_deg", "gravity_g", "origin"} or None).
+    """
+    from icgo.io.schema import ReferenceField
+
+    if site is not None:
+        f = ReferenceField(float(site.field_nT), float(site.dip_deg), float("nan"), 1.0,
+                           f"the site given to apply: {site.origin}")
+    elif survey_field is not None:
+        f = survey_field._replace(origin=f"the survey's metadata ({survey_field.origin})")
+    elif getattr(model, "field_reference", None) is not None:
+        r = model.field_reference
+        f = ReferenceField(float(r["total_field_nT"]), float(r["dip_deg"]), float("nan"), 1.0,
+                           f"the site the calibration was fitted at ({r['origin']})")
+    else:
+        return None, None
+    return f, {"total_field_nT": f.total_field_nT, "dip_deg": f.dip_deg, "gravity_g": f.gravity_g, "origin": f.origin}
+
+
+def relative_to_reference(model: FittedModel, frame: pd.DataFrame, field):
+    """A relative calibration (no site when it was fitted: :attr:`icgo.artifacts.calibration.MagCalibration.relative`)
+    put in earth units for a survey with a reference: its field scaled so that the median corrected ``|B|`` of the
+    survey's stations (``frame``: the first chunk of a streamed one) is the reference's ``|B|``. The level of the
+    field is then not checked by QC, only its spread and the dip (the notice says so).
+
+    Returns:
+        (the model to apply, a notice or None); the model unchanged when it is not a relative calibration or
+        there is no reference.
+    """
+    import dataclasses
+
+    if field is None or not getattr(model, "relative", False) or not len(frame):
+        return model, None
+    _, Bc = model.corrected(None, frame_values(frame, ("bx", "by", "bz"), f"{model.KIND} model"))
+    scale = float(field.total_field_nT) / float(np.median(np.linalg.norm(Bc, axis=1)))
+    return dataclasses.replace(model, field_scale_nT=scale), (
+        f"the calibration is relative (fitted without a site: its field in the sensor's own scale, "
+        f"{model.field_scale_nT:.0f} nT per unit); scaled here to the reference's |B| {field.total_field_nT:.0f} nT "
+        f"over this survey's stations, so QC checks the field's spread and dip, not its level: calibrate with "
+        f"site.* for a calibration in earth units")
+
+
 class CorrectedSurvey(NamedTuple):
     """Outcome of :func:`correct_survey`.
 
@@ -197,8 +246,9 @@ def correct_rows(model: FittedModel, frame: pd.DataFrame, field=None, *, method:
         B = frame[["bx", "by", "bz"]].to_numpy(float)
         domain.update(sensor_domain(G, B))
         keep["b_raw"], keep["dip_raw"] = np.linalg.norm(B, axis=1), measured_dip_deg(G, B)
-        if all(c in out.columns for c in CORRECTED_B):
-            g_cols = ["gx_corrected", "gy_corrected", "gz_corrected"]
+        Gc = Bc = None
+        if all(c in out.columns for c in CORRECTED_B):  # the corrected field with the corrected gravity, where the
+            g_cols = ["gx_corrected", "gy_corrected", "gz_corrected"]  # model corrects it (|G| and dip after it)
             Bc = out[list(CORRECTED_B)].to_numpy(float)
             Gc = out[g_cols].to_numpy(float) if all(c in out.columns for c in g_cols) else G
             keep["b_corr"], keep["dip_corr"] = np.linalg.norm(Bc, axis=1), measured_dip_deg(Gc, Bc)
@@ -206,9 +256,9 @@ def correct_rows(model: FittedModel, frame: pd.DataFrame, field=None, *, method:
             raw = survey_qc(G, B, field.total_field_nT, field.dip_deg, field.gravity_g, bands, prefix="raw_")
             table = pd.concat([table, raw.table], axis=1)
             qc = {"raw": raw.counts}
-            if all(c in out.columns for c in CORRECTED_B):
-                cor = survey_qc(G, out[list(CORRECTED_B)].to_numpy(float), field.total_field_nT, field.dip_deg,
-                                field.gravity_g, bands, prefix="corrected_")
+            if Bc is not None:
+                cor = survey_qc(Gc, Bc, field.total_field_nT, field.dip_deg, field.gravity_g, bands,
+                                prefix="corrected_")
                 table = pd.concat([table, cor.table], axis=1)
                 qc["corrected"] = cor.counts
                 keep["db_nT"] = cor.table["corrected_db_nT"].to_numpy(float)
@@ -255,8 +305,9 @@ def summarise(model: FittedModel, rows: Rows, field, *, positions_table: bool = 
         notices.append(line)
     notices += [f"outside the training domain: {n}" for n in domain_notices(model.domain, rows.domain)]
     if rows.qc is None:
-        notices.append("no reference field in the survey's metadata: no QC (give total_field_nT, dip_deg, "
-                       "gravity_g or the location and date)" if field is None else
+        notices.append("no reference field: no QC (give site.dip= site.field= or site.lat= site.lon= site.date=, "
+                       "or total_field_nT, dip_deg, gravity_g or the location and date in the survey's metadata)"
+                       if field is None else
                        "no gx..bz in the survey: no QC")
     for col, t, e in (("azimuth_deg", "a_true", "a_comp"), ("inclination_deg", "i_true", "i_est")):
         if t in k:

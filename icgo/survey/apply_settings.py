@@ -15,7 +15,7 @@ from icgo.core.settings import is_int
 
 #: Every setting of the apply door (conf/apply/apply.yaml).
 KEYS = ("model", "data", "method", "require_meta", "out", "qc", "columns", "columns_file", "overwrite", "max_mb",
-        "stream_mb", "chunk_rows")
+        "stream_mb", "chunk_rows", "site")
 
 
 def check_settings(settings: dict) -> None:
@@ -41,6 +41,17 @@ def check_settings(settings: dict) -> None:
         if not isinstance(settings.get(k), bool):
             raise SettingError(f"{k}={settings.get(k)!r}: must be true or false")
     size_settings(settings)
+    site_setting(settings)
+
+
+def site_setting(settings: dict):
+    """The ``site.*`` settings' reference field (:func:`icgo.io.site.site_reference`), or None when none is given."""
+    from icgo.io.site import site_reference
+
+    site = settings.get("site")
+    if site is not None and not isinstance(site, dict):
+        raise SettingError(f"site={site!r}: give site.lat= site.lon= site.date=, or site.dip= site.field=")
+    return site_reference(site)
 
 
 def size_settings(settings: dict) -> tuple[int, int, int]:
@@ -84,4 +95,5 @@ def run_apply(settings: dict, out_dir: Path, keep=(),
     max_bytes, stream_above, chunk_rows = size_settings(settings)
     return apply_survey(output, model, mpath, data, settings["data"], columns=cmap, max_bytes=max_bytes,
                         stream_above=stream_above, chunk_rows=chunk_rows, require_meta=settings["require_meta"],
-                        method=settings["method"], bands=bands, qc_bands=settings["qc"], write_record=write_record)
+                        method=settings["method"], bands=bands, qc_bands=settings["qc"], write_record=write_record,
+                        site=site_setting(settings))

@@ -349,7 +349,7 @@ class StreamedSurvey:
         return CorrectedSurvey(pd.DataFrame(), metrics, qc, notices, trajectory, doubts, {}, self.domain)
 
     def verdict(self, res: CorrectedSurvey, model, bands, *, out_csv: str, model_path: str, survey_path: str,
-                method: str | None = None):
+                method: str | None = None, reference: dict | None = None):
         """:func:`icgo.survey.verdict.survey_verdict` of the whole survey from the sums: the interval's coverage from
         its count, the |B| and dip deviations' exact medians (given as one value each: the verdict's QC line takes
         their median)."""
@@ -366,4 +366,5 @@ class StreamedSurvey:
                              metrics=res.metrics, covered=covered, qc=res.qc, db_nT=med["db_nT"],
                              ddip_deg=med["ddip_deg"], bands=bands, trained=getattr(model, "domain", None),
                              survey=survey or None, out_csv=out_csv, model_path=model_path, survey_path=survey_path,
-                             trajectory=res.trajectory, doubts=res.doubts)
+                             trajectory=res.trajectory, doubts=res.doubts, accuracy=getattr(model, "accuracy", None),
+                             reference=reference)

@@ -136,7 +136,7 @@ def domain_line(status: str, phrases: list[str], trained: dict | None) -> str:
 
 # ---------------------------------------------------------------------- QC
 def qc_line(qc: dict | None, corrects_field: bool, *, after: str = "corrected", db_nT=None, ddip_deg=None,
-            bands=None) -> str:
+            bands=None, reference: dict | None = None) -> str:
     """The QC result in one line that says what it means beside the azimuth error.
 
     Args:
@@ -146,10 +146,12 @@ def qc_line(qc: dict | None, corrects_field: bool, *, after: str = "corrected", 
         after: the stage to explain (``corrected``, ``msa``).
         db_nT, ddip_deg: per-station |B| and dip deviations after correction (nT, deg), for their medians.
         bands: :class:`icgo.physics.qc.QCBands` (their half-widths are named).
+        reference: the reference field the counts were taken against (``total_field_nT``, ``dip_deg``,
+            ``origin``), named in the line; None: not named.
     """
     if not qc:
-        return ("no QC: the survey's metadata gives no reference field (add total_field_nT and dip_deg, or the "
-                "latitude, longitude and date)")
+        return ("no QC: no reference field (give site.dip= site.field= or site.lat= site.lon= site.date=, or add "
+                "total_field_nT and dip_deg, or the latitude, longitude and date, to the survey's metadata)")
     stage = after if after in qc else next(iter(qc))
     c = qc[stage]
     raw = qc.get("raw")
@@ -160,7 +162,9 @@ def qc_line(qc: dict | None, corrects_field: bool, *, after: str = "corrected", 
         med += (f" against bands of {bands.b_tol_nT:g} nT and {bands.dip_tol_deg:g} deg)" if bands else ")")
     after_what = {"corrected": "the correction", "msa": "MSA", "raw": "nothing (raw)"}.get(stage, stage)
     head = (f"{c['any']} of {c['n']} stations flagged after {after_what}"
-            + (f" ({raw['any']} raw)" if raw and stage != "raw" else "") + med)
+            + (f" ({raw['any']} raw)" if raw and stage != "raw" else "") + med
+            + (f", against |B| {reference['total_field_nT']:.0f} nT and dip {reference['dip_deg']:.2f} deg from "
+               f"{reference['origin']}" if reference else ""))
     if c["any"] == 0:
         return head + ": the field agrees with the reference at every station"
     if corrects_field:
@@ -175,7 +179,8 @@ def qc_line(qc: dict | None, corrects_field: bool, *, after: str = "corrected", 
 def apply_verdict(*, model_kind: str, method: str | None, interval_deg: float | None, interval_level: float | None,
                   metrics: dict | None, covered: float | None, qc: dict | None, db_nT=None, ddip_deg=None,
                   bands=None, trained: dict | None, survey: dict | None, out_csv: str, model_path: str,
-                  survey_path: str, trajectory: dict | None = None, doubts: dict | None = None) -> Verdict:
+                  survey_path: str, trajectory: dict | None = None, doubts: dict | None = None,
+                  accuracy: dict | None = None, reference: dict | None = None) -> Verdict:
     """The verdict of ``experiments.apply`` on one survey.
 
     Args:
@@ -189,6 +194,8 @@ def apply_verdict(*, model_kind: str, method: str | None, interval_deg: float | 
         doubts: :attr:`icgo.survey.apply.CorrectedSurvey.doubts`: ``other_device`` makes the status
             ``"other device"`` (the model is not to be used here), ``reference_units`` makes it ``"reference in
             doubt"`` (nothing is measured against that reference); both exit with :data:`EXIT_OUT_OF_DOMAIN`.
+        accuracy: the expected accuracy a calibration model carries (its ``accuracy``: the one calibrate printed),
+            or None. reference: the QC reference used (:func:`icgo.survey.apply.qc_reference`), named in the QC line.
     """
     doubts = doubts or {}
     status, phrases, over = domain_status(trained, survey)
@@ -197,6 +204,8 @@ def apply_verdict(*, model_kind: str, method: str | None, interval_deg: float | 
                f"split-conformal interval from its out-of-bag errors)")
         if status == "far outside":
             acc += "; it does not hold outside the training domain"
+    elif model_kind == "mag_calibration":
+        acc = accuracy_line(accuracy, model_kind)
     else:
         acc = f"no interval: a {model_kind} model carries none"
     if "reference_units" in doubts:
@@ -214,7 +223,7 @@ def apply_verdict(*, model_kind: str, method: str | None, interval_deg: float | 
 
         acc += "; " + trajectory_sentence(trajectory)
     corrects = model_kind in FIELD_CORRECTING_KINDS
-    qline = qc_line(qc, corrects, after="corrected", db_nT=db_nT, ddip_deg=ddip_deg, bands=bands)
+    qline = qc_line(qc, corrects, after="corrected", db_nT=db_nT, ddip_deg=ddip_deg, bands=bands, reference=reference)
     mline = f"{method or 'its only method'} of the {model_kind} model {model_path}" + (
         " (the study's selected method: lowest mean training RMSE over repeats, training rows only)"
         if model_kind == "relm_compensation" else "")
@@ -240,6 +249,7 @@ def apply_verdict(*, model_kind: str, method: str | None, interval_deg: float | 
     else:
         nxt = f"use {out_csv} (azimuth_compensated" + (", azimuth_interval_deg" if interval_deg is not None else "") + ")"
     numbers = {"interval_deg": interval_deg, "interval_level": interval_level, "covered": covered,
+               "accuracy": accuracy, "reference": reference,
                "mae": metrics["compensated"]["mae"] if metrics else None,
                "raw_mae": (metrics.get("raw") or {}).get("mae") if metrics else None,
                "overshoot": over, "qc": qc, "trajectory": trajectory, "doubts": doubts}
@@ -250,7 +260,8 @@ def apply_verdict(*, model_kind: str, method: str | None, interval_deg: float | 
 
 # ---------------------------------------------------------------------- run
 def run_verdict(*, maes: dict, selected: str, halfwidth_deg: float | None, coverage: float | None, level: float,
-                n_repeats: int, protocol: str, qc: dict | None, trained: dict | None, run_dir: str) -> Verdict:
+                n_repeats: int, protocol: str, qc: dict | None, trained: dict | None, run_dir: str,
+                model_interval_deg: float | None = None) -> Verdict:
     """The verdict of ``experiments.run``: what its fitted model is expected to do on a new survey.
 
     Args:
@@ -260,10 +271,20 @@ def run_verdict(*, maes: dict, selected: str, halfwidth_deg: float | None, cover
         n_repeats: repeats of the study. protocol: its train/test protocol (``random`` = 7:3 rows).
         qc: ``{"raw", "msa"}`` QC counts of the study's stations, or None. trained: the model's domain.
         run_dir: the run directory (the next command's ``model=``).
+        model_interval_deg: the half-width the saved model carries for ``selected`` (its out-of-bag interval at
+            ``level``: the one ``apply`` prints for it). Given, it is the interval stated, and the repeats' own mean
+            half-width is named beside it as another quantity (one accuracy per model).
     """
     m, s = maes.get(selected, (float("nan"), float("nan")))
     acc = f"test MAE {_pm(m, s)} deg over {n_repeats} repeat(s)"
-    if halfwidth_deg is not None and math.isfinite(halfwidth_deg):
+    if model_interval_deg is not None and math.isfinite(model_interval_deg):
+        acc += (f"; per station +/- {model_interval_deg:.3f} deg at {100 * level:.0f} % (the interval the saved "
+                f"model carries, from the repeats' out-of-bag errors of their ensemble: the one apply prints)")
+        if halfwidth_deg is not None and math.isfinite(halfwidth_deg):
+            acc += (f"; not to be confused with one repeat's own interval, +/- {halfwidth_deg:.3f} deg on average"
+                    + (f" ({100 * coverage:.1f} % of test rows inside)" if coverage is not None and
+                       math.isfinite(coverage) else "") + ": a single fit's, where the model averages the repeats")
+    elif halfwidth_deg is not None and math.isfinite(halfwidth_deg):
         acc += (f"; per station +/- {halfwidth_deg:.3f} deg at {100 * level:.0f} % (split-conformal, "
                 f"{100 * coverage:.1f} % of test rows inside)" if coverage is not None and math.isfinite(coverage)
                 else f"; per station +/- {halfwidth_deg:.3f} deg at {100 * level:.0f} %")
@@ -284,13 +305,39 @@ def run_verdict(*, maes: dict, selected: str, halfwidth_deg: float | None, cover
     model = f"{selected} in {run_dir}/relm_compensation.json ({why})"
     nxt = f"python -m experiments.apply model={run_dir} data=<your survey.csv>"
     numbers = {"mae": m, "mae_std": s, "halfwidth_deg": halfwidth_deg, "coverage": coverage, "level": level,
+               "model_interval_deg": model_interval_deg,
                "n_repeats": n_repeats, "qc": qc, "selected": selected}
     return Verdict(acc, dom, qline, model, nxt, "n/a", 0, numbers)
 
 
 # ---------------------------------------------------------------- calibrate
+def accuracy_line(accuracy: dict | None, kind: str = "mag_calibration") -> str:
+    """The expected accuracy a calibration model carries (:data:`icgo.artifacts.calibration.ACCURACY_KEYS`), in one
+    line: its own score first, the recommendation rule's nested score beside it, named as such."""
+    if not accuracy:
+        return f"none stated: this {kind} model carries no expected accuracy (fitted by an older icgo, or not scored)"
+    line = (f"pointing spread {_f(accuracy['deg'])}"
+            + (f" +/- {_f(accuracy['spread_deg'])}" if accuracy.get("spread_deg") is not None else "")
+            + f" deg ({accuracy['what']}; the accuracy this model carries)")
+    if accuracy.get("nested_deg") is not None:
+        line += (f"; beside it, the rule's nested score {_f(accuracy['nested_deg'])}"
+                 + (f" +/- {_f(accuracy['nested_spread_deg'])}" if accuracy.get("nested_spread_deg") is not None
+                    else "") + f" deg ({accuracy['nested_what']})")
+    return line
+
+
+def reference_phrase(field_reference: dict | None) -> str:
+    """Where a calibration's corrected field stands: scaled to a site (earth units) or relative."""
+    if field_reference is None:
+        return ("its corrected field is RELATIVE (no site when it was fitted: the sensor's own scale, not earth "
+                "units; give site.dip= site.field= or site.lat= site.lon= site.date= to calibrate in nT)")
+    return (f"its corrected field is in earth units, scaled to the site's |B| {field_reference['total_field_nT']:.0f} "
+            f"nT (dip {field_reference['dip_deg']:.2f} deg; {field_reference['origin']})")
+
+
 def calibrate_verdict(*, recommendation: dict | None, n_models: int, n_degenerate: int, n_fits: int,
-                      run_dir: str, held_out: dict | None = None, refused: str | None = None) -> Verdict:
+                      run_dir: str, held_out: dict | None = None, refused: str | None = None,
+                      accuracy: dict | None = None, field_reference: dict | None = None) -> Verdict:
     """The verdict of ``experiments.calibrate``.
 
     Args:
@@ -300,6 +347,8 @@ def calibrate_verdict(*, recommendation: dict | None, n_models: int, n_degenerat
         run_dir: the run directory (its ``models/`` folder).
         held_out: method -> mean held-out score (deg) of its sound fits, named when there is no recommendation.
         refused: why no calibration is recommended (the exit status is then :data:`EXIT_NO_RECOMMENDATION`).
+        accuracy: the recommended model's ``accuracy`` (what it carries, and apply prints); None: the record's.
+        field_reference: the recommended model's ``field_reference`` (None: relative).
     """
     qline = (f"{n_degenerate} of {n_fits} fits degenerate by the sanity check (dip spread, |B| spread, condition: "
              f"docs/calibrate.md); a degenerate fit is never recommended" if n_fits else "no fits")
@@ -318,30 +367,34 @@ def calibrate_verdict(*, recommendation: dict | None, n_models: int, n_degenerat
                        {"recommendation": None, "held_out": scores, "refused": refused})
     r = {k: recommendation.get(k) for k in RECOMMENDATION_KEYS}
     nested, nested_se = recommendation.get("accuracy_deg"), recommendation.get("accuracy_spread_deg")
-    if nested is not None:
-        acc = (f"held-out pointing spread {_f(nested)} deg" + (f" +/- {_f(nested_se)}" if nested_se is not None else "")
+    if accuracy is not None:
+        acc = f"{r['method']}: " + accuracy_line(accuracy)
+    elif nested is not None:
+        acc = (f"the rule's nested score {_f(nested)} deg" + (f" +/- {_f(nested_se)}" if nested_se is not None else "")
                + " (the peer's accuracy metric; nested: the choice made inside each held-out split's training shots, "
                "scored on the shots it did not see)")
     else:
         acc = ("not estimated: no held-out split (one roll too short to halve); the in-sample pointing spread is "
                f"{_f(r['held_out_deg'])} deg")
+    if recommendation.get("model"):
+        dom += "; " + reference_phrase(field_reference)
     winner = ("a clear winner" if r.get("clear_winner") else
               f"not a clear winner: {r.get('runner_up')} is as good within the spread" if r.get("runner_up") else
               "the only sound method")
     model = f"{r['model']} ({r['method']}), chosen by the rule: {r['criterion']}; {winner}"
     nxt = f"python -m experiments.apply model={run_dir} data=<your survey.csv>"  # the run's recommended model
     return Verdict(acc, dom, qline, model, nxt, "n/a", 0, {"recommendation": r, "accuracy_deg": nested,
-                                                          "accuracy_spread_deg": nested_se})
+                                                          "accuracy_spread_deg": nested_se, "accuracy": accuracy})
 
 
 def survey_verdict(res, model, bands, *, out_csv: str, model_path: str, survey_path: str,
-                   method: str | None = None) -> Verdict:
+                   method: str | None = None, reference: dict | None = None) -> Verdict:
     """:func:`apply_verdict` from what :func:`icgo.survey.apply.correct_survey` returned.
 
     Args:
         res: the :class:`icgo.survey.apply.CorrectedSurvey` (its ``stations`` arrays and ``domain``). model: the
             fitted model. bands: the QC bands used. out_csv, model_path, survey_path: for the lines. method: the
-            method applied.
+            method applied. reference: the QC reference used (named in the QC line).
     """
     from icgo.physics.frames import angle_diff
 
@@ -358,7 +411,7 @@ def survey_verdict(res, model, bands, *, out_csv: str, model_path: str, survey_p
                          ddip_deg=k.get("ddip_deg"), bands=bands, trained=getattr(model, "domain", None),
                          survey=survey or None, out_csv=out_csv, model_path=model_path, survey_path=survey_path,
                          trajectory={q: v for q, v in res.trajectory.items() if q != "table"} if res.trajectory else None,
-                         doubts=res.doubts)
+                         doubts=res.doubts, accuracy=getattr(model, "accuracy", None), reference=reference)
 
 
 def from_dict(d: dict) -> Verdict:
@@ -367,13 +420,13 @@ def from_dict(d: dict) -> Verdict:
 
 
 def study_verdict(metrics, coverage, *, selected: str, n_repeats: int, protocol: str, qc: dict | None,
-                  trained: dict | None, run_dir: str) -> Verdict:
+                  trained: dict | None, run_dir: str, model_interval_deg: float | None = None) -> Verdict:
     """:func:`run_verdict` from a study's tables.
 
     Args:
         metrics: per (method, repeat, split) MAE (``icgo.reporting.records`` ``metrics``; test rows used).
         coverage: per (method, repeat, fold) conformal ``halfwidth_deg``, ``coverage`` and ``level``, or None.
-        selected ... run_dir: see :func:`run_verdict`.
+        selected ... run_dir, model_interval_deg: see :func:`run_verdict`.
     """
     test = metrics[metrics["split"] == "test"]
     maes = {}
@@ -387,4 +440,5 @@ def study_verdict(metrics, coverage, *, selected: str, n_repeats: int, protocol:
         if len(c):
             hw, cov, level = float(c["halfwidth_deg"].mean()), float(c["coverage"].mean()), float(c["level"].iloc[0])
     return run_verdict(maes=maes, selected=selected, halfwidth_deg=hw, coverage=cov, level=level, n_repeats=n_repeats,
-                       protocol=protocol, qc=qc, trained=trained, run_dir=run_dir)
+                       protocol=protocol, qc=qc, trained=trained, run_dir=run_dir,
+                       model_interval_deg=model_interval_deg)
