@@ -218,4 +218,8 @@ def build(dirs, out: Path, results: Path = RESULTS_DIR) -> list[str]:
         per, settings, seeds = per_world(runs)
         BUILDERS[name](per, seeds, settings, out, results)
         done.append(name)
+    if done:
+        from icgo.studies.icgo_relm_results import worlds_orders
+
+        worlds_orders.build(out)  # the pairs of every table whose per-world rows are in out (this build's or before)
     return sorted(done)
