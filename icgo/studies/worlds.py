@@ -27,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
+from icgo.reporting.choices import LAB_CASING_DEVELOPMENT_SEEDS
 from icgo.reporting.worlds import WORLD
 from icgo.studies import icgo_relm as _study
 from icgo.studies import sharding, timing
@@ -40,7 +41,7 @@ from icgo.studies.icgo_relm_search import execution_record, search, search_aux, 
 #: (docs/relm_study.md) and the reliability checks; 1-5: the interval-coverage check (docs/qc.md) and the
 #: transfer target's noise seed; 7: the documented apply example; 0-11: the spike rate and filter, matched to the
 #: paper's 582 kept rows on these seeds (docs/datasets.md).
-DEVELOPMENT_SEEDS = tuple(range(12))
+DEVELOPMENT_SEEDS = LAB_CASING_DEVELOPMENT_SEEDS
 #: The first data seed of the reported worlds (``conf/experiment/*_worlds.yaml``: ``dataset.seed``).
 FIRST_REPORTED_SEED = 100
 

@@ -121,7 +121,7 @@ def stamp_line(results: Path) -> str:
     if not found:
         return f"{SETTINGS_PREFIX}not recorded (no worlds table beside the per-world rows)."
     if len(set(found.values())) == 1:
-        return f"{SETTINGS_PREFIX}{next(iter(found.values()))} (every worlds table's, whose per-world rows these are)"
+        return f"{SETTINGS_PREFIX}{next(iter(found.values()))} (Every worlds table's: these tests read their rows.)"
     return SETTINGS_PREFIX + " ".join(f"{t}: {v}" for t, v in found.items())
 
 

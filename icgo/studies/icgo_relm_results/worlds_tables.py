@@ -25,6 +25,13 @@ from icgo.reporting import stamp
 PLAN = (("table3", "table3_worlds", [], False), ("table1", "table1_worlds", [], True),
         ("table1_tuned", "table1_worlds", ["optimizer=none", "model.tune=true", "fitness=validation"], True),
         ("fig9", "fig9_worlds", [], True))
+#: What the spread beside the paper's Table 3 value is (its std over repeats of one data set, not over worlds).
+TABLE3_PAPER_SPREAD = "(std over its 10 repeats of one data set)"
+#: The legend under each pooled table: what the spreads beside ours and beside the paper's are.
+COLUMNS_NOTE = ("Columns: `MAE (deg)` and the other metrics are the mean +/- sample std over the worlds of each world's "
+                "mean over its repeats (a spread over data sets); `MAE (deg) paper` is the paper's value as it prints "
+                "it: Table 3's mean +/- std over its 10 repeats of one data set (a spread over splits and search keys, "
+                "not over worlds), Table 1's and Fig. 9's one split.")
 #: The table each preset label feeds.
 LABELS = {"table3_worlds": "table3", "table1_worlds": "table1", "fig9_worlds": "fig9"}
 
@@ -129,7 +136,7 @@ def _write(out: Path, name: str, title: str, pooled: pd.DataFrame, per: pd.DataF
     each = wide(per, methods).reset_index()
     each["world"] = each["world"].astype(int).astype(str)
     text = [f"# {title}", "", *([stamp_line, ""] if stamp_line else []), protocol, "",
-            pooled.to_markdown(index=False), "", *notes, "", "## Each world: mean test MAE (deg) over its repeats", "",
+            pooled.to_markdown(index=False), "", COLUMNS_NOTE, "", *notes, "", "## Each world: mean test MAE (deg) over its repeats", "",
             each.to_markdown(index=False, floatfmt=".4f"), ""]
     (out / f"{name}_worlds.md").write_text("\n".join(text).rstrip() + "\n")
 
@@ -150,7 +157,7 @@ def table3(per, seeds, settings, out: Path, results: Path) -> None:
 
     four = [f"cgo-{s}" for s in ("chaos", "gaussian", "wavelet", "three_stage")]
     methods = ["cgo-original", *four]
-    paper = {f"cgo-{s}": f"{v[0][0]:.4f} +/- {v[0][1]:.4f}" for s, v in ICGO["table3"].items()}
+    paper = {f"cgo-{s}": f"{v[0][0]:.4f} +/- {v[0][1]:.4f} {TABLE3_PAPER_SPREAD}" for s, v in ICGO["table3"].items()}
     pooled = _with_paper(world_tables.pooled(per, methods), paper)
     fr = [(k, world_tables.friedman_over_worlds(per, four, k)) for k in ("mae", "rmse")]
     fr_holm = holm([t.p_value for _, t in fr])
