@@ -10,8 +10,14 @@ features, failed repeats left out), runs the search of every (world, repeat) cel
 sharded over the devices (:func:`icgo.studies.icgo_relm_search.search_cells`), and scores each world on its own
 (:func:`icgo.studies.icgo_relm.finish`). Every world's rows are padded (weight-0 rows) to one shape, so every
 world runs the same compiled programs and a world's numbers do not depend on the other worlds: world k of a
-worlds run is bitwise world k run alone through :func:`run_worlds` on a CPU (tested), as a repeat of a batch is
-the repeat alone.
+worlds run is bitwise world k run alone through :func:`run_worlds` on a CPU in the same environment (tested), as a
+repeat of a batch is the repeat alone. Bitwise holds within one environment only (:mod:`icgo.core.environment`:
+the same Python, JAX/jaxlib, numpy, scipy, CPU or GPU and device count); in another, a one-ulp difference sends a
+chaotic search down another path, so rows differ and the pooled claims over worlds are what holds
+(docs/relm_study.md, "Worlds").
+
+By default a world varies only the noise draw of one simulated instrument; ``instruments`` (:mod:`icgo.datasets.
+instrument_family`) also draws each world's instrument from stated ranges.
 
 The worlds reported exclude every data seed any choice was made on (:data:`DEVELOPMENT_SEEDS`); the worlds
 presets start at :data:`FIRST_REPORTED_SEED`.

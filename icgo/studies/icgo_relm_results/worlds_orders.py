@@ -3,7 +3,7 @@
 The worlds tables (:mod:`icgo.studies.icgo_relm_results.worlds_tables`) test the pairs their builders name (Table 3:
 three-stage against each single strategy; Table 1 and Fig. 9: CGO-RELM against the others). A sentence that states
 any other order (Table 3's third place, Fig. 9's PSO < GA, the tuned RELM against three-stage) needs a test of its
-own. :func:`build` tests, from the committed per-world rows alone (``results/<name>_worlds_per_world.csv``, no run
+own. :func:`build` tests, from the committed per-world rows alone (``results/<stem>_per_world.csv``, no run
 needed), every pair of each table's methods, and the cross-table pairs of :data:`CROSS`:
 
 * each family (:data:`FAMILIES`) is fixed in advance: every pair of a table's methods (not the pairs the data put
@@ -25,13 +25,21 @@ from pathlib import Path
 import pandas as pd
 
 #: Family name -> (the per-world files whose rows it pairs, its methods, or None for every pair of them / the pairs).
+_T1, _T3 = ("relm", "relm-tuned", "cgo-original"), ("cgo-original", "cgo-chaos", "cgo-gaussian", "cgo-wavelet",
+                                                     "cgo-three_stage")
+#: (the per-world files' stems: ``results/<stem>_per_world.csv``). The instrument families are tested apart from
+#: the noise-only worlds (their own Holm families).
 FAMILIES = {
-    "table1": (("table1",), ("relm", "relm-tuned", "cgo-original"), None),
-    "table3": (("table3",), ("cgo-original", "cgo-chaos", "cgo-gaussian", "cgo-wavelet", "cgo-three_stage"), None),
-    "fig9": (("fig9",), ("pso", "ga", "cgo-original"), None),
+    "table1": (("table1_worlds",), _T1, None),
+    "table3": (("table3_worlds",), _T3, None),
+    "fig9": (("fig9_worlds",), ("pso", "ga", "cgo-original"), None),
+    "table1 (instruments)": (("table1_instruments",), _T1, None),
+    "table3 (instruments)": (("table3_instruments",), _T3, None),
 }
+#: Every per-world file the families read.
+STEMS = ("table1_worlds", "table3_worlds", "fig9_worlds", "table1_instruments", "table3_instruments")
 #: The cross-table family: the tuned RELM of Table 1 against the two ICGO-RELM variants the docs compare it with.
-CROSS = ("table1 x table3", ("table1", "table3"),
+CROSS = ("table1 x table3", ("table1_worlds", "table3_worlds"),
          (("relm-tuned", "cgo-three_stage"), ("relm-tuned", "cgo-wavelet")))
 #: Where the tests are written (beside the worlds tables).
 NAME = "worlds_orders"
@@ -49,7 +57,7 @@ def _rows(results: Path, tables) -> pd.DataFrame | None:
     is run by Table 1's and Table 3's presets alike) keeps each file's rows under its own table."""
     parts = []
     for t in tables:
-        path = Path(results) / f"{t}_worlds_per_world.csv"
+        path = Path(results) / f"{t}_per_world.csv"
         if not path.is_file():
             return None
         parts.append(pd.read_csv(path).assign(table=t))
@@ -112,8 +120,8 @@ def stamp_line(results: Path) -> str:
     from icgo.reporting.protocol import SETTINGS_PREFIX
 
     found = {}
-    for t in ("table1", "table3", "fig9"):
-        path = Path(results) / f"{t}_worlds.md"
+    for t in STEMS:
+        path = Path(results) / f"{t}.md"
         if path.is_file():
             line = next((x for x in path.read_text().splitlines() if x.startswith(SETTINGS_PREFIX)), None)
             if line:
@@ -135,18 +143,19 @@ def build(results: Path, out: Path | None = None) -> bool:
     df = tests(results)
     if df.empty:
         return False
-    seeds = sorted({int(s) for t in ("table1", "table3", "fig9")
-                    if (Path(results) / f"{t}_worlds_per_world.csv").is_file()
-                    for s in pd.read_csv(Path(results) / f"{t}_worlds_per_world.csv")["world"]})
+    present = [t for t in STEMS if (Path(results) / f"{t}_per_world.csv").is_file()]
+    seeds = sorted({int(s) for t in present for s in pd.read_csv(Path(results) / f"{t}_per_world.csv")["world"]})
     fams = list(dict.fromkeys(df["family"]))
     protocol = protocol_line(
         "`python -m experiments.worlds_tables --orders` (from the committed per-world rows "
-        + ", ".join(f"`results/{t}_worlds_per_world.csv`" for t in ("table1", "table3", "fig9")) + "; "
+        + ", ".join(f"`results/{t}_per_world.csv`" for t in present) + "; "
         "`python -m experiments.worlds_tables` writes it with the worlds tables)",
         "each world's mean over its repeats (the worlds tables' rows; the same worlds, splits and keys for every "
         "method, so every pair is paired by world)",
         "each worlds table's: random 7:3 of each world's rows, scored on the test rows",
-        f"data: lab_casing noise seeds {seeds_text(seeds)} (one world each; development seeds are none of them)",
+        f"data: lab_casing data seeds {seeds_text(seeds)} (one world each; development seeds are none of them); the "
+        "families marked (instruments) read the worlds of an instrument family (instrument=family: each seed also "
+        "draws its instrument), the others the noise-only worlds of one instrument",
         "Wilcoxon signed-rank, two-sided, over worlds of the per-world mean test MAE, every pair of each table's "
         "methods fixed in advance; Holm within each family (" + ", ".join(
             f"{f}: {int(df[df.family == f]['family size'].iloc[0])} tests" for f in fams) + ")")
