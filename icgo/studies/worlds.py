@@ -16,8 +16,9 @@ the same Python, JAX/jaxlib, numpy, scipy, CPU or GPU and device count); in anot
 chaotic search down another path, so rows differ and the pooled claims over worlds are what holds
 (docs/relm_study.md, "Worlds").
 
-By default a world varies only the noise draw of one simulated instrument; ``instruments`` (:mod:`icgo.datasets.
-instrument_family`) also draws each world's instrument from stated ranges.
+By default a world varies only the noise draw of one simulated instrument; with ``lab_casing``'s
+``instrument="family"`` (``dataset.kwargs.instrument=family``, the ``*_instruments`` presets) each world also draws
+its instrument from stated ranges (:mod:`icgo.datasets.instrument_family`).
 
 The worlds reported exclude every data seed any choice was made on (:data:`DEVELOPMENT_SEEDS`); the worlds
 presets start at :data:`FIRST_REPORTED_SEED`.
