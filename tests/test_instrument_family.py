@@ -12,18 +12,18 @@ from icgo.datasets.casing_stations import LAB_EFFECTS, lab_casing
 
 
 def test_the_instrument_is_a_function_of_the_seed_alone():
-    a, b, c = F.draw(100), F.draw(100), F.draw(101)
+    a, b, c = F.draw(100, LAB_EFFECTS), F.draw(100, LAB_EFFECTS), F.draw(101, LAB_EFFECTS)
     assert a == b and a != c
     # its own stream: the noise streams of the seed (SeedSequence(seed).spawn(2)) are not it
     noise = [np.random.default_rng(s).uniform() for s in np.random.SeedSequence(100).spawn(2)]
     assert F.instrument_rng(100).uniform() not in noise
     with pytest.raises(ValueError, match="seed -1"):
-        F.draw(-1)
+        F.draw(-1, LAB_EFFECTS)
 
 
 def test_every_draw_is_within_the_stated_ranges_and_spans_them():
     r = F.LAB_RANGES
-    draws = [F.draw(s) for s in range(400)]
+    draws = [F.draw(s, LAB_EFFECTS) for s in range(400)]
     dist = np.array([d.casing_distance_m for d in draws])
     mag = np.array([d.casing_magnetization_A_m for d in draws])
     noise = np.array([d.noise_factor for d in draws])
@@ -38,11 +38,11 @@ def test_every_draw_is_within_the_stated_ranges_and_spans_them():
         for k, p in LAB_EFFECTS.items():
             np.testing.assert_allclose(d.effects[k], np.asarray(p) * np.asarray(d.effects_factors[k]), rtol=0)
     with pytest.raises(ValueError, match="noise_factor"):
-        F.draw(0, ranges=F.InstrumentRanges(noise_factor=(2.0, 1.0)))
+        F.draw(0, LAB_EFFECTS, ranges=F.InstrumentRanges(noise_factor=(2.0, 1.0)))
 
 
 def test_a_family_world_is_the_drawn_instrument_set_by_hand():
-    d = F.draw(7)
+    d = F.draw(7, LAB_EFFECTS)
     fam = lab_casing(7, instrument="family")
     hand = lab_casing(7, casing_distance_m=d.casing_distance_m, casing_magnetization_A_m=d.casing_magnetization_A_m,
                       effects=d.effects, noise_scale=d.noise_factor)

@@ -91,19 +91,15 @@ def _log_uniform(rng, lo: float, hi: float) -> float:
     return float(np.exp(rng.uniform(np.log(lo), np.log(hi)))) if hi > lo else float(lo)
 
 
-def draw(seed: int, base_effects: dict | None = None, ranges: InstrumentRanges = LAB_RANGES) -> InstrumentDraw:
+def draw(seed: int, base_effects: dict, ranges: InstrumentRanges = LAB_RANGES) -> InstrumentDraw:
     """The instrument of data seed ``seed``: one draw from ``ranges`` (the same for the same seed).
 
     Args:
         seed: the data seed (a world's).
-        base_effects: name -> parameters scaled by the draw (default :data:`icgo.datasets.casing_stations.
-            LAB_EFFECTS`), in a fixed order (sorted names) so the draw does not depend on a dict's order.
+        base_effects: name -> parameters scaled by the draw (``lab_casing``'s: :data:`icgo.datasets.casing_stations.
+            LAB_EFFECTS` by default), in a fixed order (sorted names) so the draw does not depend on a dict's order.
         ranges: :class:`InstrumentRanges`.
     """
-    if base_effects is None:
-        from icgo.datasets.casing_stations import LAB_EFFECTS
-
-        base_effects = LAB_EFFECTS
     ranges.check()
     rng = instrument_rng(seed)
     dist = float(rng.uniform(*ranges.casing_distance_m))
