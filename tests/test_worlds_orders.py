@@ -47,8 +47,9 @@ def test_every_family_is_every_pair_of_its_table_fixed_in_advance():
         n = len(methods)
         assert pairs is None and len(O.family_pairs(methods)) == n * (n - 1) // 2, name
     got = O.tests(RESULTS)
-    assert dict(got.groupby("family")["family size"].first()) == {"table1": 3, "table3": 10, "fig9": 3,
-                                                                  "table1 x table3": 2}
+    assert dict(got.groupby("family")["family size"].first()) == {
+        "table1": 3, "table3": 10, "fig9": 3, "table1 x table3": 2, "table1 (instruments)": 3,
+        "table3 (instruments)": 10}
 
 
 def test_carried_untested_and_pair_read_the_order_either_way_round():
@@ -127,3 +128,12 @@ def test_tuned_relm_against_three_stage_flipped_fails_the_render(copy):
     assert O.build(copy)
     hits = _problems(copy, 'carried([tx], "cgo-three_stage", "relm-tuned")')
     assert [h.split(":")[0] for h in hits] == ["README.md"], hits
+
+
+def test_the_instrument_family_order_flipped_fails_the_render(copy):
+    """Wavelet and three-stage swapped in the instrument family's rows: the README's and docs/relm_study.md's
+    sentences that the wavelet is first over the family fail."""
+    _swap(copy / "table3_instruments_per_world.csv", "cgo-wavelet", "cgo-three_stage")
+    assert O.build(copy)
+    hits = [p for p in D.check(D.documents(), copy) if 'family="table3 (instruments)"' in p or "carried(q3" in p]
+    assert {h.split(":")[0] for h in hits} == {"README.md", "docs/relm_study.md"}, hits
