@@ -107,6 +107,10 @@ def test_budget_and_optimizer_groups():
     ("table3", lambda c: len(c.strategy.names) == 5 and c.split.n_repeats == 10),
     ("fig12_13", lambda c: len(c.strategy.names) == 5 and c.split.n_repeats == 10),
     ("table4", lambda c: c.dataset.name == "well_conditions" and len(c.strategy.names) == 5),
+    ("table3_instruments", lambda c: c.dataset.kwargs.instrument == "family" and c.worlds == 10
+     and len(c.strategy.names) == 5 and c.dataset.seed == 100),
+    ("table1_instruments", lambda c: c.dataset.kwargs.instrument == "family" and c.worlds == 10
+     and c.hydra.sweeper.params.optimizer == "none,cgo"),
 ])
 def test_presets_compose(preset, check):
     cfg = _compose([f"experiment={preset}"], hydra=True)

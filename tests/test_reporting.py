@@ -81,6 +81,42 @@ def test_every_result_table_carries_the_stamp_of_its_runs(path):
     assert stamped, f"results/{rel}: no '{SETTINGS_PREFIX}...' line (icgo.reporting.protocol.settings_line)"
 
 
+@pytest.mark.parametrize("path", _result_tables(), ids=lambda p: str(p.relative_to(RESULTS)))
+def test_every_stamp_names_the_environment_its_numbers_were_made_in(path):
+    """Python, JAX/jaxlib, numpy, scipy, the CPU, the backend and device count (icgo.core.environment), or "not
+    recorded" for runs from before run.json recorded them."""
+    from icgo.reporting.protocol import ENVIRONMENT_PREFIX
+
+    for line in path.read_text().splitlines():
+        if line.startswith(SETTINGS_PREFIX):
+            env = line.split(ENVIRONMENT_PREFIX, 1)[1] if ENVIRONMENT_PREFIX in line else ""
+            assert env.startswith(("not recorded", "Python ")), f"results/{path.relative_to(RESULTS)}: {line[:120]}"
+
+
+def test_the_environment_stamp_from_a_run_record_and_from_this_process(tmp_path):
+    import json
+    import platform
+
+    from icgo.core import environment as E
+    from icgo.reporting import stamp
+    from icgo.reporting.protocol import settings_line
+
+    env = {"python": "3.12.1", "jax": "0.12.1", "jaxlib": "0.12.1", "numpy": "2.4.6", "scipy": "1.18.1",
+           "cpu": "Some CPU", "backend": "gpu", "device": "NVIDIA H100", "device_count": 2}
+    assert E.describe(env) == ("Python 3.12.1, jax 0.12.1, jaxlib 0.12.1, numpy 2.4.6, scipy 1.18.1, CPU Some CPU, "
+                               "gpu NVIDIA H100 x 2 device(s)")
+    assert E.describe(None) == "not recorded"
+    (tmp_path / "run.json").write_text(json.dumps({"environment": env}))
+    assert stamp.run_settings(tmp_path)["environment"] == E.describe(env)
+    assert stamp.run_settings(tmp_path / "none")["environment"] == "not recorded"
+    text = stamp.describe([{"pop_size": 30, "iterations": 100, "n_repeats": 10, "dtype": "float32",
+                            "environment": E.describe(env)}])["text"]
+    assert text.endswith(f"Environment: {E.describe(env)}.")
+    here = E.environment()
+    assert here["python"] == platform.python_version() and here["device_count"] >= 1
+    assert settings_line("b", "r", "d", "p.").endswith(f"p. Environment: {E.here()}.")
+
+
 def test_the_writers_stamp_their_tables():
     """The stamp lines of the MISMA, gyro and discrepancy writers, from their default configs."""
     from icgo.discrepancy.config import WorkflowConfig
@@ -208,20 +244,23 @@ def _paragraph(doc: Path, marker: str) -> str:
 
 def test_calibrate_held_out_comparison():
     """docs/calibrate.md's held-out comparison of twelve+axis+relm, recomputed from results/calibration_devices.csv:
-    paired Wilcoxon over the splits where both fits are sound, Holm over the 5 comparisons. The means and counts are
-    rendered from the CSV (their markers read as the text they render); the p-values, which no results file holds,
-    are typed and checked here."""
+    per device, the mean over its held-out splits where both fits are sound (a device's splits share its data: the
+    device is the independent unit), paired Wilcoxon over devices, Holm over the 5 comparisons. The means and counts
+    are rendered from the CSV (their markers read as the text they render); the p-values, which no results file
+    holds, are typed and checked here."""
     import pandas as pd
 
     from icgo.maths.stats import holm, wilcoxon_paired
 
     d = pd.read_csv(RESULTS / "calibration_devices.csv")
     d = d[d.outer.isna()] if "outer" in d.columns else d  # the in-sample and held-out splits, not the inner ones
-    h = d[d.split != "in-sample"].pivot_table(index=["recording", "split"], columns="method", values="score_deg")
+    d = d[(d.split != "in-sample") & ~d.degenerate.astype(bool)]
+    h = d.pivot_table(index=["recording", "split"], columns="method", values="score_deg")
     others = ["peer_fit_non_linear", "twelve+axis", "joint", "misma+axis", "peer_fit_to_axis"]
     rows = []
     for o in others:
-        w = h[["twelve+axis+relm", o]].dropna()
+        w = h[["twelve+axis+relm", o]].dropna().groupby(level="recording").mean()  # one pair per device
+        assert w.index.is_unique and len(w) <= d.recording.nunique()
         rows.append((o, len(w), w.mean().to_numpy(), int((w["twelve+axis+relm"] < w[o]).sum()),
                      wilcoxon_paired(w["twelve+axis+relm"], w[o]).p_value))
     p_holm = holm([r[4] for r in rows])
@@ -229,6 +268,6 @@ def test_calibrate_held_out_comparison():
                                                       "test_calibrate_held_out_comparison")
     text = " ".join(re.sub(r"<!--.*?-->", "", item, flags=re.S).split())
     for (o, n, means, lower, p), ph in zip(rows, p_holm):
-        assert f"({n} splits) {means[0]:.3f} vs {means[1]:.3f}, lower on {lower} of {n}" in text, o
+        assert f"({n} devices) {means[0]:.3f} vs {means[1]:.3f}, lower on {lower} of {n}" in text, o
         assert f"`{o.removeprefix('peer_')}` p = {p:.2g}, Holm {ph:.2g}" in text, o
     assert min(p_holm) >= ALPHA and "None is below 0.05 after Holm" in text

@@ -114,6 +114,7 @@ def lab_casing(
     noise_scale: float = 1.0,
     casing_distance_m: float | None = None,
     casing_magnetization_A_m: float | None = None,
+    instrument: str = "fixed",
 ) -> Dataset:
     """ICGO paper section 3.1: horizontal inclinometer turned about its axis near a magnetized casing.
 
@@ -155,6 +156,11 @@ def lab_casing(
             keeps ``casing`` as given (the lab's 1 m).
         casing_magnetization_A_m: the casing's axial magnetization (A/m); ``None`` keeps
             ``casing``'s (8000 A/m by default). Both casing options are ignored without a casing.
+        instrument: ``"fixed"`` (the instrument above, whatever the seed) or ``"family"``: the seed also draws the
+            instrument (the casing's distance and magnetization, a factor on each of ``effects``' parameters and
+            one on the noise) from :data:`icgo.datasets.instrument_family.LAB_RANGES`, from a stream of its own
+            (:func:`icgo.datasets.instrument_family.draw`); ``meta["instrument"]`` and ``truth["instrument"]``
+            hold the draw. ``casing_distance_m`` and ``casing_magnetization_A_m`` must then be left unset.
     Returns:
         Dataset; ``truth`` has the effects, casing, geometry, noise, the rows
         that had spikes and the rows the filter dropped, and the casing field
@@ -169,6 +175,18 @@ def lab_casing(
         raise ValueError(f"lab_casing: inclination_deg {inclination_deg} must be in [0, 180]")
     if not noise_scale >= 0.0:
         raise ValueError(f"lab_casing: noise_scale {noise_scale} must be >= 0")
+    drawn = None
+    if instrument == "family":
+        from icgo.datasets import instrument_family
+
+        if casing is None or casing_distance_m is not None or casing_magnetization_A_m is not None:
+            raise ValueError("lab_casing: instrument='family' draws the casing; leave casing_distance_m and "
+                             "casing_magnetization_A_m unset and keep a casing")
+        drawn = instrument_family.draw(seed, _effects_dict(effects))
+        casing_distance_m, casing_magnetization_A_m = drawn.casing_distance_m, drawn.casing_magnetization_A_m
+        effects, noise_scale = drawn.effects, noise_scale * drawn.noise_factor
+    elif instrument != "fixed":
+        raise ValueError(f"lab_casing: instrument must be 'fixed' or 'family', got {instrument!r}")
     if casing is not None and casing_distance_m is not None:
         casing = ins.casing_at_distance(casing, float(casing_distance_m))
     if casing is not None and casing_magnetization_A_m is not None:
@@ -183,7 +201,9 @@ def lab_casing(
         pivot_ned=(0.0, 0.0, 0.0), lever_tool=(sensor_offset_m, 0.0, sensor_lever_m),
         effects=eff, n_samples=n_samples, accel_noise_g=noise_scale * accel_noise_g,
         mag_noise_nT=noise_scale * mag_noise_nT, spike_prob=spike_prob, spike_nT=spike_nT, outlier_sigma=outlier_sigma,
-        extra_truth={"toolface_end_inclusive": toolface_end_inclusive},
+        extra_truth={"toolface_end_inclusive": toolface_end_inclusive,
+                     **({"instrument": drawn.as_dict()} if drawn else {})},
+        extra_meta={"instrument": drawn.as_dict()} if drawn else None,
     )
 
 
@@ -215,7 +235,7 @@ def _station_fields(A, I, T, total_field_nT, dip_deg, gravity_g, casing, pivot_n
 
 def _station_survey(name, seed, A, I, T, total_field_nT, dip_deg, gravity_g, casing, pivot_ned, lever_tool,
                     effects, n_samples, accel_noise_g, mag_noise_nT, spike_prob, spike_nT, outlier_sigma,
-                    extra_truth=None, extra_cols=None) -> Dataset:
+                    extra_truth=None, extra_cols=None, extra_meta=None) -> Dataset:
     """Static stations near a casing: ideal sensors + casing + effects + averaged noise + 3-sigma filter."""
     Gm, Bm, b_cas = _station_fields(np.asarray(A, float), np.asarray(I, float), np.asarray(T, float),
                                     float(total_field_nT), float(dip_deg), float(gravity_g), _hashable(casing),
@@ -238,6 +258,7 @@ def _station_survey(name, seed, A, I, T, total_field_nT, dip_deg, gravity_g, cas
         "name": name, "seed": int(seed), "total_field_nT": float(total_field_nT), "dip_deg": float(dip_deg),
         "declination_deg": 0.0, "gravity_g": float(gravity_g), "azimuth_reference": "magnetic",
         "n_raw_rows": int(n), "n_rows": int(keep.sum()), "samples_per_row": int(n_samples),
+        **(extra_meta or {}),
     }
     truth = {
         "effects": {k: v.tolist() for k, v in effects.items()},

@@ -23,6 +23,8 @@ PROTOCOL_FIELDS = ("command", "repeats", "split", "seeds", "test")
 _PREFIX = "Protocol: "
 #: How a table's stamp line starts.
 SETTINGS_PREFIX = "Run settings: "
+#: How the environment sentence of a stamp starts (the last sentence of its line).
+ENVIRONMENT_PREFIX = "Environment: "
 _FIELD = re.compile(r"(?:^|; )(" + "|".join(PROTOCOL_FIELDS) + r"): ")
 
 
@@ -45,20 +47,27 @@ def protocol_line(command: str, repeats: str, split: str, seeds: str, test: str)
     return _PREFIX + "; ".join(f"{k}: {str(v).strip()}" for k, v in values.items())
 
 
-def settings_line(budget: str, repeats: str, dtype: str, paper: str) -> str:
-    """``Run settings: <budget>, <repeats>, <dtype>. <paper>`` (one Markdown line): the stamp of a table, from the
-    runs its numbers come from.
+def settings_line(budget: str, repeats: str, dtype: str, paper: str, environment: str | None = None) -> str:
+    """``Run settings: <budget>, <repeats>, <dtype>. <paper> Environment: <environment>.`` (one Markdown line): the
+    stamp of a table, from the runs its numbers come from.
 
     Args:
         budget: what each search or fit was given (population x iterations, evaluations, steps, epochs).
         repeats: how many repeats (seeds, runs) each number pools.
         dtype: the floating-point type the search or fit ran in.
         paper: whether these are the published protocol's settings, which ones differ, or that the source gives none.
+        environment: the software and hardware the numbers were made with (:func:`icgo.core.environment.describe`
+            of the runs' records); None: this process's (a writer that computes its numbers where it writes them).
     """
     for k, v in (("budget", budget), ("repeats", repeats), ("dtype", dtype), ("paper", paper)):
         if not str(v).strip():
             raise ValueError(f"settings_line: {k} is empty")
-    return f"{SETTINGS_PREFIX}{budget.strip()}, {repeats.strip()}, {dtype.strip()}. {paper.strip()}"
+    if environment is None:
+        from icgo.core.environment import here
+
+        environment = here()
+    return (f"{SETTINGS_PREFIX}{budget.strip()}, {repeats.strip()}, {dtype.strip()}. {paper.strip()} "
+            f"{ENVIRONMENT_PREFIX}{environment.strip().rstrip('.')}.")
 
 
 def parse_protocols(text: str) -> list[dict]:

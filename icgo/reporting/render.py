@@ -35,7 +35,9 @@ calls of the functions below: no attributes, no other names. Sources (paths rela
 Helpers: ``num(s)`` (the first number in ``"0.0295 +/- 0.0021"``), ``nums(s)`` (all of them), ``sd(s)`` (the number
 after ``+/-``), ``col(rows, name)`` (one column of a list of rows), ``where(rows, **equal)`` (the rows whose columns
 equal the values), ``join(values, sep, spec)`` (formatted and joined), ``lines(rows)`` (joined by newlines),
-``split(s, sep)``, ``items(d)`` (a dict's pairs), ``abs``, ``min``, ``max``, ``sum``, ``len``, ``round``,
+``split(s, sep)``, ``items(d)`` (a dict's pairs), ``pair(rows, x, y)`` (the row of paired tests, columns ``a`` and
+``b``, comparing x with y), ``carried(rows, lower, higher)`` (that row's Holm p < 0.05 with ``lower`` below: the
+order a sentence states is carried by a test), ``untested(rows, x, y)`` (its Holm p >= 0.05), ``abs``, ``min``, ``max``, ``sum``, ``len``, ``round``,
 ``sorted``, ``set``, ``list``, ``int``, ``float``, ``any``, ``all``, ``mean``, ``median``. A value that renders as NaN
 or infinity is an error, never written.
 """
@@ -273,8 +275,31 @@ def items(mapping) -> list:
     return list(dict(mapping).items())
 
 
+def pair(rows, x, y):
+    """The one row of paired tests (columns ``a``, ``b``) that compares ``x`` with ``y``, either way round."""
+    rows = list(rows.values()) if isinstance(rows, dict) else rows
+    hits = [r for r in rows if {r.get("a"), r.get("b")} == {x, y}]
+    if len(hits) != 1:
+        raise RenderError(f"pair({x!r}, {y!r}): {len(hits)} rows compare them (give one family's rows)")
+    return hits[0]
+
+
+def carried(rows, lower, higher, alpha: float = 0.05) -> bool:
+    """Whether the paired tests ``rows`` carry ``lower < higher``: their row (:func:`pair`) has ``p (Holm)`` below
+    ``alpha`` and its median difference puts ``lower`` below. False also when the order is the other way or untested."""
+    r = pair(rows, lower, higher)
+    d = r["median difference a - b"] * (1 if r["a"] == lower else -1)
+    return r["p (Holm)"] < alpha and d < 0
+
+
+def untested(rows, x, y, alpha: float = 0.05) -> bool:
+    """Whether the paired tests ``rows`` leave the order of ``x`` and ``y`` untested (``p (Holm)`` >= ``alpha``)."""
+    return not pair(rows, x, y)["p (Holm)"] < alpha
+
+
 HELPERS = {"num": num, "nums": nums, "sd": sd, "col": col, "where": where, "join": join, "lines": lines,
-           "split": split, "items": items, "abs": abs, "min": min, "max": max, "sum": sum, "len": len, "round": round,
+           "split": split, "items": items, "pair": pair, "carried": carried, "untested": untested, "abs": abs,
+           "min": min, "max": max, "sum": sum, "len": len, "round": round,
            "sorted": sorted, "set": set, "list": list, "int": int, "float": float, "any": any, "all": all,
            "mean": statistics.fmean, "median": statistics.median}
 #: Every name a marker may call.

@@ -37,7 +37,28 @@ def run_settings(run_dir: Path) -> dict:
     return {"pop_size": b.get("pop_size"), "iterations": b.get("iterations"), "max_evals": b.get("max_evals"),
             "dtype": precision, "n_repeats": s.get("n_repeats"), "protocol": s.get("protocol"),
             "train_fraction": s.get("train_fraction"), "split_seed": s.get("seed"), "dataset": d.get("name"),
-            "data_seed": d.get("seed")}
+            "data_seed": d.get("seed"), "environment": run_environment(run_dir)}
+
+
+def run_environment(run_dir: Path) -> str:
+    """The environment one run recorded (run.json's ``environment``, :func:`icgo.core.environment.describe`), or
+    ``"not recorded"`` (a run from before runs recorded it, or no run.json)."""
+    import json
+
+    from icgo.core.environment import describe as describe_env
+
+    try:
+        env = json.loads((Path(run_dir) / "run.json").read_text()).get("environment")
+    except (OSError, ValueError, AttributeError):
+        env = None
+    return describe_env(env)
+
+
+def environments(settings: list[dict]) -> str:
+    """Each distinct environment of the runs, joined by ``"; "`` (the stamp's environment sentence). Rows reproduce
+    bitwise only in the same environment; across environments the pooled claims hold (docs/relm_study.md)."""
+    envs = list(dict.fromkeys(s.get("environment") or "not recorded" for s in settings)) or ["not recorded"]
+    return "; ".join(envs)
 
 
 def describe(settings: list[dict]) -> dict:
@@ -67,7 +88,7 @@ def describe(settings: list[dict]) -> dict:
                          + parts[-1][0], parts[-1][1], parts[-1][2],
                          "The paper's protocol (population 30 x 100 iterations)." if paper else
                          "NOT the paper's protocol (population 30 x 100 iterations): compare with the paper's numbers "
-                         "only as a smoke check.")
+                         "only as a smoke check.", environments(settings))
     p, it, ev, _, n = seen[0]
     short = (f"{p} x {it if ev is None else str(ev) + ' evals'}, {n} repeat(s)" + ("" if len(seen) == 1 else ", mixed")
              + ("" if paper else ": NOT the paper's protocol"))
@@ -86,8 +107,6 @@ def _values(settings: list[dict], key: str) -> list:
 
 def _split_and_seeds(settings: list[dict]) -> dict:
     """The protocol line's repeats, split and seeds fields for runs with these settings."""
-    from icgo.reporting.choices import LAMBDA
-
     def listed(key, unknown="not recorded"):
         v = _values(settings, key)
         return ", ".join(str(x) for x in v) if v else unknown
@@ -104,10 +123,19 @@ def _split_and_seeds(settings: list[dict]) -> dict:
             parts.append(f"{protocol} (docs/generalisation.md)")
     seeds = (f"data: {listed('dataset', 'the data set')} with noise seed {listed('data_seed')}; repeat k: split and "
              f"search key fold_in(PRNGKey({listed('split_seed')}), k), the same for every method (paired repeats). "
-             f"No setting was chosen on these seeds' test rows ({LAMBDA.sentence()}; the tuned RELM chooses on "
-             "validation rows inside each training set)")
+             + seeds_choices([(s.get("dataset"), s.get("data_seed")) for s in settings]))
     return {"repeats": f"{repeats} per run (paired: the same splits and keys for every method)",
             "split": "; ".join(parts), "seeds": seeds}
+
+
+def seeds_choices(data) -> str:
+    """What was chosen on data, for the seeds field of a one-draw table made from ``data`` ((dataset, seed) pairs):
+    the ridge and the tuned RELM's grid, and, on a development seed, that the table is one draw and not a claim."""
+    from icgo.reporting.choices import LAMBDA, development_note
+
+    notes = [n for n in dict.fromkeys(development_note(d, s) for d, s in data) if n]
+    return (f"Settings chosen on data: {LAMBDA.sentence()}; the tuned RELM chooses on validation rows inside each "
+            "training set" + "".join(f"; {n}" for n in notes))
 
 
 @contextlib.contextmanager

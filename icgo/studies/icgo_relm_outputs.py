@@ -7,6 +7,8 @@ import json
 import time
 from pathlib import Path
 
+from icgo.core.environment import environment
+
 
 def method_label(method: str) -> str:
     """The method's name in every output (:func:`icgo.reporting.names.method_name`)."""
@@ -126,6 +128,7 @@ def write_run_files(outdir: Path, result, info: dict, frame, meta, plot, *, conf
     if result.tuning is not None:
         run["tuning"] = result.tuning
     run["verdict"] = verdict.as_dict()
+    run["environment"] = environment()  # what the numbers were made with (a table's stamp names it)
     missing = [k for k in run_records.RUN_KEYS if k not in run]
     assert not missing, f"run record lacks {missing}"  # a writer bug, not a user error
     (outdir / run_records.RUN_FILE).write_text(json.dumps(run, indent=2, default=str) + "\n")

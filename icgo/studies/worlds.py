@@ -10,8 +10,15 @@ features, failed repeats left out), runs the search of every (world, repeat) cel
 sharded over the devices (:func:`icgo.studies.icgo_relm_search.search_cells`), and scores each world on its own
 (:func:`icgo.studies.icgo_relm.finish`). Every world's rows are padded (weight-0 rows) to one shape, so every
 world runs the same compiled programs and a world's numbers do not depend on the other worlds: world k of a
-worlds run is bitwise world k run alone through :func:`run_worlds` on a CPU (tested), as a repeat of a batch is
-the repeat alone.
+worlds run is bitwise world k run alone through :func:`run_worlds` on a CPU in the same environment (tested), as a
+repeat of a batch is the repeat alone. Bitwise holds within one environment only (:mod:`icgo.core.environment`:
+the same Python, JAX/jaxlib, numpy, scipy, CPU or GPU and device count); in another, a one-ulp difference sends a
+chaotic search down another path, so rows differ and the pooled claims over worlds are what holds
+(docs/relm_study.md, "Worlds").
+
+By default a world varies only the noise draw of one simulated instrument; with ``lab_casing``'s
+``instrument="family"`` (``dataset.kwargs.instrument=family``, the ``*_instruments`` presets) each world also draws
+its instrument from stated ranges (:mod:`icgo.datasets.instrument_family`).
 
 The worlds reported exclude every data seed any choice was made on (:data:`DEVELOPMENT_SEEDS`); the worlds
 presets start at :data:`FIRST_REPORTED_SEED`.
@@ -27,6 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
+from icgo.reporting.choices import LAB_CASING_DEVELOPMENT_SEEDS
 from icgo.reporting.worlds import WORLD
 from icgo.studies import icgo_relm as _study
 from icgo.studies import sharding, timing
@@ -40,7 +48,7 @@ from icgo.studies.icgo_relm_search import execution_record, search, search_aux, 
 #: (docs/relm_study.md) and the reliability checks; 1-5: the interval-coverage check (docs/qc.md) and the
 #: transfer target's noise seed; 7: the documented apply example; 0-11: the spike rate and filter, matched to the
 #: paper's 582 kept rows on these seeds (docs/datasets.md).
-DEVELOPMENT_SEEDS = tuple(range(12))
+DEVELOPMENT_SEEDS = LAB_CASING_DEVELOPMENT_SEEDS
 #: The first data seed of the reported worlds (``conf/experiment/*_worlds.yaml``: ``dataset.seed``).
 FIRST_REPORTED_SEED = 100
 

@@ -13,6 +13,8 @@ import sys
 import time
 from pathlib import Path
 
+from icgo.core.environment import environment
+
 #: Tables of a worlds run directory (the one-world study's, less the per-row predictions).
 TABLES = ("metrics", "convergence", "msa", "coverage")
 WORLDS_FILE, POOLED_FILE = "worlds.csv", "worlds_pooled.csv"
@@ -92,6 +94,7 @@ def write_run_files(stage: Path, result, info: dict, *, config_yaml: str, search
            "repeat_ids": list(result.config.ids()), "models": [], "qc": None, "config_sha256": config_sha256,
            "worlds": {"seeds": list(result.seeds), "development_seeds": result.development},
            "excluded_repeats": [{"world": w, "repeat": r, "reason": why} for w, r, why in result.excluded]}
+    run["environment"] = environment()  # what the numbers were made with (a table's stamp names it)
     missing = [k for k in run_records.RUN_KEYS if k not in run]
     assert not missing, f"run record lacks {missing}"  # a writer bug, not a user error
     (stage / run_records.RUN_FILE).write_text(json.dumps(run, indent=2, default=str) + "\n")

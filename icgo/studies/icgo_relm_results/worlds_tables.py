@@ -22,16 +22,29 @@ from icgo.reporting import stamp
 
 #: (name, preset, extra overrides, whether the preset is a multirun): the runs each table is made from, into
 #: ``multirun/worlds/<name>``.
+_TUNED = ["optimizer=none", "model.tune=true", "fitness=validation"]
 PLAN = (("table3", "table3_worlds", [], False), ("table1", "table1_worlds", [], True),
-        ("table1_tuned", "table1_worlds", ["optimizer=none", "model.tune=true", "fitness=validation"], True),
-        ("fig9", "fig9_worlds", [], True))
-#: The table each preset label feeds.
-LABELS = {"table3_worlds": "table3", "table1_worlds": "table1", "fig9_worlds": "fig9"}
+        ("table1_tuned", "table1_worlds", _TUNED, True), ("fig9", "fig9_worlds", [], True))
+#: The same for the worlds over a family of instruments (``--plan instruments``): ``results/*_instruments.*``.
+INSTRUMENT_PLAN = (("table3_instruments", "table3_instruments", [], False),
+                   ("table1_instruments", "table1_instruments", [], True),
+                   ("table1_instruments_tuned", "table1_instruments", _TUNED, True))
+#: What the spread beside the paper's Table 3 value is (its std over repeats of one data set, not over worlds).
+TABLE3_PAPER_SPREAD = "(std over its 10 repeats of one data set)"
+#: The legend under each pooled table: what the spreads beside ours and beside the paper's are.
+COLUMNS_NOTE = ("Columns: `MAE (deg)` and the other metrics are the mean +/- sample std over the worlds of each world's "
+                "mean over its repeats (a spread over data sets); `MAE (deg) paper` is the paper's value as it prints "
+                "it: Table 3's mean +/- std over its 10 repeats of one data set (a spread over splits and search keys, "
+                "not over worlds), Table 1's and Fig. 9's one split.")
+#: The output each preset label feeds: its file stem (``results/<stem>.{md,csv}``, ``<stem>_per_world.csv``); the
+#: table it restates is the stem's first part.
+LABELS = {"table3_worlds": "table3_worlds", "table1_worlds": "table1_worlds", "fig9_worlds": "fig9_worlds",
+          "table3_instruments": "table3_instruments", "table1_instruments": "table1_instruments"}
 
 
 def plan_command(name: str, base: Path = Path("multirun/worlds")) -> list[str]:
     """The command that makes the runs of plan entry ``name``."""
-    _, preset, extra, multi = next(p for p in PLAN if p[0] == name)
+    _, preset, extra, multi = next(p for p in PLAN + INSTRUMENT_PLAN if p[0] == name)
     where = f"hydra.sweep.dir={base / name}" if multi else f"hydra.run.dir={base / name}"
     return [sys.executable, "-m", "experiments.run", *(["-m"] if multi else []), f"experiment={preset}", *extra, where]
 
@@ -101,37 +114,43 @@ def changed_note(name: str, per: pd.DataFrame, methods, results: Path) -> str:
             f"one-draw first, {method_name(one_order[0])}, is first in {int(firsts[one_order[0]])} of {n} worlds.")
 
 
-def _protocol(name: str, seeds, settings, test: str) -> str:
+def _protocol(stem: str, seeds, settings, test: str) -> str:
     from icgo.reporting import worlds as world_tables
     from icgo.reporting.protocol import protocol_line
     from icgo.studies.worlds import DEVELOPMENT_SEEDS
 
-    cmd = "`python -m experiments.worlds_tables --run` (the runs " + ", ".join(
-        f"`python {' '.join(plan_command(p[0])[1:])}`" for p in PLAN if p[0].startswith(name)) + ")"
+    family = stem.endswith("_instruments")
+    plan, name = (INSTRUMENT_PLAN, stem) if family else (PLAN, stem.removesuffix("_worlds"))
+    cmd = f"`python -m experiments.worlds_tables --run{' --plan instruments' if family else ''}` (the runs " + ", ".join(
+        f"`python {' '.join(plan_command(p[0])[1:])}`" for p in plan if p[0].startswith(name)) + ")"
+    data = (f"lab_casing with instrument=family, data seeds {world_tables.seeds_text(seeds)} (one world each: its "
+            "instrument drawn once from icgo.datasets.instrument_family.LAB_RANGES, its noise drawn as in every world)"
+            if family else f"lab_casing noise seeds {world_tables.seeds_text(seeds)} (one world each, one instrument)")
     n_rep = sorted({s.get("n_repeats") for s in settings if s.get("n_repeats")})
     return protocol_line(
         cmd, f"{len(seeds)} worlds, each the mean over its {', '.join(map(str, n_rep)) or '?'} repeats (paired: the "
              "same worlds, splits and keys for every method)",
         "random 7:3 of each world's 3-sigma-filtered rows, a new permutation per repeat; fitted (search fitness, "
         "MSA, ridge) on the training rows only, scored on the test rows",
-        f"data: lab_casing noise seeds {world_tables.seeds_text(seeds)} (one world each); world s, repeat k: split "
+        f"data: {data}; world s, repeat k: split "
         f"and search key fold_in(fold_in(PRNGKey(0), s), k). No world is a seed any choice was made on (development "
         f"seeds {world_tables.seeds_text(DEVELOPMENT_SEEDS)}: icgo.studies.worlds.DEVELOPMENT_SEEDS)", test)
 
 
-def _write(out: Path, name: str, title: str, pooled: pd.DataFrame, per: pd.DataFrame, methods, notes, protocol,
+def _write(out: Path, stem: str, title: str, pooled: pd.DataFrame, per: pd.DataFrame, methods, notes, protocol,
            settings) -> None:
     from icgo.reporting.worlds import wide
 
-    pooled.to_csv(out / f"{name}_worlds.csv", index=False)
-    per.to_csv(out / f"{name}_worlds_per_world.csv", index=False, float_format="%.10g")
+    pooled.to_csv(out / f"{stem}.csv", index=False)
+    per.to_csv(out / f"{stem}_per_world.csv", index=False, float_format="%.10g")
     stamp_line = stamp.describe(settings)["text"]
     each = wide(per, methods).reset_index()
     each["world"] = each["world"].astype(int).astype(str)
     text = [f"# {title}", "", *([stamp_line, ""] if stamp_line else []), protocol, "",
-            pooled.to_markdown(index=False), "", *notes, "", "## Each world: mean test MAE (deg) over its repeats", "",
+            pooled.to_markdown(index=False), "", COLUMNS_NOTE, "", *notes, "",
+            "## Each world: mean test MAE (deg) over its repeats", "",
             each.to_markdown(index=False, floatfmt=".4f"), ""]
-    (out / f"{name}_worlds.md").write_text("\n".join(text).rstrip() + "\n")
+    (out / f"{stem}.md").write_text("\n".join(text).rstrip() + "\n")
 
 
 def _with_paper(pooled: pd.DataFrame, paper: dict) -> pd.DataFrame:
@@ -142,7 +161,13 @@ def _with_paper(pooled: pd.DataFrame, paper: dict) -> pd.DataFrame:
     return pooled
 
 
-def table3(per, seeds, settings, out: Path, results: Path) -> None:
+def _title(stem: str, table: str, n: int) -> str:
+    """"Table 3 over 30 worlds" or, for a family of instruments, "Table 3 over 10 instruments"."""
+    return f"{table} over {n} " + ("instruments (worlds of an instrument family)" if stem.endswith("_instruments")
+                                   else "worlds")
+
+
+def table3(per, seeds, settings, out: Path, results: Path, stem: str = "table3_worlds") -> None:
     from icgo.maths.stats import holm
     from icgo.reporting import worlds as world_tables
     from icgo.reporting.names import method_name
@@ -152,7 +177,7 @@ def table3(per, seeds, settings, out: Path, results: Path) -> None:
     four = [f"cgo-{s}" for s in STRATEGIES4 if f"cgo-{s}" in set(per.method)]  # the registry's mutated ones run
     singles = [m for m in four if m != "cgo-three_stage"]
     methods = ["cgo-original", *four]
-    paper = {f"cgo-{s}": f"{v[0][0]:.4f} +/- {v[0][1]:.4f}" for s, v in ICGO["table3"].items()}
+    paper = {f"cgo-{s}": f"{v[0][0]:.4f} +/- {v[0][1]:.4f} {TABLE3_PAPER_SPREAD}" for s, v in ICGO["table3"].items()}
     pooled = _with_paper(world_tables.pooled(per, methods), paper)
     fr = [(k, world_tables.friedman_over_worlds(per, four, k)) for k in ("mae", "rmse")]
     fr_holm = holm([t.p_value for _, t in fr])
@@ -172,38 +197,38 @@ def table3(per, seeds, settings, out: Path, results: Path) -> None:
              f"RMSE, Holm over the {len(wil)} tests:", "", *world_tables.markdown_tests(wil)]
     test = (f"Friedman over worlds of the {len(four)} mutated strategies (MAE, RMSE: Holm over these 2) and Wilcoxon "
             f"signed-rank over worlds of three-stage against each single strategy (MAE, RMSE: Holm over these {len(wil)})")
-    _write(out, "table3", f"Table 3 over {len(seeds)} worlds: mean +/- std over worlds (test split)", pooled, per,
-           methods, notes, _protocol("table3", seeds, settings, test), settings)
+    _write(out, stem, f"{_title(stem, 'Table 3', len(seeds))}: mean +/- std over worlds (test split)", pooled, per,
+           methods, notes, _protocol(stem, seeds, settings, test), settings)
 
 
-def _pairs_table(name, title, methods, pairs, paper, per, seeds, settings, out, results) -> None:
+def _pairs_table(stem, title, methods, pairs, paper, per, seeds, settings, out, results) -> None:
     from icgo.reporting import worlds as world_tables
 
     methods = [m for m in methods if m in set(per["method"])]
     pairs = [(a, b) for a, b in pairs if a in methods and b in methods]
     pooled = _with_paper(world_tables.pooled(per, methods), paper)
     tests = world_tables.paired_tests(per, pairs)
-    notes = [changed_note(name, per, methods, results), "", world_tables.rank_sentence(per, methods), "",
+    notes = [changed_note(stem.split("_")[0], per, methods, results), "", world_tables.rank_sentence(per, methods), "",
              f"Wilcoxon signed-rank over worlds (paired by world, per-world mean test MAE), Holm over the {len(tests)} "
              "tests:", "", *world_tables.markdown_tests(tests)]
     test = f"Wilcoxon signed-rank over worlds on test MAE, Holm over the {len(tests)} tests below"
-    _write(out, name, title, pooled, per, methods, notes, _protocol(name, seeds, settings, test), settings)
+    _write(out, stem, title, pooled, per, methods, notes, _protocol(stem, seeds, settings, test), settings)
 
 
-def table1(per, seeds, settings, out: Path, results: Path) -> None:
+def table1(per, seeds, settings, out: Path, results: Path, stem: str = "table1_worlds") -> None:
     from icgo.reporting.published import ICGO
 
     paper = {m: f"{v[0]:.4f} (one split)" for m, v in ICGO["table1"].items()}
-    _pairs_table("table1", f"Table 1 over {len(seeds)} worlds: RELM vs CGO-RELM (test split)",
+    _pairs_table(stem, f"{_title(stem, 'Table 1', len(seeds))}: RELM vs CGO-RELM (test split)",
                  ["relm", "relm-tuned", "cgo-original"], [("cgo-original", "relm"), ("cgo-original", "relm-tuned")],
                  paper, per, seeds, settings, out, results)
 
 
-def fig9(per, seeds, settings, out: Path, results: Path) -> None:
+def fig9(per, seeds, settings, out: Path, results: Path, stem: str = "fig9_worlds") -> None:
     from icgo.reporting.published import ICGO
 
     paper = {m: f"{v[0]:.3f} (one split)" for m, v in ICGO["fig9"].items()}
-    _pairs_table("fig9", f"Fig. 9 over {len(seeds)} worlds: RELM tuned by PSO, GA and CGO (test split)",
+    _pairs_table(stem, f"{_title(stem, 'Fig. 9', len(seeds))}: RELM tuned by PSO, GA and CGO (test split)",
                  ["pso", "ga", "cgo-original"], [("cgo-original", "pso"), ("cgo-original", "ga")], paper, per, seeds,
                  settings, out, results)
 
@@ -216,8 +241,12 @@ def build(dirs, out: Path, results: Path = RESULTS_DIR) -> list[str]:
     ``results``); returns the names written."""
     out.mkdir(parents=True, exist_ok=True)
     done = []
-    for name, runs in read_runs(dirs).items():
+    for stem, runs in read_runs(dirs).items():
         per, settings, seeds = per_world(runs)
-        BUILDERS[name](per, seeds, settings, out, results)
-        done.append(name)
+        BUILDERS[stem.split("_")[0]](per, seeds, settings, out, results, stem=stem)
+        done.append(stem)
+    if done:
+        from icgo.studies.icgo_relm_results import worlds_orders
+
+        worlds_orders.build(out)  # the pairs of every table whose per-world rows are in out (this build's or before)
     return sorted(done)
