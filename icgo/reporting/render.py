@@ -187,8 +187,11 @@ class Sources:
         return _value(hits[0].group(1))
 
     def lock(self, package: str) -> str:
-        """The version ``requirements/dev.lock`` (beside the results directory) pins for ``package``."""
+        """The version ``requirements/dev.lock`` pins for ``package``: the lock beside the results directory, else the
+        repository's (a copy of results/ elsewhere still renders)."""
         path = self.results.parent / "requirements" / "dev.lock"
+        if not path.is_file():
+            path = Path(__file__).resolve().parents[2] / "requirements" / "dev.lock"
         if not path.is_file():
             raise RenderError(f"{path}: no such lock file")
         want = re.sub(r"[-_.]+", "-", package).lower()
