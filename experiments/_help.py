@@ -25,15 +25,23 @@ from experiments._preflight import group_options
 MAP_LINE = 8
 
 
-def field_docs(cls) -> dict[str, str]:
+def field_docs(cls, names=None) -> dict[str, str]:
     """Field name -> its text in the ``Attributes:`` section of ``cls``'s docstring (``a, b: text`` gives both;
-    several entries may share a line: ``a: text. b: text``)."""
+    several entries may share a line: ``a: text. b: text``). A docstring without one that names a class first
+    (``:class:`icgo.models.nets.NetConfig` defaults ...``) takes that class's entries for the same fields."""
     doc = inspect.getdoc(cls) or ""
+    names = set(names or (f.name for f in dataclasses.fields(cls)) if dataclasses.is_dataclass(cls)
+                else cls._fields)
     m = re.search(r"^Attributes:\n((?:[ \t]+\S.*\n?)+)", doc, re.M)
     if not m:
-        return {}
+        ref = re.match(r":class:`~?([\w.]+)\.(\w+)`", doc)
+        if ref is None:
+            return {}
+        try:
+            return field_docs(getattr(importlib.import_module(ref.group(1)), ref.group(2)), names)
+        except (ImportError, AttributeError):
+            return {}
     text = " ".join(line.strip() for line in m.group(1).splitlines())
-    names = {f.name for f in dataclasses.fields(cls)}
     anchors = [a for a in re.finditer(r"((?:[A-Za-z_]\w*, )*[A-Za-z_]\w*): ", text)
                if all(n in names for n in a.group(1).split(", "))
                and (a.start() == 0 or text[:a.start()].rstrip().endswith((".", ";")))]

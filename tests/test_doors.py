@@ -64,6 +64,13 @@ def test_field_docs_reads_every_entry_of_the_attributes_section():
                                 "d": "a long one that goes on.", "e": "on the same line; with a colon: inside."}
 
 
+def test_field_docs_of_a_section_that_mirrors_a_documented_class():
+    from icgo.models.nets import NetConfig
+    from icgo.studies.gyro import NetSection
+
+    assert field_docs(NetSection) == field_docs(NetConfig) and "epochs" in field_docs(NetSection)
+
+
 def test_yaml_comments_reads_the_line_and_the_lines_above(tmp_path):
     p = tmp_path / "c.yaml"
     p.write_text("# the site\nsite:\n  lat: null   # deg\n  lon: null\nn: 3  # count\n      # and more\nm: 1\n")
