@@ -12,7 +12,8 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from experiments._door import EXIT_CONFIG, bool_setting, hydra_keep, repo_path, write_hydra_record
+from experiments._door import bool_setting, hydra_keep, repo_path, write_hydra_record
+from experiments._preflight import EXIT_CONFIG
 from experiments._run_study import run_study, study_config
 from icgo.core.errors import SettingError
 from icgo.core.settings import error_status, first_line

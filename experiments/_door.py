@@ -22,7 +22,7 @@ from typing import NamedTuple
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
-from experiments._preflight import CONF_DIR, EXIT_CONFIG, STUDY_GROUPS, preflight
+from experiments._preflight import CONF_DIR, STUDY_GROUPS, preflight
 from icgo.core.settings import error_status
 
 

@@ -16,7 +16,8 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from experiments._door import EXIT_CONFIG, hydra_files, hydra_keep
+from experiments._door import hydra_files, hydra_keep
+from experiments._preflight import EXIT_CONFIG
 from experiments._run_study import run_composed, study_config
 from hydra_plugins.icgo_launcher.jobs import (FAILED, FAILURE_FILES, cfg_hash, config_difference, format_traceback,
                                              previous_run, stored_config, stored_hash, write_failure)
