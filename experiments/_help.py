@@ -140,7 +140,10 @@ def _value(v) -> str:
 
 def _settings(node: dict, docs: dict, nodes: set, comments: dict, width: int) -> list[str]:
     lines = []
-    for key, v in _leaves(node, lambda k: k in docs and k not in nodes):
+    def leaf(k):  # a documented field that is not a node: one setting, unless its YAML documents its keys
+        return k in docs and k not in nodes and not any(c.startswith(k + ".") for c in comments)
+
+    for key, v in _leaves(node, leaf):
         base = key[:-5] if key.endswith(".NAME") else key
         text = docs.get(base) or comments.get(base) or ""
         head = f"  {key} [{_value(v)}]"
