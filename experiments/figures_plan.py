@@ -10,7 +10,7 @@ from pathlib import Path
 
 import yaml
 
-from hydra_plugins.icgo_launcher.door import CONF_DIR, check_overrides, check_plain_overrides
+from experiments._preflight import CONF_DIR, check_overrides, check_plain_overrides
 from icgo.core.errors import SettingError
 from icgo.reporting.icgo_outputs import PLAN
 

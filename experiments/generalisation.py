@@ -42,7 +42,7 @@ def main(argv=None) -> int:
     """The command: options -> the study's config (a bad one: one line, exit 2) -> the one study main."""
     import dataclasses
 
-    from hydra_plugins.icgo_launcher.door import progress_to_stdout, run_study
+    from experiments._run_study import progress_to_stdout, run_study
     from icgo.core.errors import SettingError
     from icgo.io.files import results_output
     from icgo.studies.generalisation import GeneralisationConfig

@@ -1,14 +1,8 @@
-"""MISMA study entry point: ``conf/misma.yaml`` -> :mod:`icgo.studies.misma` -> ``results/misma_*``.
+"""MISMA study, the Hydra front door: ``icgo misma [KEY=VALUE ...]`` (= ``python -m experiments.misma ...``).
 
-One command writes every table and figure into ``results/misma_*`` and the
-fitted calibrations into the Hydra run directory (``outputs/misma/<time>/models/``)::
-
-    .venv/bin/python -m experiments.misma                    # full study
-    .venv/bin/python -m experiments.misma simulated.repeats=3 simulated.n_iter=300 real.enabled=false
-
-The science is in :mod:`icgo.studies.misma`, the tables, figures, summary and models in
-:mod:`icgo.studies.misma_report`; the one study main (:func:`hydra_plugins.icgo_launcher.door.study_main`)
-composes the config, loads, runs and writes.
+``conf/misma.yaml`` -> the one study main (:func:`experiments._study_main.study_main`) -> :mod:`icgo.studies.misma`:
+every table and figure into ``results/misma_*``, the fitted calibrations into the run directory
+(``outputs/misma/<date>/<time>/models/``). ``--help`` lists the settings.
 """
 
 from __future__ import annotations
@@ -16,18 +10,19 @@ from __future__ import annotations
 import hydra
 from omegaconf import DictConfig
 
-from hydra_plugins.icgo_launcher.door import hydra_cli, one_line_errors, study_main
+from experiments._door import CONF_DIR, door, one_line_errors
+from experiments._study_main import study_main
 
-#: Settings of the entry point, not of the study (excluded from the study's config dataclass).
+#: Settings of the door, not of the study (excluded from the study's config dataclass).
 ENTRY_KEYS = ("out_dir",)
 
 
-@hydra.main(config_path="../conf", config_name="misma", version_base="1.3")
+@hydra.main(version_base="1.3", config_path=str(CONF_DIR), config_name="misma")
 @one_line_errors
 def main(cfg: DictConfig) -> None:
-    """Hydra entry point: ``python -m experiments.misma [overrides]``; a bad setting exits 2 with one line."""
+    """Hydra task: the study; a bad setting exits 2 with one line."""
     study_main("misma", cfg, ENTRY_KEYS)
 
 
 if __name__ == "__main__":
-    hydra_cli("misma", main)
+    door("misma", main)

@@ -56,7 +56,7 @@ def main(argv=None):
     """The command: options -> the study's config (a bad one: one line, exit 2) -> the one study main."""
     ap, argv = parser(), sys.argv[1:] if argv is None else argv
     args = ap.parse_args(argv)
-    from hydra_plugins.icgo_launcher.door import progress_to_stdout, run_study
+    from experiments._run_study import progress_to_stdout, run_study
     from icgo.core.errors import SettingError
     from icgo.core.settings import config_from_mapping
     from icgo.io.files import results_output

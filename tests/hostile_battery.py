@@ -2,7 +2,7 @@
 used output directories, sweeps re-run into their directory, Ctrl-C, SIGTERM and SIGKILL.
 
 Every case is one invocation of a front door (``python -m experiments.<door> ...``, ``python -m icgo.io``,
-``python -m icgo.datasets``, or the library door ``icgo.artifacts.registry.load_model`` followed by
+``python -m icgo.datasets``, the same through the ``icgo`` console script (:func:`console_cases`), or the library door ``icgo.artifacts.registry.load_model`` followed by
 ``icgo.survey.apply.correct_survey`` in a fresh interpreter) on inputs written into the case's own
 folder. Each ends in exactly one outcome:
 
@@ -162,7 +162,22 @@ def build_assets(a: Path) -> None:
 
     long = pd.concat([H.survey(600, seed=k) for k in range(20)], ignore_index=True)
     write_recording(a / "long_survey.csv", long.assign(station=np.arange(len(long))), meta)
+    write_console_script(a / "bin")
     (a / "ready").write_text("ok\n")
+
+
+def write_console_script(folder: Path) -> Path:
+    """The ``icgo`` console script as pip writes it (its template) for pyproject.toml's ``[project.scripts]``."""
+    import tomllib
+
+    module, func = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"]["icgo"].split(":")
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "icgo").write_text(f"#!{PY}\nimport re\nimport sys\nfrom {module} import {func}\n"
+                                 f"if __name__ == '__main__':\n"
+                                 f"    sys.argv[0] = re.sub(r'(-script\\.pyw|\\.exe)?$', '', sys.argv[0])\n"
+                                 f"    sys.exit({func}())\n")
+    (folder / "icgo").chmod(0o755)
+    return folder / "icgo"
 
 
 def _run_record(models):
@@ -1172,6 +1187,25 @@ def datasets_cases() -> list[Case]:
     return cases
 
 
+#: Cases run again through the ``icgo`` console script (``icgo <command> ARGS`` for ``python -m <module> ARGS``):
+#: the fast subset, a success, an interruption, a kill, a full disk, a used output directory and a resumed sweep of
+#: every door (three of them in the fast subset).
+CONSOLE = re.compile(r"/(ok|ok-fixture|ctrl-c|sigkill|full-disk|out-full-disk|used-run-dir|out-used|same-again)$")
+
+
+def console_cases(cases) -> list[Case]:
+    """The cases of :data:`CONSOLE` (and the fast subset) of every door the ``icgo`` script runs, through it: the
+    same argv after the command, the same expected verdict (door ``icgo``, names ``icgo/<case>``)."""
+    sys.path.insert(0, str(ROOT))
+    from experiments.cli import COMMANDS
+
+    command = {module: name for name, (module, _) in COMMANDS.items()}
+    return [dataclasses.replace(c, name=f"icgo/{c.name}", door="icgo",
+                                argv=["{a}/bin/icgo", command[c.argv[1]], *c.argv[2:]])
+            for c in cases if c.argv[:1] == ["-m"] and c.argv[1] in command
+            and (CONSOLE.search(c.name) or c.name in FAST_CASES)]
+
+
 #: The fast subset (``make test``): at least one case of every front door, each a few seconds.
 FAST_CASES = (
     "model/relm_compensation/array-nan", "model/run/escape-dotdot", "apply/require_meta=maybe",
@@ -1180,12 +1214,13 @@ FAST_CASES = (
     "misma/real.enabled=maybe", "gyro/seed=abc", "figures/override-bogus", "generalisation/--n-repeats 0",
     "optimizers/--dims 0", "io/csv-fifo", "datasets/full-disk", "calibrate/json-fixture-1e300",
     "apply/reference-in-radians", "apply/model-of-another-device", "datasets/two-data-sets-one-folder",
-    "calibration_unseen/--variants 0")
+    "calibration_unseen/--variants 0", "icgo/calibrate/used-run-dir", "icgo/apply/ctrl-c", "icgo/io/csv-fifo")
 
 
 def all_cases() -> list[Case]:
     cases = (model_cases() + apply_cases() + run_cases() + calibrate_cases() + discrepancy_cases()
              + study_setting_cases() + argparse_cases() + io_cases() + datasets_cases())
+    cases += console_cases(cases)
     names = [c.name for c in cases]
     dup = {n for n in names if names.count(n) > 1}
     assert not dup, f"duplicate case names {sorted(dup)[:5]}"
@@ -1205,7 +1240,7 @@ CURRENT = {"root": ROOT}
 
 
 def _env(root: Path | None = None) -> dict:
-    env = {k: v for k, v in os.environ.items() if not k.startswith(("HYDRA_", "PYTEST"))}
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("HYDRA_", "PYTEST", "ICGO_SCRIPT"))}
     env["PYTHONPATH"] = str(root or CURRENT["root"])
     env["JAX_PLATFORMS"] = "cpu"
     env["HYDRA_FULL_ERROR"] = "0"

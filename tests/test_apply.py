@@ -15,8 +15,8 @@ import pytest
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 
-from hydra_plugins.icgo_launcher import door as entry
-from experiments.apply import run_apply
+from experiments import _preflight as entry
+from experiments._data_doors import run_apply
 from icgo.core.errors import ModelError
 from icgo.datasets import casing_stations
 from icgo.io.recording import read_recording, write_recording

@@ -16,7 +16,7 @@ from omegaconf import OmegaConf
 
 import icgo  # noqa: F401
 from experiments import calibrate as entry
-from hydra_plugins.icgo_launcher.door import CONF_DIR
+from experiments._preflight import CONF_DIR
 from icgo.core.errors import SettingError
 from icgo.core.settings import config_to_mapping
 from icgo.io import mag_cal_bundled, schema
@@ -39,7 +39,7 @@ def _compose(*overrides):
 
 
 def test_conf_yaml_equals_the_dataclass_defaults():
-    composed = {k: v for k, v in OmegaConf.to_container(_compose(), resolve=True).items() if k not in entry.ENTRY_KEYS}
+    composed = {k: v for k, v in OmegaConf.to_container(_compose(), resolve=True).items() if k not in entry.CALIBRATE_KEYS}
     assert composed == config_to_mapping(cal_study.CalibrationConfig())
     # the compilation cache is the study app's (conf/config.yaml), restated here and kept equal
     app = OmegaConf.load(CONF_DIR / "config.yaml")
@@ -52,7 +52,7 @@ def test_conf_yaml_is_checked_against_the_schema_of_the_dataclass(tmp_path):
     point's own settings are the library's and the door's checks."""
     from hydra.errors import ConfigCompositionException
 
-    from hydra_plugins.icgo_launcher.door import check_schema
+    from experiments._preflight import check_schema
 
     for ov in ("misma_iter=abc", "misma_pop=1e9", "misma_bounds=[1]"):
         with pytest.raises(ConfigCompositionException):

@@ -17,7 +17,7 @@ import pytest
 from omegaconf import OmegaConf
 
 import icgo  # noqa: F401
-from hydra_plugins.icgo_launcher.door import EXIT_CONFIG
+from experiments._preflight import EXIT_CONFIG
 from icgo import discrepancy as D
 from icgo.core.errors import SettingsError
 from icgo.core.settings import config_from_mapping, config_to_mapping
@@ -250,7 +250,7 @@ def test_bad_input_one_line(capsys, tmp_path):
                                          r"least 6 different readings \(are the rows copies of one station\?\)$"):
         D.check_stations(D.Stations(G=np.tile([0.1, 0.2, 0.97], (200, 1)), B=np.tile([2e4, 0.0, 4e4], (200, 1)),
                                     group=np.zeros(200, int)))
-    from experiments.discrepancy import main_body
+    from experiments._data_doors import discrepancy_main as main_body
 
     cfg = OmegaConf.load(Path(__file__).parents[1] / "conf" / "discrepancy.yaml")
     cfg.pop("hydra")
@@ -289,7 +289,7 @@ def test_a_json_recording_is_read_with_the_shots_settings(capsys, tmp_path):
     # a bad setting exits 2 naming itself, a missing mounting is data (exit 1) with its probable cause
     from mag_cal_files import device_attitudes, synth, write_raw
 
-    from experiments.discrepancy import main_body
+    from experiments._data_doors import discrepancy_main as main_body
     from icgo.studies.discrepancy_job import load_stations
 
     G, B = synth("bh", *device_attitudes("bh"))
@@ -316,7 +316,7 @@ def test_a_json_recording_is_read_with_the_shots_settings(capsys, tmp_path):
 
 
 def test_entry_point_writes_report_and_json(tmp_path):
-    from experiments.discrepancy import main_body
+    from experiments._data_doors import discrepancy_main as main_body
 
     cfg = OmegaConf.load(Path(__file__).parents[1] / "conf" / "discrepancy.yaml")
     cfg.pop("hydra")
@@ -539,7 +539,7 @@ def _study_cfg(tmp_path, study, **settings):
 def test_the_study_tables_state_their_protocol(small_result, tmp_path, monkeypatch, capsys):
     """``study=hidden|devices|lab_casing`` write results/discrepancy_*.md (and the lab_casing report) with a protocol
     line whose command regenerates the file; the studies are replaced by one small real result (no study runs)."""
-    from experiments.discrepancy import main_body
+    from experiments._data_doors import discrepancy_main as main_body
     from icgo.reporting.protocol import PROTOCOL_FIELDS, parse_protocols
     from icgo.studies import discrepancy_results as R
     from icgo.studies.icgo_relm_config import StudyConfig

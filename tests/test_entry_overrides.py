@@ -11,7 +11,7 @@ import sys
 
 import pytest
 
-from hydra_plugins.icgo_launcher.door import CONF_DIR
+from experiments._preflight import CONF_DIR
 
 ROOT = CONF_DIR.parent
 
@@ -58,7 +58,7 @@ def test_multirun_flag_after_the_overrides_is_accepted():
     """``-m`` after an override is moved in front (Hydra's parser refuses it there), so the checks still run."""
     import sys as _sys
 
-    from hydra_plugins.icgo_launcher.door import preflight
+    from experiments._preflight import preflight
 
     argv = _sys.argv[:]
     try:

@@ -20,12 +20,12 @@ from hydra.core.global_hydra import GlobalHydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import OmegaConf, open_dict
 
-from hydra_plugins.icgo_launcher import door as E
+from experiments import _preflight as E
 from hydra_plugins.icgo_launcher.jobs import FAILED
-from experiments import _relm_job as relm_job
+from icgo.studies.icgo_relm_run_config import RunConfig
 from hydra_plugins.icgo_launcher.jobs import cfg_hash
 from hydra_plugins.icgo_launcher import report as sweep_report
-from experiments.run import run_job
+from experiments._study_main import run_job
 from icgo.optim.registry import get
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -38,9 +38,14 @@ def _compose(overrides, hydra=False):
     return cfg
 
 
+def _run_config(cfg):
+    """The door's typed config of a composed config (``hydra`` node excluded)."""
+    return RunConfig.from_mapping(OmegaConf.to_container(cfg, resolve=True))
+
+
 def _study(cfg):
     """The StudyConfig a composed config gives (through its typed config)."""
-    return relm_job.run_config(cfg).study_config()
+    return _run_config(cfg).study_config()
 
 
 def _job_cfg(overrides):
@@ -538,5 +543,5 @@ def test_transfer_run_writes_coverage_and_tests_the_target_only(tmp_path):
                                                      ("pct_10_30_60", (0.1, 0.4), False),
                                                      ("own_clock", (1 / 3, 2 / 3), True)])
 def test_schedules_reach_the_cgo_config(schedule, bounds, clock):
-    oc = relm_job.run_config(_job_cfg(TINY + [f"schedule={schedule}"])).optimizer_config()
+    oc = _run_config(_job_cfg(TINY + [f"schedule={schedule}"])).optimizer_config()
     assert oc.stage_bounds == pytest.approx(bounds) and oc.wavelet_stage_clock is clock

@@ -21,7 +21,7 @@ import pytest
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 
-from hydra_plugins.icgo_launcher.door import CONF_DIR, check_overrides, check_plain_overrides
+from experiments._preflight import CONF_DIR, check_overrides, check_plain_overrides
 from icgo.core.errors import SettingError
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -213,7 +213,7 @@ def test_every_fig9_ablation_option_composes_into_a_valid_cgo_config():
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    from hydra_plugins.icgo_launcher.door import CONF_DIR
+    from experiments._preflight import CONF_DIR
     from icgo.optim import get
 
     sweep = yaml.safe_load((CONF_DIR / "experiment" / "fig9_cgo_ablation.yaml").read_text())

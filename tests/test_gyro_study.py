@@ -14,8 +14,8 @@ from omegaconf import OmegaConf
 
 import icgo  # noqa: F401
 from experiments import gyro as entry
-from hydra_plugins.icgo_launcher import door
-from hydra_plugins.icgo_launcher.door import CONF_DIR
+from experiments import _run_study as door
+from experiments._preflight import CONF_DIR
 from icgo.core.errors import SettingError
 from icgo.core.settings import config_from_mapping, config_to_mapping
 from icgo.artifacts.registry import load_model

@@ -151,3 +151,19 @@ def test_no_module_calls_another_modules_private_name(top):
     known = set(_modules("icgo")) | set(_modules("experiments"))
     bad = {f"{name}: {u}" for name, path in _modules(top).items() for u in _private_uses(path, known)}
     assert not bad, "\n".join(sorted(bad))
+
+
+def test_hydra_only_in_the_doors_and_the_launcher():
+    """Hydra (and OmegaConf) appear only in ``experiments/`` (the doors) and ``hydra_plugins/`` (the launcher, which
+    keeps nothing of the doors: it never imports ``experiments``); the library takes plain arguments."""
+    def imported(path: Path) -> set[str]:
+        tree = ast.parse(path.read_text())
+        names = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+        return names | {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module and not n.level}
+
+    bad = [f"{p.relative_to(ROOT)} imports {m}" for p in sorted(ROOT.rglob("*.py"))
+           if p.relative_to(ROOT).parts[0] not in ("experiments", "hydra_plugins", "tests", ".venv", ".jax_cache")
+           for m in imported(p) if m.split(".")[0] in ("hydra", "omegaconf")]
+    bad += [f"{p.relative_to(ROOT)} imports {m}" for p in sorted((ROOT / "hydra_plugins").rglob("*.py"))
+            for m in imported(p) if m.split(".")[0] == "experiments"]
+    assert not bad, "\n".join(bad)

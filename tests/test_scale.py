@@ -56,8 +56,8 @@ def test_a_repeat_whose_msa_fails_is_left_out_and_named(tmp_path, capsys):
     from hydra.core.hydra_config import HydraConfig
     from omegaconf import open_dict
 
-    from hydra_plugins.icgo_launcher import door as E
-    from experiments.run import run_job
+    from experiments import _preflight as E
+    from experiments._study_main import run_job
     from icgo.io.recording import write_recording
     from icgo.reporting.run_collection import EXCLUDED_FILE
     from icgo.studies.icgo_relm_results.build import build

@@ -148,7 +148,7 @@ def test_the_study_app_defaults_to_the_icgo_local_launcher():
     from hydra import compose, initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
 
-    from hydra_plugins.icgo_launcher.door import CONF_DIR
+    from experiments._preflight import CONF_DIR
 
     GlobalHydra.instance().clear()
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):

@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from experiments.apply import run_apply
+from experiments._data_doors import run_apply
 from icgo.datasets import casing_stations
 from icgo.io.recording import read_recording, write_recording
 from icgo.artifacts.format import sensor_domain
@@ -104,7 +104,7 @@ def test_run_verdict_numbers_are_the_studys(fitted):
     assert f"test MAE {t.mean():.3f} +/- {t.std(ddof=1):.3f} deg over 3 repeat(s)" in v.accuracy
     assert f"{100 * c['coverage'].mean():.1f} % of test rows inside" in v.accuracy
     assert v.qc.startswith("9 of 10 stations flagged after MSA (4 raw)")
-    assert v.next == "python -m experiments.apply model=RUN data=<your survey.csv>"
+    assert v.next == f"{sys.executable} -m experiments.apply model=RUN data=<your survey.csv>"  # runnable as printed
     # one repeat: no "+/- nan"
     one = res.metrics[res.metrics.repeat == res.metrics.repeat.min()]
     v1 = V.study_verdict(one, None, selected=res.model.selected, n_repeats=1, protocol="random", qc=None,
@@ -132,7 +132,7 @@ def test_calibrate_verdict_prints_the_nested_accuracy_and_says_why_nothing_is_re
     old = V.calibrate_verdict(recommendation=rec, n_models=5, n_degenerate=2, n_fits=24, run_dir="R")
     assert old.accuracy.startswith("the rule's nested score 0.351 deg +/- 0.052") and "0.287" not in old.accuracy
     assert "not a clear winner: twelve+axis" in v.model and "dev_joint (joint)" in v.model
-    assert v.next == "python -m experiments.apply model=R data=<your survey.csv>" and v.exit_code == 0
+    assert v.next == f"{sys.executable} -m experiments.apply model=R data=<your survey.csv>" and v.exit_code == 0
     assert v.qc.startswith("2 of 24 fits degenerate")
     short = V.calibrate_verdict(recommendation={**rec, "accuracy_deg": None, "accuracy_spread_deg": None},
                                 n_models=5, n_degenerate=2, n_fits=24, run_dir="R")

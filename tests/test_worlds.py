@@ -31,7 +31,7 @@ FRONT = ["budget=smoke", "progress=false", "figures=false", "jax_cache_dir=null"
 
 @pytest.fixture(scope="module")
 def worlds_run(tmp_path_factory):
-    from experiments.run import run_job
+    from experiments._study_main import run_job
 
     out = tmp_path_factory.mktemp("worlds") / "run"
     run = run_job(_job_cfg(FRONT), out)
@@ -132,10 +132,12 @@ def test_the_reported_worlds_exclude_every_development_seed():
     (["worlds=2", "split=transfer"], "split=transfer is not supported"),
 ])
 def test_bad_worlds_settings_are_one_line(overrides, message):
-    from experiments._relm_job import run_config
+    from omegaconf import OmegaConf
+
+    from icgo.studies.icgo_relm_run_config import RunConfig
 
     with pytest.raises(SettingError, match=message):
-        run_config(_compose(overrides))
+        RunConfig.from_mapping(OmegaConf.to_container(_compose(overrides), resolve=True))
 
 
 def test_worlds_need_distinct_seeds_and_no_transfer():

@@ -7,5 +7,5 @@ table) and ``discrepancy`` (the discrepancy workflow's physics model) are the ki
 and loads any saved one::
 
     from icgo.artifacts.registry import load_model
-    model = load_model("outputs/<date>/<time>/relm_compensation.json")
+    model = load_model("outputs/run/<date>/<time>/relm_compensation.json")
 """

@@ -20,7 +20,7 @@ name -> :class:`icgo.artifacts.format.FittedModel`) and its records (dict name -
 
 A study that a front door runs also names its ``load`` (``(config, **inputs) -> data``), its ``write``
 (``(result, data, config, stage, invocation) -> message``: every output file into a staged directory) and
-the files it writes ``last``; the one study main (``hydra_plugins/icgo_launcher/door.run_study``) runs any of
+the files it writes ``last``; the one study main (``experiments/_run_study.run_study``) runs any of
 them the same way: load -> run -> write.
 
 Hydra never appears here: the front door composes a config, builds the

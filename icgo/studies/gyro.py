@@ -160,7 +160,12 @@ def _default_variants():
 
 @dataclasses.dataclass(frozen=True)
 class TableConfig:
-    """Lookup table: ``toolface="mean"`` (node = error averaged over toolface) or one toolface (deg)."""
+    """Lookup table: ``toolface="mean"`` (node = error averaged over toolface) or one toolface (deg).
+
+    Attributes:
+        toolface: ``mean`` (each node the error averaged over the toolface positions) or a number: only the
+            stations at that toolface, deg.
+    """
 
     toolface: str | float = "mean"
 
@@ -224,7 +229,13 @@ class RelmConfig:
 
 @dataclasses.dataclass(frozen=True)
 class SweepConfig:
-    """Error vs number of turntable points: the network (``variant``) and the table on each step pair."""
+    """Error vs number of turntable points: the network (``variant``) and the table on each step pair.
+
+    Attributes:
+        enabled: run it. variant: the network variant retrained on each plan (a key of ``variants``).
+        azimuth_steps, toolface_steps: the plans' grid steps, deg (every pair is one plan).
+        table_only_azimuth_steps: denser azimuth steps for the table alone (the network is not retrained), deg.
+    """
 
     enabled: bool = True
     variant: str = "net_error"
@@ -239,7 +250,11 @@ class SweepConfig:
 
 @dataclasses.dataclass(frozen=True)
 class SeamConfig:
-    """The 0/360 seam: "near north" = |true azimuth| < ``band_deg`` (deg, in (0, 180])."""
+    """The 0/360 seam: "near north" = |true azimuth| < ``band_deg`` (deg, in (0, 180]).
+
+    Attributes:
+        band_deg: half-width of the band around north whose errors are reported apart, deg, in (0, 180].
+    """
 
     band_deg: float = 15
 

@@ -33,6 +33,20 @@ def run_output(outdir: Path, overwrite: bool, keep=(), ignore=()):
                   writer="experiments.run").check()
 
 
+def start_and_compute(run, t0: float) -> tuple[Computed, dict]:
+    """The devices started (before JAX's backend: ``jax.distributed``, the CPU's host devices), every setting
+    checked (:meth:`RunConfig.study_config`), the compilation cache on, then :func:`compute`; returns what it
+    computed and :func:`run_info`. ``t0``: ``time.perf_counter()`` at the job's start."""
+    from icgo.core.devices import enable_jax_cache, start_devices
+
+    devices = start_devices()
+    scfg = run.study_config()  # every check before any computation (imports the study, JAX with it)
+    timings = {"import_s": time.perf_counter() - t0}
+    enable_jax_cache(run.jax_cache_dir)
+    computed = compute(run, scfg, timings)
+    return computed, run_info(run, computed.desc, timings, devices, t0)
+
+
 def compute(run, scfg, timings: dict) -> Computed:
     """Load the data and run the study (``scfg``: ``run.study_config()``) with the plan line and a progress bar;
     ``timings`` gets ``load_data_s`` and the study's stages."""

@@ -142,7 +142,14 @@ class SplitSettings:
     """``split``: the protocol and its repeats (checked by StudyConfig), and the transfer ``target``.
 
     ``train_fraction`` is absent from the fold protocols' options (their folds set the training rows): None
-    there, i.e. the study's default."""
+    there, i.e. the study's default.
+
+    Attributes:
+        protocol: ``random`` (paper: rows split 7:3), ``leave_azimuth_out``, ``leave_condition_out`` or ``transfer``.
+        n_repeats: repeats (splits); the paper's Table 3 uses 10. seed: repeat k uses key fold_in(PRNGKey(seed), k).
+        sigma_filter: n-sigma outlier rule applied once before splitting (paper: 3); null disables.
+        train_fraction: training share of each split (paper 7:3: 0.7). target: the second instrument (transfer).
+    """
 
     protocol: str
     n_repeats: int
@@ -162,7 +169,13 @@ class SplitSettings:
 
 @dataclasses.dataclass(frozen=True)
 class MsaSettings:
-    """``msa``: MSA (ICGO section 1.2, eqs. 2-7) before the RELM (values checked by StudyConfig)."""
+    """``msa``: MSA (ICGO section 1.2, eqs. 2-7) before the RELM (values checked by StudyConfig).
+
+    Attributes:
+        model: ``biases`` (paper: three constant magnetometer biases), ``axial`` or ``biases_scales``.
+        reference: ``station_mean`` (paper eqs. 3-4) or ``known`` (the metadata's total_field_nT and dip_deg).
+        iterations: largest number of Levenberg-Marquardt steps (it stops once converged).
+    """
 
     model: str
     reference: str
@@ -172,7 +185,15 @@ class MsaSettings:
 @dataclasses.dataclass(frozen=True)
 class ModelSettings:
     """``model``: the RELM (values checked by StudyConfig); ``tune=true`` chooses ``hidden`` and ``lam`` itself,
-    so they must stay at the study's defaults."""
+    so they must stay at the study's defaults.
+
+    Attributes:
+        hidden: hidden units L (paper: not stated). lam: ridge lambda (paper: not stated).
+        theta_bounds: [low, high] of every hidden weight and bias: the search box and plain RELM's uniform draw.
+        features: ``raw`` (paper: the six raw sensor values) or ``msa`` (G and the MSA-corrected B).
+        tune: plain RELM only (optimizer=none, fitness=validation or kfold): hidden and lam chosen on a grid by
+            validation on the training rows (method relm-tuned).
+    """
 
     hidden: int
     lam: float
@@ -192,7 +213,12 @@ class ModelSettings:
 
 @dataclasses.dataclass(frozen=True)
 class FitnessSettings:
-    """``fitness``: what the search minimises (values checked by StudyConfig)."""
+    """``fitness``: what the search minimises (values checked by StudyConfig).
+
+    Attributes:
+        mode: ``train`` (paper: the RELM's RMSE on the training rows), ``validation`` or ``kfold``.
+        val_fraction: validation share of the training rows (mode validation). k_folds: folds (mode kfold).
+    """
 
     mode: str
     val_fraction: float
@@ -201,7 +227,12 @@ class FitnessSettings:
 
 @dataclasses.dataclass(frozen=True)
 class BudgetSettings:
-    """``budget``: population and iterations or evaluations (values checked by StudyConfig)."""
+    """``budget``: population and iterations or evaluations (values checked by StudyConfig).
+
+    Attributes:
+        pop_size: population size (paper: 30). iterations: optimizer iterations (paper: 100); null with max_evals.
+        max_evals: a fitness-evaluation budget instead of iterations (CGO spends 4 per seed per iteration).
+    """
 
     pop_size: int
     iterations: int | None
@@ -212,8 +243,13 @@ class BudgetSettings:
 class OptimizerSettings:
     """``optimizer``: a registry name of :mod:`icgo.optim` (null: plain RELM) and its config's arguments.
 
-    ``_target_``: ``module.NAME`` of a researcher's own :class:`icgo.optim.Algorithm` (docs/extending.md),
-    registered in :data:`icgo.optim.OPTIMIZERS` under ``name`` (which must be the algorithm's own name)."""
+    Attributes:
+        name: the optimizer (``cgo``, ``pso``, ``ga``, ``sma``; null: plain RELM, one random hidden layer per repeat),
+            or a researcher's own registered under this name.
+        params: keyword arguments of its config (e.g. cgo's variant).
+        _target_: ``module.NAME`` of a researcher's own :class:`icgo.optim.Algorithm` (docs/extending.md),
+            registered in :data:`icgo.optim.OPTIMIZERS` under ``name`` (which must be the algorithm's own name).
+    """
 
     name: str | None
     params: dict | None = None
@@ -239,9 +275,12 @@ class StrategySettings:
     """``strategy``: the CGO 4th-seed strategies run side by side, by their names in the registry
     (:data:`icgo.optim.mutation.MUTATIONS`).
 
-    ``define``: a researcher's own strategies (docs/extending.md), name -> ``{_target_: module.function, label:
-    its name in tables, **keyword arguments of the function}``, registered (after the built-ins) before the
-    study is built."""
+    Attributes:
+        names: the strategies (one vmapped program; ignored by optimizers other than cgo).
+        define: a researcher's own strategies (docs/extending.md), name -> ``{_target_: module.function, label:
+            its name in tables, **keyword arguments of the function}``, registered (after the built-ins) before
+            the study is built.
+    """
 
     names: list
     define: dict | None = None
@@ -267,7 +306,13 @@ CLOCKS = ("global", "stage")
 
 @dataclasses.dataclass(frozen=True)
 class ScheduleSettings:
-    """``schedule``: three_stage's stage boundaries (fractions of the run), stage order and the wavelet's clock."""
+    """``schedule``: three_stage's stage boundaries (fractions of the run), stage order and the wavelet's clock.
+
+    Attributes:
+        bounds: [b1, b2], the fractions of the run where stages 2 and 3 start, 0 < b1 < b2 < 1.
+        order: the three mutations in stage order. clock: ``global`` (the wavelet's dilation on the whole run's
+            t/T) or ``stage`` (on its stage's own clock).
+    """
 
     bounds: list
     order: list

@@ -37,7 +37,16 @@ def _positive(where, v, allow_zero=False):
 
 @dataclasses.dataclass(frozen=True)
 class ObjectiveConfig:
-    """Penalised MISMA fitness (eqs. 5-8): Pearson threshold/mode and penalty weights (dimensionless)."""
+    """Penalised MISMA fitness (eqs. 5-8): Pearson threshold/mode and penalty weights (dimensionless).
+
+    Attributes:
+        pearson_threshold: th of eq. 7: the corrected magnetometer/accelerometer correlation while rotating must be
+            at least this (a quadratic penalty below it), in [0, 1].
+        pearson_mode: ``complex`` (|correlation| of the cross-axial phasors, independent of the phase between the
+            two rotating vectors) or ``axis`` (the paper's rho(bx, gx) and rho(by, gy)).
+        mu_magnitude: weight of the field-magnitude penalty (dimensionless, >= 0).
+        mu_pearson: weight of the correlation penalty (dimensionless, >= 0).
+    """
 
     pearson_threshold: float = 0.8
     pearson_mode: str = "complex"
@@ -59,7 +68,17 @@ BOUNDS = ("around_u", "paper")
 
 @dataclasses.dataclass(frozen=True)
 class MismaSearchConfig:
-    """MISMA (eqs. 11-19): its hyperparameters, its box (``bounds``) and the half-widths of the box around U."""
+    """MISMA (eqs. 11-19): its hyperparameters, its box (``bounds``) and the half-widths of the box around U.
+
+    Attributes:
+        z_max: scale of the adaptive restart probability (eq. 13), in [0, 1].
+        d: deep-exploitation threshold on normalised fitness differences (eqs. 17-19), in [0, 1].
+        gmr_threshold: GMR below which the best solution counts as poor and the large random step is used (eq. 16).
+        p_mode: ``normalized`` (branch probability on normalised fitness) or ``sma`` (SMA's).
+        matrix_halfwidth: half-width of the box around U's matrix entries, x max(abs(U_R)) (dimensionless).
+        bias_halfwidth: half-width of the box around U's bias as a fraction of the reference field (x |B| nT).
+        bounds: ``around_u`` (U -/+ the half-widths) or ``paper`` (the paper's 128 / -68 uT for all 12).
+    """
 
     z_max: float = 0.1
     d: float = 0.1
@@ -85,7 +104,13 @@ class MismaSearchConfig:
 
 @dataclasses.dataclass(frozen=True)
 class SMASearchConfig:
-    """Standard SMA: restart probability z and its prior box ``R^-1 = I +/- m``, ``b = 0 +/- h |M_omega|``."""
+    """Standard SMA: restart probability z and its prior box ``R^-1 = I +/- m``, ``b = 0 +/- h |M_omega|``.
+
+    Attributes:
+        z: SMA's restart probability, in [0, 1].
+        matrix_halfwidth: m, half-width of the prior box of R^-1's entries around I (dimensionless).
+        bias_halfwidth: h, half-width of the prior box of b around 0 as a fraction of the reference field |B|.
+    """
 
     z: float = 0.03
     matrix_halfwidth: float = 0.5
@@ -138,7 +163,12 @@ GYRO_TERMS = ("vector", "off")
 
 @dataclasses.dataclass(frozen=True)
 class ToleranceConfig:
-    """|recovered - true| counted as recovered: ``matrix`` for R^-1 entries (1), ``bias_nT`` for b (nT)."""
+    """|recovered - true| counted as recovered: ``matrix`` for R^-1 entries (1), ``bias_nT`` for b (nT).
+
+    Attributes:
+        matrix: largest |recovered - true| of an R^-1 entry counted as recovered (dimensionless).
+        bias_nT: largest |recovered - true| of a bias component counted as recovered, nT.
+    """
 
     matrix: float = 0.01
     bias_nT: float = 200.0
@@ -209,7 +239,12 @@ class SimulatedConfig:
 
 @dataclasses.dataclass(frozen=True)
 class RealConfig:
-    """The 9 real devices: ``peer`` runs circuitpython-mag-cal side by side; MISMA's iterations/repeats."""
+    """The 9 real devices: ``peer`` runs circuitpython-mag-cal side by side; MISMA's iterations/repeats.
+
+    Attributes:
+        enabled: run it. peer: circuitpython-mag-cal side by side.
+        misma_iter: MISMA iterations per device. misma_repeats: independent MISMA runs (the lowest fitness kept).
+    """
 
     enabled: bool = True
     peer: bool = True

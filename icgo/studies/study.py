@@ -1,6 +1,6 @@
 """The interface every study follows (see :mod:`icgo.studies`): its settings, its data, its run and its outputs.
 
-A front door runs any registered study the same way (``hydra_plugins.icgo_launcher.door.run_study``)::
+A front door runs any registered study the same way (``experiments._run_study.run_study``)::
 
     data = study.load(config, **inputs)                 # simulated from the config, or read from the inputs
     result = study.run(data, config, study.key(config))

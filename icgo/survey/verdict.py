@@ -10,7 +10,7 @@ their summary / meta / report), from the numbers of the run they just made:
 3. **QC**: the survey-QC counts in one line that says why they can sit beside a small error
    (:func:`qc_line`: an azimuth compensation corrects the azimuth, not the field the QC checks);
 4. **model**: the model to use and why (a study's selected method, or the calibration recommendation);
-5. **next**: the exact command to run next.
+5. **next**: the exact command to run next, runnable as printed (:func:`icgo.core.commands.door_command`).
 
 ``apply`` exits with :data:`EXIT_OUT_OF_DOMAIN` after writing its files when the verdict says the result is
 not to be used as it stands (docs/qc.md, "The verdict"): the survey is far outside the training domain (the
@@ -28,6 +28,7 @@ import numpy as np
 
 from icgo.artifacts.format import DOMAIN_TOLERANCE, domain_overshoots
 from icgo.artifacts.registry import MODEL_KINDS
+from icgo.core.commands import door_command
 from icgo.reporting.records import RECOMMENDATION_KEYS
 
 #: ``apply``'s exit status when its verdict says not to use the result as it stands (files still written): far
@@ -238,13 +239,13 @@ def apply_verdict(*, model_kind: str, method: str | None, interval_deg: float | 
     elif "reference_units" in doubts and status != "far outside":
         status = "reference in doubt"
     if status == "far outside":
-        nxt = (f"train on data like this survey (with a reference attitude): python -m experiments.run dataset=csv "
+        nxt = (f"train on data like this survey (with a reference attitude): {door_command('run')} dataset=csv "
                f"dataset.path={survey_path}; then apply that model")
     elif status == "other device":
-        nxt = ("calibrate this device (python -m experiments.calibrate data=<its grouped shots>) or find its own model; "
+        nxt = (f"calibrate this device ({door_command('calibrate')} data=<its grouped shots>) or find its own model; "
                "then apply that")
     elif status == "reference in doubt":
-        nxt = f"convert the survey's reference angles to degrees, then apply again: python -m experiments.apply " \
+        nxt = f"convert the survey's reference angles to degrees, then apply again: {door_command('apply')} " \
               f"model={model_path} data={survey_path}"
     else:
         nxt = f"use {out_csv} (azimuth_compensated" + (", azimuth_interval_deg" if interval_deg is not None else "") + ")"
@@ -303,7 +304,7 @@ def run_verdict(*, maes: dict, selected: str, halfwidth_deg: float | None, cover
     if "raw" in maes:
         why += f" and raw {_f(maes['raw'][0])}"
     model = f"{selected} in {run_dir}/relm_compensation.json ({why})"
-    nxt = f"python -m experiments.apply model={run_dir} data=<your survey.csv>"
+    nxt = f"{door_command('apply')} model={run_dir} data=<your survey.csv>"
     numbers = {"mae": m, "mae_std": s, "halfwidth_deg": halfwidth_deg, "coverage": coverage, "level": level,
                "model_interval_deg": model_interval_deg,
                "n_repeats": n_repeats, "qc": qc, "selected": selected}
@@ -359,9 +360,9 @@ def calibrate_verdict(*, recommendation: dict | None, n_models: int, n_degenerat
         acc = ("no calibration recommended" + (f": {refused}" if refused else " in the run record") + "; " + (
             "mean held-out score of the sound fits: " + ", ".join(f"{k} {v:.3f} deg" for k, v in sorted(
                 scores.items(), key=lambda kv: kv[1])) if scores else "no sound fit was scored held out"))
-        nxt = (f"fix what the report names (python -m experiments.calibrate data=<a new recording>), or apply one of "
+        nxt = (f"fix what the report names ({door_command('calibrate')} data=<a new recording>), or apply one of "
                f"{run_dir}/models/ knowing why none is recommended" if refused else
-               f"python -m experiments.apply model={run_dir}/models/<calibration>.json data=<your survey.csv>")
+               f"{door_command('apply')} model={run_dir}/models/<calibration>.json data=<your survey.csv>")
         return Verdict(acc, dom, qline, f"none; {n_models} calibrations in {run_dir}/models/", nxt, "n/a",
                        EXIT_NO_RECOMMENDATION if refused else 0,
                        {"recommendation": None, "held_out": scores, "refused": refused})
@@ -382,7 +383,7 @@ def calibrate_verdict(*, recommendation: dict | None, n_models: int, n_degenerat
               f"not a clear winner: {r.get('runner_up')} is as good within the spread" if r.get("runner_up") else
               "the only sound method")
     model = f"{r['model']} ({r['method']}), chosen by the rule: {r['criterion']}; {winner}"
-    nxt = f"python -m experiments.apply model={run_dir} data=<your survey.csv>"  # the run's recommended model
+    nxt = f"{door_command('apply')} model={run_dir} data=<your survey.csv>"  # the run's recommended model
     return Verdict(acc, dom, qline, model, nxt, "n/a", 0, {"recommendation": r, "accuracy_deg": nested,
                                                           "accuracy_spread_deg": nested_se, "accuracy": accuracy})
 

@@ -20,8 +20,8 @@ cannot express every field's type, so the schema types only what it checks exact
 - tuples, mappings of free keys (MISMA's and gyro's ``variants``, gyro's ``data.instrument``) and unions
   (gyro's ``table.toolface``: ``mean`` or a number) are ``Any``; nested config dataclasses are nested schemas.
 
-Registering imports the study's module (and JAX): it is called by the entry point at import, never when Hydra
-scans this package for plugins (this module imports nothing of icgo at import).
+The door (``experiments/calibrate.py``) registers the schema when it is imported, before Hydra composes; this module
+imports nothing of icgo at import.
 """
 
 from __future__ import annotations
