@@ -14,12 +14,11 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import OverrideType
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
+from experiments._groups import CONF_DIR, group_options, searchpath_dirs
 from icgo.core.settings import first_line
 
 #: Exit status of a bad setting or command line (every door).
 EXIT_CONFIG = 2
-#: Hydra config directory of the front doors (absolute, so runs work from any working directory).
-CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
 #: Config groups of the ICGO-RELM study (``experiments.run``); the other doors have none.
 STUDY_GROUPS = ("dataset", "model", "optimizer", "strategy", "schedule", "budget", "split", "fitness", "experiment")
 MULTIRUN_FLAGS = ("-m", "--multirun")  # moved in front of the overrides (Hydra's parser refuses them after one)
@@ -29,28 +28,6 @@ RENAMED_KEYS = {"*": {"workers": "use devices=N (the search is one program shard
                                  "host devices, docs/performance.md) or leave devices=null for every device"},
                 "config": {"dtype": "use precision= (the search fitness's precision: float32_features, float64 or "
                                     "float32)"}}
-
-
-def group_options(group: str, conf_dir: Path = CONF_DIR, extra=()) -> list[str]:
-    """Names of the options of a config group (its ``*.yaml`` files), in ``conf_dir`` and the folders ``extra``."""
-    return sorted({p.stem for d in (conf_dir, *extra) for p in (Path(d) / group).glob("*.yaml")})
-
-
-def searchpath_dirs(args: list[str]) -> list[Path]:
-    """The ``file://`` folders of a ``hydra.searchpath=[file://...]`` override: a user's own config folder, whose
-    group options (``strategy/levy.yaml``) Hydra composes beside conf/'s (docs/extending.md)."""
-    out = []
-    for a in args:
-        key, sep, _ = a.lstrip("+").partition("=")
-        if not sep or key != "hydra.searchpath":
-            continue
-        try:
-            value = OverridesParser.create().parse_overrides([a])[0].value()
-        except Exception:  # noqa: BLE001  (a malformed value: check_plain_overrides names it)
-            continue
-        out += [Path(str(v)[len("file://"):]) for v in (value if isinstance(value, list) else [value])
-                if str(v).startswith("file://")]
-    return out
 
 
 def hydra_args(argv: list[str]) -> argparse.Namespace:
