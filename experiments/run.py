@@ -39,13 +39,17 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
 
 @hydra.main(version_base="1.3", config_path=str(CONF_DIR), config_name="config")
 @one_line_errors
-def app(cfg: DictConfig) -> None:
-    """Hydra task function: one job of a run or a sweep."""
+def app(cfg: DictConfig) -> float | None:
+    """Hydra task function: one job of a run or a sweep; returns its objective for a sweeper that minimises one
+    (``hydra/sweeper=optuna``: :func:`icgo.studies.tracking_tables.objective`), None for a failed job."""
     from hydra.core.hydra_config import HydraConfig
     from hydra.types import RunMode
 
+    from icgo.studies.tracking_tables import objective
+
     hc = HydraConfig.get()
-    run_job(cfg, Path(hc.runtime.output_dir), multirun=hc.mode == RunMode.MULTIRUN)
+    record = run_job(cfg, Path(hc.runtime.output_dir), multirun=hc.mode == RunMode.MULTIRUN)
+    return None if record is None else objective(Path(hc.runtime.output_dir))
 
 
 def main() -> None:

@@ -186,3 +186,15 @@ def test_killing_a_study_job_costs_only_it_and_the_rerun_resumes(tmp_path):
                    capture_output=True, timeout=600)
     for table in ("metrics.csv", "predictions.csv"):
         assert (single / table).read_bytes() == (sweep / "1" / table).read_bytes()
+
+
+def test_a_sweep_job_keeps_a_plain_runs_device_count_and_cache_key_flags():
+    """A pinned job adds no thread flag (JAX's cache key hashes XLA_FLAGS) and gets the plain run's host-device
+    count (left out of the key), so it loads the programs a plain run compiled; an unpinned job keeps the flags."""
+    from icgo.core.devices import flagged_host_devices, sweep_job_flags
+
+    assert sweep_job_flags(1, True, 2, "") == "--xla_force_host_platform_device_count=2"
+    assert sweep_job_flags(1, True, 16, "--a=1") == "--a=1 --xla_force_host_platform_device_count=16"
+    unpinned = sweep_job_flags(1, False, 2, "")
+    assert "--xla_cpu_multi_thread_eigen=false" in unpinned and flagged_host_devices(unpinned) == 2
+    assert flagged_host_devices(sweep_job_flags(1, True, 2, "--xla_force_host_platform_device_count=4")) == 4

@@ -35,7 +35,7 @@ CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
 
 #: Config groups of the study app whose options are checked before Hydra composes.
 STUDY_GROUPS = ("dataset", "model", "optimizer", "strategy", "schedule", "budget", "split", "fitness",
-                "experiment")
+                "experiment", "debug")
 
 
 EXIT_CONFIG = 2
@@ -388,8 +388,12 @@ def run_study(name: str, config, output, *, inputs: dict | None = None, models_d
         if cfg is not None:
             write_hydra_record(stage, cfg)
         message = study.write(result, data, config, stage, invocation)
+        written = [p.relative_to(stage) for p in stage.rglob("*") if p.is_file()]
     if message:
         print(message, flush=True)
+    from hydra_plugins.icgo_launcher.tracking_hooks import track_job
+
+    track_job(dict(settings or {}), output.path, written, door=name)  # MLflow, where installed and not off
     return result
 
 

@@ -38,7 +38,7 @@ FAILURE_FILES = ("error.txt", FAILED)
 
 
 #: Settings that change how a run is executed, not what it computes: left out of :func:`config_hash`.
-RUNTIME_KEYS = ("overwrite", "progress", "jax_cache_dir", "devices")
+RUNTIME_KEYS = ("overwrite", "progress", "jax_cache_dir", "devices", "tracking")
 
 
 def config_hash(container: dict) -> str:
@@ -195,6 +195,9 @@ def run_guarded(cfg: DictConfig, outdir: Path, multirun: bool, job: Job) -> dict
     except ValueError as e:  # OutputError (a full disk, a read-only directory): the previous run is intact
         return _failed(e, outdir, multirun)
     job.report(typed, computed, run, outdir, t0)
+    from hydra_plugins.icgo_launcher.tracking_hooks import track_job
+
+    track_job(OmegaConf.to_container(cfg, resolve=True), outdir)  # MLflow, where installed and not turned off
     return run
 
 
