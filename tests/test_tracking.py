@@ -242,3 +242,31 @@ def test_a_doors_job_is_tracked_with_its_config_its_files_and_its_objective(tmp_
     assert run.data.params["model.hidden"] == "8" and run.data.params["tracking"] == uri
     assert [a.path for a in c.list_artifacts(rid)] == ["summary.md"]
     assert run.data.metrics["objective"] == pytest.approx(objective(d))
+
+
+@pytest.mark.slow
+@needs_mlflow
+def test_a_sweep_is_a_parent_run_of_its_jobs(tmp_path):
+    """A 2-job sweep of the run door with tracking on: one parent run (the sweep), two job runs nested under it, each
+    with its objective and the run directory's metrics; the parent closed with the smallest objective."""
+    from mlflow.tracking import MlflowClient
+
+    uri = tracking.default_uri(tmp_path)
+    sweep = tmp_path / "sweep"
+    cmd = [sys.executable, "-m", "experiments.run", "-m", "debug=smoke", "split.seed=1,2", f"tracking={uri}",
+           f"hydra.sweep.dir={sweep}", f"jax_cache_dir={ROOT / '.jax_cache' / 'xdg' / 'icgo' / 'jax'}"]
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "SweepTracking" not in proc.stderr, proc.stderr[-3000:]
+    c = MlflowClient(uri)
+    exp = c.get_experiment_by_name("icgo-run")
+    runs = c.search_runs([exp.experiment_id])
+    parents = [r for r in runs if tracking.TAG_SWEEP_DIR in r.data.tags]
+    assert len(parents) == 1 and parents[0].data.tags[tracking.TAG_SWEEP_DIR] == str(sweep.resolve())
+    parent = parents[0]
+    jobs = [r for r in runs if r.data.tags.get("mlflow.parentRunId") == parent.info.run_id]
+    assert sorted(Path(r.data.tags[tracking.TAG_RUN_DIR]).name for r in jobs) == ["0", "1"]
+    for r in jobs:
+        assert r.data.params["split.seed"] in ("1", "2") and "test/cgo-three_stage/mae_mean" in r.data.metrics
+    assert parent.info.status == "FINISHED"
+    assert parent.data.metrics["best_objective"] == pytest.approx(min(r.data.metrics["objective"] for r in jobs))

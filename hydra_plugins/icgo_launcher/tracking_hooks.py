@@ -79,11 +79,11 @@ def track_job(settings: dict, outdir: Path, files=None, door: str | None = None)
 
 class SweepTracking(Callback):
     """A sweep as an MLflow parent run: opened before the first job (its id left in the sweep directory for the jobs
-    of any launcher), closed after the last with the sweep's report files and the best objective."""
+    of any launcher), closed after the last with the sweep's report files and the best objective of the jobs'
+    directories (the jobs may have run in other processes or on other nodes)."""
 
     def __init__(self) -> None:
         self.uri: str | None = None
-        self.objectives: list[float] = []
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         from icgo.studies import tracking
@@ -97,21 +97,19 @@ class SweepTracking(Callback):
         sweep_dir = Path(str(config.hydra.sweep.dir))
         params = {"overrides": " ".join(config.hydra.overrides.task),
                   "sweeper": OmegaConf.select(config, "hydra.sweeper._target_", default="")}
-        sweep = OmegaConf.to_container(OmegaConf.select(config, "hydra.sweeper.params", default={}) or {},
-                                       resolve=False)
+        sweep = OmegaConf.select(config, "hydra.sweeper.params", default=None)
+        sweep = OmegaConf.to_container(sweep, resolve=False) if OmegaConf.is_config(sweep) else {}
         params.update({f"sweep.{k}": v for k, v in (sweep or {}).items()})
         tracking.start_parent(self.uri, sweep_dir, experiment=experiment_name(config.hydra.job.name),
                               params=params, run_name=f"sweep {sweep_dir}")
-
-    def on_job_end(self, config: DictConfig, job_return, **kwargs: Any) -> None:
-        value = getattr(job_return, "_return_value", None)
-        if isinstance(value, (int, float)) and not isinstance(value, bool):
-            self.objectives.append(float(value))
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
         if self.uri is None:
             return
         from icgo.studies import tracking
+        from icgo.studies.tracking_tables import objective
 
-        tracking.end_parent(self.uri, Path(str(config.hydra.sweep.dir)),
-                            min(self.objectives) if self.objectives else None)
+        sweep_dir = Path(str(config.hydra.sweep.dir))  # the jobs ran in other processes: read their directories
+        values = [v for d in sorted(sweep_dir.iterdir()) if d.is_dir() and (d / "run.json").is_file()
+                  for v in [objective(d)] if v is not None]
+        tracking.end_parent(self.uri, sweep_dir, min(values) if values else None)
