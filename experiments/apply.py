@@ -45,6 +45,9 @@ def main(cfg: DictConfig) -> None:
     out = Path(str(cfg.out)).expanduser() if cfg.get("out") else Path(HydraConfig.get().runtime.output_dir)
     meta = run_apply(cfg, out, keep=hydra_keep())
     report(meta, out, Path(str(cfg.data)).stem)
+    from hydra_plugins.icgo_launcher.tracking_hooks import track_job
+
+    track_job(OmegaConf.to_container(cfg, resolve=True), out, door="apply")  # MLflow, where installed and not off
     if meta["verdict"]["exit_code"]:  # far outside the training domain (icgo.survey.verdict.EXIT_OUT_OF_DOMAIN)
         raise SystemExit(meta["verdict"]["exit_code"])
 

@@ -72,6 +72,9 @@ def main(cfg: DictConfig) -> None:
                     overwrite=bool_setting(cfg, "overwrite"), keep=hydra_keep(), writer="experiments.calibrate")
     rc = calibration_run.run(str(cfg.data), config, site, output, lambda: load(cfg),
                              lambda stage: write_hydra_record(stage, cfg), repo_path(cfg.results_dir), t0)
+    from hydra_plugins.icgo_launcher.tracking_hooks import track_job
+
+    track_job(OmegaConf.to_container(cfg, resolve=True), output.path, door="calibrate")  # MLflow, where installed
     if rc:
         raise SystemExit(rc)
 

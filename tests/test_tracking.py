@@ -270,3 +270,11 @@ def test_a_sweep_is_a_parent_run_of_its_jobs(tmp_path):
         assert r.data.params["split.seed"] in ("1", "2") and "test/cgo-three_stage/mae_mean" in r.data.metrics
     assert parent.info.status == "FINISHED"
     assert parent.data.metrics["best_objective"] == pytest.approx(min(r.data.metrics["objective"] for r in jobs))
+
+
+def test_a_corrected_surveys_scores(tmp_path):
+    meta = {"rows": 584, "metrics": {"compensated": {"mae": 0.0633, "rmse": 0.0811}, "raw": {"mae": 2.419}}}
+    (tmp_path / "s_corrected.meta.json").write_text(json.dumps(meta))
+    got = {k: v for k, v, _ in directory_metrics(tmp_path)}
+    assert got == {"survey/s_corrected/compensated/mae": 0.0633, "survey/s_corrected/compensated/rmse": 0.0811,
+                   "survey/s_corrected/raw/mae": 2.419}

@@ -5,7 +5,8 @@ run's step = world x 1000 + repeat) and their mean over repeats (``.../<metric>_
 (``worlds.csv``): each world's value (``world/<method>/<metric>``, step = its data seed) and the mean over worlds
 (``pooled/<method>/<metric>``); ``convergence.csv``: the mean best training fitness per iteration
 (``curve/<method>/best_fitness``, step = iteration); ``run.json``: the wall times (``time/...``). Any door: the
-numbers of its ``run.json`` top level and ``timings``. Names use only characters MLflow accepts.
+numbers of its ``run.json`` top level and ``timings``; ``experiments.apply``: a corrected survey's scores
+(``survey/<name>/compensated/mae``, ...). Names use only characters MLflow accepts.
 """
 
 from __future__ import annotations
@@ -70,6 +71,17 @@ def record_metrics(record: dict) -> list[tuple[str, float, int]]:
     return out
 
 
+def survey_metrics(meta: dict, survey: str) -> list[tuple[str, float, int]]:
+    """A corrected survey's scores (``experiments.apply``'s ``<survey>_corrected.meta.json``: ``metrics`` per kind,
+    e.g. ``compensated`` and ``raw``, when the survey has a reference azimuth) as ``survey/<survey>/<kind>/<metric>``."""
+    out = []
+    for kind, values in (meta.get("metrics") or {}).items():
+        if isinstance(values, dict):
+            out += [(name("survey", survey, kind, k), float(v), 0) for k, v in values.items()
+                    if isinstance(v, (int, float)) and not isinstance(v, bool)]
+    return out
+
+
 def directory_metrics(run_dir: Path) -> list[tuple[str, float, int]]:
     """Every metric of a run directory (the tables this module knows, where present)."""
     out = []
@@ -88,6 +100,13 @@ def directory_metrics(run_dir: Path) -> list[tuple[str, float, int]]:
         record = None
     if isinstance(record, dict):
         out += record_metrics(record)
+    for path in sorted(run_dir.glob("*.meta.json")):
+        try:
+            meta = json.loads(path.read_text())
+        except (OSError, ValueError):
+            continue
+        if isinstance(meta, dict) and isinstance(meta.get("metrics"), dict):
+            out += survey_metrics(meta, path.name[: -len(".meta.json")])
     return out
 
 
