@@ -144,9 +144,14 @@ def log_run_dir(uri: str, run_dir: Path, *, experiment: str, params: dict, run_n
             objective an Optuna sweep minimises). files: the artifacts, relative to ``run_dir`` (None: every file
             of it with a suffix of :data:`ARTIFACT_SUFFIXES`).
     """
+    import time
+
+    t0 = time.perf_counter()
     try:
-        return _log(uri, Path(run_dir), experiment, params, run_name, tags or {}, parent_run_id, extra_metrics or {},
-                    files)
+        rid = _log(uri, Path(run_dir), experiment, params, run_name, tags or {}, parent_run_id, extra_metrics or {},
+                   files)
+        log.info("tracking: logged %s as MLflow run %s in %.1f s (%s)", run_dir, rid, time.perf_counter() - t0, uri)
+        return rid
     except Exception as e:  # noqa: BLE001  (tracking never fails a run)
         log.warning("tracking: the run in %s was not logged to %s: %s: %s", run_dir, uri, type(e).__name__,
                     str(e).splitlines()[0] if str(e) else "")
@@ -179,7 +184,6 @@ def _log(uri, run_dir: Path, experiment, params, run_name, tags, parent_run_id, 
             rel = path.relative_to(run_dir).parent
             client.log_artifact(rid, str(path), None if str(rel) == "." else str(rel))
     client.set_terminated(rid, "FINISHED")
-    log.info("tracking: logged %s as MLflow run %s (%s)", run_dir, rid, uri)
     return rid
 
 
