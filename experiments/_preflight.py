@@ -20,7 +20,8 @@ from icgo.core.settings import first_line
 #: Exit status of a bad setting or command line (every door).
 EXIT_CONFIG = 2
 #: Config groups of the ICGO-RELM study (``experiments.run``); the other doors have none.
-STUDY_GROUPS = ("dataset", "model", "optimizer", "strategy", "schedule", "budget", "split", "fitness", "experiment")
+STUDY_GROUPS = ("dataset", "model", "optimizer", "strategy", "schedule", "budget", "split", "fitness", "experiment",
+                "debug")
 MULTIRUN_FLAGS = ("-m", "--multirun")  # moved in front of the overrides (Hydra's parser refuses them after one)
 HYDRA_DIR_KEYS = ("hydra.run.dir", "hydra.sweep.dir")  # directories Hydra creates before the task runs
 #: Settings that no longer exist -> what replaced them, for every door (``"*"``) or one config name.
@@ -55,7 +56,7 @@ def check_overrides(args: list[str], groups=STUDY_GROUPS, conf_dir: Path = CONF_
         if key not in groups:
             continue
         options = group_options(key, conf_dir, extra)
-        allowed = options + (["null", ""] if key == "experiment" else [])
+        allowed = options + (["null", ""] if key in ("experiment", "debug") else [])
         for v in (v.strip() for v in value.split(",")):
             if v not in allowed:
                 return f"unknown {key} {v!r} in override {arg!r}; choose one of: {', '.join(options)}"

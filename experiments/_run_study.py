@@ -69,8 +69,12 @@ def run_study(name: str, config, output, *, inputs: dict | None = None, models_d
         if cfg is not None:
             write_hydra_record(stage, cfg)
         message = study.write(result, data, config, stage, invocation)
+        written = [p.relative_to(stage) for p in stage.rglob("*") if p.is_file()]
     if message:
         print(message, flush=True)
+    from experiments._tracking import track_job
+
+    track_job(dict(settings or {}), output.path, written, door=name)  # MLflow, where installed and not off
     return result
 
 

@@ -42,12 +42,18 @@ def study_main(name: str, cfg: DictConfig, entry_keys=("out_dir",)):
 
     hc = HydraConfig.get()
     run_dir = Path(hc.runtime.output_dir)
-    if name == "icgo_relm":
-        return run_job(cfg, run_dir, multirun=hc.mode == RunMode.MULTIRUN)
+    if name == "icgo_relm":  # its objective for a sweeper that minimises one (hydra/sweeper=optuna)
+        from icgo.studies.tracking_tables import objective
+
+        record = run_job(cfg, run_dir, multirun=hc.mode == RunMode.MULTIRUN)
+        return None if record is None else objective(run_dir)
     if name in DATA_DOORS:
         from experiments import _data_doors
+        from experiments._tracking import track_job
 
         rc = getattr(_data_doors, DATA_DOORS[name])(cfg, run_dir)
+        out = Path(str(cfg.out)).expanduser() if name == "apply" and cfg.get("out") else run_dir
+        track_job(OmegaConf.to_container(cfg, resolve=True), out, door=name)  # MLflow, where installed and not off
         if rc:
             raise SystemExit(rc)
         return None
@@ -128,6 +134,9 @@ def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | Non
     except ValueError as e:  # OutputError (a full disk, a read-only directory): the previous run is intact
         return _failed(e, outdir, multirun)
     job.print_run(run, computed, record, outdir, t0)
+    from experiments._tracking import track_job
+
+    track_job(OmegaConf.to_container(cfg, resolve=True), outdir)  # MLflow, where installed and not turned off
     return record
 
 

@@ -18,9 +18,10 @@ from experiments._study_main import study_main
 
 @hydra.main(version_base="1.3", config_path=str(CONF_DIR), config_name="config")
 @one_line_errors
-def main(cfg: DictConfig) -> None:
-    """Hydra task: one job of a run or a sweep."""
-    study_main("icgo_relm", cfg)
+def main(cfg: DictConfig) -> float | None:
+    """Hydra task: one job of a run or a sweep; returns its objective for a sweeper that minimises one
+    (``hydra/sweeper=optuna``: :func:`icgo.studies.tracking_tables.objective`), None for a failed job."""
+    return study_main("icgo_relm", cfg)
 
 
 if __name__ == "__main__":

@@ -14,6 +14,8 @@ from pathlib import Path
 # $XDG_CACHE_HOME: point it into the repository's cache folder, so the test session never shares a cache
 # with the user's own runs going on beside it (a program read while another process wrote it crashed a worker).
 os.environ["XDG_CACHE_HOME"] = str(Path(__file__).resolve().parents[1] / ".jax_cache" / "xdg")
+# MLflow tracking (tracking=auto) off for every door a test runs; tests/test_tracking.py turns it on where it tests it
+os.environ["ICGO_TRACKING"] = "false"
 
 import pytest  # noqa: E402
 

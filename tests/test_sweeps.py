@@ -31,9 +31,11 @@ def _default_sigint() -> None:
 
 
 def _start(sweep: Path, jobs: str, *extra: str, cwd=ROOT) -> subprocess.Popen:
+    # the app is a script (sys.path[0] is its folder): PYTHONPATH makes it import this tree's launcher
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
     return subprocess.Popen([sys.executable, str(APP), "-m", f"job={jobs}", f"hydra.sweep.dir={sweep}", *extra],
                             cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            preexec_fn=_default_sigint)
+                            preexec_fn=_default_sigint, env=env)
 
 
 def _wait_for(path: Path, proc: subprocess.Popen, timeout: float = 60.0) -> str:
@@ -92,16 +94,20 @@ def test_ctrl_c_stops_the_sweep_and_reports_every_job(tmp_path):
     assert not (sweep / "1" / "run.json").exists()
 
 
-def test_jobs_run_on_one_xla_thread_each_pinned_to_distinct_cores(tmp_path):
+def test_jobs_are_pinned_to_distinct_cores_with_a_plain_runs_device_count(tmp_path):
+    """Pinned jobs get no thread flag (JAX's cache key hashes XLA_FLAGS) and the host-device count of a plain run on
+    the sweep's cores (left out of the key), so they load the programs a single run compiled."""
     sweep = tmp_path / "sweep"
     proc = _start(sweep, "a,b", "hydra.launcher.workers=2")
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == 0, err
     runs = [json.loads((sweep / d / "run.json").read_text()) for d in ("0", "1")]
-    for run in runs:
-        assert "--xla_cpu_multi_thread_eigen=false" in run["xla_flags"]
-        assert "intra_op_parallelism_threads=1" in run["xla_flags"]
     cpus = sorted(os.sched_getaffinity(0))
+    for run in runs:
+        if len(cpus) >= 2:  # pinned: no thread flag
+            assert "xla_cpu_multi_thread_eigen" not in run["xla_flags"], run["xla_flags"]
+            assert "intra_op_parallelism_threads" not in run["xla_flags"], run["xla_flags"]
+        assert f"--xla_force_host_platform_device_count={len(cpus)}" in run["xla_flags"].split()
     if len(cpus) >= 2:
         assert all(len(r["affinity"]) == 1 for r in runs)
         assert runs[0]["affinity"] != runs[1]["affinity"]
@@ -186,3 +192,15 @@ def test_killing_a_study_job_costs_only_it_and_the_rerun_resumes(tmp_path):
                    capture_output=True, timeout=600)
     for table in ("metrics.csv", "predictions.csv"):
         assert (single / table).read_bytes() == (sweep / "1" / table).read_bytes()
+
+
+def test_a_sweep_job_keeps_a_plain_runs_device_count_and_cache_key_flags():
+    """A pinned job adds no thread flag (JAX's cache key hashes XLA_FLAGS) and gets the plain run's host-device
+    count (left out of the key), so it loads the programs a plain run compiled; an unpinned job keeps the flags."""
+    from icgo.core.devices import flagged_host_devices, sweep_job_flags
+
+    assert sweep_job_flags(1, True, 2, "") == "--xla_force_host_platform_device_count=2"
+    assert sweep_job_flags(1, True, 16, "--a=1") == "--a=1 --xla_force_host_platform_device_count=16"
+    unpinned = sweep_job_flags(1, False, 2, "")
+    assert "--xla_cpu_multi_thread_eigen=false" in unpinned and flagged_host_devices(unpinned) == 2
+    assert flagged_host_devices(sweep_job_flags(1, True, 2, "--xla_force_host_platform_device_count=4")) == 4

@@ -12,8 +12,10 @@ starts the next one. The end-of-sweep report
 Each job's XLA runs on ``xla_threads`` threads; with one thread the job's
 process is also pinned to its worker slot's cores (the cores shared out among the
 slots: 16 cores and 3 workers give slots of 6, 5 and 5), so workers side by side
-do not oversubscribe them, and the job gives the CPU one host device per core of
-its slot (its search one program over them: docs/performance.md).
+do not oversubscribe them. Every job gives the CPU as many host devices as a plain
+run on the sweep's cores would (``icgo.core.devices.sweep_job_flags``), so its programs
+are those a plain run compiled: the jobs load them from the persistent compilation
+cache a single run filled (results are bitwise across host-device counts).
 
 Ctrl-C stops the sweep: the running jobs are terminated (their run
 directories are staged, so each is complete or absent), the report lists what
@@ -41,7 +43,7 @@ from omegaconf import OmegaConf, open_dict
 
 from hydra_plugins.icgo_launcher import report
 from hydra_plugins.icgo_launcher.jobs import FAILED, previous_run, write_failure
-from icgo.core.devices import xla_flags
+from icgo.core.devices import sweep_job_flags
 from icgo.core.settings import first_line, interrupts_raise
 
 log = logging.getLogger(__name__)
@@ -72,16 +74,22 @@ def slot_cores(cpus: Sequence[int], workers: int, slot: int) -> list[int]:
     return list(cpus[lo:hi])
 
 
-def _child(payload: bytes, conn, threads: int | None, cores: list[int] | None) -> None:
+def _child(payload: bytes, conn, threads: int | None, cores: list[int] | None, host_devices: int) -> None:
     """Entry point of a job's process: run one Hydra job and send back its JobReturn."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the launcher decides what Ctrl-C stops
-    os.environ["XLA_FLAGS"] = xla_flags(threads, os.environ.get("XLA_FLAGS", ""))  # before JAX starts its backend
+    pinned = False
     if cores:
         try:
             os.sched_setaffinity(0, set(cores))
-        except OSError:  # a container that forbids it: the thread flags still hold
+            pinned = True
+        except OSError:  # a container that forbids it: the thread flags hold instead
             pass
+    # before JAX starts its backend: a plain run's device count and flags, so the job loads its compiled programs
+    os.environ["XLA_FLAGS"] = sweep_job_flags(threads, pinned, host_devices, os.environ.get("XLA_FLAGS", ""))
     config, hydra_context, task_function, singleton_state = cloudpickle.loads(payload)
+    from icgo.studies.icgo_relm_progress import ENV_LINES  # (no JAX: the module imports none)
+
+    os.environ[ENV_LINES] = f"job {config.hydra.job.num}"  # jobs share the terminal: progress lines, not bars
     setup_globals()
     Singleton.set_state(singleton_state)
     HydraConfig.instance().set_config(config)
@@ -178,7 +186,8 @@ def launch(launcher, job_overrides: Sequence[Sequence[str]], initial_job_idx: in
                     recv, send = ctx.Pipe(duplex=False)
                     payload = cloudpickle.dumps((config, launcher.hydra_context, launcher.task_function, state))
                     proc = ctx.Process(target=_child, args=(payload, send, launcher.xla_threads,
-                                                            slot_cores(cpus, workers, slot) if pin else None))
+                                                            slot_cores(cpus, workers, slot) if pin else None,
+                                                            len(cpus)))
                     proc.start()
                     send.close()
                     running[idx] = dict(proc=proc, recv=recv, ret=None, overrides=overrides, config=config,

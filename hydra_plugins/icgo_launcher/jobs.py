@@ -30,7 +30,7 @@ FAILURE_FILES = ("error.txt", FAILED)
 
 
 #: Settings that change how a run is executed, not what it computes: left out of :func:`config_hash`.
-RUNTIME_KEYS = ("overwrite", "progress", "jax_cache_dir", "devices")
+RUNTIME_KEYS = ("overwrite", "progress", "jax_cache_dir", "devices", "tracking")
 
 
 def config_hash(container: dict) -> str:

@@ -46,6 +46,22 @@ def xla_flags(threads: int | None, inherited: str = "") -> str:
     return f"{kept} {ours}".strip()
 
 
+def sweep_job_flags(threads: int | None, pinned: bool, host_devices: int, inherited: str = "") -> str:
+    """``XLA_FLAGS`` of a sweep's job process, chosen so that its programs are the ones a plain run on this machine
+    compiles (and the persistent compilation cache holds): JAX's cache key hashes ``XLA_FLAGS`` (the thread flags
+    included) and the program's device count, but not :data:`HOST_DEVICE_FLAG`.
+
+    ``host_devices``: the host-device count of a plain run here (the sweep's cores), kept for every job whatever
+    its share of the cores (results are bitwise across host-device counts: ``tests/test_parallel.py``); one
+    already fixed in ``inherited`` stays. ``pinned``: the process is bound to its cores by its affinity mask,
+    which already sizes XLA's thread pool, so no thread flag is added; else :func:`xla_flags` with ``threads``.
+    """
+    flags = inherited if pinned else xla_flags(threads, inherited)
+    if flagged_host_devices(flags) is None:
+        flags = f"{flags} {HOST_DEVICE_FLAG}={int(host_devices)}".strip()
+    return flags
+
+
 def flagged_host_devices(flags: str | None = None) -> int | None:
     """The host-device count an ``XLA_FLAGS`` string fixes (``--xla_force_host_platform_device_count=N``), or None."""
     flags = os.environ.get("XLA_FLAGS", "") if flags is None else flags

@@ -172,3 +172,20 @@ def spread(per: pd.DataFrame, method: str, value: str = "mae") -> tuple[float, f
     """(min, max) over worlds of a method's per-world mean ``value``."""
     x = per.loc[per["method"] == method, value].to_numpy(float)
     return float(np.min(x)), float(np.max(x))
+
+
+def smallest_p(n_worlds: int, tests: int = 1) -> float:
+    """The smallest Holm-adjusted p any of ``tests`` exact two-sided Wilcoxon signed-rank tests over ``n_worlds``
+    paired worlds can give: every difference of one sign gives p = 2 / 2**n (the exact null distribution puts
+    2**-n on each extreme), and Holm multiplies the smallest p by the family's size (capped at 1)."""
+    if n_worlds < 1:
+        return 1.0
+    return min(1.0, tests * 2.0 / 2.0 ** int(n_worlds))
+
+
+def worlds_needed(tests: int = 1, alpha: float = 0.05) -> int:
+    """The fewest worlds with which :func:`smallest_p` of a family of ``tests`` tests is below ``alpha``."""
+    n = 1
+    while smallest_p(n, tests) >= alpha:
+        n += 1
+    return n

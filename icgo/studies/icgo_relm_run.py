@@ -9,6 +9,7 @@ Nothing here imports JAX at module import; the functions import the study.
 
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 from typing import NamedTuple
@@ -48,8 +49,9 @@ def start_and_compute(run, t0: float) -> tuple[Computed, dict]:
 
 
 def compute(run, scfg, timings: dict) -> Computed:
-    """Load the data and run the study (``scfg``: ``run.study_config()``) with the plan line and a progress bar;
-    ``timings`` gets ``load_data_s`` and the study's stages."""
+    """Load the data and run the study (``scfg``: ``run.study_config()``) with the plan line, the search's estimated
+    time and its progress (:mod:`icgo.studies.icgo_relm_progress`); ``timings`` gets ``load_data_s`` and the
+    study's stages. A worlds run also says when it has too few worlds for its test to reach p < 0.05."""
     t1 = time.perf_counter()
     if run.worlds is None:
         from icgo.studies.icgo_relm_load import load_data, load_target
@@ -59,20 +61,29 @@ def compute(run, scfg, timings: dict) -> Computed:
         target = load_target(run)
         timings["load_data_s"] = time.perf_counter() - t1
         result = run_with_progress(frame, scfg, meta, run.progress, desc=f"{desc} {'/'.join(scfg.method_names())}",
-                                   target=target, timings=timings)
+                                   target=target, timings=timings, jax_cache_dir=run.jax_cache_dir)
         return Computed(result, desc, frame, meta)
     from icgo.core.execution import is_accelerator
     from icgo.studies.icgo_relm_load import load_worlds
-    from icgo.studies.icgo_relm_progress import Progress, progress_enabled
+    from icgo.studies.icgo_relm_progress import make_progress
+    from icgo.studies.run_log import to_log_files
+    from icgo.studies.search_estimate import announce
     from icgo.studies.worlds import run_worlds
+    from icgo.studies.worlds_outputs import power_note
 
     worlds, desc = load_worlds(run)
     timings["load_data_s"] = time.perf_counter() - t1
+    note = power_note(len(worlds), len(scfg.method_names()))
+    if note:
+        print(f"note: {note}", file=sys.stderr)
+        to_log_files(f"note: {note}")
     plan = scfg.execution(cells=len(worlds) * len(scfg.ids()))
     print(f"search: {plan.why}")
     bar = None
-    if progress_enabled(run.progress, is_accelerator(plan.backend)) and scfg.optimizer is not None:
-        bar = Progress(f"{desc} {'/'.join(scfg.method_names())}")
+    if scfg.optimizer is not None:
+        est = announce(scfg, plan, len(worlds) * len(scfg.ids()), len(worlds[0].frame), run.jax_cache_dir)
+        bar = make_progress(run.progress, f"{desc} {'/'.join(scfg.method_names())}", is_accelerator(plan.backend),
+                            est.evals_per_iteration, est.record)
     try:
         return Computed(run_worlds(worlds, scfg, timings=timings, progress=bar), desc)
     finally:
@@ -110,7 +121,7 @@ def write_run(outdir: Path, run, computed: Computed, info: dict, *, config_yaml:
         if run.worlds is not None:
             from icgo.studies.worlds_outputs import write_run_files as write_worlds
 
-            return write_worlds(stage, computed.result, info, **common)
+            return write_worlds(stage, computed.result, info, **common, figures=run.figures)
         from icgo.studies.icgo_relm_outputs import write_run_files
 
         plot = None

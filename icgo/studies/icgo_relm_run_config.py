@@ -333,9 +333,11 @@ class RunConfig:
         dataset: the data set's node (:data:`DATASET_NODES`, else :class:`SimulatedData`). split, msa, model, fitness, budget: the study's nodes. optimizer,
             strategy, schedule: the search. precision: the search fitness's precision
             (:data:`icgo.studies.icgo_relm_config.PRECISIONS`). worlds: N independent simulated worlds, or None.
-        devices: the most devices the search is sharded over (None: every one). progress: ``auto``, true or false.
+        devices: the most devices the search is sharded over (None: every one). progress: ``auto``, true, false or seconds between
+            progress lines (:func:`icgo.studies.icgo_relm_progress.progress_mode`).
         figures: write study.png. overwrite: replace a complete run. label: the experiment's name or None.
-        jax_cache_dir: JAX's persistent compilation cache (None: off).
+        jax_cache_dir: JAX's persistent compilation cache (None: off). tracking: MLflow tracking
+            (:func:`icgo.studies.tracking.tracking_uri`: auto, true, false or a URI).
     """
 
     dataset: SimulatedData | WellConditionsData | CsvData = dataclasses.field(
@@ -351,16 +353,20 @@ class RunConfig:
     precision: str
     worlds: int | None
     devices: int | None
-    progress: bool | str
+    progress: bool | str | float
     figures: bool
     overwrite: bool
     label: str | None
     jax_cache_dir: str | None
+    tracking: bool | str | None = "auto"
 
     def __post_init__(self):
         from icgo.studies.icgo_relm_progress import progress_enabled
 
-        progress_enabled(self.progress)  # its one check: auto, true or false
+        progress_enabled(self.progress)  # its one check: auto, true, false or seconds
+        from icgo.studies.tracking import tracking_uri
+
+        tracking_uri(self.tracking)  # auto, true (MLflow installed), false or a URI: one line naming tracking
         need(self.label is None or isinstance(self.label, str), "label",
              f"must be a name (a string) or null, got {self.label!r}")
         n = self.worlds

@@ -3,7 +3,8 @@
 Its run directory holds the study's tables with a ``world`` column (:data:`TABLES`; not the per-row predictions: a
 model to apply comes from a one-world run), ``worlds.csv`` (each world's mean over its repeats per method),
 ``worlds_pooled.csv`` (per method: mean +/- std over worlds, first in k of N worlds), ``summary.md`` (both, the
-ranking, the test over worlds with Holm, the development seeds) and ``run.json``.
+ranking, the test over worlds with Holm, whether there are enough worlds for it, the development seeds),
+``worlds.png`` (``figures=true``: each world's value and the pooled order) and ``run.json``.
 """
 
 from __future__ import annotations
@@ -17,7 +18,24 @@ from icgo.core.environment import environment
 
 #: Tables of a worlds run directory (the one-world study's, less the per-row predictions).
 TABLES = ("metrics", "convergence", "msa", "coverage")
-WORLDS_FILE, POOLED_FILE = "worlds.csv", "worlds_pooled.csv"
+WORLDS_FILE, POOLED_FILE, FIGURE_FILE = "worlds.csv", "worlds_pooled.csv", "worlds.png"
+
+
+def power_note(n_worlds: int, n_methods: int, alpha: float = 0.05) -> str | None:
+    """One sentence when ``n_worlds`` are too few for the run's test over worlds (the first method against each of
+    the other ``n_methods - 1``, exact two-sided Wilcoxon, Holm) to reach p < ``alpha`` whatever the data
+    (:func:`icgo.reporting.worlds.smallest_p`); None when it can, or when there is no test."""
+    from icgo.reporting.worlds import smallest_p, worlds_needed
+
+    tests = n_methods - 1
+    if tests < 1 or n_worlds < 2:
+        return None
+    p = smallest_p(n_worlds, tests)
+    if p < alpha:
+        return None
+    return (f"{n_worlds} worlds are too few for the test over worlds: the smallest p an exact two-sided Wilcoxon over "
+            f"{n_worlds} worlds gives, Holm over {tests} test(s), is {p:.3g} (not < {alpha:g}), so no order of the "
+            f"methods can be established; {worlds_needed(tests, alpha)} worlds are the fewest that can")
 
 
 def methods_compared(result) -> list[str]:
@@ -49,7 +67,8 @@ def summary(result, info: dict, search: str):
           "## Pooled over worlds", "", pooled.to_markdown(index=False), ""]
     if len(methods) >= 2 and len(result.seeds) >= 2:
         tests = world_tables.first_against_rest(per, methods)
-        md += [world_tables.rank_sentence(per, methods), "",
+        note = power_note(len(result.seeds), len(methods))
+        md += [world_tables.rank_sentence(per, methods), "", *([f"**Note: {note}.**", ""] if note else []),
                f"Wilcoxon signed-rank over worlds (paired by world, per-world mean test MAE), the first by pooled "
                f"mean against each other method, Holm over the {len(tests)} tests:", "",
                *world_tables.markdown_tests(tests), ""]
@@ -66,10 +85,12 @@ def summary(result, info: dict, search: str):
     return per, pooled, md
 
 
-def write_run_files(stage: Path, result, info: dict, *, config_yaml: str, search: str, config_sha256: str) -> dict:
+def write_run_files(stage: Path, result, info: dict, *, config_yaml: str, search: str, config_sha256: str,
+                    figures: bool = False) -> dict:
     """Every file of a worlds run into ``stage`` (the staging directory; the staged write is the caller's), run.json
     last: the resolved config (``config_yaml``), the tables, the per-world and pooled tables, ``summary.md``
-    (``search``: its sentence on the search settings) and the run record (``config_sha256`` in it)."""
+    (``search``: its sentence on the search settings), ``worlds.png`` (``figures``) and the run record
+    (``config_sha256`` in it)."""
     from icgo.reporting import records as run_records
 
     t0 = time.perf_counter()
@@ -84,6 +105,12 @@ def write_run_files(stage: Path, result, info: dict, *, config_yaml: str, search
     per.to_csv(stage / WORLDS_FILE, index=False, float_format="%.10g")
     pooled.to_csv(stage / POOLED_FILE, index=False)
     (stage / "summary.md").write_text("\n".join(md) + "\n")
+    methods_fitted = methods_compared(result)
+    if figures and len(methods_fitted) >= 1:
+        from icgo.reporting.worlds_figure import plot_worlds
+
+        plot_worlds(per, methods_fitted, stage / FIGURE_FILE,
+                    title=f"{info['description']}: {len(result.seeds)} worlds")
     methods = result.config.method_names()
     first = result.results[0]
     timings = {**info["timings"], "write_s": time.perf_counter() - t0}
