@@ -179,6 +179,7 @@ def test_save_load_apply_is_bitwise(tmp_path, accel, aligned, nl):
     head = json.loads((tmp_path / "m.json").read_text())
     absent = [n for n, has in p.parts().items() if not has]
     assert [n for n, v in head["fields"].items() if v is None and n != "nl_activation"] == absent
+    assert not {"field_reference", "accuracy"} & set(head["fields"])  # LATER_FIELDS: left out while None
     assert sorted(head["array_names"]) == sorted(set(LEAVES) - set(absent))
 
 

@@ -89,6 +89,7 @@ class MagCalibration(FittedModel):
     PREDICT = cal_params.predict
     INPUTS = _G_COLS + _B_COLS
     OPTIONAL_LEAVES = cal_params.OPTIONAL_LEAVES
+    LATER_FIELDS = ("field_reference", "accuracy")
 
     method: str
     axis_aligned: bool

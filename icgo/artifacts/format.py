@@ -195,6 +195,9 @@ class FittedModel(abc.ABC):
     MAY_BE_EMPTY: ClassVar[tuple] = ()
     NAN_OK: ClassVar[tuple] = ()
     OPTIONAL_LEAVES: ClassVar[tuple] = ()
+    #: Meta fields a kind gained after files of it were written (each defaults to None): left out of the header while
+    #: None, so such a file loads and saves back as it was, and an older icgo reads what this one writes.
+    LATER_FIELDS: ClassVar[tuple] = ()
     OLDEST_SCHEMA: ClassVar[int] = 1
     REFIT: ClassVar[str] = "refit it"
 
@@ -244,7 +247,7 @@ class FittedModel(abc.ABC):
                 if f.name in arrays:
                     raise ValueError(f"{self.KIND}: field {f.name!r} has the name of a params leaf")
                 arrays[f.name] = v
-            else:
+            elif not (v is None and f.name in self.LATER_FIELDS):
                 plain[f.name] = v
         like = self.params_like(json.loads(json.dumps(plain, default=_json_default)))
         if jax.tree_util.tree_structure(like) != jax.tree_util.tree_structure(self.params):
