@@ -156,7 +156,9 @@ def lab_casing(
         casing_magnetization_A_m: the casing's axial magnetization (A/m); ``None`` keeps
             ``casing``'s (8000 A/m by default). Both casing options are ignored without a casing.
     Returns:
-        Dataset; ``truth`` has the effects, casing, geometry, noise, the rows
+        Dataset; its meta declares the rig (``"rig": "turntable"``: every station turned about the
+        turntable's pivot) and the sensor's lever arm from the pivot (``"sensor_lever_m"``, m, tool frame);
+        ``truth`` has the effects, casing, geometry, noise, the rows
         that had spikes and the rows the filter dropped, and the casing field
         at each kept row (NED, nT).
     """
@@ -184,6 +186,7 @@ def lab_casing(
         effects=eff, n_samples=n_samples, accel_noise_g=noise_scale * accel_noise_g,
         mag_noise_nT=noise_scale * mag_noise_nT, spike_prob=spike_prob, spike_nT=spike_nT, outlier_sigma=outlier_sigma,
         extra_truth={"toolface_end_inclusive": toolface_end_inclusive},
+        extra_meta={"rig": "turntable", "sensor_lever_m": [float(sensor_offset_m), 0.0, float(sensor_lever_m)]},
     )
 
 
@@ -215,7 +218,7 @@ def _station_fields(A, I, T, total_field_nT, dip_deg, gravity_g, casing, pivot_n
 
 def _station_survey(name, seed, A, I, T, total_field_nT, dip_deg, gravity_g, casing, pivot_ned, lever_tool,
                     effects, n_samples, accel_noise_g, mag_noise_nT, spike_prob, spike_nT, outlier_sigma,
-                    extra_truth=None, extra_cols=None) -> Dataset:
+                    extra_truth=None, extra_cols=None, extra_meta=None) -> Dataset:
     """Static stations near a casing: ideal sensors + casing + effects + averaged noise + 3-sigma filter."""
     Gm, Bm, b_cas = _station_fields(np.asarray(A, float), np.asarray(I, float), np.asarray(T, float),
                                     float(total_field_nT), float(dip_deg), float(gravity_g), _hashable(casing),
@@ -238,6 +241,7 @@ def _station_survey(name, seed, A, I, T, total_field_nT, dip_deg, gravity_g, cas
         "name": name, "seed": int(seed), "total_field_nT": float(total_field_nT), "dip_deg": float(dip_deg),
         "declination_deg": 0.0, "gravity_g": float(gravity_g), "azimuth_reference": "magnetic",
         "n_raw_rows": int(n), "n_rows": int(keep.sum()), "samples_per_row": int(n_samples),
+        **(extra_meta or {}),
     }
     truth = {
         "effects": {k: v.tolist() for k, v in effects.items()},

@@ -50,6 +50,10 @@ class WorkflowConfig:
             shots (:func:`icgo.discrepancy.scatter.estimate_noise`) and use it in place of ``sigma_b_nT`` /
             ``sigma_g`` (each kept as a floor) for the fits and the verdict; both are reported. No effect with
             a reference attitude.
+        outlier_z: a station whose residual (after one fit with every linear-start candidate free) lies more
+            than this many robust standard deviations (1.4826 x MAD) from its component's median is an
+            outlier: named in the result, weight 0 in every fit and headline number
+            (:mod:`icgo.discrepancy.outliers`); ``.inf``: no screen.
     """
 
     k_folds: int = 5
@@ -66,6 +70,7 @@ class WorkflowConfig:
     candidates: tuple | None = None
     bucket: int = 120
     noise_from_data: bool = True
+    outlier_z: float = 10.0
 
     def __post_init__(self):
         bad = []
@@ -98,6 +103,11 @@ class WorkflowConfig:
         real("sigma_b_nT", 0.0, math.inf, lo_open=True, hi_open=True)
         real("sigma_g", 0.0, math.inf, lo_open=True, hi_open=True)
         integer("bucket", 0)
+        v = self.outlier_z
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 3.0:
+            bad.append(f"outlier_z={v!r}: must be a number > 3 (.inf: no screen)")
+        else:
+            object.__setattr__(self, "outlier_z", float(v))
         if not isinstance(self.noise_from_data, bool):
             bad.append(f"noise_from_data={self.noise_from_data!r}: must be true or false")
         c = self.candidates
