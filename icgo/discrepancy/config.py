@@ -27,7 +27,7 @@ class WorkflowConfig:
     Attributes:
         k_folds: folds of the held-out score (each station held out once).
         max_effects: most effects the greedy search adds. 6 is what the
-            results use (``lab_casing`` names 5); ``make discrepancy`` passes 4
+            results use (``lab_casing`` names 6); ``make discrepancy`` passes 4
             for the 24-shot devices.
         min_rel_improvement: the best candidate must lower the held-out chi2 by
             at least this fraction (ENGINEERING-NOTES: 10 %) ...

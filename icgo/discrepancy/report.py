@@ -269,8 +269,15 @@ def report_markdown(res: Result, label: str, truth=None, qc=None, protocol: str 
     unconv = sorted({c.name for s in res.steps for c in s.candidates if not c.converged}
                     | {c.name for c in res.final_candidates if not c.converged})
     if unconv:
-        lines += ["", (f"Not converged within {MAX_ROUNDS} x {res.config.n_iter} LM steps, so never added: "
-                       f"{', '.join(unconv)}.")]
+        never = [u for u in unconv if u not in res.model]
+        later = [u for u in unconv if u in res.model]
+        lines += [""]
+        if never:
+            lines[-1] += (f"Not converged within {MAX_ROUNDS} x {res.config.n_iter} LM steps, so never added: "
+                          f"{', '.join(never)}.")
+        if later:
+            lines[-1] += (f"{' ' if never else ''}Not converged at an earlier step (so not added there), added once "
+                          f"converged: {', '.join(later)}.")
     lines += ["", "## Where the reference model disagrees (before)", ""]
     lines += [f"- {s}" for s in pattern_sentences(res.pattern_before)]
     lines += ["", "## Steps", ""]
