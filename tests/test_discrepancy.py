@@ -189,7 +189,8 @@ def test_correct_recovers_azimuth():
 def test_lm_jacobian_is_exact():
     # the forward-mode Jacobian against central finite differences
     st, _ = _hidden(["mag_misalignment", "accel_scale"], seed=2, n=12)
-    layout, data, valid, _ = D.prepare(st)
+    prep = D.prepare(st)
+    layout, data = prep.layout, prep.data
     th = np.asarray(jax.random.normal(jax.random.PRNGKey(1), (layout.n_params,))) * 0.5
     r = jax.jit(lambda t: D.residuals(t, data, layout).ravel())  # compiled once: 2 x n_params evaluations follow
     f = lambda t: np.asarray(r(jax.numpy.asarray(t)))
