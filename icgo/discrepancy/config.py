@@ -53,7 +53,8 @@ class WorkflowConfig:
         outlier_z: a station whose residual (after one fit with every linear-start candidate free) lies more
             than this many robust standard deviations (1.4826 x MAD) from its component's median is an
             outlier: named in the result, weight 0 in every fit and headline number
-            (:mod:`icgo.discrepancy.outliers`); ``.inf``: no screen.
+            (:mod:`icgo.discrepancy.outliers`); ``.inf``: no screen. Only with a reference attitude: in group
+            mode the scatter is estimated from the shots, and a MAD over a device's 24 shots is too uncertain.
     """
 
     k_folds: int = 5

@@ -67,8 +67,9 @@ FOLD_SEED = 0
 #: linearised step promises more than any step delivers). The decisions compare scores at 10 % steps.
 CONVERGED_GAP = 1e-3
 CONVERGED_FALL = 1e-3
-#: ... or when another ``n_iter`` LM steps lowered their summed cost by at most this much per residual
-#: component fitted (the k folds and the full fit: k x the residual components used): a fit crawling along a
+#: ... or, for a model with an effect of data-driven start (``magnetic_body``), when another ``n_iter`` LM steps
+#: lowered their summed cost by at most this much per residual component fitted (the k folds and the full fit:
+#: k x the residual components used): a fit crawling along a
 #: valley it cannot resolve (a far ``magnetic_body``, whose distance and moment trade against each other) then
 #: counts as converged once its progress is a hundredth of the noise per residual, far below the 10 % steps
 #: the decisions compare.
@@ -285,7 +286,7 @@ def _mask(ctx: SearchContext, effects) -> np.ndarray:
     return np.where(ctx.prepared.given, 0.0, m)
 
 
-def _starts(ctx: SearchContext, model: tuple, trial: list, theta) -> tuple:
+def _starts(ctx: SearchContext, trial: list, theta) -> tuple:
     """(M, K, P), (M, P) starts of the evaluation: ``theta`` for every model, but for a candidate effect with a
     data-driven start (:attr:`icgo.physics.effects.Effect.start`, a nonlinear effect such as ``magnetic_body``)
     its parameters start where they best explain the field the current model leaves, found on each fold's
@@ -331,7 +332,10 @@ def _evaluated(ctx: SearchContext, model: tuple, theta, steps: tuple, gaps: tupl
     trial = [None] + [c if c not in model else "" for c in ctx.names] + (
         [VOCABULARY] if ctx.scatter_from_data else [])
     masks = np.stack([_mask(ctx, model + ((c,) if c else ())) for c in trial])
-    starts = _starts(ctx, model, trial, theta)
+    starts = _starts(ctx, trial, theta)
+    # models that fit an effect with a data-driven start (a nonlinear one, magnetic_body) may crawl along a valley
+    started = np.array([any(_fx.EFFECTS[e].start is not None for e in model + ((c,) if c and c != VOCABULARY else ()))
+                        for c in trial])
     previous = None
     for _ in range(MAX_ROUNDS):  # go on from the last fits until every fit has converged (a fixed budget)
         ev = evaluate_models(jnp.asarray(theta), jnp.asarray(masks), jnp.asarray(ctx.train), jnp.asarray(ctx.test),
@@ -340,8 +344,9 @@ def _evaluated(ctx: SearchContext, model: tuple, theta, steps: tuple, gaps: tupl
         ev = Evaluation(*(np.asarray(x) for x in ev))
         converged = ev.gap <= CONVERGED_GAP
         if previous is not None:
-            converged |= (previous - ev.cost_total) <= np.maximum(
-                CONVERGED_FALL * previous, CONVERGED_FALL_PER_RESIDUAL * len(ctx.train) * ctx.n_res)
+            converged |= (previous - ev.cost_total) <= np.where(
+                started, np.maximum(CONVERGED_FALL * previous, CONVERGED_FALL_PER_RESIDUAL * len(ctx.train) * ctx.n_res),
+                CONVERGED_FALL * previous)
         # row 0, the current model, is replaced by its own evaluation below; the whole vocabulary is used
         # only from the first evaluation
         pending = ~converged
@@ -408,7 +413,9 @@ def init(st: Stations, config: WorkflowConfig = WorkflowConfig(), key=None) -> S
     st, real = pad_stations(st, config.bucket)
     prep = prepare(st, config.noise)
     layout = prep.layout
-    out_mask, outliers = screen(prep, prep.valid & real, names, config.outlier_z)
+    # the screen needs a reference attitude: in group mode the scatter is estimated from the shots (scatter.py),
+    # and a median absolute deviation over a device's 24 shots is too uncertain to call one of them an outlier
+    out_mask, outliers = screen(prep, prep.valid & real, names, config.outlier_z if st.has_reference else np.inf)
     valid = prep.valid & real & ~out_mask
     train, test = folds(valid, config.k_folds, key, group=None if st.has_reference else st.group)
     group_free = np.zeros(layout.n_params)
