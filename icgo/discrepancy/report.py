@@ -271,7 +271,7 @@ def report_markdown(res: Result, label: str, truth=None, qc=None, protocol: str 
     if unconv:
         never = [u for u in unconv if u not in res.model]
         later = [u for u in unconv if u in res.model]
-        lines += [""]
+        lines += ["", ""]
         if never:
             lines[-1] += (f"Not converged within {MAX_ROUNDS} x {res.config.n_iter} LM steps, so never added: "
                           f"{', '.join(never)}.")
