@@ -141,3 +141,22 @@ def test_control_body_seen_from_the_pivot():
     step = next(s for s in res.steps if not s.separable)
     assert {step.name, *step.equivalent} >= {"external_field", "magnetic_body"}, v
     assert "not separable" in v and "magnetic_body" in v and "external_field" in v
+
+
+@pytest.mark.slow
+def test_lab_casing_names_the_casing():
+    """The goal on the project's pole-pair casing (lab_casing, every row its 3-sigma filter keeps): the workflow
+    names magnetic_body, the magnetometer remainder falls below 2x noise, and the two spiked rows (7,000 and
+    -9,000 nT on one axis) are named as robust outliers and left out."""
+    from icgo.datasets.casing_stations import lab_casing
+    from icgo.io import recording
+
+    ds = lab_casing(0)
+    st = D.stations_from_recording(recording.validate(ds.frame, ds.meta, source="lab_casing"))
+    assert st.rig == "turntable" and st.lever_m == (0.015, 0.0, 0.15)
+    res = D.run_workflow(st)
+    assert "magnetic_body" in res.named, D.verdict(res)
+    assert res.pattern.b_rms_nT < 2.0 * res.config.sigma_b_nT, D.verdict(res)
+    spiked = {o.station for o in res.outliers}
+    assert len(spiked) == 2 and {o.component for o in res.outliers} <= {"bx", "by", "bz"}
+    assert all(abs(o.residual) > 5000.0 for o in res.outliers)
