@@ -25,10 +25,12 @@ def _apply(name, p, st):
 def test_vocabulary_is_complete():
     assert set(E.EFFECTS) == {
         "hard_iron", "external_field", "mag_scale", "mag_cross_coupling",
-        "mag_misalignment", "accel_bias", "accel_scale",
+        "mag_misalignment", "accel_bias", "accel_scale", "magnetic_body",
     }
     for e in E.EFFECTS.values():
-        assert e.n_params == 3 and e.description and e.typical > 0
+        assert e.n_params == (9 if e.name == "magnetic_body" else 3) and e.description
+        assert e.typical_each().shape == (e.n_params,) and np.all(e.typical_each() > 0)
+    assert E.names_for_rig(None) == tuple(n for n in E.ORDER if n != "magnetic_body")
 
 
 def test_hard_iron_constant_in_tool_frame(stations):

@@ -162,7 +162,9 @@ def lab_casing(
             (:func:`icgo.datasets.instrument_family.draw`); ``meta["instrument"]`` and ``truth["instrument"]``
             hold the draw. ``casing_distance_m`` and ``casing_magnetization_A_m`` must then be left unset.
     Returns:
-        Dataset; ``truth`` has the effects, casing, geometry, noise, the rows
+        Dataset; its meta declares the rig (``"rig": "turntable"``: every station turned about the
+        turntable's pivot) and the sensor's lever arm from the pivot (``"sensor_lever_m"``, m, tool frame);
+        ``truth`` has the effects, casing, geometry, noise, the rows
         that had spikes and the rows the filter dropped, and the casing field
         at each kept row (NED, nT).
     """
@@ -203,7 +205,8 @@ def lab_casing(
         mag_noise_nT=noise_scale * mag_noise_nT, spike_prob=spike_prob, spike_nT=spike_nT, outlier_sigma=outlier_sigma,
         extra_truth={"toolface_end_inclusive": toolface_end_inclusive,
                      **({"instrument": drawn.as_dict()} if drawn else {})},
-        extra_meta={"instrument": drawn.as_dict()} if drawn else None,
+        extra_meta={"rig": "turntable", "sensor_lever_m": [float(sensor_offset_m), 0.0, float(sensor_lever_m)],
+                    **({"instrument": drawn.as_dict()} if drawn else {})},
     )
 
 

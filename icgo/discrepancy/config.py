@@ -27,7 +27,7 @@ class WorkflowConfig:
     Attributes:
         k_folds: folds of the held-out score (each station held out once).
         max_effects: most effects the greedy search adds. 6 is what the
-            results use (``lab_casing`` names 5); ``make discrepancy`` passes 4
+            results use (``lab_casing`` names 6); ``make discrepancy`` passes 4
             for the 24-shot devices.
         min_rel_improvement: the best candidate must lower the held-out chi2 by
             at least this fraction (ENGINEERING-NOTES: 10 %) ...
@@ -50,6 +50,11 @@ class WorkflowConfig:
             shots (:func:`icgo.discrepancy.scatter.estimate_noise`) and use it in place of ``sigma_b_nT`` /
             ``sigma_g`` (each kept as a floor) for the fits and the verdict; both are reported. No effect with
             a reference attitude.
+        outlier_z: a station whose residual (after one fit with every linear-start candidate free) lies more
+            than this many robust standard deviations (1.4826 x MAD) from its component's median is an
+            outlier: named in the result, weight 0 in every fit and headline number
+            (:mod:`icgo.discrepancy.outliers`); ``.inf``: no screen. Only with a reference attitude: in group
+            mode the scatter is estimated from the shots, and a MAD over a device's 24 shots is too uncertain.
     """
 
     k_folds: int = 5
@@ -66,6 +71,7 @@ class WorkflowConfig:
     candidates: tuple | None = None
     bucket: int = 120
     noise_from_data: bool = True
+    outlier_z: float = 10.0
 
     def __post_init__(self):
         bad = []
@@ -98,6 +104,11 @@ class WorkflowConfig:
         real("sigma_b_nT", 0.0, math.inf, lo_open=True, hi_open=True)
         real("sigma_g", 0.0, math.inf, lo_open=True, hi_open=True)
         integer("bucket", 0)
+        v = self.outlier_z
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 3.0:
+            bad.append(f"outlier_z={v!r}: must be a number > 3 (.inf: no screen)")
+        else:
+            object.__setattr__(self, "outlier_z", float(v))
         if not isinstance(self.noise_from_data, bool):
             bad.append(f"noise_from_data={self.noise_from_data!r}: must be true or false")
         c = self.candidates

@@ -180,7 +180,7 @@ def design_jacobian(st: Stations, noise: Noise = NOISE):
     """
     prep = prepare(st, noise)
     layout, data, valid = prep.layout, prep.data, prep.valid
-    theta = jnp.zeros(layout.n_params)
+    theta = jnp.asarray(prep.theta0)
     J = jax.jacfwd(lambda t: (residuals(t, data, layout) * jnp.asarray(valid, float)[:, None]).ravel())(theta)
     return np.asarray(J), prep
 

@@ -59,7 +59,7 @@ class Layout(NamedTuple):
 
     def scales(self) -> np.ndarray:
         """(P,) physical value of theta = 1 for each parameter."""
-        s = [np.full(_fx.EFFECTS[nm].n_params, _fx.EFFECTS[nm].typical, float) for nm in self.names]
+        s = [_fx.EFFECTS[nm].typical_each() for nm in self.names]
         s.append(np.asarray(FIELD_SCALES, float))
         s.append(np.full(2 * self.n_groups, GROUP_SCALE_DEG))
         return np.concatenate(s)
@@ -68,8 +68,8 @@ class Layout(NamedTuple):
         """(P,) parameter labels, e.g. ``hard_iron[z]``, ``field[dip]``, ``group3[azimuth]``."""
         out = []
         for nm, k in zip(self.names, self.sizes):
-            comp = _COMPONENTS.get(nm, ("x", "y", "z"))
-            out += [f"{nm}[{comp[j] if k == 3 else j}]" for j in range(k)]
+            comp = _fx.EFFECTS[nm].labels or _COMPONENTS.get(nm, ("x", "y", "z") if k == 3 else tuple(range(k)))
+            out += [f"{nm}[{comp[j]}]" for j in range(k)]
         out += ["field[total]", "field[dip]", "field[declination]"]
         for g in range(self.n_groups):
             out += [f"group{g}[azimuth]", f"group{g}[inclination]"]
@@ -81,9 +81,10 @@ class Layout(NamedTuple):
         return out + [f"group{g}" for g in range(self.n_groups) for _ in range(2)]
 
 
-def make_layout(n_groups=0) -> Layout:
-    """The layout of every registered effect (in ``effects.ORDER``) plus nuisances."""
-    names = tuple(_fx.ORDER)
+def make_layout(n_groups=0, rig: str | None = None) -> Layout:
+    """The layout of every registered effect meaningful on data of ``rig`` (in ``effects.ORDER``,
+    :func:`icgo.physics.effects.names_for_rig`) plus nuisances."""
+    names = _fx.names_for_rig(rig)
     sizes = tuple(_fx.EFFECTS[n].n_params for n in names)
     starts = tuple(int(x) for x in np.cumsum((0,) + sizes)[:-1])
     return Layout(names, starts, sizes, int(sum(sizes)), int(n_groups))
@@ -110,12 +111,21 @@ class Prepared(NamedTuple):
         layout: the parameter layout. data: device-side arrays.
         valid: (n,) bool, stations used (not near vertical).
         free_nuisance: (P,) bool, the nuisance parameters that are fitted.
+        theta0: (P,) the start: 0, but for the given parameters (a turntable's lever arm).
+        given: (P,) bool, parameters given by the data, never fitted (a turntable's lever arm).
     """
 
     layout: Layout
     data: Data
     valid: np.ndarray
     free_nuisance: np.ndarray
+    theta0: np.ndarray | None = None
+    given: np.ndarray | None = None
+
+    def fixed_params(self, name: str) -> np.ndarray:
+        """(n_params,) the given physical parameters of effect ``name`` (NaN where fitted)."""
+        sl = self.layout.slice(name)
+        return np.where(self.given[sl], (self.theta0 * self.layout.scales())[sl], np.nan)
 
 
 def _circmean_deg(a) -> float:
@@ -143,13 +153,13 @@ def prepare(st: Stations, noise: Noise = NOISE) -> Prepared:
         field0 = np.array([np.median(np.linalg.norm(B, axis=1)),
                            np.median(np.rad2deg(np.arcsin(np.clip(cosang, -1, 1)))), 0.0])
     if st.has_reference:
-        layout = make_layout(0)
+        layout = make_layout(0, st.rig)
         A0 = np.asarray(st.azimuth, np.float64)
         I0 = np.asarray(st.inclination, np.float64)
         gidx = np.arange(n)
     else:
         ug, gidx = np.unique(np.asarray(st.group), return_inverse=True)
-        layout = make_layout(len(ug))
+        layout = make_layout(len(ug), st.rig)
         # raw magnetic azimuth (declination 0 in group mode: directions are relative)
         a_raw = np.asarray(azimuth_from_gv(G, B))
         A0 = np.array([_circmean_deg(a_raw[gidx == g]) for g in range(len(ug))])
@@ -165,7 +175,13 @@ def prepare(st: Stations, noise: Noise = NOISE) -> Prepared:
     data = Data(jnp.asarray(G), jnp.asarray(B), jnp.asarray(A0), jnp.asarray(I0), jnp.asarray(gidx),
                 jnp.asarray(field0), jnp.asarray(float(st.gravity_g)),
                 jnp.asarray(effective_sigma(G, B, noise)), jnp.asarray(layout.scales()))
-    return Prepared(layout, data, valid, free_nuis)
+    theta0, given = np.zeros(layout.n_params), np.zeros(layout.n_params, bool)
+    if st.lever_m is not None and "magnetic_body" in layout.names:  # a turntable's given lever arm
+        sl = layout.slice("magnetic_body")
+        idx = np.arange(sl.start, sl.stop)[6:9]
+        theta0[idx] = np.asarray(st.lever_m, float) / layout.scales()[idx]
+        given[idx] = True
+    return Prepared(layout, data, valid, free_nuis, theta0, given)
 
 
 def station_fields(layout: Layout) -> tuple:
@@ -218,7 +234,7 @@ def _g_effects() -> tuple:
     out = []
     for nm, e in _fx.EFFECTS.items():
         with jax.ensure_compile_time_eval():
-            g, _ = e.apply(jnp.full(e.n_params, e.typical), jnp.asarray(G), jnp.zeros((1, 3)), jnp.eye(3)[None])
+            g, _ = e.apply(jnp.asarray(e.typical_each()), jnp.asarray(G), jnp.zeros((1, 3)), jnp.eye(3)[None])
         if not np.allclose(np.asarray(g), G, rtol=0, atol=0):
             out.append(nm)
     return tuple(out)

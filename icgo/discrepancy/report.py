@@ -115,6 +115,69 @@ def verdict(res: Result) -> str:
     return f"explained by {', '.join(res.model)}; the rest is {basis} (held-out chi2/residual {res.heldout:.4g})"
 
 
+def truth_effects(truth) -> dict:
+    """The injected effects of a truth record: name -> parameters (list) or, for a body the vocabulary models
+    approximately, a description. Takes either name -> parameters (:func:`icgo.discrepancy.hidden_stations`) or
+    a data set's ``truth`` / ``NAME.truth.json`` (``effects`` and ``casing``, :mod:`icgo.datasets`), whose casing
+    is what ``magnetic_body`` models (as a point dipole)."""
+    if not truth:
+        return {}
+    out = {k: np.round(np.asarray(v, float), 6).tolist() for k, v in (truth.get("effects") or {}).items()
+           if k in _fx.EFFECTS}
+    out.update({k: np.round(np.asarray(v, float), 6).tolist() for k, v in truth.items() if k in _fx.EFFECTS})
+    cas = truth.get("casing")
+    if cas:
+        out["magnetic_body"] = (f"a {cas.get('model', '')} casing ({cas.get('length_m', '?')} m, "
+                                f"{cas.get('magnetization_A_m', '?')} A/m, from {cas.get('end_ned')} along "
+                                f"{cas.get('axis_ned')} m NED)")
+    return out
+
+
+def _pct(a: float, b: float) -> str:
+    return f"{100.0 * (b - a) / a:+.0f} %" if np.isfinite(a) and np.isfinite(b) and a > 0 else "n/a"
+
+
+def outlier_sentence(res: Result) -> str:
+    """The robust outliers left out of the fits, named (station, component, residual, robust z)."""
+    if not res.outliers:
+        return f"no robust outlier (none beyond {res.config.outlier_z:g} robust sigma)"
+    unit = lambda c: "nT" if c.startswith("b") else "g"
+    return (f"{len(res.outliers)} robust outlier(s) left out of every fit and of these numbers (beyond "
+            f"{res.config.outlier_z:g} x 1.4826 MAD): " + "; ".join(
+                f"station {o.station} ({o.component} {o.residual:+.4g} {unit(o.component)}, {o.z:.0f} robust sigma)"
+                for o in res.outliers))
+
+
+def answer(res: Result, truth=None) -> list[str]:
+    """The report's opening, answer first: the missing effect(s), the held-out gap before -> after (and by how
+    much, %), the truth beside them where the data carry one; then separability, what remains, the outliers."""
+    g0, g1 = res.gaps[0], res.gaps[-1]
+    if res.model:
+        named = ", ".join(s.name + ("" if s.separable else f" (or {' / '.join(s.equivalent)}: not separable)")
+                          for s in res.steps)
+        first = f"missing: **{named}**"
+    else:
+        first = "**no missing effect** found"
+    first += (f"; held-out gap {g0.mag_rms_nT:.1f} -> {g1.mag_rms_nT:.1f} nT per axis ({_pct(g0.mag_rms_nT, g1.mag_rms_nT)})"
+              f", azimuth {g0.azimuth_rms_deg:.3f} -> {g1.azimuth_rms_deg:.3f} deg "
+              f"({_pct(g0.azimuth_rms_deg, g1.azimuth_rms_deg)})")
+    tr = truth_effects(truth)
+    if tr:
+        hit = [k for k in tr if k in res.model]
+        miss = [k for k in tr if k not in res.model]
+        extra = [k for k in res.model if k not in tr]
+        first += (f"; injected (truth): {', '.join(tr)}: found {', '.join(hit) or 'none'}"
+                  + (f", missed {', '.join(miss)}" if miss else "") + (f", not injected {', '.join(extra)}" if extra else ""))
+    lines = [f"**Answer:** {first}."]
+    sep = [f"{' / '.join((s.name,) + s.equivalent)} not separable with these attitudes" for s in res.steps
+           if not s.separable]
+    rest = ("what remains is noise" if not res.structure_remains else
+            "what remains: " + "; ".join(pattern_sentences(res.pattern)))
+    lines.append(f"**Then:** {'; '.join(sep) if sep else 'every named effect separable'}; {rest} (held-out "
+                 f"chi2/residual {res.heldout:.3g}, noise floor {res.noise_floor:.3g}); {outlier_sentence(res)}.")
+    return lines
+
+
 def _step_line(s: Step) -> str:
     tag = "named" if s.separable else f"NOT SEPARABLE from {list(s.equivalent)}"
     return (f"  -> {s.name} {tag}: params {np.round(s.params, 6).tolist()} +- {np.round(s.stderr, 6).tolist()} "
@@ -174,6 +237,7 @@ def result_to_json(res: Result) -> dict:
         "not_converged": sorted({c.name for s in res.steps for c in s.candidates if not c.converged}
                                 | {c.name for c in res.final_candidates if not c.converged}),
         "pattern": pattern_sentences(res.pattern),
+        "outliers": [o._asdict() for o in res.outliers],
         "config": config_to_mapping(res.config),
         "seconds": res.seconds,
     }
@@ -187,6 +251,7 @@ def report_markdown(res: Result, label: str, truth=None, qc=None, protocol: str 
     protocol line (:func:`icgo.reporting.protocol.protocol_line`), under the title when given.
     """
     lines = [f"# Discrepancy report: {label}", ""] + ([protocol, ""] if protocol else [])
+    lines = lines[:2] + answer(res, truth)[:1] + [""] + answer(res, truth)[1:] + [""] + lines[2:]
     lines += [workflow_settings(res.config, "one workflow run on these data"), ""]
     lines += [f"**Verdict:** {verdict(res)}", "", "## Noise", "",
              "| noise per axis | magnetometer (nT) | accelerometer (mg) |", "|---|---|---|",
@@ -204,8 +269,15 @@ def report_markdown(res: Result, label: str, truth=None, qc=None, protocol: str 
     unconv = sorted({c.name for s in res.steps for c in s.candidates if not c.converged}
                     | {c.name for c in res.final_candidates if not c.converged})
     if unconv:
-        lines += ["", (f"Not converged within {MAX_ROUNDS} x {res.config.n_iter} LM steps, so never added: "
-                       f"{', '.join(unconv)}.")]
+        never = [u for u in unconv if u not in res.model]
+        later = [u for u in unconv if u in res.model]
+        lines += ["", ""]
+        if never:
+            lines[-1] += (f"Not converged within {MAX_ROUNDS} x {res.config.n_iter} LM steps, so never added: "
+                          f"{', '.join(never)}.")
+        if later:
+            lines[-1] += (f"{' ' if never else ''}Not converged at an earlier step (so not added there), added once "
+                          f"converged: {', '.join(later)}.")
     lines += ["", "## Where the reference model disagrees (before)", ""]
     lines += [f"- {s}" for s in pattern_sentences(res.pattern_before)]
     lines += ["", "## Steps", ""]
@@ -216,9 +288,8 @@ def report_markdown(res: Result, label: str, truth=None, qc=None, protocol: str 
                      f"{s.heldout_before:.3g} -> {s.heldout_after:.3g} (z = {s.z_improvement:.1f}); "
                      f"margin over {s.runner_up}: z = {s.margin_z:.1f}, ΔBIC = {s.delta_bic:.1f}")
         lines += [f"   - {nt}" for nt in step_notes(s)]
-    if truth:
-        lines += ["", "Injected (truth): " + "; ".join(
-            f"{k} = {np.round(np.asarray(v, float), 6).tolist()}" for k, v in truth.items() if k in _fx.EFFECTS)]
+    if truth_effects(truth):
+        lines += ["", "Injected (truth): " + "; ".join(f"{k} = {v}" for k, v in truth_effects(truth).items())]
     lines += ["", "## Gap on held-out stations", "", gap_table(res).to_markdown(index=False, floatfmt=".4g"),
               "", "## Remaining pattern (after)", ""]
     lines += [f"- {s}" for s in pattern_sentences(res.pattern)]
@@ -277,9 +348,10 @@ def study_command(study: str, config, **entry) -> str:
     return f"`python -m experiments.discrepancy {' '.join(args)}`"
 
 
-def _selection_test(config) -> str:
-    """The protocol's ``test``: the search's decision rules are no reported test."""
-    n = len(config.candidates or _fx.ORDER)
+def _selection_test(config, rig: str | None = None) -> str:
+    """The protocol's ``test``: the search's decision rules are no reported test (``rig``: the data's rig, which
+    sets the candidates, :func:`icgo.physics.effects.names_for_rig`)."""
+    n = len(_fx.names_for_rig(rig, config.candidates or _fx.ORDER))
     return (f"none: no p-value is reported. An effect is added when it lowers the held-out chi2 by >= "
             f"{config.min_rel_improvement:.0%} with a paired per-station z >= {config.min_z:g}, and a step is not "
             f"separable when another qualifying candidate is within z < {config.ambiguity_z:g} (docs/discrepancy.md): "
@@ -371,7 +443,7 @@ def lab_casing_report_protocol(study) -> str:
         f"{_lab_casing_split(study)}; the survey QC: the model fitted on every training row, applied to the "
         f"{len(study.error_raw)} test rows",
         _lab_casing_seeds(study),
-        _selection_test(res.config))
+        _selection_test(res.config, "turntable"))
 
 
 def hidden_study_markdown(study) -> str:
@@ -430,11 +502,12 @@ def lab_casing_study_markdown(study) -> str:
     md = ["| method | test azimuth MAE (deg) | test RMSE (deg) | n |", "|---|---|---|---|"]
     for name, e in table:
         md.append(f"| {name} | {np.mean(np.abs(e)):.3f} | {np.sqrt(np.mean(e ** 2)):.3f} | {len(e)} |")
-    truth = {k: np.round(v, 5).tolist() for k, v in study.truth_effects.items()}
+    truth = {"effects": study.truth_effects, "casing": getattr(study, "casing", None)}
     named = "; ".join(f"{s.name} = {np.round(s.params, 5).tolist()} ± {np.round(s.stderr, 5).tolist()} {s.units}"
                       + ("" if s.separable else f" (not separable from {list(s.equivalent)})") for s in res.steps)
     c = study.icgo_config
-    return "\n".join(["# Discrepancy workflow on lab_casing vs ICGO-RELM", "", lab_casing_protocol(study), "",
+    return "\n".join(["# Discrepancy workflow on lab_casing vs ICGO-RELM", "", *answer(res, truth), "",
+                      lab_casing_protocol(study), "",
                       workflow_settings(study.result.config, "one split (repeat 0), one run of each method",
                                         f"ICGO-RELM: population {c.pop_size} x {c.iterations} iterations ("
                                         + ("the paper's" if (c.pop_size, c.iterations) == (30, 100) else
@@ -444,5 +517,6 @@ def lab_casing_study_markdown(study) -> str:
                       "both are scored on its test rows.", "",
                       f"**Verdict (training rows):** {verdict(res)}", "",
                       "Named: " + named, "",
-                      f"Injected by the simulation: casing (earth-fixed, position-dependent field) and {truth}.", ""]
+                      "Injected by the simulation: " + "; ".join(f"{k} = {v}" for k, v in truth_effects(truth).items())
+                      + ".", ""]
                      + md + ["", "Full workflow report: `results/discrepancy_lab_casing_report/report.md`."])

@@ -45,13 +45,14 @@ from icgo.discrepancy.compare import Comparison, Gap, Pattern, azimuth_scored, c
 from icgo.discrepancy.config import WorkflowConfig
 from icgo.discrepancy.fit import Evaluation, evaluate_models, folds, standard_errors
 from icgo.discrepancy.identifiability import identifiability
-from icgo.discrepancy.model import Data, Layout, fitted_field, predict, prepare
+from icgo.discrepancy.model import Data, Layout, Prepared, fitted_field, predict, prepare
 from icgo.discrepancy.noise import noise_floor
+from icgo.discrepancy.outliers import screen
 from icgo.discrepancy.scatter import VOCABULARY, NoiseEstimate, estimate
 from icgo.discrepancy.stations import Stations, check_stations, pad_stations
 from icgo.maths.stats import paired_z
 from icgo.physics import effects as _fx
-from icgo.physics.frames import angle_diff, azimuth_from_gv
+from icgo.physics.frames import angle_diff, azimuth_from_gv, tool_to_earth
 
 #: The result kinds, in the order they are decided.
 KINDS = ("not_separable", "unexplained", "no_missing_effect", "explained")
@@ -66,6 +67,13 @@ FOLD_SEED = 0
 #: linearised step promises more than any step delivers). The decisions compare scores at 10 % steps.
 CONVERGED_GAP = 1e-3
 CONVERGED_FALL = 1e-3
+#: ... or, for a model with an effect of data-driven start (``magnetic_body``), when another ``n_iter`` LM steps
+#: lowered their summed cost by at most this much per residual component fitted (the k folds and the full fit:
+#: k x the residual components used): a fit crawling along a
+#: valley it cannot resolve (a far ``magnetic_body``, whose distance and moment trade against each other) then
+#: counts as converged once its progress is a hundredth of the noise per residual, far below the 10 % steps
+#: the decisions compare.
+CONVERGED_FALL_PER_RESIDUAL = 1e-2
 #: Most evaluations of one step: each goes on from the last for ``n_iter`` more LM steps while a fit has
 #: not converged (5 x the default 12 steps = 60).
 MAX_ROUNDS = 5
@@ -163,6 +171,9 @@ class SearchContext(NamedTuple):
         scatter_from_data: judge the rest against the best held-out prediction of any evaluated model and
             also evaluate every candidate effect together (group mode with ``noise_from_data``;
             :mod:`icgo.discrepancy.scatter`).
+        prepared: the :class:`~icgo.discrepancy.model.Prepared` stations (its start ``theta0`` and the
+            parameters the data give, never fitted).
+        outliers: the robust outliers (:mod:`icgo.discrepancy.outliers`), not in ``valid``.
     """
 
     stations: Stations
@@ -181,6 +192,8 @@ class SearchContext(NamedTuple):
     names: tuple
     config: WorkflowConfig
     scatter_from_data: bool = False
+    prepared: Prepared | None = None
+    outliers: tuple = ()
 
 
 class SearchState(NamedTuple):
@@ -234,6 +247,8 @@ class Result(NamedTuple):
         config: the options used. seconds: wall time, s (including compilation).
         noise_estimate: the sensors' scatter estimated from the shots (group mode with ``noise_from_data``;
             :mod:`icgo.discrepancy.scatter`), on which ``structure_remains`` is then based; or None.
+        outliers: the robust outliers (:class:`~icgo.discrepancy.outliers.Outlier`), kept out of every fit
+            and headline number.
     """
 
     steps: tuple
@@ -254,6 +269,7 @@ class Result(NamedTuple):
     config: WorkflowConfig
     seconds: float
     noise_estimate: NoiseEstimate | None = None
+    outliers: tuple = ()
 
     @property
     def named(self) -> list:
@@ -267,7 +283,32 @@ def _mask(ctx: SearchContext, effects) -> np.ndarray:
     m = ctx.free_nuisance.astype(float).copy()
     for e in (ctx.names if VOCABULARY in effects else effects):
         m[ctx.layout.slice(e)] = 1.0
-    return m
+    return np.where(ctx.prepared.given, 0.0, m)
+
+
+def _starts(ctx: SearchContext, trial: list, theta) -> tuple:
+    """(M, K, P), (M, P) starts of the evaluation: ``theta`` for every model, but for a candidate effect with a
+    data-driven start (:attr:`icgo.physics.effects.Effect.start`, a nonlinear effect such as ``magnetic_body``)
+    its parameters start where they best explain the field the current model leaves, found on each fold's
+    training stations (and on all stations for the full fit) only."""
+    M, K, P = len(trial), len(ctx.train), len(theta)
+    s_fold = np.array(np.broadcast_to(np.asarray(theta), (M, K, P)))
+    s_full = np.array(np.broadcast_to(np.asarray(theta), (M, P)))
+    rows = [(m, c) for m, c in enumerate(trial) if c and c != VOCABULARY and _fx.EFFECTS[c].start is not None]
+    if not rows:
+        return s_fold, s_full
+    pred = predict(jnp.asarray(theta), ctx.data, ctx.layout)
+    resid = np.asarray(ctx.data.B - pred.B)
+    C = np.asarray(tool_to_earth(pred.azimuth, pred.inclination, pred.toolface))
+    scales = ctx.layout.scales()
+    for m, c in rows:
+        sl = ctx.layout.slice(c)
+        fixed = ctx.prepared.fixed_params(c)
+        start = _fx.EFFECTS[c].start
+        for k in range(K):
+            s_fold[m, k, sl] = start(resid, C, ctx.train[k], fixed) / scales[sl]
+        s_full[m, sl] = start(resid, C, ctx.valid_w, fixed) / scales[sl]
+    return s_fold, s_full
 
 
 def _gap_of(ctx: SearchContext, ev: Evaluation, m: int) -> Gap:
@@ -291,8 +332,10 @@ def _evaluated(ctx: SearchContext, model: tuple, theta, steps: tuple, gaps: tupl
     trial = [None] + [c if c not in model else "" for c in ctx.names] + (
         [VOCABULARY] if ctx.scatter_from_data else [])
     masks = np.stack([_mask(ctx, model + ((c,) if c else ())) for c in trial])
-    M, K, P = len(masks), len(ctx.train), len(theta)
-    starts = (np.broadcast_to(np.asarray(theta), (M, K, P)), np.broadcast_to(np.asarray(theta), (M, P)))
+    starts = _starts(ctx, trial, theta)
+    # models that fit an effect with a data-driven start (a nonlinear one, magnetic_body) may crawl along a valley
+    started = np.array([any(_fx.EFFECTS[e].start is not None for e in model + ((c,) if c and c != VOCABULARY else ()))
+                        for c in trial])
     previous = None
     for _ in range(MAX_ROUNDS):  # go on from the last fits until every fit has converged (a fixed budget)
         ev = evaluate_models(jnp.asarray(theta), jnp.asarray(masks), jnp.asarray(ctx.train), jnp.asarray(ctx.test),
@@ -301,7 +344,9 @@ def _evaluated(ctx: SearchContext, model: tuple, theta, steps: tuple, gaps: tupl
         ev = Evaluation(*(np.asarray(x) for x in ev))
         converged = ev.gap <= CONVERGED_GAP
         if previous is not None:
-            converged |= (previous - ev.cost_total) <= CONVERGED_FALL * previous
+            converged |= (previous - ev.cost_total) <= np.where(
+                started, np.maximum(CONVERGED_FALL * previous, CONVERGED_FALL_PER_RESIDUAL * len(ctx.train) * ctx.n_res),
+                CONVERGED_FALL * previous)
         # row 0, the current model, is replaced by its own evaluation below; the whole vocabulary is used
         # only from the first evaluation
         pending = ~converged
@@ -360,11 +405,18 @@ def init(st: Stations, config: WorkflowConfig = WorkflowConfig(), key=None) -> S
     """
     key = jax.random.PRNGKey(FOLD_SEED) if key is None else key
     check_stations(st)
-    names = tuple(config.candidates or _fx.ORDER)
+    names = _fx.names_for_rig(st.rig, config.candidates or _fx.ORDER)
+    off = [n for n in (config.candidates or ()) if n not in names]
+    if off:
+        raise ValueError(f"candidates: {off} need data recorded on a rig ({', '.join(sorted({str(_fx.EFFECTS[n].rig) for n in off}))}: "
+                         f"meta \"rig\"), and these stations declare {st.rig or 'none'}")
     st, real = pad_stations(st, config.bucket)
     prep = prepare(st, config.noise)
     layout = prep.layout
-    valid = prep.valid & real
+    # the screen needs a reference attitude: in group mode the scatter is estimated from the shots (scatter.py),
+    # and a median absolute deviation over a device's 24 shots is too uncertain to call one of them an outlier
+    out_mask, outliers = screen(prep, prep.valid & real, names, config.outlier_z if st.has_reference else np.inf)
+    valid = prep.valid & real & ~out_mask
     train, test = folds(valid, config.k_folds, key, group=None if st.has_reference else st.group)
     group_free = np.zeros(layout.n_params)
     group_free[layout.n_effect + 3:] = 1.0
@@ -373,8 +425,9 @@ def init(st: Stations, config: WorkflowConfig = WorkflowConfig(), key=None) -> S
         free_nuisance=prep.free_nuisance, group_free=group_free, train=train, test=test,
         valid_w=valid.astype(float), az_meas=np.asarray(azimuth_from_gv(st.G, st.B)),
         floor=noise_floor(int(valid.sum()), layout.n_groups), n_res=6 * int(valid.sum()), names=names,
-        config=config, scatter_from_data=bool(config.noise_from_data and not st.has_reference))
-    return _evaluated(ctx, (), np.zeros(layout.n_params), (), (), None)
+        config=config, scatter_from_data=bool(config.noise_from_data and not st.has_reference), prepared=prep,
+        outliers=outliers)
+    return _evaluated(ctx, (), prep.theta0, (), (), None)
 
 
 def step(state: SearchState) -> SearchState:
@@ -476,7 +529,8 @@ def finish(state: SearchState, seconds: float = float("nan")) -> Result:
                   pattern_before=find_pattern(state.before, cfg.noise), pattern=find_pattern(after, cfg.noise),
                   field=fitted_field(theta, layout, ctx.data), heldout=heldout, noise_floor=ctx.floor,
                   structure_remains=structure_remains,
-                  final_candidates=state.candidates, config=cfg, seconds=seconds, noise_estimate=est)
+                  final_candidates=state.candidates, config=cfg, seconds=seconds, noise_estimate=est,
+                  outliers=ctx.outliers)
 
 
 def run_workflow(st: Stations, config: WorkflowConfig = WorkflowConfig(), key=None) -> Result:

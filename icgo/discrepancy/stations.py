@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from icgo.core.errors import DataError
 from icgo.discrepancy.noise import NOISE, Noise
 from icgo.physics import effects as _fx
 from icgo.physics.frames import sensors_from_attitude, tool_to_earth
@@ -32,6 +33,11 @@ class Stations(NamedTuple):
         gravity_g: magnitude of gravity, g.
         extras: name -> (n,) float extra columns (temperature_c, time_s, ...), used
             only to describe unexplained structure.
+        rig: the rig the data were recorded on (meta ``"rig"``): ``"turntable"`` when every station was
+            turned about one fixed pivot (then position-dependent effects, ``magnetic_body``, are candidates),
+            or None.
+        lever_m: (3,) the sensor's lever arm from the pivot (m, tool frame; meta ``"sensor_lever_m"``) when
+            given, else None (a turntable's lever arm is then fitted).
     """
 
     G: np.ndarray
@@ -42,6 +48,8 @@ class Stations(NamedTuple):
     field: tuple | None = None
     gravity_g: float = 1.0
     extras: dict | None = None
+    rig: str | None = None
+    lever_m: tuple | None = None
 
     @property
     def n(self) -> int:
@@ -81,6 +89,41 @@ def check_stations(st: Stations) -> None:
                 raise ValueError(f"stations: {name} must be (n,) finite, got shape {v.shape}")
     if st.group is not None and np.asarray(st.group).shape != (G.shape[0],):
         raise ValueError(f"stations: group must be (n,), got {np.asarray(st.group).shape}")
+    if st.rig not in RIGS:
+        raise ValueError(f"stations: rig {st.rig!r} is not known; choose one of {[r for r in RIGS if r]} or none")
+    if st.lever_m is not None:
+        lv = np.asarray(st.lever_m, float)
+        if lv.shape != (3,) or not np.all(np.isfinite(lv)) or st.rig is None:
+            raise ValueError(f"stations: sensor_lever_m {st.lever_m!r} must be 3 finite numbers (m, tool frame) "
+                             "on a declared rig (rig: turntable)")
+
+
+#: Rigs a recording may declare (meta ``"rig"``); None: none declared.
+RIGS = (None, "turntable")
+
+
+def rig_from_meta(meta, source: str = "meta") -> tuple:
+    """(rig, lever_m) from a recording's metadata: ``"rig"`` and ``"sensor_lever_m"`` (m, tool frame).
+
+    Raises:
+        icgo.core.errors.DataError: one line naming the key when the rig is not known or the lever arm is not
+        3 numbers.
+    """
+    rig = meta.get("rig")
+    if rig not in RIGS:
+        raise DataError(f"{source}: \"rig\": {rig!r} is not known; choose {[r for r in RIGS if r]} (every station "
+                         "turned about one fixed pivot) or leave it out")
+    lever = meta.get("sensor_lever_m")
+    if lever is None:
+        return rig, None
+    try:
+        lv = tuple(float(x) for x in lever)
+    except (TypeError, ValueError):
+        lv = ()
+    if len(lv) != 3 or not np.all(np.isfinite(lv)) or rig is None:
+        raise DataError(f"{source}: \"sensor_lever_m\": {lever!r} must be 3 finite numbers (m, tool frame, from the "
+                         "pivot) with \"rig\": \"turntable\"")
+    return rig, lv
 
 
 def stations_from_recording(rec) -> Stations:
@@ -99,6 +142,7 @@ def stations_from_recording(rec) -> Stations:
         if c in fr.columns:
             extras[c] = fr[c].to_numpy(np.float64)
     grav = float(rec.field.gravity_g) if rec.field is not None else float(rec.meta.get("gravity_g", 1.0))
+    rig, lever = rig_from_meta(rec.meta, getattr(rec, "source", None) or "meta")
     return Stations(
         G=rec.G,
         B=rec.B,
@@ -108,6 +152,8 @@ def stations_from_recording(rec) -> Stations:
         field=field,
         gravity_g=grav,
         extras=extras or None,
+        rig=rig,
+        lever_m=lever,
     )
 
 
@@ -187,7 +233,7 @@ def random_effect_params(key, name, lo=0.5, hi=1.5) -> np.ndarray:
     k1, k2 = jax.random.split(key)
     mag = jax.random.uniform(k1, (e.n_params,), minval=lo, maxval=hi)
     sign = jnp.where(jax.random.bernoulli(k2, 0.5, (e.n_params,)), 1.0, -1.0)
-    return np.asarray(e.typical * mag * sign)
+    return np.asarray(e.typical_each() * mag * sign)
 
 
 def simulate(key, n=240, effect_params=None, design="random", field=(50_000.0, 60.0, 0.0),

@@ -18,6 +18,11 @@ the fixed physical order of :data:`ORDER`, whatever order they are given in:
    12-parameter model ``B_meas = R B_true + b``;
 4. ``accel_scale`` then ``accel_bias``: ``G_meas = (I + diag s) G + b_g``.
 
+``magnetic_body`` (after ``external_field``) is a field fixed in the lab whose value depends on where the
+sensor is: a point dipole at a position relative to the pivot of a rig that turns every station about that
+pivot (meta ``"rig": "turntable"``), read by a sensor a lever arm off the pivot (:mod:`icgo.physics.dipole`).
+An effect with ``rig`` set is only meaningful on data recorded on that rig (:func:`names_for_rig`).
+
 New effects are added by :func:`register` (one more entry), e.g. in a notebook.
 """
 
@@ -26,6 +31,9 @@ from __future__ import annotations
 from typing import Callable, Mapping, NamedTuple
 
 import jax.numpy as jnp
+import numpy as np
+
+from icgo.physics.dipole import body_start, dipole_field, sensor_positions
 
 
 class Effect(NamedTuple):
@@ -37,11 +45,18 @@ class Effect(NamedTuple):
         description: one-line physics.
         units: unit of the parameters.
         typical: a realistic magnitude of each parameter (same unit), used to
-            simulate the effect and to scale fits.
+            simulate the effect and to scale fits: one number, or one per parameter.
         apply: ``(params, G, B, C) -> (G, B)``; G (..., 3) g, B (..., 3) nT,
             C (..., 3, 3) tool-to-earth rotation.
         frame: ``"tool"`` if the effect is fixed in the tool frame (turns with the
             tool), ``"earth"`` if fixed in the earth frame.
+        labels: the parameters' component names (None: x, y, z for 3 parameters, else 0, 1, ...).
+        rig: None for any data; else the rig (meta ``"rig"``) whose data it needs (its field depends on
+            where the sensor is, known only on that rig).
+        start: None (a fit starts the effect at 0), or a data-driven start of a nonlinear effect,
+            ``start(residual_B (n, 3) nT tool frame, C (n, 3, 3), w (n,), fixed (n_params,)) -> (n_params,)``:
+            the parameters that best explain the residual field of the model without it, ``w`` the station
+            weights, ``fixed`` the given values of the parameters the fit does not move (NaN: free).
     """
 
     name: str
@@ -51,6 +66,13 @@ class Effect(NamedTuple):
     typical: float
     apply: Callable
     frame: str = "tool"
+    labels: tuple | None = None
+    rig: str | None = None
+    start: Callable | None = None
+
+    def typical_each(self) -> np.ndarray:
+        """(n_params,) the typical magnitude of each parameter."""
+        return np.broadcast_to(np.asarray(self.typical, float), (self.n_params,)).copy()
 
 
 def skew(w):
@@ -95,6 +117,13 @@ def _hard_iron(p, G, B, C):
 def _external_field(p, G, B, C):
     # C^T e: the earth-fixed vector seen in each station's tool frame.
     return G, B + jnp.einsum("...ji,j->...i", C, p)
+
+
+def _magnetic_body(p, G, B, C):
+    # p = moment (A m^2, NED), position (m, NED from the pivot), lever arm (m, tool frame): the body's field at
+    # the sensor, r = C l, seen in each station's tool frame.
+    b_ned = dipole_field(sensor_positions(C, p[6:9]), p[3:6], p[0:3])
+    return G, B + jnp.einsum("...ji,...j->...i", C, b_ned)
 
 
 def _mag_scale(p, G, B, C):
@@ -145,6 +174,12 @@ ORDER: list[str] = []
 for _e in (
     Effect("external_field", 3, "constant field fixed in the earth frame (nearby casing, wrong reference field); NED components",
            "nT", 300.0, _external_field, "earth"),
+    Effect("magnetic_body", 9, "a magnetized body (casing) fixed in the lab, a point dipole: moment (A m^2, NED), position "
+           "(m, NED from the rig's pivot), the sensor's lever arm from the pivot (m, tool frame); its field at the sensor "
+           "C l changes as the tool turns (meta rig: turntable)",
+           "A m^2, m, m", (30.0,) * 3 + (1.0,) * 3 + (0.1,) * 3, _magnetic_body, "earth",
+           ("m_N", "m_E", "m_D", "p_N", "p_E", "p_D", "lever_x", "lever_y", "lever_z"), "turntable",
+           body_start),
     Effect("mag_cross_coupling", 3, "symmetric off-diagonal magnetometer matrix (non-orthogonality, soft iron): B <- (I + S) B; (sxy, sxz, syz)",
            "1", 0.01, _mag_cross_coupling),
     Effect("mag_scale", 3, "magnetometer scale factors: B <- (I + diag(s)) B",
@@ -159,6 +194,12 @@ for _e in (
            "g", 3e-3, _accel_bias),
 ):
     register(_e)
+
+
+def names_for_rig(rig: str | None = None, names=None) -> tuple:
+    """The effects of ``names`` (default :data:`ORDER`) meaningful on data recorded on ``rig`` (meta ``"rig"``,
+    None: none declared): those without a rig, and those of that rig."""
+    return tuple(n for n in (ORDER if names is None else names) if EFFECTS[n].rig in (None, rig))
 
 
 def check_names(names) -> None:

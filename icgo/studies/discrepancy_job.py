@@ -5,6 +5,7 @@ written (:mod:`icgo.discrepancy`, :class:`icgo.artifacts.discrepancy.PhysicsMode
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 from icgo import discrepancy as D
@@ -60,7 +61,21 @@ def load_stations(spec: str, seed: int = 0, n: int = 240, design: str = "random"
         rec, label = icgo_io.read_recording(spec, columns=columns), spec
     for nt in rec.notices:
         print("notice:", nt)
-    return D.stations_from_recording(rec), label, None
+    return D.stations_from_recording(rec), label, read_truth(spec)
+
+
+def read_truth(spec: str) -> dict | None:
+    """The ground truth beside a recording (``NAME.truth.json`` beside ``NAME.csv``, as ``python -m icgo.datasets``
+    writes it), or None when there is none or it is not a JSON object."""
+    path = Path(spec)
+    truth = path.with_name(path.stem + ".truth.json") if path.suffix == ".csv" else None
+    if truth is None or not truth.is_file():
+        return None
+    try:
+        out = json.loads(truth.read_text())
+    except (OSError, ValueError):
+        return None
+    return out if isinstance(out, dict) else None
 
 
 def workflow_config(values: dict) -> D.WorkflowConfig:

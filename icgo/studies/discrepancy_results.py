@@ -24,7 +24,7 @@ from icgo.physics import effects as _fx
 from icgo.physics.frames import angle_diff, azimuth_from_gv
 
 #: Effect sets hidden by :func:`hidden_study`: each effect alone, three pairs, nothing.
-HIDDEN_CASES = tuple((e,) for e in _fx.ORDER) + (
+HIDDEN_CASES = tuple((e,) for e in _fx.names_for_rig(None)) + (
     ("hard_iron", "accel_bias"), ("external_field", "mag_scale"), ("mag_misalignment", "accel_scale"), ())
 
 
@@ -94,6 +94,7 @@ class LabCasingStudy(NamedTuple):
         qc: survey-QC counts of the test stations, raw and after the physics model
             (:func:`icgo.artifacts.discrepancy.station_qc`).
         icgo_config: the ICGO study's :class:`~icgo.studies.icgo_relm_config.StudyConfig` (its split, its budget).
+        casing: the simulated casing (the data set's ``truth["casing"]``), which ``magnetic_body`` models.
     """
 
     result: Result
@@ -105,6 +106,7 @@ class LabCasingStudy(NamedTuple):
     seed: int
     qc: dict | None = None
     icgo_config: Any = None
+    casing: dict | None = None
 
 
 def lab_casing_study(config: WorkflowConfig = WorkflowConfig(), seed: int = 0) -> LabCasingStudy:
@@ -139,4 +141,5 @@ def lab_casing_study(config: WorkflowConfig = WorkflowConfig(), seed: int = 0) -
     from icgo.artifacts.discrepancy import PhysicsModel, station_qc
 
     qc = station_qc(PhysicsModel.from_result(res, st_all.G[itr], st_all.B[itr]), select_stations(st_all, ite))
-    return LabCasingStudy(res, err_raw, err, methods, err_msa, truth, int(seed), qc, icgo_config)
+    return LabCasingStudy(res, err_raw, err, methods, err_msa, truth, int(seed), qc, icgo_config,
+                          ds.truth.get("casing"))
