@@ -39,7 +39,10 @@ ROW_FACTOR_B = 10.0
 FIELD_KEYS = ("total_field_nT", "dip_deg", "declination_deg", "gravity_g")
 LOCATION_KEYS = ("latitude", "longitude", "altitude_km", "date")
 DESCRIPTIVE_KEYS = ("name", "source", "license", "description", "instrument")
-KNOWN_META_KEYS = FIELD_KEYS + LOCATION_KEYS + DESCRIPTIVE_KEYS
+#: How the stations were taken: ``"rig": "turntable"`` (every station turned about one pivot) and the sensor's lever
+#: arm from it (``sensor_lever_m``, m, tool frame), read by the discrepancy workflow (``magnetic_body``).
+RIG_KEYS = ("rig", "sensor_lever_m")
+KNOWN_META_KEYS = FIELD_KEYS + LOCATION_KEYS + DESCRIPTIVE_KEYS + RIG_KEYS
 
 #: Standard gravity, m/s^2 per g.
 STANDARD_GRAVITY = 9.80665
