@@ -63,13 +63,13 @@ def apply_main(cfg: DictConfig, run_dir: Path) -> int:
 
 
 def calibrate_main(cfg: DictConfig, run_dir: Path) -> int:
-    """:func:`icgo.studies.calibration_run.run` of a composed config; returns 0, or
+    """:func:`icgo.studies.calibration.job.run` of a composed config; returns 0, or
     :data:`icgo.survey.verdict.EXIT_NO_RECOMMENDATION` (4) for a run that recommends no calibration (its report
     written)."""
     from icgo.core.devices import enable_jax_cache
     from icgo.io.files import Output
     from icgo.io.site import site_reference
-    from icgo.studies import calibration_run
+    from icgo.studies.calibration import job as calibration_run
 
     try:
         config = study_config("calibration", cfg, CALIBRATE_KEYS, config_name="calibrate")
@@ -97,7 +97,7 @@ def discrepancy_main(cfg: DictConfig, run_dir: Path, keep=None) -> int:
     """The discrepancy workflow of one composed config into ``run_dir`` (or ``study=``: its results/ file); 0,
     :data:`EXIT_CONFIG` (2) for a bad setting (one line per problem), 1 for bad input data."""
     from icgo.io.files import Output
-    from icgo.studies import discrepancy_job as job
+    from icgo.studies.discrepancy import job
 
     keep = hydra_keep() if keep is None else keep
     try:

@@ -47,7 +47,7 @@ class Door(NamedTuple):
 
 
 DOORS = {
-    "run": Door("config", CONF_DIR, STUDY_GROUPS, {"": "icgo.studies.icgo_relm_run_config:RunConfig"},
+    "run": Door("config", CONF_DIR, STUDY_GROUPS, {"": "icgo.studies.icgo_relm.run_config:RunConfig"},
                 "ICGO-RELM study: MSA, then a RELM whose hidden layer an optimizer searches; writes a run directory\n"
                 "(metrics, models, figures, summary.md with the verdict) and prints the summary and the verdict.",
                 ("strategy=three_stage                 # make run", "experiment=table3                    # a paper "
@@ -67,7 +67,7 @@ DOORS = {
                         "physical effect named, added to the model, the gap shown to shrink.",
                         ("data=FILE.csv", "data=sim:hard_iron+accel_bias design=single_inclination",
                          "data=mag_cal:ab", "study=hidden   # results/discrepancy_hidden.md")),
-    "misma": Door("misma", CONF_DIR, (), {"": "icgo.studies.misma_config:MismaConfig"},
+    "misma": Door("misma", CONF_DIR, (), {"": "icgo.studies.misma.config:MismaConfig"},
                   "MISMA study: the 12-parameter magnetometer model identified while the drill string rotates,\n"
                   "against SMA; tables and figures into results/misma_*, the calibrations into the run directory.",
                   ("", "simulated.repeats=3 simulated.n_iter=300 real.enabled=false")),

@@ -55,7 +55,7 @@ def run_study(name: str, config, output, *, inputs: dict | None = None, models_d
     import icgo  # noqa: F401  (float64)
     from icgo.core.errors import DataError
     from icgo.studies.registry import get_study
-    from icgo.studies.study import Invocation
+    from icgo.studies.common.study import Invocation
 
     study = get_study(name)
     started = time.perf_counter()

@@ -3,8 +3,8 @@
 Hydra's record of the job (:mod:`experiments._run_study`). The ICGO-RELM study's door (``run``) writes a
 run directory with a run record (``run.json``) and the hash of the config that made it, so a sweep re-run into its
 directory resumes (:func:`resume`: a finished job of the same configuration kept, one of another refused and left
-as it was); its typed config is :class:`icgo.studies.icgo_relm_run_config.RunConfig`
-(:mod:`icgo.studies.icgo_relm_run`: load, run, write). Nothing here imports JAX at module import.
+as it was); its typed config is :class:`icgo.studies.icgo_relm.run_config.RunConfig`
+(:mod:`icgo.studies.icgo_relm.job`: load, run, write). Nothing here imports JAX at module import.
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ def study_main(name: str, cfg: DictConfig, entry_keys=("out_dir",)):
     hc = HydraConfig.get()
     run_dir = Path(hc.runtime.output_dir)
     if name == "icgo_relm":  # its objective for a sweeper that minimises one (hydra/sweeper=optuna)
-        from icgo.studies.tracking_tables import objective
+        from icgo.studies.common.tracking_tables import objective
 
         record = run_job(cfg, run_dir, multirun=hc.mode == RunMode.MULTIRUN)
         return None if record is None else objective(run_dir)
@@ -94,15 +94,15 @@ def resume(cfg: DictConfig, outdir: Path, multirun: bool) -> tuple[bool, dict | 
 def run_job(cfg: DictConfig, outdir: Path, multirun: bool = False) -> dict | None:
     """One ICGO-RELM job of a run or a sweep into ``outdir``: :func:`resume`, the typed config and the run directory
     checked, the study computed (every process of a multi-process job), the run directory written (the first
-    process only; :mod:`icgo.studies.icgo_relm_run`) and the summary printed. Returns the run record, or None for a
+    process only; :mod:`icgo.studies.icgo_relm.job`) and the summary printed. Returns the run record, or None for a
     failed or refused sweep job (or a secondary process).
 
     Outside a sweep a user's error (ValueError) is one line and exit status 2 or 1; in a sweep it leaves
     :data:`FAILED` (and the traceback of an error met while computing, any exception there) and the job returns
     None, so the other jobs go on.
     """
-    from icgo.studies import icgo_relm_run as job
-    from icgo.studies.icgo_relm_run_config import RunConfig
+    from icgo.studies.icgo_relm import job
+    from icgo.studies.icgo_relm.run_config import RunConfig
 
     t0 = time.perf_counter()
     done, kept = resume(cfg, outdir, multirun)

@@ -1,4 +1,4 @@
-"""MLflow tracking of the Hydra doors (:mod:`icgo.studies.tracking`): a job's run directory logged once it is
+"""MLflow tracking of the Hydra doors (:mod:`icgo.studies.common.tracking`): a job's run directory logged once it is
 written (:func:`track_job`, called by the one study main, :mod:`experiments._study_main`, and by
 :func:`experiments._run_study.run_study`),
 and a sweep as a parent run (:class:`SweepTracking`, a Hydra callback: any launcher, any sweeper, Optuna's too).
@@ -49,7 +49,7 @@ def _hydra():
 
 def track_job(settings: dict, outdir: Path, files=None, door: str | None = None) -> str | None:
     """Log a written run directory to MLflow (nothing when tracking is off or MLflow absent); a sweep's job under
-    its sweep's parent run; with its objective (:func:`icgo.studies.tracking_tables.objective`) where it has one.
+    its sweep's parent run; with its objective (:func:`icgo.studies.common.tracking_tables.objective`) where it has one.
 
     Args:
         settings: the composed config as a plain mapping (its ``tracking`` key, else ``ICGO_TRACKING``).
@@ -59,8 +59,8 @@ def track_job(settings: dict, outdir: Path, files=None, door: str | None = None)
     Returns:
         The MLflow run id, or None.
     """
-    from icgo.studies import tracking
-    from icgo.studies.tracking_tables import objective
+    from icgo.studies.common import tracking
+    from icgo.studies.common.tracking_tables import objective
 
     try:
         uri = tracking.tracking_uri(_setting(settings))
@@ -87,7 +87,7 @@ class SweepTracking(Callback):
         self.uri: str | None = None
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
-        from icgo.studies import tracking
+        from icgo.studies.common import tracking
 
         try:
             self.uri = tracking.tracking_uri(_setting(config))
@@ -107,8 +107,8 @@ class SweepTracking(Callback):
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
         if self.uri is None:
             return
-        from icgo.studies import tracking
-        from icgo.studies.tracking_tables import objective
+        from icgo.studies.common import tracking
+        from icgo.studies.common.tracking_tables import objective
 
         sweep_dir = Path(str(config.hydra.sweep.dir))  # the jobs ran in other processes: read their directories
         values = [v for d in sorted(sweep_dir.iterdir()) if d.is_dir() and (d / "run.json").is_file()

@@ -1,7 +1,7 @@
 """Calibration of a user's recording: ``icgo calibrate data=shots.csv`` (= ``python -m experiments.calibrate ...``).
 
-``conf/calibrate.yaml`` (its schema made from :class:`icgo.studies.calibration.CalibrationConfig`) -> the one study
-main -> :mod:`icgo.studies.calibration_run`: the shots read, every method fitted and scored, one recommended, the run
+``conf/calibrate.yaml`` (its schema made from :class:`icgo.studies.calibration.study.CalibrationConfig`) -> the one study
+main -> :mod:`icgo.studies.calibration.job`: the shots read, every method fitted and scored, one recommended, the run
 directory written (``outputs/calibrate/<date>/<time>``). ``data=bundled``: the 9 bundled devices -> results/. A bad
 setting: one line, exit 2; bad data: one line, exit 1, nothing written; nothing to recommend: every file written,
 one line, exit 4. ``--help`` lists the settings.
@@ -16,7 +16,7 @@ from experiments._data_doors import CALIBRATE_KEYS
 from experiments._door import CONF_DIR, door, one_line_errors
 from experiments._schema import register
 from experiments._study_main import study_main
-from icgo.studies.calibration import CalibrationConfig
+from icgo.studies.calibration.study import CalibrationConfig
 
 register("calibrate", CalibrationConfig, CALIBRATE_KEYS)  # conf/calibrate.yaml's schema
 

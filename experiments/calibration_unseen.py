@@ -4,10 +4,10 @@ Makes :data:`icgo.datasets.mag_cal_variants.N_VARIANTS` perturbed copies of each
 (:mod:`icgo.datasets.mag_cal_variants`: other mounting, soft and hard iron, another non-linearity, accelerometer
 errors, more noise), writes each as a circuitpython-mag-cal raw-layout JSON, and takes it through what
 ``python -m experiments.calibrate data=FILE mag_axes=.. grav_axes=..`` does with its defaults (the reader and its
-layout, :func:`icgo.studies.calibration.evaluate`, the recommendation and its nested accuracy). Writes
+layout, :func:`icgo.studies.calibration.study.evaluate`, the recommendation and its nested accuracy). Writes
 ``calibration_unseen.md`` and ``calibration_unseen.csv`` into ``--out`` (a shared results folder: only these
 two files replaced): per variant the recommendation, its nested accuracy and every method's means, and the
-goals (:mod:`icgo.studies.calibration_goals`) on the variants, beside the same goals on the 9 bundled devices
+goals (:mod:`icgo.studies.calibration.goals`) on the variants, beside the same goals on the 9 bundled devices
 read from ``results/calibration_devices.csv`` (``make calibration``), in a section of their own.
 
 Nothing in the door is tuned on these variants, and the numbers are reported as they come (docs/calibrate.md,
@@ -44,7 +44,7 @@ def main(argv=None) -> int:
     ap.add_argument("--variants", type=_positive, default=None, help="variants per device (default: N_VARIANTS)")
     a = ap.parse_args(argv)
     from icgo.io.files import Output
-    from icgo.studies import calibration_unseen as unseen
+    from icgo.studies.calibration import unseen
 
     out = Output(Path(a.out), setting="--out", shared=True).check()
     df, vs, recs, seconds = unseen.run_variants(a.peer, a.devices, a.variants)

@@ -1,7 +1,7 @@
 """Cross-check of the casing model against an established magnetics library (the casing sweeps, ``experiment=sweep_casing*``).
 
 ``python -m experiments.casing_check`` writes ``results/casing_model_check.{md,csv}``
-(:mod:`icgo.studies.casing_check`: icgo's pole pair and dipole line against magpylib's magnetised tube at every
+(:mod:`icgo.studies.icgo_relm.casing_check`: icgo's pole pair and dipole line against magpylib's magnetised tube at every
 lab_casing station, the casing at 0.5 to 2 m from the turntable axis).
 """
 
@@ -17,7 +17,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent.parent / "results"))
     a = ap.parse_args(argv)
     from icgo.io.files import staged_results
-    from icgo.studies.casing_check import compare, markdown, write_results
+    from icgo.studies.icgo_relm.casing_check import compare, markdown, write_results
 
     df = compare()
     md = markdown(df)

@@ -8,7 +8,7 @@ Writes into ``--out``:
 * ``datasets_lab_casing_fig7.png``: raw and MSA azimuth error vs toolface, ICGO Fig. 7;
 * ``datasets_well_conditions_table4.csv`` / ``.md`` / ``.png``: raw error mean and
   std per condition next to the paper's Table 4 "original" columns.
-The tables and figures are drawn by :mod:`icgo.studies.dataset_figures`.
+The tables and figures are drawn by :mod:`icgo.studies.icgo_relm.dataset_figures`.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from icgo.studies.dataset_figures import lab_casing_figures, well_conditions_table
+from icgo.studies.icgo_relm.dataset_figures import lab_casing_figures, well_conditions_table
 
 
 def main(argv=None) -> int:

@@ -3,7 +3,7 @@
 ``python -m experiments.fig9_seeds [--out results] [--repeats N]``
 
 The searches of Fig. 9's CGO-RELM (``lab_casing`` seed 0, the ICGO-RELM study's defaults: its splits, keys, fitness
-and budget) counted seed by seed (:mod:`icgo.studies.cgo_seeds`), for the default CGO and the 4th-seed options of
+and budget) counted seed by seed (:mod:`icgo.studies.icgo_relm.cgo_seeds`), for the default CGO and the 4th-seed options of
 the Fig. 9 ablation that change which coordinates it moves or what it is (``results/fig9_ablation.md``).
 """
 
@@ -31,8 +31,8 @@ def main(argv=None) -> int:
     from icgo.core.errors import SettingError
     from icgo.datasets import casing_stations
     from icgo.optim.cgo import CGOConfig
-    from icgo.studies import cgo_seeds
-    from icgo.studies.icgo_relm_config import StudyConfig
+    from icgo.studies.icgo_relm import cgo_seeds
+    from icgo.studies.icgo_relm.config import StudyConfig
 
     if a.repeats is not None and a.repeats < 2:
         raise SettingError(f"--repeats {a.repeats}: must be >= 2")

@@ -5,10 +5,10 @@
 * With directories: every ``run.json`` below them (run or multirun directories of ``experiments.run``; jobs that
   left a ``FAILED`` marker are skipped) is collected; of two runs holding the same (data set, condition, split
   seed, method, repeat) the newer wins (:class:`icgo.reporting.run_collection.Runs`).
-* Without: a fresh run of the preset plan (:data:`icgo.reporting.icgo_outputs.PLAN`, :mod:`experiments.figures_plan`)
+* Without: a fresh run of the preset plan (:data:`icgo.studies.icgo_relm.results.outputs.PLAN`, :mod:`experiments.figures_plan`)
   first, into ``multirun/figures-<time>/``.
 
-Outputs (``--out``, default ``results/``; :func:`icgo.studies.icgo_relm_results.build.build`): ``tableN.csv`` +
+Outputs (``--out``, default ``results/``; :func:`icgo.studies.icgo_relm.results.build.build`): ``tableN.csv`` +
 ``tableN.md`` with the paper's published numbers in adjacent columns, ``table3_stats.*`` (Wilcoxon signed-rank and
 Friedman with mean ranks), ``figN.png`` and ``figN.csv`` (the plotted numbers), the sweeps. A table whose runs are
 missing is listed in ``results/tables_missing.txt`` instead of being written.
@@ -37,8 +37,8 @@ def main(argv=None) -> int:
     from experiments.figures_plan import check_plan_overrides, run_plan
     from hydra_plugins.icgo_launcher.report import REPORT_FILE
     from icgo.core.errors import SettingError
-    from icgo.reporting.icgo_outputs import PLAN
-    from icgo.studies.icgo_relm_results.build import build
+    from icgo.studies.icgo_relm.results.outputs import PLAN
+    from icgo.studies.icgo_relm.results.build import build
 
     if a.jobs is not None and a.jobs < 1:
         raise SettingError(f"--jobs {a.jobs}: must be >= 1")

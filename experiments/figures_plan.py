@@ -1,4 +1,4 @@
-"""The preset plan of ``python -m experiments.figures`` (:data:`icgo.reporting.icgo_outputs.PLAN`): its job counts,
+"""The preset plan of ``python -m experiments.figures`` (:data:`icgo.studies.icgo_relm.results.outputs.PLAN`): its job counts,
 its run (each entry a multirun of ``experiments.run``) and the check of its ``--override``s."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import yaml
 
 from experiments._preflight import CONF_DIR, check_overrides, check_plain_overrides
 from icgo.core.errors import SettingError
-from icgo.reporting.icgo_outputs import PLAN
+from icgo.studies.icgo_relm.results.outputs import PLAN
 
 
 def plan_jobs(preset: str, overrides=()) -> int:

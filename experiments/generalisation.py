@@ -20,10 +20,10 @@ import sys
 
 
 def parser() -> argparse.ArgumentParser:
-    """The command line (defaults: :class:`icgo.studies.generalisation.GeneralisationConfig`)."""
+    """The command line (defaults: :class:`icgo.studies.generalisation.study.GeneralisationConfig`)."""
     from icgo.core.settings import ArgumentParser
     from icgo.io.files import RESULTS_DIR
-    from icgo.studies.generalisation import GeneralisationConfig
+    from icgo.studies.generalisation.study import GeneralisationConfig
 
     d = GeneralisationConfig()
     ap = ArgumentParser(prog="python -m experiments.generalisation", description=__doc__,
@@ -45,7 +45,7 @@ def main(argv=None) -> int:
     from experiments._run_study import progress_to_stdout, run_study
     from icgo.core.errors import SettingError
     from icgo.io.files import results_output
-    from icgo.studies.generalisation import GeneralisationConfig
+    from icgo.studies.generalisation.study import GeneralisationConfig
 
     args = parser().parse_args(sys.argv[1:] if argv is None else argv)
     try:

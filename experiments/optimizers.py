@@ -24,10 +24,10 @@ FIELDS = ("functions", "dims", "runs", "pop_size", "budget", "jobs", "seed", "al
 
 
 def parser() -> argparse.ArgumentParser:
-    """The command line (defaults: :class:`icgo.studies.optimizers.OptimizerStudyConfig`)."""
+    """The command line (defaults: :class:`icgo.studies.optimizers.study.OptimizerStudyConfig`)."""
     from icgo.core.settings import ArgumentParser
     from icgo.io.files import RESULTS_DIR
-    from icgo.studies.optimizers import OptimizerStudyConfig
+    from icgo.studies.optimizers.study import OptimizerStudyConfig
 
     d = OptimizerStudyConfig()
     ap = ArgumentParser(prog="python -m experiments.optimizers", description=__doc__,
@@ -60,7 +60,7 @@ def main(argv=None):
     from icgo.core.errors import SettingError
     from icgo.core.settings import config_from_mapping
     from icgo.io.files import results_output
-    from icgo.studies import optimizers as study
+    from icgo.studies.optimizers import study
 
     try:
         cfg = config_from_mapping(study.OptimizerStudyConfig, {k: getattr(args, k) for k in FIELDS},

@@ -2,7 +2,7 @@
 
 Composes ``conf/config.yaml`` (groups: dataset, model, optimizer, strategy, schedule, budget, split, fitness,
 experiment) and runs it through the one study main (:func:`experiments._study_main.study_main`): the typed
-:class:`icgo.studies.icgo_relm_run_config.RunConfig`, the study, the run directory
+:class:`icgo.studies.icgo_relm.run_config.RunConfig`, the study, the run directory
 (``outputs/run/<date>/<time>``; a sweep re-run into its directory resumes), the summary and the verdict.
 ``--help`` lists the groups and settings; ``--cfg job`` prints the composed config. See docs/experiments.md.
 """
@@ -20,7 +20,7 @@ from experiments._study_main import study_main
 @one_line_errors
 def main(cfg: DictConfig) -> float | None:
     """Hydra task: one job of a run or a sweep; returns its objective for a sweeper that minimises one
-    (``hydra/sweeper=optuna``: :func:`icgo.studies.tracking_tables.objective`), None for a failed job."""
+    (``hydra/sweeper=optuna``: :func:`icgo.studies.common.tracking_tables.objective`), None for a failed job."""
     return study_main("icgo_relm", cfg)
 
 

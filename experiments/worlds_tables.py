@@ -1,9 +1,9 @@
 """Table 1, Table 3 and Fig. 9 over independent simulated worlds: ``results/{table1,table3,fig9}_worlds.{md,csv}``.
 
 ``python -m experiments.worlds_tables [--out results] [--run] [RUN_DIR ...]``: the tables of the worlds runs under
-the given directories (default: ``multirun/worlds``), built by :mod:`icgo.studies.icgo_relm_results.worlds_tables`
+the given directories (default: ``multirun/worlds``), built by :mod:`icgo.studies.icgo_relm.results.worlds_tables`
 (what each holds is said there), and the tests of every pair of their methods (``worlds_orders.{md,csv}``:
-:mod:`icgo.studies.icgo_relm_results.worlds_orders`). ``--run`` first runs the presets into its ``PLAN``'s
+:mod:`icgo.studies.icgo_relm.results.worlds_orders`). ``--run`` first runs the presets into its ``PLAN``'s
 directories (one at a time); with ``--plan instruments`` the presets over a family of instruments
 (``results/{table3,table1}_instruments.*``). ``--orders`` writes only ``worlds_orders`` from the per-world rows already in ``--out``
 (no run needed).
@@ -17,7 +17,7 @@ import sys
 import time
 from pathlib import Path
 
-from icgo.studies.icgo_relm_results.worlds_tables import INSTRUMENT_PLAN, PLAN, build, plan_command
+from icgo.studies.icgo_relm.results.worlds_tables import INSTRUMENT_PLAN, PLAN, build, plan_command
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -33,7 +33,7 @@ def main(argv=None) -> int:
                                                           "--out (no runs read)")
     a = ap.parse_args(argv)
     if a.orders:
-        from icgo.studies.icgo_relm_results import worlds_orders
+        from icgo.studies.icgo_relm.results import worlds_orders
 
         if not worlds_orders.build(a.out):
             print(f"error: no *_worlds_per_world.csv in {a.out}", file=sys.stderr)

@@ -21,8 +21,8 @@ import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
 import icgo  # noqa: F401, E402
-from icgo.studies import icgo_relm as study  # noqa: E402
-from icgo.studies.icgo_relm_config import StudyConfig  # noqa: E402
+from icgo.studies.icgo_relm import study  # noqa: E402
+from icgo.studies.icgo_relm.config import StudyConfig  # noqa: E402
 from tests.test_study import sim_frame  # noqa: E402
 
 jax.config.update("jax_compilation_cache_dir", sys.argv[2])

@@ -22,8 +22,8 @@ from icgo.datasets import casing_stations
 from icgo.io.recording import read_recording, write_recording
 from icgo.artifacts.format import SCHEMA_VERSION
 from icgo.physics.qc import QCBands
-from icgo.studies import icgo_relm
-from icgo.studies.icgo_relm_config import StudyConfig
+from icgo.studies.icgo_relm import study as icgo_relm
+from icgo.studies.icgo_relm.config import StudyConfig
 
 ROOT = Path(__file__).resolve().parent.parent
 META_KEYS = ("total_field_nT", "dip_deg", "declination_deg", "gravity_g", "name")

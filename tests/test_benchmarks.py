@@ -14,7 +14,7 @@ import pytest
 
 import icgo  # noqa: F401  (float64)
 from icgo.optim import benchmarks as bm
-from icgo.studies import optimizers as study
+from icgo.studies.optimizers import study
 
 REFERENCE = json.loads((Path(__file__).parent / "data" / "cec2017_opfunu_reference.json").read_text())
 

@@ -27,7 +27,7 @@ from icgo.models.cal_sanity import LIMITS, sanity
 from icgo.artifacts.registry import load_model
 from icgo.physics.frames import sensors_from_attitude
 from icgo.physics.rolls import MIN_ROLLED_SHOTS
-from icgo.studies import calibration as cal_study
+from icgo.studies.calibration import study as cal_study
 
 ROOT = CONF_DIR.parent
 FAST = ["peer=false", "misma_iter=3", "misma_repeats=2", "misma_pop=6"]
@@ -382,7 +382,7 @@ def _fits_table(rows):
 
 
 def test_the_rule_keeps_twelve_axis_unless_a_sound_method_beats_it_by_more_than_the_standard_error():
-    from icgo.studies.calibration_select import recommend
+    from icgo.studies.calibration.select import recommend
 
     rows = [("in-sample", "twelve+axis", 0.5, False), ("held-out group 8", "twelve+axis", 0.50, False),
             ("held-out group 9", "twelve+axis", 0.70, False),
@@ -416,7 +416,7 @@ def test_the_rule_keeps_twelve_axis_unless_a_sound_method_beats_it_by_more_than_
 
 
 def test_the_accuracy_printed_is_nested_the_choice_made_inside_each_held_out_split():
-    from icgo.studies.calibration_select import recommend
+    from icgo.studies.calibration.select import recommend
 
     outer = [("in-sample", "twelve+axis", 0.5, False), ("in-sample", "twelve+axis+relm", 0.2, False),
              ("held-out group 8", "twelve+axis", 0.50, False), ("held-out group 8", "twelve+axis+relm", 0.30, False),
@@ -443,8 +443,8 @@ def test_the_accuracy_printed_is_nested_the_choice_made_inside_each_held_out_spl
 def test_the_bundled_table_states_its_protocol():
     """results/calibration_devices.md's protocol line, from a small fits table (no fit run): the counts come from
     the table, the command from the config (its non-default settings spelled out)."""
-    from icgo.studies.calibration_report import protocol, report, settings
-    from icgo.studies.calibration_run import SEED
+    from icgo.studies.calibration.report import protocol, report, settings
+    from icgo.studies.calibration.job import SEED
     from icgo.core.settings import config_overrides
     from icgo.reporting.protocol import PROTOCOL_FIELDS, parse_protocols
 

@@ -1,5 +1,5 @@
 """Unseen devices made from the bundled ones (icgo.datasets.mag_cal_variants) and the goals measured on a fits table
-(icgo.studies.calibration_goals)."""
+(icgo.studies.calibration.goals)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import pytest
 
 from icgo.datasets import mag_cal_variants as mv
 from icgo.io.mag_cal_bundled import load_mag_cal_device
-from icgo.studies.calibration_goals import goals, goals_table
-from icgo.studies.shots import read_shots
+from icgo.studies.calibration.goals import goals, goals_table
+from icgo.studies.common.shots import read_shots
 
 
 def test_a_variant_is_reproducible_keeps_the_real_rolls_and_reads_back_through_its_mounting(tmp_path):

@@ -4,7 +4,7 @@ import numpy as np
 
 from icgo.datasets import casing_stations
 from icgo.datasets import instruments as ins
-from icgo.studies.casing_check import compare, magpylib_tube_field
+from icgo.studies.icgo_relm.casing_check import compare, magpylib_tube_field
 
 
 def test_pole_pair_matches_the_magnetised_tube_at_every_lab_station_and_distance():

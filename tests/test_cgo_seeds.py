@@ -1,4 +1,4 @@
-"""icgo.studies.cgo_seeds (how often each CGO seed improves and is selected in the ICGO-RELM search) and its entry
+"""icgo.studies.icgo_relm.cgo_seeds (how often each CGO seed improves and is selected in the ICGO-RELM search) and its entry
 point experiments.fig9_seeds: the counted runs are the runner's (and the study's) own searches, and the counts add
 up."""
 
@@ -13,7 +13,7 @@ import icgo  # noqa: F401  (float64)
 from icgo.optim import get, run_batch
 from icgo.optim.cgo import CGOConfig
 from icgo.reporting.protocol import parse_protocols
-from icgo.studies import cgo_seeds
+from icgo.studies.icgo_relm import cgo_seeds
 
 D, P, T = 4, 10, 12
 
@@ -50,8 +50,8 @@ def test_counted_runs_are_the_runners_runs_and_the_counts_add_up(config):
 def test_counted_runs_are_the_icgo_relm_studys_searches():
     """On the RELM fitness: the counted run ends at the study's own final training RMSE, bit for bit."""
     from icgo.datasets import casing_stations
-    from icgo.studies import icgo_relm
-    from icgo.studies.icgo_relm_config import StudyConfig
+    from icgo.studies.icgo_relm import study as icgo_relm
+    from icgo.studies.icgo_relm.config import StudyConfig
 
     ds = casing_stations.lab_casing(0, toolface_step_deg=45.0)
     cfg = StudyConfig(strategies=("original",), n_repeats=2, pop_size=6, iterations=4, hidden=8)

@@ -292,7 +292,7 @@ def test_a_json_recording_is_read_with_the_shots_settings(capsys, tmp_path):
     from mag_cal_files import device_attitudes, synth, write_raw
 
     from experiments._data_doors import discrepancy_main as main_body
-    from icgo.studies.discrepancy_job import load_stations
+    from icgo.studies.discrepancy.job import load_stations
 
     G, B = synth("bh", *device_attitudes("bh"))
     path = tmp_path / "raw.json"
@@ -378,7 +378,7 @@ def test_hydra_config_equals_workflow_config_defaults():
         assert f.name in cfg, f"conf/discrepancy.yaml lacks {f.name}"
         assert cfg[f.name] == getattr(defaults, f.name), (f.name, cfg[f.name], getattr(defaults, f.name))
         assert type(cfg[f.name]) is type(getattr(defaults, f.name)), f.name
-    from icgo.studies.discrepancy_job import workflow_config
+    from icgo.studies.discrepancy.job import workflow_config
 
     assert workflow_config(OmegaConf.to_container(cfg, resolve=True)) == defaults
     assert config_from_mapping(D.WorkflowConfig, config_to_mapping(defaults)) == defaults
@@ -543,8 +543,8 @@ def test_the_study_tables_state_their_protocol(small_result, tmp_path, monkeypat
     line whose command regenerates the file; the studies are replaced by one small real result (no study runs)."""
     from experiments._data_doors import discrepancy_main as main_body
     from icgo.reporting.protocol import PROTOCOL_FIELDS, parse_protocols
-    from icgo.studies import discrepancy_results as R
-    from icgo.studies.icgo_relm_config import StudyConfig
+    from icgo.studies.discrepancy import results as R
+    from icgo.studies.icgo_relm.config import StudyConfig
 
     res = small_result
     err = np.array([0.5, -0.25, 0.125, -1.0])

@@ -10,7 +10,7 @@ import pytest
 from icgo.artifacts.registry import load_model
 from icgo.studies.registry import get_study
 
-HARD_IRON = np.array([300.0, -200.0, 150.0])  # nT, what icgo.studies.discrepancy.example hides
+HARD_IRON = np.array([300.0, -200.0, 150.0])  # nT, what icgo.studies.discrepancy.study.example hides
 
 
 @pytest.fixture(scope="module")

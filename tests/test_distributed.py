@@ -30,8 +30,8 @@ def _free_port() -> int:
 @pytest.mark.slow
 @pytest.mark.skipif(jax.default_backend() != "cpu", reason="two processes on this machine's CPU (one device each)")
 def test_two_local_processes_shard_the_search_and_give_the_one_process_study(tmp_path):
-    from icgo.studies import icgo_relm as study
-    from icgo.studies.icgo_relm_config import StudyConfig
+    from icgo.studies.icgo_relm import study
+    from icgo.studies.icgo_relm.config import StudyConfig
     from tests.test_study import sim_frame
 
     port = _free_port()

@@ -66,7 +66,7 @@ def test_field_docs_reads_every_entry_of_the_attributes_section():
 
 def test_field_docs_of_a_section_that_mirrors_a_documented_class():
     from icgo.models.nets import NetConfig
-    from icgo.studies.gyro import NetSection
+    from icgo.studies.gyro.study import NetSection
 
     assert field_docs(NetSection) == field_docs(NetConfig) and "epochs" in field_docs(NetSection)
 

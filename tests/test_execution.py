@@ -14,9 +14,9 @@ from conftest import relm_train_data
 import icgo  # noqa: F401  (float64)
 from icgo.core import execution as ex
 from icgo.models import relm, relm_gram
-from icgo.studies.icgo_relm_config import StudyConfig
-from icgo.studies.icgo_relm_prepare import frame_arrays, prepare
-from icgo.studies.icgo_relm_search import search
+from icgo.studies.icgo_relm.config import StudyConfig
+from icgo.studies.icgo_relm.prepare import frame_arrays, prepare
+from icgo.studies.icgo_relm.search import search
 
 ACCELERATORS = ("gpu", "cuda", "rocm", "tpu", "METAL", "Metal", "neuron", " GPU ")
 

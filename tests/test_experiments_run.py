@@ -22,7 +22,7 @@ from omegaconf import OmegaConf, open_dict
 
 from experiments import _preflight as E
 from hydra_plugins.icgo_launcher.jobs import FAILED
-from icgo.studies.icgo_relm_run_config import RunConfig
+from icgo.studies.icgo_relm.run_config import RunConfig
 from hydra_plugins.icgo_launcher.jobs import cfg_hash
 from hydra_plugins.icgo_launcher import report as sweep_report
 from experiments._study_main import run_job
@@ -235,11 +235,11 @@ def _fail_if_called(*a, **k):
      "model.hidden=50 has no effect with model.tune=true"),
 ])
 def test_bad_settings_fail_in_one_line_before_computation(override, expect, monkeypatch, capsys, tmp_path):
-    import icgo.studies.icgo_relm
+    import icgo.studies.icgo_relm.study
     from icgo.datasets.registry import DATASETS
 
     monkeypatch.setitem(DATASETS, "lab_casing", _fail_if_called)
-    monkeypatch.setattr(icgo.studies.icgo_relm, "_run", _fail_if_called)
+    monkeypatch.setattr(icgo.studies.icgo_relm.study, "_run", _fail_if_called)
     overrides = TINY + override.split()
     if override.startswith("+dataset.path"):
         overrides = TINY + ["dataset=csv", "dataset.path=/no/such/file.csv"]
@@ -323,7 +323,7 @@ def test_progress_comes_between_chunks_with_the_same_result_and_a_cached_program
 
 
 def test_progress_bar_starts_after_the_first_chunk(capsys):
-    from icgo.studies.icgo_relm_progress import Progress
+    from icgo.studies.icgo_relm.progress import Progress
 
     bar = Progress("t")
     assert bar.bar is None and "compiling or loading" in capsys.readouterr().err
@@ -336,11 +336,11 @@ def test_progress_bar_starts_after_the_first_chunk(capsys):
 
 # ------------------------------------------------------------ one source of defaults
 def test_composed_default_equals_the_study_dataclass_defaults():
-    """`python -m experiments.run` with no override is icgo.studies.icgo_relm_config.StudyConfig() field by field
+    """`python -m experiments.run` with no override is icgo.studies.icgo_relm.config.StudyConfig() field by field
     (precision=float32_features)."""
     import dataclasses
 
-    from icgo.studies.icgo_relm_config import StudyConfig
+    from icgo.studies.icgo_relm.config import StudyConfig
 
     cfg = _study(_job_cfg([]))
     default = StudyConfig()
@@ -358,7 +358,7 @@ def test_every_study_field_has_a_config_key():
     reaches the field it names: a changed key changes exactly that field."""
     import dataclasses
 
-    from icgo.studies.icgo_relm_config import StudyConfig
+    from icgo.studies.icgo_relm.config import StudyConfig
 
     base = _study(_job_cfg([]))
     changed = {"split.n_repeats=3": ("n_repeats", 3), "split=leave_azimuth_out": ("protocol", "leave_azimuth_out"),
@@ -510,10 +510,10 @@ def test_the_compilation_cache_is_locked_and_bounded(tmp_path):
 
 
 def test_split_options_compose_their_protocol_and_the_transfer_draw_defaults():
-    """Each conf/split option sets its protocol; split=transfer's target equals icgo.studies.splits.TransferDraw()."""
+    """Each conf/split option sets its protocol; split=transfer's target equals icgo.studies.common.splits.TransferDraw()."""
     import dataclasses
 
-    from icgo.studies.splits import PROTOCOLS, TransferDraw
+    from icgo.studies.common.splits import PROTOCOLS, TransferDraw
 
     for option, protocol in (("paper", "random"), ("single", "random"), ("leave_azimuth_out", "leave_azimuth_out"),
                              ("leave_condition_out", "leave_condition_out"), ("transfer", "transfer")):

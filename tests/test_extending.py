@@ -97,7 +97,7 @@ def registries():
 def _run_config(overrides):
     from omegaconf import OmegaConf
 
-    from icgo.studies.icgo_relm_run_config import RunConfig
+    from icgo.studies.icgo_relm.run_config import RunConfig
 
     GlobalHydra.instance().clear()
     try:
@@ -128,7 +128,7 @@ def test_each_command_composes_registers_and_builds_its_study(folder, registries
         my_strategies.cauchy and mutation.MUTATIONS["cauchy"].operator.keywords == {"gamma": 0.1}
     assert tuple(mutation.MUTATIONS)[:5] == mutation.STRATEGIES  # the built-ins keep their indices
     assert optimizers.OPTIMIZERS["de"] is my_optimizers.DE and datasets.DATASETS["bench"] is my_datasets.bench
-    from icgo.reporting.names import method_name
+    from icgo.studies.icgo_relm.names import method_name
 
     assert method_name("cgo-cauchy") == "ICGO-RELM (Cauchy)" and method_name("de") == "DE-RELM"
     typo = check_plain_overrides([*_overrides(_commands()[0], folder), "strategy.nams=[x]"], "config")

@@ -151,7 +151,7 @@ def test_the_rule_declares_no_winner_on_a_zero_margin_or_one_split():
     """A RELM the regularisation shrinks to nothing scores within 1e-6 deg of the baseline, with a smaller standard
     error still (the 24-shot case of issue 48): no win, no clear winner. One held-out split: no standard error, no
     win either; the model carries the method's own score."""
-    from icgo.studies.calibration_select import MIN_MARGIN_DEG, beats, model_accuracy, recommend
+    from icgo.studies.calibration.select import MIN_MARGIN_DEG, beats, model_accuracy, recommend
 
     def table(rows):
         return pd.DataFrame([{"recording": "r", "split": sp, "outer": "", "method": m, "score_deg": sc,
@@ -178,9 +178,9 @@ def test_an_icgo_relm_model_states_one_interval_in_run_and_apply(tmp_path):
     """The interval run's verdict states is the one the saved model carries and apply prints; the repeats' own
     mean half-width (another quantity) is named beside it, never in its place."""
     from icgo.datasets import casing_stations
-    from icgo.studies import icgo_relm
-    from icgo.studies.icgo_relm_config import StudyConfig
-    from icgo.studies.icgo_relm_outputs import model_interval
+    from icgo.studies.icgo_relm import study as icgo_relm
+    from icgo.studies.icgo_relm.config import StudyConfig
+    from icgo.studies.icgo_relm.outputs import model_interval
     from icgo.survey.apply import correct_survey
     from icgo.survey.verdict import study_verdict, survey_verdict
 

@@ -1,4 +1,4 @@
-"""The ICGO-RELM results/ builders (icgo.studies.icgo_relm_results): collection of run directories and the paper tables, on synthetic run outputs.
+"""The ICGO-RELM results/ builders (icgo.studies.icgo_relm.results): collection of run directories and the paper tables, on synthetic run outputs.
 
 The runs are written by hand with known numbers, so each table is checked
 against a direct computation (numpy mean/std, scipy's Wilcoxon and Friedman).
@@ -16,11 +16,11 @@ import pandas as pd
 import pytest
 from scipy import stats as st
 
-from icgo.reporting import icgo_outputs as O
+from icgo.studies.icgo_relm.results import outputs as O
 from icgo.reporting import records as REC
 from icgo.reporting.run_collection import Runs
-from icgo.studies.icgo_relm_results import notes as N
-from icgo.studies.icgo_relm_results.build import BUILDERS, build
+from icgo.studies.icgo_relm.results import notes as N
+from icgo.studies.icgo_relm.results.build import BUILDERS, build
 
 S5 = N.STRATEGIES5
 R = 10
@@ -236,7 +236,7 @@ def test_a_truncated_table_is_skipped_and_named(tmp_path, capsys):
 
 
 def test_paper_consistency_note_flags_the_three_stage_row():
-    from icgo.reporting.icgo_outputs import PAPER, paper_consistency_note, paper_variances
+    from icgo.studies.icgo_relm.results.outputs import PAPER, paper_consistency_note, paper_variances
 
     var = paper_variances()
     mae, rmse, r2 = (x[0] for x in PAPER["table3"]["three_stage"])
@@ -389,7 +389,7 @@ def _condition_runs(root: Path, label: str, key: str, levels, rng, best_at):
 def test_noise_and_casing_sweeps_report_every_method_against_the_floor(runs_dir, tmp_path):
     """Issue 18 sweep 5: one row per level, every method, the level's noise floor, ranking statistics."""
     from icgo.datasets.casing_stations import noise_floor
-    from icgo.studies.icgo_relm_results import condition_sweeps as SC
+    from icgo.studies.icgo_relm.results import condition_sweeps as SC
 
     rng = np.random.default_rng(8)
     _condition_runs(runs_dir / "m", "sweep_noise", "noise_scale", (0.5, 1.0, 2.0), rng,
@@ -503,7 +503,7 @@ def test_table4_note_gives_the_ratio_of_the_near_vertical_errors_from_the_table(
     t = pd.DataFrame({"inclination (deg)": [0.594, 1.8, 60.0, 90.0, 135.0, 150.0],
                       "compensated mean ours": [0.7805, 0.4536, 0.0836, 0.1001, 0.0773, 0.0915],
                       "noise floor MAE": [0.7812, 0.2337, 0.0252, 0.0198, 0.0197, 0.0259]})
-    from icgo.studies.icgo_relm_results.table4 import _table4_high_inclination
+    from icgo.studies.icgo_relm.results.table4 import _table4_high_inclination
 
     note = _table4_high_inclination(t)
     assert "stays 3.3-5.1 times its noise floor" in note

@@ -12,12 +12,12 @@ import yaml
 
 from experiments import figures_plan as FP
 from hydra_plugins.icgo_launcher import report as sweep_report
-from icgo.reporting import icgo_outputs as O
+from icgo.studies.icgo_relm.results import outputs as O
 from icgo.reporting import stamp
-from icgo.reporting.names import METHOD_NAMES, STRATEGY_NAMES, method_name
-from icgo.studies.icgo_relm_results import condition_sweeps as SC
-from icgo.studies.icgo_relm_results import notes as N
-from icgo.studies.icgo_relm_results.build import build
+from icgo.studies.icgo_relm.names import METHOD_NAMES, STRATEGY_NAMES, method_name
+from icgo.studies.icgo_relm.results import condition_sweeps as SC
+from icgo.studies.icgo_relm.results import notes as N
+from icgo.studies.icgo_relm.results.build import build
 from tests.test_figures import _condition_runs, _conv, _metrics, _pred, _run_dir
 
 S5 = N.STRATEGIES5
@@ -136,7 +136,7 @@ def test_one_set_of_names():
     assert method_name("relm-tuned") == "RELM (tuned)" and method_name("cgo-chaos") == "ICGO-RELM (chaotic)"
     assert method_name("cgo-original") == "CGO-RELM" and method_name("sma-x") == "SMA-RELM (x)"
     assert O.LABEL is STRATEGY_NAMES and SC.METHODS["cgo-wavelet"] == METHOD_NAMES["cgo-wavelet"]
-    from icgo.studies import generalisation_report as G
+    from icgo.studies.generalisation import report as G
 
     assert G.NAMES["cgo-chaos"] == "ICGO-RELM (chaotic)"
     from icgo.maths.stats import format_mean_std

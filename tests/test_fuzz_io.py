@@ -25,7 +25,7 @@ import icgo  # noqa: F401
 from icgo.core.errors import DataError, SettingError
 from icgo.io import csv_text
 from icgo.io import recording as io
-from icgo.studies.icgo_relm_config import StudyConfig
+from icgo.studies.icgo_relm.config import StudyConfig
 
 # The fast suite is derandomized (the same examples every run: CI stays deterministic); the long
 # runs of make test-all draw new examples each time, to find what the fixed ones miss.
@@ -343,7 +343,7 @@ LAYOUTS = st.one_of(
 
 def _check_layout(tmp_path_factory, doc):
     """The whole reading of a shots file (the layout, the groups, the search of the data where no layout is known)."""
-    from icgo.studies.shots import read_shots
+    from icgo.studies.common.shots import read_shots
 
     d = tmp_path_factory.mktemp("js")
     p = d / "dev.json"
@@ -375,7 +375,7 @@ HOSTILE_VALUE = st.tuples(st.sampled_from(["mag", "grav"]), st.integers(0, 23), 
 def _check_hostile_value(tmp_path_factory, edit):
     import time
 
-    from icgo.studies.shots import read_shots
+    from icgo.studies.common.shots import read_shots
 
     key, shot, axis, value = edit
     doc = json.loads(json.dumps(_DEVICE))

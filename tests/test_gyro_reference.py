@@ -14,9 +14,9 @@ from icgo.models import calibration as cal
 from icgo.models.gyro_reference import fit_to_reference, gyro_reference, gyro_term, reference_at
 from icgo.physics import frames as F
 from icgo.physics.strapdown import gyro_rates_from_attitude, relative_rotations, rot_exp, rot_log
-from icgo.studies import misma_compare as compare
-from icgo.studies.misma_config import GyroConfig, MismaSearchConfig
-from icgo.studies.misma_simulated import PARAM_NAMES, grade_dataset, identifiability
+from icgo.studies.misma import compare
+from icgo.studies.misma.config import GyroConfig, MismaSearchConfig
+from icgo.studies.misma.simulated import PARAM_NAMES, grade_dataset, identifiability
 
 STRAIGHT = {"inclination_start_deg": 88.0, "inclination_end_deg": 86.5, "azimuth_start_deg": 120.0,
             "azimuth_end_deg": 124.0}

@@ -19,7 +19,7 @@ from experiments._preflight import CONF_DIR
 from icgo.core.errors import SettingError
 from icgo.core.settings import config_from_mapping, config_to_mapping
 from icgo.artifacts.registry import load_model
-from icgo.studies import gyro
+from icgo.studies.gyro import study as gyro
 from icgo.studies.registry import STUDIES
 
 #: A study small enough for a test: 32 turntable points, 2 seeds, 2 variants, tiny RELM search and sweep.

@@ -1,4 +1,4 @@
-"""The typed config of the ICGO-RELM door (icgo.studies.icgo_relm_run_config): built node by node from the composed
+"""The typed config of the ICGO-RELM door (icgo.studies.icgo_relm.run_config): built node by node from the composed
 mapping, unknown keys and bad values refused in one line naming the YAML key, and the one StudyConfig constructor."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from omegaconf import OmegaConf
 
 from icgo.core.errors import SettingError
 from icgo.core.settings import config_from_mapping
-from icgo.studies import icgo_relm_run_config as RC
+from icgo.studies.icgo_relm import run_config as RC
 from tests.test_experiments_run import _compose
 
 
@@ -48,7 +48,7 @@ def test_an_unknown_key_is_one_line_naming_its_path(where, key, value):
 def test_the_transfer_target_is_a_node_and_only_with_its_protocol():
     run = RC.RunConfig.from_mapping(_mapping(["split=transfer"]))
     assert isinstance(run.split.target, RC.TransferTarget) and run.split.target.path is None
-    from icgo.studies.splits import TransferDraw
+    from icgo.studies.common.splits import TransferDraw
 
     assert TransferDraw(**run.split.target.draw()) == TransferDraw()
     m = _mapping(["split=transfer"])
@@ -68,7 +68,7 @@ def test_study_config_names_each_field_once_and_reports_the_yaml_key():
 
 
 def test_a_library_study_config_refuses_lam_above_the_bound():
-    from icgo.studies.icgo_relm_config import StudyConfig
+    from icgo.studies.icgo_relm.config import StudyConfig
 
     with pytest.raises(SettingError, match=r"^lam must be a number > 0 and at most 1000"):
         StudyConfig(lam=5e3)

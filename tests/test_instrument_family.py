@@ -62,7 +62,7 @@ def test_family_settings_that_contradict_it_are_one_line():
 
 
 def test_worlds_of_a_family_each_draw_their_own_instrument():
-    from icgo.studies.worlds import simulate
+    from icgo.studies.icgo_relm.worlds.study import simulate
 
     two = simulate("lab_casing", [100, 101], instrument="family")
     one = simulate("lab_casing", [101], instrument="family")
@@ -78,7 +78,7 @@ def test_the_worlds_builder_writes_an_instrument_family_table_beside_the_worlds(
 
     import pandas as pd
 
-    from icgo.studies.icgo_relm_results import worlds_tables as T
+    from icgo.studies.icgo_relm.results import worlds_tables as T
 
     rng = np.random.default_rng(0)
     env = {"python": "3.12.1", "jax": "0.12.1", "jaxlib": "0.12.1", "numpy": "2", "scipy": "1", "cpu": "X",

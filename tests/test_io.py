@@ -305,7 +305,7 @@ def test_mag_cal_converter_matches_the_package_side_by_side():
     from mag_cal.calibration import Calibration
     from mag_cal.utils import read_fixture
 
-    from icgo.studies.calibration_peer import peer_numpy
+    from icgo.studies.calibration.peer import peer_numpy
 
     perm = list(mag_cal_bundled.MAG_CAL_DEVICE_TO_TOOL)
     for name in mag_cal_bundled.mag_cal_devices():

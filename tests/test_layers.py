@@ -7,6 +7,7 @@ inside a function cannot hide an upward arrow. The order is the README's "Layers
 from __future__ import annotations
 
 import ast
+from collections import Counter
 from pathlib import Path
 
 import pytest
@@ -119,7 +120,7 @@ def test_no_import_circle(top):
 
 def test_the_checks_find_a_circle_and_an_upward_import():
     assert _circles({"a": {"b"}, "b": {"a"}, "c": {"a"}}) == [["a", "b"]]
-    assert _layer("icgo.physics.frames") < _layer("icgo.studies.splits")
+    assert _layer("icgo.physics.frames") < _layer("icgo.studies.common.splits")
     assert _layer("icgo.bogus") is None
 
 
@@ -167,3 +168,80 @@ def test_hydra_only_in_the_doors_and_the_launcher():
     bad += [f"{p.relative_to(ROOT)} imports {m}" for p in sorted((ROOT / "hydra_plugins").rglob("*.py"))
             for m in imported(p) if m.split(".")[0] == "experiments"]
     assert not bad, "\n".join(bad)
+
+
+# --- a study per package (issue 47; added by move_studies.py) ---
+
+#: The shared study machinery: the one part of icgo.studies every study may import.
+STUDY_COMMON = "icgo.studies.common"
+#: The registry of studies: it imports every study's face.
+STUDY_REGISTRY = "icgo.studies.registry"
+#: The studies built on another study: the other studies whose FACE (the package's ``__init__``) each may import.
+STUDY_USES = {'discrepancy': ('icgo_relm',), 'generalisation': ('icgo_relm',), 'misma': ('calibration',)}
+
+
+def _study(module: str) -> str | None:
+    """The study package a module of icgo.studies belongs to (None: the common machinery, the registry, the face of
+    icgo.studies itself)."""
+    if not module.startswith("icgo.studies."):
+        return None
+    top = module.split(".")[2]
+    return None if f"icgo.studies.{top}" in (STUDY_COMMON, STUDY_REGISTRY) else top
+
+
+def _study_rule_breaks(graph: dict[str, set[str]]) -> list[str]:
+    bad = []
+    for mod, deps in graph.items():
+        mine = _study(mod)
+        for dep in deps:
+            if not dep.startswith("icgo.studies"):
+                continue
+            theirs = _study(dep)
+            if mod.startswith(STUDY_COMMON) and not dep.startswith(STUDY_COMMON):
+                bad.append(f"{mod} -> {dep} (the common machinery names no study)")
+            elif mine and dep == STUDY_REGISTRY:
+                bad.append(f"{mod} -> {dep} (a study never imports the registry)")
+            elif mine and theirs and theirs != mine:
+                if theirs not in STUDY_USES.get(mine, ()):
+                    bad.append(f"{mod} -> {dep} (a study imports only the common machinery)")
+                elif dep != f"icgo.studies.{theirs}":
+                    bad.append(f"{mod} -> {dep} (another study only through its face, icgo.studies.{theirs})")
+            elif mod == STUDY_REGISTRY and theirs and dep != f"icgo.studies.{theirs}":
+                bad.append(f"{mod} -> {dep} (the registry imports each study's face)")
+    return sorted(bad)
+
+
+def test_a_study_imports_only_the_common_machinery_and_the_faces_it_is_built_on():
+    assert _study_rule_breaks(_graph()) == []
+
+
+def test_reporting_names_no_study():
+    bad = [f"{m} -> {d}" for m, deps in _graph().items() if m.startswith("icgo.reporting")
+           for d in deps if d.startswith("icgo.studies")]
+    assert bad == []
+
+
+def test_every_study_is_a_package_with_its_face_and_every_use_of_another_study_is_real():
+    studies_dir = ROOT / "icgo" / "studies"
+    top = sorted(p.name for p in studies_dir.iterdir() if not p.name.startswith(("__pycache__", ".")))
+    assert len(top) <= 10, top
+    for folder in [studies_dir, *(p for p in studies_dir.rglob("*") if p.is_dir() and p.name != "__pycache__")]:
+        stems = [p.stem for p in folder.iterdir() if p.suffix == ".py" and p.stem != "__init__"]
+        stems += [p.name for p in folder.iterdir() if p.is_dir() and (p / "__init__.py").exists()]
+        prefixes = Counter(s.split("_")[0] for s in stems)
+        assert max(prefixes.values(), default=0) < 3, (folder, prefixes.most_common(3))
+    graph = _graph()
+    used = {(_study(m), _study(d)) for m, deps in graph.items() for d in deps
+            if _study(m) and _study(d) and _study(m) != _study(d)}
+    assert used == {(a, b) for a, bs in STUDY_USES.items() for b in bs}, "STUDY_USES lists exactly the uses"
+
+
+def test_the_study_rule_finds_a_study_importing_another():
+    graph = {"icgo.studies.gyro.study": {"icgo.studies.misma.config"},
+             "icgo.studies.misma.study": {"icgo.studies.calibration.study"},
+             "icgo.studies.common.splits": {"icgo.studies.gyro"}}
+    assert _study_rule_breaks(graph) == [
+        "icgo.studies.common.splits -> icgo.studies.gyro (the common machinery names no study)",
+        "icgo.studies.gyro.study -> icgo.studies.misma.config (a study imports only the common machinery)",
+        "icgo.studies.misma.study -> icgo.studies.calibration.study (another study only through its face, "
+        "icgo.studies.calibration)"]

@@ -1,5 +1,5 @@
 """circuitpython-mag-cal JSON layouts (icgo.io.mag_cal_json) against the peer's own reader and axes; the instrument's
-layout first, checked against the data (icgo.models.grouping, icgo.studies.shots)."""
+layout first, checked against the data (icgo.models.grouping, icgo.studies.common.shots)."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from icgo.io import mag_cal_bundled, schema
 from icgo.io import __main__ as io_cli
 from icgo.io.mag_cal_json import parse_axes
 from icgo.io.mag_cal_json import read_mag_cal_json as read_file
-from icgo.studies.shots import read_shots
+from icgo.studies.common.shots import read_shots
 
 
 def read_mag_cal_json(path, **kw):

@@ -21,9 +21,10 @@ from icgo.io.mag_cal_bundled import load_mag_cal_device
 from icgo.models import calibration as cal
 from icgo.artifacts.calibration import MagCalibration
 from icgo.artifacts.registry import load_model
-from icgo.studies import calibration, misma, misma_compare
-from icgo.studies.misma_config import MismaConfig
-from icgo.studies.misma_simulated import prior_box
+from icgo.studies.calibration import study as calibration
+from icgo.studies.misma import study as misma, compare as misma_compare
+from icgo.studies.misma.config import MismaConfig
+from icgo.studies.misma.simulated import prior_box
 from icgo.studies.registry import STUDIES
 
 #: A short drilling run (600 s: two stops), 2 repeats of 5 iterations, one real device, no peer package.

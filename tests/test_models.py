@@ -15,8 +15,8 @@ from icgo.datasets import casing_stations
 from icgo.artifacts.format import SCHEMA_VERSION
 from icgo.artifacts.registry import load_model
 from icgo.artifacts.relm import MSAModel, RELMCompensation, circular_mean_spread
-from icgo.studies import icgo_relm as study
-from icgo.studies.icgo_relm_config import StudyConfig
+from icgo.studies.icgo_relm import study
+from icgo.studies.icgo_relm.config import StudyConfig
 
 CFG = dict(n_repeats=3, hidden=10, seed=3, pop_size=6, iterations=3)
 

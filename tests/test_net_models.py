@@ -12,7 +12,7 @@ from icgo.core.errors import ModelError
 from icgo.models import gyro_relm, nets
 from icgo.artifacts.network import GyroNetwork, GyroRELM, LookupTableModel
 from icgo.artifacts.registry import load_model
-from icgo.studies import gyro
+from icgo.studies.gyro import study as gyro
 
 
 def _frame(I, A, T, rng):

@@ -214,7 +214,7 @@ def test_registry_holds_the_papers_five_in_index_order():
     assert tuple(mut.MUTATIONS)[:5] == mut.STRATEGIES
     assert [mut.MUTATIONS[s].operator is not None for s in mut.STRATEGIES] == [True] * 4 + [False]
     assert mut.STAGE_ORDER == (1, 2, 3) and CGOConfig().stage_order == (1, 2, 3)
-    from icgo.reporting.names import STRATEGY_NAMES, method_name
+    from icgo.studies.icgo_relm.names import STRATEGY_NAMES, method_name
 
     assert STRATEGY_NAMES == {s: mut.MUTATIONS[s].label for s in mut.STRATEGIES}
     assert method_name("cgo-gaussian") == "ICGO-RELM (Gaussian)"

@@ -24,8 +24,8 @@ from icgo.core.settings import config_from_mapping, config_to_mapping
 from icgo.optim import OPTIMIZERS, get, run_batch
 from icgo.optim import benchmarks as bm
 from icgo.optim.cgo import CGO
-from icgo.studies import optimizers as study
-from icgo.studies.optimizers import OptimizerStudyConfig
+from icgo.studies.optimizers import study
+from icgo.studies.optimizers.study import OptimizerStudyConfig
 from icgo.studies.registry import STUDIES
 
 #: The method labels of results/optimizers.md (unchanged by the move into the library).

@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 import yaml
 
-from icgo.studies.tracking_tables import objective
+from icgo.studies.common.tracking_tables import objective
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -15,8 +15,8 @@ import icgo  # noqa: F401  (float64)
 from icgo.optim import get, run_batch
 from icgo.optim.base import stack_configs
 from icgo.optim.sharded import balanced_devices, run_members
-from icgo.studies import icgo_relm as study
-from icgo.studies.icgo_relm_config import StudyConfig
+from icgo.studies.icgo_relm import study
+from icgo.studies.icgo_relm.config import StudyConfig
 from tests.test_study import sim_frame
 
 TINY = StudyConfig(optimizer="cgo", strategies=("original", "wavelet"), n_repeats=3, hidden=10, pop_size=6,

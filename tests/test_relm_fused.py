@@ -44,9 +44,9 @@ def test_on_the_studys_data_the_refinement_is_what_meets_the_tolerance():
     """lab_casing (30 deg toolface steps), L = 30, the paper's lambda: the TF32 and bfloat16 Grams alone are off by
     more than 5e-6; two (TF32) or three (bfloat16) refinement passes bring them within it."""
     from icgo.datasets import casing_stations
-    from icgo.studies.icgo_relm_config import StudyConfig
-    from icgo.studies.icgo_relm_prepare import filtered, prepare
-    from icgo.studies.icgo_relm_search import train_rows
+    from icgo.studies.icgo_relm.config import StudyConfig
+    from icgo.studies.icgo_relm.prepare import filtered, prepare
+    from icgo.studies.icgo_relm.search import train_rows
 
     cfg = StudyConfig(n_repeats=1)
     rows_df, G, B, a, _ = filtered(casing_stations.lab_casing(0, toolface_step_deg=30.0).frame, cfg)

@@ -121,9 +121,10 @@ def test_the_writers_stamp_their_tables():
     """The stamp lines of the MISMA, gyro and discrepancy writers, from their default configs."""
     from icgo.discrepancy.config import WorkflowConfig
     from icgo.discrepancy.report import workflow_settings
-    from icgo.studies import gyro_report, misma_report
-    from icgo.studies.gyro import GyroConfig
-    from icgo.studies.misma_config import MismaConfig
+    from icgo.studies.gyro import report as gyro_report
+    from icgo.studies.misma import report as misma_report
+    from icgo.studies.gyro.study import GyroConfig
+    from icgo.studies.misma.config import MismaConfig
 
     assert misma_report.settings(MismaConfig()).startswith(
         "Run settings: population 30 x 2051 iterations per simulated search; real devices: 300 iterations per MISMA "
@@ -203,7 +204,7 @@ def test_the_papers_values_stand_beside_ours(name):
 
 def test_one_copy_of_the_published_values():
     from icgo.datasets.casing_stations import TABLE4_ORIGINAL
-    from icgo.reporting.icgo_outputs import PAPER
+    from icgo.studies.icgo_relm.results.outputs import PAPER
     from icgo.reporting.published import ICGO
 
     assert PAPER is ICGO
@@ -212,7 +213,7 @@ def test_one_copy_of_the_published_values():
 
 # ---------------------------------------------------------------------------------------------- seeds
 def test_misma_reports_a_seed_its_choices_were_not_made_on():
-    from icgo.studies.misma_config import DEVELOPMENT_SEEDS, MismaConfig
+    from icgo.studies.misma.config import DEVELOPMENT_SEEDS, MismaConfig
 
     assert MismaConfig().seed not in DEVELOPMENT_SEEDS
     reported = json.loads((RESULTS / "misma_summary.json").read_text())["config"]["seed"]

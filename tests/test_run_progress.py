@@ -10,8 +10,8 @@ import re
 import numpy as np
 import pytest
 
-from icgo.studies import icgo_relm_progress as P
-from icgo.studies import search_estimate as E
+from icgo.studies.icgo_relm import progress as P
+from icgo.studies.icgo_relm import search_estimate as E
 
 
 class _Clock:
@@ -78,7 +78,7 @@ def test_a_sweep_jobs_lines_name_the_job(monkeypatch, capsys):
 
 
 def test_clock_and_count():
-    from icgo.studies.run_log import clock, count
+    from icgo.studies.common.run_log import clock, count
 
     assert clock(0) == "0:00:00" and clock(3725.4) == "1:02:05"
     assert count(950) == "950" and count(16_900) == "16.9k" and count(3_200_000) == "3.2M"
@@ -87,8 +87,8 @@ def test_clock_and_count():
 def test_the_plan_counts_the_evaluations_the_search_spends():
     """planned_evaluations against the optimizers' own count over a real (tiny) search: CGO's 4 per seed per
     iteration, PSO's one per particle."""
-    from icgo.studies.icgo_relm import run_study
-    from icgo.studies.icgo_relm_config import StudyConfig
+    from icgo.studies.icgo_relm.study import run_study
+    from icgo.studies.icgo_relm.config import StudyConfig
     from icgo.datasets import casing_stations
 
     frame = casing_stations.lab_casing(0, toolface_step_deg=45.0).frame
@@ -103,7 +103,7 @@ def test_the_plan_counts_the_evaluations_the_search_spends():
 
 def test_an_estimate_is_the_evaluations_over_the_rate_measured_before(tmp_path):
     from icgo.core.execution import ExecutionPlan
-    from icgo.studies.icgo_relm_config import StudyConfig
+    from icgo.studies.icgo_relm.config import StudyConfig
 
     cfg = StudyConfig(optimizer="cgo", strategies=("chaos",), n_repeats=10, pop_size=30, iterations=100)
     plan = ExecutionPlan("cpu", "cache_chunked", 2, 1, 10, "why")
@@ -127,7 +127,7 @@ def test_smallest_p_against_the_exact_wilcoxon():
     """All differences of one sign: scipy's exact two-sided p is 2 / 2**n; Holm multiplies the smallest by m."""
     from scipy import stats
 
-    from icgo.reporting.worlds import smallest_p, worlds_needed
+    from icgo.studies.icgo_relm.worlds.stats import smallest_p, worlds_needed
 
     for n in range(2, 12):
         d = np.arange(1, n + 1, dtype=float)
@@ -139,7 +139,7 @@ def test_smallest_p_against_the_exact_wilcoxon():
 
 
 def test_the_power_note_names_the_worlds_needed():
-    from icgo.studies.worlds_outputs import power_note
+    from icgo.studies.icgo_relm.worlds.outputs import power_note
 
     note = power_note(3, 5)
     assert "3 worlds are too few" in note and "Holm over 4 test(s), is 1" in note and "8 worlds" in note
@@ -150,9 +150,9 @@ def test_the_power_note_names_the_worlds_needed():
 def test_the_worlds_figure_is_written_in_the_pooled_order(tmp_path, monkeypatch):
     import pandas as pd
 
-    from icgo.reporting import worlds_figure
-    from icgo.reporting.names import method_name
-    from icgo.reporting.worlds import order
+    from icgo.studies.icgo_relm.worlds import figure as worlds_figure
+    from icgo.studies.icgo_relm.names import method_name
+    from icgo.studies.icgo_relm.worlds.stats import order
 
     per = pd.DataFrame({"world": [0, 0, 1, 1, 2, 2], "method": ["a", "b"] * 3, "n": 2,
                         "mae": [0.3, 0.1, 0.4, 0.2, 0.2, 0.25], "rmse": 0.0, "r2_error": 0.0})

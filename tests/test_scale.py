@@ -14,9 +14,9 @@ import pytest
 import icgo  # noqa: F401  (float64)
 from icgo.datasets import casing_stations
 from icgo.models import msa
-from icgo.studies import icgo_relm as S
-from icgo.studies.icgo_relm_config import StudyConfig
-from icgo.studies.icgo_relm_prepare import filtered, prepare
+from icgo.studies.icgo_relm import study as S
+from icgo.studies.icgo_relm.config import StudyConfig
+from icgo.studies.icgo_relm.prepare import filtered, prepare
 
 
 def _prepared(frame, cfg):
@@ -60,7 +60,7 @@ def test_a_repeat_whose_msa_fails_is_left_out_and_named(tmp_path, capsys):
     from experiments._study_main import run_job
     from icgo.io.recording import write_recording
     from icgo.reporting.run_collection import EXCLUDED_FILE
-    from icgo.studies.icgo_relm_results.build import build
+    from icgo.studies.icgo_relm.results.build import build
 
     frame = _two_azimuth_frame()
     n = 12

@@ -1,4 +1,4 @@
-"""Split protocols (icgo.studies.splits), the padded fast fitness, split-conformal coverage (icgo.maths.conformal),
+"""Split protocols (icgo.studies.common.splits), the padded fast fitness, split-conformal coverage (icgo.maths.conformal),
 the protocols through the ICGO-RELM study and the physics baseline of the generalisation table."""
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ from icgo.core.errors import SettingError
 from icgo.datasets import casing_stations
 from icgo.maths.conformal import conformal_quantile, member_coverage
 from icgo.models import relm
-from icgo.studies import splits
-from icgo.studies.icgo_relm import run_study
-from icgo.studies.icgo_relm_config import StudyConfig
+from icgo.studies.common import splits
+from icgo.studies.icgo_relm.study import run_study
+from icgo.studies.icgo_relm.config import StudyConfig
 
 
 @pytest.fixture(scope="module")
@@ -217,7 +217,7 @@ def test_physics_baseline_recovers_the_twelve_parameters_and_an_earth_fixed_fiel
 
 
 def test_generalisation_defaults_are_the_relm_studys():
-    from icgo.studies.generalisation import GeneralisationConfig
+    from icgo.studies.generalisation.study import GeneralisationConfig
 
     g, r = GeneralisationConfig(), StudyConfig()
     assert (g.pop_size, g.iterations, g.hidden) == (r.pop_size, r.iterations, r.hidden)
@@ -242,10 +242,10 @@ def test_generalisation_table_bolds_only_a_separable_first_and_says_what_lambda_
 
     import pandas as pd
 
-    from icgo.studies.generalisation_report import markdown
+    from icgo.studies.generalisation.report import markdown
     from icgo.reporting.choices import LAMBDA
     from icgo.reporting.protocol import parse_protocols
-    from icgo.studies.generalisation import GeneralisationConfig
+    from icgo.studies.generalisation.study import GeneralisationConfig
 
     res = Path(__file__).resolve().parents[1] / "results"
     rec = {"metrics": pd.read_csv(res / "generalisation.csv"),

@@ -60,7 +60,7 @@ def test_figures_entry_writes_through_the_staging(tmp_path, monkeypatch):
     """experiments.figures moves its tables in only when the build finished (a failing builder changes nothing)."""
     from experiments import figures
     from icgo.io import files
-    from icgo.studies.icgo_relm_results import build as results_build
+    from icgo.studies.icgo_relm.results import build as results_build
 
     out = tmp_path / "results"
     monkeypatch.setattr(files, "RESULTS_DIR", out)  # the shared results folder

@@ -56,7 +56,7 @@ def test_default_config_is_valid_and_round_trips(name):
 
 
 def test_config_overrides_name_each_setting_off_its_default_in_hydras_syntax():
-    from icgo.studies.misma_config import MismaConfig
+    from icgo.studies.misma.config import MismaConfig
 
     cfg = MismaConfig()
     changed = dataclasses.replace(cfg, seed=cfg.seed + 1,
@@ -95,8 +95,8 @@ def test_example_runs_deterministically_with_records_and_models(name, runs, tmp_
 
 def test_generalisation_qc_counts_are_the_survey_qc_of_the_tested_stations(runs):
     from icgo.physics.qc import survey_qc
-    from icgo.studies.generalisation import _qc_stations
-    from icgo.studies.icgo_relm_config import StudyConfig
+    from icgo.studies.generalisation.study import _qc_stations
+    from icgo.studies.icgo_relm.config import StudyConfig
 
     _, data, cfg, res, _ = runs("generalisation")
     qc = res.records["qc"]

@@ -11,10 +11,10 @@ import icgo  # noqa: F401
 from icgo.core.errors import SettingError
 from icgo.maths import metrics
 from icgo.physics import effects, frames
-from icgo.studies import icgo_relm as study
-from icgo.studies.icgo_relm_config import RENAMED_PRECISIONS, StudyConfig
-from icgo.studies.icgo_relm_prepare import frame_arrays, prepare, sigma_filter
-from icgo.studies.icgo_relm_search import check_search, search, search_kernel, train_rows
+from icgo.studies.icgo_relm import study
+from icgo.studies.icgo_relm.config import RENAMED_PRECISIONS, StudyConfig
+from icgo.studies.icgo_relm.prepare import frame_arrays, prepare, sigma_filter
+from icgo.studies.icgo_relm.search import check_search, search, search_kernel, train_rows
 
 
 def sim_frame(seed=0, tf_step=10.0):

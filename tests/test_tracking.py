@@ -15,8 +15,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from icgo.studies import tracking
-from icgo.studies.tracking_tables import directory_metrics, name
+from icgo.studies.common import tracking
+from icgo.studies.common.tracking_tables import directory_metrics, name
 
 ROOT = Path(__file__).resolve().parents[1]
 needs_mlflow = pytest.mark.skipif(not tracking.installed(), reason="MLflow is not installed (pip install "
@@ -230,7 +230,7 @@ def test_a_doors_job_is_tracked_with_its_config_its_files_and_its_objective(tmp_
     from mlflow.tracking import MlflowClient
 
     from experiments._tracking import track_job
-    from icgo.studies.tracking_tables import objective
+    from icgo.studies.common.tracking_tables import objective
 
     d = _run_dir(tmp_path)
     uri = tracking.default_uri(tmp_path)

@@ -60,8 +60,8 @@ def test_md_must_increase():
 def test_apply_gives_positions_where_the_survey_has_depth(tmp_path):
     """The front door's library path: a lab_casing survey given a depth column gets both trajectories."""
     from icgo.datasets import casing_stations
-    from icgo.studies import icgo_relm
-    from icgo.studies.icgo_relm_config import StudyConfig
+    from icgo.studies.icgo_relm import study as icgo_relm
+    from icgo.studies.icgo_relm.config import StudyConfig
     from icgo.survey.apply import correct_survey
 
     res = icgo_relm.run_study(casing_stations.lab_casing(0, toolface_step_deg=60.0).frame,

@@ -16,8 +16,8 @@ from icgo.datasets import casing_stations
 from icgo.io.recording import read_recording, write_recording
 from icgo.artifacts.format import sensor_domain
 from icgo.physics.qc import QCBands
-from icgo.studies import icgo_relm
-from icgo.studies.icgo_relm_config import StudyConfig
+from icgo.studies.icgo_relm import study as icgo_relm
+from icgo.studies.icgo_relm.config import StudyConfig
 from icgo.survey import verdict as V
 from tests.test_apply import _cfg
 

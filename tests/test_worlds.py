@@ -15,10 +15,10 @@ from scipy import stats as sps
 
 import icgo  # noqa: F401  (float64)
 from icgo.core.errors import SettingError
-from icgo.reporting import worlds as R
-from icgo.studies import icgo_relm as S
-from icgo.studies import worlds as W
-from icgo.studies.icgo_relm_config import StudyConfig
+from icgo.studies.icgo_relm.worlds import stats as R
+from icgo.studies.icgo_relm import study as S
+from icgo.studies.icgo_relm.worlds import study as W
+from icgo.studies.icgo_relm.config import StudyConfig
 from tests.test_experiments_run import _compose, _job_cfg
 
 KWARGS = {"toolface_step_deg": 30.0}
@@ -134,7 +134,7 @@ def test_the_reported_worlds_exclude_every_development_seed():
 def test_bad_worlds_settings_are_one_line(overrides, message):
     from omegaconf import OmegaConf
 
-    from icgo.studies.icgo_relm_run_config import RunConfig
+    from icgo.studies.icgo_relm.run_config import RunConfig
 
     with pytest.raises(SettingError, match=message):
         RunConfig.from_mapping(OmegaConf.to_container(_compose(overrides), resolve=True))

@@ -1,5 +1,5 @@
 """Every order the README and docs state over worlds is carried by a test (results/worlds_orders.{csv,md},
-icgo.studies.icgo_relm_results.worlds_orders), and the claim markers fail when a stated order flips: a copy of
+icgo.studies.icgo_relm.results.worlds_orders), and the claim markers fail when a stated order flips: a copy of
 results/ is perturbed so that an order the prose states no longer holds (or an order it calls untested becomes
 significant), and the render of the real README.md and docs/ reports the sentence."""
 
@@ -14,7 +14,7 @@ import pytest
 
 from icgo.reporting import documents as D
 from icgo.reporting.render import RenderError, carried, pair, untested
-from icgo.studies.icgo_relm_results import worlds_orders as O
+from icgo.studies.icgo_relm.results import worlds_orders as O
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "results"

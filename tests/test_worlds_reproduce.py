@@ -46,7 +46,7 @@ def compare(out: Path, results: Path = RESULTS) -> str:
     """Compare the worlds run in ``out`` with the committed rows of its worlds; returns which comparison ran
     (``"bitwise"`` or ``"tolerance"``), failing on any difference beyond it."""
     from icgo.core.environment import describe
-    from icgo.reporting.worlds import per_world
+    from icgo.studies.icgo_relm.worlds.stats import per_world
 
     run = json.loads((out / "run.json").read_text())
     seeds = [str(s) for s in run["worlds"]["seeds"]]
@@ -100,7 +100,7 @@ def test_the_comparison_is_bitwise_in_the_stamped_environment_and_within_toleran
     run.mkdir(), res.mkdir()
     pd.DataFrame(rows).to_csv(run / "metrics.csv", index=False)
     (run / "run.json").write_text(json.dumps({"environment": env, "worlds": {"seeds": [100, 101]}}))
-    from icgo.reporting.worlds import per_world
+    from icgo.studies.icgo_relm.worlds.stats import per_world
 
     per = per_world(pd.read_csv(run / "metrics.csv"))
     per.to_csv(res / "table3_worlds_per_world.csv", index=False, float_format="%.10g")

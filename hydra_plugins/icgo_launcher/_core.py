@@ -87,7 +87,7 @@ def _child(payload: bytes, conn, threads: int | None, cores: list[int] | None, h
     # before JAX starts its backend: a plain run's device count and flags, so the job loads its compiled programs
     os.environ["XLA_FLAGS"] = sweep_job_flags(threads, pinned, host_devices, os.environ.get("XLA_FLAGS", ""))
     config, hydra_context, task_function, singleton_state = cloudpickle.loads(payload)
-    from icgo.studies.icgo_relm_progress import ENV_LINES  # (no JAX: the module imports none)
+    from icgo.studies.icgo_relm.progress import ENV_LINES  # (no JAX: the module imports none)
 
     os.environ[ENV_LINES] = f"job {config.hydra.job.num}"  # jobs share the terminal: progress lines, not bars
     setup_globals()

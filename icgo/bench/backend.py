@@ -7,7 +7,7 @@ and the GPU's stay unmeasured (never estimated).
 
 Measured, in order (:func:`backend_check`):
 
-1. the device, the backend and the study's execution plan for Table 3 (:meth:`icgo.studies.icgo_relm_config.StudyConfig.execution`);
+1. the device, the backend and the study's execution plan for Table 3 (:meth:`icgo.studies.icgo_relm.config.StudyConfig.execution`);
 2. the plan's search kernel (``float32_features``; on an accelerator the fused kernel,
    :mod:`icgo.models.relm_fused`) at batch 120, 1,200 and 60,000 (evaluations per second, after compilation,
    best of a few calls), the other kernels beside it at 120 and 1,200 (the CPU's cache-chunked kernel, and on an
@@ -61,10 +61,10 @@ from icgo.core.execution import ACCELERATOR_KERNEL, CPU_KERNEL
 from icgo.datasets import casing_stations as datasets
 from icgo.models import relm, search_fitness
 from icgo.optim import STRATEGIES
-from icgo.studies import icgo_relm as study
-from icgo.studies import worlds as worlds_study
-from icgo.studies.icgo_relm_config import StudyConfig
-from icgo.studies.icgo_relm_search import SearchKernel, search, search_kernel
+from icgo.studies.icgo_relm import study
+from icgo.studies.icgo_relm.worlds import study as worlds_study
+from icgo.studies.icgo_relm.config import StudyConfig
+from icgo.studies.icgo_relm.search import SearchKernel, search, search_kernel
 
 #: Wall seconds the check aims to stay under (the lent machine's 8 minutes, less a margin).
 BUDGET_S = 420.0
@@ -131,7 +131,7 @@ def study_scaling(repeats=STUDY_REPEATS, deadline: float = float("inf"), **confi
 
     A point is skipped (``skipped``: why) when the previous point's time x the ratio of repeats would end
     past ``deadline`` (``time.perf_counter()``); a failing point records its one-line error and the rest go on.
-    ``config``: other :class:`icgo.studies.icgo_relm_config.StudyConfig` settings (smaller ones in a test).
+    ``config``: other :class:`icgo.studies.icgo_relm.config.StudyConfig` settings (smaller ones in a test).
     """
     frame = datasets.lab_casing(0).frame
     out, last = [], None
@@ -222,7 +222,7 @@ def devices_curve(counts=CURVE_DEVICES, timeout_s: float = 300.0, repeats: int =
 
 def worlds_scaling(worlds=WORLDS, deadline: float = float("inf"), **config) -> list[dict]:
     """Table 3's study on 1, 10, 100 independent worlds (lab_casing data seeds from 100), every world's search in
-    one sharded program (:func:`icgo.studies.worlds.run_worlds`); a point is skipped when its time projected from
+    one sharded program (:func:`icgo.studies.icgo_relm.worlds.study.run_worlds`); a point is skipped when its time projected from
     the last one (compile as measured, the rest linear in worlds) would end past ``deadline``."""
     out, last = [], None
     for n in worlds:

@@ -106,8 +106,8 @@ from icgo.bench.process import measure
 from icgo.models import relm
 from icgo.optim import STRATEGIES, run_batch
 from icgo.optim.cgo import CGO
-from icgo.studies.icgo_relm_config import StudyConfig
-from icgo.studies.icgo_relm_score import score_all
+from icgo.studies.icgo_relm.config import StudyConfig
+from icgo.studies.icgo_relm.score import score_all
 
 
 def run_roofline(batch: int, chunk: int, refine: int, quick: bool) -> dict:

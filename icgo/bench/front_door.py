@@ -33,7 +33,7 @@ def table3_command(work: Path, name: str, extra=()) -> list[str]:
 
 
 def breakdown(run_dir: Path, wall_s: float) -> dict:
-    """Where a front-door run's wall time went, from its run.json (``timings``, :mod:`icgo.studies.timing`).
+    """Where a front-door run's wall time went, from its run.json (``timings``, :mod:`icgo.studies.common.timing`).
 
     Keys (seconds): ``start`` (Python, Hydra and the interpreter's exit: the wall time outside the job),
     ``import`` (the study's modules, JAX with them), ``load_data``, ``msa`` (the split and the multi-station

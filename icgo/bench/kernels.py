@@ -17,9 +17,9 @@ import numpy as np
 import icgo  # noqa: F401  (enables float64)
 from icgo.datasets import casing_stations as datasets
 from icgo.models import relm
-from icgo.studies.icgo_relm_config import PRECISIONS, StudyConfig
-from icgo.studies.icgo_relm_prepare import frame_arrays, prepare, sigma_filter
-from icgo.studies.icgo_relm_search import train_rows
+from icgo.studies.icgo_relm.config import PRECISIONS, StudyConfig
+from icgo.studies.icgo_relm.prepare import frame_arrays, prepare, sigma_filter
+from icgo.studies.icgo_relm.search import train_rows
 
 HIDDEN = 30
 LAM = 1e-3

@@ -1,6 +1,6 @@
 """A family of simulated instruments: each data seed draws its own instrument of the ``lab_casing`` experiment.
 
-By default every ``lab_casing`` world (:mod:`icgo.studies.worlds`) is a noise draw of *one* instrument: the same
+By default every ``lab_casing`` world (:mod:`icgo.studies.icgo_relm.worlds.study`) is a noise draw of *one* instrument: the same
 casing, sensor errors and noise level. With ``instrument="family"`` (``dataset.kwargs.instrument=family``;
 :func:`icgo.datasets.casing_stations.lab_casing`) a data seed also draws, once, the instrument it measures with,
 from the ranges of :data:`LAB_RANGES`, so a claim over worlds is a claim over a family of instruments:

@@ -31,7 +31,7 @@ checks, simulation, designs), ``model`` (layout, prepare, predict, residuals),
 ``fit`` (the fits, and fixed models fitted per member), ``identifiability``, ``compare``, ``config``
 (:class:`WorkflowConfig`, every option's one default), ``scatter`` (the noise estimated from grouped
 shots), ``search``, ``report``, ``inversion``. The ``results/discrepancy_*`` studies as data are
-:mod:`icgo.studies.discrepancy_results`; the workflow as a registered study is :mod:`icgo.studies.discrepancy`.
+:mod:`icgo.studies.discrepancy.results`; the workflow as a registered study is :mod:`icgo.studies.discrepancy`.
 The workflow's decision statistic is :func:`icgo.maths.stats.paired_z`.
 Sign convention everywhere: residual = measured - predicted.
 Units: G in g, B in nT, angles in degrees at every public boundary.

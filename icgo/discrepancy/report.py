@@ -447,7 +447,7 @@ def lab_casing_report_protocol(study) -> str:
 
 
 def hidden_study_markdown(study) -> str:
-    """``results/discrepancy_hidden.md`` from :func:`~icgo.studies.discrepancy_results.hidden_study`."""
+    """``results/discrepancy_hidden.md`` from :func:`~icgo.studies.discrepancy.results.hidden_study`."""
     rows = ["| hidden | named (in order) | verdict | mag gap nT before -> after | azimuth gap deg before -> after | excess over noise before -> after | s |",
             "|---|---|---|---|---|---|---|"]
     for run in study.runs:
@@ -468,7 +468,7 @@ def hidden_study_markdown(study) -> str:
 
 
 def devices_study_markdown(runs, config) -> str:
-    """``results/discrepancy_devices.md`` from :func:`~icgo.studies.discrepancy_results.devices_study`."""
+    """``results/discrepancy_devices.md`` from :func:`~icgo.studies.discrepancy.results.devices_study`."""
     rows = [("| device | named (in order) | verdict kind | mag residual nT before -> after | azimuth spread deg before "
              "-> after | noise estimated nT / mg (x assumed) | estimate from |"),
             "|---|---|---|---|---|---|---|"]
@@ -493,7 +493,7 @@ def devices_study_markdown(runs, config) -> str:
 
 
 def lab_casing_study_markdown(study) -> str:
-    """``results/discrepancy_lab_casing.md`` from :func:`~icgo.studies.discrepancy_results.lab_casing_study`."""
+    """``results/discrepancy_lab_casing.md`` from :func:`~icgo.studies.discrepancy.results.lab_casing_study`."""
     res = study.result
     table = [("raw (eq. 1 on raw data)", study.error_raw),
              (f"physics model + {', '.join(res.model)} (discrepancy workflow)", study.error_model)]

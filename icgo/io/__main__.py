@@ -17,7 +17,7 @@ one the doors refuse the file with: :class:`icgo.io.checks.Lazy`), and with ``gr
 printed are the ones known without searching the data: a layout's (each checked against the data: the groups
 and shots that disagree are named), a ``group`` column or shot ranges given (checked: refused when not rolls).
 Finding rolls in the data (``groups=auto``, or a recording in no known layout) is the calibrate and
-discrepancy doors' (:func:`icgo.studies.shots.read_shots`): here such a recording is read and left ungrouped.
+discrepancy doors' (:func:`icgo.studies.common.shots.read_shots`): here such a recording is read and left ungrouped.
 ``convert`` writes the contract CSV and its ``.meta.json`` (atomically, both or neither; an existing file is
 refused unless ``--overwrite``) with the ``group`` column when the groups are known, so every front door that
 reads the contract can use the recording.

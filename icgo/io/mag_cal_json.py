@@ -17,7 +17,7 @@ median (below), and every shot's |G| and |B| within a factor of those medians (:
 ``8 + 8 k`` shots is in the circuitpython-mag-cal layout (:func:`icgo.io.grouping.layout_groups`: 8 single shots,
 then rolls of 8) and gets the layout's groups; shot ranges given (``groups=``) replace them and are checked
 (:func:`icgo.io.grouping.check_given`). Checking a layout against the data and finding rolls where no layout is
-known are :mod:`icgo.models.grouping`'s (composed by :mod:`icgo.studies.shots`).
+known are :mod:`icgo.models.grouping`'s (composed by :mod:`icgo.studies.common.shots`).
 Units are converted and stated in the recording's ``description``: gravity to g
 (m/s^2 / 9.80665 when the median |G| is near 9.8), field uT -> nT (x 1000); a field that
 is not in uT (Gauss, nT) is refused with the factor. The device frame (X right, Y pointing, Z up)

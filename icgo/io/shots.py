@@ -11,7 +11,7 @@ that the mounting strings and the ``groups=`` setting mean the same everywhere:
   the tool frame already).
 
 Where no group is known (``groups=auto``, or no layout and no column), the rolls are found from the data by
-:mod:`icgo.models.grouping`; :func:`icgo.studies.shots.read_shots` composes the two for the front doors.
+:mod:`icgo.models.grouping`; :func:`icgo.studies.common.shots.read_shots` composes the two for the front doors.
 """
 
 from __future__ import annotations

@@ -6,7 +6,7 @@ not fit. Two uses:
 
 * the half-width a saved model carries (:func:`icgo.artifacts.relm.out_of_bag_halfwidth`);
 * the coverage measured under a protocol (:func:`member_coverage`): each member (one
-  fitted model of :mod:`icgo.studies.splits`) gets its own ``q``, calibrated on rows of *its
+  fitted model of :mod:`icgo.studies.common.splits`) gets its own ``q``, calibrated on rows of *its
   training set* predicted by the other members that held them out (the cross-fitted
   "CV+" reading of split conformal: the member's own test rows never calibrate its
   interval), and is scored on its test rows.
@@ -50,7 +50,7 @@ def member_coverage(a_comp, a_true, train, heldout, test, pool, level: float):
     Args:
         a_comp: (S, M, N) compensated azimuths (deg) of S methods and M members.
         a_true: (N,) reference azimuths (deg).
-        train, heldout, test: (M, N) 0/1 masks of each member (:class:`icgo.studies.splits.Members`).
+        train, heldout, test: (M, N) 0/1 masks of each member (:class:`icgo.studies.common.splits.Members`).
         pool: (M,) group id; a member is calibrated by the other members of its group only
             (a repeat's folds for fold protocols, all repeats otherwise).
         level: nominal coverage.

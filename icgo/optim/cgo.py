@@ -44,7 +44,7 @@ All new seeds are clipped to the bounds (``bound_mode`` offers two other repairs
 member and iteration): the control of the Fig. 9 ablation. :func:`advance`
 is one step together with what happened to each seed (:class:`SeedOutcome`:
 did it improve on its parent, was it selected), for the diagnostic that
-counts them (:mod:`icgo.studies.cgo_seeds`).
+counts them (:mod:`icgo.studies.icgo_relm.cgo_seeds`).
 """
 
 from __future__ import annotations

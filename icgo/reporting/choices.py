@@ -28,7 +28,7 @@ class DataChoice:
 LAMBDA = DataChoice("lambda = 1e-3", "lab_casing", 1, "the validation rows inside the training rows (study seed 100)",
                     "docs/relm_study.md")
 
-#: ``lab_casing`` data seeds that choices were made on (what was read on each: ``icgo.studies.worlds``, which
+#: ``lab_casing`` data seeds that choices were made on (what was read on each: ``icgo.studies.icgo_relm.worlds.study``, which
 #: reports worlds only of other seeds); a one-draw table on one of them says so in its protocol line.
 LAB_CASING_DEVELOPMENT_SEEDS = tuple(range(12))
 
@@ -37,7 +37,7 @@ def development_note(dataset: str, seed) -> str:
     """The protocol line's words for a one-draw table on a development seed ('' for any other data seed)."""
     if dataset != "lab_casing" or seed not in LAB_CASING_DEVELOPMENT_SEEDS:
         return ""
-    return (f"lab_casing noise seed {seed} is a development seed (icgo.studies.worlds.DEVELOPMENT_SEEDS: "
+    return (f"lab_casing noise seed {seed} is a development seed (icgo.studies.icgo_relm.worlds.study.DEVELOPMENT_SEEDS: "
             + ("the sweeps and the Fig. 9 ablation were run and read on its test rows before the defaults were kept, "
                "and the defaults stayed the published readings" if seed == 0 else "choices were made on it")
             + "), so this table is one draw, not a claim; the claims are over worlds of other seeds "

@@ -1,6 +1,6 @@
 """The run-record schema: the files of a study's run directory, shared by writers and readers.
 
-``experiments.run`` writes a run directory (``icgo.studies.icgo_relm_outputs.write_run_files``,
+``experiments.run`` writes a run directory (``icgo.studies.icgo_relm.outputs.write_run_files``,
 with :func:`tag_table` and :func:`check_table`) and :class:`icgo.reporting.run_collection.Runs` reads
 it back with :func:`read_run` and :func:`read_table`; both take every file name, column name and run-record key
 from here, so a renamed column is renamed once.

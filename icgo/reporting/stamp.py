@@ -1,6 +1,6 @@
 """What a table or figure of ``results/`` was made from: budget, repeats, search dtype, and whether that is the paper's
 protocol, stamped on every Markdown table and every figure title by the builders of
-:mod:`icgo.studies.icgo_relm_results`; and the table's protocol line (command, repeats, split, seeds, test:
+:mod:`icgo.studies.icgo_relm.results`; and the table's protocol line (command, repeats, split, seeds, test:
 :func:`icgo.reporting.protocol.protocol_line`) from the same runs.
 
 The runs of the output being built are held in a context variable set by :func:`stamping` around each builder: the

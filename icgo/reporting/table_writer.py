@@ -2,7 +2,7 @@
 of a column, and the writer of ``<name>.csv`` + ``<name>.md`` (title, stamp, protocol line, table, notes).
 
 A builder returns True when it wrote its output; when it cannot, :func:`have` and :func:`skip` note why in
-:data:`LACKING`, which the caller (:func:`icgo.studies.icgo_relm_results.build.build`) sets per builder and lists in
+:data:`LACKING`, which the caller (:func:`icgo.studies.icgo_relm.results.build.build`) sets per builder and lists in
 ``tables_missing.txt``.
 """
 
@@ -16,7 +16,7 @@ import pandas as pd
 
 from icgo.reporting import stamp
 
-#: What the builder now running lacks (set per builder by :func:`icgo.studies.icgo_relm_results.build.build`,
+#: What the builder now running lacks (set per builder by :func:`icgo.studies.icgo_relm.results.build.build`,
 #: filled by :func:`have` and :func:`skip`).
 LACKING: contextvars.ContextVar[list] = contextvars.ContextVar("lacking")
 

@@ -1,7 +1,7 @@
-"""Studies behind one interface (:class:`icgo.studies.study.Study`) and one registry: the optimizer pattern one
+"""Studies behind one interface (:class:`icgo.studies.common.study.Study`) and one registry: the optimizer pattern one
 level up.
 
-A study is a :class:`~icgo.studies.study.Study`: a frozen config dataclass that validates itself
+A study is a :class:`~icgo.studies.common.study.Study`: a frozen config dataclass that validates itself
 (``__post_init__``, one-line ``ValueError`` naming the field), a pure-ish
 ``run(data, config, key) -> result`` and the records the result writes::
 

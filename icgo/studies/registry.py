@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from icgo.core.errors import SettingError
 from icgo.studies import calibration, discrepancy, generalisation, gyro, icgo_relm, misma, optimizers
-from icgo.studies.study import Study
+from icgo.studies.common.study import Study
 
 STUDIES: dict[str, Study] = {
     "icgo_relm": icgo_relm.STUDY,
@@ -25,5 +25,5 @@ def get_study(name: str) -> Study:
 
 
 def all_studies() -> dict[str, Study]:
-    """Every study, name -> :class:`~icgo.studies.study.Study`."""
+    """Every study, name -> :class:`~icgo.studies.common.study.Study`."""
     return dict(STUDIES)

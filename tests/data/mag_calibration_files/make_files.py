@@ -23,7 +23,7 @@ from icgo.io.mag_cal_bundled import load_mag_cal_device
 from icgo.models import calibration as cal
 from icgo.models import mag_relm
 from icgo.physics.frames import sensors_from_attitude
-from icgo.studies import calibration as cal_study
+from icgo.studies.calibration import study as cal_study
 
 HERE = Path(__file__).parent
 SCALE = 48_000.0  # nT per unit of the fitted (unit-sphere) field

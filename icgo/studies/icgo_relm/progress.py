@@ -1,0 +1,191 @@
+"""Progress over an ICGO-RELM search's iterations, and the study run with it (the ``progress`` setting).
+
+Two displays, fed the same way (``progress(done, total)`` on the host between chunks of iterations: nothing enters
+the compiled programs, so the compilation cache keeps them):
+
+* :class:`Progress`: a tqdm bar, on a terminal;
+* :class:`ProgressLines`: off a terminal (nohup, CI, a SLURM log, a sweep's jobs), one line at most every
+  ``every_s`` seconds, ``search 40/100 it (40 %), 3.1 it/s, 16.9k evals/s, elapsed 0:00:13, ETA 0:00:19``, on stderr
+  and in the run's log (the log files of the root logger: Hydra's ``<job>.log`` in the run directory).
+
+Both start after the first chunk, i.e. after compiling (or loading) the program, so their rate and ETA measure the
+search alone; both hand the measured rate to :mod:`icgo.studies.icgo_relm.search_estimate` when the search ends.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+
+from icgo.core.errors import SettingError
+from icgo.studies.common.run_log import clock, count, to_log_files
+
+#: Seconds between two progress lines off a terminal under ``progress=auto`` (or ``true``).
+EVERY_S = 30.0
+#: Environment variable a launcher sets in its job processes (several jobs share one terminal): lines, never a bar,
+#: each starting with its value (e.g. ``job 3``).
+ENV_LINES = "ICGO_PROGRESS_LINES"
+
+
+class _Measured:
+    """The rate of the search after its first chunk: the iterations and seconds since then."""
+
+    def __init__(self, desc: str, evals_per_iteration: float | None, on_rate=None):
+        self.desc, self.per_it, self.on_rate = desc, evals_per_iteration, on_rate
+        self.t_first = self.done_first = self.t_last = self.done_last = None
+        self.t_start = time.perf_counter()
+
+    def mark(self, done: int, now: float) -> bool:
+        """Record ``done`` iterations at ``now`` (``time.perf_counter()``); True on the first call (the program
+        was compiled or loaded)."""
+        first = self.t_first is None
+        if first:
+            self.t_first, self.done_first = now, done
+        self.t_last, self.done_last = now, done
+        return first
+
+    def iterations_per_s(self) -> float | None:
+        """Iterations per second after the first chunk (None before a second chunk)."""
+        if self.t_first is None or self.done_last <= self.done_first or self.t_last <= self.t_first:
+            return None
+        return (self.done_last - self.done_first) / (self.t_last - self.t_first)
+
+    def finish(self) -> None:
+        """Hand the measured evaluations per second to ``on_rate`` (when there is a rate to hand)."""
+        rate = self.iterations_per_s()
+        if rate is not None and self.per_it and self.on_rate is not None and self.t_last - self.t_first >= 0.5:
+            self.on_rate(rate * self.per_it)
+
+
+class Progress(_Measured):
+    """A tqdm bar over the search's iterations, fed by ``run_study(progress=...)`` between chunks of iterations.
+
+    The study runs its search in a few jitted chunks and calls this on the host after each
+    (:func:`icgo.optim.sharded.run_members`); nothing enters the compiled programs, so the compilation
+    cache keeps them. The bar starts after the first chunk, i.e. after
+    compiling (or loading) the program, so its rate and ETA measure the search alone.
+    """
+
+    def __init__(self, desc: str, evals_per_iteration: float | None = None, on_rate=None):
+        super().__init__(desc, evals_per_iteration, on_rate)
+        self.bar = None
+        print(f"{desc}: compiling or loading the search program, then the bar starts", file=sys.stderr)
+
+    def __call__(self, done: int, total: int) -> None:
+        self.mark(done, time.perf_counter())
+        if self.bar is None:
+            from tqdm.auto import tqdm
+
+            self.bar = tqdm(total=total, initial=done, desc=self.desc, unit="it", mininterval=0.2,
+                            dynamic_ncols=True, file=sys.stderr)
+            return
+        self.bar.update(done - self.bar.n)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+        self.finish()
+
+
+class ProgressLines(_Measured):
+    """Progress a log can hold: one line at most every ``every_s`` seconds (and the last chunk's), on stderr and
+    in the log files of the root logger (:func:`to_log_files`). ``evals_per_iteration``: the search's fitness
+    evaluations per iteration over all members (for the evaluation rate), or None."""
+
+    def __init__(self, desc: str, every_s: float = EVERY_S, evals_per_iteration: float | None = None,
+                 on_rate=None):
+        job = os.environ.get(ENV_LINES, "").strip()
+        super().__init__(f"{job}: {desc}" if job else desc, evals_per_iteration, on_rate)
+        self.every_s = float(every_s)
+        self.t_line = None
+        self.emit(f"{self.desc}: compiling or loading the search program; progress every {self.every_s:g} s")
+
+    def emit(self, text: str) -> None:
+        """One progress line on stderr and in the run's log."""
+        print(text, file=sys.stderr, flush=True)
+        to_log_files(text)
+
+    def line(self, done: int, total: int, now: float) -> str:
+        """``search 40/100 it (40 %), 3.1 it/s, 16.9k evals/s, elapsed 0:00:13, ETA 0:00:19``."""
+        head = f"{self.desc}: {done}/{total} it ({100 * done / total:.0f} %)"
+        elapsed = f"elapsed {clock(now - self.t_start)}"
+        rate = self.iterations_per_s()
+        if rate is None:
+            return f"{head}, program ready after {clock(self.t_first - self.t_start)}, {elapsed}"
+        evals = f", {count(rate * self.per_it)} evals/s" if self.per_it else ""
+        return f"{head}, {rate:.3g} it/s{evals}, {elapsed}, ETA {clock((total - done) / rate)}"
+
+    def __call__(self, done: int, total: int) -> None:
+        now = time.perf_counter()
+        first = self.mark(done, now)
+        if first or done >= total or now - self.t_line >= self.every_s:
+            self.t_line = now
+            self.emit(self.line(done, total, now))
+
+    def close(self) -> None:
+        self.finish()
+
+
+def progress_enabled(setting, accelerator: bool = False) -> bool:
+    """``progress`` option: ``auto`` (on a CPU: a bar on a terminal, else lines every :data:`EVERY_S` seconds; on an
+    accelerator none: the host round trips between chunks would cost), true, false, or a number of seconds (lines
+    that often, on a terminal too). Whether the search reports progress at all."""
+    return progress_mode(setting, accelerator) is not None
+
+
+def progress_mode(setting, accelerator: bool = False) -> tuple[str, float] | None:
+    """(``"bar"`` or ``"lines"``, seconds between lines) for a ``progress`` setting, or None for no progress.
+
+    Raises:
+        SettingError: a setting that is none of auto, true, false or a positive number of seconds.
+    """
+    lines = bool(os.environ.get(ENV_LINES)) or not sys.stderr.isatty()
+    if isinstance(setting, bool):
+        return None if not setting else (("lines", EVERY_S) if lines else ("bar", EVERY_S))
+    if setting in (None, "auto"):
+        if accelerator:
+            return None
+        return ("lines", EVERY_S) if lines else ("bar", EVERY_S)
+    if isinstance(setting, (int, float)) and setting > 0:
+        return "lines", float(setting)
+    raise SettingError(f"progress must be auto, true, false or a number of seconds > 0 between progress lines, "
+                       f"got {setting!r}")
+
+
+def make_progress(setting, desc: str, accelerator: bool = False, evals_per_iteration: float | None = None,
+                  on_rate=None):
+    """The progress display of a ``progress`` setting (:func:`progress_mode`), or None."""
+    mode = progress_mode(setting, accelerator)
+    if mode is None:
+        return None
+    if mode[0] == "bar":
+        return Progress(desc, evals_per_iteration, on_rate)
+    return ProgressLines(desc, mode[1], evals_per_iteration, on_rate)
+
+
+def run_with_progress(frame, scfg, meta, progress, desc: str, target=None, timings: dict | None = None,
+                      jax_cache_dir: str | None = None):
+    """``icgo.studies.icgo_relm.study.run_study`` with progress over the optimizer's iterations (:func:`make_progress`).
+
+    Prints the execution plan (``search: ...``) and the search's estimated time
+    (:func:`icgo.studies.icgo_relm.search_estimate.announce`); without an optimizer (plain RELM), or on an accelerator under
+    ``progress=auto``, there is no progress display. ``progress``: the ``progress`` setting. ``timings``: see
+    ``run_study``. ``jax_cache_dir``: where the measured rates are kept (None: no estimate).
+    """
+    from icgo.core.execution import is_accelerator
+    from icgo.studies.icgo_relm import study
+    from icgo.studies.icgo_relm.search_estimate import announce
+
+    plan = scfg.execution()
+    print(f"search: {plan.why}")  # information, on stdout: stderr is for the one error or interruption line
+    if scfg.optimizer is None:
+        return study.run_study(frame, scfg, meta, target=target, timings=timings)
+    est = announce(scfg, plan, len(scfg.ids()), len(frame), jax_cache_dir)
+    bar = make_progress(progress, desc, is_accelerator(plan.backend), est.evals_per_iteration, est.record)
+    if bar is None:
+        return study.run_study(frame, scfg, meta, target=target, timings=timings)
+    try:
+        return study.run_study(frame, scfg, meta, target=target, timings=timings, progress=bar)
+    finally:
+        bar.close()
