@@ -36,6 +36,12 @@ OUTPUT_COLUMNS = frozenset(MODEL_OUTPUT_COLUMNS + tuple(p + c for p in ("raw_", 
                            + ("error_compensated",))
 
 
+
+#: The notices of a survey without QC (the whole survey's and the streamed one's, word for word).
+NO_REFERENCE_NOTICE = ("no reference field: no QC (give site.dip= site.field= or site.lat= site.lon= site.date=, or "
+                       "total_field_nT, dip_deg, gravity_g or the location and date in the survey's metadata)")
+NO_SENSORS_NOTICE = "no gx..bz in the survey: no QC"
+
 def output_columns_in(columns) -> list[str]:
     """The columns of a survey that :func:`correct_survey` writes: a survey holding any is the output of an
     earlier correction, and correcting it again would mix two models' columns (refused)."""
@@ -305,10 +311,7 @@ def summarise(model: FittedModel, rows: Rows, field, *, positions_table: bool = 
         notices.append(line)
     notices += [f"outside the training domain: {n}" for n in domain_notices(model.domain, rows.domain)]
     if rows.qc is None:
-        notices.append("no reference field: no QC (give site.dip= site.field= or site.lat= site.lon= site.date=, "
-                       "or total_field_nT, dip_deg, gravity_g or the location and date in the survey's metadata)"
-                       if field is None else
-                       "no gx..bz in the survey: no QC")
+        notices.append(NO_REFERENCE_NOTICE if field is None else NO_SENSORS_NOTICE)
     for col, t, e in (("azimuth_deg", "a_true", "a_comp"), ("inclination_deg", "i_true", "i_est")):
         if t in k:
             line = radians_doubt(k[t], k[e], col)

@@ -31,7 +31,8 @@ import pandas as pd
 
 from icgo.core.errors import DataError
 from icgo.physics.frames import angle_diff
-from icgo.survey.apply import CorrectedSurvey, Rows, field_doubt_line, radians_line, RADIANS_MAX
+from icgo.survey.apply import (NO_REFERENCE_NOTICE, NO_SENSORS_NOTICE, RADIANS_MAX, CorrectedSurvey, Rows,
+                               field_doubt_line, radians_line)
 from icgo.survey.trajectory import check_md, positions, position_summary
 
 #: Values a :class:`DiskColumn` reads per step, and the most it selects from in memory (float64: 16 MiB).
@@ -323,9 +324,7 @@ class StreamedSurvey:
         notices += [f"outside the training domain: {n}" for n in domain_notices(model.domain, self.domain)]
         qc = self.qc if self.all_qc else None
         if qc is None:
-            notices.append("no reference field in the survey's metadata: no QC (give total_field_nT, dip_deg, "
-                           "gravity_g or the location and date)" if field is None else
-                           "no gx..bz in the survey: no QC")
+            notices.append(NO_REFERENCE_NOTICE if field is None else NO_SENSORS_NOTICE)
         for col, t in (("azimuth_deg", "a_true"), ("inclination_deg", "i_true")):
             if t in keys:
                 line = self._radians_doubt(col)
@@ -350,21 +349,16 @@ class StreamedSurvey:
 
     def verdict(self, res: CorrectedSurvey, model, bands, *, out_csv: str, model_path: str, survey_path: str,
                 method: str | None = None, reference: dict | None = None):
-        """:func:`icgo.survey.verdict.survey_verdict` of the whole survey from the sums: the interval's coverage from
-        its count, the |B| and dip deviations' exact medians (given as one value each: the verdict's QC line takes
-        their median)."""
-        from icgo.survey.verdict import apply_verdict
+        """:func:`icgo.survey.verdict.summary_verdict` of the whole survey from the sums: the interval's coverage
+        from its count, the |B| and dip deviations' exact medians (given as one value each: the verdict's QC line
+        takes their median)."""
+        from icgo.survey.verdict import summary_verdict
 
         keys = self.keys or set()
         interval = self.interval if "interval" in keys else None
         covered = self.sums["covered"] / self.n if interval is not None and "a_true" in keys else None
         med = {name: (np.array([self.columns[name].median()]) if name in keys and self.n else None)
                for name in ("db_nT", "ddip_deg")}
-        survey = {q: res.domain[q] for q in ("inclination_deg", "g_norm_g", "b_norm_nT", "dip_deg") if q in res.domain}
-        return apply_verdict(model_kind=model.KIND, method=method or getattr(model, "selected", None),
-                             interval_deg=interval, interval_level=getattr(model, "interval_level", None),
-                             metrics=res.metrics, covered=covered, qc=res.qc, db_nT=med["db_nT"],
-                             ddip_deg=med["ddip_deg"], bands=bands, trained=getattr(model, "domain", None),
-                             survey=survey or None, out_csv=out_csv, model_path=model_path, survey_path=survey_path,
-                             trajectory=res.trajectory, doubts=res.doubts, accuracy=getattr(model, "accuracy", None),
-                             reference=reference)
+        return summary_verdict(res, model, bands, interval=interval, covered=covered, db_nT=med["db_nT"],
+                               ddip_deg=med["ddip_deg"], out_csv=out_csv, model_path=model_path,
+                               survey_path=survey_path, method=method, reference=reference)

@@ -390,13 +390,8 @@ def calibrate_verdict(*, recommendation: dict | None, n_models: int, n_degenerat
 
 def survey_verdict(res, model, bands, *, out_csv: str, model_path: str, survey_path: str,
                    method: str | None = None, reference: dict | None = None) -> Verdict:
-    """:func:`apply_verdict` from what :func:`icgo.survey.apply.correct_survey` returned.
-
-    Args:
-        res: the :class:`icgo.survey.apply.CorrectedSurvey` (its ``stations`` arrays and ``domain``). model: the
-            fitted model. bands: the QC bands used. out_csv, model_path, survey_path: for the lines. method: the
-            method applied. reference: the QC reference used (named in the QC line).
-    """
+    """:func:`apply_verdict` from what :func:`icgo.survey.apply.correct_survey` returned (its stations' arrays:
+    the interval's coverage and the |B| / dip deviations taken from them; see :func:`summary_verdict`)."""
     from icgo.physics.frames import angle_diff
 
     k = res.stations
@@ -405,11 +400,29 @@ def survey_verdict(res, model, bands, *, out_csv: str, model_path: str, survey_p
     if interval is not None and "a_true" in k:
         err = np.abs(np.asarray(angle_diff(k["a_comp"], k["a_true"])))
         covered = float(np.mean(err <= k["interval"]))
+    return summary_verdict(res, model, bands, interval=interval, covered=covered, db_nT=k.get("db_nT"),
+                           ddip_deg=k.get("ddip_deg"), out_csv=out_csv, model_path=model_path,
+                           survey_path=survey_path, method=method, reference=reference)
+
+
+def summary_verdict(res, model, bands, *, interval: float | None, covered: float | None, db_nT, ddip_deg,
+                    out_csv: str, model_path: str, survey_path: str, method: str | None = None,
+                    reference: dict | None = None) -> Verdict:
+    """:func:`apply_verdict` of a corrected survey from its survey-level numbers: a whole survey's
+    (:func:`survey_verdict`) or a streamed one's sums (:class:`icgo.survey.apply_stream.StreamedSurvey`).
+
+    Args:
+        res: the :class:`icgo.survey.apply.CorrectedSurvey` (metrics, qc, domain, trajectory, doubts). model: the
+            fitted model. bands: the QC bands used. interval: the model's half-width (deg) or None. covered: the
+            fraction of stations inside it (None without a reference). db_nT, ddip_deg: the |B| and dip deviations
+            (arrays; the QC line takes their median). out_csv, model_path, survey_path: for the lines. method: the
+            method applied. reference: the QC reference used (named in the QC line).
+    """
     survey = {q: res.domain[q] for q in ("inclination_deg", "g_norm_g", "b_norm_nT", "dip_deg") if q in res.domain}
     return apply_verdict(model_kind=model.KIND, method=method or getattr(model, "selected", None),
                          interval_deg=interval, interval_level=getattr(model, "interval_level", None),
-                         metrics=res.metrics, covered=covered, qc=res.qc, db_nT=k.get("db_nT"),
-                         ddip_deg=k.get("ddip_deg"), bands=bands, trained=getattr(model, "domain", None),
+                         metrics=res.metrics, covered=covered, qc=res.qc, db_nT=db_nT,
+                         ddip_deg=ddip_deg, bands=bands, trained=getattr(model, "domain", None),
                          survey=survey or None, out_csv=out_csv, model_path=model_path, survey_path=survey_path,
                          trajectory={q: v for q, v in res.trajectory.items() if q != "table"} if res.trajectory else None,
                          doubts=res.doubts, accuracy=getattr(model, "accuracy", None), reference=reference)
