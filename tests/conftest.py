@@ -62,3 +62,47 @@ def _hydra_config_cleared_after_each_test():
     from hydra.core.hydra_config import HydraConfig
 
     HydraConfig.instance().cfg = None
+
+
+def _memory_map_count() -> int:
+    """Memory mappings this process holds now (lines of /proc/self/maps; 0 where there is no /proc)."""
+    try:
+        with open("/proc/self/maps", "rb") as maps:
+            return maps.read().count(b"\n")
+    except OSError:
+        return 0
+
+
+def _memory_map_limit() -> int:
+    """The kernel's limit on one process's memory mappings (vm.max_map_count; Linux's default 65530)."""
+    try:
+        return int(Path("/proc/sys/vm/max_map_count").read_text())
+    except (OSError, ValueError):
+        return 65530
+
+
+#: Compiled programs are released once a test process holds this many memory mappings. XLA's CPU backend maps
+#: several regions per compiled program and keeps every program a cache still holds; one xdist worker passes
+#: ~1,500 distinct programs and crossed vm.max_map_count (65530) near the end of the suite: CI failed with "LLVM
+#: compilation error: Cannot allocate memory", and a worker died here at 64,760 mappings. Half the limit leaves
+#: room for the largest jump measured in one test (~2,000 mappings); counting costs ~0.7 us a mapping.
+MAP_COUNT_RELEASE = _memory_map_limit() // 2
+
+
+@pytest.fixture(autouse=True)
+def _compiled_programs_released_near_the_mapping_limit():
+    """After a test, drop JAX's in-memory compiled programs when the process nears the kernel's mapping limit
+    (the persistent cache in .jax_cache/ still holds the slow ones, so the next use reloads rather than recompiles)."""
+    yield
+    if _memory_map_count() > MAP_COUNT_RELEASE:
+        release_compiled_programs()
+
+
+def release_compiled_programs() -> None:
+    """Drop every compiled program JAX holds in memory, with the memory mappings XLA made for them."""
+    import gc
+
+    import jax
+
+    jax.clear_caches()
+    gc.collect()
