@@ -6,6 +6,7 @@ from __future__ import annotations
 import itertools
 import logging
 import re
+import time
 
 import numpy as np
 import pytest
@@ -73,7 +74,7 @@ def test_lines_every_n_seconds_with_rate_and_eta_on_stderr_and_in_the_log(monkey
 
 def test_a_sweep_jobs_lines_name_the_job(monkeypatch, capsys):
     monkeypatch.setenv(P.ENV_LINES, "job 2")
-    P.ProgressLines("study", every_s=1)
+    P.ProgressLines("study", every_s=60).close()
     assert capsys.readouterr().err.startswith("job 2: study: compiling")
 
 
@@ -171,3 +172,21 @@ def test_the_worlds_figure_is_written_in_the_pooled_order(tmp_path, monkeypatch)
     assert (tmp_path / "worlds.png").stat().st_size > 1000
     assert drawn["ticks"] == [method_name("b"), method_name("a")]  # the pooled order, left to right
     assert drawn["lines"] >= 3  # one line per world (and the pooled mean)
+
+
+def test_a_line_between_chunks_when_a_chunk_outlasts_the_interval(monkeypatch, capsys):
+    """Lines every 0.2 s, chunks that take longer: the clock thread writes the compiling line, then the count
+    extrapolated at the measured rate (marked ~, never past the total); nothing after close()."""
+    monkeypatch.delenv(P.ENV_LINES, raising=False)
+    lines = P.ProgressLines("study", every_s=0.2)
+    time.sleep(0.5)
+    assert "study: compiling or loading the search program, elapsed 0:00:00" in capsys.readouterr().err
+    lines(10, 100)
+    time.sleep(0.01)
+    lines(20, 100)  # 10 it in ~0.01 s: the extrapolated count reaches the total long before the next line
+    time.sleep(0.5)
+    between = [s for s in capsys.readouterr().err.splitlines() if "~" in s]
+    assert between and between[-1].startswith("study: ~100/100 it (~100 %), ") and "ETA ~0:00:00" in between[-1]
+    lines.close()
+    time.sleep(0.5)
+    assert capsys.readouterr().err == ""

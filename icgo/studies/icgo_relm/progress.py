@@ -4,9 +4,11 @@ Two displays, fed the same way (``progress(done, total)`` on the host between ch
 the compiled programs, so the compilation cache keeps them):
 
 * :class:`Progress`: a tqdm bar, on a terminal;
-* :class:`ProgressLines`: off a terminal (nohup, CI, a SLURM log, a sweep's jobs), one line at most every
-  ``every_s`` seconds, ``search 40/100 it (40 %), 3.1 it/s, 16.9k evals/s, elapsed 0:00:13, ETA 0:00:19``, on stderr
-  and in the run's log (the log files of the root logger: Hydra's ``<job>.log`` in the run directory).
+* :class:`ProgressLines`: off a terminal (nohup, CI, a SLURM log, a sweep's jobs), a line every ``every_s``
+  seconds, ``search 40/100 it (40 %), 3.1 it/s, 16.9k evals/s, elapsed 0:00:13, ETA 0:00:19``, on stderr and in the
+  run's log (the log files of the root logger: Hydra's ``<job>.log`` in the run directory). A chunk can outlast
+  ``every_s`` (a search runs in about 10 chunks): a clock thread then writes the line between chunks, its count
+  extrapolated from the measured rate and marked ``~`` (or, while the program compiles, the time spent compiling).
 
 Both start after the first chunk, i.e. after compiling (or loading) the program, so their rate and ETA measure the
 search alone; both hand the measured rate to :mod:`icgo.studies.icgo_relm.search_estimate` when the search ends.
@@ -16,6 +18,7 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
 import time
 
 from icgo.core.errors import SettingError
@@ -89,22 +92,48 @@ class Progress(_Measured):
 
 
 class ProgressLines(_Measured):
-    """Progress a log can hold: one line at most every ``every_s`` seconds (and the last chunk's), on stderr and
-    in the log files of the root logger (:func:`to_log_files`). ``evals_per_iteration``: the search's fitness
-    evaluations per iteration over all members (for the evaluation rate), or None."""
+    """Progress a log can hold: a line every ``every_s`` seconds (and the last chunk's), on stderr and in the log
+    files of the root logger (:func:`to_log_files`). ``evals_per_iteration``: the search's fitness evaluations per
+    iteration over all members (for the evaluation rate), or None. Between chunks a daemon clock thread writes the
+    line that is due (:meth:`between_chunks`); :meth:`close` stops it."""
 
     def __init__(self, desc: str, every_s: float = EVERY_S, evals_per_iteration: float | None = None,
                  on_rate=None):
         job = os.environ.get(ENV_LINES, "").strip()
         super().__init__(f"{job}: {desc}" if job else desc, evals_per_iteration, on_rate)
         self.every_s = float(every_s)
-        self.t_line = None
+        self.t_line, self.total = self.t_start, None
+        self._lock, self._stop = threading.Lock(), threading.Event()
         self.emit(f"{self.desc}: compiling or loading the search program; progress every {self.every_s:g} s")
+        self._clock = threading.Thread(target=self._tick, name="icgo-progress", daemon=True)
+        self._clock.start()
 
     def emit(self, text: str) -> None:
         """One progress line on stderr and in the run's log."""
         print(text, file=sys.stderr, flush=True)
         to_log_files(text)
+
+    def _tick(self) -> None:
+        while not self._stop.wait(self.every_s / 4):
+            with self._lock:
+                now = time.perf_counter()
+                if not self._stop.is_set() and now - self.t_line >= self.every_s:
+                    self.t_line = now
+                    self.emit(self.between_chunks(now))
+
+    def between_chunks(self, now: float) -> str:
+        """The line written between two chunks at ``now``: while compiling, the time spent; before a rate, the last
+        chunk's count; then the count extrapolated at the measured rate (``~``, never past the total)."""
+        elapsed = f"elapsed {clock(now - self.t_start)}"
+        if self.t_first is None:
+            return f"{self.desc}: compiling or loading the search program, {elapsed}"
+        total, rate = self.total, self.iterations_per_s()
+        if rate is None:
+            return f"{self.desc}: {self.done_last}/{total} it at the last chunk, {elapsed}"
+        done = min(total, self.done_last + rate * (now - self.t_last))
+        evals = f", {count(rate * self.per_it)} evals/s" if self.per_it else ""
+        return (f"{self.desc}: ~{done:.0f}/{total} it (~{100 * done / total:.0f} %), {rate:.3g} it/s{evals}, "
+                f"{elapsed}, ETA ~{clock((total - done) / rate)}")
 
     def line(self, done: int, total: int, now: float) -> str:
         """``search 40/100 it (40 %), 3.1 it/s, 16.9k evals/s, elapsed 0:00:13, ETA 0:00:19``."""
@@ -117,13 +146,17 @@ class ProgressLines(_Measured):
         return f"{head}, {rate:.3g} it/s{evals}, {elapsed}, ETA {clock((total - done) / rate)}"
 
     def __call__(self, done: int, total: int) -> None:
-        now = time.perf_counter()
-        first = self.mark(done, now)
-        if first or done >= total or now - self.t_line >= self.every_s:
-            self.t_line = now
-            self.emit(self.line(done, total, now))
+        with self._lock:
+            now = time.perf_counter()
+            self.total = total
+            first = self.mark(done, now)
+            if first or done >= total or now - self.t_line >= self.every_s:
+                self.t_line = now
+                self.emit(self.line(done, total, now))
 
     def close(self) -> None:
+        self._stop.set()
+        self._clock.join()
         self.finish()
 
 
