@@ -362,8 +362,10 @@ def _selection_test(config, rig: str | None = None) -> str:
 def workflow_settings(config, runs: str, search: str = "") -> str:
     """The stamp line of a workflow table (:func:`icgo.reporting.protocol.settings_line`): the fits' budget, the runs
     each number comes from, the dtype; no source gives a protocol for this workflow."""
-    return settings_line(f"{search}Levenberg-Marquardt {config.n_iter} iterations per fit, up to {config.max_effects} "
-                         f"effects added, {config.k_folds} folds", runs, "float64 fits",
+    added = ("effects added until the held-out rule stops" if config.max_effects is None
+             else f"up to {config.max_effects} effects added")
+    return settings_line(f"{search}Levenberg-Marquardt {config.n_iter} iterations per fit, {added}, "
+                         f"{config.k_folds} folds", runs, "float64 fits",
                          "No published protocol: the workflow is this project's (docs/discrepancy.md).")
 
 

@@ -21,7 +21,7 @@ with the lowest held-out chi2 is added (all qualifying candidates are considered
 not only the overall lowest); another qualifying
 candidate within paired z < ``ambiguity_z`` of it makes the step not separable
 (both are reported; the best is kept so that the search can go on). The search
-stops when the best does not qualify or ``max_effects`` are in the model.
+stops when the best does not qualify or ``max_effects`` (when set) are in the model.
 Every evaluation goes on from its last fits until every model's fits have converged
 (:data:`CONVERGED_GAP`, :data:`CONVERGED_FALL`, at most :data:`MAX_ROUNDS` evaluations); a candidate
 whose fits have not converged never qualifies.
@@ -382,7 +382,7 @@ def _evaluated(ctx: SearchContext, model: tuple, theta, steps: tuple, gaps: tupl
         cands.append(Candidate(m, c, float(S[m]), float(bic[m]), z, bool(ok), ev.theta_full[m][sl] * scales[sl], g,
                                bool(converged[m])))
     cands.sort(key=lambda t: (not t.qualifies, t.heldout))  # every qualifying candidate before any other
-    done = not cands or not cands[0].qualifies or len(model) >= cfg.max_effects
+    done = not cands or not cands[0].qualifies or (cfg.max_effects is not None and len(model) >= cfg.max_effects)
     if ctx.scatter_from_data:
         rows = [m for m in range(len(trial)) if converged[m] and (m > 0 or own is None)]
         m = min(rows, key=lambda k: S[k]) if rows else None
