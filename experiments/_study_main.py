@@ -63,7 +63,11 @@ def study_main(name: str, cfg: DictConfig, entry_keys=("out_dir",)):
         print(f"error: {first_line(e)}", file=sys.stderr)
         raise SystemExit(EXIT_CONFIG) from None
     logging.getLogger("icgo").setLevel(logging.INFO)
-    return run_composed(name, cfg, run_dir / "models", config, entry_keys)
+    from icgo.studies.registry import get_study
+
+    result = run_composed(name, cfg, run_dir / "models", config, entry_keys)
+    measure = get_study(name).objective  # what a sweeper minimises (hydra/sweeper=optuna), where the study has one
+    return None if measure is None else measure(result)
 
 
 def resume(cfg: DictConfig, outdir: Path, multirun: bool) -> tuple[bool, dict | None]:

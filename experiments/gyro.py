@@ -19,9 +19,10 @@ ENTRY_KEYS = ("out_dir", "jax_cache")
 
 @hydra.main(version_base="1.3", config_path=str(CONF_DIR), config_name="gyro")
 @one_line_errors
-def main(cfg: DictConfig) -> None:
-    """Hydra task: the study; a bad setting exits 2 with one line."""
-    study_main("gyro", cfg, ENTRY_KEYS)
+def main(cfg: DictConfig) -> float | None:
+    """Hydra task: the study; returns its objective for a sweeper (``hydra/sweeper=optuna``); a bad setting exits 2
+    with one line."""
+    return study_main("gyro", cfg, ENTRY_KEYS)
 
 
 if __name__ == "__main__":

@@ -59,3 +59,31 @@ def test_an_optuna_sweep_over_hidden_units_and_ridge(tmp_path):
     assert result["best_params"]["model.hidden"] == cfg["model"]["hidden"]
     assert result["best_params"]["model.lam"] == pytest.approx(cfg["model"]["lam"])
     assert 8 <= cfg["model"]["hidden"] <= 40 and cfg["fitness"]["mode"] == "validation"
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(importlib.util.find_spec("hydra_plugins.hydra_optuna_sweeper") is None,
+                    reason="hydra-optuna-sweeper is not installed (pip install 'icgo[optuna]')")
+def test_an_optuna_sweep_on_the_gyro_door(tmp_path):
+    """Two trials over the networks' learning rate on a tiny plan: the gyro door returns its objective (the networks'
+    best validation loss, icgo.studies.gyro.study.objective), and Optuna's best value is the smaller of the two
+    recomputed from each job's saved networks."""
+    from icgo.artifacts.network import GyroNetwork
+    from icgo.artifacts.registry import load_model
+
+    sweep = tmp_path / "sweep"
+    cmd = [sys.executable, "-m", "experiments.gyro", "-m", "hydra/sweeper=optuna", "hydra.sweeper.n_trials=2",
+           "hydra.sweeper.n_jobs=1", "hydra.sweeper.sampler.seed=0", "net.learning_rate=tag(log,interval(1e-3,1e-1))",
+           "n_seeds=2", "data.inclinations_deg=[10,40]", "data.azimuth_step_deg=90", "data.toolface_step_deg=90",
+           "data.n_random=50", "net.epochs=10", "net.patience=10", "net.batch_size=8", "relm.enabled=false",
+           "sweep.enabled=false", f"out_dir={tmp_path / 'tables'}", f"hydra.sweep.dir={sweep}"]
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    result = yaml.safe_load((sweep / "optimization_results.yaml").read_text())
+    values = []
+    for job in sorted(p for p in sweep.iterdir() if (p / "models").is_dir()):
+        nets = [load_model(f) for f in sorted((job / "models").iterdir())]
+        losses = [n.best_val_loss for n in nets if isinstance(n, GyroNetwork)]
+        values.append(float(np.mean(np.concatenate(losses))))
+    assert len(values) == 2
+    assert result["best_value"] == pytest.approx(min(values), rel=1e-9)

@@ -110,3 +110,22 @@ def test_generalisation_qc_counts_are_the_survey_qc_of_the_tested_stations(runs)
         assert got.loc["raw"].to_dict() == raw
         # fold protocols and transfer test every station once per repeat: the physics count sees them all
         assert got.loc["physics", "n"] == got.loc["msa", "n"] == raw["n"]
+
+
+def test_a_sweepers_objective_is_the_studys_own_search_number_never_a_test_score(runs, tmp_path):
+    """misma: MISMA's median best fitness averaged over the simulated variants, as its reported table has it; gyro:
+    the networks' best validation loss averaged over variants and seeds, as the saved models carry it (read back
+    from their files). The studies without one return None through the door."""
+    import numpy as np
+
+    from icgo.artifacts.network import GyroNetwork
+
+    misma, _, _, res, _ = runs("misma")
+    table = res.records["simulated"]
+    assert misma.objective(res) == pytest.approx(np.mean(table.loc["MISMA_best_f_median"].astype(float)), rel=1e-12)
+    gyro, _, _, res, _ = runs("gyro")
+    saved = [load_model(m.save(tmp_path / k)) for k, m in res.models.items() if isinstance(m, GyroNetwork)]
+    assert saved
+    assert gyro.objective(res) == pytest.approx(np.mean(np.concatenate([s.best_val_loss for s in saved])), rel=1e-12)
+    assert gyro.objective(res) not in set(res.records["methods"].filter(like="rmse").to_numpy().ravel())
+    assert [n for n in NAMES if get_study(n).objective is not None] == ["gyro", "misma"]

@@ -53,6 +53,9 @@ class Study(NamedTuple):
             staging directory ``stage`` (:class:`icgo.io.files.Output`), the fitted models into
             ``invocation.models_dir``; returns what the door prints once the files are in place.
         last: the files the staged output writes last (their presence marks a complete output).
+        objective: ``result -> float | None``: the one number a hyperparameter search minimises over this
+            study's settings (``hydra/sweeper=optuna`` on its door), never a score on test data; None: the door
+            returns nothing for a sweeper to minimise.
     """
 
     name: str
@@ -64,6 +67,7 @@ class Study(NamedTuple):
     load: Callable[..., Any] | None = None
     write: Callable[..., str] | None = None
     last: tuple = ()
+    objective: Callable[[Any], float | None] | None = None
 
     def records(self, result) -> dict:
         """Named tables the study writes (``result.records``)."""

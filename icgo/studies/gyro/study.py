@@ -563,6 +563,15 @@ def example() -> tuple[GyroData, GyroConfig]:
     return load_data(cfg), cfg
 
 
+def objective(result: GyroResult) -> float | None:
+    """What a hyperparameter search minimises (``hydra/sweeper=optuna`` on the gyro door): the networks' best
+    validation loss (the part of the turntable plan each network holds out for early stopping; scaled units),
+    averaged over the network variants and seeds; never a test set's error. None without a network variant."""
+    losses = [np.asarray(m.best_val_loss, float) for m in result.models.values() if hasattr(m, "best_val_loss")]
+    return float(np.mean(np.concatenate([x.ravel() for x in losses]))) if losses else None
+
+
 STUDY = Study("gyro", GyroConfig, run,
               "gyro inclinometer: the patent's BP network vs its lookup table, plus RELM and ICGO-RELM",
-              example, load=load_data, write=gyro_report.write, last=("gyro_run.json",))
+              example, load=load_data, write=gyro_report.write, last=("gyro_run.json",),
+              objective=objective)
