@@ -154,6 +154,15 @@ def _settings(node: dict, docs: dict, nodes: set, comments: dict, width: int) ->
     return lines
 
 
+def schema_defaults(spec: str) -> dict:
+    """The defaults of the config dataclass ``module:Class`` as a door's YAML would write them (the one source of a
+    schema door's study settings: its YAML does not repeat them)."""
+    from icgo.core.settings import config_to_mapping
+
+    module, name = spec.split(":")
+    return config_to_mapping(getattr(importlib.import_module(module), name)())
+
+
 def door_help(name: str, d, width: int = 118) -> str:
     """The help of the Hydra door ``name``, ``d`` its :class:`experiments._door.Door`."""
     path = d.conf_dir / f"{d.config_name}.yaml"
@@ -179,6 +188,8 @@ def door_help(name: str, d, width: int = 118) -> str:
             lines += ["", f"{g}={option} settings ({g}.KEY=VALUE; default in brackets):"]
             lines += _settings({g: node}, docs, nodes, yaml_comments(gpath, f"{g}."), width)
     own = {k: v for k, v in cfg.items() if k not in ("defaults", "hydra")}
+    if f"{d.config_name}_schema" in cfg.get("defaults", []) and "" in d.classes:  # the study's settings: its dataclass
+        own.update(schema_defaults(d.classes[""]))
     lines += ["", "settings (KEY=VALUE; default in brackets):"] + _settings(own, docs, nodes, comments, width)
     lines += ["", "examples:"] + [f"  icgo {name} {e}".rstrip() for e in d.examples]
     lines += ["", "Hydra's flags: --cfg job [--resolve] (the composed config, nothing run), --info, -m (a sweep), "

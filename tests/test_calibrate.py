@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 import subprocess
@@ -38,7 +39,11 @@ def _compose(*overrides):
         return compose("calibrate", list(overrides))
 
 
-def test_conf_yaml_equals_the_dataclass_defaults():
+def test_the_study_defaults_come_from_the_dataclass_once():
+    """conf/calibrate.yaml writes none of CalibrationConfig's fields: its schema gives them, so the composed study
+    settings are the dataclass's defaults."""
+    own = OmegaConf.load(CONF_DIR / "calibrate.yaml")
+    assert not {f.name for f in dataclasses.fields(cal_study.CalibrationConfig)} & set(own.keys())
     composed = {k: v for k, v in OmegaConf.to_container(_compose(), resolve=True).items() if k not in entry.CALIBRATE_KEYS}
     assert composed == config_to_mapping(cal_study.CalibrationConfig())
     # the compilation cache is the study app's (conf/config.yaml), restated here and kept equal

@@ -254,8 +254,7 @@ def test_bad_input_one_line(capsys, tmp_path):
                                     group=np.zeros(200, int)))
     from experiments._data_doors import discrepancy_main as main_body
 
-    cfg = OmegaConf.load(Path(__file__).parents[1] / "conf" / "discrepancy.yaml")
-    cfg.pop("hydra")
+    cfg = door_config()
     cfg.data = str(DATA / "bad_nan.csv")
     assert main_body(cfg, tmp_path / "out") == 1  # bad input data
     err = capsys.readouterr().err.strip()
@@ -302,8 +301,7 @@ def test_a_json_recording_is_read_with_the_shots_settings(capsys, tmp_path):
     assert "grouped by the circuitpython-mag-cal layout" in capsys.readouterr().out
     assert "rolls at shots 8-15, 16-23" in label
     np.testing.assert_allclose(st.B, B, rtol=1e-12)
-    cfg = OmegaConf.load(Path(__file__).parents[1] / "conf" / "discrepancy.yaml")
-    cfg.pop("hydra")
+    cfg = door_config()
     cfg.data = str(path)
     for extra, rc, msg in [({}, 1, "probable cause: the mounting is not given"),
                            ({"mag_axes": "+x+y-q"}, EXIT_CONFIG, "error: mag_axes '+x+y-q'"),
@@ -320,8 +318,7 @@ def test_a_json_recording_is_read_with_the_shots_settings(capsys, tmp_path):
 def test_entry_point_writes_report_and_json(tmp_path):
     from experiments._data_doors import discrepancy_main as main_body
 
-    cfg = OmegaConf.load(Path(__file__).parents[1] / "conf" / "discrepancy.yaml")
-    cfg.pop("hydra")
+    cfg = door_config()
     cfg.data = str(DATA / "handwritten_axial.csv")
     assert main_body(cfg, tmp_path) == 0
     js = json.loads((tmp_path / "discrepancy.json").read_text())
@@ -368,14 +365,19 @@ def test_search_init_step_finish_is_run_workflow():
     assert capped.model == () and capped.kind == "unexplained"
 
 
-def test_hydra_config_equals_workflow_config_defaults():
+def test_the_workflow_defaults_come_from_the_dataclass_once():
+    """conf/discrepancy.yaml writes none of WorkflowConfig's fields (its schema, made from the dataclass, gives
+    them): the composed config carries the dataclass's defaults with their types, and builds the default config."""
     from hydra import compose, initialize_config_dir
 
+    import experiments.discrepancy  # noqa: F401  (registers conf/discrepancy.yaml's schema)
+
+    own = OmegaConf.load(CONF_DIR / "discrepancy.yaml")
+    assert not {f.name for f in dataclasses.fields(D.WorkflowConfig)} & set(own.keys())
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
         cfg = compose(config_name="discrepancy")
     defaults = D.WorkflowConfig()
     for f in dataclasses.fields(D.WorkflowConfig):
-        assert f.name in cfg, f"conf/discrepancy.yaml lacks {f.name}"
         assert cfg[f.name] == getattr(defaults, f.name), (f.name, cfg[f.name], getattr(defaults, f.name))
         assert type(cfg[f.name]) is type(getattr(defaults, f.name)), f.name
     from icgo.studies.discrepancy.job import workflow_config
@@ -529,9 +531,20 @@ def small_result():
     return D.run_workflow(st)
 
 
+def door_config():
+    """conf/discrepancy.yaml as the door composes it (its schema gives the workflow's defaults), open to edits."""
+    from hydra import compose, initialize_config_dir
+
+    import experiments.discrepancy  # noqa: F401  (registers conf/discrepancy.yaml's schema)
+
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        cfg = compose(config_name="discrepancy")
+    OmegaConf.set_struct(cfg, False)
+    return cfg
+
+
 def _study_cfg(tmp_path, study, **settings):
-    cfg = OmegaConf.load(CONF_DIR / "discrepancy.yaml")
-    cfg.pop("hydra")
+    cfg = door_config()
     cfg.study, cfg.results_dir = study, str(tmp_path)
     for k, v in settings.items():
         cfg[k] = v
