@@ -188,7 +188,8 @@ def door_help(name: str, d, width: int = 118) -> str:
             lines += ["", f"{g}={option} settings ({g}.KEY=VALUE; default in brackets):"]
             lines += _settings({g: node}, docs, nodes, yaml_comments(gpath, f"{g}."), width)
     own = {k: v for k, v in cfg.items() if k not in ("defaults", "hydra")}
-    if f"{d.config_name}_schema" in cfg.get("defaults", []) and "" in d.classes:  # the study's settings: its dataclass
+    if {f"{d.config_name}_schema", f"{d.config_name}_defaults"} & set(map(str, cfg.get("defaults", []))) \
+            and "" in d.classes:  # the study's settings: its dataclass (experiments/_schema.py)
         own.update(schema_defaults(d.classes[""]))
     lines += ["", "settings (KEY=VALUE; default in brackets):"] + _settings(own, docs, nodes, comments, width)
     lines += ["", "examples:"] + [f"  icgo {name} {e}".rstrip() for e in d.examples]

@@ -5,11 +5,13 @@ ConfigStore, so that Hydra refuses an unknown key or a wrongly typed value when 
 :func:`register` stores it, made from ``STUDIES[name].config_cls`` (:func:`schema_of`) plus the entry point's own
 keys (untyped, their values given by the YAML only).
 
-``conf/misma.yaml`` and ``conf/gyro.yaml`` have no schema: a free mapping inside a typed node (MISMA's
-``simulated.variants``, gyro's ``data.instrument``) can then no longer be deleted or replaced from the command
-line (``~simulated.variants +simulated.variants={...}``, ``data.instrument={...}``: OmegaConf refuses both on a
-structured node), which their command lines use; :func:`icgo.core.settings.config_from_mapping` stays their one
-check. The library's dataclass stays the one source of the defaults
+``conf/misma.yaml`` and ``conf/gyro.yaml`` name an untyped node instead (``defaults: [misma_defaults, _self_]``,
+:func:`register_defaults`): the same defaults from the dataclass, as a plain mapping, because a free mapping inside
+a typed node (MISMA's ``simulated.variants``, gyro's ``data.instrument``) can no longer be deleted or replaced from
+the command line (``~simulated.variants +simulated.variants={...}``, ``data.instrument={...}``: OmegaConf refuses
+both on a structured node), which their command lines use; :func:`icgo.core.settings.config_from_mapping` stays
+their one check. Either way no door's YAML repeats a study default: it holds the door's own settings and Hydra's.
+The library's dataclass stays the one source of the defaults
 and the one full check (:func:`icgo.core.settings.config_from_mapping` and its ``__post_init__``): OmegaConf
 cannot express every field's type, so the schema types only what it checks exactly as the library does:
 
@@ -22,6 +24,8 @@ cannot express every field's type, so the schema types only what it checks exact
 
 The door (``experiments/calibrate.py``) registers the schema when it is imported, before Hydra composes; this module
 imports nothing of icgo at import.
+
+A door's ``--help`` lists these defaults from the dataclass (:func:`experiments._help.door_help`).
 """
 
 from __future__ import annotations
@@ -62,6 +66,19 @@ def schema_of(config_cls, entry_keys=()) -> type:
         fields.append((f.name, kind, dataclasses.field(default_factory=lambda v=value: _plain(v))))
     fields += [(name, Any, dataclasses.field(default=MISSING)) for name in entry_keys]
     return dataclasses.make_dataclass(f"{config_cls.__name__}Schema", fields)
+
+
+def register_defaults(config_name: str, config_cls) -> str:
+    """Store the defaults of ``config_cls`` (its ``config_cls()`` as a plain, untyped mapping) in Hydra's ConfigStore
+    as ``<config_name>_defaults``, the node ``conf/<config_name>.yaml`` names first in its defaults list; returns
+    that name (storing again replaces it)."""
+    from hydra.core.config_store import ConfigStore
+    from omegaconf import OmegaConf
+
+    from icgo.core.settings import config_to_mapping
+
+    ConfigStore.instance().store(name=f"{config_name}_defaults", node=OmegaConf.create(config_to_mapping(config_cls())))
+    return f"{config_name}_defaults"
 
 
 def register(config_name: str, config_cls, entry_keys=()) -> str:
