@@ -133,8 +133,9 @@ def test_the_writers_stamp_their_tables():
     assert gyro_report.settings(GyroConfig()).startswith("Run settings: networks 8-8: adam, up to 2000 epochs")
     assert "No published protocol" in gyro_report.settings(GyroConfig())
     assert workflow_settings(WorkflowConfig(), "one run").startswith(
-        "Run settings: Levenberg-Marquardt 12 iterations per fit, up to 6 effects added, 5 folds, one run, float64 "
-        "fits.")
+        "Run settings: Levenberg-Marquardt 12 iterations per fit, effects added until the held-out rule stops, "
+        "5 folds, one run, float64 fits.")
+    assert "up to 4 effects added" in workflow_settings(WorkflowConfig(max_effects=4), "one run")
 
 
 # ---------------------------------------------------------------------------------------------- Holm
