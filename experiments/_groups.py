@@ -1,5 +1,6 @@
-"""A door's config groups: the options of a group in conf/ and in a user's own config folder (``hydra.searchpath``,
-docs/extending.md), read before Hydra starts."""
+"""A door's config directory and groups: ``conf/`` (with the run door's defaults stored in Hydra's ConfigStore), the
+options of a group in conf/ and in a user's own config folder (``hydra.searchpath``, docs/extending.md), read before
+Hydra starts."""
 
 from __future__ import annotations
 
@@ -7,8 +8,15 @@ from pathlib import Path
 
 from hydra.core.override_parser.overrides_parser import OverridesParser
 
+from experiments._schema import register_defaults
+from icgo.studies.icgo_relm.run_config import RunConfig
+
 #: Hydra config directory of the front doors (absolute, so runs work from any working directory).
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
+
+# conf/config.yaml (the run door) composes RunConfig's defaults first: stored here, where every user of CONF_DIR
+# (the doors, the preflight, a test's compose) imports it before Hydra composes.
+register_defaults("config", RunConfig)
 
 
 def group_options(group: str, conf_dir: Path = CONF_DIR, extra=()) -> list[str]:

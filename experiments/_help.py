@@ -18,6 +18,7 @@ import typing
 from pathlib import Path
 
 import yaml
+from omegaconf import OmegaConf
 
 from experiments._preflight import group_options
 
@@ -157,10 +158,10 @@ def _settings(node: dict, docs: dict, nodes: set, comments: dict, width: int) ->
 def schema_defaults(spec: str) -> dict:
     """The defaults of the config dataclass ``module:Class`` as a door's YAML would write them (the one source of a
     schema door's study settings: its YAML does not repeat them)."""
-    from icgo.core.settings import config_to_mapping
+    from icgo.core.settings import defaults_of
 
     module, name = spec.split(":")
-    return config_to_mapping(getattr(importlib.import_module(module), name)())
+    return defaults_of(getattr(importlib.import_module(module), name))
 
 
 def door_help(name: str, d, width: int = 118) -> str:
@@ -170,12 +171,13 @@ def door_help(name: str, d, width: int = 118) -> str:
     docs, nodes = {}, set()
     for prefix, spec in d.classes.items():
         more, more_nodes = class_docs(spec, prefix)
-        docs.update(more)
-        nodes |= more_nodes
+        docs, nodes = {**docs, **more}, nodes | more_nodes
     comments = yaml_comments(path)
     lines = [d.summary, "", f"usage: icgo {name} [-m] " + ("[GROUP=OPTION ...] " if d.groups else "")
              + "[KEY=VALUE ...]", f"   or: python -m experiments.{name} (the same arguments)"]
     defaults = {k: v for x in cfg.get("defaults", []) if isinstance(x, dict) for k, v in x.items()}
+    stored = {f"{d.config_name}_schema", f"{d.config_name}_defaults"} & set(map(str, cfg.get("defaults", [])))
+    base = schema_defaults(d.classes[""]) if stored and "" in d.classes else {}  # what the YAMLs do not repeat
     if d.groups:
         lines += ["", "config groups (GROUP=OPTION; default in brackets):"]
         for g in d.groups:
@@ -184,13 +186,11 @@ def door_help(name: str, d, width: int = 118) -> str:
         option = defaults.get(g)
         if option:
             gpath = d.conf_dir / g / f"{option}.yaml"
-            node = yaml.safe_load(gpath.read_text()) or {}
+            node = OmegaConf.to_container(OmegaConf.merge(base.get(g) or {}, yaml.safe_load(gpath.read_text()) or {}))
             lines += ["", f"{g}={option} settings ({g}.KEY=VALUE; default in brackets):"]
             lines += _settings({g: node}, docs, nodes, yaml_comments(gpath, f"{g}."), width)
-    own = {k: v for k, v in cfg.items() if k not in ("defaults", "hydra")}
-    if {f"{d.config_name}_schema", f"{d.config_name}_defaults"} & set(map(str, cfg.get("defaults", []))) \
-            and "" in d.classes:  # the study's settings: its dataclass (experiments/_schema.py)
-        own.update(schema_defaults(d.classes[""]))
+    own = {**{k: v for k, v in base.items() if k not in d.groups},
+           **{k: v for k, v in cfg.items() if k not in ("defaults", "hydra")}}
     lines += ["", "settings (KEY=VALUE; default in brackets):"] + _settings(own, docs, nodes, comments, width)
     lines += ["", "examples:"] + [f"  icgo {name} {e}".rstrip() for e in d.examples]
     lines += ["", "Hydra's flags: --cfg job [--resolve] (the composed config, nothing run), --info, -m (a sweep), "

@@ -15,6 +15,7 @@ from hydra.core.override_parser.types import OverrideType
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from experiments._groups import CONF_DIR, group_options, searchpath_dirs
+from experiments._schema import stored_nodes
 from icgo.core.settings import first_line
 
 #: Exit status of a bad setting or command line (every door).
@@ -39,7 +40,6 @@ def hydra_args(argv: list[str]) -> argparse.Namespace:
 
     def refuse(message):
         raise ValueError(f"{message} (Hydra's flags: --hydra-help)")
-
     parser.error = refuse
     return parser.parse_args(argv)
 
@@ -158,6 +158,7 @@ def check_schema(args: list[str], config_name: str, conf_dir: Path = CONF_DIR) -
 
 
 def _compose(config_name: str, overrides: list[str], conf_dir: Path):  # Hydra's global state left clear
+    stored_nodes(config_name, conf_dir)
     GlobalHydra.instance().clear()
     try:
         with initialize_config_dir(config_dir=str(conf_dir), version_base="1.3"):
@@ -183,8 +184,7 @@ def preflight(config_name: str, args: list[str] | None = None, conf_dir: Path = 
     """Checks of a Hydra door's command line (``-m`` moved in front, read by Hydra's parser, then each check of
     this module on its overrides); one line on stderr and exit 2 on a bad one. Rewrites ``sys.argv`` (args None)."""
     argv = sys.argv[1:] if args is None else args
-    flags = [a for a in argv if a in MULTIRUN_FLAGS]
-    rest = [a for a in argv if a not in MULTIRUN_FLAGS]
+    flags, rest = [a for a in argv if a in MULTIRUN_FLAGS], [a for a in argv if a not in MULTIRUN_FLAGS]
     if args is None:
         sys.argv[1:] = flags + rest
     try:

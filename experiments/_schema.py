@@ -69,15 +69,15 @@ def schema_of(config_cls, entry_keys=()) -> type:
 
 
 def register_defaults(config_name: str, config_cls) -> str:
-    """Store the defaults of ``config_cls`` (its ``config_cls()`` as a plain, untyped mapping) in Hydra's ConfigStore
-    as ``<config_name>_defaults``, the node ``conf/<config_name>.yaml`` names first in its defaults list; returns
-    that name (storing again replaces it)."""
+    """Store the defaults of ``config_cls`` (:func:`icgo.core.settings.defaults_of`: every field that has one, as a
+    plain, untyped mapping) in Hydra's ConfigStore as ``<config_name>_defaults``, the node
+    ``conf/<config_name>.yaml`` names first in its defaults list; returns that name (storing again replaces it)."""
     from hydra.core.config_store import ConfigStore
     from omegaconf import OmegaConf
 
-    from icgo.core.settings import config_to_mapping
+    from icgo.core.settings import defaults_of
 
-    ConfigStore.instance().store(name=f"{config_name}_defaults", node=OmegaConf.create(config_to_mapping(config_cls())))
+    ConfigStore.instance().store(name=f"{config_name}_defaults", node=OmegaConf.create(defaults_of(config_cls)))
     return f"{config_name}_defaults"
 
 
@@ -89,3 +89,18 @@ def register(config_name: str, config_cls, entry_keys=()) -> str:
 
     ConfigStore.instance().store(name=f"{config_name}_schema", node=schema_of(config_cls, entry_keys))
     return f"{config_name}_schema"
+
+
+def stored_nodes(config_name: str, conf_dir) -> None:
+    """Import the door of ``conf_dir/<config_name>.yaml`` when that YAML names a ConfigStore node
+    (``misma_defaults``, ``calibrate_schema``) that nothing has stored yet: the door stores it at import (a compose
+    outside the door, e.g. the preflight's or a test's, finds it then)."""
+    import importlib
+
+    from hydra.core.config_store import ConfigStore
+    from omegaconf import OmegaConf
+
+    defaults = OmegaConf.load(conf_dir / f"{config_name}.yaml").get("defaults") or []
+    nodes = {str(d) for d in defaults if str(d).startswith(f"{config_name}_")}
+    if nodes and not all(f"{n}.yaml" in ConfigStore.instance().repo for n in nodes):
+        importlib.import_module(f"experiments.{config_name}")

@@ -46,9 +46,11 @@ def test_the_study_defaults_come_from_the_dataclass_once():
     assert not {f.name for f in dataclasses.fields(cal_study.CalibrationConfig)} & set(own.keys())
     composed = {k: v for k, v in OmegaConf.to_container(_compose(), resolve=True).items() if k not in entry.CALIBRATE_KEYS}
     assert composed == config_to_mapping(cal_study.CalibrationConfig())
-    # the compilation cache is the study app's (conf/config.yaml), restated here and kept equal
-    app = OmegaConf.load(CONF_DIR / "config.yaml")
-    assert OmegaConf.load(CONF_DIR / "calibrate.yaml").jax_cache_dir == app.jax_cache_dir
+    # the compilation cache is the run door's (icgo.core.devices.JAX_CACHE_DEFAULT), restated here and kept equal
+    from icgo.core.devices import JAX_CACHE_DEFAULT
+
+    for name, key in (("calibrate", "jax_cache_dir"), ("gyro", "jax_cache")):
+        assert OmegaConf.to_container(OmegaConf.load(CONF_DIR / f"{name}.yaml"))[key] == JAX_CACHE_DEFAULT, name
 
 
 def test_conf_yaml_is_checked_against_the_schema_of_the_dataclass(tmp_path):

@@ -335,9 +335,9 @@ def test_progress_bar_starts_after_the_first_chunk(capsys):
 
 
 # ------------------------------------------------------------ one source of defaults
-def test_composed_default_equals_the_study_dataclass_defaults():
-    """`python -m experiments.run` with no override is icgo.studies.icgo_relm.config.StudyConfig() field by field
-    (precision=float32_features)."""
+def test_composed_default_is_the_study_dataclass_default():
+    """`python -m experiments.run` with no override builds icgo.studies.icgo_relm.config.StudyConfig() field by field
+    (through the translation of RunConfig.study_config) and the optimizer's default config."""
     import dataclasses
 
     from icgo.studies.icgo_relm.config import StudyConfig
@@ -351,6 +351,27 @@ def test_composed_default_equals_the_study_dataclass_defaults():
     assert cfg.precision == "float32_features"
     opt = cfg.optimizer_config
     assert opt == type(opt)(), "the composed optimizer config must equal its dataclass defaults"
+
+
+def test_no_yaml_of_the_run_door_repeats_a_default():
+    """Each default is written once (RunConfig and its nodes, composed first as `config_defaults`): conf/config.yaml
+    and the options of the groups RunConfig bases (model, budget, split, fitness) write no key at its default."""
+    import yaml
+
+    from icgo.core.settings import defaults_of
+
+    base = defaults_of(RunConfig)
+    own = {k: v for k, v in yaml.safe_load((E.CONF_DIR / "config.yaml").read_text()).items()
+           if k not in ("defaults", "hydra")}
+    assert own == {}, own
+    seen = 0
+    for group in ("model", "budget", "split", "fitness"):
+        for path in sorted((E.CONF_DIR / group).glob("*.yaml")):
+            node = yaml.safe_load(path.read_text()) or {}
+            same = {k: v for k, v in node.items() if k in base[group] and v == base[group][k]}
+            assert not same, f"{path.name} repeats the default(s) {same}"
+            seen += 1
+    assert seen >= 10
 
 
 def test_every_study_field_has_a_config_key():
@@ -510,20 +531,16 @@ def test_the_compilation_cache_is_locked_and_bounded(tmp_path):
 
 
 def test_split_options_compose_their_protocol_and_the_transfer_draw_defaults():
-    """Each conf/split option sets its protocol; split=transfer's target equals icgo.studies.common.splits.TransferDraw()."""
-    import dataclasses
-
-    from icgo.studies.common.splits import PROTOCOLS, TransferDraw
+    """Each conf/split option sets its protocol; split=transfer's target keeps icgo.studies.common.splits.TransferDraw's
+    defaults (it sets none of its own)."""
+    from icgo.studies.common.splits import PROTOCOLS
 
     for option, protocol in (("paper", "random"), ("single", "random"), ("leave_azimuth_out", "leave_azimuth_out"),
                              ("leave_condition_out", "leave_condition_out"), ("transfer", "transfer")):
         assert _study(_job_cfg([f"split={option}"])).protocol == protocol
     assert set(PROTOCOLS) == {"random", "leave_azimuth_out", "leave_condition_out", "transfer"}
-    target = _job_cfg(["split=transfer"]).split.target
-    assert target.path is None
-    for f in dataclasses.fields(TransferDraw):
-        v = target[f.name]
-        assert (tuple(v) if f.name == "misalignment_deg" else v) == getattr(TransferDraw(), f.name), f.name
+    target = _run_config(_job_cfg(["split=transfer"])).split.target
+    assert target.path is None and target.draw() == {}, "split=transfer keeps every TransferDraw default"
 
 
 def test_transfer_run_writes_coverage_and_tests_the_target_only(tmp_path):

@@ -179,6 +179,9 @@ def is_secondary_process() -> bool:
 #: place, and a process reading it while another (a parallel sweep's job, the other test worker) writes it can be
 #: handed a torn program.
 CACHE_MAX_BYTES = 4 * 2**30
+#: The doors' ``jax_cache_dir`` default (the persistent compilation cache): under the user's cache directory
+#: (XDG_CACHE_HOME, else ~/.cache, else /tmp/.cache), an OmegaConf interpolation resolved when the door composes.
+JAX_CACHE_DEFAULT = "${oc.env:XDG_CACHE_HOME,${oc.env:HOME,/tmp}/.cache}/icgo/jax"
 
 
 def enable_jax_cache(path: str | None, min_compile_secs: float = 0.0) -> None:

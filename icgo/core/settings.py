@@ -124,6 +124,18 @@ def config_to_mapping(config) -> dict:
     return plain(config)
 
 
+def defaults_of(cls) -> dict:
+    """The defaults of the config dataclass ``cls`` as a plain nested mapping (:func:`config_to_mapping`): every
+    field that has a default (or a default factory); a field without one (a config group's choice) is absent."""
+    out = {}
+    for f in dataclasses.fields(cls):
+        if f.default is not dataclasses.MISSING:
+            out[f.name] = config_to_mapping(f.default)
+        elif f.default_factory is not dataclasses.MISSING:
+            out[f.name] = config_to_mapping(f.default_factory())
+    return out
+
+
 def config_overrides(config) -> list[str]:
     """The command-line overrides (``key=value``, Hydra's syntax) that turn the class defaults into ``config``.
 

@@ -15,6 +15,7 @@ from icgo.models import relm as _relm
 from icgo.optim.cgo import CGO
 from icgo.studies.common import sharding
 from icgo.studies.common import splits as _splits
+from icgo.studies.icgo_relm import settings as _nodes
 
 #: Search-fitness precisions (``StudyConfig.precision``) -> (dtype of the hidden layer, eq. 8; dtype of the
 #: ridge solve and the RMSE, eq. 9). Which kernel computes them follows the backend
@@ -27,7 +28,8 @@ RENAMED_PRECISIONS = {"fast": "float32_features", "mixed": "float64"}
 
 @dataclasses.dataclass(frozen=True)
 class StudyConfig:
-    """Settings of an ICGO-RELM study (defaults: the paper's protocol where it gives one).
+    """Settings of an ICGO-RELM study (defaults: the paper's protocol where it gives one, written once, in the
+    study's settings nodes, :mod:`icgo.studies.icgo_relm.settings`, which ``conf/`` composes from).
 
     Attributes:
         n_repeats: repeats (random splits); the paper's Table 3 uses 10.
@@ -86,31 +88,31 @@ class StudyConfig:
             reported number are float64 always. ``fast`` and ``mixed`` are refused (:data:`RENAMED_PRECISIONS`).
     """
 
-    n_repeats: int = 10
-    seed: int = 0
+    n_repeats: int = _nodes.SplitSettings.n_repeats
+    seed: int = _nodes.SplitSettings.seed
     devices: int | None = None
     repeat_ids: tuple | None = None
-    protocol: str = "random"
-    train_fraction: float = 0.7
-    sigma_filter: float | None = 3.0
-    msa_model: str = "biases"
-    msa_reference: str = "station_mean"
-    msa_iterations: int = 100
-    features: str = "raw"
-    hidden: int = 30
-    lam: float = 1e-3
-    fitness: str = "train"
-    val_fraction: float = 0.3
-    k_folds: int = 5
-    theta_bounds: tuple = (-1.0, 1.0)
+    protocol: str = _nodes.SplitSettings.protocol
+    train_fraction: float = _nodes.SplitSettings.train_fraction
+    sigma_filter: float | None = _nodes.SplitSettings.sigma_filter
+    msa_model: str = _nodes.MsaSettings.model
+    msa_reference: str = _nodes.MsaSettings.reference
+    msa_iterations: int = _nodes.MsaSettings.iterations
+    features: str = _nodes.ModelSettings.features
+    hidden: int = _nodes.ModelSettings.hidden
+    lam: float = _nodes.ModelSettings.lam
+    fitness: str = _nodes.FitnessSettings.mode
+    val_fraction: float = _nodes.FitnessSettings.val_fraction
+    k_folds: int = _nodes.FitnessSettings.k_folds
+    theta_bounds: tuple = _nodes.ModelSettings.theta_bounds
     optimizer: str | None = CGO.name
-    tune: bool = False
+    tune: bool = _nodes.ModelSettings.tune
     strategies: tuple = ("three_stage",)
-    pop_size: int = 30
-    iterations: int | None = 100
-    max_evals: int | None = None
+    pop_size: int = _nodes.BudgetSettings.pop_size
+    iterations: int | None = _nodes.BudgetSettings.iterations
+    max_evals: int | None = _nodes.BudgetSettings.max_evals
     optimizer_config: Any = None
-    precision: str = "float32_features"
+    precision: str = _nodes.PRECISION
 
     def __post_init__(self):
         """Validate every setting that does not depend on the data (one-line SettingError naming the field)."""

@@ -4,7 +4,8 @@ dataclasses mirroring ``conf/config.yaml`` node by node, built from the composed
 each node checking what it owns at construction, with the YAML key in its one-line errors (``split.target``).
 
 :class:`RunConfig` is the whole run: the data set (:data:`DATASET_NODES`: the node of each ``dataset`` option), the
-study's nodes (``split``, ``msa``, ``model``, ``fitness``, ``budget``), the search (``optimizer``, ``strategy``,
+study's nodes (``split``, ``msa``, ``model``, ``fitness``, ``budget``: :mod:`icgo.studies.icgo_relm.settings`, where
+their defaults are written), the search (``optimizer``, ``strategy``,
 ``schedule``) and the top-level keys. :meth:`RunConfig.study_config` is the one explicit constructor of
 :class:`icgo.studies.icgo_relm.config.StudyConfig` (the library's flat settings, which validate the study's values
 themselves); every StudyConfig field is named there once, with the YAML key its errors are reported under.
@@ -16,19 +17,13 @@ Nothing here imports JAX at module import (the door builds this config before JA
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 
+from icgo.core.devices import JAX_CACHE_DEFAULT
 from icgo.core.errors import SettingError
 from icgo.core.settings import config_from_mapping, is_int, need
 from icgo.core.targets import load_target, target_callable
-
-
-def _file(path, key: str) -> Path:
-    """``path`` expanded, refused in one line unless it is an existing regular file."""
-    p = Path(str(path)).expanduser()
-    need(p.exists(), f"{key} {str(p)!r}: file not found")
-    need(p.is_file(), f"{key} {str(p)!r}: not a regular file (a directory, pipe or device); give a CSV file")
-    return p
+from icgo.studies.icgo_relm.settings import (PRECISION, BudgetSettings, FitnessSettings, ModelSettings, MsaSettings,
+                                             SplitSettings, existing_file)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -104,7 +99,7 @@ class CsvData:
     def __post_init__(self):
         need(self.path not in (None, "???"), "dataset.path is required with dataset=csv "
                                              "(dataset.path=/path/to/file.csv)")
-        _file(self.path, "dataset.path")
+        existing_file(self.path, "dataset.path")
 
     condition = None
     kwargs = None
@@ -113,130 +108,6 @@ class CsvData:
 #: ``dataset.name`` -> its node where it takes other keys than :class:`SimulatedData` (a config group whose options
 #: take different keys); every other name is a :class:`SimulatedData` of :data:`icgo.datasets.registry.DATASETS`.
 DATASET_NODES = {"well_conditions": WellConditionsData, "csv": CsvData}
-
-
-@dataclasses.dataclass(frozen=True)
-class TransferTarget:
-    """``split.target`` of ``split=transfer``: how the second instrument differs
-    (:class:`icgo.studies.common.splits.TransferDraw`, which checks the values; a null field keeps its default), or
-    ``path``: a recording of the second instrument instead."""
-
-    seed: int | None = None
-    casing_distance_scale: float | None = None
-    casing_strength_scale: float | None = None
-    misalignment_deg: list | None = None
-    path: str | None = None
-
-    def __post_init__(self):
-        if self.path is not None:
-            _file(self.path, "split.target.path")
-
-    def draw(self) -> dict:
-        """The :class:`icgo.studies.common.splits.TransferDraw` arguments that are set."""
-        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
-                if f.name != "path" and getattr(self, f.name) is not None}
-
-
-@dataclasses.dataclass(frozen=True)
-class SplitSettings:
-    """``split``: the protocol and its repeats (checked by StudyConfig), and the transfer ``target``.
-
-    ``train_fraction`` is absent from the fold protocols' options (their folds set the training rows): None
-    there, i.e. the study's default.
-
-    Attributes:
-        protocol: ``random`` (paper: rows split 7:3), ``leave_azimuth_out``, ``leave_condition_out`` or ``transfer``.
-        n_repeats: repeats (splits); the paper's Table 3 uses 10. seed: repeat k uses key fold_in(PRNGKey(seed), k).
-        sigma_filter: n-sigma outlier rule applied once before splitting (paper: 3); null disables.
-        train_fraction: training share of each split (paper 7:3: 0.7). target: the second instrument (transfer).
-    """
-
-    protocol: str
-    n_repeats: int
-    seed: int
-    sigma_filter: float | None
-    train_fraction: float | None = None
-    target: TransferTarget | None = None
-
-    def __post_init__(self):
-        if self.target is not None:
-            need(self.protocol == "transfer", f"split.target is read only by split.protocol=transfer (split=transfer); "
-                                              f"here split.protocol={self.protocol!r}, so it would do nothing")
-        else:
-            need(self.protocol != "transfer",
-                 "split.protocol=transfer needs split.target (use split=transfer, which defines it)")
-
-
-@dataclasses.dataclass(frozen=True)
-class MsaSettings:
-    """``msa``: MSA (ICGO section 1.2, eqs. 2-7) before the RELM (values checked by StudyConfig).
-
-    Attributes:
-        model: ``biases`` (paper: three constant magnetometer biases), ``axial`` or ``biases_scales``.
-        reference: ``station_mean`` (paper eqs. 3-4) or ``known`` (the metadata's total_field_nT and dip_deg).
-        iterations: largest number of Levenberg-Marquardt steps (it stops once converged).
-    """
-
-    model: str
-    reference: str
-    iterations: int
-
-
-@dataclasses.dataclass(frozen=True)
-class ModelSettings:
-    """``model``: the RELM (values checked by StudyConfig); ``tune=true`` chooses ``hidden`` and ``lam`` itself,
-    so they must stay at the study's defaults.
-
-    Attributes:
-        hidden: hidden units L (paper: not stated). lam: ridge lambda (paper: not stated).
-        theta_bounds: [low, high] of every hidden weight and bias: the search box and plain RELM's uniform draw.
-        features: ``raw`` (paper: the six raw sensor values) or ``msa`` (G and the MSA-corrected B).
-        tune: plain RELM only (optimizer=none, fitness=validation or kfold): hidden and lam chosen on a grid by
-            validation on the training rows (method relm-tuned).
-    """
-
-    hidden: int
-    lam: float
-    theta_bounds: list
-    features: str
-    tune: bool
-
-    def __post_init__(self):
-        if self.tune:
-            from icgo.studies.icgo_relm.config import StudyConfig
-
-            for k in ("hidden", "lam"):
-                default, v = StudyConfig.__dataclass_fields__[k].default, getattr(self, k)
-                need(v == default, f"model.{k}={v} has no effect with model.tune=true (the tuning grid chooses it); "
-                                   f"leave it at {default}")
-
-
-@dataclasses.dataclass(frozen=True)
-class FitnessSettings:
-    """``fitness``: what the search minimises (values checked by StudyConfig).
-
-    Attributes:
-        mode: ``train`` (paper: the RELM's RMSE on the training rows), ``validation`` or ``kfold``.
-        val_fraction: validation share of the training rows (mode validation). k_folds: folds (mode kfold).
-    """
-
-    mode: str
-    val_fraction: float
-    k_folds: int
-
-
-@dataclasses.dataclass(frozen=True)
-class BudgetSettings:
-    """``budget``: population and iterations or evaluations (values checked by StudyConfig).
-
-    Attributes:
-        pop_size: population size (paper: 30). iterations: optimizer iterations (paper: 100); null with max_evals.
-        max_evals: a fitness-evaluation budget instead of iterations (CGO spends 4 per seed per iteration).
-    """
-
-    pop_size: int
-    iterations: int | None
-    max_evals: int | None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -329,35 +200,57 @@ class ScheduleSettings:
 class RunConfig:
     """One run of ``python -m experiments.run`` (``conf/config.yaml`` with its groups; docs/experiments.md).
 
+    The one source of the door's defaults: each node's dataclass (:mod:`icgo.studies.icgo_relm.settings`) and the
+    top-level fields below; Hydra composes them first (``config_defaults`` in ConfigStore,
+    registered by ``experiments/_groups.py`` from :func:`icgo.core.settings.defaults_of`), then the group options
+    (``conf/<group>/<option>.yaml``, which write only what they change), then ``conf/config.yaml`` and a preset.
+    ``dataset``, ``optimizer``, ``strategy`` and ``schedule`` have no default here: their group options are them.
+
     Attributes:
-        dataset: the data set's node (:data:`DATASET_NODES`, else :class:`SimulatedData`). split, msa, model, fitness, budget: the study's nodes. optimizer,
-            strategy, schedule: the search. precision: the search fitness's precision
-            (:data:`icgo.studies.icgo_relm.config.PRECISIONS`). worlds: N independent simulated worlds, or None.
-        devices: the most devices the search is sharded over (None: every one). progress: ``auto``, true, false or seconds between
-            progress lines (:func:`icgo.studies.icgo_relm.progress.progress_mode`).
-        figures: write study.png. overwrite: replace a complete run. label: the experiment's name or None.
-        jax_cache_dir: JAX's persistent compilation cache (None: off). tracking: MLflow tracking
-            (:func:`icgo.studies.common.tracking.tracking_uri`: auto, true, false or a URI).
+        dataset: the data set's node (:data:`DATASET_NODES`, else :class:`SimulatedData`).
+        optimizer, strategy, schedule: the search.
+        split, msa, model, fitness, budget: the study's nodes.
+        precision: the search fitness's precision (:data:`icgo.studies.icgo_relm.config.PRECISIONS`):
+            float32_features = the hidden layer (eq. 8) in float32, the ridge solve and RMSE in float64 (the float64
+            fitness to 5e-6 relative); float64; float32. The kernel follows the backend (cache-chunked on a CPU,
+            batched on an accelerator), recorded in run.json.
+        worlds: N: the study on N independent simulated worlds, data seeds dataset.seed .. dataset.seed + N - 1
+            (each its own noise draw, MSA, splits and keys), every world's search in one sharded program; reports
+            per world and pooled over worlds (docs/relm_study.md, "Worlds"). None: one data set.
+        devices: the search's members (strategies x repeats x worlds) sharded over the devices of one program:
+            None = every device (a CPU's cores as host devices, every GPU, every node's); an integer caps it.
+        progress: auto = a tqdm bar on a terminal (CPU), else a line every 30 s (done/total, rate, ETA) on stderr
+            and in the run's log; true / false force it; a number: a line every that many seconds
+            (:func:`icgo.studies.icgo_relm.progress.progress_mode`).
+        figures: write study.png into the run directory.
+        overwrite: a run directory that holds a complete run is refused (true: replace it whole); in a sweep, a
+            finished job is kept (re-running a sweep resumes it).
+        label: the experiment's name written to run.json (set by the presets in conf/experiment), or None.
+        jax_cache_dir: JAX's persistent compilation cache (repeated runs and sweep jobs reuse compiled programs);
+            None: off. Default: under the user's cache directory (XDG_CACHE_HOME or ~/.cache).
+        tracking: MLflow (pip install 'icgo[tracking]', :func:`icgo.studies.common.tracking.tracking_uri`): auto =
+            log every run and sweep job to mlruns/mlflow.db under the working directory where MLflow is installed;
+            false = off; a URI (sqlite:///x.db, http://host:5000).
     """
 
     dataset: SimulatedData | WellConditionsData | CsvData = dataclasses.field(
         metadata={"variants": DATASET_NODES, "tag": "name", "default": SimulatedData})
-    split: SplitSettings
-    msa: MsaSettings
-    model: ModelSettings
-    fitness: FitnessSettings
-    budget: BudgetSettings
     optimizer: OptimizerSettings
     strategy: StrategySettings
     schedule: ScheduleSettings
-    precision: str
-    worlds: int | None
-    devices: int | None
-    progress: bool | str | float
-    figures: bool
-    overwrite: bool
-    label: str | None
-    jax_cache_dir: str | None
+    split: SplitSettings = dataclasses.field(default_factory=SplitSettings)
+    msa: MsaSettings = dataclasses.field(default_factory=MsaSettings)
+    model: ModelSettings = dataclasses.field(default_factory=ModelSettings)
+    fitness: FitnessSettings = dataclasses.field(default_factory=FitnessSettings)
+    budget: BudgetSettings = dataclasses.field(default_factory=BudgetSettings)
+    precision: str = PRECISION
+    worlds: int | None = None
+    devices: int | None = None
+    progress: bool | str | float = "auto"
+    figures: bool = True
+    overwrite: bool = False
+    label: str | None = None
+    jax_cache_dir: str | None = JAX_CACHE_DEFAULT
     tracking: bool | str | None = "auto"
 
     def __post_init__(self):
@@ -396,6 +289,7 @@ class RunConfig:
         fields = {  # StudyConfig field: (YAML key, value)
             "n_repeats": ("split.n_repeats", sp.n_repeats), "seed": ("split.seed", sp.seed),
             "protocol": ("split.protocol", sp.protocol), "sigma_filter": ("split.sigma_filter", sp.sigma_filter),
+            "train_fraction": ("split.train_fraction", sp.train_fraction),
             "msa_model": ("msa.model", ms.model), "msa_reference": ("msa.reference", ms.reference),
             "msa_iterations": ("msa.iterations", ms.iterations), "features": ("model.features", m.features),
             "hidden": ("model.hidden", m.hidden), "lam": ("model.lam", m.lam),
@@ -405,8 +299,6 @@ class RunConfig:
             "strategies": ("strategy.names", self.strategy.names), "pop_size": ("budget.pop_size", b.pop_size),
             "iterations": ("budget.iterations", b.iterations), "max_evals": ("budget.max_evals", b.max_evals),
             "precision": ("precision", self.precision), "devices": ("devices", self.devices)}
-        if sp.train_fraction is not None:
-            fields["train_fraction"] = ("split.train_fraction", sp.train_fraction)
         try:
             return StudyConfig(**{k: v for k, (_, v) in fields.items()}, optimizer_config=self.optimizer_config())
         except SettingError as e:
