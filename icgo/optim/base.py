@@ -343,10 +343,15 @@ def check_bounds(bounds) -> tuple[Array, Array]:
     return jnp.asarray(lb), jnp.asarray(ub)
 
 
+#: The smallest population every algorithm accepts (CGO's seeds 2-3 need distinct members besides the best); the
+#: studies' configs refuse a smaller one by this same bound.
+MIN_POP_SIZE = 4
+
+
 def check_pop_size(pop_size) -> None:
-    """Raise ValueError unless ``pop_size`` is an int >= 4."""
-    if isinstance(pop_size, bool) or not isinstance(pop_size, (int, np.integer)) or pop_size < 4:
-        raise ValueError(f"pop_size must be an integer >= 4, got {pop_size!r}")
+    """Raise ValueError unless ``pop_size`` is an int >= :data:`MIN_POP_SIZE`."""
+    if isinstance(pop_size, bool) or not isinstance(pop_size, (int, np.integer)) or pop_size < MIN_POP_SIZE:
+        raise ValueError(f"pop_size must be an integer >= {MIN_POP_SIZE}, got {pop_size!r}")
 
 
 def iterations_for_budget(alg: Algorithm, pop_size: int, max_evals: int, config=None) -> int:

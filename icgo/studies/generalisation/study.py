@@ -37,6 +37,7 @@ import pandas as pd
 
 from icgo.maths.stats import holm, wilcoxon_paired
 from icgo.optim import STRATEGIES
+from icgo.optim.base import MIN_POP_SIZE
 from icgo.artifacts.format import CORRECTED_B
 from icgo.physics.frames import angle_diff
 from icgo.studies.generalisation import report as generalisation_report
@@ -103,7 +104,7 @@ class GeneralisationConfig:
         need(len(set(cells)) == len(cells), "cells", f"must be distinct, got {list(cells)}")
         need(len(self.methods) >= 1 and set(self.methods) <= set(METHODS) and len(set(self.methods)) == len(self.methods),
              "methods", f"must be distinct names from {list(METHODS)}, got {list(self.methods)}")
-        for name, lo in (("n_repeats", 2), ("seed", 0), ("data_seed", 0), ("pop_size", 4), ("iterations", 1),
+        for name, lo in (("n_repeats", 2), ("seed", 0), ("data_seed", 0), ("pop_size", MIN_POP_SIZE), ("iterations", 1),
                          ("hidden", 1)):
             v = getattr(self, name)
             need(is_int(v) and v >= lo, name, f"must be an integer >= {lo}, got {v!r}")

@@ -12,6 +12,7 @@ from typing import Any
 from icgo.core.execution import ExecutionPlan
 from icgo.models import msa as _msa
 from icgo.models import relm as _relm
+from icgo.optim.base import MIN_POP_SIZE
 from icgo.optim.cgo import CGO
 from icgo.studies.common import sharding
 from icgo.studies.common import splits as _splits
@@ -187,8 +188,8 @@ class StudyConfig:
             except (TypeError, ValueError) as e:
                 raise SettingError("strategies", f"must name {alg.name} {alg.axis} values: "
                                                  f"{str(e).splitlines()[0]}") from None
-        need(is_int(self.pop_size) and self.pop_size >= 4, "pop_size",
-             f"must be an integer >= 4, got {self.pop_size!r}")
+        need(is_int(self.pop_size) and self.pop_size >= MIN_POP_SIZE, "pop_size",
+             f"must be an integer >= {MIN_POP_SIZE}, got {self.pop_size!r}")
         need((self.iterations is None) != (self.max_evals is None), "iterations",
              "and max_evals: give exactly one (the other null)")
         if self.iterations is not None:

@@ -16,6 +16,7 @@ from icgo.core.settings import is_int, is_real, need
 from icgo.datasets import drill_string as datasets
 from icgo.models.gyro_reference import BIAS_MODES
 from icgo.optim import misma as misma_opt
+from icgo.optim.base import MIN_POP_SIZE
 
 
 # Every check raises icgo.core.errors.SettingError(<dotted key>, <problem>): one line, "<key> <problem>".
@@ -231,7 +232,7 @@ class SimulatedConfig:
         _integer("simulated.subsample", self.subsample)
         need(self.dot_samples in ("static", "all"), "simulated.dot_samples",
              f"must be static or all, got {self.dot_samples!r}")
-        _integer("simulated.pop_size", self.pop_size, minimum=4)
+        _integer("simulated.pop_size", self.pop_size, minimum=MIN_POP_SIZE)
         _integer("simulated.n_iter", self.n_iter)
         _integer("simulated.repeats", self.repeats)
         _positive("simulated.threshold_factor", self.threshold_factor)

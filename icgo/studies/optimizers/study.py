@@ -52,6 +52,7 @@ import pandas as pd
 from icgo.core.settings import is_int, is_real, need
 from icgo.optim import benchmarks as bm
 from icgo.optim import iterations_for_budget
+from icgo.optim.base import MIN_POP_SIZE
 from icgo.optim.cgo import CGO, CGOConfig
 from icgo.optim.ga import GA
 from icgo.optim.mutation import STRATEGIES
@@ -127,8 +128,8 @@ class OptimizerStudyConfig:
         bad = [x for x in d if x not in CEC2017_DIMS]
         need(not bad, "dims", f"{bad} have no CEC 2017 data; choose from {list(CEC2017_DIMS)}")
         need(is_int(self.runs) and self.runs >= 1, "runs", f"must be an integer >= 1, got {self.runs!r}")
-        need(is_int(self.pop_size) and self.pop_size >= 4, "pop_size",
-             f"must be an integer >= 4, got {self.pop_size!r}")
+        need(is_int(self.pop_size) and self.pop_size >= MIN_POP_SIZE, "pop_size",
+             f"must be an integer >= {MIN_POP_SIZE}, got {self.pop_size!r}")
         need(is_int(self.budget) and self.budget >= 1, "budget", f"must be an integer >= 1, got {self.budget!r}")
         least = self.pop_size + max(_per_iteration(a, self.pop_size) for a in PEERS)
         need(self.budget >= least, "budget",
