@@ -11,6 +11,7 @@ from omegaconf import OmegaConf
 from icgo.core.errors import SettingError
 from icgo.core.settings import config_from_mapping
 from icgo.studies.icgo_relm import run_config as RC
+from icgo.studies.icgo_relm.settings import TransferTarget
 from tests.test_experiments_run import _compose
 
 
@@ -47,7 +48,7 @@ def test_an_unknown_key_is_one_line_naming_its_path(where, key, value):
 
 def test_the_transfer_target_is_a_node_and_only_with_its_protocol():
     run = RC.RunConfig.from_mapping(_mapping(["split=transfer"]))
-    assert isinstance(run.split.target, RC.TransferTarget) and run.split.target.path is None
+    assert isinstance(run.split.target, TransferTarget) and run.split.target.path is None
     from icgo.studies.common.splits import TransferDraw
 
     assert TransferDraw(**run.split.target.draw()) == TransferDraw()
