@@ -22,17 +22,25 @@ from icgo.io.schema import KNOWN_COLUMNS, fail
 
 
 def parse_contract_text(text: str, src: str, require_reference: bool, convert=None,
-                        setting: str = "columns", lazy: Lazy | None = None) -> tuple[pd.DataFrame, list]:
+                        setting: str = "columns", lazy: Lazy | None = None,
+                        gap: tuple[int, int] | None = None) -> tuple[pd.DataFrame, list]:
     """(checked frame, notices) of a contract CSV's text (comments blanked, header resolved: :mod:`icgo.io.columns`):
     pandas' C parser where it can, the exact reader where it cannot (and to word every error). ``lazy``: every
-    failure of the file kept (:class:`icgo.io.checks.Lazy`; the exact reader only), raised together at the end."""
+    failure of the file kept (:class:`icgo.io.checks.Lazy`; the exact reader only), raised together at the end.
+    ``gap``: (the character offset where the rows begin, the file's lines between the header and them) of a
+    streamed chunk: the exact reader, which names lines, reads that many blank lines there, so that its line
+    numbers are the file's; the fast reader, which names none, reads the text as it is."""
     notices: list[str] = []
+    def exact():  # built only when the exact reader runs: a chunk deep in a survey has millions of lines before it
+        return text if gap is None else text[:gap[0]] + "\n" * gap[1] + text[gap[0]:]
+
     if lazy is not None:
-        return _read_exact(text, src, notices, require_reference, convert=convert, setting=setting, lazy=lazy), notices
+        return _read_exact(exact(), src, notices, require_reference, convert=convert, setting=setting,
+                           lazy=lazy), notices
     typed = _read_fast(text, src, notices, require_reference, convert=convert, setting=setting)
     if typed is None:
         notices = []
-        typed = _read_exact(text, src, notices, require_reference, convert=convert, setting=setting)
+        typed = _read_exact(exact(), src, notices, require_reference, convert=convert, setting=setting)
     return typed, notices
 
 

@@ -98,8 +98,8 @@ def read_chunks(csv_path, *, max_bytes: int, stream_above: int = STREAM_ABOVE_BY
                 fail(src, f"a quoted field in a streamed survey (over {stream_above / MiB:g} MiB; lines "
                           f"{gap_lines + 1}-{gap_lines + len(chunk_lines)}): give one row per line, or split the file")
             try:
-                frame, new = parse_contract_text(head_text + "\n" * (gap_lines - head_text.count("\n")) + body, src,
-                                                 require_reference, prep.convert, column_setting)
+                frame, new = parse_contract_text(head_text + body, src, require_reference, prep.convert, column_setting,
+                                                 gap=(len(head_text), gap_lines - head_text.count("\n")))
             except DataError as e:
                 raise _shift_rows(e, rows_before) from None
             rows_before += len(frame)
