@@ -24,7 +24,6 @@ def main(argv=None) -> int:
     ap.add_argument("--overwrite", action="store_true", help="replace a used --out directory (not results/) whole")
     ap.add_argument("--repeats", type=int, default=None, help="repeats (default: the study's, Fig. 9's 10)")
     a = ap.parse_args(argv)
-    import dataclasses
 
     import icgo  # noqa: F401  (float64)
     from icgo.io.files import results_output
@@ -38,7 +37,7 @@ def main(argv=None) -> int:
         raise SettingError(f"--repeats {a.repeats}: must be >= 2")
     cfg = StudyConfig(strategies=("original",))
     if a.repeats is not None:
-        cfg = dataclasses.replace(cfg, n_repeats=a.repeats)
+        cfg = cfg.replace(split={"n_repeats": a.repeats})
     output = results_output(a.out, overwrite=a.overwrite, writer="experiments.fig9_seeds")
     ds = casing_stations.lab_casing(0)
     t0 = time.perf_counter()

@@ -26,8 +26,8 @@ from icgo.studies.icgo_relm.config import StudyConfig  # noqa: E402
 from tests.test_study import sim_frame  # noqa: E402
 
 jax.config.update("jax_compilation_cache_dir", sys.argv[2])
-cfg = StudyConfig(optimizer="cgo", strategies=("original", "wavelet"), n_repeats=3, hidden=10, pop_size=6,
-                  iterations=3, seed=2)
+cfg = StudyConfig(split=dict(n_repeats=3, seed=2), model=dict(hidden=10), budget=dict(pop_size=6, iterations=3),
+                  optimizer="cgo", strategies=("original", "wavelet"))
 timings = {}
 res = study.run_study(sim_frame(), cfg, timings=timings)
 if jax.process_index() == 0:

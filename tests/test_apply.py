@@ -40,7 +40,8 @@ def setup(tmp_path_factory):
     """A small fitted ICGO-RELM model saved to disk, and a new lab_casing draw written as a survey."""
     tmp = tmp_path_factory.mktemp("apply")
     res = icgo_relm.run_study(casing_stations.lab_casing(0, toolface_step_deg=30.0).frame,
-                              StudyConfig(optimizer="pso", n_repeats=2, hidden=8, pop_size=6, iterations=3))
+                              StudyConfig(split=dict(n_repeats=2), model=dict(hidden=8), budget=dict(pop_size=6,
+                                          iterations=3), optimizer="pso"))
     model = res.model.save(tmp / "relm_compensation")
     new = casing_stations.lab_casing(5, toolface_step_deg=30.0)
     survey = tmp / "survey.csv"

@@ -100,8 +100,8 @@ def test_gpu_check_runs_on_a_cpu_and_says_the_gpu_is_absent(capsys):
     from icgo.bench.backend import backend_check, report
 
     res = backend_check(budget_s=300, mealpy_runs=1, front=False, batches=(12, 24, 48), repeats=(1, 2, 10**6),
-                        curve=(1, 2), curve_size=(2, 2), worlds=(1, 10**6), strategies=("original",), hidden=6,
-                        pop_size=5, iterations=2)
+                        curve=(1, 2), curve_size=(2, 2), worlds=(1, 10**6), strategies=("original",),
+                        model={"hidden": 6}, budget={"pop_size": 5, "iterations": 2})
     assert not res["gpu_present"] and res["headline"].startswith("GPU absent") and "unmeasured" in res["headline"]
     assert res["plan"]["kernel"] == "cache_chunked"
     assert set(res["kernel_evals_per_s"]) == {"train_fitness", "fused_train_fitness"}

@@ -54,7 +54,8 @@ def test_counted_runs_are_the_icgo_relm_studys_searches():
     from icgo.studies.icgo_relm.config import StudyConfig
 
     ds = casing_stations.lab_casing(0, toolface_step_deg=45.0)
-    cfg = StudyConfig(strategies=("original",), n_repeats=2, pop_size=6, iterations=4, hidden=8)
+    cfg = StudyConfig(split=dict(n_repeats=2), model=dict(hidden=8), budget=dict(pop_size=6, iterations=4),
+                      strategies=("original",))
     runs = cgo_seeds.study(ds.frame, ds.meta, {"default": CGOConfig()}, cfg)
     h = icgo_relm.run_study(ds.frame, cfg, ds.meta).histories
     final = h[h.method == "cgo-original"].sort_values("iteration").groupby("repeat").best_fitness.last().to_numpy()

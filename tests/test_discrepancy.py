@@ -566,7 +566,7 @@ def test_the_study_tables_state_their_protocol(small_result, tmp_path, monkeypat
     monkeypatch.setattr(R, "devices_study", lambda config: (R.DeviceRun("ab", res), R.DeviceRun("ai", res)))
     monkeypatch.setattr(R, "lab_casing_study", lambda config, seed: R.LabCasingStudy(
         res, err, err / 4, {"cgo-three_stage": err / 10}, err / 2, {}, seed, None,
-        StudyConfig(n_repeats=1, seed=seed, strategies=("three_stage",))))
+        StudyConfig(split=dict(n_repeats=1, seed=seed), strategies=("three_stage",))))
 
     def protocol(path):
         (line,) = parse_protocols(path.read_text())

@@ -53,8 +53,8 @@ def test_two_local_processes_shard_the_search_and_give_the_one_process_study(tmp
     plan = json.loads(str(got["plan"]))
     assert plan["processes"] == 2 and plan["devices"] == 2 and plan["devices_seen"] == 2
     assert plan["request"]["cluster"] == "env" and "across 2 processes" in plan["why"]
-    cfg = StudyConfig(optimizer="cgo", strategies=("original", "wavelet"), n_repeats=3, hidden=10, pop_size=6,
-                      iterations=3, seed=2)
+    cfg = StudyConfig(split=dict(n_repeats=3, seed=2), model=dict(hidden=10), budget=dict(pop_size=6, iterations=3),
+                      optimizer="cgo", strategies=("original", "wavelet"))
     one = study.run_study(sim_frame(), cfg)
     np.testing.assert_array_equal(got["theta"], one.model.params.theta)
     np.testing.assert_array_equal(got["curve"], one.curves["best_fitness"])

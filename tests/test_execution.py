@@ -157,8 +157,8 @@ def test_no_recompilation_per_repeat(kernel):
     """The search of other repeats (same shapes) reuses the compiled program, on either kernel."""
     from tests.test_study import sim_frame
 
-    cfg = StudyConfig(optimizer="cgo", strategies=("original", "wavelet"), n_repeats=4, hidden=6,
-                      pop_size=5, iterations=2, seed=1)
+    cfg = StudyConfig(split=dict(n_repeats=4, seed=1), model=dict(hidden=6), budget=dict(pop_size=5, iterations=2),
+                      optimizer="cgo", strategies=("original", "wavelet"))
     G, B, a = frame_arrays(sim_frame())
     key = jax.random.PRNGKey(0)
     preps = [prepare(None, G, B, a, dataclasses.replace(cfg, repeat_ids=ids), key)[0] for ids in ((0, 1), (2, 3))]

@@ -82,7 +82,7 @@ def test_default_config_is_the_paper_protocol():
     assert (cfg.budget.pop_size, cfg.budget.iterations) == (30, 100)
     assert cfg.fitness.mode == "train"
     s = _study(cfg)
-    assert s.strategies == ("three_stage",) and s.n_repeats == 10 and s.iterations == 100
+    assert s.strategies == ("three_stage",) and s.split.n_repeats == 10 and s.budget.iterations == 100
     assert s.optimizer_config.stage_bounds == pytest.approx((1 / 3, 2 / 3))
 
 
@@ -97,11 +97,11 @@ def test_schedule_reaches_the_cgo_config(schedule, bounds, order):
 
 def test_budget_and_optimizer_groups():
     s = _study(_compose(["budget=evaluations", "optimizer=pso"]))
-    assert (s.iterations, s.max_evals, s.optimizer) == (None, 12030, "pso")
+    assert (s.budget.iterations, s.budget.max_evals, s.optimizer) == (None, 12030, "pso")
     assert _study(_compose(["optimizer=none"])).optimizer is None
     assert _study(_compose(["strategy=all"])).strategies == (
         "original", "chaos", "gaussian", "wavelet", "three_stage")
-    assert _study(_compose(["fitness=kfold"])).fitness == "kfold"
+    assert _study(_compose(["fitness=kfold"])).fitness.mode == "kfold"
 
 
 @pytest.mark.parametrize("preset,check", [
@@ -336,8 +336,8 @@ def test_progress_bar_starts_after_the_first_chunk(capsys):
 
 # ------------------------------------------------------------ one source of defaults
 def test_composed_default_is_the_study_dataclass_default():
-    """`python -m experiments.run` with no override builds icgo.studies.icgo_relm.config.StudyConfig() field by field
-    (through the translation of RunConfig.study_config) and the optimizer's default config."""
+    """`python -m experiments.run` with no override builds icgo.studies.icgo_relm.config.StudyConfig() node by node
+    (RunConfig.study_config hands over the same nodes) and the optimizer's default config."""
     import dataclasses
 
     from icgo.studies.icgo_relm.config import StudyConfig
@@ -375,31 +375,42 @@ def test_no_yaml_of_the_run_door_repeats_a_default():
 
 
 def test_every_study_field_has_a_config_key():
-    """No StudyConfig field is unreachable from the command line (except those an entry point sets), and each
-    reaches the field it names: a changed key changes exactly that field."""
+    """No StudyConfig setting is unreachable from the command line (except those an entry point sets), and each key
+    reaches the setting of the same dotted name: a changed key changes exactly that setting."""
     import dataclasses
 
-    from icgo.studies.icgo_relm.config import StudyConfig
+    from icgo.studies.icgo_relm.config import NODES, StudyConfig
+
+    def get(cfg, key):
+        for name in key.split("."):
+            cfg = getattr(cfg, name)
+        return cfg
 
     base = _study(_job_cfg([]))
-    changed = {"split.n_repeats=3": ("n_repeats", 3), "split=leave_azimuth_out": ("protocol", "leave_azimuth_out"),
-               "split.seed=4": ("seed", 4), "split.sigma_filter=2.5": ("sigma_filter", 2.5),
-               "split.train_fraction=0.6": ("train_fraction", 0.6),
-               "msa.model=axial": ("msa_model", "axial"), "msa.reference=known": ("msa_reference", "known"),
-               "msa.iterations=7": ("msa_iterations", 7), "model.features=msa": ("features", "msa"),
-               "model.hidden=12": ("hidden", 12), "model.lam=0.5": ("lam", 0.5),
-               "model.theta_bounds=[-2,2]": ("theta_bounds", (-2, 2)), "fitness.mode=kfold": ("fitness", "kfold"),
-               "fitness.val_fraction=0.2": ("val_fraction", 0.2), "fitness.k_folds=3": ("k_folds", 3),
+    changed = {"split.n_repeats=3": ("split.n_repeats", 3), "split=leave_azimuth_out": ("split.protocol",
+                                                                                        "leave_azimuth_out"),
+               "split.seed=4": ("split.seed", 4), "split.sigma_filter=2.5": ("split.sigma_filter", 2.5),
+               "split.train_fraction=0.6": ("split.train_fraction", 0.6),
+               "msa.model=axial": ("msa.model", "axial"), "msa.reference=known": ("msa.reference", "known"),
+               "msa.iterations=7": ("msa.iterations", 7), "model.features=msa": ("model.features", "msa"),
+               "model.hidden=12": ("model.hidden", 12), "model.lam=0.5": ("model.lam", 0.5),
+               "model.theta_bounds=[-2,2]": ("model.theta_bounds", (-2, 2)),
+               "fitness.mode=kfold": ("fitness.mode", "kfold"),
+               "fitness.val_fraction=0.2": ("fitness.val_fraction", 0.2), "fitness.k_folds=3": ("fitness.k_folds", 3),
                "optimizer=pso": ("optimizer", "pso"), "strategy=chaos": ("strategies", ("chaos",)),
-               "budget.pop_size=12": ("pop_size", 12), "budget=evaluations": ("max_evals", 12030),
+               "budget.pop_size=12": ("budget.pop_size", 12), "budget=evaluations": ("budget.max_evals", 12030),
                "precision=float64": ("precision", "float64"), "devices=1": ("devices", 1),
-               "optimizer=none model.tune=true fitness=validation": ("tune", True)}
-    for override, (field, value) in changed.items():
+               "optimizer=none model.tune=true fitness=validation": ("model.tune", True)}
+    for override, (key, value) in changed.items():
         s = _study(_job_cfg(override.split()))
-        assert getattr(s, field) == value and getattr(base, field) != value, override
-    missing = {f.name for f in dataclasses.fields(StudyConfig)} - {f for f, _ in changed.values()}
-    assert missing == {"repeat_ids", "optimizer_config", "iterations"}  # iterations: exclusive with max_evals
-    assert _study(_job_cfg(["budget.iterations=7"])).iterations == 7
+        assert get(s, key) == value and get(base, key) != value, override
+    keys = {f.name for f in dataclasses.fields(StudyConfig) if f.name not in NODES}
+    keys |= {f"{name}.{f.name}" for name, node in NODES.items() for f in dataclasses.fields(node)}
+    missing = keys - {k for k, _ in changed.values()}
+    # set by an entry point (repeat_ids, optimizer_config), exclusive with max_evals (iterations), or read by the run
+    # door's data loading (split.target: split=transfer)
+    assert missing == {"repeat_ids", "optimizer_config", "budget.iterations", "split.target"}
+    assert _study(_job_cfg(["budget.iterations=7"])).budget.iterations == 7
 
 
 @pytest.mark.parametrize("override", ["+split.bogus=1", "+model.hiden=20", "+dataset.pth=x", "+bogus=1",
@@ -537,7 +548,7 @@ def test_split_options_compose_their_protocol_and_the_transfer_draw_defaults():
 
     for option, protocol in (("paper", "random"), ("single", "random"), ("leave_azimuth_out", "leave_azimuth_out"),
                              ("leave_condition_out", "leave_condition_out"), ("transfer", "transfer")):
-        assert _study(_job_cfg([f"split={option}"])).protocol == protocol
+        assert _study(_job_cfg([f"split={option}"])).split.protocol == protocol
     assert set(PROTOCOLS) == {"random", "leave_azimuth_out", "leave_condition_out", "transfer"}
     target = _run_config(_job_cfg(["split=transfer"])).split.target
     assert target.path is None and target.draw() == {}, "split=transfer keeps every TransferDraw default"

@@ -207,7 +207,8 @@ def test_an_icgo_relm_model_states_one_interval_in_run_and_apply(tmp_path):
     from icgo.survey.verdict import study_verdict, survey_verdict
 
     res = icgo_relm.run_study(casing_stations.lab_casing(0, toolface_step_deg=30.0).frame,
-                              StudyConfig(optimizer="pso", n_repeats=3, hidden=8, pop_size=6, iterations=3))
+                              StudyConfig(split=dict(n_repeats=3), model=dict(hidden=8), budget=dict(pop_size=6,
+                                          iterations=3), optimizer="pso"))
     hw = model_interval(res.model)
     run = study_verdict(res.metrics, res.coverage, selected=res.model.selected, n_repeats=3, protocol="random",
                         qc=None, trained=res.model.domain, run_dir="R", model_interval_deg=hw)

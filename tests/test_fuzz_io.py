@@ -195,14 +195,19 @@ def test_arbitrary_metadata_reads_or_fails_in_one_line_long(tmp_path_factory, re
 
 SETTING_VALUES = st.one_of(st.none(), st.booleans(), st.integers(-10**6, 10**6), st.floats(), st.text(max_size=6),
                            st.lists(st.floats(), max_size=3))
-FIELDS = st.sampled_from(["n_repeats", "seed", "train_fraction", "sigma_filter", "msa_iterations", "hidden", "lam",
-                          "fitness", "val_fraction", "k_folds", "theta_bounds", "pop_size", "iterations", "precision",
-                          "protocol", "features", "msa_model", "tune", "strategies"])
+FIELDS = st.sampled_from(["split.n_repeats", "split.seed", "split.train_fraction", "split.sigma_filter",
+                          "msa.iterations", "model.hidden", "model.lam", "fitness.mode", "fitness.val_fraction",
+                          "fitness.k_folds", "model.theta_bounds", "budget.pop_size", "budget.iterations", "precision",
+                          "split.protocol", "model.features", "msa.model", "model.tune", "strategies"])
 
 
 def _check_settings(values):
+    nested: dict = {}
+    for key, v in values.items():  # "model.lam" -> {"model": {"lam": v}}
+        node, _, name = key.rpartition(".")
+        (nested.setdefault(node, {}) if node else nested)[name] = v
     try:
-        StudyConfig(**values)
+        StudyConfig(**nested)
     except SettingError as e:
         msg = str(e)
         assert "\n" not in msg and e.field in msg, msg
@@ -215,9 +220,9 @@ def test_study_settings_are_valid_or_one_line_setting_errors(values):
 
 
 def test_a_list_where_a_name_belongs_is_a_setting_error():
-    """Found by Hypothesis in a CI run: ``msa_model=[1.0]`` raised TypeError (unhashable) instead of one line."""
-    with pytest.raises(SettingError, match="msa_model must be one of"):
-        StudyConfig(msa_model=[1.0])
+    """Found by Hypothesis in a CI run: ``msa.model=[1.0]`` raised TypeError (unhashable) instead of one line."""
+    with pytest.raises(SettingError, match="msa.model must be one of"):
+        StudyConfig(msa=dict(model=[1.0]))
 
 
 @pytest.mark.slow

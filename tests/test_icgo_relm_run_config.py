@@ -58,21 +58,24 @@ def test_the_transfer_target_is_a_node_and_only_with_its_protocol():
         RC.RunConfig.from_mapping(m)
 
 
-def test_study_config_names_each_field_once_and_reports_the_yaml_key():
-    run = RC.RunConfig.from_mapping(_mapping(["split.n_repeats=0"]))  # the door's nodes hold the value ...
+def test_each_value_is_checked_once_where_it_enters_under_the_yaml_key():
+    """A node checks its values when it is built (the door's config or a library StudyConfig alike), naming the key
+    the user typed; what spans nodes (the strategies of the optimizer) is checked by the study config, under the
+    door's key too."""
     with pytest.raises(SettingError, match=r"^split.n_repeats must be an integer >= 1, got 0"):
-        run.study_config()  # ... the study checks it, under the key the user typed
-    lam = dataclasses.replace(run, split=dataclasses.replace(run.split, n_repeats=2),
-                              model=dataclasses.replace(run.model, lam=5e3))
+        RC.RunConfig.from_mapping(_mapping(["split.n_repeats=0"]))
     with pytest.raises(SettingError, match=r"^model.lam must be a number > 0 and at most 1000"):
-        lam.study_config()
+        RC.RunConfig.from_mapping(_mapping(["model.lam=5000"]))
+    run = RC.RunConfig.from_mapping(_mapping(["strategy.names=[original,original]"]))
+    with pytest.raises(SettingError, match=r"^strategy.names must be a non-empty tuple of distinct names"):
+        run.study_config()
 
 
 def test_a_library_study_config_refuses_lam_above_the_bound():
     from icgo.studies.icgo_relm.config import StudyConfig
 
-    with pytest.raises(SettingError, match=r"^lam must be a number > 0 and at most 1000"):
-        StudyConfig(lam=5e3)
+    with pytest.raises(SettingError, match=r"^model.lam must be a number > 0 and at most 1000"):
+        StudyConfig(model=dict(lam=5e3))
 
 
 @dataclasses.dataclass(frozen=True)

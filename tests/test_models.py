@@ -18,7 +18,7 @@ from icgo.artifacts.relm import MSAModel, RELMCompensation, circular_mean_spread
 from icgo.studies.icgo_relm import study
 from icgo.studies.icgo_relm.config import StudyConfig
 
-CFG = dict(n_repeats=3, hidden=10, seed=3, pop_size=6, iterations=3)
+CFG = dict(split={"n_repeats": 3, "seed": 3}, model={"hidden": 10}, budget={"pop_size": 6, "iterations": 3})
 
 
 @pytest.fixture(scope="module")

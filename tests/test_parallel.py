@@ -19,8 +19,8 @@ from icgo.studies.icgo_relm import study
 from icgo.studies.icgo_relm.config import StudyConfig
 from tests.test_study import sim_frame
 
-TINY = StudyConfig(optimizer="cgo", strategies=("original", "wavelet"), n_repeats=3, hidden=10, pop_size=6,
-                   iterations=3, seed=2)
+TINY = StudyConfig(split=dict(n_repeats=3, seed=2), model=dict(hidden=10), budget=dict(pop_size=6, iterations=3),
+                   optimizer="cgo", strategies=("original", "wavelet"))
 
 needs_two = pytest.mark.skipif(len(jax.devices()) < 2, reason="needs 2 devices (tests/conftest.py sets 2 host "
                                                                "devices on a CPU)")
@@ -49,7 +49,8 @@ def test_two_host_devices_give_the_one_device_study_bitwise():
     _same(one, two)
     assert one_t["execution"]["devices"] == 1 and two_t["execution"]["devices"] == 2
     assert two_t["execution"]["members"] == 6 and "6 member(s) in 2 shard(s) of at most 3" in two_t["execution"]["why"]
-    assert ticks[-1] == (TINY.iterations, TINY.iterations) and [d for d, _ in ticks] == sorted(d for d, _ in ticks)
+    assert ticks[-1] == (TINY.budget.iterations, TINY.budget.iterations) and [d for d, _ in ticks] == sorted(d for d,
+                         _ in ticks)
     uneven = dataclasses.replace(TINY, strategies=("wavelet",))
     _same(study.run_study(frame, dataclasses.replace(uneven, devices=1)), study.run_study(frame, uneven))
 
@@ -59,7 +60,7 @@ def test_a_fold_protocol_shards_too():
     """leave_azimuth_out pads every member's training rows to the batch's largest count before sharding, so the
     shapes (and the results) do not depend on the devices."""
     frame = sim_frame()
-    cfg = dataclasses.replace(TINY, protocol="leave_azimuth_out", n_repeats=1, strategies=("original",))
+    cfg = TINY.replace(split={"protocol": "leave_azimuth_out", "n_repeats": 1}, strategies=("original",))
     _same(study.run_study(frame, dataclasses.replace(cfg, devices=1)), study.run_study(frame, cfg))
 
 

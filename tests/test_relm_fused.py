@@ -48,7 +48,7 @@ def test_on_the_studys_data_the_refinement_is_what_meets_the_tolerance():
     from icgo.studies.icgo_relm.prepare import filtered, prepare
     from icgo.studies.icgo_relm.search import train_rows
 
-    cfg = StudyConfig(n_repeats=1)
+    cfg = StudyConfig(split=dict(n_repeats=1))
     rows_df, G, B, a, _ = filtered(casing_stations.lab_casing(0, toolface_step_deg=30.0).frame, cfg)
     prep, _ = prepare(rows_df, G, B, a, cfg, jax.random.PRNGKey(0))
     rows = jax.tree_util.tree_map(lambda x: x[0], train_rows(prep))

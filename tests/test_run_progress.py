@@ -94,7 +94,8 @@ def test_the_plan_counts_the_evaluations_the_search_spends():
 
     frame = casing_stations.lab_casing(0, toolface_step_deg=45.0).frame
     for opt, strategies in (("cgo", ("chaos", "wavelet")), ("pso", ("original",))):
-        cfg = StudyConfig(optimizer=opt, strategies=strategies, n_repeats=2, hidden=8, pop_size=6, iterations=3)
+        cfg = StudyConfig(split=dict(n_repeats=2), model=dict(hidden=8), budget=dict(pop_size=6, iterations=3),
+                          optimizer=opt, strategies=strategies)
         res = run_study(frame, cfg)
         total, per_it = E.planned_evaluations(cfg, len(cfg.method_names()) * 2)
         n_evals = np.asarray(res.n_evals).sum()
@@ -106,7 +107,8 @@ def test_an_estimate_is_the_evaluations_over_the_rate_measured_before(tmp_path):
     from icgo.core.execution import ExecutionPlan
     from icgo.studies.icgo_relm.config import StudyConfig
 
-    cfg = StudyConfig(optimizer="cgo", strategies=("chaos",), n_repeats=10, pop_size=30, iterations=100)
+    cfg = StudyConfig(split=dict(n_repeats=10), budget=dict(pop_size=30, iterations=100), optimizer="cgo",
+                      strategies=("chaos",))
     plan = ExecutionPlan("cpu", "cache_chunked", 2, 1, 10, "why")
     cache = tmp_path / "icgo" / "jax"
     first = E.estimate(cfg, plan, 10, 1000, str(cache))

@@ -21,13 +21,13 @@ from icgo.studies.icgo_relm.prepare import filtered, prepare
 
 def _prepared(frame, cfg):
     rows, G, B, a, _ = filtered(frame, cfg)
-    return prepare(rows, G, B, a, cfg, jax.random.PRNGKey(cfg.seed))
+    return prepare(rows, G, B, a, cfg, jax.random.PRNGKey(cfg.split.seed))
 
 
 def test_msa_of_a_thousand_table3_repeats_stops_by_its_rule():
     """Every repeat converges in a few steps (the optimistix LM took 6-37 steps here, most of them rejected
     at the float64 floor, and on a GPU some repeats never stopped)."""
-    cfg = StudyConfig(n_repeats=1000)
+    cfg = StudyConfig(split=dict(n_repeats=1000))
     prep, _ = _prepared(casing_stations.lab_casing(0).frame, cfg)
     steps = np.asarray(prep.msa.n_steps)
     assert np.asarray(prep.msa.converged).all()
@@ -45,7 +45,7 @@ def _two_azimuth_frame():
 
 
 def _failing_ids(frame, n_repeats):
-    cfg = StudyConfig(n_repeats=n_repeats, hidden=4)
+    cfg = StudyConfig(split=dict(n_repeats=n_repeats), model=dict(hidden=4))
     prep, mem = _prepared(frame, cfg)
     return [int(r) for r, why in zip(mem.repeat, msa.msa_failures(prep.msa)) if why is not None]
 
@@ -105,13 +105,14 @@ def test_every_repeat_failing_stops_the_study_in_one_line():
     frame = casing_stations.lab_casing(0, toolface_step_deg=45.0).frame
     with pytest.raises(ValueError, match=r"^multi-station analysis \(repeat 0\): Levenberg-Marquardt did not "
                                          r"converge in 1 steps"):
-        S.run_study(frame, StudyConfig(n_repeats=3, msa_iterations=1, hidden=4, pop_size=4, iterations=1))
+        S.run_study(frame, StudyConfig(split=dict(n_repeats=3), msa=dict(iterations=1), model=dict(hidden=4),
+                                       budget=dict(pop_size=4, iterations=1)))
 
 
 def test_a_thousand_repeat_smoke_study_completes():
     """1,000 repeats x 1 strategy at the smoke budget (population 8, 3 iterations) on a 104-row survey."""
     frame = casing_stations.lab_casing(0, toolface_step_deg=30.0).frame
-    cfg = StudyConfig(n_repeats=1000, hidden=8, pop_size=8, iterations=3)
+    cfg = StudyConfig(split=dict(n_repeats=1000), model=dict(hidden=8), budget=dict(pop_size=8, iterations=3))
     t0 = time.perf_counter()
     res = S.run_study(frame, cfg)
     wall = time.perf_counter() - t0

@@ -164,8 +164,8 @@ def test_member_coverage_equals_gathering_each_members_calibration_values(pooled
 
 
 def test_leave_azimuth_out_study_pools_each_rows_held_out_prediction(lab):
-    cfg = StudyConfig(protocol="leave_azimuth_out", optimizer="pso", n_repeats=2, hidden=8, pop_size=6,
-                      iterations=3)
+    cfg = StudyConfig(split=dict(protocol="leave_azimuth_out", n_repeats=2), model=dict(hidden=8),
+                      budget=dict(pop_size=6, iterations=3), optimizer="pso")
     res = run_study(lab.frame, cfg)
     p = res.predictions
     test = p[(p["split"] == "test") & (p["method"] == "pso")]
@@ -184,11 +184,12 @@ def test_leave_azimuth_out_study_pools_each_rows_held_out_prediction(lab):
 
 def test_transfer_study_refuses_a_missing_target_and_fold_protocols_refuse_train_fraction(lab):
     with pytest.raises(ValueError, match="needs the second instrument"):
-        run_study(lab.frame, StudyConfig(protocol="transfer", optimizer=None, n_repeats=2, hidden=8))
+        run_study(lab.frame, StudyConfig(split=dict(protocol="transfer", n_repeats=2), model=dict(hidden=8),
+                                         optimizer=None))
     with pytest.raises(SettingError, match="train_fraction has no effect"):
-        StudyConfig(protocol="leave_azimuth_out", train_fraction=0.5)
+        StudyConfig(split=dict(protocol="leave_azimuth_out", train_fraction=0.5))
     with pytest.raises(SettingError, match="protocol must be one of"):
-        StudyConfig(protocol="leave_one_out")
+        StudyConfig(split=dict(protocol="leave_one_out"))
 
 
 def test_physics_baseline_recovers_the_twelve_parameters_and_an_earth_fixed_field():
@@ -220,7 +221,7 @@ def test_generalisation_defaults_are_the_relm_studys():
     from icgo.studies.generalisation.study import GeneralisationConfig
 
     g, r = GeneralisationConfig(), StudyConfig()
-    assert (g.pop_size, g.iterations, g.hidden) == (r.pop_size, r.iterations, r.hidden)
+    assert (g.pop_size, g.iterations, g.hidden) == (r.budget.pop_size, r.budget.iterations, r.model.hidden)
     assert g.transfer == splits.TransferDraw()
 
 

@@ -103,7 +103,7 @@ def test_generalisation_qc_counts_are_the_survey_qc_of_the_tested_stations(runs)
     for cell in cfg.cells:
         got = qc[(qc.dataset == cell[0]) & (qc.protocol == cell[1])].set_index("stage")[["n", "g", "b", "dip", "any"]]
         assert list(got.index) == ["raw", "msa", "physics"]
-        st = _qc_stations(data[cell], StudyConfig(protocol=cell[1]))
+        st = _qc_stations(data[cell], StudyConfig(split=dict(protocol=cell[1])))
         meta = data[cell].meta
         raw = survey_qc(st[["gx", "gy", "gz"]].to_numpy(), st[["bx", "by", "bz"]].to_numpy(),
                         meta["total_field_nT"], meta["dip_deg"]).counts

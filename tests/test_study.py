@@ -34,7 +34,7 @@ def sim_frame(seed=0, tf_step=10.0):
                          "inclination_deg": I, "toolface_deg": T})
 
 
-PLAIN = StudyConfig(optimizer=None, n_repeats=3, hidden=10, seed=7)
+PLAIN = StudyConfig(split=dict(n_repeats=3, seed=7), model=dict(hidden=10), optimizer=None)
 
 
 @pytest.fixture(scope="module")
@@ -84,7 +84,7 @@ def test_repeat_alone_equals_batched_bitwise(plain, frame):
 def test_test_rows_never_steer_the_fit(plain, frame):
     # Corrupt the reference azimuth of repeat 0's test rows: training side unchanged.
     # (The sigma filter runs once before splitting, as in the paper, so it is off here.)
-    cfg = dataclasses.replace(PLAIN, repeat_ids=(0,), sigma_filter=None)
+    cfg = PLAIN.replace(split={"sigma_filter": None}, repeat_ids=(0,))
     base = study.run_study(frame, cfg)
     test_rows = base.predictions.row[base.predictions.split == "test"].to_numpy()
     bad = frame.copy()
@@ -103,17 +103,17 @@ def test_sigma_filter_drops_a_spike(frame):
 
 
 @pytest.mark.parametrize("change, match", [
-    ({"lam": 0.0}, "lambda"),
-    ({"hidden": 200}, "hidden"),
-    ({"fitness": "loo"}, "fitness"),
-    ({"train_fraction": 1.0}, "train_fraction"),
+    ({"model": {"lam": 0.0}}, "model.lam .* lambda"),
+    ({"model": {"hidden": 200}}, "hidden"),
+    ({"fitness": {"mode": "loo"}}, "fitness.mode"),
+    ({"split": {"train_fraction": 1.0}}, "split.train_fraction"),
     ({"optimizer": "nope"}, "unknown optimizer"),
-    ({"msa_reference": "known"}, "metadata"),
-    ({"n_repeats": 0}, "repeats"),
+    ({"msa": {"reference": "known"}}, "metadata"),
+    ({"split": {"n_repeats": 0}}, "split.n_repeats .*repeats"),
 ])
 def test_bad_config(frame, change, match):
     with pytest.raises(ValueError, match=match):
-        study.run_study(frame, dataclasses.replace(PLAIN, **change))
+        study.run_study(frame, PLAIN.replace(**change))
 
 
 def test_bad_frames(frame):
@@ -125,13 +125,13 @@ def test_bad_frames(frame):
         study.run_study(nan, PLAIN)
     one = frame[frame.azimuth_deg == 30.0]
     with pytest.raises(ValueError, match="eps_z"):
-        study.run_study(one, dataclasses.replace(PLAIN, hidden=5))
+        study.run_study(one, PLAIN.replace(model={"hidden": 5}))
 
 
 @pytest.mark.slow
 def test_cgo_strategies_batched_equals_alone_and_beats_plain(frame):
-    cfg = StudyConfig(optimizer="cgo", strategies=("original", "three_stage"), n_repeats=2,
-                      hidden=10, pop_size=8, iterations=6, seed=3)
+    cfg = StudyConfig(split=dict(n_repeats=2, seed=3), model=dict(hidden=10), budget=dict(pop_size=8, iterations=6),
+                      optimizer="cgo", strategies=("original", "three_stage"))
     res = study.run_study(frame, cfg)
     assert res.curves["best_fitness"].shape == (2, 2, 6)
     assert np.all(np.diff(res.curves["best_fitness"], axis=-1) <= 0)  # best-so-far
@@ -152,7 +152,7 @@ def test_lab_casing_msa_and_plain_relm():
     r = msa.multi_station_analysis(G, B)
     assert np.all(np.abs(np.asarray(r.bias) - [900.0, -700.0, 1500.0]) < 3 * np.asarray(r.std_error))
     ds = casing_stations.lab_casing(0)
-    res = study.run_study(ds.frame, StudyConfig(optimizer=None, n_repeats=3))
+    res = study.run_study(ds.frame, StudyConfig(split=dict(n_repeats=3), optimizer=None))
     p = res.predictions[res.predictions.repeat == 0]
     # With the casing, MSA leaves a residual structured in toolface: per azimuth, two
     # toolface harmonics explain most of it.
@@ -178,14 +178,14 @@ def test_tiny_cgo_study_train_kernel_batched_equals_alone(frame, precision, rtol
     from icgo.core.execution import ACCELERATOR_KERNEL, CPU_KERNEL
     from icgo.models import relm, search_fitness
 
-    cfg = StudyConfig(optimizer="cgo", strategies=("original", "three_stage"), n_repeats=2,
-                      hidden=10, pop_size=6, iterations=3, seed=5, precision=precision)
+    cfg = StudyConfig(split=dict(n_repeats=2, seed=5), model=dict(hidden=10), budget=dict(pop_size=6, iterations=3),
+                      optimizer="cgo", strategies=("original", "three_stage"), precision=precision)
     assert StudyConfig().precision == "float32_features"
     res = study.run_study(frame, cfg)
     alone = study.run_study(frame, dataclasses.replace(cfg, repeat_ids=(1,)))
     np.testing.assert_array_equal(alone.curves["best_fitness"][:, 0], res.curves["best_fitness"][:, 1])
     G, B, a = frame_arrays(frame)
-    prep, _ = prepare(None, G, B, a, dataclasses.replace(cfg, n_repeats=1), jax.random.PRNGKey(0))
+    prep, _ = prepare(None, G, B, a, cfg.replace(split={"n_repeats": 1}), jax.random.PRNGKey(0))
     data = jax.tree_util.tree_map(lambda x: x[0], prep.data)
     rows = jax.tree_util.tree_map(lambda x: x[0], train_rows(prep))
     pop = relm.random_theta(jax.random.PRNGKey(1), 10, (12,))
@@ -205,13 +205,13 @@ def test_a_lambda_sweep_compiles_the_search_once(frame):
     from icgo.models import relm
     from icgo.optim.sharded import compiled_programs
 
-    cfg = StudyConfig(optimizer="pso", n_repeats=2, hidden=5, pop_size=5, iterations=2, seed=4,
-                      precision="float64")
+    cfg = StudyConfig(split=dict(n_repeats=2, seed=4), model=dict(hidden=5), budget=dict(pop_size=5, iterations=2),
+                      optimizer="pso", precision="float64")
     G, B, a = frame_arrays(frame)
-    prep, _ = prepare(None, G, B, a, cfg, jax.random.PRNGKey(cfg.seed))
+    prep, _ = prepare(None, G, B, a, cfg, jax.random.PRNGKey(cfg.split.seed))
     search(cfg, prep)
     n = compiled_programs()
-    thetas, curve, _ = search(dataclasses.replace(cfg, lam=0.5), prep)
+    thetas, curve, _ = search(cfg.replace(model={"lam": 0.5}), prep)
     assert n >= 1 and compiled_programs() == n
     for r in range(2):
         data = jax.tree_util.tree_map(lambda x, r=r: x[r], prep.data)
@@ -239,7 +239,8 @@ def test_wrap_fitness_sees_every_search_call(frame):
             return f(pop, aux)
         return g
 
-    cfg = StudyConfig(optimizer="pso", n_repeats=2, hidden=10, pop_size=6, iterations=4, seed=2)
+    cfg = StudyConfig(split=dict(n_repeats=2, seed=2), model=dict(hidden=10), budget=dict(pop_size=6, iterations=4),
+                      optimizer="pso")
     study.run_study(frame, cfg, wrap_fitness=wrap)
     jax.effects_barrier()
     shards = cfg.execution().devices  # each device's block of members calls the fitness on its own
@@ -258,11 +259,13 @@ def test_tuned_relm_picks_the_best_mean_validation_cell_from_training_rows_only(
     """Issue 18's honest baseline: (L, lambda) chosen on the grid by validation on the training rows."""
     from icgo.models import relm
 
-    cfg = dataclasses.replace(PLAIN, hidden=30, tune=True, fitness="validation", sigma_filter=None)
+    cfg = PLAIN.replace(split={"sigma_filter": None}, model={"hidden": 30, "tune": True},
+                        fitness={"mode": "validation"})
     res = study.run_study(frame, cfg)
     grid = pd.DataFrame(res.tuning["grid"])
     best = grid.loc[grid.val_mean.idxmin()]
-    assert (res.config.hidden, res.config.lam) == (best.hidden, best.lam) == (res.tuning["hidden"], res.tuning["lam"])
+    assert ((res.config.model.hidden, res.config.model.lam) == (best.hidden, best.lam)
+            == (res.tuning["hidden"], res.tuning["lam"]))
     assert set(grid.lam) == set(relm.TUNE_LAMBDA) and set(grid.hidden) <= set(relm.TUNE_HIDDEN)
     assert res.config.method_names() == ["relm-tuned"] and set(res.metrics.method) >= {"relm-tuned"}
     # the chosen cell's run is plain RELM at that cell: its fitness is the grid's value
@@ -278,11 +281,11 @@ def test_tuned_relm_picks_the_best_mean_validation_cell_from_training_rows_only(
 
 @pytest.mark.parametrize("change, match", [
     ({"optimizer": "cgo"}, "tune tunes plain RELM only"),
-    ({"fitness": "train"}, "tune chooses hidden and lam by validation"),
+    ({"fitness": {"mode": "train"}}, "tune chooses hidden and lam by validation"),
 ])
 def test_tune_needs_plain_relm_and_a_validation_fitness(change, match):
     with pytest.raises(ValueError, match=match):
-        StudyConfig(**{"optimizer": None, "tune": True, "fitness": "validation", **change})
+        StudyConfig(**{"optimizer": None, "model": {"tune": True}, "fitness": {"mode": "validation"}, **change})
 
 
 def _sigma_filter_by_masks(G, B, a, n_sigma=3.0):
@@ -317,5 +320,5 @@ def test_a_lambda_outside_what_a_model_may_carry_is_refused_at_construction(lam)
     from icgo.models import relm
 
     with pytest.raises(SettingError, match=r"lam must be a number > 0 and at most 1000"):
-        StudyConfig(lam=lam)
-    assert StudyConfig(lam=relm.MAX_LAM).lam == relm.MAX_LAM
+        StudyConfig(model=dict(lam=lam))
+    assert StudyConfig(model=dict(lam=relm.MAX_LAM)).model.lam == relm.MAX_LAM

@@ -65,7 +65,7 @@ def test_apply_gives_positions_where_the_survey_has_depth(tmp_path):
     from icgo.survey.apply import correct_survey
 
     res = icgo_relm.run_study(casing_stations.lab_casing(0, toolface_step_deg=60.0).frame,
-                              StudyConfig(optimizer=None, n_repeats=2, hidden=8))
+                              StudyConfig(split=dict(n_repeats=2), model=dict(hidden=8), optimizer=None))
     new = casing_stations.lab_casing(3, toolface_step_deg=60.0).frame
     new = new.assign(md=10.0 * np.arange(len(new)))
     out = correct_survey(res.model, new)

@@ -30,7 +30,8 @@ def fitted(tmp_path_factory):
     """A small study on lab_casing, its saved model, a new draw inside its domain and one far outside it."""
     tmp = tmp_path_factory.mktemp("verdict")
     res = icgo_relm.run_study(casing_stations.lab_casing(0, toolface_step_deg=30.0).frame,
-                              StudyConfig(optimizer="pso", n_repeats=3, hidden=8, pop_size=6, iterations=3))
+                              StudyConfig(split=dict(n_repeats=3), model=dict(hidden=8), budget=dict(pop_size=6,
+                                          iterations=3), optimizer="pso"))
     path = res.model.save(tmp / "relm_compensation")
     near, far = casing_stations.lab_casing(5, toolface_step_deg=30.0), casing_stations.well_conditions(0)
     surveys = {}

@@ -22,8 +22,8 @@ from icgo.studies.icgo_relm.config import StudyConfig
 from tests.test_experiments_run import _compose, _job_cfg
 
 KWARGS = {"toolface_step_deg": 30.0}
-CFG = StudyConfig(optimizer="cgo", strategies=("original", "wavelet"), n_repeats=2, hidden=8, pop_size=8,
-                  iterations=3)
+CFG = StudyConfig(split=dict(n_repeats=2), model=dict(hidden=8), budget=dict(pop_size=8, iterations=3),
+                  optimizer="cgo", strategies=("original", "wavelet"))
 FRONT = ["budget=smoke", "progress=false", "figures=false", "jax_cache_dir=null", "worlds=2", "dataset.seed=100",
          "+dataset.kwargs.toolface_step_deg=30.0", "strategy.names=[original,wavelet]", "split.n_repeats=2",
          "model.hidden=8"]
@@ -72,7 +72,7 @@ def test_a_world_of_a_worlds_run_is_that_world_alone(worlds_run):
         np.testing.assert_array_equal(alone.model.params.theta, res.model.params.theta)
         np.testing.assert_array_equal(alone.curves["best_fitness"], res.curves["best_fitness"])
         pd.testing.assert_frame_equal(alone.metrics, res.metrics)
-        one = S.run(S.SurveyData(w.frame, w.meta), CFG, W.world_key(CFG.seed, w.seed))
+        one = S.run(S.SurveyData(w.frame, w.meta), CFG, W.world_key(CFG.split.seed, w.seed))
         np.testing.assert_allclose(one.curves["best_fitness"][..., 0], res.curves["best_fitness"][..., 0], rtol=1e-6)
         pd.testing.assert_frame_equal(one.msa, res.msa, rtol=1e-9)
     assert both.table("metrics").world.tolist()[0] == 100 and both.development == []

@@ -136,7 +136,7 @@ def study_scaling(repeats=STUDY_REPEATS, deadline: float = float("inf"), **confi
     frame = datasets.lab_casing(0).frame
     out, last = [], None
     for R in repeats:
-        cfg = StudyConfig(**{"strategies": STRATEGIES, **config, "n_repeats": R})
+        cfg = StudyConfig(**{"strategies": STRATEGIES, **config, "split": {**config.get("split", {}), "n_repeats": R}})
         why = overrun(last, R, deadline - time.perf_counter())
         if why:
             out.append({"repeats": R, "skipped": why})
@@ -165,7 +165,7 @@ def search_rate(n_devices: int, repeats: int = 10, iterations: int = CURVE_ITERA
     """Table 3's search (5 strategies x ``repeats`` members, population 30) as one program sharded over the first
     ``n_devices`` devices of the default backend, in this process: compile (the first call), then the best of
     ``reps`` calls; returns ``{"devices", "members", "compile_s", "run_s", "evals_per_s"}``."""
-    cfg = StudyConfig(strategies=STRATEGIES, n_repeats=repeats, iterations=iterations)
+    cfg = StudyConfig(split=dict(n_repeats=repeats), budget=dict(iterations=iterations), strategies=STRATEGIES)
     st = study.stage(datasets.lab_casing(0).frame, cfg, None, jax.random.PRNGKey(0))
     kernel = CPU_KERNEL if jax.default_backend() == "cpu" else ACCELERATOR_KERNEL
     devices = jax.devices()[:n_devices]
@@ -243,7 +243,8 @@ def worlds_scaling(worlds=WORLDS, deadline: float = float("inf"), **config) -> l
                 "search_s": timings["search_s"], "devices": timings["execution"]["devices"],
                 "members": timings["execution"]["members"]}
         out.append(last)
-        print(f"  {n} worlds x 5 strategies x {cfg.n_repeats} repeats: {wall:.1f} s ({compile_s:.1f} s compiling), "
+        print(f"  {n} worlds x 5 strategies x {cfg.split.n_repeats} repeats: {wall:.1f} s "
+              f"({compile_s:.1f} s compiling), "
               f"search {timings['search_s']:.1f} s", file=sys.stderr, flush=True)
     return out
 

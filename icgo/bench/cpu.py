@@ -155,7 +155,7 @@ def run_fast_study(sd: StudyData, strategies=STRATEGIES, pop_size=30, iterations
 
     def score(thetas):
         return score_all(thetas, sd.prep, sd.G, sd.B, sd.a_true, LAM, HIDDEN,
-                         raw_features=StudyConfig().features == "raw")
+                         raw_features=StudyConfig().model.features == "raw")
 
     # the scoring's programs are compiled here (on placeholder weights), so run_s times the study's work only
     jax.block_until_ready(score(jnp.zeros((len(strategies), R, relm.n_params(HIDDEN)))))

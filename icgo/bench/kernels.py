@@ -92,9 +92,9 @@ def study_data(n_repeats: int, seed: int = 0, dataset_seed: int = 0, tile: int =
         n_repeats: repeats (splits). seed: study seed. dataset_seed: simulator seed.
         tile: repeat the data set ``tile`` times (data-size scaling rows).
     """
-    cfg = StudyConfig(n_repeats=n_repeats, seed=seed)
+    cfg = StudyConfig(split=dict(n_repeats=n_repeats, seed=seed))
     G, B, a = frame_arrays(datasets.lab_casing(dataset_seed).frame)
-    kept = sigma_filter(G, B, a, cfg.sigma_filter)
+    kept = sigma_filter(G, B, a, cfg.split.sigma_filter)
     G, B, a = (np.tile(x[kept], (tile, 1)) if x.ndim == 2 else np.tile(x[kept], tile) for x in (G, B, a))
     prep, _ = prepare(None, G, B, a, cfg, jax.random.PRNGKey(seed))
     rows = train_rows(prep)

@@ -407,7 +407,7 @@ def devices_protocol(runs, config) -> str:
 
 def _lab_casing_split(study) -> str:
     """The ICGO study's split the lab_casing study reuses, in words."""
-    c = study.icgo_config
+    c = study.icgo_config.split
     kept = "every row" if c.sigma_filter is None else f"the rows its {c.sigma_filter:g}-sigma filter keeps"
     return (f"the ICGO study's {c.protocol} split ({c.train_fraction:.0%} of the rows for training) of {kept} of "
             f"lab_casing(seed={study.seed}), repeat 0")
@@ -428,8 +428,9 @@ def lab_casing_protocol(study) -> str:
         "test rows",
         f"{_lab_casing_split(study)}: MSA, ICGO-RELM and the workflow fit its training rows only (the workflow "
         f"chooses its effects by a {_folds(res.config)} inside them); every method is scored on the same test rows",
-        f"{_lab_casing_seeds(study)}. ICGO-RELM: `StudyConfig`'s defaults (L = {c.hidden}, lambda = {c.lam:g}, "
-        f"population {c.pop_size}, {c.iterations} iterations); the default lambda was chosen on lab_casing(seed=1), "
+        f"{_lab_casing_seeds(study)}. ICGO-RELM: `StudyConfig`'s defaults (L = {c.model.hidden}, "
+        f"lambda = {c.model.lam:g}, population {c.budget.pop_size}, {c.budget.iterations} iterations); the default "
+        "lambda was chosen on lab_casing(seed=1), "
         "study seed 100 (docs/reporting.md)",
         "none: one split, no significance test (the table compares MAE and RMSE only); the workflow's own z are "
         "decision rules (`results/discrepancy_lab_casing_report/report.md`)")
@@ -511,8 +512,9 @@ def lab_casing_study_markdown(study) -> str:
     return "\n".join(["# Discrepancy workflow on lab_casing vs ICGO-RELM", "", *answer(res, truth), "",
                       lab_casing_protocol(study), "",
                       workflow_settings(study.result.config, "one split (repeat 0), one run of each method",
-                                        f"ICGO-RELM: population {c.pop_size} x {c.iterations} iterations ("
-                                        + ("the paper's" if (c.pop_size, c.iterations) == (30, 100) else
+                                        f"ICGO-RELM: population {c.budget.pop_size} x {c.budget.iterations} "
+                                        "iterations ("
+                                        + ("the paper's" if (c.budget.pop_size, c.budget.iterations) == (30, 100) else
                                            "NOT the paper's 30 x 100")
                                         + f"), search dtype {c.precision}; workflow: "), "",
                       f"Seed {study.seed}. The workflow is fitted on the ICGO study's training rows of repeat 0 only; "

@@ -24,7 +24,7 @@ class DataChoice:
         return f"{self.setting} was chosen on {self.rows} of {self.dataset} noise seed {self.seed} ({self.where})"
 
 
-#: The RELM ridge parameter of every ICGO-RELM study (``StudyConfig.lam``).
+#: The RELM ridge parameter of every ICGO-RELM study (``StudyConfig.model.lam``).
 LAMBDA = DataChoice("lambda = 1e-3", "lab_casing", 1, "the validation rows inside the training rows (study seed 100)",
                     "docs/relm_study.md")
 

@@ -56,6 +56,7 @@ class Study(NamedTuple):
         objective: ``result -> float | None``: the one number a hyperparameter search minimises over this
             study's settings (``hydra/sweeper=optuna`` on its door), never a score on test data; None: the door
             returns nothing for a sweeper to minimise.
+        seed_key: the config's seed, a dotted attribute path (``split.seed``); a config without it has no seed.
     """
 
     name: str
@@ -68,15 +69,18 @@ class Study(NamedTuple):
     write: Callable[..., str] | None = None
     last: tuple = ()
     objective: Callable[[Any], float | None] | None = None
+    seed_key: str = "seed"
 
     def records(self, result) -> dict:
         """Named tables the study writes (``result.records``)."""
         return dict(result.records)
 
     def key(self, config):
-        """The PRNG key a front door runs the study with: ``PRNGKey(config.seed)``, or None (the study's own
-        default) for a config without a seed."""
+        """The PRNG key a front door runs the study with: ``PRNGKey`` of the config's seed (:attr:`seed_key`), or
+        None (the study's own default) for a config without a seed."""
         import jax
 
-        seed = getattr(config, "seed", None)
+        seed = config
+        for name in self.seed_key.split("."):
+            seed = getattr(seed, name, None)
         return None if seed is None else jax.random.PRNGKey(seed)

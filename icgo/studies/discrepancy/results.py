@@ -119,7 +119,7 @@ def lab_casing_study(config: WorkflowConfig = WorkflowConfig(), seed: int = 0) -
 
     ds = lab_casing(seed)
     rec = icgo_io.validate(ds.frame, ds.meta, source="lab_casing")
-    icgo_config = StudyConfig(n_repeats=1, seed=int(seed), strategies=("three_stage",))
+    icgo_config = StudyConfig(split=dict(n_repeats=1, seed=int(seed)), strategies=("three_stage",))
     sres = run_study(ds.frame, icgo_config, ds.meta)
     pred = sres.predictions
     p0 = pred[pred["repeat"] == pred["repeat"].iloc[0]]

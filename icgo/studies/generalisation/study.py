@@ -82,9 +82,9 @@ class GeneralisationConfig:
     data_seed: int = 0
     methods: tuple = METHODS
     strategies: tuple = STRATEGIES
-    pop_size: int = _RELM.pop_size
-    iterations: int = _RELM.iterations
-    hidden: int = _RELM.hidden
+    pop_size: int = _RELM.budget.pop_size
+    iterations: int = _RELM.budget.iterations
+    hidden: int = _RELM.model.hidden
     physics: bool = True
     transfer: _splits.TransferDraw = _splits.TransferDraw()
 
@@ -112,9 +112,10 @@ class GeneralisationConfig:
 
     def study_config(self, protocol: str, optimizer):
         """The ICGO-RELM study config of one method in a cell of ``protocol``."""
-        return StudyConfig(protocol=protocol, n_repeats=self.n_repeats, seed=self.seed, optimizer=optimizer,
-                           strategies=self.strategies if optimizer == "cgo" else ("three_stage",),
-                           pop_size=self.pop_size, iterations=self.iterations, hidden=self.hidden)
+        return StudyConfig(split=dict(protocol=protocol, n_repeats=self.n_repeats, seed=self.seed),
+                           model=dict(hidden=self.hidden), budget=dict(pop_size=self.pop_size,
+                                      iterations=self.iterations),
+                           optimizer=optimizer, strategies=self.strategies if optimizer == "cgo" else ("three_stage",))
 
 
 def build_data(config: GeneralisationConfig) -> dict:
@@ -188,7 +189,7 @@ def _physics(data, config: GeneralisationConfig, protocol: str, key) -> tuple[li
     n_source = len(rows)
     if data.target is not None:
         rows = pd.concat([rows, filtered(data.target, cfg)[0]])
-    mem = _splits.members(protocol, rows, key, cfg.ids(), cfg.train_fraction, n_source)
+    mem = _splits.members(protocol, rows, key, cfg.ids(), cfg.split.train_fraction, n_source)
     source = icgo_io.validate(rows.iloc[:n_source].reset_index(drop=True), data.meta, source="physics baseline")
     members = fit_members(stations_from_recording(source), mem.train[:, :n_source])
     a_true = rows["azimuth_deg"].to_numpy(float)

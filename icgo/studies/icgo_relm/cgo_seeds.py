@@ -52,8 +52,8 @@ def search_setup(frame: pd.DataFrame, meta: dict, cfg: StudyConfig, key):
     prep, mem = prepare(rows, G, B, a_true, cfg, key, reference)
     prep, mem, cfg, _ = exclude_failed_repeats(prep, mem, cfg, reference)
     aux = search_aux(cfg, prep, cfg.execution(cells=prep.key.shape[0]).kernel)
-    D = _relm.n_params(cfg.hidden)
-    low, high = cfg.theta_bounds
+    D = _relm.n_params(cfg.model.hidden)
+    low, high = cfg.model.theta_bounds
     return prep.key, aux, (np.full(D, float(low)), np.full(D, float(high)))
 
 
@@ -112,11 +112,12 @@ def rates_table(runs: dict[str, SeedRates], last: float = 0.5) -> pd.DataFrame:
 def study(frame: pd.DataFrame, meta: dict, configs: dict[str, CGOConfig], cfg: StudyConfig | None = None,
           key=None) -> dict[str, SeedRates]:
     """Every configuration's counted runs on the study's searches (``cfg``: default :class:`StudyConfig`; ``key``:
-    ``PRNGKey(cfg.seed)``, as the study's)."""
+    ``PRNGKey(cfg.split.seed)``, as the study's)."""
     cfg = StudyConfig() if cfg is None else cfg
-    key = jax.random.PRNGKey(cfg.seed) if key is None else key
+    key = jax.random.PRNGKey(cfg.split.seed) if key is None else key
     keys, aux, bounds = search_setup(frame, meta, cfg, key)
-    return {name: run_counted(keys, aux, bounds, cfg.pop_size, cfg.iterations, c) for name, c in configs.items()}
+    return {name: run_counted(keys, aux, bounds, cfg.budget.pop_size, cfg.budget.iterations, c) for name,
+                              c in configs.items()}
 
 
 #: The configurations counted: name -> CGOConfig keywords (the paper variant's factory).
@@ -132,15 +133,16 @@ def markdown(table, cfg, seconds: float, command: str) -> str:
     from icgo.reporting.protocol import protocol_line, settings_line
 
     line = protocol_line(
-        f"`{command}`", f"{cfg.n_repeats} repeats (Fig. 9's splits and keys), the same for every configuration",
+        f"`{command}`", f"{cfg.split.n_repeats} repeats (Fig. 9's splits and keys), the same for every configuration",
         "random 7:3 of the 3-sigma-filtered rows, a new permutation per repeat; the search sees the training rows "
         "only (nothing is scored on test rows here)",
-        f"data: lab_casing with noise seed 0; repeat k: split and search key fold_in(PRNGKey({cfg.seed}), k). "
+        f"data: lab_casing with noise seed 0; repeat k: split and search key fold_in(PRNGKey({cfg.split.seed}), k). "
         f"{LAMBDA.sentence()}",
         "none: counts of the search's own events (no method is compared with another by a test here; "
         "`fig9_ablation.md` tests the configurations)")
-    paper = (cfg.pop_size, cfg.iterations) == (30, 100)
-    stamp = settings_line(f"population {cfg.pop_size} x {cfg.iterations} iterations", f"{cfg.n_repeats} repeats",
+    paper = (cfg.budget.pop_size, cfg.budget.iterations) == (30, 100)
+    stamp = settings_line(f"population {cfg.budget.pop_size} x {cfg.budget.iterations} iterations",
+                          f"{cfg.split.n_repeats} repeats",
                           f"search dtype {cfg.precision}",
                           "The paper's protocol (population 30 x 100 iterations)." if paper else
                           "NOT the paper's protocol (population 30 x 100 iterations).")
@@ -148,7 +150,8 @@ def markdown(table, cfg, seconds: float, command: str) -> str:
         "# Fig. 9's CGO-RELM searches: how often each seed improves on its parent and is selected", "", line, "",
         stamp, "", table.to_markdown(index=False, floatfmt=".3g"), "",
         "Seeds 1-3: eqs. 12-14; seed 4: the 4th seed (eq. 15 in the default). A trial is one seed of one member in one "
-        f"iteration ({cfg.pop_size} members x {cfg.iterations} iterations x {cfg.n_repeats} repeats per "
+        f"iteration ({cfg.budget.pop_size} members x {cfg.budget.iterations} iterations x {cfg.split.n_repeats} "
+        f"repeats per "
         "configuration); "
         "`improved`: its training RMSE is below its parent's; `chosen`: the greedy selection kept it (it replaced its "
         "parent). The runs are the study's searches: each ends at the final training RMSE of the study's run with "

@@ -10,12 +10,8 @@ import dataclasses
 from typing import Any
 
 from icgo.core.execution import ExecutionPlan
-from icgo.models import msa as _msa
-from icgo.models import relm as _relm
-from icgo.optim.base import MIN_POP_SIZE
 from icgo.optim.cgo import CGO
 from icgo.studies.common import sharding
-from icgo.studies.common import splits as _splits
 from icgo.studies.icgo_relm import settings as _nodes
 
 #: Search-fitness precisions (``StudyConfig.precision``) -> (dtype of the hidden layer, eq. 8; dtype of the
@@ -27,54 +23,38 @@ PRECISIONS = {"float32_features": ("float32", "float64"), "float64": ("float64",
 RENAMED_PRECISIONS = {"fast": "float32_features", "mixed": "float64"}
 
 
+#: The study's settings nodes by key (``StudyConfig`` and ``RunConfig`` hold them under these names).
+NODES = {"split": _nodes.SplitSettings, "msa": _nodes.MsaSettings, "model": _nodes.ModelSettings,
+         "fitness": _nodes.FitnessSettings, "budget": _nodes.BudgetSettings}
+
+
 @dataclasses.dataclass(frozen=True)
 class StudyConfig:
-    """Settings of an ICGO-RELM study (defaults: the paper's protocol where it gives one, written once, in the
-    study's settings nodes, :mod:`icgo.studies.icgo_relm.settings`, which ``conf/`` composes from).
+    """Settings of an ICGO-RELM study, nested as ``conf/config.yaml`` is: the study's nodes
+    (:mod:`icgo.studies.icgo_relm.settings`, where their defaults and checks are written once) and the search.
+
+    A node may be given as a mapping of its keys (``StudyConfig(split={"n_repeats": 2})``): it is built, and checked,
+    as its dataclass. Defaults: the paper's protocol where it gives one.
 
     Attributes:
-        n_repeats: repeats (random splits); the paper's Table 3 uses 10.
-        seed: base seed; repeat k uses key ``fold_in(PRNGKey(seed), k)``.
-        repeat_ids: run only these repeat ids (e.g. ``(3,)`` to rerun repeat 3
-            alone); None = ``range(n_repeats)``.
-        devices: the most devices the search's strategies x repeats members are sharded over (one program,
-            :mod:`icgo.studies.common.sharding`); None (default) = every device of the backend (a CPU's host devices,
-            one per core of the job: :func:`icgo.core.devices.use_host_devices`). Bitwise the one-device result
-            on a CPU (:meth:`execution`).
-        protocol: the split (:data:`icgo.studies.common.splits.PROTOCOLS`): ``random`` (paper),
-            ``leave_azimuth_out``, ``leave_condition_out`` or ``transfer`` (needs
-            ``SurveyData.target``, the second instrument's survey).
-        train_fraction: training share of each split (paper 7:3 -> 0.7; random
-            and transfer protocols).
-        sigma_filter: n-sigma outlier rule applied once before splitting
-            (paper: 3); None disables.
-        msa_model: ``"biases"`` (paper), ``"axial"`` or ``"biases_scales"``.
-        msa_reference: ``"station_mean"`` (paper eqs. 3-4) or ``"known"``
-            (reference field from the metadata's total_field_nT and dip_deg).
-        msa_iterations: largest number of Levenberg-Marquardt steps of the MSA
-            solve (:func:`icgo.maths.lsq.least_squares` ``max_steps``; it stops earlier
-            once converged, typically after 2-5 steps on lab_casing).
-        features: ``"raw"`` (paper: the six raw sensor values) or ``"msa"``
-            (G and the MSA-corrected B).
-        hidden: RELM hidden units L (paper: not stated; 30 as in the reference
-            scale runs, see docs/relm_study.md).
-        lam: ridge lambda (paper: not stated; see docs/relm_study.md).
-        fitness: ``"train"`` (paper: training RMSE), ``"validation"`` or ``"kfold"``.
-        val_fraction: validation share of the training rows (fitness="validation").
-        k_folds: folds (fitness="kfold").
-        theta_bounds: (low, high) of every hidden weight and bias: the
-            optimizer's search box and plain RELM's uniform draw.
-        optimizer: registry name in :mod:`icgo.optim` (``cgo``, ``pso``, ``ga``,
-            ``sma``) or None for plain RELM (one random theta per repeat).
-        tune: plain RELM only (``optimizer=None``): choose ``hidden`` and ``lam`` on the grid
-            :data:`icgo.models.relm.TUNE_HIDDEN` x :data:`icgo.models.relm.TUNE_LAMBDA` by the mean over repeats of
-            the validation fitness on the training rows (``fitness`` ``validation`` or ``kfold``;
-            the test rows are never seen), then fit at the chosen cell (method ``relm-tuned``).
-        strategies: CGO 4th-seed strategies run side by side (vmapped); ignored
-            for other optimizers.
-        pop_size: population size (paper: 30).
-        iterations: optimizer iterations (paper: 100); exclusive with max_evals.
-        max_evals: fitness-evaluation budget instead of iterations.
+        split: :class:`~icgo.studies.icgo_relm.settings.SplitSettings`: protocol (``random`` (paper),
+            ``leave_azimuth_out``, ``leave_condition_out`` or ``transfer``, which needs ``SurveyData.target``, the
+            second instrument's survey), n_repeats, seed (repeat k uses key ``fold_in(PRNGKey(seed), k)``),
+            sigma_filter, train_fraction.
+        msa: :class:`~icgo.studies.icgo_relm.settings.MsaSettings`: model (``biases``, paper), reference,
+            iterations (the largest number of Levenberg-Marquardt steps, :func:`icgo.maths.lsq.least_squares`).
+        model: :class:`~icgo.studies.icgo_relm.settings.ModelSettings`: hidden (L; paper: not stated, 30 as in the
+            reference scale runs, docs/relm_study.md), lam (ridge lambda), theta_bounds (the search box and plain
+            RELM's uniform draw), features (``raw``, paper, or ``msa``), tune (plain RELM only: ``hidden`` and
+            ``lam`` chosen on :data:`icgo.models.relm.TUNE_HIDDEN` x :data:`icgo.models.relm.TUNE_LAMBDA` by the
+            mean over repeats of the validation fitness on the training rows; method ``relm-tuned``).
+        fitness: :class:`~icgo.studies.icgo_relm.settings.FitnessSettings`: mode (``train``, paper: training RMSE;
+            ``validation``; ``kfold``), val_fraction, k_folds.
+        budget: :class:`~icgo.studies.icgo_relm.settings.BudgetSettings`: pop_size (paper: 30), iterations (paper:
+            100) or max_evals.
+        optimizer: registry name in :mod:`icgo.optim` (``cgo``, ``pso``, ``ga``, ``sma``) or None for plain RELM
+            (one random theta per repeat).
+        strategies: CGO 4th-seed strategies run side by side (vmapped); ignored for other optimizers.
         optimizer_config: the optimizer's config object (None = its defaults).
         precision: the search fitness's precision (:data:`PRECISIONS`), whatever the backend.
             ``"float32_features"`` (default): the hidden layer (eq. 8) in float32, the ridge solve
@@ -82,97 +62,60 @@ class StudyConfig:
             is all a search needs to rank candidates. ``"float64"``: everything in float64 (the
             float64 fitness to 1e-9 relative). ``"float32"``: everything in float32 (1e-3).
             The kernel that computes it follows the backend (:meth:`execution`): on a CPU the
-            cache-chunked :func:`icgo.models.relm.train_fitness` for ``fitness="train"`` (float32
+            cache-chunked :func:`icgo.models.relm.train_fitness` for ``fitness.mode="train"`` (float32
             Gram of centred features, float64 Cholesky and iterative refinement), the row-weighted
             :func:`icgo.models.relm.fitness` otherwise (float64, or float32 for ``"float32"``);
             on an accelerator :func:`icgo.models.relm_gram.gram_fitness`. The final refit and every
             reported number are float64 always. ``fast`` and ``mixed`` are refused (:data:`RENAMED_PRECISIONS`).
+        devices: the most devices the search's strategies x repeats members are sharded over (one program,
+            :mod:`icgo.studies.common.sharding`); None (default) = every device of the backend (a CPU's host devices,
+            one per core of the job: :func:`icgo.core.devices.use_host_devices`). Bitwise the one-device result
+            on a CPU (:meth:`execution`).
+        repeat_ids: run only these repeat ids (e.g. ``(3,)`` to rerun repeat 3 alone); None = ``range(n_repeats)``.
     """
 
-    n_repeats: int = _nodes.SplitSettings.n_repeats
-    seed: int = _nodes.SplitSettings.seed
-    devices: int | None = None
-    repeat_ids: tuple | None = None
-    protocol: str = _nodes.SplitSettings.protocol
-    train_fraction: float = _nodes.SplitSettings.train_fraction
-    sigma_filter: float | None = _nodes.SplitSettings.sigma_filter
-    msa_model: str = _nodes.MsaSettings.model
-    msa_reference: str = _nodes.MsaSettings.reference
-    msa_iterations: int = _nodes.MsaSettings.iterations
-    features: str = _nodes.ModelSettings.features
-    hidden: int = _nodes.ModelSettings.hidden
-    lam: float = _nodes.ModelSettings.lam
-    fitness: str = _nodes.FitnessSettings.mode
-    val_fraction: float = _nodes.FitnessSettings.val_fraction
-    k_folds: int = _nodes.FitnessSettings.k_folds
-    theta_bounds: tuple = _nodes.ModelSettings.theta_bounds
+    split: _nodes.SplitSettings = dataclasses.field(default_factory=_nodes.SplitSettings)
+    msa: _nodes.MsaSettings = dataclasses.field(default_factory=_nodes.MsaSettings)
+    model: _nodes.ModelSettings = dataclasses.field(default_factory=_nodes.ModelSettings)
+    fitness: _nodes.FitnessSettings = dataclasses.field(default_factory=_nodes.FitnessSettings)
+    budget: _nodes.BudgetSettings = dataclasses.field(default_factory=_nodes.BudgetSettings)
     optimizer: str | None = CGO.name
-    tune: bool = _nodes.ModelSettings.tune
     strategies: tuple = ("three_stage",)
-    pop_size: int = _nodes.BudgetSettings.pop_size
-    iterations: int | None = _nodes.BudgetSettings.iterations
-    max_evals: int | None = _nodes.BudgetSettings.max_evals
     optimizer_config: Any = None
     precision: str = _nodes.PRECISION
+    devices: int | None = None
+    repeat_ids: tuple | None = None
 
     def __post_init__(self):
-        """Validate every setting that does not depend on the data (one-line SettingError naming the field)."""
+        """Build the nodes given as mappings (each checks its own values) and check what spans them (one-line
+        SettingError naming the key)."""
         from icgo.core.errors import SettingError
-        from icgo.core.settings import is_int, is_real, need
+        from icgo.core.settings import config_from_mapping, is_int, need
         from icgo.optim import OPTIMIZERS  # importing the package registers every optimizer
 
-        for name in ("strategies", "theta_bounds", "repeat_ids"):  # Hydra/JSON give lists
+        for name, node in NODES.items():
+            v = getattr(self, name)
+            if isinstance(v, dict):
+                object.__setattr__(self, name, config_from_mapping(node, v, name, f"{name}."))
+        for name in ("strategies", "repeat_ids"):  # Hydra/JSON give lists
             v = getattr(self, name)
             if isinstance(v, list):
                 object.__setattr__(self, name, tuple(v))
-        need(is_int(self.n_repeats) and self.n_repeats >= 1, "n_repeats",
-             f"must be an integer >= 1, got {self.n_repeats!r} (repeats)")
-        need(is_int(self.seed) and self.seed >= 0, "seed", f"must be an integer >= 0, got {self.seed!r}")
         need(self.devices is None or (is_int(self.devices) and self.devices >= 1), "devices",
              f"must be None (every device) or an integer >= 1, got {self.devices!r}")
         need(self.repeat_ids is None or (len(self.repeat_ids) >= 1 and all(is_int(i) and i >= 0 for i in self.repeat_ids)),
              "repeat_ids", f"must be None or a non-empty tuple of integers >= 0, got {self.repeat_ids!r}")
-        need(self.protocol in _splits.PROTOCOLS, "protocol",
-             f"must be one of {list(_splits.PROTOCOLS)}, got {self.protocol!r}")
-        need(is_real(self.train_fraction) and 0.0 < self.train_fraction < 1.0, "train_fraction",
-             f"must be in (0, 1), got {self.train_fraction!r}")
-        default_fraction = StudyConfig.__dataclass_fields__["train_fraction"].default
-        need(self.protocol not in _splits.FOLD_PROTOCOLS or self.train_fraction == default_fraction, "train_fraction",
-             f"has no effect under protocol {self.protocol!r} (its folds set the training rows); leave it at "
-             f"{default_fraction}, got {self.train_fraction!r}")
-        need(self.sigma_filter is None or (is_real(self.sigma_filter) and self.sigma_filter > 0), "sigma_filter",
-             f"must be > 0 or null, got {self.sigma_filter!r}")
-        need(isinstance(self.msa_model, str) and self.msa_model in _msa.MODELS, "msa_model",
-             f"must be one of {list(_msa.MODELS)}, got {self.msa_model!r}")
-        need(self.msa_reference in ("station_mean", "known"), "msa_reference",
-             f"must be station_mean or known, got {self.msa_reference!r}")
-        need(is_int(self.msa_iterations) and self.msa_iterations >= 1, "msa_iterations",
-             f"must be an integer >= 1, got {self.msa_iterations!r}")
-        need(self.features in ("raw", "msa"), "features", f"must be 'raw' or 'msa', got {self.features!r}")
-        need(is_int(self.hidden) and self.hidden >= 1, "hidden", f"must be an integer >= 1, got {self.hidden!r}")
-        need(is_real(self.lam) and 0 < self.lam <= _relm.MAX_LAM, "lam",
-             f"must be a number > 0 and at most {_relm.MAX_LAM:g}, got {self.lam!r} (the ridge lambda is absolute: far "
-             f"above that the RELM's output weights vanish and it returns MSA's azimuth unchanged, "
-             f"docs/reliability.md)")
-        need(self.fitness in _relm.FITNESS_MODES, "fitness",
-             f"must be one of {list(_relm.FITNESS_MODES)}, got {self.fitness!r}")
-        need(is_real(self.val_fraction) and 0.0 < self.val_fraction < 1.0, "val_fraction",
-             f"must be in (0, 1), got {self.val_fraction!r}")
-        need(is_int(self.k_folds) and self.k_folds >= 2, "k_folds", f"must be an integer >= 2, got {self.k_folds!r}")
-        tb = self.theta_bounds
-        need(isinstance(tb, tuple) and len(tb) == 2 and all(is_real(x) for x in tb) and tb[0] < tb[1],
-             "theta_bounds", f"must be [low, high] with low < high, got {tb!r}")
         need(not (isinstance(self.precision, str) and self.precision in RENAMED_PRECISIONS), "precision",
              f"{self.precision!r} was renamed: use "
              f"{' or '.join(f'{v} (was {k})' for k, v in RENAMED_PRECISIONS.items())}; the kernel follows the backend")
         need(isinstance(self.precision, str) and self.precision in PRECISIONS, "precision",
              f"must be one of {list(PRECISIONS)}, got {self.precision!r}")
-        need(isinstance(self.tune, bool), "tune", f"must be true or false, got {self.tune!r}")
-        if self.tune:
-            need(self.optimizer is None, "tune", f"tunes plain RELM only: set optimizer none (got {self.optimizer!r})")
-            need(self.fitness in ("validation", "kfold"), "tune",
+        if self.model.tune:
+            need(self.optimizer is None, "model.tune",
+                 f"tunes plain RELM only: set optimizer none (got {self.optimizer!r})")
+            need(self.fitness.mode in ("validation", "kfold"), "model.tune",
                  f"chooses hidden and lam by validation on the training rows: set fitness validation or kfold "
-                 f"(got {self.fitness!r})")
+                 f"(got {self.fitness.mode!r})")
         if self.optimizer is None:
             return
         need(isinstance(self.optimizer, str) and self.optimizer in OPTIMIZERS, "optimizer",
@@ -188,16 +131,14 @@ class StudyConfig:
             except (TypeError, ValueError) as e:
                 raise SettingError("strategies", f"must name {alg.name} {alg.axis} values: "
                                                  f"{str(e).splitlines()[0]}") from None
-        need(is_int(self.pop_size) and self.pop_size >= MIN_POP_SIZE, "pop_size",
-             f"must be an integer >= {MIN_POP_SIZE}, got {self.pop_size!r}")
-        need((self.iterations is None) != (self.max_evals is None), "iterations",
-             "and max_evals: give exactly one (the other null)")
-        if self.iterations is not None:
-            need(is_int(self.iterations) and self.iterations >= 1, "iterations",
-                 f"must be an integer >= 1, got {self.iterations!r}")
-        else:
-            need(is_int(self.max_evals) and self.max_evals >= 1, "max_evals",
-                 f"must be an integer >= 1, got {self.max_evals!r}")
+
+    def replace(self, **changes) -> "StudyConfig":
+        """A copy with ``changes``: a node's given as a mapping changes only those keys of it
+        (``cfg.replace(model={"lam": 0.5}, repeat_ids=(0,))``); checked as a new config."""
+        for name in NODES.keys() & changes.keys():
+            if isinstance(changes[name], dict):
+                changes[name] = dataclasses.replace(getattr(self, name), **changes[name])
+        return dataclasses.replace(self, **changes)
 
     def execution(self, backend: str | None = None, cores: int | None = None,
                   cells: int | None = None) -> ExecutionPlan:
@@ -215,12 +156,12 @@ class StudyConfig:
 
     def ids(self) -> tuple:
         """The repeat ids this config runs."""
-        return tuple(range(self.n_repeats)) if self.repeat_ids is None else tuple(int(i) for i in self.repeat_ids)
+        return tuple(range(self.split.n_repeats)) if self.repeat_ids is None else tuple(int(i) for i in self.repeat_ids)
 
     def method_names(self) -> list[str]:
         """One label per model the study fits, e.g. ``["cgo-original"]`` or ``["relm"]``."""
         if self.optimizer is None:
-            return ["relm-tuned" if self.tune else "relm"]
+            return ["relm-tuned" if self.model.tune else "relm"]
         from icgo.optim import get
 
         return get(self.optimizer).labels(self.strategies)

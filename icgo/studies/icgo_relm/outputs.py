@@ -88,7 +88,7 @@ def write_run_files(outdir: Path, result, info: dict, frame, meta, plot, *, conf
     outdir.mkdir(parents=True, exist_ok=True)
     (outdir / run_records.CONFIG_FILE).write_text(config_yaml)
     tags = {"label": info["label"], "dataset": info["dataset"], "condition": info["condition"],
-            "seed": result.config.seed}
+            "seed": result.config.split.seed}
     for name, df in result.records.items():
         checked = run_records.check_table(name, run_records.tag_table(df, tags), name)
         checked.to_csv(outdir / f"{name}.csv", index=False, float_format="%.10g")
@@ -96,7 +96,7 @@ def write_run_files(outdir: Path, result, info: dict, frame, meta, plot, *, conf
     table.to_csv(outdir / "summary.csv", index=False)
     excluded = excluded_line(result)
     md = [f"# ICGO-RELM study: {info['dataset']}", "",
-          f"{describe_split(result.config.protocol, result.config.train_fraction).capitalize()}; "
+          f"{describe_split(result.config.split.protocol, result.config.split.train_fraction).capitalize()}; "
           f"{len(result.config.ids())} repeats, mean +/- std (sample std). {search}", "",
           table.drop(columns=["method"]).to_markdown(index=False), "",
           *([f"**{excluded}**", ""] if excluded else []),
@@ -107,7 +107,7 @@ def write_run_files(outdir: Path, result, info: dict, frame, meta, plot, *, conf
     if qc:
         md += ["", qc_sentence(qc)]
     verdict = study_verdict(result.metrics, result.coverage, selected=result.model.selected,
-                            n_repeats=result.config.n_repeats, protocol=result.config.protocol, qc=qc,
+                            n_repeats=result.config.split.n_repeats, protocol=result.config.split.protocol, qc=qc,
                             trained=result.model.domain, run_dir=str(run_dir or outdir),
                             model_interval_deg=model_interval(result.model))
     md += ["", *verdict.markdown()]
@@ -119,10 +119,10 @@ def write_run_files(outdir: Path, result, info: dict, frame, meta, plot, *, conf
     methods = result.config.method_names()
     if "timings" in info:  # everything above, the run record's own few bytes aside
         info = {**info, "timings": {**info["timings"], "write_s": time.perf_counter() - t0}}
-    run = {**info, "records_version": run_records.RECORDS_VERSION, "status": "ok", "seed": result.config.seed,
+    run = {**info, "records_version": run_records.RECORDS_VERSION, "status": "ok", "seed": result.config.split.seed,
            "wall_time_s": result.wall_time_s, "methods": methods,
            "n_evals": {m: int(v) for m, v in zip(methods, np.asarray(result.n_evals)[:, 0])},
-           "n_rows": int(result.kept.sum()), "n_repeats": result.config.n_repeats,
+           "n_rows": int(result.kept.sum()), "n_repeats": result.config.split.n_repeats,
            "repeat_ids": list(result.config.ids()), "models": models, "qc": qc, "config_sha256": config_sha256,
            "excluded_repeats": [{"repeat": int(r), "reason": why} for r, why in result.excluded]}
     if result.tuning is not None:

@@ -126,8 +126,8 @@ def _check_config(cfg: StudyConfig, mem: _splits.Members) -> None:
     n_test = mem.test.sum(axis=1)
     m = int(np.argmin(n_train))
     n_fit = rows_per_fit(cfg, mem)
-    hidden = min(_relm.TUNE_HIDDEN) if cfg.tune else cfg.hidden
-    where = "" if cfg.protocol == "random" else f" ({cfg.protocol}, fold {mem.fold_label[mem.fold[m]]!r})"
+    hidden = min(_relm.TUNE_HIDDEN) if cfg.model.tune else cfg.model.hidden
+    where = "" if cfg.split.protocol == "random" else f" ({cfg.split.protocol}, fold {mem.fold_label[mem.fold[m]]!r})"
     if n_fit < hidden or n_test.min() < 1:
         raise ValueError(f"study: a split{where} of {mem.train.shape[1]} rows gives {int(n_train[m])} training rows "
                          f"({n_fit} per fit) and {int(n_test.min())} test rows; need at least hidden = {hidden} "
@@ -137,10 +137,10 @@ def _check_config(cfg: StudyConfig, mem: _splits.Members) -> None:
 def rows_per_fit(cfg: StudyConfig, mem: _splits.Members) -> int:
     """Training rows the smallest member fits the output weights on (less the validation share or one fold)."""
     n_fit = int(mem.train.sum(axis=1).min())
-    if cfg.fitness == "validation":
-        n_fit -= int(round(cfg.val_fraction * n_fit))
-    elif cfg.fitness == "kfold":
-        n_fit -= int(np.ceil(n_fit / cfg.k_folds))
+    if cfg.fitness.mode == "validation":
+        n_fit -= int(round(cfg.fitness.val_fraction * n_fit))
+    elif cfg.fitness.mode == "kfold":
+        n_fit -= int(np.ceil(n_fit / cfg.fitness.k_folds))
     return n_fit
 
 
@@ -166,26 +166,26 @@ def frame_arrays(frame: pd.DataFrame):
 
 
 def reference_field(cfg: StudyConfig, metadata):
-    """The MSA's reference field: None for ``msa_reference="station_mean"``, else the (3,) field (nT) of the
+    """The MSA's reference field: None for ``msa.reference="station_mean"``, else the (3,) field (nT) of the
     metadata's ``total_field_nT`` and ``dip_deg``."""
-    if cfg.msa_reference == "station_mean":
+    if cfg.msa.reference == "station_mean":
         return None
     md = metadata or {}
     if "total_field_nT" not in md or "dip_deg" not in md:
-        raise ValueError("study: msa_reference='known' needs metadata with total_field_nT and dip_deg")
+        raise ValueError("study: msa.reference='known' needs metadata with total_field_nT and dip_deg")
     return jnp.asarray(_msa.reference_from_field(float(md["total_field_nT"]), float(md["dip_deg"])))
 
 
 def filtered(frame: pd.DataFrame, cfg: StudyConfig):
     """(kept rows of the frame, G, B, azimuth) after the sigma filter."""
     G, B, a = frame_arrays(frame)
-    kept = sigma_filter(G, B, a, cfg.sigma_filter) if cfg.sigma_filter else np.ones(len(a), bool)
+    kept = sigma_filter(G, B, a, cfg.split.sigma_filter) if cfg.split.sigma_filter else np.ones(len(a), bool)
     return frame[kept], G[kept], B[kept], a[kept], kept
 
 
 def prepare(rows: pd.DataFrame, G, B, a_true, cfg: StudyConfig, base_key, reference=None,
             n_source: int | None = None, capacity: int | None = None) -> tuple[Prepared, _splits.Members]:
-    """The members of ``cfg.protocol`` and their prepared arrays (split, MSA, features), checked.
+    """The members of ``cfg.split.protocol`` and their prepared arrays (split, MSA, features), checked.
 
     Args:
         rows: the filtered rows (a DataFrame; fold protocols read their groups from it), or None
@@ -201,16 +201,16 @@ def prepare(rows: pd.DataFrame, G, B, a_true, cfg: StudyConfig, base_key, refere
     """
     if rows is None:  # arrays only: enough for the random protocol
         rows = pd.DataFrame(index=pd.RangeIndex(len(a_true)))
-    mem = _splits.members(cfg.protocol, rows, base_key, cfg.ids(), cfg.train_fraction, n_source)
+    mem = _splits.members(cfg.split.protocol, rows, base_key, cfg.ids(), cfg.split.train_fraction, n_source)
     _check_config(cfg, mem)
     train, test = mem.train, mem.test
     if capacity is not None:
         G, B, a_true = pad_rows(capacity, G, B, a_true)
         train, test = (np.pad(np.asarray(x), ((0, 0), (0, int(capacity) - x.shape[1]))) for x in (train, test))
     prep = _prepare(jnp.asarray(mem.keys), jnp.asarray(train), jnp.asarray(test), jnp.asarray(G),
-                    jnp.asarray(B), jnp.asarray(a_true), reference, msa_model=cfg.msa_model,
-                    msa_iter=cfg.msa_iterations, features=cfg.features, mode=cfg.fitness,
-                    val_fraction=float(cfg.val_fraction), k_folds=int(cfg.k_folds))
+                    jnp.asarray(B), jnp.asarray(a_true), reference, msa_model=cfg.msa.model,
+                    msa_iter=cfg.msa.iterations, features=cfg.model.features, mode=cfg.fitness.mode,
+                    val_fraction=float(cfg.fitness.val_fraction), k_folds=int(cfg.fitness.k_folds))
     return prep, mem
 
 
@@ -240,12 +240,12 @@ def exclude_failed_repeats(prep: Prepared, mem: _splits.Members, cfg: StudyConfi
     Raises:
         ValueError: every repeat's MSA failed.
     """
-    reasons = _msa.msa_failures(prep.msa, cfg.msa_model, reference)
+    reasons = _msa.msa_failures(prep.msa, cfg.msa.model, reference)
     failed: dict[int, tuple[str, str]] = {}  # repeat id -> (fold label or "", reason)
     for k, why in enumerate(reasons):
         rid = int(mem.repeat[k])
         if why is not None and rid not in failed:
-            failed[rid] = (mem.fold_label[mem.fold[k]] if cfg.protocol in _splits.FOLD_PROTOCOLS else "", why)
+            failed[rid] = (mem.fold_label[mem.fold[k]] if cfg.split.protocol in _splits.FOLD_PROTOCOLS else "", why)
     if not failed:
         return prep, mem, cfg, ()
     kept_ids = tuple(r for r in cfg.ids() if r not in failed)

@@ -5,7 +5,6 @@ from the scored members (:func:`collect`).
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any, NamedTuple
 
 import jax
@@ -49,8 +48,8 @@ class StudyResult(NamedTuple):
             MSA biases, input statistics, hidden and output weights per method
             and repeat; ``model.apply(frame)`` corrects a new survey.
         msa_model: the MSA-only fit (:class:`icgo.artifacts.relm.MSAModel`).
-        tuning: with ``config.tune``: ``{"hidden", "lam", "grid": [{hidden, lam, val_mean, val_std}, ...]}``
-            (the chosen cell is ``config.hidden`` / ``config.lam``); else None.
+        tuning: with ``config.model.tune``: ``{"hidden", "lam", "grid": [{hidden, lam, val_mean, val_std}, ...]}``
+            (the chosen cell is ``config.model.hidden`` / ``config.model.lam``); else None.
         excluded: ``((repeat id, reason), ...)``: the repeats left out because their MSA failed
             (:func:`icgo.studies.icgo_relm.prepare.exclude_failed_repeats`); every table, the summary and the
             models hold the others only, and ``config.repeat_ids`` names those. Empty when every repeat was usable.
@@ -164,18 +163,18 @@ def collect(cfg, rows, kept, a_true, G, B, n_source, mem: _splits.Members, prep,
         "error_compensated": np.asarray(_errors(a_comp, a_true[None, None])).ravel()}, copy=False)
     if "toolface_deg" in rows.columns:
         predictions.insert(6, "toolface_deg", np.tile(rows["toolface_deg"].to_numpy(), S * M))
-    if cfg.protocol == "transfer":
+    if cfg.split.protocol == "transfer":
         predictions["survey"] = _categorical(np.tile((np.arange(N) >= n_source).astype(np.int8), S * M),
                                              ["source", "target"])
 
-    names = _msa.MODELS[cfg.msa_model]
+    names = _msa.MODELS[cfg.msa.model]
     m = prep.msa
     msa_df = pd.DataFrame({"repeat": mem.repeat, "fold": mem.fold, "cost_V": np.asarray(m.cost),
                            "condition": np.asarray(m.condition),
                            **{f"bias_{ax}": np.asarray(m.bias)[:, i] for i, ax in enumerate("xyz")},
                            **{f"scale_{ax}": np.asarray(m.scale)[:, i] for i, ax in enumerate("xyz")},
                            **{f"std_{n}": np.asarray(m.std_error)[:, i] for i, n in enumerate(names)}})
-    pool = mem.repeat if cfg.protocol in _splits.FOLD_PROTOCOLS else np.zeros(M, int)
+    pool = mem.repeat if cfg.split.protocol in _splits.FOLD_PROTOCOLS else np.zeros(M, int)
     q, cov, n_cal = member_coverage(a_comp, a_true, mem.train, mem.heldout, mem.test, pool, INTERVAL_LEVEL)
     coverage = pd.DataFrame({"method": np.repeat(methods, M), "repeat": np.tile(mem.repeat, S),
                              "fold": np.tile(mem.fold, S), "fold_label": np.tile(np.asarray(mem.fold_label)[mem.fold], S),
@@ -199,6 +198,7 @@ def _fitted_models(cfg: StudyConfig, G, B, a_true, mem: _splits.Members, prep: P
     conformal half-width uses the rows each member held out of that survey only.
     """
     from icgo.artifacts.format import data_hash, sensor_domain
+    from icgo.core.settings import config_to_mapping
     from icgo.artifacts.relm import MSAModel, RELMCompensation, out_of_bag_halfwidth
 
     methods = cfg.method_names()
@@ -209,14 +209,14 @@ def _fitted_models(cfg: StudyConfig, G, B, a_true, mem: _splits.Members, prep: P
     common = dict(data_hash=data_hash(G, B, a_src),
                   domain={**sensor_domain(G, B), "azimuth_deg": [float(np.min(a_src)), float(np.max(a_src))]})
     params = jax.tree_util.tree_map(np.asarray, scored.params)
-    settings = {f.name: getattr(cfg, f.name) for f in dataclasses.fields(cfg) if f.name != "optimizer_config"}
-    settings["optimizer_config"] = None if cfg.optimizer_config is None else repr(cfg.optimizer_config)
+    settings = {**config_to_mapping(cfg), "optimizer_config": None if cfg.optimizer_config is None
+                else repr(cfg.optimizer_config)}
     relm = RELMCompensation(config=settings, methods=list(methods), selected=selected, repeat_ids=ids,
-                            hidden=int(cfg.hidden), lam=float(cfg.lam), features=cfg.features, params=params,
+                            hidden=int(cfg.model.hidden), lam=float(cfg.model.lam), features=cfg.model.features,
+                            params=params,
                             train_rmse=train_rmse,
                             interval_halfwidth=out_of_bag_halfwidth(np.asarray(scored.a_comp), a_true,
                                                                     mem.heldout == 0), **common)
-    msa = MSAModel(config={"msa_model": cfg.msa_model, "msa_reference": cfg.msa_reference,
-                           "train_fraction": cfg.train_fraction, "seed": cfg.seed, "protocol": cfg.protocol},
+    msa = MSAModel(config={"msa": config_to_mapping(cfg.msa), "split": config_to_mapping(cfg.split)},
                    params=_msa.MSAParams(params.msa_bias, params.msa_scale), repeat_ids=ids, **common)
     return relm, msa

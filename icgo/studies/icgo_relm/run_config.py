@@ -5,13 +5,13 @@ each node checking what it owns at construction, with the YAML key in its one-li
 
 :class:`RunConfig` is the whole run: the data set (:data:`DATASET_NODES`: the node of each ``dataset`` option), the
 study's nodes (``split``, ``msa``, ``model``, ``fitness``, ``budget``: :mod:`icgo.studies.icgo_relm.settings`, where
-their defaults are written), the search (``optimizer``, ``strategy``,
-``schedule``) and the top-level keys. :meth:`RunConfig.study_config` is the one explicit constructor of
-:class:`icgo.studies.icgo_relm.config.StudyConfig` (the library's flat settings, which validate the study's values
-themselves); every StudyConfig field is named there once, with the YAML key its errors are reported under.
+their defaults and checks are written), the search (``optimizer``, ``strategy``, ``schedule``) and the top-level keys.
+:meth:`RunConfig.study_config` hands the same study nodes to :class:`icgo.studies.icgo_relm.config.StudyConfig` (the
+library's config, nested the same way), with the search's optimizer and strategies.
 
-Nothing here imports JAX at module import (the door builds this config before JAX's devices are set up);
-:meth:`RunConfig.study_config` imports the study.
+Nothing here imports JAX at module import (the door builds this config before JAX's devices are set up; a node's
+check imports the module that lists its values, which sets up no device); :meth:`RunConfig.study_config` imports the
+study.
 """
 
 from __future__ import annotations
@@ -260,6 +260,18 @@ class RunConfig:
         from icgo.studies.common.tracking import tracking_uri
 
         tracking_uri(self.tracking)  # auto, true (MLflow installed), false or a URI: one line naming tracking
+        if self.split.target is not None:
+            need(self.split.protocol == "transfer", f"split.target is read only by split.protocol=transfer "
+                                                    f"(split=transfer); here split.protocol={self.split.protocol!r}, "
+                                                    f"so it would do nothing")
+        else:
+            need(self.split.protocol != "transfer",
+                 "split.protocol=transfer needs split.target (use split=transfer, which defines it)")
+        if self.model.tune:  # the tuning grid chooses them: a typed value would do nothing
+            for k in ("hidden", "lam"):
+                default, v = getattr(ModelSettings, k), getattr(self.model, k)
+                need(v == default, f"model.{k}={v} has no effect with model.tune=true (the tuning grid chooses it); "
+                                   f"leave it at {default}")
         need(self.label is None or isinstance(self.label, str), "label",
              f"must be a name (a string) or null, got {self.label!r}")
         n = self.worlds
@@ -278,33 +290,23 @@ class RunConfig:
         return config_from_mapping(cls, values, "conf/config.yaml")
 
     def study_config(self):
-        """The :class:`icgo.studies.icgo_relm.config.StudyConfig` of this run: each field from its YAML key.
+        """The :class:`icgo.studies.icgo_relm.config.StudyConfig` of this run: the same study nodes, the search.
 
         Raises:
-            SettingError: one line naming the YAML key (``split.n_repeats``), not the field.
+            SettingError: one line naming the YAML key (``strategy.names``).
         """
         from icgo.studies.icgo_relm.config import StudyConfig
 
-        sp, m, ms, f, b = self.split, self.model, self.msa, self.fitness, self.budget
-        fields = {  # StudyConfig field: (YAML key, value)
-            "n_repeats": ("split.n_repeats", sp.n_repeats), "seed": ("split.seed", sp.seed),
-            "protocol": ("split.protocol", sp.protocol), "sigma_filter": ("split.sigma_filter", sp.sigma_filter),
-            "train_fraction": ("split.train_fraction", sp.train_fraction),
-            "msa_model": ("msa.model", ms.model), "msa_reference": ("msa.reference", ms.reference),
-            "msa_iterations": ("msa.iterations", ms.iterations), "features": ("model.features", m.features),
-            "hidden": ("model.hidden", m.hidden), "lam": ("model.lam", m.lam),
-            "theta_bounds": ("model.theta_bounds", m.theta_bounds), "tune": ("model.tune", m.tune),
-            "fitness": ("fitness.mode", f.mode), "val_fraction": ("fitness.val_fraction", f.val_fraction),
-            "k_folds": ("fitness.k_folds", f.k_folds), "optimizer": ("optimizer.name", self.optimizer.name),
-            "strategies": ("strategy.names", self.strategy.names), "pop_size": ("budget.pop_size", b.pop_size),
-            "iterations": ("budget.iterations", b.iterations), "max_evals": ("budget.max_evals", b.max_evals),
-            "precision": ("precision", self.precision), "devices": ("devices", self.devices)}
+        search_keys = {"optimizer": "optimizer.name", "strategies": "strategy.names"}  # their YAML keys
         try:
-            return StudyConfig(**{k: v for k, (_, v) in fields.items()}, optimizer_config=self.optimizer_config())
+            return StudyConfig(split=self.split, msa=self.msa, model=self.model, fitness=self.fitness,
+                               budget=self.budget, optimizer=self.optimizer.name, strategies=self.strategy.names,
+                               optimizer_config=self.optimizer_config(), precision=self.precision,
+                               devices=self.devices)
         except SettingError as e:
-            if e.field is None:
+            if e.field not in search_keys:
                 raise
-            raise SettingError(fields.get(e.field, (e.field,))[0], e.problem) from None
+            raise SettingError(search_keys[e.field], e.problem) from None
 
     def optimizer_config(self):
         """The optimizer's config object from ``optimizer.params`` (+ the schedule where the config has one), or

@@ -6,7 +6,6 @@ the devices: :func:`icgo.studies.common.sharding.run_grid`), or drawn at random 
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import logging
 from typing import NamedTuple
@@ -96,8 +95,9 @@ def search(cfg: StudyConfig, prep: Prepared, wrap_fitness=None, kernel: str = CP
     (:func:`search_kernel`).
     """
     if cfg.optimizer is None:
-        low, high = cfg.theta_bounds
-        theta, f = _plain(prep.key, prep.data, cfg.lam, cfg.hidden, float(low), float(high), _plain_dtype(cfg))
+        low, high = cfg.model.theta_bounds
+        theta, f = _plain(prep.key, prep.data, cfg.model.lam, cfg.model.hidden, float(low), float(high),
+                          _plain_dtype(cfg))
         return theta[None], f[None, :, None], jnp.ones((1, prep.key.shape[0], 1), jnp.int32)
     return search_cells(cfg, prep.key, search_aux(cfg, prep, kernel), wrap_fitness, progress, devices)
 
@@ -106,9 +106,9 @@ def search_aux(cfg: StudyConfig, prep: Prepared, kernel: str, capacity: int | No
     """The search's data for each member of ``prep`` (leading axis: its members): the rows the fitness kernel of
     ``kernel`` reads (gathered training rows, ``capacity`` of them when given, or the row-weighted FitData),
     lambda and the precisions."""
-    sk = search_kernel(cfg.precision, cfg.fitness, kernel)
+    sk = search_kernel(cfg.precision, cfg.fitness.mode, kernel)
     return sk.aux(train_rows(prep, capacity) if sk.train_rows else prep.data,
-                  np.full(prep.key.shape[0], cfg.lam, prep.data.X.dtype), cfg.hidden)
+                  np.full(prep.key.shape[0], cfg.model.lam, prep.data.X.dtype), cfg.model.hidden)
 
 
 def search_cells(cfg: StudyConfig, keys, aux, wrap_fitness=None, progress=None, devices=None):
@@ -118,13 +118,14 @@ def search_cells(cfg: StudyConfig, keys, aux, wrap_fitness=None, progress=None, 
     ``progress``: see :func:`icgo.optim.sharded.run_members`."""
     from icgo.optim import get
 
-    low, high = cfg.theta_bounds
-    D = _relm.n_params(cfg.hidden)
+    low, high = cfg.model.theta_bounds
+    D = _relm.n_params(cfg.model.hidden)
     alg = get(cfg.optimizer)
     configs = alg.axis_configs(cfg.optimizer_config, cfg.strategies) if alg.axis else None
     fitness = search_fitness if wrap_fitness is None else wrap_fitness(search_fitness)
-    res = sharding.run_grid(alg, fitness, (np.full(D, low), np.full(D, high)), keys, cfg.pop_size, cfg.iterations,
-                            max_evals=cfg.max_evals, config=None if configs else cfg.optimizer_config,
+    res = sharding.run_grid(alg, fitness, (np.full(D, low), np.full(D, high)), keys, cfg.budget.pop_size,
+                            cfg.budget.iterations,
+                            max_evals=cfg.budget.max_evals, config=None if configs else cfg.optimizer_config,
                             configs=configs, aux=aux, devices=devices, progress=progress)
     return jnp.asarray(res.best_x), jnp.asarray(res.curve), jnp.asarray(res.evals_curve)
 
@@ -164,7 +165,7 @@ def tune(cfg: StudyConfig, prep: Prepared, n_fit: int):
     rows, scored on the rest). Widths above ``n_fit`` (rows per fit) are left out,
     as the study refuses them. Returns (config at the chosen cell, tuning record).
     """
-    low, high = (float(v) for v in cfg.theta_bounds)
+    low, high = (float(v) for v in cfg.model.theta_bounds)
     dtype = _plain_dtype(cfg)
     grid = []
     for hidden in (h for h in _relm.TUNE_HIDDEN if h <= n_fit):
@@ -176,7 +177,7 @@ def tune(cfg: StudyConfig, prep: Prepared, n_fit: int):
     best = min(grid, key=lambda g: g["val_mean"])
     log.info("tuned plain RELM: hidden %d, lam %g (mean validation fitness %.4g)", best["hidden"], best["lam"],
              best["val_mean"])
-    return (dataclasses.replace(cfg, hidden=best["hidden"], lam=best["lam"]),
+    return (cfg.replace(model={"hidden": best["hidden"], "lam": best["lam"]}),
             {"hidden": best["hidden"], "lam": best["lam"], "grid": grid})
 
 
@@ -184,7 +185,7 @@ def execution_record(cfg: StudyConfig, plan: ExecutionPlan) -> dict:
     """run.json's ``execution``: the plan, the fitness function that ran and its precision (record key ``dtype``)."""
     if cfg.optimizer is None:
         return {**plan._asdict(), "fitness": "icgo.models.relm.fitness (plain RELM, no search)", "dtype": cfg.precision}
-    name = search_kernel(cfg.precision, cfg.fitness, plan.kernel).name
+    name = search_kernel(cfg.precision, cfg.fitness.mode, plan.kernel).name
     module = {"fused_train_fitness": "relm_fused", "gram_fitness": "relm_gram", "gram_train_fitness": "relm_gram"}.get(
         name, "relm")
     return {**plan._asdict(), "fitness": f"icgo.models.{module}.{name}", "dtype": cfg.precision}

@@ -49,8 +49,8 @@ def planned_evaluations(scfg, members: int) -> tuple[int, float]:
 
     alg = get(scfg.optimizer)
     config = alg.config_cls() if scfg.optimizer_config is None else scfg.optimizer_config
-    initial, per_iteration = alg.evals(scfg.pop_size, config)
-    n_iter = resolve_iterations(alg, scfg.pop_size, scfg.iterations, scfg.max_evals, config)
+    initial, per_iteration = alg.evals(scfg.budget.pop_size, config)
+    n_iter = resolve_iterations(alg, scfg.budget.pop_size, scfg.budget.iterations, scfg.budget.max_evals, config)
     return int(members * (initial + per_iteration * n_iter)), float(members * per_iteration)
 
 
@@ -85,16 +85,16 @@ def save_rate(path: Path, key: str, row_evals_per_s: float) -> None:
 def rate_key(scfg, plan) -> str:
     """The kind of search a rate holds for: backend, kernel, devices, precision, fitness mode, hidden units,
     population."""
-    return (f"{plan.backend}/{plan.kernel}/{plan.devices}dev/{scfg.precision}/{scfg.fitness}/"
-            f"L{scfg.hidden}/P{scfg.pop_size}")
+    return (f"{plan.backend}/{plan.kernel}/{plan.devices}dev/{scfg.precision}/{scfg.fitness.mode}/"
+            f"L{scfg.model.hidden}/P{scfg.budget.pop_size}")
 
 
 def estimate(scfg, plan, cells: int, rows: int, jax_cache_dir: str | None) -> Estimate:
     """The :class:`Estimate` of a search of ``cells`` cells (repeats, or worlds x repeats) on ``rows`` data rows
-    (the training rows are ``scfg.train_fraction`` of them)."""
+    (the training rows are ``scfg.split.train_fraction`` of them)."""
     members = len(scfg.method_names()) * int(cells)
     total, per_it = planned_evaluations(scfg, members)
-    train = max(1, int(round(rows * scfg.train_fraction)))
+    train = max(1, int(round(rows * scfg.split.train_fraction)))
     store, key = rates_path(jax_cache_dir), rate_key(scfg, plan)
     stored = load_rates(store).get(key)
     rate = float(stored) / train if isinstance(stored, (int, float)) and stored > 0 else None

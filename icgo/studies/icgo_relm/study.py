@@ -60,7 +60,7 @@ class SurveyData(NamedTuple):
     Attributes:
         frame: DataFrame with gx, gy, gz (g), bx, by, bz (nT), azimuth_deg (deg);
             ``condition`` for ``protocol="leave_condition_out"``.
-        meta: metadata dict (``total_field_nT``, ``dip_deg`` for msa_reference="known") or None.
+        meta: metadata dict (``total_field_nT``, ``dip_deg`` for msa.reference="known") or None.
         target: ``protocol="transfer"`` only: the second instrument's survey (same
             columns; :func:`icgo.studies.common.splits.transfer_survey` simulates one), every row a test row.
     """
@@ -75,7 +75,7 @@ def run(data: SurveyData, config: StudyConfig, key, *, wrap_fitness=None) -> Stu
 
     Args:
         data: :class:`SurveyData`.
-        config: :class:`StudyConfig` (its ``seed`` is recorded; the randomness comes from ``key``).
+        config: :class:`StudyConfig` (its ``split.seed`` is recorded; the randomness comes from ``key``).
         key: JAX PRNG key.
         wrap_fitness: see :func:`run_study`.
     """
@@ -85,18 +85,18 @@ def run(data: SurveyData, config: StudyConfig, key, *, wrap_fitness=None) -> Stu
 def run_study(frame: pd.DataFrame, config: StudyConfig | None = None, metadata: dict | None = None, *,
               wrap_fitness=None, target: pd.DataFrame | None = None, timings: dict | None = None,
               progress=None) -> StudyResult:
-    """Run an ICGO-RELM study on a data-contract frame with the key ``PRNGKey(config.seed)``.
+    """Run an ICGO-RELM study on a data-contract frame with the key ``PRNGKey(config.split.seed)``.
 
     Args:
         frame: DataFrame with gx, gy, gz (g), bx, by, bz (nT), azimuth_deg (the
             reference azimuth); optional station, toolface_deg.
         config: StudyConfig (defaults if None).
-        metadata: the data set's metadata (needed for msa_reference="known").
+        metadata: the data set's metadata (needed for msa.reference="known").
         wrap_fitness: optional ``f -> f'`` applied to the search's fitness
             ``f(pop, aux)`` (e.g. to instrument it). A wrapped fitness is a new
             static argument of the runner, so that run compiles afresh; for progress
             use ``progress``, which keeps the compiled programs cacheable.
-        target: the second instrument's survey (``protocol="transfer"`` only).
+        target: the second instrument's survey (``split.protocol="transfer"`` only).
         timings: a dict to fill with where the time went: per stage (``prepare``: split and MSA;
             ``search``; ``score``: refit and metrics; ``tables``) its wall seconds ``<stage>_s`` and the
             part spent compiling or loading programs ``<stage>_compile_s`` (:mod:`icgo.studies.common.timing`);
@@ -113,7 +113,7 @@ def run_study(frame: pd.DataFrame, config: StudyConfig | None = None, metadata: 
             that cannot determine the MSA parameters.
     """
     cfg = StudyConfig() if config is None else config
-    return _run(frame, cfg, metadata, jax.random.PRNGKey(cfg.seed), wrap_fitness, target, timings, progress)
+    return _run(frame, cfg, metadata, jax.random.PRNGKey(cfg.split.seed), wrap_fitness, target, timings, progress)
 
 
 class Staged(NamedTuple):
@@ -140,9 +140,9 @@ class Staged(NamedTuple):
 def stage(frame, cfg: StudyConfig, metadata, base_key, target=None, stages=None, capacity=None) -> Staged:
     """Filter, split, MSA and features of every member (rows padded to ``capacity``:
     :func:`icgo.studies.icgo_relm.prepare.prepare`), the failed repeats left out, plain RELM tuned."""
-    if (cfg.protocol == "transfer") != (target is not None):
+    if (cfg.split.protocol == "transfer") != (target is not None):
         raise ValueError("study: protocol 'transfer' needs the second instrument's survey (target) and no other "
-                         f"protocol takes one; got protocol {cfg.protocol!r} with"
+                         f"protocol takes one; got protocol {cfg.split.protocol!r} with"
                          f"{'out' if target is None else ''} a target")
     rows, G, B, a_true, kept = filtered(frame, cfg)
     n_source = len(a_true)
@@ -151,15 +151,15 @@ def stage(frame, cfg: StudyConfig, metadata, base_key, target=None, stages=None,
         rows = pd.concat([rows, t_rows])
         G, B, a_true = np.vstack([G, Gt]), np.vstack([B, Bt]), np.concatenate([a_true, at])
     reference = reference_field(cfg, metadata)
-    if cfg.msa_model == "biases_scales" and reference is None:
-        raise ValueError("study: msa_model='biases_scales' needs msa_reference='known'")
+    if cfg.msa.model == "biases_scales" and reference is None:
+        raise ValueError("study: msa.model='biases_scales' needs msa.reference='known'")
     stages = timing.Stages() if stages is None else stages
     with stages("prepare"):
         prep, mem = prepare(rows, G, B, a_true, cfg, base_key, reference, n_source, capacity)
         prep, mem, cfg, excluded = exclude_failed_repeats(prep, mem, cfg, reference)
         jax.block_until_ready(prep)
     tuning = None
-    if cfg.tune:
+    if cfg.model.tune:
         cfg, tuning = tune(cfg, prep, rows_per_fit(cfg, mem))
     if capacity is not None:
         G, B, a_true = pad_rows(capacity, G, B, a_true)
@@ -170,12 +170,13 @@ def finish(st: Staged, thetas, curve, evals, t0: float, stages) -> StudyResult:
     """The searched members checked, refitted and scored, and the study's tables (``t0``: its start, for the wall
     time; ``stages``: the :class:`icgo.studies.common.timing.Stages` that time it)."""
     cfg, mem = st.cfg, st.mem
-    check_search(np.asarray(curve), cfg.method_names(), [f"{r}" if cfg.protocol not in _splits.FOLD_PROTOCOLS
+    check_search(np.asarray(curve), cfg.method_names(), [f"{r}" if cfg.split.protocol not in _splits.FOLD_PROTOCOLS
                                                           else f"{r}, {mem.fold_label[f]}"
                                                           for r, f in zip(mem.repeat, mem.fold)])
     with stages("score"):
-        scored = jax.block_until_ready(score_all(thetas, st.prep, st.G, st.B, st.a_true, cfg.lam, cfg.hidden,
-                                                 cfg.features == "raw"))
+        scored = jax.block_until_ready(score_all(thetas, st.prep, st.G, st.B, st.a_true, cfg.model.lam,
+                                       cfg.model.hidden,
+                                                 cfg.model.features == "raw"))
     wall = time.perf_counter() - t0
     prep = st.prep._replace(data=None)  # the features (members x rows x 6) are done with: free them before the tables
     G, B, a_true = st.G, st.B, st.a_true
@@ -210,8 +211,9 @@ def example() -> tuple:
     from icgo.datasets import casing_stations as datasets
 
     frame = datasets.lab_casing(0, toolface_step_deg=45.0).frame
-    return SurveyData(frame), StudyConfig(optimizer="pso", n_repeats=2, hidden=8, pop_size=6, iterations=3)
+    return SurveyData(frame), StudyConfig(split=dict(n_repeats=2), model=dict(hidden=8),
+                                          budget=dict(pop_size=6, iterations=3), optimizer="pso")
 
 
 STUDY = Study("icgo_relm", StudyConfig, run, "MSA + RELM whose hidden weights an optimizer searches "
-              "(ICGO paper sections 3.1-3.4)", example)
+              "(ICGO paper sections 3.1-3.4)", example, seed_key="split.seed")

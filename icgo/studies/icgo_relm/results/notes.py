@@ -33,9 +33,9 @@ def tuned_note(runs: Runs, m: pd.DataFrame, others) -> str:
     d = StudyConfig()
     return (f"Tuned RELM (`model.tune=true fitness=validation optimizer=none`): hidden L and lambda chosen on "
             f"L in {{{', '.join(map(str, TUNE_HIDDEN))}}} x lambda in {TUNE_LAMBDA[0]:g} .. {TUNE_LAMBDA[-1]:g} by the "
-            f"mean validation RMSE over repeats on the training rows only ({100 * d.val_fraction:.0f} % of them held "
+            f"mean validation RMSE over repeats on the training rows only ({100 * d.fitness.val_fraction:.0f} % of them held "
             f"out), chosen L = {cell.get('hidden')}, lambda = {cell.get('lam')}. Against it: "
-            f"{'; '.join(parts) or 'no CGO runs'} (tests below). The CGO rows use L = {d.hidden}.")
+            f"{'; '.join(parts) or 'no CGO runs'} (tests below). The CGO rows use L = {d.model.hidden}.")
 
 
 def floor_note(dataset: str = "lab_casing") -> str:

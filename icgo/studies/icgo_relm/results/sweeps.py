@@ -90,7 +90,7 @@ def _reading(params: dict) -> str:
     """The mutation reading a sweep run used, from its optimizer params (the rest at CGOConfig's defaults)."""
     d = CGOConfig()
     if "sigma" in params:
-        low, high = StudyConfig().theta_bounds
+        low, high = StudyConfig().model.theta_bounds
         return f"Gaussian sigma {params['sigma']:g} ({params['sigma'] / (high - low):g} of the box width)"
     zeta = params.get("wavelet_zeta", d.wavelet_zeta)
     return f"wavelet zeta {zeta:g}, amplitude {params.get('wavelet_amplitude', d.wavelet_amplitude)}"

@@ -56,7 +56,7 @@ def summary(result, info: dict, search: str):
     seeds = world_tables.seeds_text(result.seeds)
     dev = result.development
     md = [f"# ICGO-RELM study over {len(result.seeds)} worlds: {info['description']}", "",
-          f"{describe_split(result.config.protocol, result.config.train_fraction).capitalize()}; "
+          f"{describe_split(result.config.split.protocol, result.config.split.train_fraction).capitalize()}; "
           f"{len(result.config.ids())} repeats per world; each world is one independent simulated data set (data "
           f"seeds {seeds}: its own noise draw, filter, MSA, splits and search keys). A world's value is the mean over "
           f"its repeats; the numbers below are mean +/- sample std over worlds. {search}", "",
@@ -96,7 +96,7 @@ def write_run_files(stage: Path, result, info: dict, *, config_yaml: str, search
     t0 = time.perf_counter()
     (stage / run_records.CONFIG_FILE).write_text(config_yaml)
     tags = {"label": info["label"], "dataset": info["dataset"], "condition": info["condition"],
-            "seed": result.config.seed}
+            "seed": result.config.split.seed}
     for name in TABLES:
         df = result.table(name)
         checked = run_records.check_table(name, run_records.tag_table(df, tags), name)
@@ -115,9 +115,9 @@ def write_run_files(stage: Path, result, info: dict, *, config_yaml: str, search
     first = result.results[0]
     timings = {**info["timings"], "write_s": time.perf_counter() - t0}
     run = {**info, "timings": timings, "records_version": run_records.RECORDS_VERSION, "status": "ok",
-           "seed": result.config.seed, "wall_time_s": result.wall_time_s, "methods": methods,
+           "seed": result.config.split.seed, "wall_time_s": result.wall_time_s, "methods": methods,
            "n_evals": {m: int(v) for m, v in zip(methods, first.n_evals[:, 0])},
-           "n_rows": [int(r.kept.sum()) for r in result.results], "n_repeats": result.config.n_repeats,
+           "n_rows": [int(r.kept.sum()) for r in result.results], "n_repeats": result.config.split.n_repeats,
            "repeat_ids": list(result.config.ids()), "models": [], "qc": None, "config_sha256": config_sha256,
            "worlds": {"seeds": list(result.seeds), "development_seeds": result.development},
            "excluded_repeats": [{"world": w, "repeat": r, "reason": why} for w, r, why in result.excluded]}

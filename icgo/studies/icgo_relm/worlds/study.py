@@ -163,12 +163,12 @@ def run_worlds(worlds: Sequence[World], config: StudyConfig | None = None, *, ti
         raise ValueError("worlds: no world given")
     if len(set(seeds)) != len(seeds):
         raise ValueError(f"worlds: data seeds must be distinct, got {seeds}")
-    if cfg.protocol == "transfer":
+    if cfg.split.protocol == "transfer":
         raise ValueError("worlds: protocol 'transfer' needs a second instrument per world; run it one world at a time")
     t0 = time.perf_counter()
     stages = timing.Stages()
     rows = capacity(max(int(filtered(w.frame, cfg)[-1].sum()) for w in worlds), ROW_QUANTUM)
-    staged = [_study.stage(w.frame, cfg, w.meta, world_key(cfg.seed, w.seed), None, stages, rows) for w in worlds]
+    staged = [_study.stage(w.frame, cfg, w.meta, world_key(cfg.split.seed, w.seed), None, stages, rows) for w in worlds]
     train = capacity(max(int(np.asarray(st.prep.train).sum(axis=1).max()) for st in staged), TRAIN_QUANTUM)
     plan = cfg.execution(cells=sum(len(st.mem.repeat) for st in staged))
     with stages("search"):
