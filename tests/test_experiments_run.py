@@ -372,6 +372,18 @@ def test_no_yaml_of_the_run_door_repeats_a_default():
             assert not same, f"{path.name} repeats the default(s) {same}"
             seen += 1
     assert seen >= 10
+    # the schedule options write only what differs from CGOConfig's own stage defaults (schedule=thirds: nothing)
+    from icgo.optim import mutation
+    from icgo.optim.cgo import CGOConfig
+
+    cgo = CGOConfig()
+    own = {"bounds": list(cgo.stage_bounds), "order": [tuple(mutation.MUTATIONS)[i] for i in cgo.stage_order],
+           "clock": "stage" if cgo.wavelet_stage_clock else "global"}
+    for path in sorted((E.CONF_DIR / "schedule").glob("*.yaml")):
+        node = yaml.safe_load(path.read_text()) or {}
+        same = {k: v for k, v in node.items() if v == own[k]}
+        assert not same, f"schedule/{path.name} repeats CGOConfig's default(s) {same}"
+    assert yaml.safe_load((E.CONF_DIR / "schedule" / "thirds.yaml").read_text()) is None
 
 
 def test_every_study_field_has_a_config_key():

@@ -94,14 +94,12 @@ def compute(run, scfg, timings: dict) -> Computed:
 def run_info(run, desc: str, timings: dict, devices: dict, t0: float) -> dict:
     """The run record's fields known before the study's files are written (label, data set, search settings,
     execution plan, timings, devices, environment); ``t0``: ``time.perf_counter()`` at the job's start."""
-    import dataclasses
-
     from icgo.core.devices import env_info
 
     ds, opt = run.dataset, run.optimizer
     return {"label": run.label, "dataset": ds.name, "condition": ds.condition, "description": desc,
             "dataset_kwargs": ds.kwargs, "optimizer": opt.name, "strategies": list(run.strategy.names),
-            "schedule": dataclasses.asdict(run.schedule), "optimizer_params": opt.params if opt.name else None,
+            "schedule": run.schedule_record(), "optimizer_params": opt.params if opt.name else None,
             "execution": timings.pop("execution"), "timings": timings, "devices": devices,
             "total_time_s": time.perf_counter() - t0, **env_info()}
 

@@ -179,21 +179,34 @@ CLOCKS = ("global", "stage")
 class ScheduleSettings:
     """``schedule``: three_stage's stage boundaries (fractions of the run), stage order and the wavelet's clock.
 
+    A null keeps the optimizer config's own default (:class:`icgo.optim.cgo.CGOConfig`: equal thirds, chaos then
+    gaussian then wavelet, the wavelet on the whole run's clock; ``schedule=thirds``), where it is written once.
+
     Attributes:
-        bounds: [b1, b2], the fractions of the run where stages 2 and 3 start, 0 < b1 < b2 < 1.
-        order: the three mutations in stage order. clock: ``global`` (the wavelet's dilation on the whole run's
-            t/T) or ``stage`` (on its stage's own clock).
+        bounds: [b1, b2], the fractions of the run where stages 2 and 3 start, 0 < b1 < b2 < 1 (null: thirds).
+        order: the three mutations in stage order (null: chaos, gaussian, wavelet).
+        clock: ``global`` (the wavelet's dilation on the whole run's t/T) or ``stage`` (on its stage's own clock)
+            (null: global).
     """
 
-    bounds: list
-    order: list
-    clock: str = "global"
+    bounds: list | None = None
+    order: list | None = None
+    clock: str | None = None
 
     def __post_init__(self):
-        b = list(self.bounds) if isinstance(self.bounds, (list, tuple)) else [self.bounds]
-        need(len(b) == 2 and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in b)
-             and 0.0 < b[0] < b[1] < 1.0, f"schedule.bounds must be two fractions 0 < b1 < b2 < 1, got {b}")
-        need(self.clock in CLOCKS, "schedule.clock", f"must be global or stage, got {self.clock!r}")
+        if self.bounds is not None:
+            b = list(self.bounds) if isinstance(self.bounds, (list, tuple)) else [self.bounds]
+            need(len(b) == 2 and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in b)
+                 and 0.0 < b[0] < b[1] < 1.0, f"schedule.bounds must be two fractions 0 < b1 < b2 < 1, got {b}")
+        need(self.clock is None or self.clock in CLOCKS, "schedule.clock",
+             f"must be global or stage, got {self.clock!r}")
+
+    def optimizer_params(self) -> dict:
+        """The CGO config arguments this schedule sets (those it leaves null keep the config's defaults)."""
+        return {k: v for k, v in (("stage_bounds", None if self.bounds is None else tuple(float(x) for x in self.bounds)),
+                                  ("stage_order", None if self.order is None else tuple(self.order)),
+                                  ("wavelet_stage_clock", None if self.clock is None else self.clock == "stage"))
+                if v is not None}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -204,7 +217,8 @@ class RunConfig:
     top-level fields below; Hydra composes them first (``config_defaults`` in ConfigStore,
     registered by ``experiments/_groups.py`` from :func:`icgo.core.settings.defaults_of`), then the group options
     (``conf/<group>/<option>.yaml``, which write only what they change), then ``conf/config.yaml`` and a preset.
-    ``dataset``, ``optimizer``, ``strategy`` and ``schedule`` have no default here: their group options are them.
+    ``dataset``, ``optimizer`` and ``strategy`` have no default here: their group options are them; ``schedule``'s
+    nulls keep the optimizer config's own stage defaults.
 
     Attributes:
         dataset: the data set's node (:data:`DATASET_NODES`, else :class:`SimulatedData`).
@@ -237,7 +251,7 @@ class RunConfig:
         metadata={"variants": DATASET_NODES, "tag": "name", "default": SimulatedData})
     optimizer: OptimizerSettings
     strategy: StrategySettings
-    schedule: ScheduleSettings
+    schedule: ScheduleSettings = dataclasses.field(default_factory=ScheduleSettings)
     split: SplitSettings = dataclasses.field(default_factory=SplitSettings)
     msa: MsaSettings = dataclasses.field(default_factory=MsaSettings)
     model: ModelSettings = dataclasses.field(default_factory=ModelSettings)
@@ -320,13 +334,23 @@ class RunConfig:
         params = dict(self.optimizer.params or {})
         fields = {f.name for f in dataclasses.fields(alg.config_cls)}
         if {"stage_bounds", "stage_order"} <= fields:
-            params.setdefault("stage_bounds", tuple(float(x) for x in self.schedule.bounds))
-            params.setdefault("stage_order", tuple(self.schedule.order))
-            params.setdefault("wavelet_stage_clock", self.schedule.clock == "stage")
+            params = {**self.schedule.optimizer_params(), **params}
         try:
             return alg.make_config(**params)
         except (TypeError, ValueError) as e:
             raise SettingError(f"optimizer.params for {name}: {str(e).splitlines()[0]}") from None
+
+    def schedule_record(self) -> dict:
+        """run.json's ``schedule``: the three-stage schedule the search's config holds (the node's nulls resolved to
+        the config's defaults), or the node as given for an optimizer without stages."""
+        config = self.optimizer_config()
+        if not hasattr(config, "stage_order"):
+            return dataclasses.asdict(self.schedule)
+        from icgo.optim import mutation
+
+        names = tuple(mutation.MUTATIONS)
+        return {"bounds": [float(x) for x in config.stage_bounds], "order": [names[i] for i in config.stage_order],
+                "clock": "stage" if config.wavelet_stage_clock else "global"}
 
     def search_sentence(self) -> str:
         """The summary's sentence on the search settings (optimizer, strategies, population, iterations,
