@@ -22,6 +22,7 @@ from typing import NamedTuple
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
+from experiments._hydra_errors import composition_errors
 from experiments._preflight import CONF_DIR, STUDY_GROUPS, preflight
 from icgo.core.settings import error_status
 
@@ -81,7 +82,8 @@ DOORS = {
 def door(name: str, main) -> None:
     """The ``__main__`` of the Hydra door ``name``: ``--help`` is the door's own (:mod:`experiments._help`);
     otherwise the command line is checked (:func:`experiments._preflight.preflight`) and ``main`` (the
-    ``@hydra.main`` task) runs, under :func:`guarded`. Every other flag is Hydra's (``--cfg job``, ``--info`` ...)."""
+    ``@hydra.main`` task) runs, its composition errors one line (:func:`experiments._hydra_errors.composition_errors`),
+    under :func:`guarded`. Every other flag is Hydra's (``--cfg job``, ``--info`` ...)."""
     d = DOORS[name]
 
     def cli() -> None:
@@ -91,7 +93,8 @@ def door(name: str, main) -> None:
             print(door_help(name, d))
             return
         preflight(d.config_name, conf_dir=d.conf_dir, groups=d.groups)
-        main()
+        with composition_errors(d.config_name, d.conf_dir):
+            main()
 
     guarded(cli)
 

@@ -1,6 +1,9 @@
-"""The command line of a Hydra door checked before Hydra starts: a bad override is one line and exit 2 (Hydra: a
-block and exit 1, or a traceback). Hydra's own parser splits the line, so every flag it documents (``--cfg job``,
-``-c job``, ``--resolve``, ``--info``, ``-m``) keeps its meaning and only the overrides are checked."""
+"""The command line of a Hydra door checked before Hydra starts, without composing: a bad override is one line and
+exit 2 (Hydra: a block and exit 1, or a traceback). Hydra's own parser splits the line, so every flag it documents
+(``--cfg job``, ``-c job``, ``--resolve``, ``--info``, ``-m``) keeps its meaning and only the overrides are checked:
+their grammar, the group options, the run directories. What needs the composed config (an unknown key, a value a
+typed schema refuses) is Hydra's own composition's error, one line (:mod:`experiments._hydra_errors`);
+:func:`check_plain_overrides` composes once for a command that starts many runs (``make figures``' plan)."""
 
 from __future__ import annotations
 
@@ -16,7 +19,6 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from experiments._groups import CONF_DIR, group_options, searchpath_dirs
 from experiments._schema import stored_nodes
-from icgo.core.settings import first_line
 
 #: Exit status of a bad setting or command line (every door).
 EXIT_CONFIG = 2
@@ -80,7 +82,7 @@ def check_hydra_dirs(args: list[str]) -> str | None:
     return None
 
 
-def _parsed(args: list[str]):
+def parsed_overrides(args: list[str]):
     """The overrides parsed by Hydra's grammar, or the one-line error of the first it cannot read."""
     parser = OverridesParser.create()
     for a in args:
@@ -93,14 +95,15 @@ def _parsed(args: list[str]):
     return parser.parse_overrides(args)
 
 
-def _prefix(ov) -> str:
+def override_prefix(ov) -> str:
     return {OverrideType.ADD: "+", OverrideType.FORCE_ADD: "++"}.get(ov.type, "")  # the override's + or ++
 
 
 def check_plain_overrides(args: list[str], config_name: str, conf_dir: Path = CONF_DIR, groups=None) -> str | None:
     """One-line error for an override ``key=value`` whose key is not in the config composed with the line's group
-    choices (Hydra: six lines, exit 1). ``groups``: the door's (default: every folder of ``conf_dir``)."""
-    overrides = _parsed(args)
+    choices (Hydra: six lines, exit 1), checked once before a plan starts its runs (``experiments.figures_plan``).
+    ``groups``: the door's (default: every folder of ``conf_dir``)."""
+    overrides = parsed_overrides(args)
     if isinstance(overrides, str):
         return overrides
     is_group = (lambda k: (conf_dir / k).is_dir()) if groups is None else (lambda k: k in groups)
@@ -114,13 +117,13 @@ def check_plain_overrides(args: list[str], config_name: str, conf_dir: Path = CO
             continue  # Hydra's own settings; an added or deleted key (the entry points refuse unknown ones)
         if is_group(key):
             value = next(iter(ov.sweep_string_iterator())) if ov.is_sweep_override() else ov.get_value_element_as_str()
-            chosen.append(f"{_prefix(ov)}{key}={value}")
+            chosen.append(f"{override_prefix(ov)}{key}={value}")
         else:
             plain.append(ov)
     if not plain:
         return None
     try:
-        cfg = _compose(config_name, chosen, conf_dir)
+        cfg = compose_config(config_name, chosen, conf_dir)
     except Exception:  # noqa: BLE001  (a bad group choice: check_overrides names it)
         return None
     renamed = RENAMED_KEYS["*"] | RENAMED_KEYS.get(config_name, {})
@@ -131,33 +134,8 @@ def check_plain_overrides(args: list[str], config_name: str, conf_dir: Path = CO
     return key and f"unknown setting {key!r} in override {line!r}: {where} (with the chosen groups) has no such key"
 
 
-def check_schema(args: list[str], config_name: str, conf_dir: Path = CONF_DIR) -> str | None:
-    """One-line error for an override whose value the config's typed schema (:mod:`experiments._schema`) refuses:
-    composed with each value of a sweep once (Hydra would print a block, exit 1)."""
-    from omegaconf.errors import ValidationError
-
-    defaults = OmegaConf.load(conf_dir / f"{config_name}.yaml").get("defaults") or []
-    if not any(str(d).endswith("_schema") for d in defaults):
-        return None
-    choices = [(_prefix(ov) + ov.key_or_group,
-                list(ov.sweep_string_iterator()) if ov.is_sweep_override() else [ov.get_value_element_as_str()])
-               for ov in _parsed(args)  # the grammar checked by check_plain_overrides
-               if not ov.key_or_group.startswith("hydra") and ov.type != OverrideType.DEL]
-    first = [f"{k}={values[0]}" for k, values in choices]
-    trials = [first] + [first[:i] + [f"{k}={v}"] + first[i + 1:]
-                        for i, (k, values) in enumerate(choices) for v in values[1:]]  # each sweep value once
-    for overrides in trials:
-        try:
-            _compose(config_name, overrides, conf_dir)
-        except Exception as e:  # noqa: BLE001  (only a value the schema refuses is named here)
-            while e is not None and not isinstance(e, ValidationError):
-                e = e.__cause__ or e.__context__
-            if e is not None:
-                return f"setting {e.full_key!r}: {first_line(e)} (conf/{config_name}.yaml's schema)"
-    return None
-
-
-def _compose(config_name: str, overrides: list[str], conf_dir: Path):  # Hydra's global state left clear
+def compose_config(config_name: str, overrides: list[str], conf_dir: Path):
+    """The config ``config_name`` composed with ``overrides`` (Hydra's global state left clear)."""
     stored_nodes(config_name, conf_dir)
     GlobalHydra.instance().clear()
     try:
@@ -181,8 +159,9 @@ def _has_key(cfg, dotted: str) -> bool:
 
 
 def preflight(config_name: str, args: list[str] | None = None, conf_dir: Path = CONF_DIR, groups=()) -> None:
-    """Checks of a Hydra door's command line (``-m`` moved in front, read by Hydra's parser, then each check of
-    this module on its overrides); one line on stderr and exit 2 on a bad one. Rewrites ``sys.argv`` (args None)."""
+    """Checks of a Hydra door's command line that need no composition (``-m`` moved in front, read by Hydra's parser,
+    then the overrides' grammar, group options and run directories); one line on stderr and exit 2 on a bad one.
+    Rewrites ``sys.argv`` (args None)."""
     argv = sys.argv[1:] if args is None else args
     flags, rest = [a for a in argv if a in MULTIRUN_FLAGS], [a for a in argv if a not in MULTIRUN_FLAGS]
     if args is None:
@@ -192,9 +171,9 @@ def preflight(config_name: str, args: list[str] | None = None, conf_dir: Path = 
     except ValueError as e:
         err = str(e)
     else:
+        parsed = parsed_overrides(overrides)
         err = (check_overrides(overrides, groups, conf_dir) or check_hydra_dirs(overrides)
-               or check_plain_overrides(overrides, config_name, conf_dir, groups)
-               or check_schema(overrides, config_name, conf_dir))
+               or (parsed if isinstance(parsed, str) else None))
     if err:
         print(f"error: {err}", file=sys.stderr)
         raise SystemExit(EXIT_CONFIG)

@@ -55,17 +55,19 @@ def test_the_study_defaults_come_from_the_dataclass_once():
 
 def test_conf_yaml_is_checked_against_the_schema_of_the_dataclass(tmp_path):
     """conf/calibrate.yaml names the schema made from CalibrationConfig: an int or str study field of the wrong type
-    is refused when Hydra composes (the door's preflight prints it as one line, exit 2); a bool and the entry
-    point's own settings are the library's and the door's checks."""
+    is refused when Hydra composes (the door prints Hydra's error as one line, exit 2, and composes a sweep's later
+    values before its first job); a bool and the entry point's own settings are the library's and the door's checks."""
     from hydra.errors import ConfigCompositionException
 
-    from experiments._preflight import check_schema
+    from experiments._hydra_errors import check_sweep_values, composition_error
 
     for ov in ("misma_iter=abc", "misma_pop=1e9", "misma_bounds=[1]"):
-        with pytest.raises(ConfigCompositionException):
+        with pytest.raises(ConfigCompositionException) as e:
             _compose(ov)
-        assert check_schema([ov], "calibrate").startswith(f"setting {ov.split('=')[0]!r}: ")
-    assert _compose("peer=maybe").peer == "maybe" and check_schema(["peer=maybe", "max_shots=abc"], "calibrate") is None
+        assert composition_error(e.value, "calibrate", [ov]).startswith(f"setting {ov.split('=')[0]!r}: ")
+    assert check_sweep_values(["misma_iter=1,abc"], "calibrate").startswith("setting 'misma_iter': ")
+    assert _compose("peer=maybe").peer == "maybe"
+    assert check_sweep_values(["peer=true,maybe", "max_shots=1,abc"], "calibrate") is None
     out = _run_entry(tmp_path, "data=x.json", "misma_iter=1,abc")
     lines = out.stderr.strip().splitlines()
     assert out.returncode == 2 and len(lines) == 1, out.stderr

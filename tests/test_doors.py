@@ -145,6 +145,20 @@ def test_a_wrong_value_is_one_line_and_exit_2(args, says):
     assert r.returncode == 2 and len(lines) == 1 and lines[0].startswith("error: ") and says in lines[0], r.stderr
 
 
+def test_a_sweep_whose_later_job_hydra_refuses_starts_no_job(tmp_path):
+    """Hydra composes the config once, in the door (no second composition to check it): a key that only the sweep's
+    second job lacks (lab_casing has no dataset.condition) is one line and exit 2, before the first job starts (the
+    icgo launcher composes every job's config first), and no job directory is written."""
+    sweep = tmp_path / "sweep"
+    r = _run([sys.executable, "-m", "experiments.run", "-m", "budget=smoke", "split.n_repeats=1",
+              "dataset=well_conditions,lab_casing", "dataset.condition=1", f"hydra.sweep.dir={sweep}"])
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1, r.stderr
+    assert lines[0] == ("error: unknown setting 'dataset.condition' in override 'dataset.condition=1': "
+                        "conf/config.yaml (with the chosen groups) has no such key")
+    assert not sweep.exists() or not any(sweep.iterdir())
+
+
 # ---------------------------------------------------------------- the icgo console script
 def test_icgo_lists_every_command_of_the_readme(tmp_path):
     icgo = console_script(tmp_path)

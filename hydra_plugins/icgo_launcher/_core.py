@@ -163,6 +163,9 @@ def launch(launcher, job_overrides: Sequence[Sequence[str]], initial_job_idx: in
     except ValueError as e:
         print(f"error: {e}", file=sys.stderr)
         raise SystemExit(EXIT_CONFIG) from None
+    # every job's config composed before the first job starts: a value Hydra refuses stops the sweep whole
+    configs = {idx: _job_config(launcher, overrides, idx) for idx, overrides in enumerate(job_overrides,
+                                                                                         start=initial_job_idx)}
     sweep_dir = Path(str(launcher.config.hydra.sweep.dir))
     sweep_dir.mkdir(parents=True, exist_ok=True)
     pin = launcher.xla_threads == 1 and workers <= len(cpus)
@@ -180,7 +183,7 @@ def launch(launcher, job_overrides: Sequence[Sequence[str]], initial_job_idx: in
             while queue or running:
                 while queue and free_slots:
                     idx, overrides = queue.popleft()
-                    config, job_dir = _job_config(launcher, overrides, idx)
+                    config, job_dir = configs.pop(idx)
                     log.info("\t#%d : %s", idx, " ".join(filter_overrides(overrides)))
                     slot = free_slots.popleft()
                     recv, send = ctx.Pipe(duplex=False)

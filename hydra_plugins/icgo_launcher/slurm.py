@@ -65,6 +65,8 @@ class IcgoSlurmLauncher(SlurmLauncher):
 
     def _launch(self, job_overrides: Sequence[Sequence[str]], initial_job_idx: int) -> Sequence[JobReturn]:
         self._check_request()
+        for overrides in job_overrides:  # every job's config composed here first: a refused value submits nothing
+            self.hydra_context.config_loader.load_sweep_config(self.config, list(overrides))
         sweep_dir = Path(str(self.config.hydra.sweep.dir))
         sweep_dir.mkdir(parents=True, exist_ok=True)
         log.info("SLURM sweep output dir: %s", sweep_dir)
