@@ -71,7 +71,7 @@ class StudyConfig:
             :mod:`icgo.studies.common.sharding`); None (default) = every device of the backend (a CPU's host devices,
             one per core of the job: :func:`icgo.core.devices.use_host_devices`). Bitwise the one-device result
             on a CPU (:meth:`execution`).
-        repeat_ids: run only these repeat ids (e.g. ``(3,)`` to rerun repeat 3 alone); None = ``range(n_repeats)``.
+        repeat_ids: run only these repeat ids (e.g. ``(3,)`` to rerun repeat 3 alone); None = ``range(split.n_repeats)``.
     """
 
     split: _nodes.SplitSettings = dataclasses.field(default_factory=_nodes.SplitSettings)
@@ -97,6 +97,8 @@ class StudyConfig:
             v = getattr(self, name)
             if isinstance(v, dict):
                 object.__setattr__(self, name, config_from_mapping(node, v, name, f"{name}."))
+            else:
+                need(isinstance(v, node), name, f"must be a {node.__name__} or a mapping of its keys, got {v!r}")
         for name in ("strategies", "repeat_ids"):  # Hydra/JSON give lists
             v = getattr(self, name)
             if isinstance(v, list):
