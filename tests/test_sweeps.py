@@ -171,7 +171,8 @@ def test_killing_a_study_job_costs_only_it_and_the_rerun_resumes(tmp_path):
            "figures=false", "hydra.launcher.workers=1", f"hydra.sweep.dir={sweep}",
            f"jax_cache_dir={tmp_path / 'jax'}"]
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    _wait_for(sweep / "0" / ".hydra" / "config.yaml", proc, timeout=120)
+    # the job's log, which Hydra opens as the job starts (its .hydra record is staged with its outputs, at the end)
+    _wait_for(sweep / "0" / "run.log", proc, timeout=120)
     children = [int(p) for p in Path(f"/proc/{proc.pid}/task/{proc.pid}/children").read_text().split()]
     job = [c for c in children if "spawn_main" in Path(f"/proc/{c}/cmdline").read_text()]
     assert len(job) == 1

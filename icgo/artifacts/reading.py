@@ -33,8 +33,9 @@ MAX_ARRAYS_BYTES = 256 << 20
 #: Largest magnitude of a fitted parameter: beyond it a parameter is not a fit (1e300 overflows every
 #: product to inf); the largest fitted values are fields in nT (~1e5) and RELM output weights (~1e4).
 MAX_PARAMETER = 1e12
-#: Array dtypes a model may hold: float, signed and unsigned integers, bool.
-ARRAY_KINDS = "fiub"
+#: Array dtypes a model may hold: float, signed and unsigned integers (a bool array is refused: no model saves one,
+#: and a predictor would do arithmetic on it).
+ARRAY_KINDS = "fiu"
 
 
 def model_files(path) -> list[Path]:
