@@ -35,9 +35,9 @@ def composition_error(e: BaseException, config_name: str, args: list[str], conf_
     where = (conf_dir / f"{config_name}.yaml").relative_to(CONF_DIR.parent)
     if isinstance(cause, ValidationError):
         return f"setting {cause.full_key!r}: {first_line(cause)} ({where}'s schema)"
-    key = getattr(cause, "full_key", None) if isinstance(cause, (ConfigAttributeError, ConfigKeyError)) else None
-    named = re.match(r"Could not override '([^']+)'", str(e))  # also a group this door does not have
-    key = key or (named and named.group(1))
+    named = re.match(r"Could not override '([^']+)'", str(e))  # the key as typed (also a group the door lacks)
+    key = named.group(1) if named else (getattr(cause, "full_key", None)
+                                        if isinstance(cause, (ConfigAttributeError, ConfigKeyError)) else None)
     if key:
         renamed = RENAMED_KEYS["*"] | RENAMED_KEYS.get(config_name, {})
         if key in renamed:

@@ -134,6 +134,7 @@ def test_hydra_flags_work_on_every_door(name, k):
 
 @pytest.mark.parametrize("args, says", [
     (["calibrate", "strategy=wavelet"], "unknown setting 'strategy'"),
+    (["gyro", "network.enabled=maybe"], "unknown setting 'network.enabled' in override 'network.enabled=maybe'"),
     pytest.param(["discrepancy", "budget=smoke"], "unknown setting 'budget'", marks=pytest.mark.slow),
     (["run", "--cfg", "job", "strategy=bogus"], "unknown strategy 'bogus'"),
     pytest.param(["run", "--cfg", "bogus"], "--cfg", marks=pytest.mark.slow),
