@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from icgo.studies.icgo_relm import progress as P
-from icgo.studies.icgo_relm import search_estimate as E
+from icgo.studies.icgo_relm import progress as E
 
 
 class _Clock:
@@ -142,7 +142,7 @@ def test_smallest_p_against_the_exact_wilcoxon():
 
 
 def test_the_power_note_names_the_worlds_needed():
-    from icgo.studies.icgo_relm.worlds.outputs import power_note
+    from icgo.studies.icgo_relm.worlds.stats import power_note
 
     note = power_note(3, 5)
     assert "3 worlds are too few" in note and "Holm over 4 test(s), is 1" in note and "8 worlds" in note

@@ -67,9 +67,9 @@ def compute(run, scfg, timings: dict) -> Computed:
     from icgo.studies.icgo_relm.load import load_worlds
     from icgo.studies.icgo_relm.progress import make_progress
     from icgo.studies.common.run_log import to_log_files
-    from icgo.studies.icgo_relm.search_estimate import announce
+    from icgo.studies.icgo_relm.progress import announce
     from icgo.studies.icgo_relm.worlds.study import run_worlds
-    from icgo.studies.icgo_relm.worlds.outputs import power_note
+    from icgo.studies.icgo_relm.worlds.stats import power_note
 
     worlds, desc = load_worlds(run)
     timings["load_data_s"] = time.perf_counter() - t1

@@ -21,23 +21,6 @@ TABLES = ("metrics", "convergence", "msa", "coverage")
 WORLDS_FILE, POOLED_FILE, FIGURE_FILE = "worlds.csv", "worlds_pooled.csv", "worlds.png"
 
 
-def power_note(n_worlds: int, n_methods: int, alpha: float = 0.05) -> str | None:
-    """One sentence when ``n_worlds`` are too few for the run's test over worlds (the first method against each of
-    the other ``n_methods - 1``, exact two-sided Wilcoxon, Holm) to reach p < ``alpha`` whatever the data
-    (:func:`icgo.studies.icgo_relm.worlds.stats.smallest_p`); None when it can, or when there is no test."""
-    from icgo.studies.icgo_relm.worlds.stats import smallest_p, worlds_needed
-
-    tests = n_methods - 1
-    if tests < 1 or n_worlds < 2:
-        return None
-    p = smallest_p(n_worlds, tests)
-    if p < alpha:
-        return None
-    return (f"{n_worlds} worlds are too few for the test over worlds: the smallest p an exact two-sided Wilcoxon over "
-            f"{n_worlds} worlds gives, Holm over {tests} test(s), is {p:.3g} (not < {alpha:g}), so no order of the "
-            f"methods can be established; {worlds_needed(tests, alpha)} worlds are the fewest that can")
-
-
 def methods_compared(result) -> list[str]:
     """The fitted methods of the run (its searched or plain RELMs), the baselines raw and MSA left out."""
     return list(result.config.method_names())
@@ -67,7 +50,7 @@ def summary(result, info: dict, search: str):
           "## Pooled over worlds", "", pooled.to_markdown(index=False), ""]
     if len(methods) >= 2 and len(result.seeds) >= 2:
         tests = world_tables.first_against_rest(per, methods)
-        note = power_note(len(result.seeds), len(methods))
+        note = world_tables.power_note(len(result.seeds), len(methods))
         md += [world_tables.rank_sentence(per, methods), "", *([f"**Note: {note}.**", ""] if note else []),
                f"Wilcoxon signed-rank over worlds (paired by world, per-world mean test MAE), the first by pooled "
                f"mean against each other method, Holm over the {len(tests)} tests:", "",

@@ -189,3 +189,18 @@ def worlds_needed(tests: int = 1, alpha: float = 0.05) -> int:
     while smallest_p(n, tests) >= alpha:
         n += 1
     return n
+
+
+def power_note(n_worlds: int, n_methods: int, alpha: float = 0.05) -> str | None:
+    """One sentence when ``n_worlds`` are too few for the run's test over worlds (the first method against each of
+    the other ``n_methods - 1``, exact two-sided Wilcoxon, Holm) to reach p < ``alpha`` whatever the data
+    (:func:`smallest_p`); None when it can, or when there is no test."""
+    tests = n_methods - 1
+    if tests < 1 or n_worlds < 2:
+        return None
+    p = smallest_p(n_worlds, tests)
+    if p < alpha:
+        return None
+    return (f"{n_worlds} worlds are too few for the test over worlds: the smallest p an exact two-sided Wilcoxon over "
+            f"{n_worlds} worlds gives, Holm over {tests} test(s), is {p:.3g} (not < {alpha:g}), so no order of the "
+            f"methods can be established; {worlds_needed(tests, alpha)} worlds are the fewest that can")
