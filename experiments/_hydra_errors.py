@@ -75,11 +75,10 @@ def composition_errors(config_name: str, conf_dir: Path = CONF_DIR):
 
 
 def check_sweep_values(args: list[str], config_name: str, conf_dir: Path = CONF_DIR) -> str | None:
-    """One-line error for a sweep value a typed schema (:mod:`experiments._schema`) refuses. Hydra's own launcher
-    (the schema doors') composes each job as it starts it, so a refused later value would stop a sweep half run: each
-    sweep value after the first is composed once here (the first is Hydra's own composition's)."""
-    from omegaconf.errors import ValidationError
-
+    """One-line error (:func:`composition_error`) for a sweep value Hydra refuses on a door with a typed schema
+    (:mod:`experiments._schema`). Hydra's own launcher (the schema doors') composes each job as it starts it, so a
+    refused later value would stop a sweep half run: each sweep value after the first is composed once here (the
+    first is Hydra's own composition's)."""
     defaults = OmegaConf.load(conf_dir / f"{config_name}.yaml").get("defaults") or []
     if not any(str(d).endswith("_schema") for d in defaults):
         return None
@@ -92,9 +91,8 @@ def check_sweep_values(args: list[str], config_name: str, conf_dir: Path = CONF_
         for v in values[1:]:
             try:
                 compose_config(config_name, first[:i] + [f"{k}={v}"] + first[i + 1:], conf_dir)
-            except Exception as e:  # noqa: BLE001  (only a value the schema refuses is named here)
-                while e is not None and not isinstance(e, ValidationError):
-                    e = e.__cause__ or e.__context__
-                if e is not None:
-                    return f"setting {e.full_key!r}: {first_line(e)} (conf/{config_name}.yaml's schema)"
+            except Exception as e:  # noqa: BLE001  (only Hydra's and OmegaConf's errors are named here)
+                err = composition_error(e, config_name, [f"{k}={v}"], conf_dir)
+                if err:
+                    return err
     return None

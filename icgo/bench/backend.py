@@ -136,7 +136,7 @@ def study_scaling(repeats=STUDY_REPEATS, deadline: float = float("inf"), **confi
     frame = datasets.lab_casing(0).frame
     out, last = [], None
     for R in repeats:
-        cfg = StudyConfig(**{"strategies": STRATEGIES, **config, "split": {**config.get("split", {}), "n_repeats": R}})
+        cfg = StudyConfig(**{"strategies": STRATEGIES, **config}).replace(split={"n_repeats": R})
         why = overrun(last, R, deadline - time.perf_counter())
         if why:
             out.append({"repeats": R, "skipped": why})
