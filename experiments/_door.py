@@ -35,8 +35,8 @@ class Door(NamedTuple):
     Attributes:
         config_name: its primary config (``<conf_dir>/<config_name>.yaml``). conf_dir: its config directory.
         groups: the config groups it uses (an override of another is refused). classes: dotted key prefix
-            (``""``: the top level) -> ``"module:Class"`` of the config dataclass whose field docs its ``--help``
-            shows. summary: what it does, one or two lines. examples: command lines after ``icgo <door>``.
+            (``""``: the top level) -> the ``"module:Class"`` of each config dataclass whose field docs its
+            ``--help`` shows (the study's, then the door's own settings'). summary: what it does, one or two lines. examples: command lines after ``icgo <door>``.
     """
 
     config_name: str
@@ -47,32 +47,34 @@ class Door(NamedTuple):
     examples: tuple
 
 
+#: The compilation cache setting of the doors whose study config does not hold it (their ConfigStore node adds it).
+CACHE_SETTING = "icgo.core.devices:CacheSetting"
 DOORS = {
-    "run": Door("config", CONF_DIR, STUDY_GROUPS, {"": "icgo.studies.icgo_relm.run_config:RunConfig"},
+    "run": Door("config", CONF_DIR, STUDY_GROUPS, {"": ("icgo.studies.icgo_relm.run_config:RunConfig",)},
                 "ICGO-RELM study: MSA, then a RELM whose hidden layer an optimizer searches; writes a run directory\n"
                 "(metrics, models, figures, summary.md with the verdict) and prints the summary and the verdict.",
                 ("strategy=three_stage                 # make run", "experiment=table3                    # a paper "
                  "preset", "-m strategy=chaos,wavelet           # a sweep (one process per job)",
                  "dataset=csv dataset.path=FILE.csv    # your own recording (docs/data.md)")),
-    "apply": Door("apply", CONF_DIR / "apply", (), {"qc": "icgo.physics.qc:QCBands"},
+    "apply": Door("apply", CONF_DIR / "apply", (), {"qc": ("icgo.physics.qc:QCBands",)},
                   "Apply a fitted model (a run directory or a model .json) to a new survey: the corrected survey\n"
                   "(CSV + meta), the MAE where it has a reference azimuth, QC before/after and the verdict.",
                   ("model=outputs/run/<date>/<time> data=survey.csv", "model=m.json data=big.csv stream_mb=16")),
-    "calibrate": Door("calibrate", CONF_DIR, (), {"": "icgo.studies.calibration:CalibrationConfig"},
+    "calibrate": Door("calibrate", CONF_DIR, (), {"": ("icgo.studies.calibration:CalibrationConfig", CACHE_SETTING)},
                       "Magnetometer calibration of grouped static shots: every method fitted and scored held out,\n"
                       "one recommended (report.md, calibration.csv, models/), or why none (exit 4).",
                       ("data=shots.csv", "data=device.json site.lat=51.5 site.lon=-0.1 site.date=2024-06-01",
                        "data=raw.json mag_axes=+x+y-z grav_axes=-y-x+z", "data=bundled   # the 9 bundled devices")),
-    "discrepancy": Door("discrepancy", CONF_DIR, (), {"": "icgo.discrepancy.config:WorkflowConfig"},
+    "discrepancy": Door("discrepancy", CONF_DIR, (), {"": ("icgo.discrepancy.config:WorkflowConfig",)},
                         "Discrepancy workflow: where simulated and measured sensor data disagree, the missing\n"
                         "physical effect named, added to the model, the gap shown to shrink.",
                         ("data=FILE.csv", "data=sim:hard_iron+accel_bias design=single_inclination",
                          "data=mag_cal:ab", "study=hidden   # results/discrepancy_hidden.md")),
-    "misma": Door("misma", CONF_DIR, (), {"": "icgo.studies.misma.config:MismaConfig"},
+    "misma": Door("misma", CONF_DIR, (), {"": ("icgo.studies.misma.config:MismaConfig",)},
                   "MISMA study: the 12-parameter magnetometer model identified while the drill string rotates,\n"
                   "against SMA; tables and figures into results/misma_*, the calibrations into the run directory.",
                   ("", "simulated.repeats=3 simulated.n_iter=300 real.enabled=false")),
-    "gyro": Door("gyro", CONF_DIR, (), {"": "icgo.studies.gyro:GyroConfig"},
+    "gyro": Door("gyro", CONF_DIR, (), {"": ("icgo.studies.gyro:GyroConfig", CACHE_SETTING)},
                  "Gyro inclinometer study: the 3-8-8-1 network against the lookup table it replaced (plus RELM,\n"
                  "ICGO-RELM); tables and figures into results/gyro_*, the models into the run directory.",
                  ("", "n_seeds=3 net.epochs=300 sweep.enabled=false relm.enabled=false")),

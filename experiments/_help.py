@@ -169,15 +169,16 @@ def door_help(name: str, d, width: int = 118) -> str:
     path = d.conf_dir / f"{d.config_name}.yaml"
     cfg = yaml.safe_load(path.read_text()) or {}
     docs, nodes = {}, set()
-    for prefix, spec in d.classes.items():
-        more, more_nodes = class_docs(spec, prefix)
-        docs, nodes = {**docs, **more}, nodes | more_nodes
+    for prefix, specs in d.classes.items():
+        for spec in specs:
+            more, more_nodes = class_docs(spec, prefix)
+            docs, nodes = {**docs, **more}, nodes | more_nodes
     comments = yaml_comments(path)
     lines = [d.summary, "", f"usage: icgo {name} [-m] " + ("[GROUP=OPTION ...] " if d.groups else "")
              + "[KEY=VALUE ...]", f"   or: python -m experiments.{name} (the same arguments)"]
     defaults = {k: v for x in cfg.get("defaults", []) if isinstance(x, dict) for k, v in x.items()}
     stored = {f"{d.config_name}_schema", f"{d.config_name}_defaults"} & set(map(str, cfg.get("defaults", [])))
-    base = schema_defaults(d.classes[""]) if stored and "" in d.classes else {}  # what the YAMLs do not repeat
+    base = {k: v for s in d.classes.get("", ()) for k, v in schema_defaults(s).items()} if stored else {}
     if d.groups:
         lines += ["", "config groups (GROUP=OPTION; default in brackets):"]
         for g in d.groups:

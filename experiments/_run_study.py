@@ -80,13 +80,13 @@ def run_study(name: str, config, output, *, inputs: dict | None = None, models_d
 
 def run_composed(name: str, cfg: DictConfig, models_dir: Path | None = None, config=None, entry_keys=("out_dir",)):
     """:func:`run_study` of a composed config: tables into ``out_dir`` (relative to the repository root; a shared
-    results folder: the study's files replace their namesakes), the models into ``models_dir``; ``jax_cache``
-    (where the YAML has it) turns on the compilation cache. ``config``: the typed config if already built."""
+    results folder: the study's files replace their namesakes), the models into ``models_dir``; ``jax_cache_dir``
+    (where the door has it) turns on the compilation cache. ``config``: the typed config if already built."""
     from icgo.core.devices import enable_jax_cache
     from icgo.io.files import Output
 
     config = study_config(name, cfg, entry_keys) if config is None else config
-    if cfg.get("jax_cache"):
-        enable_jax_cache(str(repo_path(cfg.jax_cache)))
+    if cfg.get("jax_cache_dir"):
+        enable_jax_cache(str(repo_path(cfg.jax_cache_dir)))
     output = Output(repo_path(cfg.out_dir), setting="out_dir", shared=True).check()  # before the study runs
     return run_study(name, config, output, models_dir=models_dir, settings=OmegaConf.to_container(cfg, resolve=True))

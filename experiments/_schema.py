@@ -48,10 +48,18 @@ def _plain(value):
     return value
 
 
-def schema_of(config_cls, entry_keys=()) -> type:
+def schema_of(config_cls, entry_keys=(), door_cls=None) -> type:
     """A mutable dataclass with the fields and defaults of the frozen ``config_cls`` (nested dataclasses mirrored,
-    types as the module docstring says), plus ``entry_keys``: the entry point's own settings (``Any``, no default
-    here: the YAML gives them)."""
+    types as the module docstring says), plus ``entry_keys``: the entry point's own settings (``Any``; no default
+    here, the YAML gives them, unless ``door_cls``, a config dataclass of door settings, has the field)."""
+    fields = _fields(config_cls) + (_fields(door_cls) if door_cls is not None else [])
+    given = {name for name, *_ in fields}
+    fields += [(name, Any, dataclasses.field(default=MISSING)) for name in entry_keys if name not in given]
+    return dataclasses.make_dataclass(f"{config_cls.__name__}Schema", fields)
+
+
+def _fields(config_cls) -> list:
+    """The schema's fields (name, type, field) of the config dataclass ``config_cls``, defaults included."""
     default = config_cls()
     fields = []
     for f in dataclasses.fields(config_cls):
@@ -64,30 +72,31 @@ def schema_of(config_cls, entry_keys=()) -> type:
         if kind is not Any and (type(value) is not kind):
             kind = Any  # a default of another type than its annotation: the library decides
         fields.append((f.name, kind, dataclasses.field(default_factory=lambda v=value: _plain(v))))
-    fields += [(name, Any, dataclasses.field(default=MISSING)) for name in entry_keys]
-    return dataclasses.make_dataclass(f"{config_cls.__name__}Schema", fields)
+    return fields
 
 
-def register_defaults(config_name: str, config_cls) -> str:
-    """Store the defaults of ``config_cls`` (:func:`icgo.core.settings.defaults_of`: every field that has one, as a
-    plain, untyped mapping) in Hydra's ConfigStore as ``<config_name>_defaults``, the node
-    ``conf/<config_name>.yaml`` names first in its defaults list; returns that name (storing again replaces it)."""
+def register_defaults(config_name: str, config_cls, door_cls=None) -> str:
+    """Store the defaults of ``config_cls`` and of ``door_cls``, the door's own settings that have a default
+    (:func:`icgo.core.settings.defaults_of`: every field that has one, as a plain, untyped mapping) in Hydra's
+    ConfigStore as ``<config_name>_defaults``, the node ``conf/<config_name>.yaml`` names first in its defaults
+    list; returns that name (storing again replaces it)."""
     from hydra.core.config_store import ConfigStore
     from omegaconf import OmegaConf
 
     from icgo.core.settings import defaults_of
 
-    ConfigStore.instance().store(name=f"{config_name}_defaults", node=OmegaConf.create(defaults_of(config_cls)))
+    node = {**defaults_of(config_cls), **(defaults_of(door_cls) if door_cls is not None else {})}
+    ConfigStore.instance().store(name=f"{config_name}_defaults", node=OmegaConf.create(node))
     return f"{config_name}_defaults"
 
 
-def register(config_name: str, config_cls, entry_keys=()) -> str:
+def register(config_name: str, config_cls, entry_keys=(), door_cls=None) -> str:
     """Store the schema of ``conf/<config_name>.yaml`` (:func:`schema_of` ``config_cls``, the study's config class,
-    and ``entry_keys``) in Hydra's ConfigStore as ``<config_name>_schema``; returns that name (storing again
-    replaces it)."""
+    ``entry_keys`` and ``door_cls``) in Hydra's ConfigStore as ``<config_name>_schema``; returns that name (storing
+    again replaces it)."""
     from hydra.core.config_store import ConfigStore
 
-    ConfigStore.instance().store(name=f"{config_name}_schema", node=schema_of(config_cls, entry_keys))
+    ConfigStore.instance().store(name=f"{config_name}_schema", node=schema_of(config_cls, entry_keys, door_cls))
     return f"{config_name}_schema"
 
 

@@ -16,9 +16,10 @@ from experiments._data_doors import CALIBRATE_KEYS
 from experiments._door import CONF_DIR, door, one_line_errors
 from experiments._schema import register
 from experiments._study_main import study_main
+from icgo.core.devices import CacheSetting
 from icgo.studies.calibration.study import CalibrationConfig
 
-register("calibrate", CalibrationConfig, CALIBRATE_KEYS)  # conf/calibrate.yaml's schema
+register("calibrate", CalibrationConfig, CALIBRATE_KEYS, CacheSetting)  # conf/calibrate.yaml's schema
 
 
 @hydra.main(version_base="1.3", config_path=str(CONF_DIR), config_name="calibrate")

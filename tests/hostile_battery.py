@@ -965,7 +965,7 @@ def study_setting_cases() -> list[Case]:
             ("misma", (("simulated.repeats", "0"), ("simulated.repeats", "abc"), ("real.enabled", "maybe"),
                        ("real.peer", "maybe"), ("seed", "abc"), ("+bogus", "1"), ("simulated.enabled", "'yes'"),
                        ("out_dir", "/dev/null/x"))),
-            ("gyro", (("seed", "abc"), ("+bogus", "1"), ("out_dir", "/dev/null/x"), ("jax_cache", "/dev/null/x"),
+            ("gyro", (("seed", "abc"), ("+bogus", "1"), ("out_dir", "/dev/null/x"), ("jax_cache_dir", "/dev/null/x"),
                       ("network.enabled", "maybe"))),
     ):
         for k, v in items:

@@ -169,7 +169,7 @@ def test_same_key_same_records(tiny):
 
 @pytest.mark.slow
 def test_entry_point_writes_tables_figures_and_models(tmp_path):
-    overrides = [f"out_dir={tmp_path}", "jax_cache=null", "n_seeds=2", "data.inclinations_deg=[10,40]",
+    overrides = [f"out_dir={tmp_path}", "jax_cache_dir=null", "n_seeds=2", "data.inclinations_deg=[10,40]",
                  "data.azimuth_step_deg=90", "data.toolface_step_deg=90", "data.n_random=50", "net.epochs=10",
                  "net.patience=10", "net.batch_size=8", "~variants", "+variants={net_error: {}}",
                  "relm.enabled=false", "sweep.azimuth_steps=[90]", "sweep.toolface_steps=[90]",

@@ -13,6 +13,7 @@ Nothing here imports JAX at module import: the entry points call these before an
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import sys
 import warnings
@@ -182,6 +183,19 @@ CACHE_MAX_BYTES = 4 * 2**30
 #: The doors' ``jax_cache_dir`` default (the persistent compilation cache): under the user's cache directory
 #: (XDG_CACHE_HOME, else ~/.cache, else /tmp/.cache), an OmegaConf interpolation resolved when the door composes.
 JAX_CACHE_DEFAULT = "${oc.env:XDG_CACHE_HOME,${oc.env:HOME,/tmp}/.cache}/icgo/jax"
+
+
+@dataclasses.dataclass(frozen=True)
+class CacheSetting:
+    """The compilation cache setting of the doors whose study config does not hold it (calibrate, gyro: their
+    ConfigStore node takes this default, :mod:`experiments._schema`; the run door's is ``RunConfig.jax_cache_dir``).
+
+    Attributes:
+        jax_cache_dir: JAX's persistent compilation cache (repeated runs and sweep jobs reuse compiled programs);
+            None: off. Default: under the user's cache directory (XDG_CACHE_HOME or ~/.cache).
+    """
+
+    jax_cache_dir: str | None = JAX_CACHE_DEFAULT
 
 
 def enable_jax_cache(path: str | None, min_compile_secs: float = 0.0) -> None:
