@@ -5,7 +5,8 @@ import pandas as pd
 import pytest
 
 import icgo  # noqa: F401
-from icgo.maths import metrics
+from icgo.maths.stats import mean_std_table
+from icgo.physics import metrics
 
 
 def test_wrapping():
@@ -38,9 +39,9 @@ def test_r2_error_and_bundle():
     assert float(m.rmse) == pytest.approx(np.sqrt(np.mean(after**2)), rel=1e-10)
 
 
-def test_summarize_mean_std():
+def test_mean_std_table_of_repeat_metrics():
     df = pd.DataFrame({"strategy": ["a"] * 3 + ["b"] * 3, "split": "test", "mae": [1.0, 2.0, 3.0, 4, 4, 4],
                        "rmse": 1.0, "r2": 0.5, "r2_error": 0.1})
-    s = metrics.summarize(df)
+    s = mean_std_table(df, ["strategy", "split"], ["mae", "rmse", "r2", "r2_error"])
     assert s.loc[("a", "test"), "mae_mean"] == 2.0 and s.loc[("a", "test"), "mae_std"] == 1.0
     assert s.loc[("b", "test"), "mae"] == "4.0000 +/- 0.0000"

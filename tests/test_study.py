@@ -9,7 +9,7 @@ import pytest
 
 import icgo  # noqa: F401
 from icgo.core.errors import SettingError
-from icgo.maths import metrics
+from icgo.physics import metrics
 from icgo.physics import effects, frames
 from icgo.studies.icgo_relm import study
 from icgo.studies.icgo_relm.config import RENAMED_PRECISIONS, StudyConfig

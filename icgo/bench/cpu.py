@@ -107,7 +107,7 @@ from icgo.models import relm
 from icgo.optim import STRATEGIES, run_batch
 from icgo.optim.cgo import CGO
 from icgo.studies.icgo_relm.config import StudyConfig
-from icgo.studies.icgo_relm.score import score_all
+from icgo.studies.icgo_relm.result import score_all
 
 
 def run_roofline(batch: int, chunk: int, refine: int, quick: bool) -> dict:

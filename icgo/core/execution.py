@@ -4,7 +4,8 @@ One program, one process per host: the search's batch (worlds x strategies x rep
 population run) is laid out over the devices JAX sees (:mod:`icgo.optim.sharded`). The plan is a pure function of
 the backend's name (``jax.default_backend()``: ``cpu``, ``gpu``, ``cuda``, ``rocm``, ``tpu``, ``METAL``, ...), the
 devices it has, the processes of the job, the ``devices`` setting and the number of members. Nothing here imports
-JAX, so the plan can be made, printed and tested before a backend starts.
+JAX at module import, so the plan can be made, printed and tested before a backend starts; :func:`runtime_plan`
+asks this process's JAX runtime.
 
 * **CPU** (:data:`CPU_KERNEL`): the cache-chunked kernel (a chunk of thetas whose hidden outputs stay in cache,
   batch members one after another: :func:`icgo.models.relm.train_fitness`) sharded over the host devices, one per
@@ -97,3 +98,20 @@ def execution_plan(backend: str, available: int, members: int, devices: int | No
     shards = (f"{members} member(s) in {n} shard(s) of at most {per}" if members else "no search")
     return ExecutionPlan(name, kernel, n, processes, members,
                          f"backend {name}: {what}; {have}{where}; {shards} (one sharded program)")
+
+
+def runtime_plan(backend: str | None, members: int, devices: int | None, cores: int | None = None) -> ExecutionPlan:
+    """:func:`execution_plan` for this process's JAX runtime (``backend`` None: the default backend; its device
+    count over every process of the job; ``cores`` None: the cores this process may run on)."""
+    import jax
+
+    from icgo.core.devices import available_cores
+
+    if backend is None:
+        backend = jax.default_backend()
+    try:
+        available = len(jax.devices(backend))
+    except RuntimeError:  # a backend named for a plan on another machine (tests, --help): plan for one device
+        available = 1
+    cores = len(available_cores()) if cores is None else cores
+    return execution_plan(backend, available, members, devices, jax.process_count(), cores)

@@ -7,6 +7,8 @@ devices (:func:`icgo.core.devices.use_host_devices`), the GPUs of a node, or the
 ``jax.distributed`` job. ``shard_map`` hands each device its block of members, which it runs vmapped, as
 :func:`icgo.optim.base.run_batch` runs a whole batch; nothing crosses devices during the run. A batch that does
 not divide into the devices is padded with copies of its first member, whose results are dropped.
+:func:`run_grid` lays a study's search grid out as members: every method (a config) on every cell (a key and its
+data), the result back as (methods, cells, ...) arrays.
 
 Result of member m == the same member run alone, bitwise, whenever its fitness is (the CPU kernel
 :func:`icgo.models.relm.train_fitness` runs batch members one after another, so its result does not depend on
@@ -25,7 +27,7 @@ from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
 from icgo.optim.base import (Algorithm, RunResult, check_bounds, check_pop_size, chunk_length, init_one,
-                             resolve_iterations, run_one, steps_one)
+                             resolve_iterations, run_one, stack_configs, steps_one)
 
 #: The mesh axis the members are laid out along.
 MEMBER_AXIS = "members"
@@ -165,3 +167,34 @@ def run_members(alg: Algorithm, fitness, bounds, keys, pop_size: int, n_iter: in
         return RunResult(to_host(state.best_x)[:M], to_host(state.best_f)[:M], np.concatenate(curves, -1),
                          np.concatenate(evals, -1), to_host(state.n_evals)[:M])
     return RunResult(*(to_host(x)[:M] for x in res))
+
+
+def run_grid(alg, fitness, bounds, keys, pop_size: int, n_iter: int | None, *, max_evals: int | None = None,
+             config=None, configs=None, aux=None, devices=None, progress=None) -> RunResult:
+    """Every method on every cell, as one sharded program.
+
+    Args:
+        alg, fitness, bounds, pop_size, n_iter, max_evals: as :func:`icgo.optim.base.run_batch`.
+        keys: (C, 2) the cells' keys. aux: pytree whose leaves have leading axis C (the cells' data), or None.
+        config: one config (then S = 1), or configs: a sequence of S configs with equal static fields
+            (e.g. ``alg.axis_configs(config, strategies)``).
+        devices: the JAX devices (default every device). progress: see
+            :func:`run_members`.
+    Returns:
+        :class:`icgo.optim.base.RunResult` with leading axes (S, C), host-side numpy arrays.
+    """
+    keys = np.asarray(keys)
+    C = keys.shape[0]
+    S = 1 if configs is None else len(configs)
+    method, cell = np.repeat(np.arange(S), C), np.tile(np.arange(C), S)
+    per_member = None
+    if configs is not None:
+        if len({resolve_iterations(alg, pop_size, n_iter, max_evals, c) for c in configs}) != 1:
+            raise ValueError("configs spend different evaluations per iteration: they cannot share one run length")
+        stacked = stack_configs(alg, configs)
+        per_member = jax.tree_util.tree_map(lambda x: np.asarray(x)[method], stacked)
+    member_aux = jax.tree_util.tree_map(lambda x: np.asarray(x)[cell], aux)
+    res = run_members(alg, fitness, bounds, keys[cell], pop_size, n_iter, max_evals=max_evals,
+                      config=None if configs is not None else config, configs=per_member, aux=member_aux,
+                      devices=devices, progress=progress)
+    return RunResult(*(x.reshape((S, C) + x.shape[1:]) for x in res))

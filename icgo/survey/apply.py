@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 
 from icgo.core.errors import DataError, ModelError
-from icgo.maths.metrics import azimuth_metrics
+from icgo.physics.metrics import azimuth_metrics
 from icgo.artifacts.format import CORRECTED_B, FittedModel, domain_notices, frame_values, sensor_domain
 from icgo.physics.frames import angle_diff
 from icgo.physics.qc import QCBands, survey_qc

@@ -2,7 +2,6 @@
 package and, where ``tests/test_layers.py`` allows it, another study's face).
 
 * :mod:`.study`: the interface every study follows (:class:`~icgo.studies.common.study.Study`, ``Invocation``).
-* :mod:`.sharding`: a study's search grid as one program sharded over the devices of its execution plan.
 * :mod:`.splits`: the train / test protocols (random split and the generalisation protocols).
 * :mod:`.timing`: where a study's time goes (wall seconds per stage, the part spent making programs).
 * :mod:`.shots`: grouped static shots for the front doors (the file as read, grouped).

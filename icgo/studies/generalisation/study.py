@@ -180,7 +180,7 @@ def _physics(data, config: GeneralisationConfig, protocol: str, key) -> tuple[li
     from icgo.discrepancy.inversion import predict
     from icgo.discrepancy.stations import stations_from_recording
     from icgo.io import recording as icgo_io
-    from icgo.maths.metrics import azimuth_metrics
+    from icgo.physics.metrics import azimuth_metrics
     from icgo.physics.frames import azimuth_from_gv
     from icgo.studies.icgo_relm import filtered
 

@@ -34,7 +34,7 @@ def write_table(df: pd.DataFrame, path: Path, title: str, note: str = "") -> Non
 # ----------------------------------------------------------------- figures
 def fig_seam(preds: dict, f: pd.DataFrame, band, path: Path) -> None:
     """|error| vs true azimuth (10-deg bins, RMS over points and seeds) per method."""
-    from icgo.maths.metrics import rmse
+    from icgo.physics.metrics import rmse
 
     plt = plt_agg()
     a = np.mod(f["azimuth_deg"].to_numpy(), 360.0)

@@ -48,7 +48,8 @@ import pandas as pd
 from icgo.core.errors import SettingError
 from icgo.core.settings import is_int, is_real, need
 from icgo.datasets import gyro_turntable
-from icgo.maths import metrics, stats
+from icgo.maths import stats
+from icgo.physics import metrics
 from icgo.models import gyro_relm, lookup_table, nets, relm
 from icgo.artifacts.network import ANGLE_COLUMNS, GyroNetwork, GyroRELM, LookupTableModel, turntable_domain, turntable_hash
 from icgo.optim.cgo import CGO
@@ -342,7 +343,7 @@ def azimuth_errors(a_true, a_pred):
 
 
 def rmse_per_seed(a_true, a_pred) -> np.ndarray:
-    """(S,) azimuth RMSE (deg, :func:`icgo.maths.metrics.rmse`, wrapped) per seed; ``a_pred`` (S, N) or (N,)."""
+    """(S,) azimuth RMSE (deg, :func:`icgo.physics.metrics.rmse`, wrapped) per seed; ``a_pred`` (S, N) or (N,)."""
     return np.asarray(metrics.rmse(np.asarray(a_true), np.atleast_2d(np.asarray(a_pred))))
 
 

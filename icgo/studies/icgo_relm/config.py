@@ -9,9 +9,8 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from icgo.core.execution import ExecutionPlan
+from icgo.core.execution import ExecutionPlan, runtime_plan
 from icgo.optim.cgo import CGO
-from icgo.studies.common import sharding
 from icgo.studies.icgo_relm import settings as _nodes
 
 #: Search-fitness precisions (``StudyConfig.precision``) -> (dtype of the hidden layer, eq. 8; dtype of the
@@ -68,7 +67,7 @@ class StudyConfig:
             on an accelerator :func:`icgo.models.relm_gram.gram_fitness`. The final refit and every
             reported number are float64 always. ``fast`` and ``mixed`` are refused (:data:`RENAMED_PRECISIONS`).
         devices: the most devices the search's strategies x repeats members are sharded over (one program,
-            :mod:`icgo.studies.common.sharding`); None (default) = every device of the backend (a CPU's host devices,
+            :func:`icgo.optim.sharded.run_grid`); None (default) = every device of the backend (a CPU's host devices,
             one per core of the job: :func:`icgo.core.devices.use_host_devices`). Bitwise the one-device result
             on a CPU (:meth:`execution`).
         repeat_ids: run only these repeat ids (e.g. ``(3,)`` to rerun repeat 3 alone); None = ``range(split.n_repeats)``.
@@ -154,7 +153,7 @@ class StudyConfig:
         members = 0
         if self.optimizer is not None:
             members = len(self.method_names()) * (len(self.ids()) if cells is None else int(cells))
-        return sharding.plan(backend, members, None if self.devices is None else int(self.devices), cores)
+        return runtime_plan(backend, members, None if self.devices is None else int(self.devices), cores)
 
     def ids(self) -> tuple:
         """The repeat ids this config runs."""

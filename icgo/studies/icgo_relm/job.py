@@ -1,8 +1,13 @@
 """One run of the ICGO-RELM study's front door from its typed config
-(:class:`icgo.studies.icgo_relm.run_config.RunConfig`): the data loaded (:mod:`icgo.studies.icgo_relm.load`), the
-study run with its progress bar (one data set, or ``worlds=N``: :mod:`icgo.studies.icgo_relm.worlds.study`), its run record's
-fields, and the run directory written all at once (:class:`icgo.io.files.Output`: staged, ``run.json`` last; what
-it holds: :mod:`icgo.studies.icgo_relm.outputs`, :mod:`icgo.studies.icgo_relm.worlds.outputs`).
+(:class:`icgo.studies.icgo_relm.run_config.RunConfig`):
+
+- the data loaded: :func:`load_data` (the configured data set, a simulation of :data:`icgo.datasets.registry.DATASETS`
+  or a recording), :func:`load_target` (the second instrument's survey of ``split=transfer``), :func:`load_worlds`
+  (the worlds of ``worlds=N``, :mod:`icgo.studies.icgo_relm.worlds.study`); every failure one line
+  (:class:`icgo.core.errors.SettingError` naming the YAML key, or :class:`icgo.core.errors.DataError`);
+- the study run with its progress bar (:func:`compute`), its run record's fields (:func:`run_info`);
+- the run directory written all at once (:func:`write_run`: :class:`icgo.io.files.Output`, staged, ``run.json`` last;
+  what it holds: :mod:`icgo.studies.icgo_relm.outputs`, :mod:`icgo.studies.icgo_relm.worlds.outputs`).
 
 Nothing here imports JAX at module import; the functions import the study.
 """
@@ -13,6 +18,8 @@ import sys
 import time
 from pathlib import Path
 from typing import NamedTuple
+
+from icgo.core.errors import SettingError
 
 
 class Computed(NamedTuple):
@@ -54,7 +61,6 @@ def compute(run, scfg, timings: dict) -> Computed:
     study's stages. A worlds run also says when it has too few worlds for its test to reach p < 0.05."""
     t1 = time.perf_counter()
     if run.worlds is None:
-        from icgo.studies.icgo_relm.load import load_data, load_target
         from icgo.studies.icgo_relm.progress import run_with_progress
 
         frame, meta, desc = load_data(run)
@@ -64,7 +70,6 @@ def compute(run, scfg, timings: dict) -> Computed:
                                    target=target, timings=timings, jax_cache_dir=run.jax_cache_dir)
         return Computed(result, desc, frame, meta)
     from icgo.core.execution import is_accelerator
-    from icgo.studies.icgo_relm.load import load_worlds
     from icgo.studies.icgo_relm.progress import make_progress
     from icgo.studies.common.run_log import to_log_files
     from icgo.studies.icgo_relm.progress import announce
@@ -143,3 +148,87 @@ def print_run(run, computed: Computed, record: dict, outdir: Path, t0: float) ->
     from icgo.studies.icgo_relm.outputs import print_summary
 
     print_summary(computed.result, computed.desc, record, outdir, t0)
+
+def load_data(run):
+    """(frame, metadata, description) of ``run.dataset``.
+
+    Raises:
+        SettingError / icgo.core.errors.DataError: one line (missing file, bad CSV, unknown data set).
+    """
+    ds = run.dataset
+    if ds.name == "csv":
+        from icgo.io.recording import column_map, read_recording
+
+        cmap = column_map(ds.columns or None, ds.columns_file, "dataset.columns")
+        rec = read_recording(Path(str(ds.path)).expanduser(), require_meta=ds.require_meta, columns=cmap,
+                             column_setting="dataset.columns")
+        for line in rec.notices:  # what the reader noticed but accepted (icgo.io.recording check prints the same)
+            print(f"notice: {line}", file=sys.stderr)
+        return rec.frame, dict(rec.meta), f"csv:{ds.path}"
+    from icgo.datasets.registry import DATASETS
+
+    fn = DATASETS.get(ds.name)
+    if fn is None:
+        raise SettingError(f"dataset {ds.name!r}: icgo.datasets.registry.DATASETS has no such data set")
+    try:
+        data = fn(int(ds.seed), **ds.kwargs)
+    except TypeError as e:
+        raise SettingError(f"dataset.kwargs for {ds.name}: {str(e).splitlines()[0]}") from None
+    frame, meta, desc = data.frame, dict(data.meta), ds.name
+    if ds.condition is not None:
+        frame, desc = select_condition(frame, int(ds.condition)), f"{ds.name}[{ds.condition}]"
+    return frame, meta, desc
+
+
+def load_target(run):
+    """The second instrument's survey of ``split=transfer`` (a DataFrame), or None for other protocols.
+
+    ``split.target.path`` reads a recording; otherwise the data set's simulator draws the target with the changes
+    of ``split.target`` (:func:`icgo.studies.common.splits.transfer_survey`).
+
+    Raises:
+        SettingError / icgo.core.errors.DataError: one line.
+    """
+    target = run.split.target
+    if run.split.protocol != "transfer" or target is None:
+        return None
+    if target.path is not None:
+        from icgo.io.recording import read_recording
+
+        return read_recording(Path(str(target.path)).expanduser(), require_meta=False).frame
+    from icgo.studies.common.splits import TransferDraw, transfer_survey
+
+    ds = run.dataset
+    if ds.name == "csv":
+        raise SettingError("split=transfer on dataset=csv needs split.target.path (a recording of the second "
+                           "instrument); only the simulated data sets can draw one")
+    try:
+        return transfer_survey(ds.name, int(ds.seed), dict(ds.kwargs), TransferDraw(**target.draw())).frame
+    except SettingError as e:
+        raise (SettingError(f"split.target.{e.field}", e.problem) if e.field else e) from None
+
+
+def select_condition(frame, condition: int):
+    """Rows of one Table 4 condition of a well_conditions frame (column ``condition``)."""
+    if "condition" not in frame.columns:
+        raise SettingError("dataset.condition is set but the data set has no 'condition' column")
+    sub = frame[frame["condition"] == condition].reset_index(drop=True)
+    if len(sub) == 0:
+        raise SettingError(f"dataset.condition {condition}: no rows with that condition")
+    return sub
+
+
+def load_worlds(run):
+    """(the :class:`icgo.studies.icgo_relm.worlds.study.World` s, description) of ``run.worlds`` data seeds from ``dataset.seed``."""
+    from icgo.studies.icgo_relm.worlds.study import World, simulate, world_seeds
+
+    ds = run.dataset
+    try:
+        worlds = simulate(ds.name, world_seeds(int(ds.seed), int(run.worlds)), **ds.kwargs)
+    except TypeError as e:
+        raise SettingError(f"dataset.kwargs for {ds.name}: {str(e).splitlines()[0]}") from None
+    cond = ds.condition
+    if cond is not None:
+        worlds = [World(w.seed, select_condition(w.frame, int(cond)), w.meta) for w in worlds]
+    first, last = worlds[0].seed, worlds[-1].seed
+    return worlds, f"{ds.name}{f'[{cond}]' if cond is not None else ''} worlds {first}-{last}"

@@ -1,6 +1,6 @@
 """The ICGO-RELM study's search (ICGO paper section 3.4): the hidden parameters of every (method, member), found by an
 optimizer of :mod:`icgo.optim` on a training-only fitness (one program over members and CGO strategies, sharded over
-the devices: :func:`icgo.studies.common.sharding.run_grid`), or drawn at random for plain RELM (tuned on a grid with
+the devices: :func:`icgo.optim.sharded.run_grid`), or drawn at random for plain RELM (tuned on a grid with
 ``tune``); the fitness kernel each precision and backend runs.
 """
 
@@ -17,7 +17,7 @@ import numpy as np
 from icgo.core.execution import ACCELERATOR_KERNEL, CPU_KERNEL, ExecutionPlan
 from icgo.models import relm as _relm
 from icgo.models.search_fitness import SearchData, search_fitness
-from icgo.studies.common import sharding
+from icgo.optim.sharded import run_grid
 from icgo.studies.icgo_relm.config import PRECISIONS, StudyConfig
 from icgo.studies.icgo_relm.prepare import Prepared
 
@@ -111,9 +111,15 @@ def search_aux(cfg: StudyConfig, prep: Prepared, kernel: str, capacity: int | No
                   np.full(prep.key.shape[0], cfg.model.lam, prep.data.X.dtype), cfg.model.hidden)
 
 
+def plan_devices(p: ExecutionPlan) -> list:
+    """The devices the search of plan ``p`` is sharded over: the first ``p.devices`` of its backend (every process's,
+    in JAX's global order)."""
+    return jax.devices(p.backend)[: p.devices]
+
+
 def search_cells(cfg: StudyConfig, keys, aux, wrap_fitness=None, progress=None, devices=None):
     """Every method on every cell (``keys`` (C, 2), ``aux`` leading axis C: :func:`search_aux`), as one program
-    (:func:`icgo.studies.common.sharding.run_grid`: ``lax.scan`` over iterations, the methods x cells members sharded over
+    (:func:`icgo.optim.sharded.run_grid`: ``lax.scan`` over iterations, the methods x cells members sharded over
     ``devices``, default every device, vmapped on each): (S, C, D) thetas, (S, C, T) curves and evaluations.
     ``progress``: see :func:`icgo.optim.sharded.run_members`."""
     from icgo.optim import get
@@ -123,10 +129,9 @@ def search_cells(cfg: StudyConfig, keys, aux, wrap_fitness=None, progress=None, 
     alg = get(cfg.optimizer)
     configs = alg.axis_configs(cfg.optimizer_config, cfg.strategies) if alg.axis else None
     fitness = search_fitness if wrap_fitness is None else wrap_fitness(search_fitness)
-    res = sharding.run_grid(alg, fitness, (np.full(D, low), np.full(D, high)), keys, cfg.budget.pop_size,
-                            cfg.budget.iterations,
-                            max_evals=cfg.budget.max_evals, config=None if configs else cfg.optimizer_config,
-                            configs=configs, aux=aux, devices=devices, progress=progress)
+    res = run_grid(alg, fitness, (np.full(D, low), np.full(D, high)), keys, cfg.budget.pop_size, cfg.budget.iterations,
+                   max_evals=cfg.budget.max_evals, config=None if configs else cfg.optimizer_config,
+                   configs=configs, aux=aux, devices=devices, progress=progress)
     return jnp.asarray(res.best_x), jnp.asarray(res.curve), jnp.asarray(res.evals_curve)
 
 

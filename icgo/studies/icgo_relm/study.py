@@ -14,14 +14,14 @@ Pipeline, per repeat (one PRNG key each, ``fold_in(PRNGKey(seed), repeat_id)``):
    statistics; hidden parameters drawn at random (plain RELM) or searched by an
    optimizer of :mod:`icgo.optim` on a training-only fitness (:mod:`icgo.models.relm`);
 6. output weights refit on all training rows; compensated azimuth
-   ``A_msa - predicted error`` scored on the test rows (:mod:`icgo.maths.metrics`).
+   ``A_msa - predicted error`` scored on the test rows (:mod:`icgo.physics.metrics`).
 
 Test rows never steer anything: MSA, standardisation, fitness and output
 weights see them only with zero weight. Stages 2-6 run as three jitted calls:
 the preparation (:func:`icgo.studies.icgo_relm.prepare.prepare`, mapped over repeats: split, MSA, features), a
 host-side MSA observability check, the search (:mod:`icgo.studies.icgo_relm.search`: the optimizer's runner
-:func:`icgo.studies.common.sharding.run_grid`, one program over repeats and CGO strategies, sharded over the devices), then
-:func:`icgo.studies.icgo_relm.score.score_all` (refit vmapped over strategies and mapped over repeats; predictions by
+:func:`icgo.optim.sharded.run_grid`, one program over repeats and CGO strategies, sharded over the devices), then
+:func:`icgo.studies.icgo_relm.result.score_all` (refit vmapped over strategies and mapped over repeats; predictions by
 :func:`icgo.models.compensation.predict_methods`, the forward pass the saved model
 applies to the same params; metrics); the tables and fitted models: :mod:`icgo.studies.icgo_relm.result`.
 Repeat k of a batched run equals the same repeat run alone (``repeat_ids``).
@@ -43,14 +43,13 @@ import jax
 import numpy as np
 import pandas as pd
 
-from icgo.studies.common import sharding, timing
+from icgo.studies.common import timing
 from icgo.studies.common import splits as _splits
 from icgo.studies.icgo_relm.config import StudyConfig
 from icgo.studies.icgo_relm.prepare import (Prepared, exclude_failed_repeats, filtered, pad_rows, prepare,
                                             reference_field, rows_per_fit)
-from icgo.studies.icgo_relm.result import StudyResult, collect
-from icgo.studies.icgo_relm.score import score_all
-from icgo.studies.icgo_relm.search import check_search, execution_record, search, tune
+from icgo.studies.icgo_relm.result import StudyResult, collect, score_all
+from icgo.studies.icgo_relm.search import check_search, execution_record, plan_devices, search, tune
 from icgo.studies.common.study import Study
 
 
@@ -199,7 +198,7 @@ def _run(frame, cfg: StudyConfig, metadata, base_key, wrap_fitness, target=None,
     plan = st.cfg.execution(cells=len(st.mem.repeat))
     with stages("search"):
         thetas, curve, evals = jax.block_until_ready(search(st.cfg, st.prep, wrap_fitness, plan.kernel, progress,
-                                                            sharding.plan_devices(plan)))
+                                                            plan_devices(plan)))
     res = finish(st, thetas, curve, evals, t0, stages)
     if timings is not None:
         timings.update(stages.times, execution=execution_record(st.cfg, plan))

@@ -13,7 +13,7 @@ from icgo.reporting.published import ICGO
 LABEL = STRATEGY_NAMES
 
 
-#: The metrics of the paper's tables. R^2 is ``r2_error``, the R^2 of the error signal (``icgo.maths.metrics``): the
+#: The metrics of the paper's tables. R^2 is ``r2_error``, the R^2 of the error signal (``icgo.physics.metrics``): the
 #: reading the paper's R^2 values are consistent with (docs/relm_study.md); eq. (21) over the true azimuths (``r2`` in
 #: metrics.csv) is ~1.000000 for any sub-degree error and is not put beside the paper's values.
 METRICS = ("mae", "rmse", "r2_error")

@@ -37,10 +37,10 @@ import pandas as pd
 from icgo.reporting.choices import LAB_CASING_DEVELOPMENT_SEEDS
 from icgo.studies.icgo_relm.worlds.stats import WORLD
 from icgo.studies.icgo_relm import study as _study
-from icgo.studies.common import sharding, timing
+from icgo.studies.common import timing
 from icgo.studies.icgo_relm.config import StudyConfig
 from icgo.studies.icgo_relm.prepare import filtered
-from icgo.studies.icgo_relm.search import execution_record, search, search_aux, search_cells
+from icgo.studies.icgo_relm.search import execution_record, plan_devices, search, search_aux, search_cells
 
 #: ``lab_casing`` data seeds that choices were made on (never reported as worlds; docs/relm_study.md, "Worlds"):
 #: 0: every one-draw result, the data set's design (docs/datasets.md, measured on seed 0), the sweeps and the
@@ -188,7 +188,7 @@ def _search_worlds(cfg, staged, plan, train: int, progress):
     auxs = [search_aux(cfg, st.prep, plan.kernel, train) for st in staged]
     keys = np.concatenate([np.asarray(st.prep.key) for st in staged])
     aux = jax.tree_util.tree_map(lambda *xs: np.concatenate([np.asarray(x) for x in xs]), *auxs)
-    found = search_cells(cfg, keys, aux, None, progress, sharding.plan_devices(plan))
+    found = search_cells(cfg, keys, aux, None, progress, plan_devices(plan))
     out, start = [], 0
     for st in staged:
         n = st.prep.key.shape[0]

@@ -94,19 +94,3 @@ def azimuth_metrics(a_true_deg, a_comp_deg, err_before_deg, weights=None) -> Met
     after = angle_diff(a_comp_deg, a_true_deg)
     return Metrics(mae(a_true_deg, a_comp_deg, weights), rmse(a_true_deg, a_comp_deg, weights),
                    r2(a_true_deg, a_comp_deg, weights), r2_error(err_before_deg, after, weights))
-
-
-def summarize(df, by=("method", "strategy", "split"), columns=("mae", "rmse", "r2", "r2_error")):
-    """Mean +/- std over repeats of per-repeat metrics (pandas).
-
-    Args:
-        df: DataFrame with one row per repeat (and the ``by`` columns).
-        by: grouping columns (those absent from ``df`` are ignored).
-        columns: metric columns.
-    Returns:
-        DataFrame indexed by ``by`` with ``<col>_mean``, ``<col>_std`` (sample
-        std, ddof = 1) and ``<col>`` formatted "mean +/- std".
-    """
-    from icgo.maths.stats import mean_std_table
-
-    return mean_std_table(df, [b for b in by if b in df.columns], list(columns))
