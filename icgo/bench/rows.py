@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from icgo.bench.front_door import UNTIMED_EXTRAS
 from icgo.bench.process import measure
 from icgo.datasets import casing_stations as datasets
 from icgo.io.recording import write_recording
@@ -82,7 +83,7 @@ def rows_scaling(sizes, budget: str = "smoke", repeats: int | None = None, workd
         cmds = {
             "reader": [py, "-c", f"import icgo.io.recording; icgo.io.recording.read_recording({str(csv)!r})"],
             "study": [py, "-m", "experiments.run", "dataset=csv", f"dataset.path={csv}", f"budget={budget}",
-                      "figures=false", "progress=false", "overwrite=true", f"hydra.run.dir={work / f'run_{n}'}"]
+                      *UNTIMED_EXTRAS, "overwrite=true", f"hydra.run.dir={work / f'run_{n}'}"]
             + ([f"split.n_repeats={repeats}"] if repeats else []),
             "discrepancy": [py, "-m", "experiments.discrepancy", f"data={csv}",
                             f"hydra.run.dir={work / f'discrepancy_{n}'}"],
