@@ -31,6 +31,8 @@ EXEMPT = {
                               "comparison",
     "bench_cpu_quiet.md": "a benchmark (Table 3's front door against mealpy in one run: results/performance.md), not a "
                           "method comparison",
+    "bench_cpu_untracked.md": "a benchmark (the same, its front-door runs untracked: results/performance.md), not a "
+                              "method comparison",
 }
 
 
