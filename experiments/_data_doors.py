@@ -96,12 +96,14 @@ def calibrate_main(cfg: DictConfig, run_dir: Path) -> int:
 def discrepancy_main(cfg: DictConfig, run_dir: Path, keep=None) -> int:
     """The discrepancy workflow of one composed config into ``run_dir`` (or ``study=``: its results/ file); 0,
     :data:`EXIT_CONFIG` (2) for a bad setting (one line per problem), 1 for bad input data."""
+    from icgo.core.devices import enable_jax_cache
     from icgo.io.files import Output
     from icgo.studies.discrepancy import job
 
     keep = hydra_keep() if keep is None else keep
     try:
         config = job.workflow_config(OmegaConf.to_container(cfg, resolve=True))
+        enable_jax_cache(cfg.get("jax_cache_dir"))
         columns = _columns(cfg)
         output = None if cfg.study != "none" else Output(run_dir, setting="hydra.run.dir", overwrite=cfg.overwrite,
                                                          keep=keep, writer="experiments.discrepancy").check()

@@ -47,7 +47,7 @@ class Door(NamedTuple):
     examples: tuple
 
 
-#: The compilation cache setting of the doors whose study config does not hold it (their ConfigStore node adds it).
+#: The compilation cache setting of the study doors whose config does not hold it (their ConfigStore node adds it).
 CACHE_SETTING = "icgo.core.devices:CacheSetting"
 DOORS = {
     "run": Door("config", CONF_DIR, STUDY_GROUPS, {"": ("icgo.studies.icgo_relm.run_config:RunConfig",)},
@@ -65,12 +65,12 @@ DOORS = {
                       "one recommended (report.md, calibration.csv, models/), or why none (exit 4).",
                       ("data=shots.csv", "data=device.json site.lat=51.5 site.lon=-0.1 site.date=2024-06-01",
                        "data=raw.json mag_axes=+x+y-z grav_axes=-y-x+z", "data=bundled   # the 9 bundled devices")),
-    "discrepancy": Door("discrepancy", CONF_DIR, (), {"": ("icgo.discrepancy.config:WorkflowConfig",)},
+    "discrepancy": Door("discrepancy", CONF_DIR, (), {"": ("icgo.discrepancy.config:WorkflowConfig", CACHE_SETTING)},
                         "Discrepancy workflow: where simulated and measured sensor data disagree, the missing\n"
                         "physical effect named, added to the model, the gap shown to shrink.",
                         ("data=FILE.csv", "data=sim:hard_iron+accel_bias design=single_inclination",
                          "data=mag_cal:ab", "study=hidden   # results/discrepancy_hidden.md")),
-    "misma": Door("misma", CONF_DIR, (), {"": ("icgo.studies.misma.config:MismaConfig",)},
+    "misma": Door("misma", CONF_DIR, (), {"": ("icgo.studies.misma.config:MismaConfig", CACHE_SETTING)},
                   "MISMA study: the 12-parameter magnetometer model identified while the drill string rotates,\n"
                   "against SMA; tables and figures into results/misma_*, the calibrations into the run directory.",
                   ("", "simulated.repeats=3 simulated.n_iter=300 real.enabled=false")),

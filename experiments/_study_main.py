@@ -53,7 +53,8 @@ def study_main(name: str, cfg: DictConfig, entry_keys=("out_dir",)):
 
         rc = getattr(_data_doors, DATA_DOORS[name])(cfg, run_dir)
         out = Path(str(cfg.out)).expanduser() if name == "apply" and cfg.get("out") else run_dir
-        track_job(OmegaConf.to_container(cfg, resolve=True), out, door=name)  # MLflow, where installed and not off
+        if rc not in (1, EXIT_CONFIG):  # a refusal (bad data or setting: one line, nothing written) is not a run
+            track_job(OmegaConf.to_container(cfg, resolve=True), out, door=name)  # MLflow, where installed, not off
         if rc:
             raise SystemExit(rc)
         return None

@@ -16,10 +16,11 @@ from omegaconf import DictConfig
 from experiments._door import CONF_DIR, door, one_line_errors
 from experiments._schema import register
 from experiments._study_main import study_main
+from icgo.core.devices import CacheSetting
 from icgo.discrepancy.config import WorkflowConfig
 from icgo.studies.discrepancy.job import ENTRY_KEYS
 
-register("discrepancy", WorkflowConfig, tuple(k for k in ENTRY_KEYS if k != "hydra"))  # conf/discrepancy.yaml's schema
+register("discrepancy", WorkflowConfig, tuple(k for k in ENTRY_KEYS if k != "hydra"), CacheSetting)  # conf/discrepancy.yaml's schema
 
 
 @hydra.main(version_base="1.3", config_path=str(CONF_DIR), config_name="discrepancy")

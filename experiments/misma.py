@@ -13,12 +13,13 @@ from omegaconf import DictConfig
 from experiments._door import CONF_DIR, door, one_line_errors
 from experiments._schema import register_defaults
 from experiments._study_main import study_main
+from icgo.core.devices import CacheSetting
 from icgo.studies.misma.config import MismaConfig
 
 #: Settings of the door, not of the study (excluded from the study's config dataclass).
-ENTRY_KEYS = ("out_dir",)
+ENTRY_KEYS = ("out_dir", "jax_cache_dir")
 
-register_defaults("misma", MismaConfig)  # the study's defaults, named first by conf/misma.yaml
+register_defaults("misma", MismaConfig, CacheSetting)  # the study's defaults, named first by conf/misma.yaml
 
 
 @hydra.main(version_base="1.3", config_path=str(CONF_DIR), config_name="misma")

@@ -47,14 +47,16 @@ def test_the_study_defaults_come_from_the_dataclass_once():
     composed = {k: v for k, v in OmegaConf.to_container(_compose(), resolve=True).items() if k not in entry.CALIBRATE_KEYS}
     assert composed == config_to_mapping(cal_study.CalibrationConfig())
     # the compilation cache's default is written once (icgo.core.devices.JAX_CACHE_DEFAULT): no YAML restates it;
-    # calibrate and gyro compose it from CacheSetting, the run door from RunConfig
+    # the study doors compose it from CacheSetting, the run door from RunConfig
     from icgo.core.devices import JAX_CACHE_DEFAULT
 
-    import experiments._groups  # noqa: F401  (they store the run and gyro doors' ConfigStore nodes)
+    import experiments._groups  # noqa: F401  (they store the doors' ConfigStore nodes)
+    import experiments.discrepancy  # noqa: F401
     import experiments.gyro  # noqa: F401
+    import experiments.misma  # noqa: F401
 
     assert not [p for p in CONF_DIR.rglob("*.yaml") if "icgo/jax" in p.read_text()]
-    for name in ("calibrate", "gyro", "config"):
+    for name in ("calibrate", "discrepancy", "misma", "gyro", "config"):
         with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
             assert OmegaConf.to_container(compose(name))["jax_cache_dir"] == JAX_CACHE_DEFAULT, name
 

@@ -4,6 +4,7 @@ parent run, and (slow) the MLflow UI in headless Chromium showing a run's metric
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import socket
 import subprocess
@@ -242,6 +243,20 @@ def test_a_doors_job_is_tracked_with_its_config_its_files_and_its_objective(tmp_
     assert run.data.params["model.hidden"] == "8" and run.data.params["tracking"] == uri
     assert [a.path for a in c.list_artifacts(rid)] == ["summary.md"]
     assert run.data.metrics["objective"] == pytest.approx(objective(d))
+
+
+@needs_mlflow
+def test_a_refused_run_of_a_data_door_is_not_tracked(tmp_path):
+    """A refusal (one line, exit 2: nothing written but Hydra's log) is no run: MLflow gets nothing, while the same
+    door's finished run is logged (test_a_doors_job_is_tracked_with_its_config_its_files_and_its_objective)."""
+    db = tmp_path / "mlflow.db"
+    env = {**os.environ, "ICGO_TRACKING": f"sqlite:///{db}"}
+    proc = subprocess.run([sys.executable, "-m", "experiments.discrepancy", "data=sim:hard_iron", "overwrite=maybe",
+                           f"hydra.run.dir={tmp_path / 'run'}"], cwd=ROOT, env=env, capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 2 and proc.stderr.strip().splitlines() == ["error: overwrite='maybe': must be true or "
+                                                                          "false"], proc.stderr
+    assert "tracking: logged" not in proc.stdout + proc.stderr and not db.exists()
 
 
 @pytest.mark.slow

@@ -187,8 +187,9 @@ JAX_CACHE_DEFAULT = "${oc.env:XDG_CACHE_HOME,${oc.env:HOME,/tmp}/.cache}/icgo/ja
 
 @dataclasses.dataclass(frozen=True)
 class CacheSetting:
-    """The compilation cache setting of the doors whose study config does not hold it (calibrate, gyro: their
-    ConfigStore node takes this default, :mod:`experiments._schema`; the run door's is ``RunConfig.jax_cache_dir``).
+    """The compilation cache setting of the doors whose study config does not hold it (calibrate, discrepancy, misma,
+    gyro: their ConfigStore node takes this default, :mod:`experiments._schema`; the run door's is
+    ``RunConfig.jax_cache_dir``).
 
     Attributes:
         jax_cache_dir: JAX's persistent compilation cache (repeated runs and sweep jobs reuse compiled programs);

@@ -21,7 +21,7 @@ from icgo.studies.common.shots import read_shots
 
 #: Settings of the entry point, not of the workflow (excluded from :class:`icgo.discrepancy.WorkflowConfig`).
 ENTRY_KEYS = ("data", "study", "seed", "n_stations", "design", "results_dir", "overwrite", "hydra", "columns",
-              "columns_file", "mag_axes", "grav_axes", "groups")
+              "columns_file", "mag_axes", "grav_axes", "groups", "jax_cache_dir")
 
 #: Largest ``n_stations`` of a simulated data set (the workflow's memory grows with it; a real recording is read
 #: whole).
