@@ -22,20 +22,16 @@ and the runners::
 
 Design choices (read before building on this):
 
-* **Fitness** is a batched, jax-traceable function ``fitness(pop) -> (P,)`` or,
-  when the run is given ``aux`` (any pytree, e.g. a per-repeat data split),
-  ``fitness(pop, aux) -> (P,)``. The rule is simple: ``aux is None`` ->
-  ``fitness(pop)``, otherwise ``fitness(pop, aux)``. Minimisation. A fitness may
-  return ``+inf`` for bad candidates; NaN is mapped to ``+inf`` by
-  :func:`evaluate`, so selection drops such candidates and nothing NaN escapes.
-  The fitness is a *static* argument of the jitted runner: pass the same
-  function object to reuse the compiled program (a fresh lambda recompiles).
-* **Config** (hyperparameters) is one frozen dataclass per algorithm,
-  registered as a JAX pytree: numeric fields are *data* (traced, vmappable),
-  fields listed as ``meta`` are static and select code with a Python ``if``
-  (e.g. CGO ``variant``, ``selection``, ``bound_mode``; GA ``crossover``), so
-  one compiled program serves every value of the data fields and a change of a
-  static field compiles another. ``alg.config_cls()`` gives the defaults,
+* **Fitness** is a batched, jax-traceable function ``fitness(pop) -> (P,)`` or, when the run is given ``aux`` (any
+  pytree, e.g. a per-repeat data split), ``fitness(pop, aux) -> (P,)``. The rule is simple: ``aux is None`` ->
+  ``fitness(pop)``, otherwise ``fitness(pop, aux)``. Minimisation. A fitness may return ``+inf`` for bad candidates;
+  NaN is mapped to ``+inf`` by :func:`evaluate`, so selection drops such candidates and nothing NaN escapes. The
+  fitness is a *static* argument of the jitted runner: pass the same function object to reuse the compiled program (a
+  fresh lambda recompiles).
+* **Config** (hyperparameters) is one frozen dataclass per algorithm, registered as a JAX pytree: numeric fields are
+  *data* (traced, vmappable), fields listed as ``meta`` are static and select code with a Python ``if`` (e.g. CGO
+  ``variant``, ``selection``, ``bound_mode``; GA ``crossover``), so one compiled program serves every value of the
+  data fields and a change of a static field compiles another. ``alg.config_cls()`` gives the defaults,
   ``alg.make_config(**params)`` builds one from a config file's parameters.
 * **Side-by-side axis**: ``run_batch(configs=[c_1, ..., c_S])`` stacks S
   configs with equal static fields along a leading axis and vmaps over them,
@@ -48,17 +44,14 @@ Design choices (read before building on this):
       configs = alg.axis_configs(config, values) if alg.axis else None
       labels = alg.labels(values)        # ["cgo-original", ...] or ["pso"]
 
-* **Context**: bounds, config and aux travel inside the state
-  (``state.ctx``), so ``step`` needs no other data and a whole repeat is
-  described by ``(key, aux, config)``: exactly what ``run_batch`` vmaps.
-* **Evaluation counting**: ``state.n_evals`` counts fitness evaluations
-  (initial population included). CGO spends 4 per seed per iteration, PSO,
-  SMA and MISMA 1 per member, GA 1 per offspring. ``alg.evals(pop_size,
-  config)`` returns ``(initial, per_iteration)``; a budget ``max_evals`` is
-  converted to the static iteration count ``(max_evals - initial) //
-  per_iteration``.
-* **Keys**: the runner splits its key into an init key and one key per
-  iteration; algorithms split the step key further and never reuse one.
+* **Context**: bounds, config and aux travel inside the state (``state.ctx``), so ``step`` needs no other data and a
+  whole repeat is described by ``(key, aux, config)``: exactly what ``run_batch`` vmaps.
+* **Evaluation counting**: ``state.n_evals`` counts fitness evaluations (initial population included). CGO spends 4
+  per seed per iteration, PSO, SMA and MISMA 1 per member, GA 1 per offspring. ``alg.evals(pop_size, config)`` returns
+  ``(initial, per_iteration)``; a budget ``max_evals`` is converted to the static iteration count
+  ``(max_evals - initial) // per_iteration``.
+* **Keys**: the runner splits its key into an init key and one key per iteration; algorithms split the step key
+  further and never reuse one.
 
 Adding an optimizer: write ``init_fn(key, fitness, lb, ub, pop_size, config,
 aux) -> State`` and ``step_fn(state, key, t, T, fitness) -> State`` using the
