@@ -245,3 +245,10 @@ def test_the_study_rule_finds_a_study_importing_another():
         "icgo.studies.gyro.study -> icgo.studies.misma.config (a study imports only the common machinery)",
         "icgo.studies.misma.study -> icgo.studies.calibration.study (another study only through its face, "
         "icgo.studies.calibration)"]
+
+
+@pytest.mark.parametrize("top", ["icgo", "experiments", "hydra_plugins"])
+def test_no_module_is_over_600_lines(top):
+    """A module that outgrows 600 lines holds more than one job: split it by job before it lands."""
+    long = {n: len(p.read_text().splitlines()) for n, p in _modules(top).items()}
+    assert not {n: k for n, k in long.items() if k > 600}
