@@ -36,7 +36,8 @@ class Door(NamedTuple):
         config_name: its primary config (``<conf_dir>/<config_name>.yaml``). conf_dir: its config directory.
         groups: the config groups it uses (an override of another is refused). classes: dotted key prefix
             (``""``: the top level) -> the ``"module:Class"`` of each config dataclass whose field docs its
-            ``--help`` shows (the study's, then the door's own settings'). summary: what it does, one or two lines. examples: command lines after ``icgo <door>``.
+            ``--help`` shows (the study's, then the door's own settings'). summary: what it does, one or two lines.
+            examples: command lines after ``icgo <door>``.
     """
 
     config_name: str

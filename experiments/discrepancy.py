@@ -20,7 +20,8 @@ from icgo.core.devices import CacheSetting
 from icgo.discrepancy.config import WorkflowConfig
 from icgo.studies.discrepancy.job import ENTRY_KEYS
 
-register("discrepancy", WorkflowConfig, tuple(k for k in ENTRY_KEYS if k != "hydra"), CacheSetting)  # conf/discrepancy.yaml's schema
+# conf/discrepancy.yaml's schema
+register("discrepancy", WorkflowConfig, tuple(k for k in ENTRY_KEYS if k != "hydra"), CacheSetting)
 
 
 @hydra.main(version_base="1.3", config_path=str(CONF_DIR), config_name="discrepancy")

@@ -219,7 +219,8 @@ def select_condition(frame, condition: int):
 
 
 def load_worlds(run):
-    """(the :class:`icgo.studies.icgo_relm.worlds.study.World` s, description) of ``run.worlds`` data seeds from ``dataset.seed``."""
+    """(the :class:`icgo.studies.icgo_relm.worlds.study.World` s, description) of ``run.worlds`` data seeds from
+    ``dataset.seed``."""
     from icgo.studies.icgo_relm.worlds.study import World, simulate, world_seeds
 
     ds = run.dataset

@@ -44,8 +44,9 @@ class Scored(NamedTuple):
 def refit_all(thetas, prep: Prepared, lam, hidden):
     """Output weights beta (S, R, L) refitted on all training rows of each (strategy, repeat) (eq. 9; row blocks
     above :data:`icgo.models.relm.ROW_BLOCK` rows, so memory does not grow with strategies x rows x hidden)."""
-    over_s = jax.vmap(lambda th, p: relm_fit.ridge_beta(th, p.data.X, p.target, lam, hidden, p.train), in_axes=(0, None))
-    # lax.map over repeats for bitwise batch-size independence (see icgo_relm_prepare.prepare).
+    over_s = jax.vmap(lambda th, p: relm_fit.ridge_beta(th, p.data.X, p.target, lam, hidden, p.train),
+                      in_axes=(0, None))
+    # lax.map over repeats for bitwise batch-size independence (see icgo.studies.icgo_relm.prepare.prepare).
     return jnp.swapaxes(jax.lax.map(lambda tp: over_s(*tp), (jnp.swapaxes(thetas, 0, 1), prep)), 0, 1)
 
 
