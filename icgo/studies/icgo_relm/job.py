@@ -70,11 +70,10 @@ def compute(run, scfg, timings: dict) -> Computed:
                                    target=target, timings=timings, jax_cache_dir=run.jax_cache_dir)
         return Computed(result, desc, frame, meta)
     from icgo.core.execution import is_accelerator
-    from icgo.studies.icgo_relm.progress import make_progress
     from icgo.studies.common.run_log import to_log_files
-    from icgo.studies.icgo_relm.progress import announce
-    from icgo.studies.icgo_relm.worlds.study import run_worlds
+    from icgo.studies.icgo_relm.progress import announce, make_progress
     from icgo.studies.icgo_relm.worlds.stats import power_note
+    from icgo.studies.icgo_relm.worlds.study import run_worlds
 
     worlds, desc = load_worlds(run)
     timings["load_data_s"] = time.perf_counter() - t1
